@@ -1,0 +1,133 @@
+"""TOML helpers shared by every configuration object (geometry, washout, calibration).
+
+Reading uses the standard library's :mod:`tomllib`; writing uses ``tomli_w``.
+Every failure becomes a :class:`~motionbase.errors.ConfigError` whose message
+names the file, the field and the fix.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Iterable, Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from motionbase.errors import ConfigError
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning a missing file or a syntax error into ConfigError."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: file not found (check the path)") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{p}: is a directory, expected a .toml file") from None
+    except PermissionError:
+        raise ConfigError(f"{p}: permission denied (check the file's permissions)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a text TOML file") from None
+
+
+def write_toml(path: str | Path, data: Mapping[str, Any]) -> None:
+    """Write plain data (numbers, strings, lists, tables; numpy values allowed) to TOML."""
+    p = Path(path)
+    try:
+        with p.open("wb") as fh:
+            tomli_w.dump(_plain(data), fh)
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
+
+
+def preset_path(kind: str, name: str) -> Path:
+    """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
+    base = resources.files("motionbase") / "presets"
+    candidate = Path(str(base / f"{kind}_{name}.toml"))
+    if not candidate.is_file():
+        known = sorted(
+            q.name[len(kind) + 1 : -5]
+            for q in Path(str(base)).glob(f"{kind}_*.toml")
+        )
+        raise ConfigError(
+            f"unknown {kind} preset {name!r}: choose one of {', '.join(known) or '(none)'} "
+            "or give a path to a .toml file"
+        )
+    return candidate
+
+
+def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
+    """A preset name (``ceart``) or a path to a TOML file (``my.toml``)."""
+    s = str(name_or_path)
+    if s.endswith(".toml") or "/" in s or Path(s).is_file():
+        return Path(s)
+    return preset_path(kind, s)
+
+
+def check_keys(source: str, table: Mapping[str, Any], allowed: Iterable[str],
+               required: Iterable[str] = ()) -> None:
+    """Reject unknown keys and report missing required ones, by name."""
+    allowed = set(allowed)
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ConfigError(
+            f"{source}: unknown field {unknown[0]!r} (known fields: {', '.join(sorted(allowed))})"
+        )
+    missing = [k for k in required if k not in table]
+    if missing:
+        raise ConfigError(f"{source}: missing field {missing[0]!r} (add it)")
+
+
+def as_float(source: str, name: str, value: Any, *, min_value: float | None = None,
+             strict_min: bool = False, unit: str = "") -> float:
+    """Validate a finite scalar, optionally bounded below."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ConfigError(f"{source}: field {name!r}: expected a number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ConfigError(f"{source}: field {name!r}: must be finite, got {v}")
+    if min_value is not None:
+        bad = v <= min_value if strict_min else v < min_value
+        if bad:
+            op = ">" if strict_min else ">="
+            raise ConfigError(
+                f"{source}: field {name!r}: must be {op} {min_value:g}{unit and ' ' + unit}, "
+                f"got {v:g} (fix the value)"
+            )
+    return v
+
+
+def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
+    """Validate a list of exactly ``length`` finite numbers."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{source}: field {name!r}: expected {length} numbers, got {value!r}") from None
+    if arr.ndim == 0:
+        arr = np.full(length, float(arr))
+    if arr.shape != (length,):
+        raise ConfigError(
+            f"{source}: field {name!r}: expected {length} numbers, got {arr.size} (fix the list length)"
+        )
+    if not np.isfinite(arr).all():
+        raise ConfigError(f"{source}: field {name!r}: every value must be finite")
+    return arr
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        return [_plain(v) for v in obj.tolist()]
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj

@@ -1,0 +1,57 @@
+"""Plain value objects that cross module boundaries."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _vec3(value: object) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(3)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class AircraftState:
+    """One sample of aircraft motion at the pilot, in SI units and body axes.
+
+    Parameters
+    ----------
+    t : float
+        Time of the sample, s, in the source's clock (simulation time for
+        JSBSim and replays).
+    specific_force : array_like, shape (3,)
+        Specific force f = a - g at the pilot, m/s^2, body axes FRD
+        (x forward, y right, z down). Level unaccelerated flight reads
+        ``(0, 0, -9.80665)``.
+    angular_velocity : array_like, shape (3,)
+        Body angular rates (p, q, r), rad/s, body axes FRD.
+    attitude : array_like, shape (3,)
+        Euler angles (roll, pitch, yaw), rad, Z-Y-X convention.
+    angular_acceleration : array_like, shape (3,), optional
+        Body angular accelerations, rad/s^2, or None when the source does not
+        give them.
+    """
+
+    t: float
+    specific_force: np.ndarray
+    angular_velocity: np.ndarray
+    attitude: np.ndarray = field(default_factory=lambda: _vec3((0.0, 0.0, 0.0)))
+    angular_acceleration: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t", float(self.t))
+        object.__setattr__(self, "specific_force", _vec3(self.specific_force))
+        object.__setattr__(self, "angular_velocity", _vec3(self.angular_velocity))
+        object.__setattr__(self, "attitude", _vec3(self.attitude))
+        if self.angular_acceleration is not None:
+            object.__setattr__(self, "angular_acceleration", _vec3(self.angular_acceleration))
+
+    def is_finite(self) -> bool:
+        """True when every number in the sample is finite."""
+        parts = [self.specific_force, self.angular_velocity, self.attitude]
+        if self.angular_acceleration is not None:
+            parts.append(self.angular_acceleration)
+        return bool(np.isfinite(self.t) and all(np.isfinite(p).all() for p in parts))

@@ -1,0 +1,1 @@
+"""Motion cueing: the classical washout filter (Reid & Nahon)."""
