@@ -15,7 +15,9 @@ from motionbase import __version__
 from motionbase.errors import MotionbaseError
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
-_Command = tuple[str, str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]
+_Command = tuple[
+    str, str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]
+]
 COMMANDS: list[_Command] = []
 
 
@@ -66,6 +68,88 @@ def main(argv: Sequence[str] | None = None) -> int:
 # --- subcommands -----------------------------------------------------------------
 # One block per subcommand: an ``_args_<name>`` function adding its arguments and a
 # ``run`` function decorated with @command that only calls into the library.
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def _print_result(result) -> int:
+    print(result.summary_text())
+    return 1 if result.failed else 0
+
+
+def _args_fly(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "script",
+        nargs="?",
+        default="c1723",
+        help="a JSBSim script shipped with jsbsim (e.g. c1723) or a path (default c1723)",
+    )
+    p.add_argument(
+        "--platform", help="geometry preset or TOML path (default ceart; udesc with --planar)"
+    )
+    p.add_argument("--washout", help="washout preset (default, gentle) or TOML path")
+    p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot instead")
+    p.add_argument("--realtime", action="store_true", help="pace the flight to wall-clock time")
+    p.add_argument(
+        "--duration", type=_positive_float, metavar="S", help="stop after S simulated seconds"
+    )
+    p.add_argument("--out", metavar="FILE.mcap", help="log file (default recordings/<script>.mcap)")
+
+
+@command(
+    "fly", "fly a JSBSim script through the washout and the platform, logged to MCAP", _args_fly
+)
+def run_fly(args: argparse.Namespace) -> int:
+    from motionbase import app
+
+    return _print_result(
+        app.fly(
+            args.script,
+            platform=args.platform,
+            washout=args.washout,
+            planar=args.planar,
+            realtime=args.realtime,
+            duration_s=args.duration,
+            out=args.out,
+        )
+    )
+
+
+def _args_replay(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recording", metavar="IN.mcap", help="a recording made by motionbase")
+    p.add_argument("--out", metavar="OUT.mcap", help="write the replay's log here")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="compare every output with the recording; exit 1 when they differ",
+    )
+    p.add_argument("--platform", help="override the recorded geometry (preset or TOML path)")
+    p.add_argument("--washout", help="override the recorded washout parameters")
+    p.add_argument("--planar", action="store_true", default=None, help="override: drive the 3-RRR")
+
+
+@command("replay", "re-run the pipeline on a recording's aircraft states", _args_replay)
+def run_replay(args: argparse.Namespace) -> int:
+    from motionbase import app
+
+    return _print_result(
+        app.replay(
+            args.recording,
+            out=args.out,
+            check=args.check,
+            platform=args.platform,
+            washout=args.washout,
+            planar=args.planar,
+        )
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

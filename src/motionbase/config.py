@@ -52,10 +52,7 @@ def preset_path(kind: str, name: str) -> Path:
     base = resources.files("motionbase") / "presets"
     candidate = Path(str(base / f"{kind}_{name}.toml"))
     if not candidate.is_file():
-        known = sorted(
-            q.name[len(kind) + 1 : -5]
-            for q in Path(str(base)).glob(f"{kind}_*.toml")
-        )
+        known = sorted(q.name[len(kind) + 1 : -5] for q in Path(str(base)).glob(f"{kind}_*.toml"))
         raise ConfigError(
             f"unknown {kind} preset {name!r}: choose one of {', '.join(known) or '(none)'} "
             "or give a path to a .toml file"
@@ -71,8 +68,9 @@ def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
     return preset_path(kind, s)
 
 
-def check_keys(source: str, table: Mapping[str, Any], allowed: Iterable[str],
-               required: Iterable[str] = ()) -> None:
+def check_keys(
+    source: str, table: Mapping[str, Any], allowed: Iterable[str], required: Iterable[str] = ()
+) -> None:
     """Reject unknown keys and report missing required ones, by name."""
     allowed = set(allowed)
     unknown = sorted(set(table) - allowed)
@@ -85,8 +83,15 @@ def check_keys(source: str, table: Mapping[str, Any], allowed: Iterable[str],
         raise ConfigError(f"{source}: missing field {missing[0]!r} (add it)")
 
 
-def as_float(source: str, name: str, value: Any, *, min_value: float | None = None,
-             strict_min: bool = False, unit: str = "") -> float:
+def as_float(
+    source: str,
+    name: str,
+    value: Any,
+    *,
+    min_value: float | None = None,
+    strict_min: bool = False,
+    unit: str = "",
+) -> float:
     """Validate a finite scalar, optionally bounded below."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ConfigError(f"{source}: field {name!r}: expected a number, got {value!r}")
@@ -109,12 +114,15 @@ def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ConfigError(f"{source}: field {name!r}: expected {length} numbers, got {value!r}") from None
+        raise ConfigError(
+            f"{source}: field {name!r}: expected {length} numbers, got {value!r}"
+        ) from None
     if arr.ndim == 0:
         arr = np.full(length, float(arr))
     if arr.shape != (length,):
         raise ConfigError(
-            f"{source}: field {name!r}: expected {length} numbers, got {arr.size} (fix the list length)"
+            f"{source}: field {name!r}: expected {length} numbers, got {arr.size} "
+            "(fix the list length)"
         )
     if not np.isfinite(arr).all():
         raise ConfigError(f"{source}: field {name!r}: every value must be finite")

@@ -1,0 +1,198 @@
+"""The safety stage: the last thing every actuator command passes through.
+
+Pure math, no I/O. Given the previous command and the new target crank (or servo)
+angles, :func:`limit_command` returns the next command so that
+
+* it is finite and inside the angle limits (a non-finite or out-of-limit target is
+  replaced by the last safe command: the *whole* vector is held, never one leg alone);
+* the speed ``|q_k - q_{k-1}| / dt`` never exceeds ``max_speed``;
+* the acceleration ``|v_k - v_{k-1}| / dt`` never exceeds ``max_accel``;
+* it never overshoots its target: the speed toward the target is capped by the
+  speed from which the actuator can still stop in time (discrete braking curve
+  ``v^2 / (2 a) + v dt <= distance``), so a limited actuator converges to its
+  target without oscillating, and a target inside the limits keeps the actuator
+  inside them.
+
+All angles in rad, speeds in rad/s, accelerations in rad/s^2, ``dt`` in s. Arrays
+have shape ``(n,)`` for ``n`` actuators (6 for the 6-RUS, 3 for the 3-RRR).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+# Command status bits returned by limit_command.
+OK = 0
+RATE_LIMITED = 1  # speed or acceleration limit changed the command
+UNSAFE_TARGET = 2  # target was non-finite or outside the angle limits: held instead
+
+
+@dataclass(frozen=True)
+class ActuatorLimits:
+    """Per-actuator limits.
+
+    Parameters
+    ----------
+    lower, upper : ndarray, shape (n,)
+        Angle limits, rad.
+    max_speed : ndarray, shape (n,)
+        Speed limit, rad/s (> 0).
+    max_accel : ndarray, shape (n,)
+        Acceleration limit, rad/s^2 (> 0).
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    max_speed: np.ndarray
+    max_accel: np.ndarray
+
+    @classmethod
+    def broadcast(cls, n: int, lower, upper, max_speed, max_accel) -> ActuatorLimits:
+        """Build limits for ``n`` actuators from scalars or arrays."""
+
+        def arr(x):
+            a = np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), (n,)))
+            a.setflags(write=False)
+            return a
+
+        return cls(arr(lower), arr(upper), arr(max_speed), arr(max_accel))
+
+
+@numba.njit(cache=True)
+def _limit_kernel(q_prev, v_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
+    n = q_prev.shape[0]
+    status = 0
+    # 1. The target must be finite and inside the limits, or the whole vector is held.
+    for i in range(n):
+        x = target[i]
+        if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
+            status = 2
+    for i in range(n):
+        tgt = q_prev[i] if status == 2 else target[i]
+        e = tgt - q_prev[i]
+        dist = abs(e)
+        a = amax[i]
+        # speed from which the actuator can still stop within `dist` (discrete braking)
+        v_brake = a * (-dt + np.sqrt(dt * dt + 2.0 * dist / a))
+        v_des = min(vmax[i], v_brake, dist / dt)
+        if e < 0.0:
+            v_des = -v_des
+        dv = a * dt
+        v = min(max(v_des, v_prev[i] - dv), v_prev[i] + dv)
+        v = min(max(v, -vmax[i]), vmax[i])
+        # land exactly on the target when the full step is allowed
+        q = tgt if v == e / dt else q_prev[i] + v * dt
+        # safety net: never outside the limits (a no-op when the target is inside them)
+        if q > upper[i]:
+            q = upper[i]
+        elif q < lower[i]:
+            q = lower[i]
+        v = (q - q_prev[i]) / dt
+        if status != 2 and q != tgt:
+            status = max(status, 1)
+        q_out[i] = q
+        v_out[i] = v
+    return status
+
+
+def limit_command(
+    q_prev: np.ndarray,
+    v_prev: np.ndarray,
+    target: np.ndarray,
+    dt: float,
+    limits: ActuatorLimits,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Next safe actuator command toward ``target``.
+
+    Parameters
+    ----------
+    q_prev : ndarray, shape (n,)
+        Previous command, rad (must itself be safe).
+    v_prev : ndarray, shape (n,)
+        Previous command speed, rad/s.
+    target : ndarray, shape (n,)
+        Wanted command, rad; may contain NaN or out-of-limit values.
+    dt : float
+        Time step, s (> 0).
+    limits : ActuatorLimits
+
+    Returns
+    -------
+    q : ndarray, shape (n,)
+        The command to send, rad.
+    v : ndarray, shape (n,)
+        Its speed ``(q - q_prev) / dt``, rad/s.
+    status : int
+        ``OK``, ``RATE_LIMITED`` or ``UNSAFE_TARGET`` (bit values).
+    """
+    q = np.empty_like(q_prev)
+    v = np.empty_like(q_prev)
+    status = _limit_kernel(
+        q_prev,
+        v_prev,
+        np.asarray(target, dtype=float),
+        float(dt),
+        limits.lower,
+        limits.upper,
+        limits.max_speed,
+        limits.max_accel,
+        q,
+        v,
+    )
+    return q, v, int(status)
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """Bounds beyond which an aircraft sample is absurd and rejected.
+
+    Parameters
+    ----------
+    max_specific_force : float
+        m/s^2; default 150 (about 15 g).
+    max_angular_velocity : float
+        rad/s; default 20 (about 1150 deg/s).
+    max_attitude : float
+        rad, on each Euler angle; default 10 (any wrapped angle is below 2 pi).
+    """
+
+    max_specific_force: float = 150.0
+    max_angular_velocity: float = 20.0
+    max_attitude: float = 10.0
+
+
+def input_problem(
+    t: float,
+    specific_force: np.ndarray,
+    angular_velocity: np.ndarray,
+    attitude: np.ndarray,
+    last_t: float | None,
+    limits: InputLimits,
+) -> str | None:
+    """Why an aircraft sample must be rejected, or None when it is usable."""
+    if not np.isfinite(t):
+        return "time is not finite"
+    if last_t is not None and t <= last_t:
+        return "time did not advance"
+    for name, vec, bound in (
+        ("specific force", specific_force, limits.max_specific_force),
+        ("angular velocity", angular_velocity, limits.max_angular_velocity),
+        ("attitude", attitude, limits.max_attitude),
+    ):
+        if not np.isfinite(vec).all():
+            return f"{name} is not finite"
+        if np.abs(vec).max() > bound:
+            return f"{name} beyond {bound:g}"
+    return None
+
+
+def smoothstep(x: float) -> float:
+    """C1 ramp from 0 (x <= 0) to 1 (x >= 1): 3x^2 - 2x^3."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    return x * x * (3.0 - 2.0 * x)
