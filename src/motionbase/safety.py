@@ -8,8 +8,8 @@ angles, :func:`limit_command` returns the next command so that
 * the speed ``|q_k - q_{k-1}| / dt`` never exceeds ``max_speed``;
 * the acceleration ``|v_k - v_{k-1}| / dt`` never exceeds ``max_accel``;
 * it never overshoots its target: the speed toward the target is capped by the
-  speed from which the actuator can still stop in time (discrete braking curve
-  ``v^2 / (2 a) + v dt <= distance``), so a limited actuator converges to its
+  speed from which the actuator can still stop in time (the exact discrete
+  braking curve), so a limited actuator converges to its
   target without oscillating, and a target inside the limits keeps the actuator
   inside them.
 
@@ -75,13 +75,16 @@ def _limit_kernel(q_prev, v_prev, target, dt, lower, upper, vmax, amax, q_out, v
         e = tgt - q_prev[i]
         dist = abs(e)
         a = amax[i]
-        # speed from which the actuator can still stop within `dist` (discrete braking)
-        v_brake = a * (-dt + np.sqrt(dt * dt + 2.0 * dist / a))
+        # Largest speed from which the actuator can still stop within `dist` when
+        # braking by u = a dt per tick: from v in [n u, (n + 1) u) it covers
+        # d(v) = dt ((n + 1) v - u n (n + 1) / 2) before standing still.
+        u = a * dt
+        n = np.floor((-1.0 + np.sqrt(1.0 + 8.0 * dist / (dt * u))) / 2.0)
+        v_brake = (dist / dt + u * n * (n + 1.0) / 2.0) / (n + 1.0)
         v_des = min(vmax[i], v_brake, dist / dt)
         if e < 0.0:
             v_des = -v_des
-        dv = a * dt
-        v = min(max(v_des, v_prev[i] - dv), v_prev[i] + dv)
+        v = min(max(v_des, v_prev[i] - u), v_prev[i] + u)
         v = min(max(v, -vmax[i]), vmax[i])
         # land exactly on the target when the full step is allowed
         q = tgt if v == e / dt else q_prev[i] + v * dt
