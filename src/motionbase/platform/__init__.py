@@ -1,1 +1,24 @@
 """Kinematics of the motion platforms: the 6-RUS rotary platform and the planar 3-RRR robot."""
+
+from motionbase.platform.rus6 import JacobianResult, JointPoints, Rus6, rotation_matrix
+from motionbase.platform.rus6_geometry import Rus6Geometry
+from motionbase.platform.rus6_workspace import (
+    AxisReach,
+    WorkspaceSlices,
+    reachability_grid,
+    single_axis_envelope,
+    workspace_slices,
+)
+
+__all__ = [
+    "AxisReach",
+    "JacobianResult",
+    "JointPoints",
+    "Rus6",
+    "Rus6Geometry",
+    "WorkspaceSlices",
+    "reachability_grid",
+    "rotation_matrix",
+    "single_axis_envelope",
+    "workspace_slices",
+]

@@ -1,0 +1,396 @@
+"""Compiled (numba) kernels of the 6-RUS kinematics. Internal: use :class:`Rus6`.
+
+All kernels take the geometry packed into one array ``G`` of shape (6, NG) (see
+:func:`pack_geometry`) and work on rows of poses ``[x, y, z, roll, pitch, yaw]``.
+They compile lazily on first call and are cached on disk (``cache=True``). No fastmath:
+NaN must propagate and comparisons with NaN must stay false.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# Columns of the packed geometry array.
+AX, AY, AZ, CX, CY, PX, PY, PZ, RC, RR, LO, HI, OX, OY, OZ = range(15)
+NG = 16
+
+
+def pack_geometry(pivots, cdir, joints_local, origin, crank, rod, lo, hi) -> np.ndarray:
+    """Pack the per-leg geometry into a contiguous (6, 16) float64 array."""
+    g = np.zeros((6, NG))
+    g[:, AX : AZ + 1] = pivots
+    g[:, CX] = cdir[:, 0]
+    g[:, CY] = cdir[:, 1]
+    g[:, PX : PZ + 1] = joints_local
+    g[:, RC] = crank
+    g[:, RR] = rod
+    g[:, LO] = lo
+    g[:, HI] = hi
+    g[:, OX : OZ + 1] = origin
+    return np.ascontiguousarray(g)
+
+
+@njit(cache=True, nogil=True)
+def _rotation(roll, pitch, yaw, R):
+    """R = Rz(yaw) Ry(pitch) Rx(roll) into the 3x3 array R."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    R[0, 0] = cy * cp
+    R[0, 1] = cy * sp * sr - sy * cr
+    R[0, 2] = cy * sp * cr + sy * sr
+    R[1, 0] = sy * cp
+    R[1, 1] = sy * sp * sr + cy * cr
+    R[1, 2] = sy * sp * cr - cy * sr
+    R[2, 0] = -sp
+    R[2, 1] = cp * sr
+    R[2, 2] = cp * cr
+
+
+@njit(cache=True, nogil=True)
+def _inverse_row(p, G, out):
+    """Closed-form inverse kinematics of one pose (thesis eq. 8.57) into ``out`` (6,).
+
+    For leg i with I = platform joint - crank pivot (base axes, m):
+        u = 2 r (I . c)           (in-plane horizontal component, c = crank direction at 0)
+        v = 2 r (I . up)          (vertical component, up = -z)
+        w = R^2 - |I|^2 - r^2     (eq. 8.39)
+        q = sqrt(u^2 + v^2 - w^2) (eq. 8.46; negative radicand: the leg cannot close)
+    The closure u cos(theta) + v sin(theta) = -w gives theta = atan2(v, u) - atan2(q, -w)
+    (eq. 8.57 written with atan2), evaluated as a single atan2 of the angle difference.
+    Returns 0 if every leg closes, 1 if not (then the whole row is NaN).
+    """
+    x, y, z = p[0], p[1], p[2]
+    cr, sr = math.cos(p[3]), math.sin(p[3])
+    cp, sp = math.cos(p[4]), math.sin(p[4])
+    cy, sy = math.cos(p[5]), math.sin(p[5])
+    r00 = cy * cp
+    r01 = cy * sp * sr - sy * cr
+    r02 = cy * sp * cr + sy * sr
+    r10 = sy * cp
+    r11 = sy * sp * sr + cy * cr
+    r12 = sy * sp * cr - cy * sr
+    r20 = -sp
+    r21 = cp * sr
+    r22 = cp * cr
+    bad = False
+    for i in range(6):
+        px, py, pz = G[i, PX], G[i, PY], G[i, PZ]
+        ix = G[i, OX] + x + r00 * px + r01 * py + r02 * pz - G[i, AX]
+        iy = G[i, OY] + y + r10 * px + r11 * py + r12 * pz - G[i, AY]
+        iz = G[i, OZ] + z + r20 * px + r21 * py + r22 * pz - G[i, AZ]
+        rc = G[i, RC]
+        rr = G[i, RR]
+        u = 2.0 * rc * (ix * G[i, CX] + iy * G[i, CY])
+        v = -2.0 * rc * iz
+        w = rr * rr - (ix * ix + iy * iy + iz * iz) - rc * rc
+        disc = u * u + v * v - w * w
+        if not disc >= 0.0:  # also catches NaN
+            bad = True
+            break
+        q = math.sqrt(disc)
+        out[i] = math.atan2(-v * w - u * q, -u * w + v * q)
+    if bad:
+        for i in range(6):
+            out[i] = np.nan
+        return 1
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _within(out, G):
+    for i in range(6):
+        if not (G[i, LO] <= out[i] <= G[i, HI]):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def inverse_batch(poses, G, out):
+    """Crank angles (n, 6) of poses (n, 6); NaN rows where a leg cannot close."""
+    for k in range(poses.shape[0]):
+        _inverse_row(poses[k], G, out[k])
+
+
+@njit(cache=True, nogil=True)
+def reachable_batch(poses, G, out):
+    """out[k] = every leg closes and every crank is within its limits."""
+    tmp = np.empty(6)
+    for k in range(poses.shape[0]):
+        out[k] = _inverse_row(poses[k], G, tmp) == 0 and _within(tmp, G)
+
+
+@njit(cache=True, nogil=True)
+def _ok(p, G, tmp):
+    return _inverse_row(p, G, tmp) == 0 and _within(tmp, G)
+
+
+@njit(cache=True, nogil=True)
+def _wrap(a):
+    """Wrap an angle to [-pi, pi)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True, nogil=True)
+def _bisect_scale(base, delta, G, tmp, trial, n_iter):
+    """Largest s in [0, 1] (to 2^-n_iter) with base + s*delta reachable, given s=0 is.
+
+    Returns s; the pose ``base + s*delta`` was tested reachable with this very code.
+    """
+    for j in range(6):
+        trial[j] = base[j] + delta[j]
+    if _ok(trial, G, tmp):
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(n_iter):
+        mid = 0.5 * (lo + hi)
+        for j in range(6):
+            trial[j] = base[j] + mid * delta[j]
+        if _ok(trial, G, tmp):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _clamp_row(p, G, out):
+    """Priority-aware clamp of one pose into ``out``; returns True if out != p.
+
+    1. Non-finite input -> neutral pose.
+    2. Reachable as given -> unchanged.
+    3. Euler angles wrapped to [-pi, pi) (same rotation); reachable -> that.
+    4. If the rotation alone (zero translation) is reachable: keep the rotation and scale the
+       translation toward zero (largest reachable scale, by bisection).
+    5. Otherwise: zero translation and scale the rotation toward zero.
+    The result was tested reachable (legs close, cranks within limits) by the same code
+    ``reachable`` uses, so it is reachable bit for bit.
+    """
+    tmp = np.empty(6)
+    trial = np.empty(6)
+    base = np.zeros(6)
+    delta = np.zeros(6)
+    finite = True
+    for j in range(6):
+        if not math.isfinite(p[j]):
+            finite = False
+    if not finite:
+        for j in range(6):
+            out[j] = 0.0
+        return True
+    if _ok(p, G, tmp):
+        for j in range(6):
+            out[j] = p[j]
+        return False
+    for j in range(3):
+        out[j] = p[j]
+        out[3 + j] = _wrap(p[3 + j])
+    if _ok(out, G, tmp):
+        return True
+    # rotation only, at zero translation
+    for j in range(3):
+        base[j] = 0.0
+        base[3 + j] = out[3 + j]
+    if _ok(base, G, tmp):
+        for j in range(3):
+            delta[j] = out[j]
+            delta[3 + j] = 0.0
+        s = _bisect_scale(base, delta, G, tmp, trial, 52)
+    else:
+        for j in range(6):
+            delta[j] = base[j]
+            base[j] = 0.0
+        s = _bisect_scale(base, delta, G, tmp, trial, 52)
+    for j in range(6):
+        out[j] = base[j] + s * delta[j]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def clamp_batch(poses, G, out, flags):
+    for k in range(poses.shape[0]):
+        flags[k] = _clamp_row(poses[k], G, out[k])
+
+
+@njit(cache=True, nogil=True)
+def _constraint_jacobian(p, theta, G, R, jx, jq, resid, omega=False):
+    """Leg-closure constraints g_i = |P_i - B_i|^2 - R_i^2 and their derivatives.
+
+    jx[i, :] = dg_i/d(pose rate): columns 3..5 per unit Euler-angle rate (omega=False) or per
+    unit angular velocity in base axes (omega=True); jq[i] = dg_i/dtheta_i; resid[i] = g_i (m^2).
+    """
+    _rotation(p[3], p[4], p[5], R)
+    cp, sp = math.cos(p[4]), math.sin(p[4])
+    cy, sy = math.cos(p[5]), math.sin(p[5])
+    # angular velocity (base axes) per unit Euler rate: roll -> Rz Ry ex, pitch -> Rz ey, yaw -> ez
+    a0x, a0y, a0z = cy * cp, sy * cp, -sp
+    a1x, a1y, a1z = -sy, cy, 0.0
+    for i in range(6):
+        px, py, pz = G[i, PX], G[i, PY], G[i, PZ]
+        rpx = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz
+        rpy = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz
+        rpz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
+        rc = G[i, RC]
+        ct, st = math.cos(theta[i]), math.sin(theta[i])
+        bx = G[i, AX] + rc * ct * G[i, CX]
+        by = G[i, AY] + rc * ct * G[i, CY]
+        bz = G[i, AZ] - rc * st
+        ex = G[i, OX] + p[0] + rpx - bx
+        ey = G[i, OY] + p[1] + rpy - by
+        ez = G[i, OZ] + p[2] + rpz - bz
+        resid[i] = ex * ex + ey * ey + ez * ez - G[i, RR] * G[i, RR]
+        jx[i, 0] = 2.0 * ex
+        jx[i, 1] = 2.0 * ey
+        jx[i, 2] = 2.0 * ez
+        # d(Rp)/d(angle_k) = a_k x Rp; dg = 2 e . (a_k x Rp) = 2 (Rp x e) . a_k
+        cx_ = rpy * ez - rpz * ey
+        cy_ = rpz * ex - rpx * ez
+        cz_ = rpx * ey - rpy * ex
+        if omega:
+            jx[i, 3] = 2.0 * cx_
+            jx[i, 4] = 2.0 * cy_
+        else:
+            jx[i, 3] = 2.0 * (cx_ * a0x + cy_ * a0y + cz_ * a0z)
+            jx[i, 4] = 2.0 * (cx_ * a1x + cy_ * a1y + cz_ * a1z)
+        jx[i, 5] = 2.0 * cz_
+        # dB/dtheta = r (-sin c + cos up), up = (0, 0, -1)
+        dbx = -rc * st * G[i, CX]
+        dby = -rc * st * G[i, CY]
+        dbz = -rc * ct
+        jq[i] = -2.0 * (ex * dbx + ey * dby + ez * dbz)
+
+
+@njit(cache=True, nogil=True)
+def jacobian_batch(poses, G, omega, out):
+    """d(theta)/d(pose rate) (n, 6, 6); rows of NaN where the pose is not closable.
+
+    omega=False: pose rate = [xdot, ydot, zdot, roll rate, pitch rate, yaw rate] (Euler rates).
+    omega=True: the last three are the angular velocity in base axes.
+    """
+    theta = np.empty(6)
+    R = np.empty((3, 3))
+    jx = np.empty((6, 6))
+    jq = np.empty(6)
+    res = np.empty(6)
+    for k in range(poses.shape[0]):
+        p = poses[k]
+        if _inverse_row(p, G, theta) != 0:
+            out[k, :, :] = np.nan
+            continue
+        _constraint_jacobian(p, theta, G, R, jx, jq, res, omega)
+        for i in range(6):
+            for j in range(6):
+                out[k, i, j] = -jx[i, j] / jq[i]
+
+
+@njit(cache=True, nogil=True)
+def _solve6(A, b, x):
+    """Solve A x = b (6x6) by Gaussian elimination with partial pivoting; False if singular.
+
+    Overwrites A and b.
+    """
+    n = 6
+    for c in range(n):
+        piv = c
+        best = abs(A[c, c])
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > best:
+                best = abs(A[r, c])
+                piv = r
+        if not best > 1e-300:
+            return False
+        if piv != c:
+            for j in range(n):
+                A[c, j], A[piv, j] = A[piv, j], A[c, j]
+            b[c], b[piv] = b[piv], b[c]
+        for r in range(c + 1, n):
+            f = A[r, c] / A[c, c]
+            if f != 0.0:
+                for j in range(c, n):
+                    A[r, j] -= f * A[c, j]
+                b[r] -= f * b[c]
+    for r in range(n - 1, -1, -1):
+        s = b[r]
+        for j in range(r + 1, n):
+            s -= A[r, j] * x[j]
+        x[r] = s / A[r, r]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _residual_norm(p, theta, G, R, jx, jq, res):
+    _constraint_jacobian(p, theta, G, R, jx, jq, res)
+    m = 0.0
+    for i in range(6):
+        # rod length error in metres: g / (|e| + R) ~ g / (2 R)
+        v = abs(res[i]) / (2.0 * G[i, RR])
+        if v > m:
+            m = v
+    return m
+
+
+@njit(cache=True, nogil=True)
+def forward_batch(angles, guesses, G, tol, max_iter, out, iters):
+    """Forward kinematics by damped Newton on the leg-closure constraints.
+
+    Converged when the Newton step is below ``tol`` (m, rad) and every rod length error is
+    below ``tol`` (m). Rows that do not converge (or have non-finite input) become NaN;
+    ``iters[k]`` is the iteration count (-1 for a failure).
+    """
+    R = np.empty((3, 3))
+    jx = np.empty((6, 6))
+    jq = np.empty(6)
+    res = np.empty(6)
+    rhs = np.empty(6)
+    dx = np.empty(6)
+    x = np.empty(6)
+    trial = np.empty(6)
+    for k in range(angles.shape[0]):
+        th = angles[k]
+        ok = True
+        for j in range(6):
+            x[j] = guesses[k, j]
+            if not (math.isfinite(th[j]) and math.isfinite(x[j])):
+                ok = False
+        converged = False
+        n = 0
+        if ok:
+            err = _residual_norm(x, th, G, R, jx, jq, res)
+            while n < max_iter:
+                n += 1
+                for i in range(6):
+                    rhs[i] = -res[i]
+                if not _solve6(jx, rhs, dx):
+                    break
+                step = 0.0
+                for j in range(6):
+                    if abs(dx[j]) > step:
+                        step = abs(dx[j])
+                # backtracking: accept the first step length that lowers the error
+                t = 1.0
+                for _ in range(30):
+                    for j in range(6):
+                        trial[j] = x[j] + t * dx[j]
+                    new_err = _residual_norm(trial, th, G, R, jx, jq, res)
+                    if new_err < err or new_err <= tol:
+                        break
+                    t *= 0.5
+                for j in range(6):
+                    x[j] = trial[j]
+                err = new_err
+                if not math.isfinite(err):
+                    break
+                if step * t <= tol and err <= tol:
+                    converged = True
+                    break
+        if converged:
+            for j in range(6):
+                out[k, j] = x[j]
+            iters[k] = n
+        else:
+            for j in range(6):
+                out[k, j] = np.nan
+            iters[k] = -1

@@ -1,0 +1,349 @@
+"""Kinematics of the 6-RUS rotary platform: inverse, forward, joint points, Jacobian, clamp.
+
+Conventions (DESIGN.md): a pose is ``[x, y, z, roll, pitch, yaw]``, the displacement of the
+platform frame (origin at the centroid of the platform joints) from its neutral pose, in FRD
+base axes (heave up is negative z), with Z-Y-X Euler angles: ``R = Rz(yaw) Ry(pitch) Rx(roll)``
+maps platform-frame vectors to base axes. Crank angles are 0 with the crank horizontal and grow
+as the crank tip rises toward the platform. Units: m and rad.
+
+Every method accepts one pose (shape (6,)) or a batch (shape (..., 6)) and returns matching
+leading dimensions. The heavy lifting is in compiled numba kernels (``_rus6_kernels``), compiled
+on first use and cached on disk; :meth:`Rus6.warm_up` compiles them ahead of time.
+
+Example
+-------
+>>> from motionbase.platform import Rus6, Rus6Geometry
+>>> rus6 = Rus6(Rus6Geometry.preset("ceart"))
+>>> angles = rus6.inverse([0.0, 0.0, -0.05, 0.0, 0.05, 0.0])   # 5 cm up, nose up 0.05 rad
+>>> safe, clamped = rus6.clamp([1000.0, 0, 0, 0, 0, 0])          # always reachable
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from motionbase.errors import ConfigError
+from motionbase.platform import _rus6_kernels as _k
+from motionbase.platform.rus6_geometry import Rus6Geometry
+
+__all__ = ["Rus6", "JointPoints", "JacobianResult"]
+
+_UP = np.array([0.0, 0.0, -1.0])
+
+
+class JointPoints(NamedTuple):
+    """Joint positions in base axes (m), each shape (..., 6, 3).
+
+    Attributes
+    ----------
+    pivots : crank pivots (fixed to the base).
+    crank_tips : crank tips (the U joints).
+    platform_joints : platform joints (the S joints).
+    """
+
+    pivots: np.ndarray
+    crank_tips: np.ndarray
+    platform_joints: np.ndarray
+
+
+class JacobianResult(NamedTuple):
+    """Velocity relation between pose rates and crank rates, and a singularity measure.
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (..., 6, 6)
+        ``J`` with ``theta_dot = J @ pose_rate`` (rad/s); ``J[..., i, j]`` = d(theta_i)/d(rate_j).
+        ``pose_rate = [xdot, ydot, zdot, a, b, c]`` in m/s (base axes) and rad/s, where
+        ``(a, b, c)`` are the Euler-angle rates (roll, pitch, yaw rates; the derivative of the
+        pose vector) by default, or the angular velocity in base axes with
+        ``angular="omega"``. NaN where the pose cannot be closed.
+    inverse_condition : ndarray, shape (...)
+        ``1 / cond_2(J_h)`` in [0, 1], where ``J_h`` is ``J`` with its three rotational columns
+        divided by the platform radius ``rp`` (so rotation rates count as joint speeds in m/s).
+        It tends to 0 at either kind of singularity: a crank tangent perpendicular to its rod
+        (workspace boundary, J blows up) or an uncontrollable platform motion (J loses rank).
+        NaN where the pose cannot be closed.
+    """
+
+    matrix: np.ndarray
+    inverse_condition: np.ndarray
+
+
+def _as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...]]:
+    p = np.asarray(pose, dtype=np.float64)
+    if p.ndim == 0 or p.shape[-1] != 6:
+        raise ConfigError(
+            f"{what}: expected shape (6,) or (..., 6) "
+            f"[x, y, z, roll, pitch, yaw], got shape {p.shape}"
+        )
+    lead = p.shape[:-1]
+    return np.ascontiguousarray(p.reshape(-1, 6)), lead
+
+
+class Rus6:
+    """Kinematics of one 6-RUS platform.
+
+    Parameters
+    ----------
+    geometry : Rus6Geometry
+        Dimensions and limits (SI units), e.g. ``Rus6Geometry.preset("ceart")``.
+    """
+
+    def __init__(self, geometry: Rus6Geometry) -> None:
+        if not isinstance(geometry, Rus6Geometry):
+            raise ConfigError(f"Rus6: expected a Rus6Geometry, got {type(geometry).__name__}")
+        self.geometry = geometry
+        self._pivots = geometry.pivots
+        self._cdir = geometry.crank_directions
+        self._local = geometry.platform_joints_local
+        self._origin = geometry.platform_origin
+        self._crank = np.array(geometry.crank)
+        lo, hi = np.array(geometry.angle_min), np.array(geometry.angle_max)
+        lo.flags.writeable = False
+        hi.flags.writeable = False
+        self._limits = (lo, hi)
+        self._G = _k.pack_geometry(
+            self._pivots,
+            self._cdir,
+            self._local,
+            self._origin,
+            geometry.crank,
+            geometry.rod,
+            lo,
+            hi,
+        )
+        self._park_pose: np.ndarray | None = None
+
+    def __repr__(self) -> str:
+        return f"Rus6(geometry={self.geometry.name!r})"
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def angle_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)`` crank angle limits, rad, each shape (6,) (read-only arrays)."""
+        return self._limits
+
+    @property
+    def neutral_angle(self) -> np.ndarray:
+        """Crank angles at the neutral pose, rad, shape (6,)."""
+        return self.geometry.neutral_angle
+
+    @property
+    def park_angle(self) -> np.ndarray:
+        """Crank angles of the parked platform, rad, shape (6,)."""
+        return np.array(self.geometry.park_angle)
+
+    @property
+    def park_pose(self) -> np.ndarray:
+        """The parked pose (pure heave down, FRD z > 0), shape (6,)."""
+        if self._park_pose is None:
+            z = float(np.mean(self.geometry.heave_for_angles(self.park_angle)))
+            self._park_pose = np.array([0.0, 0.0, z, 0.0, 0.0, 0.0])
+        return self._park_pose.copy()
+
+    @property
+    def max_speed(self) -> np.ndarray:
+        """Crank speed limits, rad/s, shape (6,)."""
+        return np.array(self.geometry.max_speed)
+
+    @property
+    def max_accel(self) -> np.ndarray:
+        """Crank acceleration limits, rad/s^2, shape (6,)."""
+        return np.array(self.geometry.max_accel)
+
+    # ------------------------------------------------------------------ kinematics
+    def inverse(self, pose: ArrayLike) -> np.ndarray:
+        """Crank angles of a pose by the thesis's closed form (eq. 8.57 with atan2).
+
+        Parameters
+        ----------
+        pose : array_like, shape (6,) or (..., 6)
+            ``[x, y, z, roll, pitch, yaw]`` in m and rad (FRD base axes, Z-Y-X Euler).
+
+        Returns
+        -------
+        ndarray, shape (..., 6)
+            Crank angles, rad, in (-pi, pi]. A pose whose legs cannot all close gives a row of
+            NaN (no warning, no exception). Angles are *not* limited here: use
+            :meth:`reachable` or :meth:`clamp` before commanding an actuator.
+        """
+        p = np.asarray(pose, dtype=np.float64)
+        if p.shape == (6,):
+            out = np.empty(6)
+            _k.inverse_batch(p.reshape(1, 6), self._G, out.reshape(1, 6))
+            return out
+        flat, lead = _as_poses(p)
+        out = np.empty_like(flat)
+        _k.inverse_batch(flat, self._G, out)
+        return out.reshape(lead + (6,))
+
+    def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
+        """Whether each pose closes every leg with every crank within its limits.
+
+        Returns a bool for one pose, a bool array of shape (...) for a batch. NaN/inf poses are
+        not reachable.
+        """
+        flat, lead = _as_poses(pose)
+        out = np.empty(flat.shape[0], dtype=np.bool_)
+        _k.reachable_batch(flat, self._G, out)
+        if lead == ():
+            return bool(out[0])
+        return out.reshape(lead)
+
+    def forward(
+        self,
+        angles: ArrayLike,
+        guess: ArrayLike | None = None,
+        *,
+        tol: float = 1e-10,
+        max_iter: int = 50,
+    ) -> np.ndarray:
+        """Pose from crank angles by damped Newton iteration on the leg closures.
+
+        Parameters
+        ----------
+        angles : array_like, shape (6,) or (..., 6)
+            Crank angles, rad.
+        guess : array_like, shape (6,) or (..., 6), optional
+            Starting pose(s) (broadcast against ``angles``); the neutral pose by default. Pass
+            the previous pose when tracking a moving platform.
+        tol : float
+            Convergence tolerance: Newton step below ``tol`` (m, rad) and every rod length
+            error below ``tol`` (m).
+        max_iter : int
+            Iteration limit.
+
+        Returns
+        -------
+        ndarray, shape (..., 6)
+            Poses; a row of NaN where the iteration did not converge (or the input is not
+            finite).
+        """
+        flat, lead = _as_poses(angles, "angles")
+        if guess is None:
+            g = np.zeros_like(flat)
+        else:
+            gp = np.asarray(guess, dtype=np.float64)
+            if gp.ndim == 0 or gp.shape[-1] != 6:
+                raise ConfigError(f"guess: expected shape (6,) or (..., 6), got {gp.shape}")
+            try:
+                g = np.ascontiguousarray(np.broadcast_to(gp, lead + (6,)).reshape(-1, 6))
+            except ValueError:
+                raise ConfigError(
+                    f"guess: shape {gp.shape} does not broadcast to angles' {lead + (6,)}"
+                ) from None
+        out = np.empty_like(flat)
+        iters = np.empty(flat.shape[0], dtype=np.int64)
+        _k.forward_batch(flat, g, self._G, float(tol), int(max_iter), out, iters)
+        return out.reshape(lead + (6,))
+
+    def joint_points(self, pose: ArrayLike) -> JointPoints:
+        """Crank pivots, crank tips and platform joints of a pose, in base axes.
+
+        Returns
+        -------
+        JointPoints
+            ``(pivots, crank_tips, platform_joints)``, each shape (..., 6, 3), m. NaN crank
+            tips where the pose cannot be closed (the platform joints are still the commanded
+            rigid-body positions).
+        """
+        flat, lead = _as_poses(pose)
+        theta = np.empty_like(flat)
+        _k.inverse_batch(flat, self._G, theta)
+        rot = rotation_matrix(flat[:, 3:])
+        joints = self._origin + flat[:, None, :3] + np.einsum("nij,lj->nli", rot, self._local)
+        ct, st = np.cos(theta)[..., None], np.sin(theta)[..., None]
+        tips = self._pivots + self._crank[:, None] * (ct * self._cdir + st * _UP)
+        pivots = np.broadcast_to(self._pivots, joints.shape).copy()
+        shape = lead + (6, 3)
+        return JointPoints(pivots.reshape(shape), tips.reshape(shape), joints.reshape(shape))
+
+    def jacobian(self, pose: ArrayLike, *, angular: str = "euler") -> JacobianResult:
+        """Crank-rate Jacobian ``theta_dot = J @ pose_rate`` and a singularity measure.
+
+        Parameters
+        ----------
+        pose : array_like, shape (6,) or (..., 6)
+        angular : {"euler", "omega"}
+            Rotational part of ``pose_rate``: the Euler-angle rates (roll, pitch, yaw rates;
+            default, the time derivative of the pose vector) or the angular velocity in base
+            axes (rad/s).
+
+        Returns
+        -------
+        JacobianResult
+            ``matrix`` (..., 6, 6) and ``inverse_condition`` (...); see :class:`JacobianResult`.
+        """
+        if angular not in ("euler", "omega"):
+            raise ConfigError(f"jacobian: angular must be 'euler' or 'omega', got {angular!r}")
+        flat, lead = _as_poses(pose)
+        J = np.empty((flat.shape[0], 6, 6))
+        _k.jacobian_batch(flat, self._G, angular == "omega", J)
+        inv_cond = np.full(flat.shape[0], np.nan)
+        ok = np.isfinite(J).all(axis=(1, 2))
+        if ok.any():
+            Jh = J[ok].copy()
+            Jh[:, :, 3:] /= self.geometry.rp
+            s = np.linalg.svd(Jh, compute_uv=False)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                inv_cond[ok] = np.where(s[:, 0] > 0, s[:, -1] / s[:, 0], 0.0)
+        return JacobianResult(J.reshape(lead + (6, 6)), inv_cond.reshape(lead))
+
+    def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
+        """The nearest safe pose on the way to neutral, rotation kept first.
+
+        A reachable pose is returned unchanged. Otherwise (priority-aware, never per leg):
+        Euler angles are wrapped to [-pi, pi) (the same rotation); if the rotation alone is
+        reachable the translation is scaled toward zero as little as needed (bisection to
+        machine precision), else the translation is dropped and the rotation scaled toward
+        zero. Non-finite input gives the neutral pose.
+
+        Returns
+        -------
+        pose : ndarray, shape (..., 6)
+            Always reachable (legs close, cranks within limits), never NaN.
+        clamped : bool or ndarray of bool, shape (...)
+            True where the returned pose differs from the input.
+        """
+        p = np.asarray(pose, dtype=np.float64)
+        if p.shape == (6,):
+            out = np.empty(6)
+            flags = np.empty(1, dtype=np.bool_)
+            _k.clamp_batch(p.reshape(1, 6), self._G, out.reshape(1, 6), flags)
+            return out, bool(flags[0])
+        flat, lead = _as_poses(p)
+        out = np.empty_like(flat)
+        flags = np.empty(flat.shape[0], dtype=np.bool_)
+        _k.clamp_batch(flat, self._G, out, flags)
+        return out.reshape(lead + (6,)), flags.reshape(lead)
+
+    def warm_up(self) -> None:
+        """Compile (or load from the on-disk cache) every kernel now rather than on first use."""
+        p = np.zeros((1, 6))
+        self.inverse(p)
+        self.reachable(p)
+        self.clamp(p)
+        self.jacobian(p)
+        self.forward(self.inverse(p))
+
+
+def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
+    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` for Euler angles ``(..., 3)`` -> ``(..., 3, 3)``."""
+    a = np.asarray(rpy, dtype=np.float64)
+    cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
+    cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
+    cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
+    R = np.empty(a.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cy * cp
+    R[..., 0, 1] = cy * sp * sr - sy * cr
+    R[..., 0, 2] = cy * sp * cr + sy * sr
+    R[..., 1, 0] = sy * cp
+    R[..., 1, 1] = sy * sp * sr + cy * cr
+    R[..., 1, 2] = sy * sp * cr - cy * sr
+    R[..., 2, 0] = -sp
+    R[..., 2, 1] = cp * sr
+    R[..., 2, 2] = cp * cr
+    return R

@@ -1,0 +1,454 @@
+"""Geometry of a 6-RUS rotary parallel platform, in the thesis's parameters (ch. 8).
+
+Frames and conventions (see DESIGN.md):
+
+* Base axes are FRD (x forward, y right, z down). The base origin is the centre of the crank
+  pivot plane; the platform joints sit ``neutral_height`` above it at the neutral pose, i.e. at
+  ``z = -neutral_height``.
+* Leg ``i`` (0-based ``k = i - 1``) has its crank pivot at (thesis eqs. 8.1-8.5)
+  ``A = rb (cos chi_a, sin chi_a, 0) + m (-sin chi_a, cos chi_a, 0)`` with ``m = (-1)^(i-1) d``
+  and its platform joint (eqs. 8.6-8.10) at ``C = rp (cos chi_j, sin chi_j) + n (-sin chi_j,
+  cos chi_j)`` with ``n = (-1)^(i-1) e``. Angles are in the horizontal plane, from +x toward +y.
+* ``beta`` is the direction of the crank at crank angle 0 (crank horizontal), measured from +x
+  toward +y; it is also the angle between the motor axis and the y axis (the thesis's beta).
+* A crank angle is 0 with the crank horizontal and grows as the crank tip rises toward the
+  platform: ``tip = A + r (cos(theta) c + sin(theta) up)`` with ``c = (cos beta, sin beta, 0)``
+  and ``up = (0, 0, -1)``.
+
+Everything is stored in SI units (m, rad, rad/s, rad/s^2) as tuples of floats, so the dataclass
+is hashable and ``from_dict(g.to_dict()) == g`` exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from motionbase.config import (
+    as_array,
+    as_float,
+    check_keys,
+    read_toml,
+    resolve_preset_or_path,
+    write_toml,
+)
+from motionbase.errors import ConfigError
+
+__all__ = ["Rus6Geometry", "N_LEGS"]
+
+N_LEGS = 6
+_SIGNS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # (-1)^(i-1), i = 1..6
+_PARK_MARGIN = math.radians(5.0)
+
+# Per-leg array fields that may be given in degrees in TOML as ``<name>_deg``.
+_ANGLE_ARRAYS = ("chi_a", "chi_j", "beta", "angle_min", "angle_max", "park_angle")
+_LENGTH_ARRAYS = ("crank", "rod")
+_SCALARS = ("rb", "rp", "d", "e", "neutral_height")
+_RATE_ARRAYS = {"max_speed": "deg_s", "max_accel": "deg_s2"}
+
+
+def _leg_arrays(rb, d, chi_a, rp, e, chi_j, beta):
+    ca, sa = np.cos(chi_a), np.sin(chi_a)
+    m = _SIGNS * d
+    pivots = np.stack([rb * ca - m * sa, rb * sa + m * ca, np.zeros(N_LEGS)], axis=-1)
+    cj, sj = np.cos(chi_j), np.sin(chi_j)
+    n = _SIGNS * e
+    joints_xy = np.stack([rp * cj - n * sj, rp * sj + n * cj], axis=-1)
+    cdir = np.stack([np.cos(beta), np.sin(beta), np.zeros(N_LEGS)], axis=-1)
+    return pivots, joints_xy, cdir
+
+
+@dataclass(frozen=True)
+class Rus6Geometry:
+    """Dimensions and actuator limits of a 6-RUS rotary platform (SI units).
+
+    Parameters
+    ----------
+    rb : float
+        Base radius: distance from the base centre to the centre of each crank pivot pair, m.
+    d : float
+        Half spacing of a crank pivot pair, m (thesis eq. 8.3).
+    rp : float
+        Platform radius: distance from the platform centre to each joint pair's centre, m.
+    e : float
+        Half spacing of a platform joint pair, m (thesis eq. 8.8).
+    chi_a : tuple of 6 float
+        Angle of each leg's pivot pair centre in the base xy plane, rad (legs of a pair repeat it).
+    chi_j : tuple of 6 float
+        Angle of each leg's platform joint pair centre, rad.
+    beta : tuple of 6 float
+        Crank direction at crank angle 0 (horizontal), rad from +x toward +y.
+    crank : tuple of 6 float
+        Crank length r_i (pivot to crank tip), m.
+    rod : tuple of 6 float
+        Rod length R_i (crank tip to platform joint), m.
+    neutral_height : float
+        Height of the platform joint plane above the crank pivot plane at the neutral pose, m.
+    angle_min, angle_max : tuple of 6 float
+        Crank angle limits, rad.
+    max_speed : tuple of 6 float
+        Crank speed limit, rad/s (default 3.0).
+    max_accel : tuple of 6 float
+        Crank acceleration limit, rad/s^2 (default 30.0).
+    park_angle : tuple of 6 float
+        Crank angle of the parked platform, rad (default ``angle_min + 5 deg``: the lowest
+        pure-heave pose with a 5-degree margin).
+    name : str
+        A label (the preset name or the file it came from).
+    """
+
+    rb: float
+    d: float
+    rp: float
+    e: float
+    chi_a: tuple[float, ...]
+    chi_j: tuple[float, ...]
+    beta: tuple[float, ...]
+    crank: tuple[float, ...]
+    rod: tuple[float, ...]
+    neutral_height: float
+    angle_min: tuple[float, ...]
+    angle_max: tuple[float, ...]
+    max_speed: tuple[float, ...] = (3.0,) * N_LEGS
+    max_accel: tuple[float, ...] = (30.0,) * N_LEGS
+    park_angle: tuple[float, ...] | None = None
+    name: str = "custom"
+
+    # ------------------------------------------------------------------ construction
+    def __post_init__(self) -> None:
+        src = f"rus6 geometry {self.name!r}"
+        for f in _SCALARS:
+            strict = f not in ("d", "e")
+            v = as_float(src, f, getattr(self, f), min_value=0.0, strict_min=strict, unit="m")
+            object.__setattr__(self, f, v)
+        arrays = _ANGLE_ARRAYS + _LENGTH_ARRAYS + tuple(_RATE_ARRAYS)
+        for f in arrays:
+            val = getattr(self, f)
+            if f == "park_angle" and val is None:
+                continue
+            arr = as_array(src, f, val, N_LEGS)
+            object.__setattr__(self, f, tuple(float(x) for x in arr))
+        for f in _LENGTH_ARRAYS:
+            for i, v in enumerate(getattr(self, f)):
+                if v <= 0:
+                    raise ConfigError(
+                        f"{src}: field {f!r}: leg {i + 1} must be > 0 m, got {v:g} (fix the value)"
+                    )
+        for f, unit in (("max_speed", "rad/s"), ("max_accel", "rad/s^2")):
+            for i, v in enumerate(getattr(self, f)):
+                if v <= 0:
+                    raise ConfigError(
+                        f"{src}: field {f!r}: leg {i + 1} must be > 0 {unit}, got {v:g}"
+                    )
+        lo, hi = np.array(self.angle_min), np.array(self.angle_max)
+        for i in range(N_LEGS):
+            if not (-math.pi < lo[i] < hi[i] < math.pi):
+                raise ConfigError(
+                    f"{src}: fields 'angle_min'/'angle_max': leg {i + 1} needs "
+                    f"-180 < min < max < 180 deg, got {math.degrees(lo[i]):g} .. "
+                    f"{math.degrees(hi[i]):g} deg"
+                )
+        self._check_rods(src)
+        neutral = self.neutral_angle
+        for i in range(N_LEGS):
+            if not lo[i] <= neutral[i] <= hi[i]:
+                raise ConfigError(
+                    f"{src}: field 'neutral_height': leg {i + 1} crank angle at neutral is "
+                    f"{math.degrees(neutral[i]):.2f} deg, outside its limits "
+                    f"{math.degrees(lo[i]):g} .. {math.degrees(hi[i]):g} deg "
+                    "(fix neutral_height or the limits)"
+                )
+        if self.park_angle is None:
+            object.__setattr__(self, "park_angle", tuple(float(x) for x in lo + _PARK_MARGIN))
+        self._check_park(src)
+
+    def _check_rods(self, src: str) -> None:
+        """Each rod must bridge the gap between its crank tip circle and its neutral joint."""
+        pivots, joints, _, cdir = self._neutral_points()
+        r = np.array(self.crank)
+        for i in range(N_LEGS):
+            rel = joints[i] - pivots[i]
+            # Components of the pivot->joint vector in the crank plane (c, up) and across it.
+            a = rel @ cdir[i]
+            b = -rel[2]
+            off = rel - a * cdir[i] - np.array([0.0, 0.0, -b])
+            rho = math.hypot(a, b)
+            across = float(np.linalg.norm(off))
+            dmin = math.hypot(abs(rho - r[i]), across)
+            dmax = math.hypot(rho + r[i], across)
+            rod = self.rod[i]
+            if rod < dmin:
+                raise ConfigError(
+                    f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too short to reach its "
+                    f"platform joint at the neutral pose (needs >= {dmin:.4f} m)"
+                )
+            if rod > dmax:
+                raise ConfigError(
+                    f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too long to meet its "
+                    f"platform joint at the neutral pose (needs <= {dmax:.4f} m)"
+                )
+
+    def _check_park(self, src: str) -> None:
+        park = np.array(self.park_angle)
+        lo, hi = np.array(self.angle_min), np.array(self.angle_max)
+        for i in range(N_LEGS):
+            if not lo[i] <= park[i] <= hi[i]:
+                raise ConfigError(
+                    f"{src}: field 'park_angle': leg {i + 1} park angle "
+                    f"{math.degrees(park[i]):g} deg is outside its limits "
+                    f"{math.degrees(lo[i]):g} .. {math.degrees(hi[i]):g} deg"
+                )
+        z = self.heave_for_angles(park)
+        if not np.isfinite(z).all():
+            bad = int(np.flatnonzero(~np.isfinite(z))[0])
+            raise ConfigError(
+                f"{src}: field 'park_angle': leg {bad + 1} cannot reach any pure-heave pose at "
+                f"{math.degrees(park[bad]):g} deg (choose an angle nearer neutral)"
+            )
+        if np.ptp(z) > 1e-6:
+            raise ConfigError(
+                f"{src}: field 'park_angle': these crank angles give no pure-heave pose (legs "
+                f"disagree by {np.ptp(z) * 1e3:.3f} mm); give per-leg angles of one heave pose"
+            )
+
+    # ------------------------------------------------------------------ derived geometry
+    def _neutral_points(self):
+        pivots, joints_xy, cdir = _leg_arrays(
+            self.rb,
+            self.d,
+            np.array(self.chi_a),
+            self.rp,
+            self.e,
+            np.array(self.chi_j),
+            np.array(self.beta),
+        )
+        joints = np.concatenate([joints_xy, np.full((N_LEGS, 1), -self.neutral_height)], axis=1)
+        centroid = joints.mean(axis=0)
+        return pivots, joints, centroid, cdir
+
+    @property
+    def pivots(self) -> np.ndarray:
+        """Crank pivots ``A_i`` in base axes, m, shape (6, 3)."""
+        return self._neutral_points()[0]
+
+    @property
+    def crank_directions(self) -> np.ndarray:
+        """Unit crank direction at crank angle 0 (horizontal), base axes, shape (6, 3)."""
+        return self._neutral_points()[3]
+
+    @property
+    def platform_origin(self) -> np.ndarray:
+        """Neutral position of the platform frame origin (the joints' centroid), m, shape (3,)."""
+        return self._neutral_points()[2]
+
+    @property
+    def platform_joints_local(self) -> np.ndarray:
+        """Platform joints in the platform frame (origin at their centroid), m, shape (6, 3)."""
+        _, joints, centroid, _ = self._neutral_points()
+        return joints - centroid
+
+    @property
+    def neutral_angle(self) -> np.ndarray:
+        """Crank angles at the neutral pose, rad, shape (6,) (0 when cranks are horizontal)."""
+        return self.angles_for_heave(0.0)
+
+    def angles_for_heave(self, z: float) -> np.ndarray:
+        """Crank angles of the pure-heave pose ``[0, 0, z, 0, 0, 0]`` (z down, m), shape (6,).
+
+        The same closed form as :meth:`motionbase.platform.Rus6.inverse`, in plain numpy; NaN
+        for a leg that cannot reach.
+        """
+        pivots, joints, _, cdir = self._neutral_points()
+        rel = joints + np.array([0.0, 0.0, z]) - pivots
+        r, rod = np.array(self.crank), np.array(self.rod)
+        u = 2 * r * np.einsum("ij,ij->i", rel, cdir)
+        v = -2 * r * rel[:, 2]
+        w = rod**2 - np.einsum("ij,ij->i", rel, rel) - r**2
+        disc = u * u + v * v - w * w
+        q = np.sqrt(np.where(disc >= 0, disc, np.nan))
+        return np.arctan2(-v * w - u * q, -u * w + v * q)
+
+    def heave_for_angles(self, angles: np.ndarray) -> np.ndarray:
+        """Per leg, the heave z (m, down) at which the leg closes with its crank at ``angles``.
+
+        The root nearest the neutral pose; NaN if none. For a symmetric platform all six agree.
+        """
+        pivots, joints, _, cdir = self._neutral_points()
+        r, rod = np.array(self.crank), np.array(self.rod)
+        ang = np.asarray(angles, dtype=float)
+        tips = pivots + r[:, None] * (
+            np.cos(ang)[:, None] * cdir + np.sin(ang)[:, None] * np.array([0.0, 0.0, -1.0])
+        )
+        dxy = joints[:, :2] - tips[:, :2]
+        h2 = rod**2 - np.einsum("ij,ij->i", dxy, dxy)
+        dz = np.sqrt(np.where(h2 >= 0, h2, np.nan))
+        # joint z + heave - tip z = -dz (joint above tip)
+        return tips[:, 2] - dz - joints[:, 2]
+
+    @classmethod
+    def neutral_height_for_angle(
+        cls, *, rb, d, rp, e, chi_a, chi_j, beta, crank, rod, angle: float
+    ) -> np.ndarray:
+        """Per leg, the neutral height (m) that puts the crank at ``angle`` (rad) at neutral."""
+        pivots, joints_xy, cdir = _leg_arrays(
+            rb,
+            d,
+            np.asarray(chi_a, float),
+            rp,
+            e,
+            np.asarray(chi_j, float),
+            np.asarray(beta, float),
+        )
+        r = np.broadcast_to(np.asarray(crank, float), (N_LEGS,))
+        rod = np.broadcast_to(np.asarray(rod, float), (N_LEGS,))
+        tips = pivots + r[:, None] * (
+            math.cos(angle) * cdir + math.sin(angle) * np.array([0.0, 0.0, -1.0])
+        )
+        dxy = joints_xy - tips[:, :2]
+        h2 = rod**2 - np.einsum("ij,ij->i", dxy, dxy)
+        return -tips[:, 2] + np.sqrt(np.where(h2 >= 0, h2, np.nan))
+
+    # ------------------------------------------------------------------ (de)serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """Plain SI data (floats and lists; no degrees), ``from_dict`` rebuilds it exactly."""
+        out: dict[str, Any] = {"name": self.name}
+        for f in fields(self):
+            if f.name == "name":
+                continue
+            v = getattr(self, f.name)
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "rus6 geometry") -> Rus6Geometry:
+        """Build from plain data: SI fields, or angle fields in degrees named ``<field>_deg``.
+
+        Accepted keys: ``rb, d, rp, e, crank, rod, neutral_height`` (m);
+        ``chi_a, chi_j, beta, angle_min, angle_max, park_angle`` (rad) or the same with
+        ``_deg``; ``max_speed`` (rad/s) or ``max_speed_deg_s``; ``max_accel`` (rad/s^2) or
+        ``max_accel_deg_s2``; ``neutral_angle_deg`` instead of ``neutral_height`` (the height is
+        then derived so the cranks sit at that angle at neutral); ``name``; ``kind`` (must be
+        ``"rus6"`` if present). Per-leg fields take 6 numbers or one number for all legs.
+        """
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"{source}: expected a table of geometry fields, got {data!r}")
+        allowed = {"name", "kind", "neutral_angle_deg"} | set(_SCALARS) | set(_LENGTH_ARRAYS)
+        for f in _ANGLE_ARRAYS:
+            allowed |= {f, f + "_deg"}
+        for f, suffix in _RATE_ARRAYS.items():
+            allowed |= {f, f"{f}_{suffix}"}
+        check_keys(source, data, allowed)
+        if "kind" in data and data["kind"] != "rus6":
+            raise ConfigError(f"{source}: field 'kind': expected 'rus6', got {data['kind']!r}")
+        kw: dict[str, Any] = {}
+        name = data.get("name", Path(source).stem if source.endswith(".toml") else "custom")
+        if not isinstance(name, str):
+            raise ConfigError(f"{source}: field 'name': expected a string, got {name!r}")
+        kw["name"] = name
+        for f in _SCALARS + _LENGTH_ARRAYS:
+            if f in data:
+                kw[f] = data[f]
+        for f in _ANGLE_ARRAYS:
+            kw_val = _pick(source, data, f, f + "_deg", lambda a: np.radians(a))
+            if kw_val is not None:
+                kw[f] = kw_val
+        for f, suffix in _RATE_ARRAYS.items():
+            kw_val = _pick(source, data, f, f"{f}_{suffix}", lambda a: np.radians(a))
+            if kw_val is not None:
+                kw[f] = kw_val
+        required = (
+            "rb",
+            "d",
+            "rp",
+            "e",
+            "chi_a",
+            "chi_j",
+            "beta",
+            "crank",
+            "rod",
+            "angle_min",
+            "angle_max",
+        )
+        for f in required:
+            if f not in kw:
+                raise ConfigError(f"{source}: missing field {f!r} (add it)")
+        for f in _LENGTH_ARRAYS + _ANGLE_ARRAYS + tuple(_RATE_ARRAYS):
+            if f in kw:
+                kw[f] = as_array(source, f, kw[f], N_LEGS)
+        if "neutral_angle_deg" in data:
+            if "neutral_height" in data:
+                raise ConfigError(
+                    f"{source}: give either 'neutral_height' or 'neutral_angle_deg', not both"
+                )
+            ang = math.radians(as_float(source, "neutral_angle_deg", data["neutral_angle_deg"]))
+            geo = {
+                k: kw[k] for k in ("rb", "d", "rp", "e", "chi_a", "chi_j", "beta", "crank", "rod")
+            }
+            for k in ("rb", "d", "rp", "e"):
+                geo[k] = as_float(source, k, geo[k], min_value=0.0)
+            h = cls.neutral_height_for_angle(**geo, angle=ang)
+            if not np.isfinite(h).all():
+                raise ConfigError(
+                    f"{source}: field 'rod': too short to reach the platform with the cranks at "
+                    f"neutral_angle_deg = {math.degrees(ang):g}"
+                )
+            if np.ptp(h) > 1e-9:
+                raise ConfigError(
+                    f"{source}: field 'neutral_angle_deg': the legs need different neutral "
+                    f"heights ({np.min(h):.4f} .. {np.max(h):.4f} m); give 'neutral_height'"
+                )
+            kw["neutral_height"] = float(np.mean(h))
+        elif "neutral_height" not in kw:
+            raise ConfigError(
+                f"{source}: missing field 'neutral_height' (or give 'neutral_angle_deg')"
+            )
+        try:
+            return cls(**kw)
+        except ConfigError as exc:
+            msg = str(exc).replace(f"rus6 geometry {name!r}", source, 1)
+            raise ConfigError(msg) from None
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> Rus6Geometry:
+        """Load from a TOML file (fields as in :meth:`from_dict`)."""
+        p = Path(path)
+        return cls.from_dict(read_toml(p), source=str(p))
+
+    @classmethod
+    def preset(cls, name: str) -> Rus6Geometry:
+        """A shipped preset (``"ceart"``) or a path to a TOML file."""
+        p = resolve_preset_or_path("rus6", name)
+        return cls.from_dict(read_toml(p), source=p.name if p.parent.name == "presets" else str(p))
+
+    def to_toml(self, path: str | Path, units: Literal["si", "deg"] = "si") -> None:
+        """Save to TOML.
+
+        ``units="si"`` (default) writes :meth:`to_dict` and reloads bit for bit;
+        ``units="deg"`` writes angle fields as ``<field>_deg`` for hand editing (reloading then
+        agrees to about 1e-15 rad, not bit for bit).
+        """
+        data = self.to_dict()
+        if units == "deg":
+            for f in _ANGLE_ARRAYS:
+                data[f + "_deg"] = [math.degrees(x) for x in data.pop(f)]
+            for f, suffix in _RATE_ARRAYS.items():
+                data[f"{f}_{suffix}"] = [math.degrees(x) for x in data.pop(f)]
+        elif units != "si":
+            raise ConfigError(f"to_toml: units must be 'si' or 'deg', got {units!r}")
+        write_toml(path, {"kind": "rus6", **data})
+
+
+def _pick(source: str, data: Mapping[str, Any], si: str, alt: str, convert) -> Any:
+    if si in data and alt in data:
+        raise ConfigError(f"{source}: give either {si!r} or {alt!r}, not both")
+    if si in data:
+        return data[si]
+    if alt in data:
+        arr = as_array(source, alt, data[alt], N_LEGS)
+        return convert(arr)
+    return None

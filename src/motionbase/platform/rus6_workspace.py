@@ -1,0 +1,217 @@
+"""Workspace of the 6-RUS platform: reachability grids, slices and the single-axis envelope.
+
+The thesis (ch. 8.3, fig. 25) sweeps positions at a fixed orientation and solves the inverse
+kinematics at each; :func:`reachability_grid` does that for any grid, :func:`workspace_slices`
+gives the three planes through neutral for a plot, and :func:`single_axis_envelope` finds how
+far each axis reaches alone (both directions). "Reachable" means every leg closes and every
+crank is within its limits (:meth:`Rus6.reachable`). Pure math: plotting lives in
+:mod:`motionbase.io.workspace_plots`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from motionbase.platform.rus6 import Rus6
+
+__all__ = [
+    "AXES",
+    "AxisReach",
+    "WorkspaceSlices",
+    "format_envelope",
+    "reachability_grid",
+    "single_axis_envelope",
+    "workspace_slices",
+]
+
+#: Pose axis names, in pose order.
+AXES = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class AxisReach:
+    """How far one pose axis reaches alone from neutral.
+
+    Attributes
+    ----------
+    axis : str
+        One of :data:`AXES`.
+    negative, positive : float
+        Largest reachable magnitude toward the negative / positive direction of the pose
+        coordinate (m for surge, sway, heave; rad for roll, pitch, yaw). Heave negative is up
+        (FRD). Both are >= 0.
+    """
+
+    axis: str
+    negative: float
+    positive: float
+
+    @property
+    def is_rotation(self) -> bool:
+        return self.axis in ("roll", "pitch", "yaw")
+
+
+def reachability_grid(
+    rus6: Rus6,
+    x: ArrayLike,
+    y: ArrayLike,
+    z: ArrayLike,
+    orientation: ArrayLike = (0.0, 0.0, 0.0),
+) -> np.ndarray:
+    """Reachability over a grid of positions at a fixed orientation (thesis fig. 25).
+
+    Parameters
+    ----------
+    rus6 : Rus6
+    x, y, z : array_like, 1-D
+        Grid coordinates, m, base axes FRD (z down).
+    orientation : array_like, shape (3,)
+        ``(roll, pitch, yaw)``, rad.
+
+    Returns
+    -------
+    ndarray of bool, shape (len(x), len(y), len(z))
+    """
+    xs, ys, zs = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x, y, z))
+    X, Y, Z = np.meshgrid(xs, ys, zs, indexing="ij")
+    poses = np.empty(X.shape + (6,))
+    poses[..., 0], poses[..., 1], poses[..., 2] = X, Y, Z
+    poses[..., 3:] = np.asarray(orientation, dtype=float)
+    return np.asarray(rus6.reachable(poses))
+
+
+def _reach_along(rus6: Rus6, axis: int, sign: float, limit: float, tol: float) -> float:
+    """Largest t in [0, limit] such that every pose sign * s * e_axis, s <= t, is reachable."""
+    n = 2001
+    t = np.linspace(0.0, limit, n)
+    poses = np.zeros((n, 6))
+    poses[:, axis] = sign * t
+    ok = np.asarray(rus6.reachable(poses))
+    if not ok[0]:
+        return 0.0
+    bad = np.flatnonzero(~ok)
+    if bad.size == 0:
+        return float(limit)
+    lo, hi = t[bad[0] - 1], t[bad[0]]
+    pose = np.zeros(6)
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        pose[axis] = sign * mid
+        if rus6.reachable(pose):
+            lo = mid
+        else:
+            hi = mid
+    return float(lo)
+
+
+def single_axis_envelope(
+    rus6: Rus6,
+    *,
+    max_translation: float = 2.0,
+    max_rotation: float = math.pi,
+    tol: float = 1e-9,
+) -> list[AxisReach]:
+    """How far each of surge, sway, heave, roll, pitch, yaw reaches alone, both ways.
+
+    A fine scan from neutral finds the first unreachable value, then bisection refines it to
+    ``tol`` (m or rad). Reach is capped at ``max_translation`` (m) / ``max_rotation`` (rad).
+
+    Returns
+    -------
+    list of AxisReach, in :data:`AXES` order.
+    """
+    out = []
+    for j, name in enumerate(AXES):
+        limit = max_translation if j < 3 else max_rotation
+        neg = _reach_along(rus6, j, -1.0, limit, tol)
+        pos = _reach_along(rus6, j, +1.0, limit, tol)
+        out.append(AxisReach(name, neg, pos))
+    return out
+
+
+def format_envelope(envelope: list[AxisReach]) -> str:
+    """The envelope as a plain-text table (translations in m, rotations in degrees)."""
+    lines = [
+        f"{'axis':<7} {'negative':>10} {'positive':>10}  unit  note",
+        f"{'-' * 7} {'-' * 10} {'-' * 10}  ----  ----",
+    ]
+    notes = {
+        "surge": "-: back, +: forward",
+        "sway": "-: left, +: right",
+        "heave": "-: up, +: down (FRD)",
+        "roll": "+: right side down",
+        "pitch": "+: nose up",
+        "yaw": "+: nose right",
+    }
+    for a in envelope:
+        if a.is_rotation:
+            neg, pos, unit = math.degrees(a.negative), math.degrees(a.positive), "deg"
+            lines.append(f"{a.axis:<7} {neg:>10.1f} {pos:>10.1f}  {unit:<4}  {notes[a.axis]}")
+        else:
+            lines.append(
+                f"{a.axis:<7} {a.negative:>10.3f} {a.positive:>10.3f}  {'m':<4}  {notes[a.axis]}"
+            )
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class WorkspaceSlices:
+    """Reachability on three planes through the neutral pose at a fixed orientation.
+
+    Attributes
+    ----------
+    x, y, z : ndarray, 1-D
+        Grid coordinates, m (base axes, FRD).
+    xy : ndarray of bool, shape (len(x), len(y))
+        Plane z = 0.
+    xz : ndarray of bool, shape (len(x), len(z))
+        Plane y = 0.
+    yz : ndarray of bool, shape (len(y), len(z))
+        Plane x = 0.
+    orientation : tuple of float
+        ``(roll, pitch, yaw)``, rad.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    xy: np.ndarray
+    xz: np.ndarray
+    yz: np.ndarray
+    orientation: tuple[float, float, float]
+
+
+def workspace_slices(
+    rus6: Rus6,
+    orientation: ArrayLike = (0.0, 0.0, 0.0),
+    *,
+    n: int = 121,
+    extent: float | None = None,
+) -> WorkspaceSlices:
+    """Reachability on the planes z = 0, y = 0 and x = 0 (through neutral).
+
+    Parameters
+    ----------
+    rus6 : Rus6
+    orientation : array_like, shape (3,)
+        ``(roll, pitch, yaw)``, rad.
+    n : int
+        Grid points per axis.
+    extent : float, optional
+        Half-width of the square grids, m; by default 1.25 x the largest single-axis
+        translation reach.
+    """
+    if extent is None:
+        env = single_axis_envelope(rus6, tol=1e-4)
+        extent = 1.25 * max(max(a.negative, a.positive) for a in env if not a.is_rotation)
+    g = np.linspace(-extent, extent, int(n))
+    o = tuple(float(v) for v in np.asarray(orientation, dtype=float))
+    zero = np.array([0.0])
+    xy = reachability_grid(rus6, g, g, zero, o)[:, :, 0]
+    xz = reachability_grid(rus6, g, zero, g, o)[:, 0, :]
+    yz = reachability_grid(rus6, zero, g, g, o)[0, :, :]
+    return WorkspaceSlices(g, g.copy(), g.copy(), xy, xz, yz, o)  # type: ignore[arg-type]
