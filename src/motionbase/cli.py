@@ -152,5 +152,31 @@ def run_replay(args: argparse.Namespace) -> int:
     )
 
 
+def _args_workspace(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--platform",
+        default="ceart",
+        help="6-RUS geometry preset name or TOML path (default ceart)",
+    )
+    p.add_argument("--plot", metavar="FILE.png", help="draw the workspace slices to this PNG")
+
+
+@command(
+    "workspace",
+    "print the platform's single-axis reach and plot its workspace slices",
+    _args_workspace,
+)
+def run_workspace(args: argparse.Namespace) -> int:
+    # A planar (3-RRR) variant plugs in here: ``if getattr(args, "planar", False): ...``.
+    return _workspace_rus6(args)
+
+
+def _workspace_rus6(args: argparse.Namespace) -> int:
+    from motionbase.io.workspace_plots import rus6_workspace_report
+
+    print(rus6_workspace_report(args.platform, args.plot))
+    return 0
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
