@@ -1,0 +1,273 @@
+"""Parameters of the classical washout, loaded from and saved to TOML presets.
+
+A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
+
+    description = "..."          # optional free text
+    g = 9.80665                  # m/s^2, optional (standard gravity)
+    method = "tustin"            # optional: "tustin" (pre-warped) or "zoh"
+
+    [scaling]                    # per axis x, y, z (FRD)
+    specific_force_gain = [0.5, 0.5, 0.4]
+    specific_force_limit = [4.9, 4.9, 4.9]       # m/s^2, on f - (0, 0, -g)
+    angular_velocity_gain = [0.5, 0.5, 0.5]
+    angular_velocity_limit_deg_s = [30, 30, 30]  # deg/s, on the body rates
+
+    [translational]              # s/((s^2 + 2 zeta wn s + wn^2)(s + wb)), per axis
+    wn = [1.0, 1.0, 1.2]         # rad/s
+    zeta = [1.0, 1.0, 1.0]
+    wb = [0.3, 0.3, 0.3]         # rad/s
+
+    [tilt]                       # wn^2/(s^2 + 2 zeta wn s + wn^2) on f_x, f_y
+    wn = 2.0                     # rad/s
+    zeta = 1.0
+    rate_limit_deg_s = 3.0
+    angle_limit_deg = 8.0
+
+    [rotational]                 # s/(s^2 + 2 zeta wn s + wn^2) on Euler rates, per axis
+    wn = [1.0, 0.8, 1.0]         # rad/s
+    zeta = [1.0, 1.0, 1.0]
+
+The dataclass fields mirror the file one to one (angles stay in degrees where the
+name says ``_deg``), so ``from_dict(p.to_dict()) == p`` exactly; the SI values the
+filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit`` and
+``tilt_angle_limit`` (radians).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from motionbase.config import (
+    as_array,
+    as_float,
+    check_keys,
+    preset_path,
+    read_toml,
+    resolve_preset_or_path,
+    write_toml,
+)
+from motionbase.errors import ConfigError
+from motionbase.washout.filters import METHODS
+
+STANDARD_GRAVITY = 9.80665  # m/s^2
+
+Vec3 = tuple[float, float, float]
+
+_SECTIONS: dict[str, tuple[str, ...]] = {
+    "scaling": (
+        "specific_force_gain",
+        "specific_force_limit",
+        "angular_velocity_gain",
+        "angular_velocity_limit_deg_s",
+    ),
+    "translational": ("wn", "zeta", "wb"),
+    "tilt": ("wn", "zeta", "rate_limit_deg_s", "angle_limit_deg"),
+    "rotational": ("wn", "zeta"),
+}
+_TOP = ("description", "g", "method")
+
+
+@dataclass(frozen=True)
+class WashoutParams:
+    """Every number of the classical washout (Reid & Nahon), per axis x, y, z (FRD).
+
+    Attributes
+    ----------
+    specific_force_gain : (3,) float
+        K_f, dimensionless, >= 0, applied to the specific force's deviation from
+        level flight ``f - (0, 0, -g)``.
+    specific_force_limit : (3,) float
+        Saturation of that deviation before the gain, m/s^2, > 0.
+    angular_velocity_gain : (3,) float
+        K_w, dimensionless, >= 0, on the body rates (p, q, r).
+    angular_velocity_limit_deg_s : (3,) float
+        Saturation of the body rates before the gain, deg/s, > 0.
+    translational_wn, translational_zeta, translational_wb : (3,) float
+        Third-order high-pass per axis: natural frequency (rad/s, > 0), damping (> 0)
+        and first-order break (rad/s, > 0).
+    tilt_wn, tilt_zeta : float
+        Tilt-coordination low-pass: natural frequency (rad/s, > 0), damping (> 0).
+    tilt_rate_limit_deg_s : float
+        Largest tilt rate, deg/s, > 0 (keep it below the canals' ~3 deg/s threshold).
+    tilt_angle_limit_deg : float
+        Largest tilt angle, deg, in [0, 90); 0 disables tilt coordination.
+    rotational_wn, rotational_zeta : (3,) float
+        Second-order high-pass on the Euler rates per axis (roll, pitch, yaw).
+    g : float
+        Gravity, m/s^2, > 0.
+    method : str
+        Discretisation, ``"tustin"`` (pre-warped at each block's wn) or ``"zoh"``.
+    description : str
+        Free text.
+    """
+
+    specific_force_gain: Vec3
+    specific_force_limit: Vec3
+    angular_velocity_gain: Vec3
+    angular_velocity_limit_deg_s: Vec3
+    translational_wn: Vec3
+    translational_zeta: Vec3
+    translational_wb: Vec3
+    tilt_wn: float
+    tilt_zeta: float
+    tilt_rate_limit_deg_s: float
+    tilt_angle_limit_deg: float
+    rotational_wn: Vec3
+    rotational_zeta: Vec3
+    g: float = STANDARD_GRAVITY
+    method: str = "tustin"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        # Validate (and normalise to floats) even when built directly in Python.
+        validated = _validate(self.to_dict(), "WashoutParams")
+        for key, value in validated.items():
+            object.__setattr__(self, key, value)
+
+    # --- SI views -------------------------------------------------------------------------
+
+    @property
+    def angular_velocity_limit(self) -> np.ndarray:
+        """Saturation of the body rates, rad/s, shape (3,)."""
+        return np.deg2rad(np.asarray(self.angular_velocity_limit_deg_s, dtype=float))
+
+    @property
+    def tilt_rate_limit(self) -> float:
+        """Largest tilt rate, rad/s."""
+        return math.radians(self.tilt_rate_limit_deg_s)
+
+    @property
+    def tilt_angle_limit(self) -> float:
+        """Largest tilt angle, rad."""
+        return math.radians(self.tilt_angle_limit_deg)
+
+    # --- construction ---------------------------------------------------------------------
+
+    @classmethod
+    def preset(cls, name: str) -> WashoutParams:
+        """A preset shipped with the package: ``"default"`` or ``"gentle"``."""
+        return cls.from_toml(preset_path("washout", name))
+
+    @classmethod
+    def load(cls, name_or_path: str | Path) -> WashoutParams:
+        """A preset name or a path to a TOML file."""
+        return cls.from_toml(resolve_preset_or_path("washout", name_or_path))
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> WashoutParams:
+        """Read a washout TOML file (format in the module docstring)."""
+        return cls.from_dict(read_toml(path), source=str(path))
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "washout parameters") -> WashoutParams:
+        """Build from the nested mapping :meth:`to_dict` returns (or a parsed TOML file).
+
+        Raises
+        ------
+        ConfigError
+            On a missing, unknown, non-numeric or unphysical value; the message names
+            ``source``, the field and the fix.
+        """
+        if not isinstance(d, dict):
+            raise ConfigError(f"{source}: expected a table of washout parameters, got {d!r}")
+        check_keys(source, d, (*_TOP, *_SECTIONS), required=tuple(_SECTIONS))
+        flat: dict[str, Any] = {}
+        for section, keys in _SECTIONS.items():
+            table = d[section]
+            if not isinstance(table, dict):
+                raise ConfigError(f"{source}: [{section}] must be a table, got {table!r}")
+            check_keys(f"{source} [{section}]", table, keys, required=keys)
+            for key in keys:
+                flat[_field(section, key)] = table[key]
+        flat["g"] = d.get("g", STANDARD_GRAVITY)
+        flat["method"] = d.get("method", "tustin")
+        flat["description"] = d.get("description", "")
+        values = _validate(_nest(flat), source)
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly."""
+        flat = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        return _nest(flat)
+
+    def to_toml(self, path: str | Path) -> None:
+        """Write the parameters as a TOML file that :meth:`from_toml` reads back."""
+        write_toml(path, self.to_dict())
+
+
+# --- helpers -------------------------------------------------------------------------------
+
+
+def _field(section: str, key: str) -> str:
+    return key if section == "scaling" else f"{section}_{key}"
+
+
+def _nest(flat: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "description": str(flat["description"]),
+        "g": flat["g"],
+        "method": flat["method"],
+    }
+    for section, keys in _SECTIONS.items():
+        table = {}
+        for key in keys:
+            value = flat[_field(section, key)]
+            table[key] = list(value) if isinstance(value, (tuple, list, np.ndarray)) else value
+        out[section] = table
+    return out
+
+
+def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
+    """Check the nested mapping; return flat field values (tuples of floats, floats)."""
+
+    def vec(section: str, key: str, *, strict: bool, unit: str = "") -> Vec3:
+        name = f"{section}.{key}"
+        arr = as_array(source, name, d[section][key], 3)
+        for v in arr:
+            as_float(source, name, float(v), min_value=0.0, strict_min=strict, unit=unit)
+        return tuple(float(v) for v in arr)  # type: ignore[return-value]
+
+    def num(section: str, key: str, *, strict: bool, unit: str = "") -> float:
+        return as_float(
+            source, f"{section}.{key}", d[section][key], min_value=0.0, strict_min=strict, unit=unit
+        )
+
+    out: dict[str, Any] = {
+        "specific_force_gain": vec("scaling", "specific_force_gain", strict=False),
+        "specific_force_limit": vec("scaling", "specific_force_limit", strict=True, unit="m/s^2"),
+        "angular_velocity_gain": vec("scaling", "angular_velocity_gain", strict=False),
+        "angular_velocity_limit_deg_s": vec(
+            "scaling", "angular_velocity_limit_deg_s", strict=True, unit="deg/s"
+        ),
+        "translational_wn": vec("translational", "wn", strict=True, unit="rad/s"),
+        "translational_zeta": vec("translational", "zeta", strict=True),
+        "translational_wb": vec("translational", "wb", strict=True, unit="rad/s"),
+        "tilt_wn": num("tilt", "wn", strict=True, unit="rad/s"),
+        "tilt_zeta": num("tilt", "zeta", strict=True),
+        "tilt_rate_limit_deg_s": num("tilt", "rate_limit_deg_s", strict=True, unit="deg/s"),
+        "tilt_angle_limit_deg": num("tilt", "angle_limit_deg", strict=False, unit="deg"),
+        "rotational_wn": vec("rotational", "wn", strict=True, unit="rad/s"),
+        "rotational_zeta": vec("rotational", "zeta", strict=True),
+        "g": as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2"),
+    }
+    if out["tilt_angle_limit_deg"] >= 90.0:
+        raise ConfigError(
+            f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg, "
+            f"got {out['tilt_angle_limit_deg']:g} (fix the value)"
+        )
+    method = d["method"]
+    if method not in METHODS:
+        raise ConfigError(
+            f"{source}: field 'method': must be one of {', '.join(METHODS)}, got {method!r}"
+        )
+    out["method"] = method
+    description = d["description"]
+    if not isinstance(description, str):
+        raise ConfigError(f"{source}: field 'description': expected text, got {description!r}")
+    out["description"] = description
+    return out
