@@ -159,6 +159,17 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
         help="6-RUS geometry preset name or TOML path (default ceart)",
     )
     p.add_argument("--plot", metavar="FILE.png", help="draw the workspace slices to this PNG")
+    p.add_argument(
+        "--planar",
+        action="store_true",
+        help="the planar 3-RRR robot instead: triple sweep, total workspace and phi = 0 slice",
+    )
+    p.add_argument(
+        "--rrr3",
+        default="udesc",
+        metavar="PRESET|FILE.toml",
+        help="3-RRR geometry for --planar (default udesc)",
+    )
 
 
 @command(
@@ -167,7 +178,11 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
     _args_workspace,
 )
 def run_workspace(args: argparse.Namespace) -> int:
-    # A planar (3-RRR) variant plugs in here: ``if getattr(args, "planar", False): ...``.
+    if getattr(args, "planar", False):
+        from motionbase.io.planar_plots import planar_workspace_report
+
+        print(planar_workspace_report(args.rrr3, args.plot))
+        return 0
     return _workspace_rus6(args)
 
 
