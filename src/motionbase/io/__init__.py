@@ -4,3 +4,9 @@ Each source yields :class:`~motionbase.state.AircraftState` samples in SI units
 and FRD body axes; each sink takes pipeline outputs. Both are context managers
 (``with source: for state in source: ...``). See :mod:`motionbase.io.base`.
 """
+
+# --- MCAP and JSBSim (issue 4) ---
+from motionbase.io.jsbsim_source import JsbsimSource, available_scripts  # noqa: E402, F401
+from motionbase.io.mcap_log import McapLogger  # noqa: E402, F401
+from motionbase.io.mcap_source import McapSource, read_messages, read_metadata  # noqa: E402, F401
+from motionbase.io.schemas import TOPIC_SCHEMAS  # noqa: E402, F401

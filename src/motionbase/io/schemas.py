@@ -1,0 +1,222 @@
+"""JSON Schemas (draft 2020-12) of every topic motionbase writes to MCAP.
+
+Each topic's messages are JSON objects that carry ``t``, the time of the sample
+in seconds of the source's clock (simulation time for JSBSim and replays); the
+MCAP ``log_time`` and ``publish_time`` of a message are ``round(t * 1e9)`` ns.
+Every schema lists the core fields and allows extra ones.
+
+Non-finite numbers
+    JSON has no NaN or infinity. Where a topic may carry them (the raw aircraft
+    state as the source gave it, before the pipeline rejects it) they are
+    written as the strings ``"NaN"``, ``"Infinity"`` and ``"-Infinity"``, the
+    convention of the protobuf JSON mapping, and read back as floats (``null``
+    is accepted there too and reads back as NaN). Every
+    topic downstream of the safety stage must hold finite numbers only, and
+    its schema says so.
+
+``/tf`` carries ``foxglove.FrameTransform`` messages with Foxglove's own schema,
+so Foxglove's 3D panel can show the platform move (see
+:meth:`motionbase.io.mcap_log.McapLogger.add_transform`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+#: Strings that stand for non-finite floats in JSON messages.
+NONFINITE_STRINGS: dict[str, float] = {
+    "NaN": float("nan"),
+    "Infinity": float("inf"),
+    "-Infinity": float("-inf"),
+}
+
+_T = {"type": "number", "description": "time of the sample, s, source clock"}
+_NUMBER = {"type": "number"}
+_NUMBER_OR_NONFINITE = {
+    "anyOf": [{"type": "number"}, {"enum": [*NONFINITE_STRINGS, None]}],
+}
+
+
+def _vector(n: int, description: str, item: dict[str, Any] | None = None) -> dict[str, Any]:
+    return {
+        "type": "array",
+        "items": dict(item or _NUMBER),
+        "minItems": n,
+        "maxItems": n,
+        "description": description,
+    }
+
+
+def _topic(
+    title: str, description: str, properties: dict[str, Any], required: list[str]
+) -> dict[str, Any]:
+    return {
+        "$schema": SCHEMA_DIALECT,
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": {"t": dict(_T), **properties},
+        "required": ["t", *required],
+        "additionalProperties": True,
+    }
+
+
+AIRCRAFT_STATE = _topic(
+    "motionbase.AircraftState",
+    "Aircraft motion at the pilot as the source gave it (SI units, body axes FRD). "
+    "Non-finite values are written as the strings NaN, Infinity, -Infinity "
+    "(null is also accepted and reads back as NaN).",
+    {
+        "specific_force": _vector(
+            3, "specific force f = a - g at the pilot, m/s^2, body FRD", _NUMBER_OR_NONFINITE
+        ),
+        "angular_velocity": _vector(
+            3, "body rates (p, q, r), rad/s, body FRD", _NUMBER_OR_NONFINITE
+        ),
+        "attitude": _vector(3, "Euler angles (roll, pitch, yaw), rad, Z-Y-X", _NUMBER_OR_NONFINITE),
+        "angular_acceleration": _vector(
+            3, "body angular accelerations, rad/s^2, body FRD (optional)", _NUMBER_OR_NONFINITE
+        ),
+    },
+    ["specific_force", "angular_velocity", "attitude"],
+)
+
+WASHOUT_POSE = _topic(
+    "motionbase.WashoutPose",
+    "Platform pose the washout asks for, before clamping: [x, y, z] m and "
+    "[roll, pitch, yaw] rad (Z-Y-X), base axes FRD.",
+    {"pose": _vector(6, "[x, y, z, roll, pitch, yaw], m and rad")},
+    ["pose"],
+)
+
+PLATFORM_POSE = _topic(
+    "motionbase.PlatformPose",
+    "Platform pose after clamping (reachable): [x, y, z] m and [roll, pitch, yaw] rad "
+    "(Z-Y-X), base axes FRD.",
+    {
+        "pose": _vector(6, "[x, y, z, roll, pitch, yaw], m and rad"),
+        "clamped": {"type": "boolean", "description": "true when the pose was scaled back"},
+    },
+    ["pose", "clamped"],
+)
+
+PLATFORM_ACTUATORS = _topic(
+    "motionbase.PlatformActuators",
+    "6-RUS crank angles sent to the actuators, rad (0 = crank horizontal).",
+    {"angles": _vector(6, "crank angles, rad")},
+    ["angles"],
+)
+
+PLANAR_POSE = _topic(
+    "motionbase.PlanarPose",
+    "3-RRR platform pose [x, y, phi] in the thesis's base frame, m and rad.",
+    {"pose": _vector(3, "[x, y, phi], m and rad")},
+    ["pose"],
+)
+
+PLANAR_ACTUATORS = _topic(
+    "motionbase.PlanarActuators",
+    "3-RRR joint angles, rad, and the servo commands, integer degrees 0..180.",
+    {
+        "angles": _vector(3, "joint angles, rad"),
+        "servo_deg": _vector(
+            3, "servo commands, integer degrees", {"type": "integer", "minimum": 0, "maximum": 180}
+        ),
+    },
+    ["angles", "servo_deg"],
+)
+
+_COUNT = {"type": "integer", "minimum": 0}
+
+HEALTH = _topic(
+    "motionbase.Health",
+    "Running counts of the safety stage's interventions and the worst loop overrun.",
+    {
+        "rejected_inputs": dict(_COUNT, description="input samples rejected and held"),
+        "clamps": dict(_COUNT, description="poses scaled back into the workspace"),
+        "rate_limited": dict(_COUNT, description="commands limited in speed or acceleration"),
+        "watchdog_fades": dict(_COUNT, description="fades to neutral on stale input"),
+        "estops": dict(_COUNT, description="emergency stops"),
+        "worst_overrun_s": {
+            "type": "number",
+            "minimum": 0,
+            "description": "largest lateness of a loop tick behind its deadline, s",
+        },
+    },
+    ["rejected_inputs", "clamps", "rate_limited", "watchdog_fades", "estops", "worst_overrun_s"],
+)
+
+CURSOR = _topic(
+    "motionbase.Cursor",
+    "Teleoperation cursor: screen pixel and the calibrated target in the workspace.",
+    {
+        "pixel": _vector(2, "cursor position on screen, pixels"),
+        "target": _vector(2, "calibrated target position [x, y], m"),
+    },
+    ["pixel", "target"],
+)
+
+_TIME = {
+    "type": "object",
+    "title": "time",
+    "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+    },
+    "description": "Timestamp of transform",
+}
+
+
+def _xyz(title: str, names: str, description: str) -> dict[str, Any]:
+    return {
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": {n: {"type": "number", "description": f"{n} value"} for n in names},
+        "required": list(names),
+    }
+
+
+#: Foxglove's ``foxglove.FrameTransform`` JSON Schema (foxglove-sdk schemas/jsonschema).
+FRAME_TRANSFORM = {
+    "title": "foxglove.FrameTransform",
+    "description": "A transform between two reference frames in 3D space. The transform "
+    "defines the position and orientation of a child frame within a parent frame. Foxglove "
+    "applies the translation first and then the rotation.",
+    "type": "object",
+    "properties": {
+        "timestamp": _TIME,
+        "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
+        "child_frame_id": {"type": "string", "description": "Name of the child frame"},
+        "translation": _xyz(
+            "foxglove.Vector3",
+            "xyz",
+            "Translation component of the transform, representing the position of the child "
+            "frame's origin in the parent frame.",
+        ),
+        "rotation": _xyz(
+            "foxglove.Quaternion",
+            "xyzw",
+            "Rotation component of the transform, representing the orientation of the child "
+            "frame in the parent frame",
+        ),
+    },
+    "required": ["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"],
+}
+
+#: topic -> (schema name, JSON Schema). The MCAP logger accepts exactly these topics.
+TOPIC_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
+    "/aircraft/state": ("motionbase.AircraftState", AIRCRAFT_STATE),
+    "/washout/pose": ("motionbase.WashoutPose", WASHOUT_POSE),
+    "/platform/pose": ("motionbase.PlatformPose", PLATFORM_POSE),
+    "/platform/actuators": ("motionbase.PlatformActuators", PLATFORM_ACTUATORS),
+    "/planar/pose": ("motionbase.PlanarPose", PLANAR_POSE),
+    "/planar/actuators": ("motionbase.PlanarActuators", PLANAR_ACTUATORS),
+    "/health": ("motionbase.Health", HEALTH),
+    "/cursor": ("motionbase.Cursor", CURSOR),
+    "/tf": ("foxglove.FrameTransform", FRAME_TRANSFORM),
+}
+
+__all__ = ["FRAME_TRANSFORM", "NONFINITE_STRINGS", "SCHEMA_DIALECT", "TOPIC_SCHEMAS"]
