@@ -10,3 +10,11 @@ from motionbase.io.jsbsim_source import JsbsimSource, available_scripts  # noqa:
 from motionbase.io.mcap_log import McapLogger  # noqa: E402, F401
 from motionbase.io.mcap_source import McapSource, read_messages, read_metadata  # noqa: E402, F401
 from motionbase.io.schemas import TOPIC_SCHEMAS  # noqa: E402, F401
+
+# --- MAVLink (issue 6) ---
+from motionbase.io.mavlink_source import (  # noqa: E402, F401
+    MavlinkSource,
+    MavlinkStats,
+    MavlinkTick,
+    load_signing_key,
+)

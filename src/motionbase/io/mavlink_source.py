@@ -1,0 +1,989 @@
+"""Live MAVLink telemetry (or a MAVLink/DataFlash log) as a fixed-rate source.
+
+:class:`MavlinkSource` opens any pymavlink connection string, builds
+:class:`~motionbase.state.AircraftState` samples from the IMU and attitude
+messages of one vehicle, and yields them at the fixed pipeline rate, holding the
+latest sample between messages (never extrapolating).
+
+Freshness
+---------
+The iterator yields plain :class:`~motionbase.state.AircraftState` objects (the
+:class:`~motionbase.io.base.Source` protocol). After each ``next()``, the
+attributes :attr:`MavlinkSource.fresh`, :attr:`MavlinkSource.sample_age_s` and
+:attr:`MavlinkSource.tick` (a frozen :class:`MavlinkTick`) describe the state
+just yielded. A tick is *fresh* when both the specific-force sample (an IMU
+message) and the attitude sample are at most ``stale_timeout_s`` old. When no
+fresh sample arrives the source keeps ticking at the pipeline rate, holding the
+last state (or the neutral state ``f = (0, 0, -g)`` before any sample), with
+``fresh`` False, so the pipeline's watchdog can fade the platform to neutral.
+
+Messages and units
+------------------
+* Specific force and body rates, best source first: ``HIGHRES_IMU`` (m/s^2,
+  rad/s), ``SCALED_IMU``, ``SCALED_IMU2``, ``SCALED_IMU3`` (mG, mrad/s), and
+  ``RAW_IMU``. The MAVLink spec defines ``RAW_IMU`` in raw sensor units, so it
+  is ignored, except from an ArduPilot vehicle (HEARTBEAT autopilot
+  ``MAV_AUTOPILOT_ARDUPILOTMEGA``), which fills it with the same mG and mrad/s
+  values as ``SCALED_IMU`` (checked on ``vtol.tlog``). A worse source is used
+  only while every better one is stale. MAVLink accelerometers read specific
+  force in body FRD: level and at rest, ``zacc`` is about -9.81 m/s^2 (-1000 mG).
+* Attitude: ``ATTITUDE`` (rad), or ``ATTITUDE_QUATERNION`` while no fresh
+  ``ATTITUDE`` arrives, converted to Z-Y-X Euler angles.
+* DataFlash ``.bin`` logs: ``IMU`` (first instance; AccX/Y/Z m/s^2, GyrX/Y/Z
+  rad/s) and ``ATT`` (Roll/Pitch/Yaw in degrees, converted to rad, yaw wrapped
+  to [-pi, pi)).
+
+Body rates come from the IMU message that gives the specific force (same
+instant). ``HIGHRES_IMU.fields_updated`` is not consulted.
+
+Filtering and safety
+--------------------
+Only messages from ``sysid`` (and ``compid`` when given) are used
+(``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter).
+With a signing key, unsigned and badly signed messages are rejected. Bytes that
+do not parse are counted as ``bad_data``. Values that are NaN, infinite or
+physically absurd are rejected and counted. Nothing rejected reaches the state.
+
+MAVLink 2
+---------
+Signing needs the MAVLink 2 dialect, which pymavlink chooses when it is first
+imported, from the ``MAVLINK20`` environment variable. This module sets
+``os.environ["MAVLINK20"] = "1"`` before importing ``pymavlink.mavutil``, and
+switches an already imported mavutil to MAVLink 2 if needed. MAVLink 2 parsing
+still accepts MAVLink 1 packets.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import select
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+os.environ["MAVLINK20"] = "1"  # must precede the first import of pymavlink.mavutil
+
+from pymavlink import DFReader, mavutil  # noqa: E402
+
+from motionbase.errors import ConfigError, SourceError  # noqa: E402
+from motionbase.state import AircraftState  # noqa: E402
+
+if getattr(mavutil.mavlink, "WIRE_PROTOCOL_VERSION", "1.0") != "2.0":  # imported earlier as v1
+    mavutil.set_dialect(mavutil.current_dialect)
+
+__all__ = ["MavlinkSource", "MavlinkStats", "MavlinkTick", "load_signing_key"]
+
+_log = logging.getLogger("motionbase")
+
+G0 = 9.80665
+"""Standard gravity, m/s^2."""
+MG_TO_MS2 = G0 * 1e-3
+"""One milli-g in m/s^2."""
+MRAD_TO_RAD = 1e-3
+
+MAX_SPECIFIC_FORCE = 20.0 * G0
+"""Largest plausible specific-force component, m/s^2 (beyond a +-16 g IMU)."""
+MAX_ANGULAR_RATE = 50.0
+"""Largest plausible body rate, rad/s (beyond a +-2000 deg/s gyro)."""
+_ANGLE_TOL = 1e-3
+
+# IMU messages, best first: name -> (rank, scale of acc to m/s^2, scale of gyro to rad/s)
+_IMU_TYPES: dict[str, tuple[int, float, float]] = {
+    "HIGHRES_IMU": (0, 1.0, 1.0),
+    "SCALED_IMU": (1, MG_TO_MS2, MRAD_TO_RAD),
+    "SCALED_IMU2": (2, MG_TO_MS2, MRAD_TO_RAD),
+    "SCALED_IMU3": (3, MG_TO_MS2, MRAD_TO_RAD),
+    "RAW_IMU": (4, MG_TO_MS2, MRAD_TO_RAD),  # ArduPilot only (see module docstring)
+}
+_IMU_WITH_INSTANCE = frozenset({"HIGHRES_IMU", "RAW_IMU"})  # messages with an `id` field
+_ATT_TYPES: dict[str, int] = {"ATTITUDE": 0, "ATTITUDE_QUATERNION": 1}
+_LOG_SUFFIXES = (".tlog", ".bin", ".mavlink", ".log", ".raw", ".px4log")
+
+_REQUEST_AFTER_S = 1.0  # silence on a live link before asking for streams
+_MAX_REQUESTS = 3
+_HEARTBEAT_PERIOD_S = 1.0
+_GCS_SYSID = 255
+_GCS_COMPID = 190  # MAV_COMP_ID_MISSIONPLANNER
+
+
+@dataclass(frozen=True)
+class MavlinkStats:
+    """A snapshot of the source's counters (see :attr:`MavlinkSource.stats`).
+
+    Attributes
+    ----------
+    received : int
+        MAVLink messages decoded (any source, any type), not counting bad data
+        and signature rejects.
+    accepted : int
+        Messages from the configured system (and component) that passed the
+        signature check.
+    used : int
+        Accepted IMU and attitude messages whose values entered the state.
+    rejected_sysid, rejected_compid : int
+        Messages from another system id, or from another component id when
+        ``compid`` is set.
+    rejected_unsigned, rejected_bad_signature : int
+        With signing on: unsigned messages, and signed messages whose signature
+        or timestamp is wrong. ``rejected_signature`` is their sum.
+    rejected_invalid : int
+        Messages with NaN, infinite or absurd values (not used).
+    ignored_raw_imu : int
+        ``RAW_IMU`` messages ignored because the vehicle is not ArduPilot.
+    bad_data : int
+        Chunks of bytes that did not parse as MAVLink (garbage, bad CRC).
+    bad_bytes : int
+        Number of bytes in those chunks.
+    per_type : Mapping[str, int]
+        Accepted messages by type.
+    ticks, stale_ticks : int
+        Ticks yielded, and how many of them were stale.
+    gaps : int
+        Fresh-to-stale transitions (each logged as a warning).
+    late_ticks : int
+        Live ticks that started more than one period late.
+    last_sample_age_s : float
+        Age of the oldest part (IMU or attitude) of the last yielded state, s,
+        in the source clock; inf before any sample.
+    message_rate_hz : float
+        Accepted messages per second over the last complete second of source
+        time.
+    imu_source : str
+        Message type that currently gives the specific force ("" before any).
+    stream_request : str
+        Stream requests on a live link: ``"off"`` (a log, or disabled),
+        ``"idle"`` (nothing asked yet), ``"sent"`` (asked, waiting),
+        ``"acknowledged"`` (COMMAND_ACK accepted, waiting for data),
+        ``"rejected"`` (COMMAND_ACK refused), ``"ignored"`` (no data after
+        ``request_timeout_s``) or ``"streaming"`` (fresh data arriving).
+    """
+
+    received: int = 0
+    accepted: int = 0
+    used: int = 0
+    rejected_sysid: int = 0
+    rejected_compid: int = 0
+    rejected_unsigned: int = 0
+    rejected_bad_signature: int = 0
+    rejected_invalid: int = 0
+    ignored_raw_imu: int = 0
+    bad_data: int = 0
+    bad_bytes: int = 0
+    per_type: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    ticks: int = 0
+    stale_ticks: int = 0
+    gaps: int = 0
+    late_ticks: int = 0
+    last_sample_age_s: float = math.inf
+    message_rate_hz: float = 0.0
+    imu_source: str = ""
+    stream_request: str = "off"
+
+    @property
+    def rejected_signature(self) -> int:
+        """Unsigned plus badly signed messages rejected."""
+        return self.rejected_unsigned + self.rejected_bad_signature
+
+    @property
+    def rejected(self) -> int:
+        """Every message rejected for its source, signature or values."""
+        return (
+            self.rejected_sysid
+            + self.rejected_compid
+            + self.rejected_signature
+            + self.rejected_invalid
+        )
+
+
+@dataclass(frozen=True)
+class MavlinkTick:
+    """What the pipeline needs to know about the state just yielded.
+
+    Attributes
+    ----------
+    fresh : bool
+        True when both the IMU and the attitude sample are at most
+        ``stale_timeout_s`` old; False when the state is a hold of stale data
+        (or the neutral state before any sample).
+    sample_age_s : float
+        Age of the oldest part of the state, s, in the source clock (wall clock
+        for a live link, log time for a log); inf before any sample.
+    new_sample : bool
+        True when an IMU or attitude message arrived since the previous tick.
+    arrival_s : float
+        Arrival time of the newest message in the state, s: ``time.monotonic()``
+        for a live link, log time for a log; nan before any sample.
+    """
+
+    fresh: bool
+    sample_age_s: float
+    new_sample: bool
+    arrival_s: float
+
+
+_NOT_STARTED = MavlinkTick(fresh=False, sample_age_s=math.inf, new_sample=False, arrival_s=math.nan)
+
+
+def load_signing_key(path: str | os.PathLike[str]) -> bytes:
+    """Read a 32-byte MAVLink 2 signing key from a file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A file holding exactly 32 raw bytes, or 64 hexadecimal digits (text,
+        surrounding whitespace allowed).
+
+    Returns
+    -------
+    bytes
+        The 32-byte secret key.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing, unreadable, or not a 32-byte key.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(
+            f"signing key {p}: cannot read ({exc.strerror}); give the path of a 32-byte key file"
+        ) from None
+    if len(data) == 32:
+        return data
+    text = data.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    raise ConfigError(
+        f"signing key {p}: expected 32 raw bytes or 64 hex digits, got {len(data)} bytes "
+        "(make one with: head -c 32 /dev/urandom > key.bin)"
+    )
+
+
+def _is_log_url(url: str) -> bool:
+    return url.lower().endswith(_LOG_SUFFIXES) and not url.lower().startswith(
+        ("udp", "tcp", "ws", "mcast", "uds", "unix")
+    )
+
+
+def _finite_within(values: tuple[float, ...], limit: float) -> bool:
+    for v in values:
+        if not (-limit <= v <= limit):  # False for NaN too
+            return False
+    return True
+
+
+def _quat_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float] | None:
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (0.9 <= n <= 1.1):  # also rejects NaN
+        return None
+    w, x, y, z = w / n, x / n, y / n, z / n
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def _wrap_pi(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class _VehicleClock:
+    """Sample times of a telemetry log from the vehicle's own clock, s.
+
+    A ``.tlog`` stamps each message with the ground station's receive time,
+    which bunches up when the radio link is bursty. The vehicle's
+    ``time_boot_ms`` / ``time_usec`` fields give the true, evenly spaced sample
+    times. Messages without them (HEARTBEAT), or from other systems, keep the
+    last time. The result never goes backwards: a reboot (boot time jumping
+    back) re-anchors the clock where it was.
+    """
+
+    def __init__(self, sysid: int) -> None:
+        self.sysid = sysid
+        self.last = -math.inf
+        self.offset = 0.0
+
+    def __call__(self, msg: Any) -> float:
+        t = None
+        if msg.get_srcSystem() == self.sysid:
+            ms = getattr(msg, "time_boot_ms", None)
+            if ms is not None:
+                t = ms * 1e-3
+            else:
+                us = getattr(msg, "time_usec", None)
+                if us is not None and 0 < us < 1e12:  # since boot (not a UNIX epoch time)
+                    t = us * 1e-6
+        if t is None:
+            return self.last if math.isfinite(self.last) else msg._timestamp
+        if not math.isfinite(self.last):
+            self.offset = msg._timestamp - t  # start at the log's wall-clock time
+        t += self.offset
+        if t < self.last - 1.0:  # reboot or clock reset
+            self.offset += self.last - t
+            t = self.last
+        self.last = max(t, self.last)
+        return self.last
+
+
+class MavlinkSource:
+    """Aircraft states from MAVLink telemetry or a log, at a fixed rate.
+
+    Parameters
+    ----------
+    url : str
+        A pymavlink connection string: ``udpin:HOST:PORT`` (listen; port 0
+        picks a free port, see :attr:`local_address`), ``udpout:HOST:PORT``,
+        ``tcp:HOST:PORT``, a serial device (``/dev/ttyACM0``, 115200 baud), or a
+        ``.tlog`` / ``.bin`` log file. The default listens on loopback only;
+        listening on every interface needs an explicit ``udpin:0.0.0.0:PORT``.
+    rate_hz : float
+        Fixed output rate, Hz (> 0). Also the rate asked of the vehicle.
+    sysid : int
+        MAVLink system id of the vehicle, 1..255; other systems are rejected.
+    compid : int or None
+        Component id to accept (1..255); None accepts every component of
+        ``sysid``.
+    signing_key : str, path-like or None
+        Path of a 32-byte MAVLink 2 signing key file (see
+        :func:`load_signing_key`). When given, unsigned and badly signed
+        messages are rejected and outgoing messages are signed. Live links only.
+    duration_s : float or None
+        Stop after this much source time, s; None runs until the log ends (or
+        forever on a live link).
+    realtime : bool
+        For a log: True replays at the recorded timing (wall-clock paced), False
+        as fast as possible. A live link is always wall-clock paced.
+    request_streams : bool
+        On a live link, ask a silent vehicle for HIGHRES_IMU and ATTITUDE at
+        ``rate_hz`` with MAV_CMD_SET_MESSAGE_INTERVAL, and send a ground-station
+        HEARTBEAT once a second.
+    stale_timeout_s : float
+        A tick is stale when its IMU or attitude sample is older than this, s
+        (> 0).
+    request_timeout_s : float
+        Time to wait for data after a stream request before warning that the
+        vehicle ignored it and asking again, s (> 0).
+    log_clock : {"vehicle", "receive"}
+        For a ``.tlog``: time the samples by the vehicle's clock
+        (``time_boot_ms``/``time_usec``, evenly spaced as sampled; default) or
+        by the ground station's receive time stamped in the log (bursty when
+        the radio link was). DataFlash logs always use the vehicle clock.
+
+    Examples
+    --------
+    >>> with MavlinkSource("vtol.tlog", realtime=False) as src:  # doctest: +SKIP
+    ...     for state in src:
+    ...         if not src.fresh:
+    ...             ...  # the watchdog fades to neutral
+    """
+
+    def __init__(
+        self,
+        url: str = "udpin:127.0.0.1:14550",
+        *,
+        rate_hz: float = 100.0,
+        sysid: int = 1,
+        compid: int | None = None,
+        signing_key: str | os.PathLike[str] | None = None,
+        duration_s: float | None = None,
+        realtime: bool = True,
+        request_streams: bool = True,
+        stale_timeout_s: float = 0.5,
+        request_timeout_s: float = 3.0,
+        log_clock: str = "vehicle",
+    ) -> None:
+        if not isinstance(url, str) or not url.strip():
+            raise ConfigError("mavlink url: empty; give e.g. udpin:127.0.0.1:14550 or a .tlog path")
+        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
+            raise ConfigError(f"mavlink rate_hz: must be a finite number > 0 Hz, got {rate_hz!r}")
+        if not (isinstance(sysid, int) and 1 <= sysid <= 255):
+            raise ConfigError(f"mavlink sysid: must be an integer 1..255, got {sysid!r}")
+        if compid is not None and not (isinstance(compid, int) and 1 <= compid <= 255):
+            raise ConfigError(f"mavlink compid: must be an integer 1..255 or None, got {compid!r}")
+        for name, val in (
+            ("stale_timeout_s", stale_timeout_s),
+            ("request_timeout_s", request_timeout_s),
+        ):
+            if not (isinstance(val, int | float) and math.isfinite(val) and val > 0):
+                raise ConfigError(f"mavlink {name}: must be a finite number > 0 s, got {val!r}")
+        if duration_s is not None and not (
+            isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0
+        ):
+            raise ConfigError(f"mavlink duration_s: must be > 0 s or None, got {duration_s!r}")
+
+        self.url = url.strip()
+        self.rate_hz = float(rate_hz)
+        self.sysid = sysid
+        self.compid = compid
+        self.duration_s: float | None = None if duration_s is None else float(duration_s)
+        self.realtime = bool(realtime)
+        self.request_streams = bool(request_streams)
+        self.stale_timeout_s = float(stale_timeout_s)
+        self.request_timeout_s = float(request_timeout_s)
+        if log_clock not in ("vehicle", "receive"):
+            raise ConfigError(f"mavlink log_clock: 'vehicle' or 'receive', got {log_clock!r}")
+        self.log_clock = log_clock
+        self.is_log = _is_log_url(self.url)
+        self._signing_key_path = None if signing_key is None else str(signing_key)
+        self._key: bytes | None = None
+        if signing_key is not None:
+            if self.is_log:
+                raise ConfigError(
+                    f"mavlink signing_key: applies to live links only, not to the log {self.url}"
+                )
+            self._key = load_signing_key(signing_key)
+
+        self._conn: Any = None
+        self._iterating = False
+        self._reset_state()
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def _reset_state(self) -> None:
+        self._c: dict[str, int] = dict.fromkeys(
+            (
+                "received",
+                "accepted",
+                "used",
+                "rejected_sysid",
+                "rejected_compid",
+                "rejected_unsigned",
+                "rejected_bad_signature",
+                "rejected_invalid",
+                "ignored_raw_imu",
+                "bad_data",
+                "bad_bytes",
+                "ticks",
+                "stale_ticks",
+                "gaps",
+                "late_ticks",
+            ),
+            0,
+        )
+        self._per_type: dict[str, int] = {}
+        self._f = (0.0, 0.0, -G0)
+        self._w = (0.0, 0.0, 0.0)
+        self._att = (0.0, 0.0, 0.0)
+        self._imu_time = -math.inf  # arrival time of the last used IMU message, source clock
+        self._att_time = -math.inf
+        self._imu_rank = 99
+        self._imu_name = ""
+        self._att_rank = 99
+        self._new = False
+        self._ardupilot = False
+        self._tick = _NOT_STARTED
+        self._was_fresh = False
+        self._rate_window_start = math.nan
+        self._rate_window_count = 0
+        self._rate_hz = 0.0
+        self._req_state = "idle" if (self.request_streams and not self.is_log) else "off"
+        self._req_time = math.nan
+        self._req_count = 0
+        self._warned_ignored = False
+        self._last_hb = -math.inf
+        self._live_t0 = math.inf
+
+    def __enter__(self) -> MavlinkSource:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Open the connection (called by ``with``).
+
+        Raises
+        ------
+        SourceError
+            The log file does not exist, or the port cannot be opened.
+        """
+        if self._conn is not None:
+            return
+        if self.is_log and not Path(self.url).is_file():
+            raise SourceError(f"mavlink log {self.url}: no such file (check the path)")
+        self._reset_state()
+        try:
+            if self.is_log:
+                conn = mavutil.mavlink_connection(self.url)
+            else:
+                conn = mavutil.mavlink_connection(
+                    self.url,
+                    source_system=_GCS_SYSID,
+                    source_component=_GCS_COMPID,
+                )
+        except Exception as exc:  # pymavlink raises many types (OSError, SerialException, ...)
+            raise SourceError(
+                f"mavlink {self.url}: cannot open ({exc}); check the connection string "
+                "(udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device or a log file)"
+            ) from None
+        self._conn = conn
+        if not self.is_log:
+            conn.mav.robust_parsing = True
+            if self._key is not None:
+                conn.setup_signing(
+                    self._key, sign_outgoing=True, allow_unsigned_callback=_reject_unsigned
+                )
+            host = self._bind_host()
+            if host is not None and host not in ("127.0.0.1", "localhost", "::1"):
+                _log.warning("MAVLink: listening on %s (not loopback), as requested", host)
+
+    def close(self) -> None:
+        """Close the connection. Idempotent."""
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            try:
+                conn.close()
+            except Exception:  # noqa: BLE001 - closing must not raise
+                pass
+
+    def _bind_host(self) -> str | None:
+        port = getattr(self._conn, "port", None)
+        if getattr(self._conn, "udp_server", False) and port is not None:
+            return str(port.getsockname()[0])
+        return None
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """(host, port) the UDP listener is bound to, or None (not a ``udpin:`` link)."""
+        port = getattr(self._conn, "port", None)
+        if port is None or not hasattr(port, "getsockname"):
+            return None
+        try:
+            host, p = port.getsockname()[:2]
+        except OSError:
+            return None
+        return str(host), int(p)
+
+    # ------------------------------------------------------------------ public state
+
+    @property
+    def tick(self) -> MavlinkTick:
+        """Freshness of the state most recently yielded."""
+        return self._tick
+
+    @property
+    def fresh(self) -> bool:
+        """True when the state most recently yielded is fresh (see :class:`MavlinkTick`)."""
+        return self._tick.fresh
+
+    @property
+    def sample_age_s(self) -> float:
+        """Age of the state most recently yielded, s (inf before any sample)."""
+        return self._tick.sample_age_s
+
+    @property
+    def stats(self) -> MavlinkStats:
+        """A frozen snapshot of the counters."""
+        return MavlinkStats(
+            **self._c,
+            per_type=MappingProxyType(dict(self._per_type)),
+            last_sample_age_s=self._tick.sample_age_s,
+            message_rate_hz=self._rate_hz,
+            imu_source=self._imu_name,
+            stream_request=self._req_state,
+        )
+
+    def describe(self) -> dict[str, Any]:
+        """Plain-data description for the log's metadata (never the key itself)."""
+        return {
+            "kind": "mavlink",
+            "url": self.url,
+            "log": self.is_log,
+            "rate_hz": self.rate_hz,
+            "sysid": self.sysid,
+            "compid": self.compid,
+            "signing": self._key is not None,
+            "signing_key_file": self._signing_key_path,
+            "duration_s": self.duration_s,
+            "realtime": self.realtime,
+            "request_streams": self.request_streams,
+            "stale_timeout_s": self.stale_timeout_s,
+            "log_clock": self.log_clock if self.is_log else None,
+            "imu_messages": list(_IMU_TYPES),
+            "attitude_messages": list(_ATT_TYPES),
+            "dialect": mavutil.current_dialect,
+            "mavlink_version": mavutil.mavlink.WIRE_PROTOCOL_VERSION,
+        }
+
+    # ------------------------------------------------------------------ iteration
+
+    def __iter__(self) -> Iterator[AircraftState]:
+        if self._conn is None:
+            raise SourceError(
+                "mavlink source is not open; use 'with MavlinkSource(...) as src: for s in src'"
+            )
+        if self._iterating:
+            raise SourceError("mavlink source: already being iterated; make one iterator only")
+        return self._iter_log() if self.is_log else self._iter_live()
+
+    def _make_state(self, k: int, now: float) -> AircraftState:
+        """Build tick k's state (hold of the latest sample) and its freshness at time ``now``."""
+        age_imu = now - self._imu_time
+        age_att = now - self._att_time
+        age = max(age_imu, age_att)
+        fresh = age <= self.stale_timeout_s
+        arrival = max(self._imu_time, self._att_time)
+        self._tick = MavlinkTick(
+            fresh=fresh,
+            sample_age_s=age,
+            new_sample=self._new,
+            arrival_s=arrival if math.isfinite(arrival) else math.nan,
+        )
+        self._new = False
+        c = self._c
+        c["ticks"] += 1
+        if not fresh:
+            c["stale_ticks"] += 1
+            if self._was_fresh:
+                c["gaps"] += 1
+                _log.warning(
+                    "MAVLink: no fresh sample from system %d for %.2f s; holding the last "
+                    "state, marked stale",
+                    self.sysid,
+                    age,
+                )
+        elif not self._was_fresh and c["ticks"] > 1 and c["gaps"] > 0:
+            _log.info("MAVLink: fresh samples again from system %d", self.sysid)
+        self._was_fresh = fresh
+        return AircraftState(
+            t=k / self.rate_hz,
+            specific_force=self._f,
+            angular_velocity=self._w,
+            attitude=self._att,
+        )
+
+    def _iter_live(self) -> Iterator[AircraftState]:
+        conn = self._conn
+        period = 1.0 / self.rate_hz
+        n_max = None if self.duration_s is None else max(1, round(self.duration_s * self.rate_hz))
+        self._iterating = True
+        try:
+            start = time.monotonic()
+            self._live_t0 = start
+            k = 0
+            while n_max is None or k < n_max:
+                deadline = start + k * period
+                self._pump_until(conn, deadline)
+                now = time.monotonic()
+                if now - deadline > period:
+                    self._c["late_ticks"] += 1
+                    if now - deadline > 0.25:  # stalled: re-anchor the clock, keep k contiguous
+                        start = now - k * period
+                self._update_rate(now)
+                if self._req_state != "off":
+                    self._service_requests(conn, now)
+                yield self._make_state(k, now)
+                k += 1
+        finally:
+            self._iterating = False
+
+    def _pump_until(self, conn: Any, deadline: float) -> None:
+        """Parse every message that arrives until ``deadline`` (monotonic s), then return."""
+        fd = getattr(conn, "fd", None)
+        recv_msg = conn.recv_msg
+        handle = self._handle
+        while True:
+            for _ in range(10000):  # bounded drain, so a flood cannot starve the ticks
+                try:
+                    msg = recv_msg()
+                except OSError as exc:
+                    raise SourceError(f"mavlink {self.url}: link failed ({exc})") from None
+                if msg is None:
+                    break
+                handle(msg, time.monotonic())
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                return
+            if fd is None:
+                time.sleep(min(remaining, 0.001))
+                continue
+            try:
+                select.select([fd], [], [], remaining)
+            except (OSError, ValueError):
+                time.sleep(min(remaining, 0.001))
+
+    def _iter_log(self) -> Iterator[AircraftState]:
+        conn = self._conn
+        period = 1.0 / self.rate_hz
+        n_max = None if self.duration_s is None else max(1, round(self.duration_s * self.rate_hz))
+        if isinstance(conn, DFReader.DFReader):
+            types = ["IMU", "ATT"]
+            handle = self._handle_dataflash
+            clock = None  # DataFlash timestamps already come from the vehicle's clock
+        else:
+            types = [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT"]
+            handle = self._handle
+            clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
+
+        def next_msg() -> tuple[Any, float]:
+            msg = conn.recv_match(type=types)
+            if msg is None:
+                return None, math.inf
+            return msg, (msg._timestamp if clock is None else clock(msg))
+
+        self._iterating = True
+        try:
+            pending, t_pending = next_msg()
+            if pending is None:
+                raise SourceError(
+                    f"mavlink log {self.url}: no {' or '.join(types)} messages (is it a "
+                    "telemetry .tlog or a DataFlash .bin with IMU and ATT?)"
+                )
+            t0 = t_pending
+            wall0 = time.monotonic()
+            k = 0
+            while n_max is None or k < n_max:
+                t_tick = t0 + k * period
+                while t_pending <= t_tick:
+                    handle(pending, t_pending)
+                    pending, t_pending = next_msg()
+                if self.realtime:
+                    delay = wall0 + k * period - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                self._update_rate(t_tick)
+                yield self._make_state(k, t_tick)
+                k += 1
+                if pending is None:
+                    return
+        finally:
+            self._iterating = False
+
+    # ------------------------------------------------------------------ messages
+
+    def _update_rate(self, now: float) -> None:
+        if math.isnan(self._rate_window_start):
+            self._rate_window_start = now
+            self._rate_window_count = self._c["accepted"]
+            return
+        span = now - self._rate_window_start
+        if span >= 1.0:
+            self._rate_hz = (self._c["accepted"] - self._rate_window_count) / span
+            self._rate_window_start = now
+            self._rate_window_count = self._c["accepted"]
+
+    def _handle(self, msg: Any, arrival: float) -> None:
+        """Filter one decoded MAVLink message and fold it into the state."""
+        c = self._c
+        mtype = msg.get_type()
+        if mtype == "BAD_DATA":
+            reason = getattr(msg, "reason", "")
+            if reason == "Invalid signature":
+                data = msg.data
+                if len(data) > 2 and data[0] == 0xFD and (data[2] & 0x01):
+                    c["rejected_bad_signature"] += 1
+                else:
+                    c["rejected_unsigned"] += 1
+            else:
+                c["bad_data"] += 1
+                c["bad_bytes"] += len(msg.data)
+            return
+        c["received"] += 1
+        if msg.get_srcSystem() != self.sysid:
+            c["rejected_sysid"] += 1
+            return
+        if self.compid is not None and msg.get_srcComponent() != self.compid:
+            c["rejected_compid"] += 1
+            return
+        c["accepted"] += 1
+        self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
+
+        imu = _IMU_TYPES.get(mtype)
+        if imu is not None:
+            rank, ka, kg = imu
+            if mtype == "RAW_IMU" and not self._ardupilot:
+                c["ignored_raw_imu"] += 1
+                return
+            if mtype in _IMU_WITH_INSTANCE and msg.id != 0:  # only the first IMU instance
+                return
+            if rank > self._imu_rank and arrival - self._imu_time <= self.stale_timeout_s:
+                return  # a better IMU message is still fresh
+            acc = (msg.xacc * ka, msg.yacc * ka, msg.zacc * ka)
+            gyr = (msg.xgyro * kg, msg.ygyro * kg, msg.zgyro * kg)
+            if not (
+                _finite_within(acc, MAX_SPECIFIC_FORCE) and _finite_within(gyr, MAX_ANGULAR_RATE)
+            ):
+                c["rejected_invalid"] += 1
+                return
+            self._f, self._w = acc, gyr
+            self._imu_time = arrival
+            self._imu_rank, self._imu_name = rank, mtype
+            self._new = True
+            c["used"] += 1
+            return
+
+        att_rank = _ATT_TYPES.get(mtype)
+        if att_rank is not None:
+            if att_rank > self._att_rank and arrival - self._att_time <= self.stale_timeout_s:
+                return
+            if att_rank == 0:
+                att: tuple[float, float, float] | None = (msg.roll, msg.pitch, msg.yaw)
+                if not (
+                    _finite_within(att[:1], math.pi + _ANGLE_TOL)
+                    and _finite_within(att[1:2], 0.5 * math.pi + _ANGLE_TOL)
+                    and _finite_within(att[2:], 2.0 * math.pi + _ANGLE_TOL)
+                ):
+                    att = None
+                else:
+                    att = (att[0], att[1], _wrap_pi(att[2]))
+            else:
+                att = _quat_to_euler(msg.q1, msg.q2, msg.q3, msg.q4)
+            if att is None:
+                c["rejected_invalid"] += 1
+                return
+            self._att = att
+            self._att_time = arrival
+            self._att_rank = att_rank
+            self._new = True
+            c["used"] += 1
+            return
+
+        if mtype == "HEARTBEAT":
+            if msg.type != mavutil.mavlink.MAV_TYPE_GCS:
+                self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+        elif mtype == "COMMAND_ACK":
+            self._on_command_ack(msg)
+
+    def _handle_dataflash(self, msg: Any, arrival: float) -> None:
+        """Fold one DataFlash IMU or ATT record into the state."""
+        c = self._c
+        mtype = msg.get_type()
+        c["received"] += 1
+        c["accepted"] += 1
+        self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
+        if mtype == "IMU":
+            if getattr(msg, "I", 0) != 0:
+                return
+            acc = (msg.AccX, msg.AccY, msg.AccZ)
+            gyr = (msg.GyrX, msg.GyrY, msg.GyrZ)
+            if not (
+                _finite_within(acc, MAX_SPECIFIC_FORCE) and _finite_within(gyr, MAX_ANGULAR_RATE)
+            ):
+                c["rejected_invalid"] += 1
+                return
+            self._f, self._w = acc, gyr
+            self._imu_time = arrival
+            self._imu_name = "IMU"
+        else:  # ATT, degrees
+            att = (math.radians(msg.Roll), math.radians(msg.Pitch), math.radians(msg.Yaw))
+            if not (
+                _finite_within(att[:1], math.pi + _ANGLE_TOL)
+                and _finite_within(att[1:2], 0.5 * math.pi + _ANGLE_TOL)
+                and _finite_within(att[2:], 2.0 * math.pi + _ANGLE_TOL)
+            ):
+                c["rejected_invalid"] += 1
+                return
+            self._att = (att[0], att[1], _wrap_pi(att[2]))
+            self._att_time = arrival
+        self._new = True
+        c["used"] += 1
+
+    # ------------------------------------------------------------------ stream requests
+
+    def _target_compid(self) -> int:
+        return self.compid if self.compid is not None else mavutil.mavlink.MAV_COMP_ID_AUTOPILOT1
+
+    def _send(self, fn: Any, *args: Any) -> None:
+        try:
+            fn(*args)
+        except OSError as exc:
+            _log.debug("MAVLink: send failed on %s: %s", self.url, exc)
+
+    def _service_requests(self, conn: Any, now: float) -> None:
+        """Heartbeat and MAV_CMD_SET_MESSAGE_INTERVAL requests on a live link."""
+        ml = mavutil.mavlink
+        if now - self._last_hb >= _HEARTBEAT_PERIOD_S:
+            self._last_hb = now
+            self._send(conn.mav.heartbeat_send, ml.MAV_TYPE_GCS, ml.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        timeout = self.stale_timeout_s
+        if now - self._imu_time <= timeout and now - self._att_time <= timeout:
+            self._req_state = "streaming"
+            self._req_count = 0
+            self._warned_ignored = False
+            return
+        state = self._req_state
+        if state in ("idle", "streaming"):
+            silent_since = max(self._imu_time, self._att_time, self._live_t0)
+            if now - silent_since >= _REQUEST_AFTER_S and self._req_count < _MAX_REQUESTS:
+                self._send_requests(conn, now)
+        elif state in ("sent", "acknowledged", "ignored") and (
+            now - self._req_time >= self.request_timeout_s
+        ):
+            if not self._warned_ignored:
+                self._warned_ignored = True
+                _log.warning(
+                    "MAVLink: system %d ignored MAV_CMD_SET_MESSAGE_INTERVAL (%s, no IMU and "
+                    "attitude data %.1f s later); check the link and the vehicle's stream settings",
+                    self.sysid,
+                    "acknowledged" if state == "acknowledged" else "no COMMAND_ACK",
+                    self.request_timeout_s,
+                )
+            self._req_state = "ignored"
+            if self._req_count < _MAX_REQUESTS:
+                self._send_requests(conn, now)
+
+    def _send_requests(self, conn: Any, now: float) -> None:
+        ml = mavutil.mavlink
+        interval_us = 1e6 / self.rate_hz
+        msg_ids = [ml.MAVLINK_MSG_ID_HIGHRES_IMU, ml.MAVLINK_MSG_ID_ATTITUDE]
+        if self._req_count >= 1:  # second try: also the SCALED_IMU fallback
+            msg_ids.append(ml.MAVLINK_MSG_ID_SCALED_IMU)
+        for mid in msg_ids:
+            self._send(
+                conn.mav.command_long_send,
+                self.sysid,
+                self._target_compid(),
+                ml.MAV_CMD_SET_MESSAGE_INTERVAL,
+                0,
+                float(mid),
+                float(interval_us),
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            )
+        self._req_count += 1
+        self._req_time = now
+        self._req_state = "sent"
+        _log.info(
+            "MAVLink: asked system %d for HIGHRES_IMU and ATTITUDE at %.0f Hz "
+            "(MAV_CMD_SET_MESSAGE_INTERVAL, try %d)",
+            self.sysid,
+            self.rate_hz,
+            self._req_count,
+        )
+
+    def _on_command_ack(self, msg: Any) -> None:
+        ml = mavutil.mavlink
+        if msg.command != ml.MAV_CMD_SET_MESSAGE_INTERVAL or self._req_state == "off":
+            return
+        if msg.result == ml.MAV_RESULT_ACCEPTED:
+            if self._req_state == "sent":
+                self._req_state = "acknowledged"
+        else:
+            name = ml.enums["MAV_RESULT"].get(msg.result)
+            label = name.name if name is not None else str(msg.result)
+            _log.warning(
+                "MAVLink: system %d refused MAV_CMD_SET_MESSAGE_INTERVAL (%s); configure its "
+                "telemetry streams on the vehicle",
+                self.sysid,
+                label,
+            )
+            self._req_state = "rejected"
+
+
+def _reject_unsigned(mav: Any, msgid: int) -> bool:
+    """Signing callback: accept no unsigned message (pymavlink then yields BAD_DATA)."""
+    return False
