@@ -12,6 +12,7 @@ from motionbase.io.mcap_source import McapSource, read_messages, read_metadata  
 from motionbase.io.schemas import TOPIC_SCHEMAS  # noqa: E402, F401
 
 # --- MAVLink (issue 6) ---
+# isort: split
 from motionbase.io.mavlink_source import (  # noqa: E402, F401
     MavlinkSource,
     MavlinkStats,
