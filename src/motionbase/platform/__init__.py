@@ -1,5 +1,6 @@
 """Kinematics of the motion platforms: the 6-RUS rotary platform and the planar 3-RRR robot."""
 
+from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.rrr3 import Rrr3, Rrr3Geometry
 from motionbase.platform.rus6 import JacobianResult, JointPoints, Rus6, rotation_matrix
 from motionbase.platform.rus6_geometry import Rus6Geometry
@@ -13,6 +14,7 @@ from motionbase.platform.rus6_workspace import (
 
 __all__ = [
     "AxisReach",
+    "CursorCalibration",
     "JacobianResult",
     "JointPoints",
     "Rrr3",

@@ -1,0 +1,96 @@
+"""Cursor calibration: the bi-quadratic map of eqs. 7.15-7.16, fitted by least squares."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from motionbase.errors import ConfigError
+from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
+
+# A known bi-quadratic map in raw pixels (the thesis's window: 1310 x 715 px), coefficients
+# chosen so that the window lands around the robot's workspace with visible curvature.
+CX = [0.09, 6.1e-5, 2.0e-6, 3.0e-9, -4.0e-9, 5.0e-9, 1.0e-12, -2.0e-12, 3.0e-16]
+CY = [0.12, 1.5e-6, -1.0e-4, -2.0e-9, 3.0e-9, 1.0e-8, -1.0e-12, 2.0e-12, -1.0e-15]
+
+
+def truth(px: np.ndarray) -> np.ndarray:
+    u, v = px[..., 0], px[..., 1]
+    mono = [np.ones_like(u), u, v, u * v, u**2, v**2, u**2 * v, u * v**2, u**2 * v**2]
+    return np.stack([sum(c * m for c, m in zip(C, mono, strict=True)) for C in (CX, CY)], -1)
+
+
+def grid(n: int, w: float = 1310.0, h: float = 715.0) -> np.ndarray:
+    U, V = np.meshgrid(np.linspace(0, w, n), np.linspace(0, h, n))
+    return np.stack([U.ravel(), V.ravel()], -1)
+
+
+def test_recovers_known_biquadratic_map_from_nine_points():
+    px = grid(3)  # the thesis's m1..m9 layout
+    cal = CursorCalibration.fit(px, truth(px))
+    rng = np.random.default_rng(0)
+    test_px = rng.uniform([0, 0], [1310, 715], (500, 2))
+    np.testing.assert_allclose(cal(test_px), truth(test_px), atol=1e-12)
+    assert cal.residual < 1e-14 and cal.n_points == 9
+    x, y = cal.map_one(*test_px[0])
+    np.testing.assert_allclose([x, y], truth(test_px[0]), atol=1e-12)
+    assert cal(test_px.reshape(50, 10, 2)).shape == (50, 10, 2)
+
+
+def test_least_squares_on_more_points_and_large_residual_when_inconsistent():
+    px = grid(5)
+    pts = truth(px)
+    good = CursorCalibration.fit(px, pts)
+    assert good.residual < 1e-14 and good.n_points == 25
+    bad_pts = pts.copy()
+    bad_pts[7] += [0.01, -0.01]  # one pair 14 mm off: no bi-quadratic map fits all
+    bad = CursorCalibration.fit(px, bad_pts)
+    assert bad.residual > 1e-3
+    assert bad.max_residual > bad.residual
+    # noise at the 0.1 mm level gives a residual at that level, not more
+    rng = np.random.default_rng(1)
+    noisy = CursorCalibration.fit(px, pts + rng.normal(0, 1e-4, pts.shape))
+    assert 2e-5 < noisy.residual < 2e-4
+
+
+def test_degenerate_layouts_are_refused():
+    line = np.stack([np.linspace(0, 100, 9), np.linspace(0, 50, 9)], -1)
+    with pytest.raises(ConfigError, match="cannot determine"):
+        CursorCalibration.fit(line, truth(line))
+    two_cols = np.array([[u, v] for u in (0, 100) for v in np.linspace(0, 80, 5)])
+    with pytest.raises(ConfigError, match="3 distinct columns"):
+        CursorCalibration.fit(two_cols, truth(two_cols))
+    with pytest.raises(ConfigError, match="at least 9"):
+        CursorCalibration.fit(grid(2), truth(grid(2)))
+    with pytest.raises(ConfigError, match="both be"):
+        CursorCalibration.fit(grid(3), truth(grid(3))[:, :1])
+    flat = np.array([[u, 5.0] for u in range(9)])
+    with pytest.raises(ConfigError, match="spread"):
+        CursorCalibration.fit(flat, truth(flat))
+
+
+def test_toml_round_trip(tmp_path):
+    px = grid(4)
+    cal = CursorCalibration.fit(px, truth(px) + 1e-4 * np.sin(px))
+    p = tmp_path / "cal.toml"
+    cal.to_toml(p)
+    back = CursorCalibration.from_toml(p)
+    assert back == cal
+    (tmp_path / "bad.toml").write_text("[calibration]\ncoef_x = [1, 2]\n")
+    with pytest.raises(ConfigError, match="missing field|coef_x"):
+        CursorCalibration.from_toml(tmp_path / "bad.toml")
+
+
+def test_default_maps_window_onto_valid_rectangle_with_y_down():
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
+    cal = CursorCalibration.default(rrr3, 800, 600)
+    x0, x1, y0, y1 = rrr3.inscribed_rectangle(0.0)
+    np.testing.assert_allclose(cal([0, 0]), [x0, y1], atol=1e-12)  # top-left: y max
+    np.testing.assert_allclose(cal([800, 600]), [x1, y0], atol=1e-12)
+    np.testing.assert_allclose(cal([400, 300]), [(x0 + x1) / 2, (y0 + y1) / 2], atol=1e-12)
+    # moving the cursor down lowers y
+    assert cal([100, 400])[1] < cal([100, 200])[1]
+    px = grid(25, 800, 600)
+    xy = cal(px)
+    poses = np.concatenate([xy, np.zeros((len(xy), 1))], axis=1)
+    assert rrr3.reachable(poses).all()
