@@ -334,6 +334,11 @@ class JsbsimSource:
         self._nodes = nodes
         return self
 
+    @property
+    def output_dir(self) -> Path | None:
+        """The temporary folder JSBSim writes its files to while the source is open."""
+        return Path(self._tmp.name) if self._tmp is not None else None
+
     def close(self) -> None:
         """Release JSBSim, delete its temporary folder and restore JSBSim's logger."""
         self._fdm = None

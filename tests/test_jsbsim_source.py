@@ -1,0 +1,159 @@
+"""JsbsimSource: physics at the edge, rates, quietness, no files in the cwd, realtime pacing."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from motionbase.errors import ConfigError, SourceError
+from motionbase.io.base import Source
+from motionbase.io.jsbsim_source import JsbsimSource, available_scripts
+
+G = 9.80665
+
+
+@pytest.fixture(scope="module")
+def c1723_5s():
+    with JsbsimSource("c1723", duration_s=5.0) as src:
+        return src, list(src)
+
+
+def test_is_a_source_at_the_script_rate(c1723_5s) -> None:
+    src, states = c1723_5s
+    assert isinstance(src, Source)
+    assert src.rate_hz == pytest.approx(120.0)
+    assert src.duration_s == 5.0
+    assert len(states) == 600
+    t = np.array([s.t for s in states])
+    assert np.allclose(np.diff(t), 1 / 120, atol=1e-9)
+    assert t[0] == pytest.approx(1 / 120) and t[-1] == pytest.approx(5.0)
+    assert all(s.is_finite() and s.angular_acceleration is not None for s in states)
+
+
+def test_specific_force_is_gravity_in_body_axes_while_parked(c1723_5s) -> None:
+    """Brakes on for the first 3 s: f = R^T (0, 0, -g) from the attitude, in m/s^2."""
+    _, states = c1723_5s
+    parked = [s for s in states if 0.5 <= s.t <= 2.9]
+    for s in parked:
+        roll, pitch, _ = s.attitude
+        expected = -G * np.array(
+            [-np.sin(pitch), np.sin(roll) * np.cos(pitch), np.cos(roll) * np.cos(pitch)]
+        )
+        # the engine spools up against the brakes: allow a few tenths of a m/s^2
+        assert np.allclose(s.specific_force, expected, atol=0.35)
+        assert s.specific_force[2] == pytest.approx(-G, rel=0.03)
+        assert np.all(np.abs(s.angular_velocity) < 0.1)
+
+
+def test_climb_specific_force_is_about_one_g(tmp_path: Path) -> None:
+    """In the autopilot climb the mean specific force is close to 1 g, mostly along -z."""
+    with JsbsimSource("c1723", duration_s=60.0) as src:
+        states = [s for s in src if s.t >= 40.0]
+    f = np.array([s.specific_force for s in states])
+    assert np.linalg.norm(f, axis=1).mean() == pytest.approx(G, rel=0.1)
+    assert f[:, 2].mean() < -0.85 * G
+
+
+def test_decimated_samples_equal_the_full_rate_ones() -> None:
+    with JsbsimSource("c1723", duration_s=2.0) as full_src:
+        full = list(full_src)
+    with JsbsimSource("c1723", duration_s=2.0, rate_hz=40.0) as dec_src:
+        dec = list(dec_src)
+    assert dec_src.rate_hz == 40.0 and len(dec) == 80
+    for a, b in zip(full[2::3], dec, strict=True):
+        assert a.t == b.t
+        assert np.array_equal(a.specific_force, b.specific_force)
+        assert np.array_equal(a.attitude, b.attitude)
+
+
+def test_quiet_and_leaves_the_working_directory_alone(tmp_path: Path, monkeypatch, capfd):
+    """The whole c1723 run: no banner or notices, and its state file goes to a temp folder."""
+    monkeypatch.chdir(tmp_path)
+    seen_files: list[str] = []
+    with JsbsimSource("c1723") as src:
+        out_dir = src.output_dir
+        assert out_dir is not None and out_dir.is_dir()
+        n = 0
+        for _ in src:
+            n += 1
+        seen_files = sorted(p.name for p in out_dir.iterdir())
+    assert n == 24000
+    # c1723 writes a state file once above 1000 ft: it went to the temporary folder ...
+    assert any(name.startswith("initfile") for name in seen_files)
+    # ... which is gone, and nothing reached the working directory or the terminal
+    assert not out_dir.exists()
+    assert list(tmp_path.iterdir()) == []
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+
+
+def test_bad_script_name_says_how_to_find_names() -> None:
+    with pytest.raises(SourceError) as err:
+        JsbsimSource("c17233")
+    msg = str(err.value)
+    assert "c1723" in msg and "available_scripts" in msg and "\n" not in msg
+    assert "c1723" in available_scripts()
+    with pytest.raises(SourceError, match="not found"):
+        JsbsimSource("/no/such/script.xml")
+
+
+def test_bad_rate_and_duration_are_config_errors() -> None:
+    with pytest.raises(ConfigError, match="120/n"):
+        JsbsimSource("c1723", rate_hz=100.0)
+    with pytest.raises(ConfigError, match="duration_s"):
+        JsbsimSource("c1723", duration_s=-1.0)
+
+
+def test_script_by_path_and_describe(tmp_path: Path) -> None:
+    src = JsbsimSource("c1723")
+    path = src.describe()["path"]
+    by_path = JsbsimSource(path, duration_s=0.5)
+    desc = by_path.describe()
+    assert desc["kind"] == "jsbsim" and desc["jsbsim_version"]
+    assert desc["rate_hz"] == 120.0 and desc["duration_s"] == 0.5
+    assert json.dumps(desc)
+    assert len(list(by_path)) == 60  # iterating opens and closes the source itself
+
+
+def test_from_aircraft_applies_initial_conditions(capfd) -> None:
+    init = {
+        "ic/h-sl-ft": 3000.0,
+        "ic/vc-kts": 100.0,
+        "ic/psi-true-deg": 90.0,
+        "ic/theta-deg": 0.0,
+        "ic/phi-deg": 0.0,
+    }
+    src = JsbsimSource.from_aircraft("c172x", init, rate_hz=60.0, duration_s=1.0)
+    states = list(src)
+    assert src.rate_hz == 60.0 and len(states) == 60
+    assert np.allclose(np.diff([s.t for s in states]), 1 / 60, atol=1e-9)
+    assert states[0].attitude[2] == pytest.approx(np.pi / 2, abs=0.05)
+    assert abs(states[0].attitude[0]) < 0.05
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    with pytest.raises(SourceError, match="aircraft"):
+        JsbsimSource.from_aircraft("c172xx", init)
+
+
+def test_realtime_paces_to_the_wall_clock_without_busy_waiting() -> None:
+    """~1 s of flight: each sample arrives at its simulated time (sleeping, not spinning)."""
+    src = JsbsimSource("c1723", duration_s=1.0, realtime=True)
+    arrivals = []
+    cpu0 = time.process_time()
+    wall0 = time.perf_counter()
+    with src:
+        for state in src:
+            arrivals.append((time.perf_counter(), state.t))
+    wall = time.perf_counter() - wall0
+    cpu = time.process_time() - cpu0
+    assert len(arrivals) == 120
+    w0, t0 = arrivals[0]
+    lateness = np.array([(w - w0) - (t - t0) for w, t in arrivals])
+    assert lateness.min() > -1e-3  # never ahead of the clock
+    assert lateness.max() < 0.05  # generous: the machine is shared
+    assert wall > 0.95 * (arrivals[-1][1] - t0)
+    assert cpu < 0.5 * wall  # sleeping, not busy-waiting

@@ -1,0 +1,366 @@
+"""McapLogger: real files read back by the mcap library, schemas, exact floats, crash safety."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.reader import NonSeekingReader, make_reader
+from scipy.spatial.transform import Rotation
+
+from motionbase import __version__
+from motionbase.errors import ConfigError, MotionbaseError, SinkError
+from motionbase.io import mcap_log
+from motionbase.io.mcap_log import McapLogger, quaternion_from_euler_zyx
+from motionbase.io.mcap_source import read_messages
+from motionbase.io.schemas import TOPIC_SCHEMAS
+
+RNG = np.random.default_rng(7)
+CONFIG = {
+    "source": {"kind": "jsbsim", "script": "c1723", "rate_hz": 120.0},
+    "geometry": {"crank": 0.184, "rod": 0.724, "pivots": np.linspace(0, 1, 6)},
+    "washout": {"k_f": [0.6, 0.6, 0.5], "tilt_rate_deg": 3.0},
+    "rate_hz": 120.0,
+}
+
+
+def _sample_messages(t: float) -> dict[str, dict]:
+    """One message per topic with random values (numpy arrays, as the pipeline gives them)."""
+    return {
+        "/aircraft/state": {
+            "specific_force": RNG.normal(size=3),
+            "angular_velocity": RNG.normal(size=3),
+            "attitude": RNG.normal(size=3),
+            "angular_acceleration": RNG.normal(size=3),
+        },
+        "/washout/pose": {"pose": RNG.normal(size=6) * 0.1},
+        "/platform/pose": {"pose": RNG.normal(size=6) * 0.1, "clamped": bool(RNG.random() < 0.5)},
+        "/platform/actuators": {"angles": RNG.normal(size=6)},
+        "/planar/pose": {"pose": RNG.normal(size=3)},
+        "/planar/actuators": {
+            "angles": RNG.normal(size=3),
+            "servo_deg": RNG.integers(0, 181, size=3),
+        },
+        "/health": {
+            "rejected_inputs": 1,
+            "clamps": 2,
+            "rate_limited": 0,
+            "watchdog_fades": 0,
+            "estops": 0,
+            "worst_overrun_s": 0.001,
+            "extra_counter": 5,
+        },
+        "/cursor": {"pixel": [320.0, 240.0], "target": RNG.normal(size=2) * 0.01},
+    }
+
+
+def _write_log(path: Path, n: int = 240, rate: float = 120.0) -> list[tuple[str, float, dict]]:
+    written = []
+    with McapLogger(path, CONFIG) as logger:
+        for k in range(1, n + 1):
+            t = k / rate
+            for topic, msg in _sample_messages(t).items():
+                logger.add(topic, t, msg)
+                written.append((topic, t, msg))
+            pose = RNG.normal(size=6) * 0.1
+            logger.add_transform(t, pose)
+            written.append(("/tf", t, {"pose": pose}))
+    return written
+
+
+def test_every_message_reads_back_with_mcap_and_validates(tmp_path: Path) -> None:
+    path = tmp_path / "all.mcap"
+    written = _write_log(path)
+    validators = {
+        name: jsonschema.Draft202012Validator(schema) for name, schema in TOPIC_SCHEMAS.values()
+    }
+    for schema in TOPIC_SCHEMAS.values():
+        jsonschema.Draft202012Validator.check_schema(schema[1])
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == len(written) + 2  # + world->base transforms
+        assert summary.statistics.chunk_count >= 2  # 2 s of data, 1 s per chunk
+        topics = {ch.topic for ch in summary.channels.values()}
+        assert topics == set(TOPIC_SCHEMAS)
+        count = 0
+        for schema, channel, message in reader.iter_messages():
+            assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            assert json.loads(schema.data) == TOPIC_SCHEMAS[channel.topic][1]
+            decoded = json.loads(message.data)
+            validators[schema.name].validate(decoded)
+            assert message.publish_time == message.log_time
+            if channel.topic == "/tf":
+                ts = decoded["timestamp"]
+                assert ts["sec"] * 10**9 + ts["nsec"] == message.log_time
+            else:
+                assert message.log_time == round(decoded["t"] * 1e9)
+            count += 1
+        assert count == summary.statistics.message_count
+        (meta,) = list(reader.iter_metadata())
+    assert meta.name == "motionbase"
+    assert meta.metadata["version"] == __version__
+    config = json.loads(meta.metadata["config"])
+    assert config["geometry"]["pivots"] == np.linspace(0, 1, 6).tolist()
+    assert config["washout"] == CONFIG["washout"]
+
+    # the values are the ones written, exactly, in the same order per topic
+    by_topic = read_messages(path)
+    for topic in TOPIC_SCHEMAS:
+        if topic == "/tf":
+            continue
+        expected = [(t, m) for tp, t, m in written if tp == topic]
+        got = by_topic[topic]
+        assert len(got) == len(expected)
+        for (t, msg), back in zip(expected, got, strict=True):
+            assert back["t"] == t
+            for key, value in msg.items():
+                np.testing.assert_array_equal(np.asarray(back[key]), np.asarray(value))
+
+
+def test_streaming_reader_reads_the_same_messages(tmp_path: Path) -> None:
+    path = tmp_path / "s.mcap"
+    _write_log(path, n=130)
+    with open(path, "rb") as fh:
+        seeking = [
+            (c.topic, m.log_time, m.data)
+            for _, c, m in make_reader(fh).iter_messages(log_time_order=False)
+        ]
+    with open(path, "rb") as fh:
+        streaming = [
+            (c.topic, m.log_time, m.data)
+            for _, c, m in NonSeekingReader(fh, validate_crcs=True).iter_messages(
+                log_time_order=False
+            )
+        ]
+    assert seeking == streaming and len(seeking) > 0
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@settings(max_examples=60, deadline=None)
+@given(values=st.lists(finite, min_size=6, max_size=6), t=st.floats(0, 1e5))
+def test_floats_round_trip_bit_for_bit(tmp_path_factory, values: list[float], t: float) -> None:
+    path = tmp_path_factory.mktemp("rt") / "rt.mcap"
+    special = [0.1, -0.0, 5e-324, 1.7976931348623157e308, 2.2250738585072014e-308, 1 / 3]
+    with McapLogger(path, {}) as logger:
+        logger.add("/washout/pose", t, {"pose": np.array(values)})
+        logger.add("/platform/actuators", t, {"angles": special})
+    back = read_messages(path)
+    got = back["/washout/pose"][0]
+    assert got["t"] == t
+    assert struct.pack("<6d", *got["pose"]) == struct.pack("<6d", *values)
+    assert struct.pack("<6d", *back["/platform/actuators"][0]["angles"]) == struct.pack(
+        "<6d", *special
+    )
+
+
+def test_every_json_backend_round_trips_and_handles_non_finite() -> None:
+    encoders = [mcap_log.encode_message_stdlib]
+    if mcap_log.encode_message_orjson is not None:
+        encoders.append(mcap_log.encode_message_orjson)
+    values = RNG.normal(size=50) * 10.0 ** RNG.integers(-300, 300, size=50)
+    for encode in encoders:
+        plain = json.loads(encode({"t": 1.5, "x": values}))
+        assert plain["x"] == values.tolist()
+        odd = json.loads(encode({"t": 0.0, "x": [math.nan, math.inf, -math.inf, 1.0]}))
+        assert odd["x"] == ["NaN", "Infinity", "-Infinity", 1.0]
+        strided = json.loads(encode({"x": np.arange(10.0)[::3]}))
+        assert strided["x"] == [0.0, 3.0, 6.0, 9.0]
+
+
+def test_non_finite_aircraft_state_is_valid_json_and_reads_back(tmp_path: Path) -> None:
+    path = tmp_path / "nan.mcap"
+    with McapLogger(path, {}) as logger:
+        logger.add(
+            "/aircraft/state",
+            0.5,
+            {
+                "specific_force": [math.nan, math.inf, -9.81],
+                "angular_velocity": [0.0, -math.inf, 0.0],
+                "attitude": [0.0, 0.0, 0.0],
+            },
+        )
+    with open(path, "rb") as fh:
+        (item,) = list(make_reader(fh).iter_messages())
+    raw = item[2].data.decode()
+    assert "NaN" in raw and "Infinity" in raw
+    decoded = json.loads(raw, parse_constant=lambda c: pytest.fail(f"bare {c} in JSON"))
+    jsonschema.validate(decoded, TOPIC_SCHEMAS["/aircraft/state"][1])
+    back = read_messages(path)["/aircraft/state"][0]
+    assert math.isnan(back["specific_force"][0]) and back["specific_force"][1] == math.inf
+    assert back["angular_velocity"][1] == -math.inf
+
+
+@pytest.mark.parametrize("angles", [(0.1, -0.2, 0.3), (1.2, 0.7, -2.5), (0.0, 0.0, 3.1)])
+def test_transform_is_the_zyx_rotation(tmp_path: Path, angles: tuple[float, float, float]) -> None:
+    roll, pitch, yaw = angles
+    q = np.array(quaternion_from_euler_zyx(roll, pitch, yaw))
+    ref = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_quat()  # (x, y, z, w)
+    assert np.allclose(q, ref) or np.allclose(q, -ref)
+    # and it maps platform vectors to base axes as R = Rz(yaw) Ry(pitch) Rx(roll)
+    c, s = np.cos, np.sin
+    rz = np.array([[c(yaw), -s(yaw), 0], [s(yaw), c(yaw), 0], [0, 0, 1]])
+    ry = np.array([[c(pitch), 0, s(pitch)], [0, 1, 0], [-s(pitch), 0, c(pitch)]])
+    rx = np.array([[1, 0, 0], [0, c(roll), -s(roll)], [0, s(roll), c(roll)]])
+    assert np.allclose(Rotation.from_quat(q).as_matrix(), rz @ ry @ rx)
+
+    path = tmp_path / "tf.mcap"
+    pose = [0.01, -0.02, -0.05, roll, pitch, yaw]
+    with McapLogger(path, {}) as logger:
+        logger.add_transform(2.25, np.array(pose))
+    tfs = read_messages(path)["/tf"]
+    validator = jsonschema.Draft202012Validator(TOPIC_SCHEMAS["/tf"][1])
+    for msg in tfs:
+        validator.validate(msg)
+        assert msg["timestamp"] == {"sec": 2, "nsec": 250_000_000}
+    world = next(m for m in tfs if m["parent_frame_id"] == "world")
+    assert world["child_frame_id"] == "base"
+    # world is z-up: the base's z (down) axis must map to world -z, x stays forward
+    r_wb = Rotation.from_quat([world["rotation"][k] for k in "xyzw"]).as_matrix()
+    assert np.allclose(r_wb @ [0, 0, 1], [0, 0, -1]) and np.allclose(r_wb @ [1, 0, 0], [1, 0, 0])
+    plat = next(m for m in tfs if m["child_frame_id"] == "platform")
+    assert plat["parent_frame_id"] == "base"
+    assert [plat["translation"][k] for k in "xyz"] == pose[:3]
+    assert np.allclose([plat["rotation"][k] for k in "xyzw"], q)
+
+
+def test_unknown_topic_is_named(tmp_path: Path) -> None:
+    with McapLogger(tmp_path / "u.mcap", {}) as logger:
+        with pytest.raises(MotionbaseError, match="/platform/posee"):
+            logger.add("/platform/posee", 0.0, {"pose": [0] * 6})
+
+
+def test_bad_times_and_lifecycle_errors(tmp_path: Path) -> None:
+    logger = McapLogger(tmp_path / "l.mcap", {})
+    with pytest.raises(SinkError, match="start"):
+        logger.add("/washout/pose", 0.0, {"pose": [0.0] * 6})
+    logger.start()
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(SinkError, match="finite and >= 0"):
+            logger.add("/washout/pose", bad, {"pose": [0.0] * 6})
+    logger.finish()
+    logger.finish()  # idempotent
+    with pytest.raises(SinkError, match="finished"):
+        logger.add("/washout/pose", 0.0, {"pose": [0.0] * 6})
+    with pytest.raises(ConfigError, match="compression"):
+        McapLogger(tmp_path / "x.mcap", {}, compression="gzip")
+
+
+def test_lz4_and_uncompressed_files_read_back(tmp_path: Path) -> None:
+    for compression in ("lz4", "none"):
+        path = tmp_path / f"{compression}.mcap"
+        with McapLogger(path, {}, compression=compression) as logger:
+            for k in range(300):
+                logger.add("/washout/pose", k / 100, {"pose": [k * 0.001] * 6})
+        with open(path, "rb") as fh:
+            reader = make_reader(fh, validate_crcs=True)
+            assert {c.compression for c in reader.get_summary().chunk_indexes} == {
+                "" if compression == "none" else compression
+            }
+            assert len(list(reader.iter_messages())) == 300
+
+
+def test_unwritable_path_gives_one_line_naming_the_file(tmp_path: Path) -> None:
+    target = tmp_path / "no-such-folder" / "run.mcap"
+    with pytest.raises(SinkError) as err:
+        McapLogger(target, {}).start()
+    msg = str(err.value)
+    assert str(target) in msg and "\n" not in msg
+
+
+def test_disk_full_gives_one_line_naming_the_file() -> None:
+    assert os.path.exists("/dev/full"), "this test needs Linux's /dev/full (always full)"
+    with pytest.raises(SinkError) as err:
+        with McapLogger("/dev/full", {}) as logger:
+            for k in range(1000):
+                logger.add("/washout/pose", k / 100, {"pose": [0.0] * 6})
+    msg = str(err.value)
+    assert "/dev/full" in msg and "disk full" in msg and "\n" not in msg
+
+
+def test_exception_inside_with_still_finishes_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "exc.mcap"
+    with pytest.raises(RuntimeError, match="boom"):
+        with McapLogger(path, CONFIG) as logger:
+            for k in range(50):
+                logger.add("/washout/pose", k / 120, {"pose": [0.0] * 6})
+            raise RuntimeError("boom")
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        assert reader.get_summary().statistics.message_count == 50
+
+
+def test_open_log_is_on_disk_up_to_the_last_second(tmp_path: Path) -> None:
+    """While the logger runs, a reader already sees every chunk older than ~1 s."""
+    path = tmp_path / "live.mcap"
+    logger = McapLogger(path, CONFIG).start()
+    rate = 120
+    for k in range(1, int(3.5 * rate) + 1):
+        logger.add("/washout/pose", k / rate, {"pose": [k * 1e-4] * 6})
+    seen = read_messages(path)["/washout/pose"]  # the file has no footer yet: a "cut" file
+    times = [m["t"] for m in seen]
+    assert times == [k / rate for k in range(1, len(times) + 1)]  # a prefix, no gap
+    assert times[-1] >= 3.5 - 1.0 - 1 / rate
+    logger.finish()
+    assert len(read_messages(path)["/washout/pose"]) == int(3.5 * rate)
+
+
+_CHILD = """
+import sys, time
+from motionbase.io.mcap_log import McapLogger
+logger = McapLogger(sys.argv[1], {"rate_hz": 120.0}).start()
+k = 0
+while True:
+    k += 1
+    t = k / 120
+    logger.add("/aircraft/state", t, {"specific_force": [0.0, 0.0, -9.80665],
+               "angular_velocity": [0.0, 0.0, 0.0], "attitude": [0.0, 0.0, t]})
+    logger.add("/washout/pose", t, {"pose": [t, 0.0, 0.0, 0.0, 0.0, 0.0]})
+    print(repr(t), flush=True)
+    time.sleep(0.0005)
+"""
+
+
+def test_killed_writer_leaves_a_readable_prefix(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CHILD, str(path)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + 20
+        last = 0.0
+        assert proc.stdout is not None
+        while last < 3.0 and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            last = float(line)
+        assert last >= 3.0, "child did not get going"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    got = read_messages(path)
+    times = [m["t"] for m in got["/aircraft/state"]]
+    assert times == [k / 120 for k in range(1, len(times) + 1)]
+    # at most about a second (one chunk) is lost
+    assert times[-1] >= last - 1.0 - 1 / 120
+    assert len(got["/washout/pose"]) in (len(times), len(times) - 1)
