@@ -33,7 +33,7 @@ def pack_geometry(pivots, cdir, joints_local, origin, crank, rod, lo, hi) -> np.
     return np.ascontiguousarray(g)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rotation(roll, pitch, yaw, R):
     """R = Rz(yaw) Ry(pitch) Rx(roll) into the 3x3 array R."""
     cr, sr = math.cos(roll), math.sin(roll)
@@ -50,7 +50,7 @@ def _rotation(roll, pitch, yaw, R):
     R[2, 2] = cp * cr
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _inverse_row(p, G, out):
     """Closed-form inverse kinematics of one pose (thesis eq. 8.57) into ``out`` (6,).
 
@@ -100,7 +100,7 @@ def _inverse_row(p, G, out):
     return 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _within(out, G):
     for i in range(6):
         if not (G[i, LO] <= out[i] <= G[i, HI]):
@@ -108,14 +108,14 @@ def _within(out, G):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def inverse_batch(poses, G, out):
     """Crank angles (n, 6) of poses (n, 6); NaN rows where a leg cannot close."""
     for k in range(poses.shape[0]):
         _inverse_row(poses[k], G, out[k])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def reachable_batch(poses, G, out):
     """out[k] = every leg closes and every crank is within its limits."""
     tmp = np.empty(6)
@@ -123,18 +123,20 @@ def reachable_batch(poses, G, out):
         out[k] = _inverse_row(poses[k], G, tmp) == 0 and _within(tmp, G)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ok(p, G, tmp):
     return _inverse_row(p, G, tmp) == 0 and _within(tmp, G)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _wrap(a):
-    """Wrap an angle to [-pi, pi)."""
+    """Wrap an angle to [-pi, pi); angles already in range are returned bit for bit."""
+    if -math.pi <= a < math.pi:
+        return a
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _bisect_scale(base, delta, G, tmp, trial, n_iter):
     """Largest s in [0, 1] (to 2^-n_iter) with base + s*delta reachable, given s=0 is.
 
@@ -156,7 +158,7 @@ def _bisect_scale(base, delta, G, tmp, trial, n_iter):
     return lo
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _clamp_row(p, G, out):
     """Priority-aware clamp of one pose into ``out``; returns True if out != p.
 
@@ -209,13 +211,13 @@ def _clamp_row(p, G, out):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def clamp_batch(poses, G, out, flags):
     for k in range(poses.shape[0]):
         flags[k] = _clamp_row(poses[k], G, out[k])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _constraint_jacobian(p, theta, G, R, jx, jq, resid, omega=False):
     """Leg-closure constraints g_i = |P_i - B_i|^2 - R_i^2 and their derivatives.
 
@@ -263,12 +265,14 @@ def _constraint_jacobian(p, theta, G, R, jx, jq, resid, omega=False):
         jq[i] = -2.0 * (ex * dbx + ey * dby + ez * dbz)
 
 
-@njit(cache=True, nogil=True)
-def jacobian_batch(poses, G, omega, out):
-    """d(theta)/d(pose rate) (n, 6, 6); rows of NaN where the pose is not closable.
+@njit(cache=True, nogil=True, error_model="numpy")
+def jacobian_batch(poses, G, omega, out, lines, jqs):
+    """d(theta)/d(pose rate) (n, 6, 6) plus the raw constraint derivatives.
 
     omega=False: pose rate = [xdot, ydot, zdot, roll rate, pitch rate, yaw rate] (Euler rates).
     omega=True: the last three are the angular velocity in base axes.
+    ``lines[k]`` = dg/d[v, omega] (6, 6) (the rod lines, scaled by 2 |rod|), ``jqs[k]`` =
+    dg/dtheta (6,). NaN where the pose cannot be closed; inf entries at an exact singularity.
     """
     theta = np.empty(6)
     R = np.empty((3, 3))
@@ -279,14 +283,22 @@ def jacobian_batch(poses, G, omega, out):
         p = poses[k]
         if _inverse_row(p, G, theta) != 0:
             out[k, :, :] = np.nan
+            lines[k, :, :] = np.nan
+            jqs[k, :] = np.nan
             continue
-        _constraint_jacobian(p, theta, G, R, jx, jq, res, omega)
+        _constraint_jacobian(p, theta, G, R, jx, jq, res, True)
+        for i in range(6):
+            jqs[k, i] = jq[i]
+            for j in range(6):
+                lines[k, i, j] = jx[i, j]
+        if not omega:
+            _constraint_jacobian(p, theta, G, R, jx, jq, res, False)
         for i in range(6):
             for j in range(6):
                 out[k, i, j] = -jx[i, j] / jq[i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _solve6(A, b, x):
     """Solve A x = b (6x6) by Gaussian elimination with partial pivoting; False if singular.
 
@@ -320,7 +332,7 @@ def _solve6(A, b, x):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _residual_norm(p, theta, G, R, jx, jq, res):
     _constraint_jacobian(p, theta, G, R, jx, jq, res)
     m = 0.0
@@ -332,7 +344,7 @@ def _residual_norm(p, theta, G, R, jx, jq, res):
     return m
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def forward_batch(angles, guesses, G, tol, max_iter, out, iters):
     """Forward kinematics by damped Newton on the leg-closure constraints.
 

@@ -50,26 +50,36 @@ class JointPoints(NamedTuple):
 
 
 class JacobianResult(NamedTuple):
-    """Velocity relation between pose rates and crank rates, and a singularity measure.
+    """Velocity relation between pose rates and crank rates, and singularity measures.
 
     Attributes
     ----------
     matrix : ndarray, shape (..., 6, 6)
         ``J`` with ``theta_dot = J @ pose_rate`` (rad/s); ``J[..., i, j]`` = d(theta_i)/d(rate_j).
         ``pose_rate = [xdot, ydot, zdot, a, b, c]`` in m/s (base axes) and rad/s, where
-        ``(a, b, c)`` are the Euler-angle rates (roll, pitch, yaw rates; the derivative of the
-        pose vector) by default, or the angular velocity in base axes with
-        ``angular="omega"``. NaN where the pose cannot be closed.
-    inverse_condition : ndarray, shape (...)
-        ``1 / cond_2(J_h)`` in [0, 1], where ``J_h`` is ``J`` with its three rotational columns
-        divided by the platform radius ``rp`` (so rotation rates count as joint speeds in m/s).
-        It tends to 0 at either kind of singularity: a crank tangent perpendicular to its rod
-        (workspace boundary, J blows up) or an uncontrollable platform motion (J loses rank).
-        NaN where the pose cannot be closed.
+        ``(a, b, c)`` are the Euler-angle rates (roll, pitch, yaw rates: the time derivative of
+        the pose vector) by default, or the angular velocity in base axes with
+        ``angular="omega"``. NaN where the pose cannot be closed, inf at an exact leg
+        singularity.
+    margin : ndarray, shape (...)
+        The singularity measure for clamps and logs: ``min(transmission, conditioning)``, in
+        [0, 1], 0 at a singularity of either kind. NaN where the pose cannot be closed.
+    transmission : ndarray, shape (...)
+        Worst leg's transmission index ``|cos|`` of the angle between the rod and the crank
+        tip's velocity, in [0, 1]. 0 when a rod is perpendicular to its crank tip's path (crank
+        and rod aligned as seen in the crank's plane: the workspace boundary where that leg
+        stops closing, and the crank rate for a platform motion blows up).
+    conditioning : ndarray, shape (...)
+        ``1 / cond_2`` of the rods' unit lines ``[u_i, (R p_i) x u_i / rp]`` (u_i the unit rod
+        direction, rotation scaled by the platform radius ``rp``), in [0, 1]. 0 when the rods
+        cannot resist some platform motion (a direct, "type 2" singularity; the platform gains
+        freedom). Independent of the Euler parametrisation.
     """
 
     matrix: np.ndarray
-    inverse_condition: np.ndarray
+    margin: np.ndarray
+    transmission: np.ndarray
+    conditioning: np.ndarray
 
 
 def _as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...]]:
@@ -101,6 +111,8 @@ class Rus6:
         self._local = geometry.platform_joints_local
         self._origin = geometry.platform_origin
         self._crank = np.array(geometry.crank)
+        self._rod = np.array(geometry.rod)
+        self._rod_crank = self._rod * self._crank
         lo, hi = np.array(geometry.angle_min), np.array(geometry.angle_max)
         lo.flags.writeable = False
         hi.flags.writeable = False
@@ -275,22 +287,34 @@ class Rus6:
         Returns
         -------
         JacobianResult
-            ``matrix`` (..., 6, 6) and ``inverse_condition`` (...); see :class:`JacobianResult`.
+            ``matrix`` (..., 6, 6) and the singularity measures ``margin``, ``transmission``,
+            ``conditioning`` (...); see :class:`JacobianResult`.
         """
         if angular not in ("euler", "omega"):
             raise ConfigError(f"jacobian: angular must be 'euler' or 'omega', got {angular!r}")
         flat, lead = _as_poses(pose)
-        J = np.empty((flat.shape[0], 6, 6))
-        _k.jacobian_batch(flat, self._G, angular == "omega", J)
-        inv_cond = np.full(flat.shape[0], np.nan)
-        ok = np.isfinite(J).all(axis=(1, 2))
-        if ok.any():
-            Jh = J[ok].copy()
-            Jh[:, :, 3:] /= self.geometry.rp
-            s = np.linalg.svd(Jh, compute_uv=False)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inv_cond[ok] = np.where(s[:, 0] > 0, s[:, -1] / s[:, 0], 0.0)
-        return JacobianResult(J.reshape(lead + (6, 6)), inv_cond.reshape(lead))
+        n = flat.shape[0]
+        J = np.empty((n, 6, 6))
+        lines = np.empty((n, 6, 6))
+        jq = np.empty((n, 6))
+        _k.jacobian_batch(flat, self._G, angular == "omega", J, lines, jq)
+        closable = ~np.isnan(jq).any(axis=1)
+        trans = np.full(n, np.nan)
+        cond = np.full(n, np.nan)
+        if closable.any():
+            # |jq| = 2 |rod . dtip/dtheta| and |rod| = R, |dtip/dtheta| = r
+            trans[closable] = np.min(np.abs(jq[closable]) / (2.0 * self._rod_crank), axis=1)
+            unit = lines[closable] / (2.0 * self._rod)[:, None]
+            unit[:, :, 3:] /= self.geometry.rp
+            s = np.linalg.svd(unit, compute_uv=False)
+            cond[closable] = np.where(s[:, 0] > 0, s[:, -1] / np.maximum(s[:, 0], 1e-300), 0.0)
+        margin = np.minimum(trans, cond)
+        return JacobianResult(
+            J.reshape(lead + (6, 6)),
+            margin.reshape(lead),
+            trans.reshape(lead),
+            cond.reshape(lead),
+        )
 
     def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
         """The nearest safe pose on the way to neutral, rotation kept first.
@@ -333,9 +357,10 @@ class Rus6:
 def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
     """``R = Rz(yaw) Ry(pitch) Rx(roll)`` for Euler angles ``(..., 3)`` -> ``(..., 3, 3)``."""
     a = np.asarray(rpy, dtype=np.float64)
-    cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
-    cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
-    cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
+    with np.errstate(invalid="ignore"):  # inf -> NaN entries, quietly
+        cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
+        cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
+        cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
     R = np.empty(a.shape[:-1] + (3, 3))
     R[..., 0, 0] = cy * cp
     R[..., 0, 1] = cy * sp * sr - sy * cr
