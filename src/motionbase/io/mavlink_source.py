@@ -850,7 +850,7 @@ class MavlinkSource:
             return
 
         if mtype == "HEARTBEAT":
-            if msg.type != mavutil.mavlink.MAV_TYPE_GCS:
+            if msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:  # not a GCS/companion
                 self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
         elif mtype == "COMMAND_ACK":
             self._on_command_ack(msg)
@@ -920,7 +920,16 @@ class MavlinkSource:
         elif state in ("sent", "acknowledged", "ignored") and (
             now - self._req_time >= self.request_timeout_s
         ):
-            if not self._warned_ignored:
+            if not self._warned_ignored and self._c["accepted"] == 0:
+                self._warned_ignored = True
+                _log.warning(
+                    "MAVLink: nothing heard from system %d on %s %.1f s after asking for "
+                    "streams; is the vehicle sending to this address (and with this sysid)?",
+                    self.sysid,
+                    self.url,
+                    self.request_timeout_s,
+                )
+            elif not self._warned_ignored:
                 self._warned_ignored = True
                 _log.warning(
                     "MAVLink: system %d ignored MAV_CMD_SET_MESSAGE_INTERVAL (%s, no IMU and "
