@@ -1,0 +1,194 @@
+"""The servo protocol and the serial sink, through real pseudo-terminals and pyserial's loop://."""
+
+from __future__ import annotations
+
+import os
+import pty
+import select
+import threading
+import tty
+import warnings
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from motionbase.errors import SinkError
+from motionbase.io.serial_link import ServoSerialSink
+from motionbase.io.servo_protocol import ServoDecoder, decode, encode
+
+triples = st.tuples(*[st.integers(0, 180)] * 3)
+
+
+@settings(max_examples=200)
+@given(triples)
+def test_encode_decode_round_trip(cmd):
+    frame = encode(cmd)
+    assert frame == f"{cmd[0]}p{cmd[1]}q{cmd[2]}r".encode()
+    assert decode(frame) == [(0, cmd[0]), (1, cmd[1]), (2, cmd[2])]
+
+
+@settings(max_examples=100)
+@given(st.lists(triples, min_size=1, max_size=8), st.integers(1, 7))
+def test_decoder_handles_any_split(cmds, chunk):
+    data = b"".join(encode(c) for c in cmds)
+    dec = ServoDecoder()
+    out = []
+    for i in range(0, len(data), chunk):
+        out += dec.feed(data[i : i + chunk])
+    assert out == [(k, c[k]) for c in cmds for k in range(3)]
+
+
+def test_decoder_ignores_what_the_firmware_ignores():
+    dec = ServoDecoder()
+    assert dec.feed(b"200p") == []  # above 180
+    assert dec.feed(b"p") == []  # letter without digits (the thesis's sketch wrote 0)
+    assert dec.feed(b"9x0p") == []  # a command broken by a stray byte is dropped whole
+    assert dec.feed(b"00090p") == []  # too many digits
+    assert dec.feed(b"\r\n90p 45q\n120r") == [(0, 90), (1, 45), (2, 120)]
+    assert dec.feed(b"180r0p") == [(2, 180), (0, 0)]
+    assert dec.dropped == 4
+
+
+@pytest.mark.parametrize(
+    "bad", [(181, 0, 0), (0, -1, 0), (0, 0, 1.5), (90, 90), (0, float("nan"), 0)]
+)
+def test_encoder_refuses_out_of_range(bad):
+    with pytest.raises(SinkError):
+        encode(bad)
+
+
+class Board:
+    """The far end of a pty pair: prints the ready line until the host speaks, records bytes."""
+
+    def __init__(self, ready: bool = True) -> None:
+        self.master, self.slave = pty.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self.ready = ready
+        self.data = bytearray()
+        self.stop = threading.Event()
+        self.got_first = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            if self.ready and not self.got_first.is_set():
+                os.write(self.master, b"Rolling\r\n")
+            r, _, _ = select.select([self.master], [], [], 0.02)
+            if r:
+                try:
+                    chunk = os.read(self.master, 1024)
+                except OSError:
+                    return
+                if chunk:
+                    self.data += chunk
+                    self.got_first.set()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def wait_for(board: Board, n: int) -> None:
+    for _ in range(200):
+        if len(board.data) >= n:
+            return
+        threading.Event().wait(0.01)
+
+
+def test_protocol_round_trip_through_a_pty():
+    board = Board()
+    clock = FakeClock()
+    sent = [(90, 90, 90), (92, 88, 73), (0, 180, 45), (180, 0, 180), (45, 46, 47)]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # the ready line must be seen: no warning
+            with ServoSerialSink(board.path, clock=clock) as sink:
+                assert sink.ready
+                for cmd in sent:
+                    clock.t += 0.02
+                    assert sink.write(cmd)
+                expected = b"".join(encode(c) for c in sent)
+                wait_for(board, len(expected))
+        assert bytes(board.data) == expected
+        got = decode(bytes(board.data))
+        assert [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)] == sent
+        assert sink.frames_sent == len(sent)
+    finally:
+        board.close()
+
+
+def test_sends_only_on_change_or_keepalive_at_limited_rate():
+    clock = FakeClock()
+    with pytest.warns(RuntimeWarning, match="Rolling"):
+        sink = ServoSerialSink(
+            "loop://", rate_hz=50, keepalive_s=1.0, ready_timeout_s=0.0, clock=clock
+        ).open()
+    with sink:
+        assert sink.write((90, 90, 90))  # first frame
+        clock.t = 0.5
+        assert not sink.write((90, 90, 90))  # unchanged, keep-alive not due
+        clock.t = 1.0
+        assert sink.write((90, 90, 90))  # keep-alive
+        clock.t = 1.005
+        assert not sink.write((91, 90, 90))  # changed but within 1/50 s: held
+        clock.t = 1.01
+        assert not sink.write((92, 90, 90))  # newer value replaces the held one
+        clock.t = 1.021
+        assert sink.write((92, 90, 90))
+        assert sink.frames_sent == 3
+        with pytest.raises(SinkError, match="0..180"):
+            sink.write((90, 200, 90))
+        with pytest.raises(SinkError):
+            sink.write((90, float("nan"), 90))
+    assert sink.bytes_sent == 3 * len(b"90p90q90r")
+
+
+def test_missing_ready_line_warns_and_goes_on():
+    board = Board(ready=False)
+    try:
+        with pytest.warns(RuntimeWarning, match="no 'Rolling' line"):
+            sink = ServoSerialSink(board.path, ready_timeout_s=0.2).open()
+        assert not sink.ready
+        assert sink.write((10, 20, 30))
+        sink.close()
+        wait_for(board, 9)
+        assert decode(bytes(board.data)) == [(0, 10), (1, 20), (2, 30)]
+    finally:
+        board.close()
+
+
+def test_vanished_port_gives_clear_error_and_clean_stop():
+    board = Board()
+    clock = FakeClock()
+    sink = ServoSerialSink(board.path, clock=clock).open()
+    assert sink.write((90, 90, 90))
+    board.close()  # the board goes away: both ends of the pty closed
+    clock.t = 1.0
+    with pytest.raises(SinkError, match="vanished"):
+        for k in range(50):
+            clock.t += 0.1
+            sink.write((k, 90, 90))
+    sink.close()  # idempotent after the failure
+    with pytest.raises(SinkError, match="not open"):
+        sink.write((90, 90, 90))
+
+
+def test_unopenable_port_is_a_sink_error():
+    with pytest.raises(SinkError, match="cannot open serial port"):
+        ServoSerialSink("/dev/ttyDOES_NOT_EXIST").open()
