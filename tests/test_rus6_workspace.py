@@ -1,0 +1,112 @@
+"""6-RUS workspace: single-axis envelope against DESIGN.md's figures, grids, slices, CLI, plot."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from motionbase.cli import main
+from motionbase.io.workspace_plots import plot_rus6_workspace
+from motionbase.platform import Rus6, Rus6Geometry
+from motionbase.platform.rus6_workspace import (
+    AXES,
+    format_envelope,
+    reachability_grid,
+    single_axis_envelope,
+    workspace_slices,
+)
+
+RUS6 = Rus6(Rus6Geometry.preset("ceart"))
+ENVELOPE = single_axis_envelope(RUS6)
+
+
+def test_envelope_reproduces_design_figures():
+    # DESIGN.md: surge +-0.31 m, heave 0.20 m up and 0.12 m down, roll 17.6 deg one way and
+    # 30.3 the other, pitch +-19.1 deg, yaw +-48.9 deg (crank limits only)
+    reach = {a.axis: a for a in ENVELOPE}
+    assert [a.axis for a in ENVELOPE] == list(AXES)
+    assert reach["surge"].negative == pytest.approx(0.31, abs=0.01)
+    assert reach["surge"].positive == pytest.approx(0.31, abs=0.01)
+    assert reach["heave"].negative == pytest.approx(0.20, abs=0.01)  # FRD: negative z is up
+    assert reach["heave"].positive == pytest.approx(0.12, abs=0.01)
+    roll = sorted(math.degrees(v) for v in (reach["roll"].negative, reach["roll"].positive))
+    assert roll == pytest.approx([17.6, 30.3], abs=0.3)
+    for axis, deg in (("pitch", 19.1), ("yaw", 48.9)):
+        assert math.degrees(reach[axis].negative) == pytest.approx(deg, abs=0.3)
+        assert math.degrees(reach[axis].positive) == pytest.approx(deg, abs=0.3)
+
+
+@pytest.mark.parametrize("j", range(6))
+def test_envelope_edges_are_where_a_crank_hits_its_limit(j):
+    lo, hi = RUS6.angle_limits
+    for sign, value in ((-1, ENVELOPE[j].negative), (1, ENVELOPE[j].positive)):
+        inside = np.zeros(6)
+        inside[j] = sign * value
+        outside = inside.copy()
+        outside[j] = sign * (value + 1e-6)
+        assert RUS6.reachable(inside)
+        assert not RUS6.reachable(outside)
+        # for ceart every single-axis edge is a crank limit (DESIGN: "crank limits only")
+        angles = RUS6.inverse(inside)
+        assert np.min(np.abs(np.r_[angles - lo, hi - angles])) < 1e-6
+
+
+def test_reachability_grid_matches_pointwise_checks():
+    x = np.linspace(-0.4, 0.4, 9)
+    y = np.linspace(-0.4, 0.4, 7)
+    z = np.linspace(-0.25, 0.15, 5)
+    orientation = (0.05, -0.1, 0.2)
+    grid = reachability_grid(RUS6, x, y, z, orientation)
+    assert grid.shape == (9, 7, 5) and grid.dtype == bool
+    for i, j, k in [(4, 3, 3), (0, 0, 0), (8, 6, 4), (2, 5, 1), (6, 1, 2)]:
+        pose = [x[i], y[j], z[k], *orientation]
+        assert grid[i, j, k] == RUS6.reachable(pose)
+    assert reachability_grid(RUS6, [0.0], [0.0], [0.0])[0, 0, 0]
+
+
+def test_slices_agree_with_envelope():
+    s = workspace_slices(RUS6, n=81)
+    reach = {a.axis: a for a in ENVELOPE}
+    centre = np.argmin(np.abs(s.x))
+    assert s.x[centre] == pytest.approx(0.0, abs=1e-12)
+    # along x through the centre of the z = 0 plane the reachable span is the surge reach
+    xs = s.x[s.xy[:, centre]]
+    step = s.x[1] - s.x[0]
+    assert xs.max() == pytest.approx(reach["surge"].positive, abs=step)
+    assert -xs.min() == pytest.approx(reach["surge"].negative, abs=step)
+    zs = s.z[s.yz[centre, :]]
+    assert -zs.min() == pytest.approx(reach["heave"].negative, abs=step)
+    assert s.xy.shape == (81, 81) and s.xz.shape == (81, 81) and s.yz.shape == (81, 81)
+
+
+def test_format_envelope_table():
+    text = format_envelope(ENVELOPE)
+    lines = text.splitlines()
+    assert len(lines) == 8
+    assert lines[2].split()[0] == "surge" and lines[-1].split()[0] == "yaw"
+    assert float(lines[-1].split()[1]) == pytest.approx(48.9, abs=0.1)  # degrees
+
+
+def test_plot_writes_png(tmp_path):
+    s = workspace_slices(RUS6, n=41)
+    out = plot_rus6_workspace(s, tmp_path / "ws.png", envelope=ENVELOPE)
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_cli_workspace(tmp_path, capsys):
+    png = tmp_path / "slices.png"
+    assert main(["workspace", "--platform", "ceart", "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "surge" in out and "yaw" in out and str(png) in out
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    # a TOML path works too
+    path = tmp_path / "g.toml"
+    RUS6.geometry.to_toml(path)
+    assert main(["workspace", "--platform", str(path)]) == 0
+    # a bad platform is a one-line error with status 2
+    assert main(["workspace", "--platform", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown rus6 preset 'nope'" in err and len(err.strip().splitlines()) == 1
