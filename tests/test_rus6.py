@@ -409,8 +409,10 @@ def _bad(**changes):
         ({"neutral_height": None}, r"neutral_height"),
         ({"neutral_angle_deg": 0.0}, r"either 'neutral_height' or 'neutral_angle_deg'"),
         ({"angle_min": [1.2] * 6}, r"angle_min"),
-        ({"park_angle": [2.0] * 6}, r"'park_angle'.*outside"),
-        ({"park_angle": [-0.9, -0.5, -0.9, -0.9, -0.9, -0.9]}, r"'park_angle'.*pure-heave"),
+        ({"park_angle": 2.0}, r"'park_angle'.*outside"),
+        ({"park_angle": [-0.9] * 6}, r"'park_angle'.*expected a number"),
+        ({"crank": [0.184] * 5 + [0.19]}, r"'park_angle'.*pure-heave"),
+        ({"park_angle": 0.1, "park_angle_deg": 5.0}, r"either 'park_angle' or 'park_angle_deg'"),
         ({"max_speed": [0.0] * 6}, r"'max_speed'"),
         ({"max_accel": "fast"}, r"'max_accel'"),
         ({"neutral_height": 0.2}, r"'rod'"),
@@ -440,4 +442,4 @@ def test_defaults_for_actuator_fields():
         del data[k]
     g = Rus6Geometry.from_dict(data)
     assert g.max_speed == (3.0,) * 6 and g.max_accel == (30.0,) * 6
-    np.testing.assert_allclose(g.park_angle, np.array(g.angle_min) + math.radians(5))
+    assert g.park_angle == pytest.approx(math.radians(-55.0), abs=1e-15)

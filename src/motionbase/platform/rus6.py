@@ -146,7 +146,7 @@ class Rus6:
     @property
     def park_angle(self) -> np.ndarray:
         """Crank angles of the parked platform, rad, shape (6,)."""
-        return np.array(self.geometry.park_angle)
+        return np.full(6, self.geometry.park_angle)
 
     @property
     def park_pose(self) -> np.ndarray:

@@ -46,7 +46,7 @@ _SIGNS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # (-1)^(i-1), i = 1..6
 _PARK_MARGIN = math.radians(5.0)
 
 # Per-leg array fields that may be given in degrees in TOML as ``<name>_deg``.
-_ANGLE_ARRAYS = ("chi_a", "chi_j", "beta", "angle_min", "angle_max", "park_angle")
+_ANGLE_ARRAYS = ("chi_a", "chi_j", "beta", "angle_min", "angle_max")
 _LENGTH_ARRAYS = ("crank", "rod")
 _SCALARS = ("rb", "rp", "d", "e", "neutral_height")
 _RATE_ARRAYS = {"max_speed": "deg_s", "max_accel": "deg_s2"}
@@ -95,9 +95,10 @@ class Rus6Geometry:
         Crank speed limit, rad/s (default 3.0).
     max_accel : tuple of 6 float
         Crank acceleration limit, rad/s^2 (default 30.0).
-    park_angle : tuple of 6 float
-        Crank angle of the parked platform, rad (default ``angle_min + 5 deg``: the lowest
-        pure-heave pose with a 5-degree margin).
+    park_angle : float
+        Crank angle of the parked platform (every crank), rad. Default: the lowest pure-heave
+        pose within the crank limits with a 5-degree margin, ``max(angle_min) + 5 deg``. It
+        must give a pure-heave pose within every leg's limits.
     name : str
         A label (the preset name or the file it came from).
     """
@@ -116,7 +117,7 @@ class Rus6Geometry:
     angle_max: tuple[float, ...]
     max_speed: tuple[float, ...] = (3.0,) * N_LEGS
     max_accel: tuple[float, ...] = (30.0,) * N_LEGS
-    park_angle: tuple[float, ...] | None = None
+    park_angle: float | None = None
     name: str = "custom"
 
     # ------------------------------------------------------------------ construction
@@ -128,10 +129,7 @@ class Rus6Geometry:
             object.__setattr__(self, f, v)
         arrays = _ANGLE_ARRAYS + _LENGTH_ARRAYS + tuple(_RATE_ARRAYS)
         for f in arrays:
-            val = getattr(self, f)
-            if f == "park_angle" and val is None:
-                continue
-            arr = as_array(src, f, val, N_LEGS)
+            arr = as_array(src, f, getattr(self, f), N_LEGS)
             object.__setattr__(self, f, tuple(float(x) for x in arr))
         for f in _LENGTH_ARRAYS:
             for i, v in enumerate(getattr(self, f)):
@@ -164,7 +162,9 @@ class Rus6Geometry:
                     "(fix neutral_height or the limits)"
                 )
         if self.park_angle is None:
-            object.__setattr__(self, "park_angle", tuple(float(x) for x in lo + _PARK_MARGIN))
+            object.__setattr__(self, "park_angle", float(np.max(lo)) + _PARK_MARGIN)
+        else:
+            object.__setattr__(self, "park_angle", as_float(src, "park_angle", self.park_angle))
         self._check_park(src)
 
     def _check_rods(self, src: str) -> None:
@@ -194,7 +194,7 @@ class Rus6Geometry:
                 )
 
     def _check_park(self, src: str) -> None:
-        park = np.array(self.park_angle)
+        park = np.full(N_LEGS, self.park_angle)
         lo, hi = np.array(self.angle_min), np.array(self.angle_max)
         for i in range(N_LEGS):
             if not lo[i] <= park[i] <= hi[i]:
@@ -212,8 +212,9 @@ class Rus6Geometry:
             )
         if np.ptp(z) > 1e-6:
             raise ConfigError(
-                f"{src}: field 'park_angle': these crank angles give no pure-heave pose (legs "
-                f"disagree by {np.ptp(z) * 1e3:.3f} mm); give per-leg angles of one heave pose"
+                f"{src}: field 'park_angle': equal cranks at {math.degrees(self.park_angle):g} "
+                f"deg give no pure-heave pose on this asymmetric platform (legs disagree by "
+                f"{np.ptp(z) * 1e3:.3f} mm)"
             )
 
     # ------------------------------------------------------------------ derived geometry
@@ -329,16 +330,17 @@ class Rus6Geometry:
         """Build from plain data: SI fields, or angle fields in degrees named ``<field>_deg``.
 
         Accepted keys: ``rb, d, rp, e, crank, rod, neutral_height`` (m);
-        ``chi_a, chi_j, beta, angle_min, angle_max, park_angle`` (rad) or the same with
-        ``_deg``; ``max_speed`` (rad/s) or ``max_speed_deg_s``; ``max_accel`` (rad/s^2) or
-        ``max_accel_deg_s2``; ``neutral_angle_deg`` instead of ``neutral_height`` (the height is
-        then derived so the cranks sit at that angle at neutral); ``name``; ``kind`` (must be
-        ``"rus6"`` if present). Per-leg fields take 6 numbers or one number for all legs.
+        ``chi_a, chi_j, beta, angle_min, angle_max`` (rad, per leg) and ``park_angle`` (rad,
+        one value) or the same with ``_deg``; ``max_speed`` (rad/s) or ``max_speed_deg_s``;
+        ``max_accel`` (rad/s^2) or ``max_accel_deg_s2``; ``neutral_angle_deg`` instead of
+        ``neutral_height`` (the height is then derived so the cranks sit at that angle at
+        neutral); ``name``; ``kind`` (must be ``"rus6"`` if present). Per-leg fields take 6
+        numbers or one number for all legs.
         """
         if not isinstance(data, Mapping):
             raise ConfigError(f"{source}: expected a table of geometry fields, got {data!r}")
         allowed = {"name", "kind", "neutral_angle_deg"} | set(_SCALARS) | set(_LENGTH_ARRAYS)
-        for f in _ANGLE_ARRAYS:
+        for f in _ANGLE_ARRAYS + ("park_angle",):
             allowed |= {f, f + "_deg"}
         for f, suffix in _RATE_ARRAYS.items():
             allowed |= {f, f"{f}_{suffix}"}
@@ -361,6 +363,14 @@ class Rus6Geometry:
             kw_val = _pick(source, data, f, f"{f}_{suffix}", lambda a: np.radians(a))
             if kw_val is not None:
                 kw[f] = kw_val
+        if "park_angle" in data and "park_angle_deg" in data:
+            raise ConfigError(f"{source}: give either 'park_angle' or 'park_angle_deg', not both")
+        if "park_angle_deg" in data:
+            kw["park_angle"] = math.radians(
+                as_float(source, "park_angle_deg", data["park_angle_deg"])
+            )
+        elif "park_angle" in data:
+            kw["park_angle"] = data["park_angle"]
         required = (
             "rb",
             "d",
@@ -436,6 +446,7 @@ class Rus6Geometry:
         if units == "deg":
             for f in _ANGLE_ARRAYS:
                 data[f + "_deg"] = [math.degrees(x) for x in data.pop(f)]
+            data["park_angle_deg"] = math.degrees(data.pop("park_angle"))
             for f, suffix in _RATE_ARRAYS.items():
                 data[f"{f}_{suffix}"] = [math.degrees(x) for x in data.pop(f)]
         elif units != "si":
