@@ -443,3 +443,28 @@ def test_defaults_for_actuator_fields():
     g = Rus6Geometry.from_dict(data)
     assert g.max_speed == (3.0,) * 6 and g.max_accel == (30.0,) * 6
     assert g.park_angle == pytest.approx(math.radians(-55.0), abs=1e-15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.floats(0.97, 1.03),
+    st.floats(0.9, 1.1),
+    st.floats(-0.2, 0.2),
+    st.floats(0.5, 5.0),
+)
+def test_round_trip_is_exact_for_any_valid_geometry(tmp_path_factory, scale, rod_scale, ang, speed):
+    data = GEOMETRY.to_dict()
+    data["rb"] *= scale
+    data["rp"] /= scale
+    data["rod"] = [r * rod_scale for r in data["rod"]]
+    data["chi_j"] = [a + ang / 10 for a in data["chi_j"]]
+    data["max_speed"] = [speed] * 6
+    data["neutral_height"] *= 1 + ang / 20
+    try:
+        g = Rus6Geometry.from_dict(data)
+    except ConfigError:
+        assume(False)
+    assert Rus6Geometry.from_dict(g.to_dict()) == g
+    path = tmp_path_factory.mktemp("g") / "g.toml"
+    g.to_toml(path)
+    assert Rus6Geometry.from_toml(path) == g
