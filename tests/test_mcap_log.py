@@ -312,8 +312,14 @@ def test_open_log_is_on_disk_up_to_the_last_second(tmp_path: Path) -> None:
     rate = 120
     for k in range(1, int(3.5 * rate) + 1):
         logger.add("/washout/pose", k / rate, {"pose": [k * 1e-4] * 6})
-    seen = read_messages(path)["/washout/pose"]  # the file has no footer yet: a "cut" file
-    times = [m["t"] for m in seen]
+    # the file has no footer yet: it reads like a cut file. The writer thread
+    # gets each chunk to the OS within moments: allow it up to 2 s of wall time.
+    deadline = time.monotonic() + 2.0
+    while True:
+        times = [m["t"] for m in read_messages(path).get("/washout/pose", [])]
+        if (times and times[-1] >= 3.5 - 1.0 - 1 / rate) or time.monotonic() > deadline:
+            break
+        time.sleep(0.01)
     assert times == [k / rate for k in range(1, len(times) + 1)]  # a prefix, no gap
     assert times[-1] >= 3.5 - 1.0 - 1 / rate
     logger.finish()
@@ -364,3 +370,35 @@ def test_killed_writer_leaves_a_readable_prefix(tmp_path: Path) -> None:
     # at most about a second (one chunk) is lost
     assert times[-1] >= last - 1.0 - 1 / 120
     assert len(got["/washout/pose"]) in (len(times), len(times) - 1)
+
+
+_CHILD_FULL = """
+import resource, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (60_000, 60_000))
+from motionbase.errors import SinkError
+from motionbase.io.mcap_log import McapLogger
+try:
+    with McapLogger(sys.argv[1], {}) as logger:
+        for k in range(1, 120 * 60):
+            logger.add("/washout/pose", k / 120, {"pose": [k * 1e-3] * 6})
+    print("no error")
+except SinkError as err:
+    print("SinkError:", err)
+"""
+
+
+def test_file_size_limit_mid_run_is_reported_and_the_log_stays_readable(tmp_path: Path) -> None:
+    """The disk fills up mid-run (a 60 kB file-size limit): one clear error, a readable log."""
+    path = tmp_path / "full.mcap"
+    result = subprocess.run(
+        [sys.executable, "-c", _CHILD_FULL, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    out = result.stdout.strip()
+    assert result.returncode == 0, result.stderr
+    assert out.startswith("SinkError:") and str(path) in out and "\n" not in out, out
+    times = [m["t"] for m in read_messages(path)["/washout/pose"]]
+    assert len(times) > 120 and times == [k / 120 for k in range(1, len(times) + 1)]

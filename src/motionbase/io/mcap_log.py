@@ -11,29 +11,35 @@ Crash safety
     Messages collect in one chunk in memory. The chunk is compressed, written
     and the file object flushed to the operating system as soon as it spans
     ``flush_interval_s`` of source time (1 s by default) or grows past
-    ``chunk_size`` bytes, so a crash or ``kill -9`` loses at most the chunk in
-    progress (about the last second). Schema and channel records are written
+    ``chunk_size`` bytes (the writer thread does it within moments), so a
+    crash or ``kill -9`` loses at most the chunk in progress (about the last
+    second). Schema and channel records are written
     outside the chunks, before the first chunk that uses them. A file cut
     anywhere is read back up to its last complete chunk by
     :class:`~motionbase.io.mcap_source.McapSource`. ``fsync=True`` also survives
     a power cut, at the cost of one ``fsync`` per chunk.
 
 Speed
-    The per-message path (:meth:`McapLogger.add`) encodes with a prebuilt
-    :class:`json.JSONEncoder` and appends the MCAP message record to the chunk
-    buffer with one precompiled :class:`struct.Struct`; chunks, message indexes
-    and the summary use the ``mcap`` library's record classes. Floats are
-    written with Python's shortest round-trip ``repr``, so a reader gets back
-    the very same doubles.
+    The per-message path (:meth:`McapLogger.add`) encodes with orjson when it
+    is installed (about 10 times faster), else a prebuilt
+    :class:`json.JSONEncoder`, and appends the MCAP message record to the chunk
+    buffer with one precompiled :class:`struct.Struct`. Compression and file
+    writes run in a writer thread, so ``add`` never waits for the disk.
+    Chunks, message indexes and the summary use the ``mcap`` library's record
+    classes. Floats are written in their shortest round-trip form (Python's
+    ``repr``), so a reader gets back the very same doubles.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import math
 import os
+import queue
 import struct
+import threading
 import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -214,6 +220,10 @@ class McapLogger:
         a crash can lose.
     fsync : bool
         Also ``os.fsync`` after every chunk (survives power loss, costs time).
+    background : bool
+        Compress and write chunks in a writer thread (zstd and file writes
+        release the GIL), so ``add`` never waits for the disk. A write error
+        in that thread is raised by the next ``add`` or by ``finish``.
 
     Raises
     ------
@@ -231,6 +241,7 @@ class McapLogger:
         compression: str = "zstd",
         flush_interval_s: float = 1.0,
         fsync: bool = False,
+        background: bool = True,
     ) -> None:
         self.path = Path(path)
         self.metadata: dict[str, Any] = dict(metadata or {})
@@ -249,8 +260,13 @@ class McapLogger:
         self.fsync = fsync
         self._compress = self._make_compressor(compression)
         self._flush_interval_ns = int(round(flush_interval_s * 1e9))
+        self.background = bool(background)
         self._fh: IO[bytes] | None = None
         self._state = "new"
+        self._queue: queue.SimpleQueue[Any] | None = None
+        self._worker: threading.Thread | None = None
+        self._failure = ""
+        self._failure_reported = True
         self._pos = 0
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
@@ -302,23 +318,35 @@ class McapLogger:
         )
         self._write(data)
         self._sync()
+        if self.background:
+            self._queue = queue.SimpleQueue()
+            self._worker = threading.Thread(
+                target=self._work, name=f"mcap-writer {self.path.name}", daemon=True
+            )
+            self._worker.start()
         return self
 
     def finish(self) -> None:
         """Write the last chunk, the summary and the footer, and close the file.
 
         Idempotent. After a write error the file is only closed (it stays
-        readable up to its last complete chunk).
+        readable up to its last complete chunk) and the error is raised here if
+        no earlier call reported it.
         """
         if self._state in ("new", "finished"):
             self._state = "finished"
             return
+        if self._state == "open":
+            self._flush_chunk()
+        self._stop_worker()
         if self._state == "failed":
             self._close()
             self._state = "finished"
+            if not self._failure_reported:
+                self._failure_reported = True
+                raise SinkError(self._failure)
             return
         try:
-            self._flush_chunk()
             rb = RecordBuilder()
             DataEnd(data_section_crc=0).write(rb)
             self._write(rb.end())
@@ -457,7 +485,8 @@ class McapLogger:
         if self._state == "new":
             raise SinkError(f"{self.path}: MCAP logger not started: call start() before add()")
         if self._state == "failed":
-            raise SinkError(f"{self.path}: MCAP log stopped after a write error")
+            self._failure_reported = True
+            raise SinkError(self._failure or f"{self.path}: MCAP log stopped after a write error")
         raise SinkError(f"{self.path}: MCAP logger already finished")
 
     def _register(self, topic: str) -> int:
@@ -483,7 +512,7 @@ class McapLogger:
         rb = RecordBuilder()
         schema_rec.write(rb)
         channel.write(rb)
-        self._write(rb.end())
+        self._submit(rb.end())
         self._schemas.append(schema_rec)
         self._channels.append(channel)
         self._channel_ids[topic] = channel.id
@@ -514,13 +543,60 @@ class McapLogger:
     def _flush_chunk(self) -> None:
         if not self._chunk_messages:
             return
-        records = bytes(self._buf)
+        self._submit((bytes(self._buf), self._index, self._chunk_start_ns, self._chunk_end_ns))
+        if self._message_count:
+            self._start_ns = min(self._start_ns, self._chunk_start_ns)
+            self._end_ns = max(self._end_ns, self._chunk_end_ns)
+        else:
+            self._start_ns, self._end_ns = self._chunk_start_ns, self._chunk_end_ns
+        self._message_count += self._chunk_messages
+        self._buf = bytearray()
+        self._index = {}
+        self._chunk_messages = 0
+
+    # Everything below `_submit` runs in the writer thread (or inline when
+    # background=False): compression, file writes, flushes.
+    def _submit(self, item: bytes | tuple[bytes, dict[int, list[int]], int, int]) -> None:
+        if self._queue is not None:
+            self._queue.put(item)
+        else:
+            self._do(item)
+
+    def _work(self) -> None:
+        assert self._queue is not None
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            try:
+                self._do(item)
+            except SinkError as err:  # reported by the next add() or by finish()
+                self._failure_reported = False
+                log.debug("MCAP writer thread stopped: %s", err)
+                return
+
+    def _stop_worker(self) -> None:
+        if self._queue is not None and self._worker is not None:
+            self._queue.put(None)
+            self._worker.join()
+        self._queue = None
+        self._worker = None
+
+    def _do(self, item: bytes | tuple[bytes, dict[int, list[int]], int, int]) -> None:
+        if isinstance(item, bytes):
+            self._write(item)
+        else:
+            self._write_chunk(*item)
+
+    def _write_chunk(
+        self, records: bytes, index: dict[int, list[int]], start_ns: int, end_ns: int
+    ) -> None:
         compressed = self._compress(records)
         chunk = Chunk(
             compression="" if self.compression == "none" else self.compression,
             data=compressed,
-            message_start_time=self._chunk_start_ns,
-            message_end_time=self._chunk_end_ns,
+            message_start_time=start_ns,
+            message_end_time=end_ns,
             uncompressed_crc=zlib.crc32(records),
             uncompressed_size=len(records),
         )
@@ -532,7 +608,7 @@ class McapLogger:
         parts = [chunk_bytes]
         offsets: dict[int, int] = {}
         length = 0
-        for cid, flat in self._index.items():
+        for cid, flat in index.items():
             offsets[cid] = index_start + length
             body = struct.pack(f"<{len(flat)}Q", *flat)
             part = (
@@ -544,8 +620,8 @@ class McapLogger:
         self._write(b"".join(parts))
         self._chunk_indexes.append(
             ChunkIndex(
-                message_start_time=self._chunk_start_ns,
-                message_end_time=self._chunk_end_ns,
+                message_start_time=start_ns,
+                message_end_time=end_ns,
                 chunk_start_offset=chunk_start,
                 chunk_length=len(chunk_bytes),
                 message_index_offsets=offsets,
@@ -555,15 +631,6 @@ class McapLogger:
                 uncompressed_size=len(records),
             )
         )
-        if self._message_count:
-            self._start_ns = min(self._start_ns, self._chunk_start_ns)
-            self._end_ns = max(self._end_ns, self._chunk_end_ns)
-        else:
-            self._start_ns, self._end_ns = self._chunk_start_ns, self._chunk_end_ns
-        self._message_count += self._chunk_messages
-        self._buf = bytearray()
-        self._index = {}
-        self._chunk_messages = 0
         self._sync()
 
     def _write_summary_and_footer(self) -> None:
@@ -633,12 +700,14 @@ class McapLogger:
             self._fail(exc)
 
     def _fail(self, exc: OSError) -> None:
-        self._state = "failed"
-        hint = " (disk full?)" if getattr(exc, "errno", None) == 28 else ""
-        raise SinkError(
+        hint = " (disk full?)" if getattr(exc, "errno", None) in (errno.ENOSPC, errno.EFBIG) else ""
+        self._failure = (
             f"{self.path}: cannot write the MCAP log: {exc.strerror or exc}{hint}; "
             "the file is readable up to its last complete chunk"
-        ) from None
+        )
+        self._failure_reported = True
+        self._state = "failed"
+        raise SinkError(self._failure) from None
 
     def _close(self) -> None:
         fh, self._fh = self._fh, None
