@@ -1,0 +1,181 @@
+"""WashoutParams: presets, exact round trips, clear errors, and that the default fits ceart."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from motionbase.errors import ConfigError
+from motionbase.washout import ClassicalWashout, WashoutParams
+
+G = 9.80665
+DT = 1.0 / 120.0
+
+
+@pytest.mark.parametrize("name", ["default", "gentle"])
+def test_presets_load_and_round_trip_exactly(name, tmp_path):
+    p = WashoutParams.preset(name)
+    assert WashoutParams.from_dict(p.to_dict()) == p
+    # the pipeline stores to_dict() as JSON metadata in the MCAP log
+    assert WashoutParams.from_dict(json.loads(json.dumps(p.to_dict())), source="log") == p
+    path = tmp_path / "w.toml"
+    p.to_toml(path)
+    assert WashoutParams.from_toml(path) == p
+    assert WashoutParams.load(str(path)) == p
+    assert WashoutParams.load(name) == p
+
+
+def test_si_views_convert_degrees():
+    p = WashoutParams.preset("default")
+    assert p.tilt_rate_limit == pytest.approx(math.radians(p.tilt_rate_limit_deg_s))
+    assert p.tilt_angle_limit == pytest.approx(math.radians(p.tilt_angle_limit_deg))
+    assert np.allclose(p.angular_velocity_limit, np.radians(p.angular_velocity_limit_deg_s))
+
+
+def test_default_follows_the_simona_structure():
+    p = WashoutParams.preset("default")
+    # DESIGN.md: tilt low-pass 2 rad/s, zeta 1, tilt rate 3 deg/s; zeta 1 everywhere
+    assert p.tilt_wn == 2.0 and p.tilt_zeta == 1.0 and p.tilt_rate_limit_deg_s == 3.0
+    assert p.translational_zeta == (1.0, 1.0, 1.0)
+    assert p.method == "tustin"
+    gentle = WashoutParams.preset("gentle")
+    assert all(
+        g <= d for g, d in zip(gentle.specific_force_gain, p.specific_force_gain, strict=True)
+    )
+    assert gentle.tilt_angle_limit_deg < p.tilt_angle_limit_deg
+
+
+@pytest.mark.parametrize("name", ["default", "gentle"])
+def test_worst_single_axis_inputs_stay_inside_the_ceart_reach(name):
+    """Inputs at the saturation limits, one axis at a time, with margin to the reach."""
+    p = WashoutParams.preset(name)
+    n = int(40.0 / DT)
+    margin = 0.9
+    reach_up = np.array(
+        [0.31, 0.31, 0.12, math.radians(17.6), math.radians(19.1), math.radians(48.9)]
+    )
+    reach_lo = -np.array(
+        [0.31, 0.31, 0.20, math.radians(17.6), math.radians(19.1), math.radians(48.9)]
+    )
+    for axis in range(6):
+        for sign in (1.0, -1.0):
+            f = np.tile([0.0, 0.0, -G], (n, 1))
+            w = np.zeros((n, 3))
+            if axis < 3:
+                f[:, axis] += sign * 1e3  # saturates at specific_force_limit
+            else:
+                w[:, axis - 3] = sign * 1e3  # saturates at angular_velocity_limit
+            poses = ClassicalWashout(p, DT).run(f, w)
+            assert np.all(poses <= margin * reach_up + 1e-12), (name, axis, sign)
+            assert np.all(poses >= margin * reach_lo - 1e-12), (name, axis, sign)
+
+
+# --- errors ------------------------------------------------------------------------------------
+
+
+def _base() -> dict:
+    return WashoutParams.preset("default").to_dict()
+
+
+@pytest.mark.parametrize(
+    "edit,match",
+    [
+        (lambda d: d["translational"].pop("wb"), "missing field 'wb'"),
+        (lambda d: d.pop("tilt"), "missing field 'tilt'"),
+        (lambda d: d["tilt"].update(speed=1.0), "unknown field 'speed'"),
+        (lambda d: d.update(gain=1.0), "unknown field 'gain'"),
+        (lambda d: d["translational"].update(wn=[1.0, -1.0, 1.0]), "translational.wn.*> 0"),
+        (lambda d: d["rotational"].update(zeta=[1.0, 0.0, 1.0]), "rotational.zeta.*> 0"),
+        (lambda d: d["translational"].update(zeta=[1.0, 1.0, -0.5]), "translational.zeta"),
+        (lambda d: d["tilt"].update(rate_limit_deg_s=0.0), "rate_limit_deg_s.*> 0"),
+        (lambda d: d["tilt"].update(rate_limit_deg_s=-3.0), "rate_limit_deg_s"),
+        (lambda d: d["tilt"].update(wn=-2.0), "tilt.wn"),
+        (lambda d: d["tilt"].update(angle_limit_deg=90.0), "< 90 deg"),
+        (
+            lambda d: d["scaling"].update(specific_force_gain=[0.5, -0.1, 0.3]),
+            "specific_force_gain",
+        ),
+        (lambda d: d["scaling"].update(specific_force_limit=[1.0, 1.0]), "expected 3 numbers"),
+        (
+            lambda d: d["scaling"].update(angular_velocity_limit_deg_s=[30, "x", 30]),
+            "angular_velocity",
+        ),
+        (lambda d: d["translational"].update(wn=[1.0, float("nan"), 1.0]), "finite"),
+        (lambda d: d.update(g=0.0), "'g'"),
+        (lambda d: d.update(method="euler"), "method"),
+        (lambda d: d["tilt"].update(zeta="one"), "expected a number"),
+        (lambda d: d.update(translational=3), r"\[translational\] must be a table"),
+    ],
+)
+def test_bad_values_give_a_clear_config_error(edit, match):
+    d = copy.deepcopy(_base())
+    edit(d)
+    with pytest.raises(ConfigError, match=match):
+        WashoutParams.from_dict(d, source="my.toml")
+
+
+def test_error_messages_name_the_source_and_files_errors_are_config_errors(tmp_path):
+    d = _base()
+    d["tilt"]["rate_limit_deg_s"] = -1.0
+    with pytest.raises(ConfigError, match=r"^my\.toml: field 'tilt\.rate_limit_deg_s'"):
+        WashoutParams.from_dict(d, source="my.toml")
+    with pytest.raises(ConfigError, match="unknown washout preset 'nope'"):
+        WashoutParams.preset("nope")
+    with pytest.raises(ConfigError, match="file not found"):
+        WashoutParams.from_toml(tmp_path / "absent.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[tilt\nwn = 2")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        WashoutParams.from_toml(bad)
+
+
+def test_direct_construction_is_validated_too():
+    p = WashoutParams.preset("default")
+    import dataclasses
+
+    with pytest.raises(ConfigError, match="zeta"):
+        dataclasses.replace(p, tilt_zeta=0.0)
+    q = dataclasses.replace(p, translational_wn=np.array([2, 2, 2]))
+    assert q.translational_wn == (2.0, 2.0, 2.0)
+    assert isinstance(q.translational_wn[0], float)
+
+
+_pos = st.floats(1e-3, 50.0, allow_nan=False, allow_infinity=False)
+_gain = st.floats(0.0, 2.0, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(_gain, min_size=6, max_size=6),
+    st.lists(_pos, min_size=21, max_size=21),
+    st.floats(0.0, 89.9),
+    st.sampled_from(["tustin", "zoh"]),
+    st.text(max_size=20),
+)
+def test_any_valid_parameter_set_round_trips_exactly(gains, pos, angle, method, text):
+    p = WashoutParams(
+        specific_force_gain=tuple(gains[:3]),
+        specific_force_limit=tuple(pos[0:3]),
+        angular_velocity_gain=tuple(gains[3:]),
+        angular_velocity_limit_deg_s=tuple(pos[3:6]),
+        translational_wn=tuple(pos[6:9]),
+        translational_zeta=tuple(pos[9:12]),
+        translational_wb=tuple(pos[12:15]),
+        tilt_wn=pos[15],
+        tilt_zeta=pos[16],
+        tilt_rate_limit_deg_s=pos[17],
+        tilt_angle_limit_deg=angle,
+        rotational_wn=tuple(pos[18:21]),
+        rotational_zeta=tuple(pos[9:12]),
+        g=9.81,
+        method=method,
+        description=text,
+    )
+    assert WashoutParams.from_dict(p.to_dict()) == p
+    assert WashoutParams.from_dict(json.loads(json.dumps(p.to_dict()))) == p
