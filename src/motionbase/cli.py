@@ -193,5 +193,41 @@ def _workspace_rus6(args: argparse.Namespace) -> int:
     return 0
 
 
+def _args_teleop(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--input",
+        default="mouse",
+        metavar="mouse|udp:HOST:PORT|file:PATH.csv",
+        help="cursor source (default mouse: a Tk window; udp: 'x y' pixel lines; file: t,x,y CSV)",
+    )
+    p.add_argument("--serial", default="none", metavar="URL|none",
+                   help="pyserial URL of the Arduino (/dev/ttyACM0, socket://h:p); default none")
+    p.add_argument("--calibration", metavar="PATH.toml", help="cursor calibration (TOML)")
+    p.add_argument("--rate", type=_positive_float, default=50.0, metavar="HZ",
+                   help="loop rate, Hz (default 50)")
+    p.add_argument("--out", metavar="FILE.mcap", help="log to this MCAP file")
+    p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
+    p.add_argument("--rrr3", default="udesc", metavar="PRESET|FILE.toml",
+                   help="3-RRR geometry (default udesc)")
+    p.add_argument("--no-clamp", action="store_true",
+                   help="hold unreachable targets instead of clamping them toward home")
+
+
+@command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
+def run_teleop(args: argparse.Namespace) -> int:
+    from motionbase.teleop import teleop_job
+
+    stats = teleop_job(
+        args.input, serial_url=args.serial, calibration_path=args.calibration,
+        rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
+        clamp=not args.no_clamp,
+    )  # fmt: skip
+    print(
+        f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
+        f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input"
+    )
+    return 0
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

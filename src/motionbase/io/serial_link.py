@@ -149,19 +149,22 @@ class ServoSerialSink:
         self.close()
 
     # -- writing ----------------------------------------------------------------------------
-    def write(self, output: Any) -> bool:
+    def write(self, output: Any, t: float | None = None) -> bool:
         """Offer the current servo command; returns True when a frame went out.
 
         Parameters
         ----------
         output : sequence of 3 int, or an object with a ``servo_deg`` attribute
             Integer degrees 0..180 for servos 1, 2, 3.
+        t : float, optional
+            The caller's loop time, s, used instead of the clock for the rate and keep-alive
+            decisions (so a replay sends the same frames however it is paced).
         """
         if self._port is None:
             raise SinkError(f"serial port {self.url!r} is not open (use 'with' or open())")
         deg = getattr(output, "servo_deg", output)
         cmd = _as_command(deg)
-        now = self._clock()
+        now = self._clock() if t is None else float(t)
         changed = cmd != self._last
         due = now - self._last_time >= self.keepalive_s
         if not (changed or due):

@@ -1,0 +1,343 @@
+"""Cursor sources for teleoperation: a CSV file, UDP text lines, or the mouse in a Tk window.
+
+Every source gives screen pixels ``(u, v)`` (u right, v down) and shares one small interface:
+
+``open()`` / ``close()`` (or ``with``), ``read(t) -> (u, v) | None`` (the latest cursor at loop
+time ``t`` s since the start; None before the first), ``finished(t) -> bool``, ``size_px``
+(window size for a default calibration) and ``show(...)`` (draws the robot; a no-op except for
+the mouse window), ``describe()`` for the log.
+
+- :class:`FileCursor`: a CSV of ``t,x,y`` rows (seconds, pixels), looked up by time, so a
+  replay gives the same targets at the same loop ticks however the loop is paced.
+- :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
+  127.0.0.1 by default; malformed lines are counted and ignored.
+- :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
+  a headless machine under Xvfb (``xvfb-run motionbase teleop``).
+"""
+
+from __future__ import annotations
+
+import bisect
+import csv
+import math
+import socket
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from motionbase.errors import SourceError
+
+__all__ = ["FileCursor", "UdpCursor", "TkCursor", "open_cursor_source", "DEFAULT_SIZE_PX"]
+
+#: Window size assumed for file and UDP input without a calibration (the thesis's window).
+DEFAULT_SIZE_PX = (1310, 715)
+
+
+class _Base:
+    size_px: tuple[int, int] = DEFAULT_SIZE_PX
+    rejected = 0
+
+    def open(self) -> Any:
+        return self
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> Any:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def finished(self, t: float) -> bool:
+        return False
+
+    def show(self, **state: Any) -> None:
+        """Draw the robot (mouse window only)."""
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": type(self).__name__}
+
+
+class FileCursor(_Base):
+    """Cursor positions replayed from a CSV of ``t,x,y`` (s, pixels; header optional).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV. Times must be finite and non-decreasing; the first row's time is the start.
+    size_px : (int, int)
+        Window size the pixels refer to (for a default calibration).
+    """
+
+    def __init__(self, path: str | Path, size_px: tuple[int, int] = DEFAULT_SIZE_PX) -> None:
+        self.path = Path(path)
+        self.size_px = size_px
+        rows: list[tuple[float, float, float]] = []
+        try:
+            with self.path.open(newline="") as fh:
+                for n, rec in enumerate(csv.reader(fh), start=1):
+                    if not rec or not "".join(rec).strip() or rec[0].lstrip().startswith("#"):
+                        continue
+                    if n == 1 and rec[0].strip().lower() == "t":
+                        continue
+                    try:
+                        t, x, y = (float(v) for v in rec[:3])
+                        if len(rec) < 3:
+                            raise ValueError
+                    except ValueError:
+                        raise SourceError(
+                            f"{self.path}: line {n}: expected 't,x,y' numbers, got {rec!r}"
+                        ) from None
+                    if not all(math.isfinite(v) for v in (t, x, y)):
+                        raise SourceError(f"{self.path}: line {n}: values must be finite")
+                    if rows and t < rows[-1][0]:
+                        raise SourceError(f"{self.path}: line {n}: time goes backwards")
+                    rows.append((t, x, y))
+        except OSError as exc:
+            raise SourceError(f"{self.path}: cannot read the cursor file: {exc.strerror}") from None
+        if not rows:
+            raise SourceError(f"{self.path}: no cursor rows (expected 't,x,y' lines)")
+        t0 = rows[0][0]
+        self.times = [r[0] - t0 for r in rows]
+        self.pixels = [(r[1], r[2]) for r in rows]
+        self.duration_s = self.times[-1]
+
+    def read(self, t: float) -> tuple[float, float] | None:
+        k = bisect.bisect_right(self.times, t + 1e-9) - 1
+        return self.pixels[k] if k >= 0 else None
+
+    def finished(self, t: float) -> bool:
+        return t > self.duration_s + 1e-9
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "file", "path": str(self.path), "rows": len(self.times)}
+
+
+class UdpCursor(_Base):
+    """Cursor or gaze points as UDP text lines ``x y`` (pixels), e.g. from Opengazer.
+
+    Parameters
+    ----------
+    host, port : str, int
+        Address to bind (127.0.0.1 by default: not reachable from other machines).
+    size_px : (int, int)
+        Screen size the pixels refer to (for a default calibration).
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 20320, size_px=DEFAULT_SIZE_PX) -> None:
+        self.host, self.port, self.size_px = host, int(port), size_px
+        self._sock: socket.socket | None = None
+        self._latest: tuple[float, float] | None = None
+        self.received = 0
+        self.rejected = 0
+
+    def open(self) -> UdpCursor:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            s.bind((self.host, self.port))
+        except OSError as exc:
+            s.close()
+            raise SourceError(
+                f"cannot listen for cursor points on udp:{self.host}:{self.port}: "
+                f"{exc.strerror or exc} (choose another port)"
+            ) from None
+        s.setblocking(False)
+        self._sock = s
+        self.port = s.getsockname()[1]
+        return self
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def read(self, t: float) -> tuple[float, float] | None:
+        if self._sock is None:
+            raise SourceError("UDP cursor source is not open")
+        while True:
+            try:
+                data = self._sock.recv(4096)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:
+                raise SourceError(f"udp:{self.host}:{self.port}: receive failed: {exc}") from None
+            for line in data.decode("ascii", errors="replace").splitlines():
+                p = parse_point(line)
+                if p is None:
+                    if line.strip():
+                        self.rejected += 1
+                else:
+                    self._latest = p
+                    self.received += 1
+        return self._latest
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "udp", "host": self.host, "port": self.port}
+
+
+def parse_point(line: str) -> tuple[float, float] | None:
+    """``"x y"`` (or ``"x,y"``) in pixels -> (x, y); None when malformed or not finite."""
+    parts = line.replace(",", " ").split()
+    if len(parts) < 2:
+        return None
+    try:
+        x, y = float(parts[0]), float(parts[1])
+    except ValueError:
+        return None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        return None
+    return x, y
+
+
+class TkCursor(_Base):
+    """The mouse in a Tk window that draws the workspace, the target and the robot's links.
+
+    The view maps the base triangle into the window (``view`` metres -> pixels); the default
+    teleop calibration for this source is that view's inverse, so the target sits under the
+    mouse pointer. Events are processed by :meth:`read` (no Tk main loop, no thread).
+
+    Parameters
+    ----------
+    rrr3 : Rrr3
+        The robot (its workspace at phi = 0 is drawn once).
+    size_px : (int, int)
+        Window size.
+    """
+
+    def __init__(self, rrr3: Any, size_px: tuple[int, int] = (720, 640)) -> None:
+        self.rrr3 = rrr3
+        self.size_px = (int(size_px[0]), int(size_px[1]))
+        L = rrr3.geometry.base_side
+        w, h = self.size_px
+        margin = 20
+        s = min((w - 2 * margin) / L, (h - 2 * margin) / (L * math.sqrt(3) / 2))
+        ox = (w - s * L) / 2
+        oy = h - (h - s * L * math.sqrt(3) / 2) / 2
+        self.scale, self.origin = s, (ox, oy)
+        self._root: Any = None
+        self._canvas: Any = None
+        self._latest: tuple[float, float] | None = None
+        self._closed = False
+        self._items: list[int] = []
+
+    def view(self, xy: Any) -> np.ndarray:
+        """Metres (..., 2) -> window pixels (..., 2) (v down)."""
+        p = np.asarray(xy, dtype=float)
+        return np.stack(
+            [self.origin[0] + self.scale * p[..., 0], self.origin[1] - self.scale * p[..., 1]], -1
+        )
+
+    def unview(self, px: Any) -> np.ndarray:
+        """Window pixels (..., 2) -> metres (..., 2)."""
+        p = np.asarray(px, dtype=float)
+        return np.stack(
+            [(p[..., 0] - self.origin[0]) / self.scale, (self.origin[1] - p[..., 1]) / self.scale],
+            -1,
+        )
+
+    def open(self) -> TkCursor:
+        try:
+            import tkinter as tk
+
+            self._root = tk.Tk()
+        except Exception as exc:  # TclError without a display, ImportError without Tk
+            raise SourceError(
+                f"cannot open the mouse window: {exc} (no display? run under Xvfb: "
+                "xvfb-run motionbase teleop ...)"
+            ) from None
+        self._root.title("motionbase teleop: 3-RRR")
+        w, h = self.size_px
+        self._canvas = tk.Canvas(self._root, width=w, height=h, background="#f2f2f2")
+        self._canvas.pack()
+        self._canvas.bind("<Motion>", self._on_motion)
+        self._root.protocol("WM_DELETE_WINDOW", self._on_close)
+        self._draw_workspace()
+        self._root.update()
+        return self
+
+    def _draw_workspace(self) -> None:
+        ws = self.rrr3.workspace(90, 90, 1, phi_range=(0.0, 0.0))
+        dx = (ws.x[1] - ws.x[0]) * self.scale / 2 + 0.5
+        dy = (ws.y[1] - ws.y[0]) * self.scale / 2 + 0.5
+        for i, j in zip(*np.nonzero(ws.valid[:, :, 0]), strict=True):
+            u, v = self.view([ws.x[i], ws.y[j]])
+            self._canvas.create_rectangle(
+                u - dx, v - dy, u + dx, v + dy, fill="#bcd3f0", outline=""
+            )
+        A = self.view(self.rrr3.geometry.base_points)
+        self._canvas.create_polygon(*A.ravel().tolist(), outline="#888888", fill="")
+
+    def _on_motion(self, event: Any) -> None:
+        self._latest = (float(event.x), float(event.y))
+
+    def _on_close(self) -> None:
+        self._closed = True
+
+    def read(self, t: float) -> tuple[float, float] | None:
+        if self._root is None:
+            raise SourceError("mouse window is not open")
+        try:
+            self._root.update()
+        except Exception:
+            self._closed = True
+        return self._latest
+
+    def finished(self, t: float) -> bool:
+        return self._closed
+
+    def show(self, *, points: Any = None, target: Any = None, held: bool = False, **_: Any):
+        if self._canvas is None or self._closed:
+            return
+        c = self._canvas
+        for item in self._items:
+            c.delete(item)
+        self._items = []
+        if points is not None:
+            A, B, C = (self.view(p) for p in points)
+            for i in range(3):
+                self._items.append(c.create_line(*A[i], *B[i], *C[i], fill="#333333", width=3))
+            self._items.append(
+                c.create_polygon(*C.ravel().tolist(), fill="#e07b39", outline="#8a4514")
+            )
+        if target is not None and np.all(np.isfinite(target)):
+            u, v = self.view(target)
+            color = "#c0392b" if held else "#27ae60"
+            self._items.append(c.create_oval(u - 5, v - 5, u + 5, v + 5, outline=color, width=2))
+
+    def close(self) -> None:
+        if self._root is not None:
+            try:
+                self._root.destroy()
+            except Exception:
+                pass
+            self._root = None
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "mouse", "size_px": list(self.size_px)}
+
+
+def open_cursor_source(spec: str, rrr3: Any = None) -> Any:
+    """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``.
+
+    Raises
+    ------
+    SourceError
+        An unknown or malformed spec.
+    """
+    if spec == "mouse":
+        return TkCursor(rrr3)
+    if spec.startswith("udp:"):
+        parts = spec[4:].rsplit(":", 1)
+        try:
+            if len(parts) == 1:
+                return UdpCursor("127.0.0.1", int(parts[0]))
+            return UdpCursor(parts[0] or "127.0.0.1", int(parts[1]))
+        except ValueError:
+            raise SourceError(
+                f"--input {spec!r}: expected udp:HOST:PORT, e.g. udp:127.0.0.1:20320"
+            ) from None
+    if spec.startswith("file:"):
+        return FileCursor(spec[5:])
+    raise SourceError(f"--input {spec!r}: expected mouse, udp:HOST:PORT or file:PATH.csv")

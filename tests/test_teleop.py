@@ -1,0 +1,230 @@
+"""Teleoperation end to end: cursor file -> calibration -> kinematics -> serial (a real pty)."""
+
+from __future__ import annotations
+
+import bisect
+import math
+import os
+import pty
+import select
+import socket
+import threading
+import tty
+
+import numpy as np
+import pytest
+
+from motionbase.cli import main
+from motionbase.errors import SourceError
+from motionbase.io.cursor_input import FileCursor, UdpCursor
+from motionbase.io.mcap_source import read_messages
+from motionbase.io.servo_protocol import decode
+from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
+from motionbase.teleop import run_teleop
+
+L, A_LEN, B_LEN, H = 0.26, 0.04445, 0.0889, 0.08573
+BASE = np.array([[0.0, 0.0], [L, 0.0], [L / 2, L * math.sqrt(3) / 2]])
+HOME = (L / 2, L * math.sqrt(3) / 6)
+K = 2e-5  # m per pixel of the test's calibration
+U0, V0 = 600.0, 400.0  # the pixel that maps to home
+
+
+def cal_xy(u, v):
+    return HOME[0] + (u - U0) * K, HOME[1] - (v - V0) * K
+
+
+def expected_servo(x, y, phi=0.0, modes=(1, -1, -1)):
+    """Law of cosines IK + the thesis's Processing servo mapping, written independently."""
+    r = H / math.sqrt(3)
+    c1 = (x - r * math.cos(math.pi / 6 + phi), y - r * math.sin(math.pi / 6 + phi))
+    c2 = (c1[0] + H * math.cos(phi), c1[1] + H * math.sin(phi))
+    c3 = (c1[0] + H * math.cos(phi + math.pi / 3), c1[1] + H * math.sin(phi + math.pi / 3))
+    C = [c1, c2, c3]
+    out = []
+    for i in range(3):
+        xc, yc = C[i][0] - BASE[i][0], C[i][1] - BASE[i][1]
+        d = math.hypot(xc, yc)
+        th = math.atan2(yc, xc) + modes[i] * math.acos(
+            (d * d + A_LEN**2 - B_LEN**2) / (2 * A_LEN * d)
+        )
+        deg = math.degrees(math.atan2(math.sin(th), math.cos(th)))
+        if i == 2:
+            deg = deg + 225 if deg < 0 else deg - 135
+        out.append(math.floor(deg + 0.5))
+    return tuple(out)
+
+
+class Board:
+    """The Arduino's side of a pty pair: says Rolling until the host speaks, records bytes."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = pty.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self.data = bytearray()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            if not self.data:
+                os.write(self.master, b"Rolling\r\n")
+            r, _, _ = select.select([self.master], [], [], 0.02)
+            if r:
+                try:
+                    self.data += os.read(self.master, 4096)
+                except OSError:
+                    return
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def write_csv(path, duration=1.2, omega=2.0):
+    rows = []
+    for i in range(int(round(duration * 100)) + 1):
+        t = i / 100
+        rows.append((t, U0 + 300 * math.sin(omega * t), V0 - 300 * (1 - math.cos(omega * t))))
+    path.write_text("t,x,y\n" + "".join(f"{t!r},{u!r},{v!r}\n" for t, u, v in rows))
+    return rows
+
+
+def write_calibration(path):
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    pts = np.array([cal_xy(u, v) for u, v in px])
+    CursorCalibration.fit(px, pts).to_toml(path)
+
+
+def test_teleop_file_to_pty_sends_exactly_the_predicted_servo_commands(tmp_path):
+    rows = write_csv(tmp_path / "cursor.csv")
+    write_calibration(tmp_path / "cal.toml")
+    times = [r[0] for r in rows]
+    expected, targets = [], []
+    k = 0
+    while k / 50 <= rows[-1][0] + 1e-9:
+        j = bisect.bisect_right(times, k / 50 + 1e-9) - 1
+        targets.append(cal_xy(rows[j][1], rows[j][2]))
+        expected.append(expected_servo(*targets[-1]))
+        k += 1
+    board = Board()
+    try:
+        rc = main([
+            "teleop", "--input", f"file:{tmp_path / 'cursor.csv'}", "--serial", board.path,
+            "--calibration", str(tmp_path / "cal.toml"), "--rate", "50",
+            "--out", str(tmp_path / "run.mcap"),
+        ])  # fmt: skip
+        assert rc == 0
+        for _ in range(100):  # let the reader drain the last frame
+            if len(board.data) and board.data.endswith(b"r"):
+                break
+            threading.Event().wait(0.01)
+    finally:
+        board.close()
+    got = decode(bytes(board.data))
+    assert [i for i, _ in got] == [0, 1, 2] * (len(got) // 3)
+    frames = [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)]
+
+    def dedupe(seq):
+        return [s for n, s in enumerate(seq) if n == 0 or s != seq[n - 1]]
+
+    assert dedupe(frames) == dedupe(expected)
+    assert len(set(expected)) > 10  # the path really moves the servos
+    log = read_messages(tmp_path / "run.mcap")
+    assert [tuple(m["servo_deg"]) for m in log["/planar/actuators"]] == expected
+    assert log["/health"][-1]["rate_limited"] == 0 and log["/health"][-1]["held"] == 0
+    np.testing.assert_allclose([m["target"] for m in log["/cursor"]], targets, atol=1e-12)
+
+
+def far_file(tmp_path, target_px):
+    p = tmp_path / "far.csv"
+    p.write_text(
+        f"0,{U0},{V0}\n0.1,{target_px[0]},{target_px[1]}\n2.0,{target_px[0]},{target_px[1]}\n"
+    )
+    return FileCursor(p)
+
+
+def test_unreachable_targets_are_clamped_or_held(tmp_path):
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+
+    class Recorder:
+        def __init__(self):
+            self.frames = []
+
+        def write(self, servo, t=None):
+            self.frames.append(tuple(servo))
+            return True
+
+    far = (U0 + 5000, V0)  # 10 cm to the right of home: outside the workspace
+    rec = Recorder()
+    stats = run_teleop(far_file(tmp_path, far), rrr3, cal, sink=rec, realtime=False, clamp=False)
+    assert stats.held > 50 and stats.clamps == 0
+    home_cmd = tuple(rrr3.to_servo(rrr3.inverse(rrr3.home)))
+    assert set(rec.frames) == {home_cmd}  # never moved: the last safe pose was home
+
+    rec = Recorder()
+    stats = run_teleop(far_file(tmp_path, far), rrr3, cal, sink=rec, realtime=False)
+    assert stats.clamps > 50 and stats.held == 0
+    assert len(set(rec.frames)) > 1  # it moved, to the edge of the workspace
+    edge, _ = rrr3.clamp(np.array([*cal_xy(*far), 0.0]))
+    assert rec.frames[-1] == tuple(rrr3.to_servo(rrr3.inverse(edge)))
+
+
+def test_joint_speed_and_acceleration_are_limited(tmp_path):
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    from motionbase.io.mcap_log import McapLogger
+
+    out = tmp_path / "jump.mcap"
+    with McapLogger(out, {"test": True}) as log:
+        stats = run_teleop(
+            far_file(tmp_path, (U0 + 700, V0 - 700)), rrr3, cal, logger=log, realtime=False
+        )
+    assert stats.rate_limited > 0
+    th = np.array([m["angles"] for m in read_messages(out)["/planar/actuators"]])
+    dt = 1 / 50
+    speed = np.max(np.abs(np.diff(th, axis=0)), axis=1) / dt
+    g = rrr3.geometry
+    assert speed.max() <= g.max_speed * 1.1
+    assert np.max(np.diff(speed)) <= g.max_accel * dt * 1.1
+    # and it arrives: the last pose is the (reachable) target
+    assert np.allclose(
+        read_messages(out)["/planar/pose"][-1]["pose"][:2], cal_xy(U0 + 700, V0 - 700)
+    )
+
+
+def test_udp_cursor_lines():
+    src = UdpCursor("127.0.0.1", 0).open()
+    try:
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        assert src.read(0.0) is None
+        tx.sendto(b"100 200\n", ("127.0.0.1", src.port))
+        tx.sendto(b"garbage\n300.5 400.25\nnan 3\n", ("127.0.0.1", src.port))
+        for _ in range(100):
+            if src.read(0.0) == (300.5, 400.25):
+                break
+            threading.Event().wait(0.01)
+        assert src.read(0.0) == (300.5, 400.25)
+        assert src.rejected == 2 and src.received == 2
+        tx.close()
+    finally:
+        src.close()
+
+
+def test_file_cursor_errors(tmp_path):
+    p = tmp_path / "bad.csv"
+    p.write_text("t,x,y\n0,1,2\n0.1,abc,3\n")
+    with pytest.raises(SourceError, match="line 3"):
+        FileCursor(p)
+    p.write_text("0,1,2\n-1,1,2\n")
+    with pytest.raises(SourceError, match="backwards"):
+        FileCursor(p)
+    with pytest.raises(SourceError, match="cannot read"):
+        FileCursor(tmp_path / "missing.csv")
+    assert main(["teleop", "--input", "joystick", "--duration", "0.1"]) == 2
