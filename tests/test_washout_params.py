@@ -36,6 +36,7 @@ def test_si_views_convert_degrees():
     assert p.tilt_rate_limit == pytest.approx(math.radians(p.tilt_rate_limit_deg_s))
     assert p.tilt_angle_limit == pytest.approx(math.radians(p.tilt_angle_limit_deg))
     assert np.allclose(p.angular_velocity_limit, np.radians(p.angular_velocity_limit_deg_s))
+    assert p.gravity == p.g == 9.80665
 
 
 def test_default_follows_the_simona_structure():

@@ -137,6 +137,11 @@ class WashoutParams:
         return np.deg2rad(np.asarray(self.angular_velocity_limit_deg_s, dtype=float))
 
     @property
+    def gravity(self) -> float:
+        """Gravity, m/s^2 (the field ``g``, under a longer name)."""
+        return self.g
+
+    @property
     def tilt_rate_limit(self) -> float:
         """Largest tilt rate, rad/s."""
         return math.radians(self.tilt_rate_limit_deg_s)
