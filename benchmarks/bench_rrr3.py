@@ -1,0 +1,75 @@
+"""3-RRR speed: one teleop cycle and the full-workspace sweep.
+
+Run: /work/venv/bin/python benchmarks/bench_rrr3.py
+
+Teleop cycle = calibration (pixel -> m) + clamp (validity check; a full clamp when the target
+is outside) + inverse kinematics + servo mapping + protocol encoding, for one cursor sample,
+as :func:`motionbase.teleop.run_teleop` does it. Budget 20 us. Sweep: 100 x 100 x 73 poses
+(x, y over the base triangle's bounding box, phi -180..180 deg), budget 1 s.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from motionbase.io.servo_protocol import encode
+from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
+
+
+def cycle(rrr3: Rrr3, cal: CursorCalibration, u: float, v: float) -> bytes:
+    x, y = cal.map_one(u, v)
+    cx, cy, cp, _ = rrr3.clamp_one(x, y, 0.0)
+    st, theta, servo = rrr3.solve_one(cx, cy, cp)
+    return encode(servo.tolist())
+
+
+def percentiles(fn, n: int) -> tuple[float, float, float]:
+    ts = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter_ns()
+        fn(i)
+        ts[i] = time.perf_counter_ns() - t0
+    return tuple(np.percentile(ts, [50, 90, 99]) / 1e3)
+
+
+def main() -> None:
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
+    cal = CursorCalibration.default(rrr3, 1310, 715)
+    rng = np.random.default_rng(0)
+    inside = rng.uniform([0, 0], [1310, 715], (20000, 2))
+    outside = rng.uniform([-3000, -3000], [4000, 4000], (20000, 2))
+    for pts in (inside, outside):
+        for i in range(200):
+            cycle(rrr3, cal, *pts[i])
+    p = percentiles(lambda i: cycle(rrr3, cal, *inside[i]), len(inside))
+    print(
+        f"teleop cycle, target inside (no clamp):  median {p[0]:.1f} us, p90 {p[1]:.1f}, "
+        f"p99 {p[2]:.1f}  (budget 20 us)"
+    )
+    p = percentiles(lambda i: cycle(rrr3, cal, *outside[i]), len(outside))
+    print(
+        f"teleop cycle, target outside (clamped):  median {p[0]:.1f} us, p90 {p[1]:.1f}, "
+        f"p99 {p[2]:.1f}"
+    )
+    rrr3.workspace(10, 10, 5)  # compile
+    best = np.inf
+    for _ in range(5):
+        t0 = time.perf_counter()
+        ws = rrr3.workspace(100, 100, 73)
+        best = min(best, time.perf_counter() - t0)
+    print(
+        f"workspace sweep 100 x 100 x 73 = {ws.status.size} poses: best of 5 {best * 1e3:.0f} ms "
+        f"({best / ws.status.size * 1e9:.0f} ns/pose; budget 1 s), {int(ws.valid.sum())} valid"
+    )
+    poses = np.stack(np.meshgrid(ws.x, ws.y, ws.phi, indexing="ij"), -1).reshape(-1, 3)
+    t0 = time.perf_counter()
+    rrr3.inverse(poses)
+    print(
+        f"batch inverse of the same {len(poses)} poses: {(time.perf_counter() - t0) * 1e3:.0f} ms"
+    )
+
+
+if __name__ == "__main__":
+    main()
