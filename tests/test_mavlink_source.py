@@ -164,8 +164,10 @@ def test_highres_imu_and_attitude_at_100hz_arrive_unchanged() -> None:
     ) as src:
         host, port = src.local_address
         assert host == "127.0.0.1" and port > 0
+        it = iter(src)
+        first = (next(it), src.tick)  # before the sender starts
         with sender(port, send_good) as sent:
-            ticks = run_live(src)
+            ticks = [first] + [(state, src.tick) for state in it]
         stats = src.stats
     assert len(ticks) == 200
     # the fixed pipeline clock: t = k / rate, whatever the message timing
