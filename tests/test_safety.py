@@ -38,9 +38,11 @@ targets = st.lists(
 def drive(seq, q0=None):
     q = np.zeros(6) if q0 is None else np.asarray(q0, float)
     v = np.zeros(6)
+    prev = q
     qs, vs, statuses = [q], [v], []
     for target in seq:
-        q, v, status = limit_command(q, v, np.asarray(target, float), DT, LIMITS)
+        q, v, status = limit_command(q, v, prev, np.asarray(target, float), DT, LIMITS)
+        prev = q if status & UNSAFE_TARGET else np.asarray(target, float)
         qs.append(q)
         vs.append(v)
         statuses.append(status)
@@ -62,11 +64,11 @@ def test_any_target_sequence_stays_finite_in_limits_speed_and_acceleration(seq):
 def test_unsafe_target_holds_the_whole_vector():
     q0 = np.full(6, 0.2)
     target = np.array([0.3, 0.3, np.nan, 0.3, 0.3, 0.3])
-    q, v, status = limit_command(q0, np.zeros(6), target, DT, LIMITS)
+    q, v, status = limit_command(q0, np.zeros(6), q0, target, DT, LIMITS)
     assert status & UNSAFE_TARGET
     assert np.array_equal(q, q0)  # no leg moves alone
     target = np.array([0.3, 0.3, 0.3, 5.0, 0.3, 0.3])  # one leg beyond its limit
-    q, v, status = limit_command(q0, np.zeros(6), target, DT, LIMITS)
+    q, v, status = limit_command(q0, np.zeros(6), q0, target, DT, LIMITS)
     assert status & UNSAFE_TARGET and np.array_equal(q, q0)
 
 
@@ -83,8 +85,26 @@ def test_step_target_is_reached_without_overshoot_in_the_time_physics_predicts()
     assert statuses[-1] == 0
 
 
+def test_a_smooth_moving_target_within_the_limits_is_tracked_exactly():
+    # 0.25 (1 - cos(pi t)) starts at rest: peak speed 0.79 rad/s, peak acceleration 2.5 rad/s^2
+    t = np.arange(0, 4, DT)
+    seq = [np.full(6, 0.25 * (1 - np.cos(np.pi * tk))) for tk in t]
+    qs, _, statuses = drive(seq)
+    assert np.allclose(qs[1:], np.array(seq), atol=1e-12)
+    assert sum(s & RATE_LIMITED for s in statuses) == 0
+
+
+def test_a_target_that_stops_at_the_limit_is_not_overshot():
+    # the target runs into the upper limit at full speed and stops there
+    seq = [np.full(6, min(1.0, -0.5 + 2.5 * k * DT)) for k in range(200)]
+    qs, _, _ = drive(seq)
+    assert qs.max() <= 1.0 and np.isclose(qs[-1, 0], 1.0)
+
+
 def test_small_moves_pass_through_unchanged():
-    q, v, status = limit_command(np.zeros(6), np.zeros(6), np.full(6, 1e-3), DT, LIMITS)
+    q, v, status = limit_command(
+        np.zeros(6), np.zeros(6), np.zeros(6), np.full(6, 1e-3), DT, LIMITS
+    )
     # 1e-3 rad in one tick at rest needs 0.12 rad/s and 14.4 rad/s^2: within limits
     assert status == 0 and np.array_equal(q, np.full(6, 1e-3))
 

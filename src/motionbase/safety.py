@@ -7,11 +7,11 @@ angles, :func:`limit_command` returns the next command so that
   replaced by the last safe command: the *whole* vector is held, never one leg alone);
 * the speed ``|q_k - q_{k-1}| / dt`` never exceeds ``max_speed``;
 * the acceleration ``|v_k - v_{k-1}| / dt`` never exceeds ``max_accel``;
-* it never overshoots its target: the speed toward the target is capped by the
-  speed from which the actuator can still stop in time (the exact discrete
-  braking curve), so a limited actuator converges to its
-  target without oscillating, and a target inside the limits keeps the actuator
-  inside them.
+* a moving target is tracked without lag (its speed is fed forward) and the
+  remaining error is closed no faster than the speed from which the actuator can
+  still stop in time (the exact discrete braking curve), so a limited actuator
+  converges to a fixed target without overshoot or oscillation;
+* it never approaches an angle limit faster than it can stop before it.
 
 All angles in rad, speeds in rad/s, accelerations in rad/s^2, ``dt`` in s. Arrays
 have shape ``(n,)`` for ``n`` actuators (6 for the 6-RUS, 3 for the 3-RRR).
@@ -61,8 +61,19 @@ class ActuatorLimits:
         return cls(arr(lower), arr(upper), arr(max_speed), arr(max_accel))
 
 
+@numba.njit(cache=True, inline="always")
+def _brake_speed(dist, u, dt):
+    # Largest speed from which an actuator braking by u = a dt per tick still stops
+    # within `dist`: from v in [n u, (n + 1) u) it covers
+    # d(v) = dt ((n + 1) v - u n (n + 1) / 2) before standing still; invert d(v) = dist.
+    if dist <= 0.0:
+        return 0.0
+    n = np.floor((-1.0 + np.sqrt(1.0 + 8.0 * dist / (dt * u))) / 2.0)
+    return (dist / dt + u * n * (n + 1.0) / 2.0) / (n + 1.0)
+
+
 @numba.njit(cache=True)
-def _limit_kernel(q_prev, v_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
+def _limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
     n = q_prev.shape[0]
     status = 0
     # 1. The target must be finite and inside the limits, or the whole vector is held.
@@ -71,31 +82,35 @@ def _limit_kernel(q_prev, v_prev, target, dt, lower, upper, vmax, amax, q_out, v
         if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
             status = 2
     for i in range(n):
-        tgt = q_prev[i] if status == 2 else target[i]
-        e = tgt - q_prev[i]
-        dist = abs(e)
-        a = amax[i]
-        # Largest speed from which the actuator can still stop within `dist` when
-        # braking by u = a dt per tick: from v in [n u, (n + 1) u) it covers
-        # d(v) = dt ((n + 1) v - u n (n + 1) / 2) before standing still.
-        u = a * dt
-        n = np.floor((-1.0 + np.sqrt(1.0 + 8.0 * dist / (dt * u))) / 2.0)
-        v_brake = (dist / dt + u * n * (n + 1.0) / 2.0) / (n + 1.0)
-        v_des = min(vmax[i], v_brake, dist / dt)
-        if e < 0.0:
-            v_des = -v_des
+        u = amax[i] * dt
+        if status == 2:
+            tgt = q_prev[i]
+            vt = 0.0
+        else:
+            tgt = target[i]
+            # the target's own speed, fed forward so a moving target is tracked without lag
+            vt = min(max((tgt - target_prev[i]) / dt, -vmax[i]), vmax[i])
+        # error left after the feed-forward, closed no faster than the braking curve allows
+        e = tgt - q_prev[i] - vt * dt
+        fb = min(_brake_speed(abs(e), u, dt), abs(e) / dt)
+        v_des = vt + fb if e >= 0.0 else vt - fb
+        # never approach an angle limit faster than one can stop before it
+        v_des = min(
+            max(v_des, -_brake_speed(q_prev[i] - lower[i], u, dt)),
+            _brake_speed(upper[i] - q_prev[i], u, dt),
+        )
         v = min(max(v_des, v_prev[i] - u), v_prev[i] + u)
         v = min(max(v, -vmax[i]), vmax[i])
         # land exactly on the target when the full step is allowed
-        q = tgt if v == e / dt else q_prev[i] + v * dt
-        # safety net: never outside the limits (a no-op when the target is inside them)
+        q = tgt if v == (tgt - q_prev[i]) / dt else q_prev[i] + v * dt
+        # safety net against rounding: never outside the limits
         if q > upper[i]:
             q = upper[i]
         elif q < lower[i]:
             q = lower[i]
         v = (q - q_prev[i]) / dt
         if status != 2 and q != tgt:
-            status = max(status, 1)
+            status = 1
         q_out[i] = q
         v_out[i] = v
     return status
@@ -104,6 +119,7 @@ def _limit_kernel(q_prev, v_prev, target, dt, lower, upper, vmax, amax, q_out, v
 def limit_command(
     q_prev: np.ndarray,
     v_prev: np.ndarray,
+    target_prev: np.ndarray,
     target: np.ndarray,
     dt: float,
     limits: ActuatorLimits,
@@ -116,6 +132,10 @@ def limit_command(
         Previous command, rad (must itself be safe).
     v_prev : ndarray, shape (n,)
         Previous command speed, rad/s.
+    target_prev : ndarray, shape (n,)
+        The previous tick's (safe) target, rad; its difference to ``target`` is the
+        target's speed, fed forward so that a moving target is tracked without lag.
+        Pass ``q_prev`` when there is none.
     target : ndarray, shape (n,)
         Wanted command, rad; may contain NaN or out-of-limit values.
     dt : float
@@ -136,6 +156,7 @@ def limit_command(
     status = _limit_kernel(
         q_prev,
         v_prev,
+        target_prev,
         np.asarray(target, dtype=float),
         float(dt),
         limits.lower,

@@ -1,0 +1,381 @@
+"""The jobs a user runs (``fly``, ``replay``, ``stream``): sources, pipeline and sinks put together.
+
+The command line (:mod:`motionbase.cli`) only parses arguments and calls these
+functions; tests call them directly too. Each returns a :class:`JobResult` whose
+``summary_text()`` is what the command prints at the end.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from motionbase.config import resolve_preset_or_path
+from motionbase.errors import ConfigError
+from motionbase.pipeline import (
+    Pipeline,
+    PipelineConfig,
+    PipelineOutput,
+    RunSummary,
+    StopRequest,
+    install_signal_stop,
+    run,
+)
+
+RECORDINGS = Path("recordings")
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def load_config(
+    *,
+    planar: bool = False,
+    platform: str | None = None,
+    washout: str | None = None,
+    rate_hz: float = 120.0,
+) -> PipelineConfig:
+    """Build a pipeline configuration from preset names or TOML paths.
+
+    Parameters
+    ----------
+    planar : bool
+        Drive the 3-RRR robot (preset ``udesc``) instead of the 6-RUS (``ceart``).
+    platform : str, optional
+        Geometry preset name or path to a TOML file of the chosen robot.
+    washout : str, optional
+        Washout preset name (``default``, ``gentle``) or TOML path.
+    rate_hz : float
+        Pipeline rate, Hz.
+    """
+    from motionbase.platform import Rrr3Geometry, Rus6Geometry
+    from motionbase.washout import WashoutParams
+
+    if planar:
+        geometry = Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", platform or "udesc"))
+    else:
+        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or "ceart"))
+    params = WashoutParams.from_toml(resolve_preset_or_path("washout", washout or "default"))
+    return PipelineConfig(
+        robot="rrr3" if planar else "rus6", geometry=geometry, washout=params, rate_hz=rate_hz
+    )
+
+
+def run_metadata(config: PipelineConfig, source: Any) -> dict[str, Any]:
+    """The metadata record of a log: everything a replay needs."""
+    return {"pipeline_config": config.to_dict(), "source": source.describe()}
+
+
+# --------------------------------------------------------------------------- results
+
+
+@dataclass
+class JobResult:
+    """What a job did: the run summary, where the log went, and what to tell the user."""
+
+    title: str
+    summary: RunSummary
+    out: Path | None
+    notes: list[str] = field(default_factory=list)
+    failed: bool = False
+
+    def summary_text(self) -> str:
+        s = self.summary
+        h = s.health
+        speedup = s.sim_time_s / s.wall_time_s if s.wall_time_s > 0 else float("inf")
+        lines = [
+            f"{self.title}: {s.samples} samples, {s.sim_time_s:.1f} s simulated in "
+            f"{s.wall_time_s:.1f} s wall ({speedup:.1f}x real time), stopped by {s.stopped_by}",
+            f"clamped {100 * s.clamped_share:.1f} % of samples; "
+            f"rejected inputs {h.rejected_inputs}; "
+            f"rate-limited commands {h.rate_limited}; unsafe commands held {h.unsafe_commands}; "
+            f"watchdog fades {h.watchdog_fades}; E-stops {h.estops}",
+        ]
+        if s.peak_angle is not None:
+            lo, hi = s.angle_limits
+            lines.append("actuator  peak |angle| deg (limits)     peak speed deg/s (limit)")
+            for i in range(len(s.peak_angle)):
+                lines.append(
+                    f"{i + 1:>8}  {math.degrees(s.peak_angle[i]):7.1f} "
+                    f"({math.degrees(lo[i]):6.1f}..{math.degrees(hi[i]):5.1f})   "
+                    f"{math.degrees(s.peak_speed[i]):10.1f} ({math.degrees(s.max_speed[i]):.1f})"
+                )
+        if self.out is not None:
+            size = self.out.stat().st_size if self.out.exists() else 0
+            lines.append(f"log: {self.out} ({size / 1e6:.2f} MB)")
+        lines.extend(self.notes)
+        return "\n".join(lines)
+
+
+class ProgressBar:
+    """A one-line progress bar on a terminal (simulated time / total); silent elsewhere."""
+
+    def __init__(self, total_s: float | None, stream=None, min_interval_s: float = 0.1) -> None:
+        self.total = total_s
+        self.stream = stream or sys.stderr
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.min_interval = min_interval_s
+        self._next = 0.0
+        self._t0: float | None = None
+
+    def __call__(self, out: PipelineOutput) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if now < self._next:
+            return
+        self._next = now + self.min_interval
+        if self._t0 is None:
+            self._t0 = out.t
+        done = out.t - self._t0
+        if self.total:
+            frac = min(1.0, max(0.0, done / self.total))
+            bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+            text = f"\r[{bar}] {done:7.1f} / {self.total:.1f} s  {out.phase:<9}"
+        else:
+            text = f"\r{done:9.1f} s  {out.phase:<9}"
+        self.stream.write(text)
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\r" + " " * 72 + "\r")
+            self.stream.flush()
+
+
+# --------------------------------------------------------------------------- jobs
+
+
+def _drive(
+    title: str,
+    config: PipelineConfig,
+    source: Any,
+    out: Path | None,
+    *,
+    paced: bool,
+    progress: bool,
+    extra_sinks: list[Any] | None = None,
+    on_output: Callable[[PipelineOutput], None] | None = None,
+) -> JobResult:
+    """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks."""
+    from motionbase.io.pipeline_log import PipelineLog
+
+    pipeline = Pipeline(config)
+    stop = StopRequest()
+    restore = install_signal_stop(stop)
+    bar = ProgressBar(getattr(source, "duration_s", None)) if progress else None
+
+    def on_tick(o: PipelineOutput) -> None:
+        if bar is not None:
+            bar(o)
+        if on_output is not None:
+            on_output(o)
+
+    sinks: list[Any] = []
+    try:
+        log = (
+            PipelineLog(out, run_metadata(config, source), health=pipeline.health.as_dict)
+            if out
+            else None
+        )
+        if log is not None:
+            log.__enter__()
+            sinks.append(log)
+        try:
+            for sink in extra_sinks or []:
+                sink.__enter__()
+                sinks.append(sink)
+            summary = run(pipeline, source, sinks, paced=paced, stop=stop, progress=on_tick)
+        finally:
+            for sink in reversed(sinks):
+                sink.__exit__(None, None, None)
+    finally:
+        restore()
+        if bar is not None:
+            bar.close()
+    return JobResult(title, summary, out)
+
+
+def fly(
+    script: str = "c1723",
+    *,
+    platform: str | None = None,
+    washout: str | None = None,
+    planar: bool = False,
+    realtime: bool = False,
+    duration_s: float | None = None,
+    out: str | Path | None = None,
+    progress: bool = True,
+) -> JobResult:
+    """Fly a JSBSim script through the pipeline and log it to MCAP.
+
+    Parameters
+    ----------
+    script : str
+        A script shipped with jsbsim (``c1723``) or a path to a script file.
+    platform, washout : str, optional
+        Presets or TOML paths (see :func:`load_config`).
+    planar : bool
+        Drive the 3-RRR robot.
+    realtime : bool
+        Pace the simulation to wall-clock time.
+    duration_s : float, optional
+        Stop after this much simulated time, s.
+    out : path, optional
+        Output file; default ``recordings/<script>.mcap`` (``<script>_planar`` in planar mode).
+    """
+    from motionbase.io.jsbsim_source import JsbsimSource
+
+    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
+        raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
+    name = Path(script).stem
+    out_path = (
+        Path(out) if out is not None else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
+    )
+    source = JsbsimSource(script, duration_s=duration_s, realtime=realtime)
+    with source:
+        config = load_config(
+            planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
+        )
+        robot = "3-RRR" if planar else "6-RUS"
+        return _drive(
+            f"flew {name} on the {robot}",
+            config,
+            source,
+            out_path,
+            paced=realtime,
+            progress=progress,
+        )
+
+
+def replay(
+    path: str | Path,
+    *,
+    out: str | Path | None = None,
+    check: bool = False,
+    platform: str | None = None,
+    washout: str | None = None,
+    planar: bool | None = None,
+    progress: bool = True,
+) -> JobResult:
+    """Re-run the pipeline on a recording's aircraft states, with its recorded configuration.
+
+    Parameters
+    ----------
+    path : path
+        The recording (``.mcap``); a truncated file replays what survived.
+    out : path, optional
+        Write the replay's own log here.
+    check : bool
+        Compare every output with the recording; the result is ``failed`` with a
+        report of the largest difference per topic when they differ.
+    platform, washout, planar : optional
+        Override the recorded configuration.
+    """
+    from motionbase.io.mcap_source import McapSource, read_messages
+
+    src_path = Path(path)
+    with McapSource(src_path) as source:
+        recorded = source.metadata.get("pipeline_config") if source.metadata else None
+        if recorded is not None and platform is None and washout is None and planar is None:
+            config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
+        else:
+            base_planar = (recorded or {}).get("robot") == "rrr3" if planar is None else planar
+            config = load_config(
+                planar=base_planar, platform=platform, washout=washout, rate_hz=source.rate_hz
+            )
+        notes = []
+        if recorded is None:
+            notes.append(f"{src_path}: no recorded configuration; used the defaults")
+        if getattr(source, "truncated", False):
+            notes.append(f"warning: {src_path} is truncated; replayed the messages before the cut")
+        tmp = None
+        out_path = Path(out) if out is not None else None
+        if check and out_path is None:
+            tmp = tempfile.TemporaryDirectory(prefix="motionbase-replay-")
+            out_path = Path(tmp.name) / "replay.mcap"
+        try:
+            result = _drive(
+                f"replayed {src_path.name}",
+                config,
+                source,
+                out_path,
+                paced=False,
+                progress=progress,
+            )
+            result.notes.extend(notes)
+            if check:
+                report = compare_recordings(read_messages(src_path), read_messages(out_path))
+                result.notes.extend(report.lines())
+                result.failed = not report.identical
+            if tmp is not None:
+                result.out = None
+        finally:
+            if tmp is not None:
+                tmp.cleanup()
+    return result
+
+
+# --------------------------------------------------------------------------- replay check
+
+
+# Fields that depend on the wall clock or the machine, never compared.
+_UNCOMPARED = {"/health": {"worst_overrun_s"}}
+
+
+@dataclass
+class CheckReport:
+    """Largest difference per topic between two recordings."""
+
+    per_topic: dict[str, tuple[int, int, float]]  # topic -> (count a, count b, max |diff|)
+
+    @property
+    def identical(self) -> bool:
+        return all(a == b and d == 0.0 for a, b, d in self.per_topic.values())
+
+    def lines(self) -> list[str]:
+        out = [
+            "check: "
+            + ("identical to the recording" if self.identical else "DIFFERS from the recording")
+        ]
+        for topic, (a, b, d) in sorted(self.per_topic.items()):
+            mark = "ok" if a == b and d == 0.0 else "DIFF"
+            out.append(f"  {mark:4} {topic:<22} messages {a} vs {b}, largest difference {d:.3g}")
+        return out
+
+
+def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        keys = (set(a) | set(b)) - skip
+        return max((_max_diff(a.get(k), b.get(k), set()) for k in keys), default=0.0)
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return math.inf
+        return max((_max_diff(x, y, set()) for x, y in zip(a, b, strict=True)), default=0.0)
+    if isinstance(a, bool) or isinstance(b, bool) or isinstance(a, str) or isinstance(b, str):
+        return 0.0 if a == b else math.inf
+    if a is None or b is None:
+        return 0.0 if a is b else math.inf
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return float(abs(a - b))
+    return 0.0 if a == b else math.inf
+
+
+def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]]) -> CheckReport:
+    """Compare the messages of two recordings topic by topic (``/health`` timing excluded)."""
+    per_topic = {}
+    for topic in sorted(set(a) | set(b)):
+        ma, mb = a.get(topic, []), b.get(topic, [])
+        skip = _UNCOMPARED.get(topic, set())
+        if topic == "/health":
+            # health records are written once per second: compare only the last counts
+            ma, mb = ma[-1:], mb[-1:]
+        d = max((_max_diff(x, y, skip) for x, y in zip(ma, mb, strict=False)), default=0.0)
+        per_topic[topic] = (len(ma), len(mb), d)
+    return CheckReport(per_topic)

@@ -1,0 +1,145 @@
+"""The MCAP sink of the pipeline: one :class:`PipelineOutput` -> the topics of DESIGN.md.
+
+Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
+
+* ``/aircraft/state``: the sample as the source gave it (non-finite numbers as
+  ``null``), with ``fresh`` and ``accepted`` flags; replays feed it back.
+* ``/washout/pose``: the washout output before fades and clamping.
+* 6-RUS: ``/platform/pose`` (after clamping and safety, with ``clamped``,
+  ``phase``, ``fade``, ``rate_limited``, ``held``), ``/platform/actuators``
+  (crank angles, rad) and a ``foxglove.FrameTransform`` on ``/tf``.
+* planar mode: ``/planar/pose`` and ``/planar/actuators`` (with ``servo_deg``).
+* ``/health``: the safety counters, once per second of source time and at the end.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from motionbase.io.mcap_log import McapLogger
+
+
+def _floats(values) -> list[float | None]:
+    """Plain floats for JSON; non-finite values become null (JSON has no NaN)."""
+    out = []
+    for v in values:
+        f = float(v)
+        out.append(f if math.isfinite(f) else None)
+    return out
+
+
+def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any]:
+    """The ``/aircraft/state`` message of one sample."""
+    msg: dict[str, Any] = {
+        "t": t,
+        "source_t": float(state.t) if math.isfinite(state.t) else None,
+        "specific_force": _floats(state.specific_force),
+        "angular_velocity": _floats(state.angular_velocity),
+        "attitude": _floats(state.attitude),
+        "fresh": bool(fresh),
+        "accepted": bool(accepted),
+    }
+    if state.angular_acceleration is not None:
+        msg["angular_acceleration"] = _floats(state.angular_acceleration)
+    return msg
+
+
+class PipelineLog:
+    """Sink writing every pipeline output to an MCAP file.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output ``.mcap`` file (its folder is created).
+    metadata : mapping
+        The run's configuration (``PipelineConfig.to_dict()`` plus the source's
+        description); stored in the file's ``motionbase`` metadata record.
+    health : callable, optional
+        Returns the current health counters (a dict) for ``/health``.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        metadata: Mapping[str, Any],
+        health: Callable[[], dict[str, Any]] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self._logger = McapLogger(self.path, metadata)
+        self._health = health
+        self._next_health_t: float | None = None
+        self._last_t = 0.0
+
+    def __enter__(self) -> PipelineLog:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._logger.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Write the final health record and finish the file (idempotent)."""
+        if self._logger is None:
+            return
+        logger, self._logger = self._logger, None
+        try:
+            if self._health is not None:
+                logger.add("/health", self._last_t, {"t": self._last_t, **self._health()})
+        finally:
+            logger.finish()
+
+    def write(self, out) -> None:
+        """Log one :class:`~motionbase.pipeline.PipelineOutput`."""
+        log = self._logger.add
+        t = out.t
+        self._last_t = t
+        if out.state is not None:
+            log("/aircraft/state", t, state_message(t, out.state, out.fresh, out.accepted))
+        log("/washout/pose", t, {"t": t, "pose": out.washout_pose.tolist()})
+        pose = out.platform_pose.tolist()
+        angles = out.angles.tolist()
+        if out.servo_deg is None:
+            log(
+                "/platform/pose",
+                t,
+                {
+                    "t": t,
+                    "pose": pose,
+                    "clamped": out.clamped,
+                    "rate_limited": out.rate_limited,
+                    "held": out.held,
+                    "phase": out.phase,
+                    "fade": out.fade,
+                },
+            )
+            log("/platform/actuators", t, {"t": t, "angles": angles})
+            self._logger.add_transform(t, pose)
+        else:
+            log(
+                "/planar/pose",
+                t,
+                {
+                    "t": t,
+                    "pose": pose,
+                    "clamped": out.clamped,
+                    "rate_limited": out.rate_limited,
+                    "held": out.held,
+                    "phase": out.phase,
+                    "fade": out.fade,
+                },
+            )
+            log(
+                "/planar/actuators",
+                t,
+                {"t": t, "angles": angles, "servo_deg": [int(d) for d in out.servo_deg]},
+            )
+        if self._health is not None:
+            if self._next_health_t is None:
+                self._next_health_t = t
+            if t >= self._next_health_t:
+                log("/health", t, {"t": t, **self._health()})
+                self._next_health_t = t + 1.0

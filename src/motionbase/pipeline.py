@@ -1,0 +1,683 @@
+"""The pipeline: source -> validation -> washout -> clamp -> inverse kinematics -> safety -> sinks.
+
+One documented time convention: the pipeline ticks at a fixed rate ``rate_hz``
+(``dt = 1 / rate_hz``); each tick consumes one sample from the source (sources
+resample to that rate themselves) and produces one :class:`PipelineOutput`, whose
+``t`` is the source's time in seconds. After the source ends, or on a stop or an
+E-stop, the pipeline keeps ticking on the last held sample until the platform is
+parked.
+
+:class:`Pipeline` is the functional core: ``step(state) -> PipelineOutput`` does
+no I/O. :func:`run` is the loop that reads a source, writes sinks, paces
+real-time sources and reports progress.
+
+Stages of one tick
+------------------
+1. *Validation*: a non-finite or absurd sample, or one whose time does not
+   advance, is rejected, counted and replaced by the last valid sample (a hold).
+   A forward time jump longer than ``stale_timeout_s`` resets the washout (as on
+   aircraft load) and fades the motion back in.
+2. *Washout* (:class:`~motionbase.washout.ClassicalWashout`) -> pose.
+3. *Watchdog fade*: when the source marks its samples stale the washout pose is
+   faded toward neutral over ``fade_s``; when fresh samples return it fades back.
+4. *Soft start / stop*: the commanded pose blends from the park pose to the live
+   pose over ``soft_start_s`` (and back on stop).
+5. *Clamp*: the robot's workspace clamp scales the whole pose toward neutral;
+   when it acts during normal running the washout is told (anti-windup).
+6. *Inverse kinematics* -> actuator angles.
+7. *Safety* (:mod:`motionbase.safety`): finite, inside the angle limits, within
+   the speed and acceleration limits, else the last safe command is held.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import numpy as np
+
+from motionbase import __version__
+from motionbase.errors import ConfigError
+from motionbase.safety import (
+    RATE_LIMITED,
+    UNSAFE_TARGET,
+    ActuatorLimits,
+    InputLimits,
+    input_problem,
+    limit_command,
+    smoothstep,
+)
+from motionbase.state import AircraftState
+
+# --------------------------------------------------------------------------- config
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything that determines the pipeline's numbers (stored in every log).
+
+    Parameters
+    ----------
+    robot : {"rus6", "rrr3"}
+        Which robot the pipeline drives: the 6-RUS platform or, in planar mode,
+        the 3-RRR robot.
+    geometry : Rus6Geometry or Rrr3Geometry
+        The robot's geometry and actuator limits.
+    washout : WashoutParams
+        Washout filter parameters.
+    rate_hz : float
+        Pipeline rate, Hz.
+    soft_start_s : float
+        Time to blend from the park pose to the live command, s (and back on stop).
+    stale_timeout_s : float
+        A forward jump of the source time longer than this resets the washout, s.
+    fade_s : float
+        Watchdog fade time to neutral (and back) when the source goes stale, s.
+    planar_scale_m : float
+        Planar mode: metres of robot x/y per metre of washout surge/sway.
+    planar_yaw_scale : float
+        Planar mode: robot phi per radian of washout yaw.
+    input_limits : InputLimits
+        Absurd-input bounds for validation.
+    """
+
+    robot: str
+    geometry: Any
+    washout: Any
+    rate_hz: float = 120.0
+    soft_start_s: float = 2.0
+    stale_timeout_s: float = 0.5
+    fade_s: float = 1.0
+    planar_scale_m: float = 0.1
+    planar_yaw_scale: float = 0.5
+    input_limits: InputLimits = field(default_factory=InputLimits)
+
+    def __post_init__(self) -> None:
+        if self.robot not in ("rus6", "rrr3"):
+            raise ConfigError(f"robot must be 'rus6' or 'rrr3', got {self.robot!r}")
+        for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
+        if self.rate_hz > 10_000:
+            raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
+
+    @property
+    def dt(self) -> float:
+        """Pipeline time step, s."""
+        return 1.0 / self.rate_hz
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (for the log's metadata); :meth:`from_dict` rebuilds it exactly."""
+        return {
+            "robot": self.robot,
+            "geometry": self.geometry.to_dict(),
+            "washout": self.washout.to_dict(),
+            "pipeline": {
+                "rate_hz": self.rate_hz,
+                "soft_start_s": self.soft_start_s,
+                "stale_timeout_s": self.stale_timeout_s,
+                "fade_s": self.fade_s,
+                "planar_scale_m": self.planar_scale_m,
+                "planar_yaw_scale": self.planar_yaw_scale,
+                "input_limits": {
+                    f.name: getattr(self.input_limits, f.name) for f in fields(InputLimits)
+                },
+            },
+            "version": __version__,
+        }
+
+    @classmethod
+    def from_dict(
+        cls, data: dict[str, Any], source: str = "recorded configuration"
+    ) -> PipelineConfig:
+        """Rebuild a configuration written by :meth:`to_dict`."""
+        from motionbase.platform import Rrr3Geometry, Rus6Geometry
+        from motionbase.washout import WashoutParams
+
+        try:
+            robot = data["robot"]
+            geometry_cls = Rus6Geometry if robot == "rus6" else Rrr3Geometry
+            pipe = dict(data.get("pipeline", {}))
+            limits = InputLimits(**pipe.pop("input_limits", {}))
+            return cls(
+                robot=robot,
+                geometry=geometry_cls.from_dict(data["geometry"], source=f"{source}: geometry"),
+                washout=WashoutParams.from_dict(data["washout"], source=f"{source}: washout"),
+                input_limits=limits,
+                **pipe,
+            )
+        except (KeyError, TypeError) as exc:
+            raise ConfigError(f"{source}: incomplete or unknown field ({exc})") from None
+
+
+# --------------------------------------------------------------------------- robots
+
+
+class _Robot:
+    """What the pipeline needs from a robot, whichever it is."""
+
+    n: int
+    limits: ActuatorLimits
+    park_angles: np.ndarray
+    park_pose: np.ndarray
+    neutral_pose: np.ndarray
+
+    def pose_from_washout(self, pose6: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def washout_from_pose(self, pose: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def clamp(self, pose: np.ndarray) -> tuple[np.ndarray, bool]:
+        raise NotImplementedError
+
+    def inverse(self, pose: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def forward(self, angles: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def servo(self, angles: np.ndarray) -> np.ndarray | None:
+        return None
+
+
+class _Rus6Robot(_Robot):
+    def __init__(self, geometry) -> None:
+        from motionbase.platform import Rus6
+
+        self.kin = Rus6(geometry)
+        self.n = 6
+        lo, hi = self.kin.angle_limits
+        self.limits = ActuatorLimits.broadcast(6, lo, hi, geometry.max_speed, geometry.max_accel)
+        self.park_angles = np.full(6, float(geometry.park_angle))
+        self.neutral_pose = np.zeros(6)
+        park = self.kin.forward(self.park_angles, guess=self.neutral_pose)
+        if not np.isfinite(park).all():
+            raise ConfigError("geometry: park_angle gives no assembled platform (choose another)")
+        self.park_pose = np.asarray(park, dtype=float)
+
+    def pose_from_washout(self, pose6):
+        return pose6
+
+    def washout_from_pose(self, pose):
+        return pose
+
+    def clamp(self, pose):
+        p, clamped = self.kin.clamp(pose)
+        return np.asarray(p, dtype=float), bool(clamped)
+
+    def inverse(self, pose):
+        return np.asarray(self.kin.inverse(pose), dtype=float)
+
+    def forward(self, angles, guess):
+        return np.asarray(self.kin.forward(angles, guess=guess), dtype=float)
+
+
+class _Rrr3Robot(_Robot):
+    """Planar mode: surge -> x, sway -> y, yaw -> phi about the home pose."""
+
+    def __init__(self, geometry, scale_m: float, yaw_scale: float) -> None:
+        from motionbase.platform import Rrr3
+
+        self.kin = Rrr3(geometry)
+        self.n = 3
+        lo, hi = self.kin.angle_limits
+        self.limits = ActuatorLimits.broadcast(3, lo, hi, geometry.max_speed, geometry.max_accel)
+        self.neutral_pose = np.asarray(self.kin.home, dtype=float)
+        self.park_pose = self.neutral_pose
+        self.park_angles = self.inverse(self.park_pose)
+        if not np.isfinite(self.park_angles).all():
+            raise ConfigError(
+                "planar geometry: the home pose is not reachable (check the geometry)"
+            )
+        self.scale = np.array([scale_m, scale_m, yaw_scale])
+
+    def pose_from_washout(self, pose6):
+        # planar base frame: x along motor 1 -> motor 2, y toward motor 3 (see DESIGN.md)
+        return self.neutral_pose + self.scale * np.array([pose6[0], pose6[1], pose6[5]])
+
+    def washout_from_pose(self, pose):
+        d = (np.asarray(pose) - self.neutral_pose) / self.scale
+        return np.array([d[0], d[1], 0.0, 0.0, 0.0, d[2]])
+
+    def clamp(self, pose):
+        p, clamped = self.kin.clamp(pose)
+        return np.asarray(p, dtype=float), bool(clamped)
+
+    def inverse(self, pose):
+        return np.asarray(self.kin.inverse(pose), dtype=float)
+
+    def forward(self, angles, guess):
+        return np.asarray(self.kin.forward(angles, guess=guess), dtype=float)
+
+    def servo(self, angles):
+        return np.asarray(self.kin.to_servo(angles))
+
+
+def make_robot(config: PipelineConfig) -> _Robot:
+    if config.robot == "rus6":
+        return _Rus6Robot(config.geometry)
+    return _Rrr3Robot(config.geometry, config.planar_scale_m, config.planar_yaw_scale)
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineOutput:
+    """Everything one tick produced (what the sinks log and send).
+
+    Attributes
+    ----------
+    t : float
+        Time, s (source clock).
+    state : AircraftState or None
+        The sample the source gave this tick, as given (None on park ticks after
+        the source ended).
+    fresh : bool
+        False when the source marked the sample stale.
+    accepted : bool
+        False when validation rejected the sample (the last valid one was held).
+    washout_pose : ndarray, shape (6,)
+        Washout output ``[x, y, z, roll, pitch, yaw]`` (m, rad) before fades and clamping.
+    platform_pose : ndarray, shape (6,) or (3,)
+        The pose the actuators realise: 6-RUS pose, or planar ``[x, y, phi]``.
+    clamped : bool
+        The workspace clamp moved the pose.
+    angles : ndarray, shape (6,) or (3,)
+        Actuator command, rad (always finite and within limits).
+    servo_deg : ndarray of int, shape (3,), or None
+        Planar mode: servo command in integer degrees.
+    rate_limited : bool
+        The safety stage's speed or acceleration limit changed the command.
+    held : bool
+        The safety stage replaced an unsafe command by the last safe one.
+    phase : str
+        ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
+    fade : float
+        Watchdog fade factor in [0, 1] (1 = full motion).
+    """
+
+    t: float
+    state: AircraftState | None
+    fresh: bool
+    accepted: bool
+    washout_pose: np.ndarray
+    platform_pose: np.ndarray
+    clamped: bool
+    angles: np.ndarray
+    servo_deg: np.ndarray | None
+    rate_limited: bool
+    held: bool
+    phase: str
+    fade: float
+
+
+@dataclass
+class Health:
+    """Counts of everything the safety layers did (logged as ``/health``)."""
+
+    samples: int = 0
+    rejected_inputs: int = 0
+    clamps: int = 0
+    rate_limited: int = 0
+    unsafe_commands: int = 0
+    watchdog_fades: int = 0
+    time_jumps: int = 0
+    estops: int = 0
+    worst_overrun_s: float = 0.0
+    last_rejection: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+# --------------------------------------------------------------------------- core
+
+
+class Pipeline:
+    """The functional core: ``step(state) -> PipelineOutput``, no I/O.
+
+    Parameters
+    ----------
+    config : PipelineConfig
+    """
+
+    def __init__(self, config: PipelineConfig) -> None:
+        from motionbase.washout import ClassicalWashout
+
+        self.config = config
+        self.dt = config.dt
+        self.robot = make_robot(config)
+        self.washout = ClassicalWashout(config.washout, self.dt)
+        self.health = Health()
+        self.reset()
+
+    # -- lifecycle -------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to parked, filters at rest, counters kept."""
+        self.washout.reset()
+        self._q = self.robot.park_angles.copy()
+        self._v = np.zeros(self.robot.n)
+        self._wanted = self._q
+        self._pose = self.robot.park_pose.copy()
+        self._last_state: AircraftState | None = None
+        self._t: float | None = None
+        self._phase = "starting"
+        self._blend = 0.0  # 0 = park, 1 = live
+        self._fade = 1.0
+        self._stale = False
+        self._estop = False
+
+    def stop(self) -> None:
+        """Ramp back to park over ``soft_start_s`` (end of run, Ctrl-C)."""
+        if self._phase in ("starting", "running"):
+            self._phase = "stopping"
+
+    def estop(self) -> None:
+        """Emergency stop: head for park at once, within the speed and acceleration limits."""
+        self.health.estops += 1
+        self._estop = True
+        self._phase = "stopping"
+        self._blend = 0.0
+
+    @property
+    def parked(self) -> bool:
+        """True once stopped with the actuators at park and at rest."""
+        return (
+            self._phase == "stopping"
+            and self._blend == 0.0
+            and bool(np.all(self._q == self.robot.park_angles))
+            and bool(np.all(self._v == 0.0))
+        )
+
+    @property
+    def phase(self) -> str:
+        return "parked" if self.parked else self._phase
+
+    # -- one tick --------------------------------------------------------------
+    def step(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
+        """Advance one tick with the source's sample (None: hold the last one).
+
+        Parameters
+        ----------
+        state : AircraftState or None
+            This tick's sample, or None on ticks after the source ended.
+        fresh : bool
+            False when the source says the sample is a stale hold.
+        """
+        cfg = self.config
+        dt = self.dt
+        h = self.health
+        h.samples += 1
+
+        # 1. validation (against the last output time, so ticks stay strictly increasing)
+        accepted = state is not None
+        if state is not None:
+            problem = input_problem(
+                state.t,
+                state.specific_force,
+                state.angular_velocity,
+                state.attitude,
+                self._t,
+                cfg.input_limits,
+            )
+            if problem is None:
+                if self._t is not None and state.t - self._t > cfg.stale_timeout_s:
+                    # the source stalled or jumped: filters restart, motion fades back in
+                    h.time_jumps += 1
+                    self.washout.reset()
+                    self._fade = 0.0
+                self._last_state = state
+            else:
+                accepted = False
+                h.rejected_inputs += 1
+                h.last_rejection = problem
+        t = state.t if accepted else (self._t if self._t is not None else 0.0) + dt
+        self._t = t
+        use = self._last_state
+
+        # 2. washout (a hold of the last valid sample, or level flight before any)
+        if use is None:
+            f = np.array([0.0, 0.0, -cfg.washout.gravity])
+            w = np.zeros(3)
+        else:
+            f, w = use.specific_force, use.angular_velocity
+        washout_pose = np.asarray(self.washout.step(f, w), dtype=float)
+
+        # 3. watchdog fade
+        stale = not fresh
+        if stale and not self._stale:
+            h.watchdog_fades += 1
+        self._stale = stale
+        step_fade = dt / cfg.fade_s
+        self._fade = max(0.0, self._fade - step_fade) if stale else min(1.0, self._fade + step_fade)
+        live6 = smoothstep(self._fade) * washout_pose
+
+        # 4. soft start / stop blend
+        step_blend = dt / cfg.soft_start_s
+        if self._phase == "starting":
+            self._blend = min(1.0, self._blend + step_blend)
+            if self._blend >= 1.0:
+                self._phase = "running"
+        elif self._phase == "stopping" and not self._estop:
+            self._blend = max(0.0, self._blend - step_blend)
+        s = smoothstep(self._blend)
+        robot = self.robot
+        live = robot.pose_from_washout(live6)
+        target = robot.park_pose + s * (live - robot.park_pose) if s < 1.0 else live
+
+        # 5. clamp (+ anti-windup while running at full motion)
+        pose, clamped = robot.clamp(target)
+        if clamped:
+            h.clamps += 1
+            if self._phase == "running" and self._fade == 1.0 and accepted:
+                self.washout.track(robot.washout_from_pose(pose))
+
+        # 6. inverse kinematics (park is commanded by its angles exactly), 7. safety
+        if self._phase == "stopping" and s == 0.0:
+            pose, clamped, wanted = robot.park_pose, False, robot.park_angles
+        else:
+            wanted = robot.inverse(pose)
+        q, v, status = limit_command(self._q, self._v, self._wanted, wanted, dt, robot.limits)
+        held = bool(status & UNSAFE_TARGET)
+        self._wanted = q if held else wanted
+        rate_limited = bool(status & RATE_LIMITED)
+        if held:
+            h.unsafe_commands += 1
+        if rate_limited:
+            h.rate_limited += 1
+        if held or rate_limited:
+            # the actuators realise another pose than the one asked: say which
+            achieved = robot.forward(q, guess=self._pose)
+            if np.isfinite(achieved).all():
+                pose = achieved
+        self._q, self._v, self._pose = q, v, pose
+
+        return PipelineOutput(
+            t=t,
+            state=state,
+            fresh=fresh,
+            accepted=accepted,
+            washout_pose=washout_pose,
+            platform_pose=pose,
+            clamped=clamped,
+            angles=q,
+            servo_deg=robot.servo(q),
+            rate_limited=rate_limited,
+            held=held,
+            phase=self.phase,
+            fade=self._fade,
+        )
+
+
+# --------------------------------------------------------------------------- loop
+
+
+@dataclass
+class RunSummary:
+    """What a run did, for the end-of-run report.
+
+    Attributes
+    ----------
+    samples : int
+        Ticks processed (including the park ramp).
+    sim_time_s, wall_time_s : float
+        Simulated (source) and wall-clock duration, s.
+    clamped_share : float
+        Share of ticks whose pose the workspace clamp moved.
+    peak_angle, peak_speed : ndarray, shape (n,)
+        Largest |angle| (rad) and |speed| (rad/s) per actuator.
+    angle_limits : tuple of ndarray
+        (lower, upper), rad.
+    max_speed : ndarray, shape (n,)
+        Speed limits, rad/s.
+    health : Health
+    pipeline_time_s : list of float
+        Per-tick pipeline time, s (when measured).
+    """
+
+    samples: int = 0
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    clamped: int = 0
+    peak_angle: np.ndarray | None = None
+    peak_speed: np.ndarray | None = None
+    angle_limits: tuple[np.ndarray, np.ndarray] | None = None
+    max_speed: np.ndarray | None = None
+    health: Health | None = None
+    stopped_by: str = "end of source"
+
+    @property
+    def clamped_share(self) -> float:
+        return self.clamped / self.samples if self.samples else 0.0
+
+
+class StopRequest:
+    """A thread-safe flag that SIGINT/SIGTERM, a key or a test can raise."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self.estop = False
+        self.reason = ""
+
+    def set(self, reason: str = "stop", estop: bool = False) -> None:
+        self.reason = reason
+        self.estop = self.estop or estop
+        self._event.set()
+
+    def __bool__(self) -> bool:
+        return self._event.is_set()
+
+
+def install_signal_stop(stop: StopRequest) -> Callable[[], None]:
+    """Route SIGINT and SIGTERM to ``stop`` (E-stop); returns a function restoring the handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    old = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum, _frame):
+        stop.set(signal.Signals(signum).name, estop=True)
+
+    for sig in old:
+        signal.signal(sig, handler)
+
+    def restore() -> None:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+    return restore
+
+
+def run(
+    pipeline: Pipeline,
+    source: Iterable[AircraftState],
+    sinks: Sequence[Any] = (),
+    *,
+    paced: bool = False,
+    stop: StopRequest | None = None,
+    progress: Callable[[PipelineOutput], None] | None = None,
+    max_park_s: float = 30.0,
+) -> RunSummary:
+    """Drive ``pipeline`` from ``source`` into ``sinks`` until the source ends or a stop.
+
+    After the source ends (or a stop is requested) the pipeline keeps ticking on
+    the last sample until the platform is parked (at most ``max_park_s``).
+
+    Parameters
+    ----------
+    pipeline : Pipeline
+    source : iterable of AircraftState
+        Already entered (``with source:``). A source may expose ``sample_fresh``
+        (bool) to mark stale holds.
+    sinks : sequence
+        Objects with ``write(output)``, already entered.
+    paced : bool
+        Sleep between park ticks to keep real time (live and ``--realtime`` sources).
+    stop : StopRequest, optional
+        Raised to stop (ramp to park) or E-stop.
+    progress : callable, optional
+        Called with every output.
+    """
+    stop = stop or StopRequest()
+    summary = RunSummary(health=pipeline.health)
+    robot = pipeline.robot
+    peak_angle = np.zeros(robot.n)
+    peak_speed = np.zeros(robot.n)
+    wall0 = time.perf_counter()
+    t_first: float | None = None
+    t_last = 0.0
+
+    def emit(out: PipelineOutput) -> None:
+        nonlocal t_first, t_last
+        for sink in sinks:
+            sink.write(out)
+        if progress is not None:
+            progress(out)
+        summary.samples += 1
+        summary.clamped += out.clamped
+        np.maximum(peak_angle, np.abs(out.angles), out=peak_angle)
+        np.maximum(peak_speed, np.abs(pipeline._v), out=peak_speed)
+        if t_first is None:
+            t_first = out.t
+        t_last = out.t
+
+    stopping_requested = False
+    for state in source:
+        if stop and not stopping_requested:
+            stopping_requested = True
+            summary.stopped_by = stop.reason
+            pipeline.estop() if stop.estop else pipeline.stop()
+        fresh = bool(getattr(source, "sample_fresh", True))
+        emit(pipeline.step(state, fresh))
+        if pipeline.parked:
+            break
+    # park ramp on held samples
+    if not pipeline.parked:
+        if not stopping_requested:
+            pipeline.stop()
+        for _ in range(int(max_park_s / pipeline.dt)):
+            if pipeline.parked:
+                break
+            if stop.estop and not pipeline._estop:
+                pipeline.estop()
+            emit(pipeline.step(None))
+            if paced:
+                time.sleep(pipeline.dt)
+    summary.wall_time_s = time.perf_counter() - wall0
+    summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
+    summary.peak_angle = peak_angle
+    summary.peak_speed = peak_speed
+    summary.angle_limits = (robot.limits.lower, robot.limits.upper)
+    summary.max_speed = robot.limits.max_speed
+    return summary
+
+
+def with_overrides(config: PipelineConfig, **changes: Any) -> PipelineConfig:
+    """A copy of ``config`` with some fields changed (None values ignored)."""
+    return replace(config, **{k: v for k, v in changes.items() if v is not None})
