@@ -36,6 +36,12 @@ Messages and units
 Body rates come from the IMU message that gives the specific force (same
 instant). ``HIGHRES_IMU.fields_updated`` is not consulted.
 
+Logs are resampled on their own clock: a ``.tlog`` by default on the vehicle's
+``time_boot_ms``/``time_usec`` (the ground station's receive stamps in
+``vtol.tlog`` arrive in bursts with 1-2 s holes, which would make 58 % of the
+ticks stale; the vehicle clock gives 94 % fresh), a DataFlash log on its
+``TimeUS``/``TimeMS``. Ticks start at the first record, ``t = k / rate_hz``.
+
 Filtering and safety
 --------------------
 Only messages from ``sysid`` (and ``compid`` when given) are used
