@@ -200,17 +200,30 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         metavar="mouse|udp:HOST:PORT|file:PATH.csv",
         help="cursor source (default mouse: a Tk window; udp: 'x y' pixel lines; file: t,x,y CSV)",
     )
-    p.add_argument("--serial", default="none", metavar="URL|none",
-                   help="pyserial URL of the Arduino (/dev/ttyACM0, socket://h:p); default none")
+    p.add_argument(
+        "--serial",
+        default="none",
+        metavar="URL|none",
+        help="pyserial URL of the Arduino (/dev/ttyACM0, socket://h:p); default none",
+    )
     p.add_argument("--calibration", metavar="PATH.toml", help="cursor calibration (TOML)")
-    p.add_argument("--rate", type=_positive_float, default=50.0, metavar="HZ",
-                   help="loop rate, Hz (default 50)")
+    p.add_argument(
+        "--rate",
+        type=_positive_float,
+        default=50.0,
+        metavar="HZ",
+        help="loop rate, Hz (default 50)",
+    )
     p.add_argument("--out", metavar="FILE.mcap", help="log to this MCAP file")
     p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
-    p.add_argument("--rrr3", default="udesc", metavar="PRESET|FILE.toml",
-                   help="3-RRR geometry (default udesc)")
-    p.add_argument("--no-clamp", action="store_true",
-                   help="hold unreachable targets instead of clamping them toward home")
+    p.add_argument(
+        "--rrr3", default="udesc", metavar="PRESET|FILE.toml", help="3-RRR geometry (default udesc)"
+    )
+    p.add_argument(
+        "--no-clamp",
+        action="store_true",
+        help="hold unreachable targets instead of clamping them toward home",
+    )
 
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
