@@ -226,7 +226,8 @@ class _Rrr3Robot(_Robot):
 
         self.kin = Rrr3(geometry)
         self.n = 3
-        lo, hi = self.kin.angle_limits
+        # servo ranges as joint-angle intervals (3, 2); angles are expressed inside them
+        lo, hi = np.asarray(self.kin.angle_limits, dtype=float).T
         self.limits = ActuatorLimits.broadcast(3, lo, hi, geometry.max_speed, geometry.max_accel)
         self.neutral_pose = np.asarray(self.kin.home, dtype=float)
         self.park_pose = self.neutral_pose
@@ -250,7 +251,10 @@ class _Rrr3Robot(_Robot):
         return np.asarray(p, dtype=float), bool(clamped)
 
     def inverse(self, pose):
-        return np.asarray(self.kin.inverse(pose), dtype=float)
+        # the same angle modulo 2 pi, written inside the servo's interval when it is in it
+        angles = np.asarray(self.kin.inverse(pose), dtype=float)
+        lo = self.limits.lower
+        return lo + np.mod(angles - lo, 2 * np.pi)
 
     def forward(self, angles, guess):
         return np.asarray(self.kin.forward(angles, guess=guess), dtype=float)
@@ -613,7 +617,7 @@ def run(
     ----------
     pipeline : Pipeline
     source : iterable of AircraftState
-        Already entered (``with source:``). A source may expose ``sample_fresh``
+        Already entered (``with source:``). A source may expose ``fresh``
         (bool) to mark stale holds.
     sinks : sequence
         Objects with ``write(output)``, already entered.
@@ -653,7 +657,7 @@ def run(
             stopping_requested = True
             summary.stopped_by = stop.reason
             pipeline.estop() if stop.estop else pipeline.stop()
-        fresh = bool(getattr(source, "sample_fresh", True))
+        fresh = bool(getattr(source, "fresh", True))
         emit(pipeline.step(state, fresh))
         if pipeline.parked:
             break
