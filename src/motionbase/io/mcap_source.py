@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -167,8 +168,10 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def _state_from_message(msg: dict[str, Any]) -> AircraftState:
     acc = msg.get("angular_acceleration")
+    # a pipeline log keeps the source's own time (even a bad one) in `source_t`
+    t = msg.get("source_t", msg["t"])
     return AircraftState(
-        t=msg["t"],
+        t=math.nan if t is None else t,
         specific_force=msg["specific_force"],
         angular_velocity=msg["angular_velocity"],
         attitude=msg["attitude"],
@@ -226,6 +229,7 @@ class McapSource:
         self.version: str | None = None
         self.truncated = False
         self.count = 0
+        self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.duration_s: float | None = None
         self._channel_ids: set[int] = set()
@@ -311,7 +315,10 @@ class McapSource:
                     return
                 if isinstance(rec, Message):
                     if rec.channel_id in ids:
-                        yield _state_from_message(decode_message(rec.data))
+                        msg = decode_message(rec.data)
+                        # whether the live source had a fresh sample (watchdog replays)
+                        self.fresh = bool(msg.get("fresh", True))
+                        yield _state_from_message(msg)
                 elif isinstance(rec, Channel):
                     if rec.topic == self.topic:
                         ids.add(rec.id)
