@@ -38,6 +38,7 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
+from motionbase.platform.output_map import OutputMapping
 
 __all__ = ["Rus6Geometry", "N_LEGS"]
 
@@ -101,6 +102,9 @@ class Rus6Geometry:
         must give a pure-heave pose within every leg's limits.
     name : str
         A label (the preset name or the file it came from).
+    output : OutputMapping or None
+        How crank angles become motor-drive values (the TOML ``[output]`` table): mirrored
+        motors, zero offsets, gear ratios, drive units. None when the file has none.
     """
 
     rb: float
@@ -119,6 +123,7 @@ class Rus6Geometry:
     max_accel: tuple[float, ...] = (30.0,) * N_LEGS
     park_angle: float | None = None
     name: str = "custom"
+    output: OutputMapping | None = None
 
     # ------------------------------------------------------------------ construction
     def __post_init__(self) -> None:
@@ -166,6 +171,13 @@ class Rus6Geometry:
         else:
             object.__setattr__(self, "park_angle", as_float(src, "park_angle", self.park_angle))
         self._check_park(src)
+        if self.output is not None:
+            if not isinstance(self.output, OutputMapping):
+                raise ConfigError(
+                    f"{src}: field 'output': expected an OutputMapping, got {self.output!r}"
+                )
+            if self.output.n != N_LEGS:
+                raise ConfigError(f"{src}: table 'output': expected 6 motors, got {self.output.n}")
 
     def _check_rods(self, src: str) -> None:
         """Each rod must bridge the gap between its crank tip circle and its neutral joint."""
@@ -322,6 +334,10 @@ class Rus6Geometry:
             if f.name == "name":
                 continue
             v = getattr(self, f.name)
+            if f.name == "output":
+                if v is not None:
+                    out["output"] = v.to_dict()
+                continue
             out[f.name] = list(v) if isinstance(v, tuple) else v
         return out
 
@@ -334,12 +350,14 @@ class Rus6Geometry:
         one value) or the same with ``_deg``; ``max_speed`` (rad/s) or ``max_speed_deg_s``;
         ``max_accel`` (rad/s^2) or ``max_accel_deg_s2``; ``neutral_angle_deg`` instead of
         ``neutral_height`` (the height is then derived so the cranks sit at that angle at
-        neutral); ``name``; ``kind`` (must be ``"rus6"`` if present). Per-leg fields take 6
-        numbers or one number for all legs.
+        neutral); ``name``; ``kind`` (must be ``"rus6"`` if present); ``output``, a table of
+        the motor-drive mapping (see :class:`~motionbase.platform.output_map.OutputMapping`).
+        Per-leg fields take 6 numbers or one number for all legs.
         """
         if not isinstance(data, Mapping):
             raise ConfigError(f"{source}: expected a table of geometry fields, got {data!r}")
-        allowed = {"name", "kind", "neutral_angle_deg"} | set(_SCALARS) | set(_LENGTH_ARRAYS)
+        allowed = {"name", "kind", "neutral_angle_deg", "output"}
+        allowed |= set(_SCALARS) | set(_LENGTH_ARRAYS)
         for f in _ANGLE_ARRAYS + ("park_angle",):
             allowed |= {f, f + "_deg"}
         for f, suffix in _RATE_ARRAYS.items():
@@ -416,6 +434,13 @@ class Rus6Geometry:
         elif "neutral_height" not in kw:
             raise ConfigError(
                 f"{source}: missing field 'neutral_height' (or give 'neutral_angle_deg')"
+            )
+        if "output" in data:
+            kw["output"] = OutputMapping.from_dict(
+                data["output"],
+                angle_min=kw["angle_min"],
+                angle_max=kw["angle_max"],
+                source=f"{source}: [output]",
             )
         try:
             return cls(**kw)
