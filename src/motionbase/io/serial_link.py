@@ -22,10 +22,48 @@ import serial
 from motionbase.errors import SinkError
 from motionbase.io.servo_protocol import encode
 
-__all__ = ["ServoSerialSink", "READY_LINE"]
+__all__ = ["ServoSerialSink", "READY_LINE", "SERIAL_ERRORS", "open_serial_port", "close_quietly"]
 
 READY_LINE = b"Rolling"
 log = logging.getLogger(__name__)
+
+# What a port that vanished or failed raises (pyserial wraps most, not all, OSErrors).
+SERIAL_ERRORS = (serial.SerialException, OSError)
+
+
+def open_serial_port(
+    url: str, baud: int, *, timeout: float | None = 0.05, write_timeout: float | None = 2.0
+) -> Any:
+    """Open a pyserial URL or device path; a failure is a :class:`SinkError` saying what to check.
+
+    Parameters
+    ----------
+    url : str
+        A device path or pyserial URL (``/dev/ttyUSB0``, ``loop://``, ``socket://host:port``).
+    baud : int
+        Baud rate.
+    timeout, write_timeout : float or None
+        Read and write timeouts, s (None blocks).
+    """
+    try:
+        return serial.serial_for_url(
+            url, baudrate=int(baud), timeout=timeout, write_timeout=write_timeout
+        )
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise SinkError(
+            f"cannot open serial port {url!r}: {exc} (check the device or URL, "
+            "and that you may use it: e.g. membership of the 'dialout' group)"
+        ) from None
+
+
+def close_quietly(port: Any) -> None:
+    """Close a port that may already be gone (errors ignored)."""
+    if port is None:
+        return
+    try:
+        port.close()
+    except SERIAL_ERRORS:
+        pass
 
 
 class ServoSerialSink:
@@ -93,15 +131,7 @@ class ServoSerialSink:
         """Open the port and wait for the ready line (warning after ``ready_timeout_s``)."""
         if self._port is not None:
             return self
-        try:
-            self._port = serial.serial_for_url(
-                self.url, baudrate=self.baud, timeout=0.05, write_timeout=2.0
-            )
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise SinkError(
-                f"cannot open serial port {self.url!r}: {exc} (check the device or URL, "
-                "and that you may use it: e.g. membership of the 'dialout' group)"
-            ) from None
+        self._port = open_serial_port(self.url, self.baud, timeout=0.05, write_timeout=2.0)
         self._wait_ready()
         return self
 
@@ -137,10 +167,7 @@ class ServoSerialSink:
             pass
         finally:
             port, self._port = self._port, None
-            try:
-                port.close()
-            except (serial.SerialException, OSError):
-                pass
+            close_quietly(port)
 
     def __enter__(self) -> ServoSerialSink:
         return self.open()
@@ -200,11 +227,7 @@ class ServoSerialSink:
 
     def _fail(self, what: str) -> None:
         port, self._port = self._port, None
-        try:
-            if port is not None:
-                port.close()
-        except (serial.SerialException, OSError):
-            pass
+        close_quietly(port)
         raise SinkError(
             f"serial port {self.url!r} vanished or failed ({what}); the link is closed and "
             "no further commands are sent (reconnect the board and restart)"
