@@ -322,6 +322,151 @@ def replay(
     return result
 
 
+class StatusLine:
+    """A live one-line status of a streaming run (terminal only), at most 5 times a second.
+
+    Shows the message rate, the age of the last sample, clamping and the watchdog state.
+    """
+
+    def __init__(self, source: Any, stream=None, min_interval_s: float = 0.2) -> None:
+        self.source = source
+        self.stream = stream or sys.stderr
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.min_interval = min_interval_s
+        self._next = 0.0
+        self._clamped = 0
+        self._ticks = 0
+
+    def __call__(self, out: PipelineOutput) -> None:
+        self._ticks += 1
+        self._clamped += out.clamped
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if now < self._next:
+            return
+        self._next = now + self.min_interval
+        stats = self.source.stats
+        watchdog = "ok" if out.fade == 1.0 else ("FADED" if out.fade == 0.0 else "fading")
+        self.stream.write(
+            f"\r{out.t:8.1f} s  {stats.message_rate_hz:6.0f} msg/s  "
+            f"age {1000 * self.source.sample_age_s:6.0f} ms  "
+            f"clamped {100 * self._clamped / self._ticks:5.1f} %  watchdog {watchdog:<6} "
+            f"{out.phase:<9}"
+        )
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+class PlanarServoOutput:
+    """Sink sending the planar robot's safe servo degrees over the thesis's serial protocol."""
+
+    def __init__(self, url: str) -> None:
+        from motionbase.io.serial_link import ServoSerialSink
+
+        self.link = ServoSerialSink(url)
+
+    def __enter__(self) -> PlanarServoOutput:
+        self.link.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.link.close()
+
+    def write(self, out: PipelineOutput) -> None:
+        self.link.write(out.servo_deg, t=out.t)
+
+
+def stream(
+    mavlink: str = "udpin:127.0.0.1:14550",
+    *,
+    sysid: int = 1,
+    compid: int | None = None,
+    signing_key: str | Path | None = None,
+    rate_hz: float = 100.0,
+    platform: str | None = None,
+    washout: str | None = None,
+    planar: bool = False,
+    serial: str | None = None,
+    duration_s: float | None = None,
+    out: str | Path | None = None,
+    realtime: bool = True,
+    progress: bool = True,
+) -> JobResult:
+    """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
+
+    Parameters
+    ----------
+    mavlink : str
+        A pymavlink connection string (``udpin:127.0.0.1:14550``, ``udpout:``, ``tcp:``,
+        a serial device) or a ``.tlog``/``.bin`` log file.
+    sysid, compid : int
+        Accept messages from this system (and component) only.
+    signing_key : path, optional
+        MAVLink 2 signing key file; unsigned or badly signed messages are rejected.
+    rate_hz : float
+        Pipeline rate, Hz (the stream is resampled to it by holding the latest sample).
+    platform, washout, planar :
+        As for :func:`fly`.
+    serial : str, optional
+        Planar mode: a pyserial URL of the 3-RRR's Arduino.
+    duration_s : float, optional
+        Stop (and park) after this long, s.
+    out : path, optional
+        MCAP log; default ``recordings/stream-<UTC time>.mcap``.
+    realtime : bool
+        For log files: replay at the recorded timing (True) or as fast as possible.
+    """
+    from motionbase.io.mavlink_source import MavlinkSource
+
+    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
+        raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
+    if serial and not planar:
+        raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
+    config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
+    if out is None:
+        out = RECORDINGS / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+    source = MavlinkSource(
+        mavlink,
+        rate_hz=rate_hz,
+        sysid=sysid,
+        compid=compid,
+        signing_key=signing_key,
+        duration_s=duration_s,
+        realtime=realtime,
+        stale_timeout_s=config.stale_timeout_s,
+    )
+    extra = [PlanarServoOutput(serial)] if serial else []
+    with source:
+        status = StatusLine(source) if progress else None
+        try:
+            result = _drive(
+                f"streamed {mavlink}",
+                config,
+                source,
+                Path(out),
+                paced=bool(realtime),
+                progress=False,
+                extra_sinks=extra,
+                on_output=status,
+            )
+        finally:
+            if status is not None:
+                status.close()
+        st = source.stats
+        result.notes.append(
+            f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
+            f"{st.rejected} rejected (other system {st.rejected_sysid}, signature "
+            f"{st.rejected_signature}, invalid {st.rejected_invalid}), {st.bad_data} garbled; "
+            f"{st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps"
+        )
+    return result
+
+
 # --------------------------------------------------------------------------- replay check
 
 

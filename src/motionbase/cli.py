@@ -8,6 +8,7 @@ status 2; it is never a traceback.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from collections.abc import Callable, Sequence
 
@@ -49,7 +50,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _setup_logging() -> None:
+    """Warnings of the library (a truncated file, a stale link) as one plain line each."""
+    log = logging.getLogger("motionbase")
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("motionbase: %(levelname)s: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.WARNING)
+        log.propagate = False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    _setup_logging()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
@@ -240,6 +253,59 @@ def run_teleop(args: argparse.Namespace) -> int:
         f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input"
     )
     return 0
+
+
+def _args_stream(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--mavlink",
+        default="udpin:127.0.0.1:14550",
+        metavar="URL",
+        help="pymavlink connection string or .tlog/.bin file "
+        "(default udpin:127.0.0.1:14550, loopback only)",
+    )
+    p.add_argument("--sysid", type=int, default=1, help="accept this system id only (default 1)")
+    p.add_argument("--compid", type=int, help="accept this component id only")
+    p.add_argument(
+        "--signing-key", metavar="FILE", help="MAVLink 2 signing key (32 bytes or 64 hex)"
+    )
+    p.add_argument(
+        "--rate",
+        type=_positive_float,
+        default=100.0,
+        metavar="HZ",
+        help="pipeline rate (default 100)",
+    )
+    p.add_argument("--platform", help="geometry preset or TOML path")
+    p.add_argument("--washout", help="washout preset or TOML path")
+    p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot")
+    p.add_argument("--serial", metavar="URL", help="planar: the Arduino's pyserial URL")
+    p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
+    p.add_argument("--fast", action="store_true", help="log files: as fast as possible")
+    p.add_argument(
+        "--out", metavar="FILE.mcap", help="log file (default recordings/stream-<time>.mcap)"
+    )
+
+
+@command("stream", "drive the platform from live MAVLink telemetry until Ctrl-C", _args_stream)
+def run_stream(args: argparse.Namespace) -> int:
+    from motionbase import app
+
+    return _print_result(
+        app.stream(
+            args.mavlink,
+            sysid=args.sysid,
+            compid=args.compid,
+            signing_key=args.signing_key,
+            rate_hz=args.rate,
+            platform=args.platform,
+            washout=args.washout,
+            planar=args.planar,
+            serial=args.serial,
+            duration_s=args.duration,
+            out=args.out,
+            realtime=not args.fast,
+        )
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover
