@@ -308,5 +308,24 @@ def run_stream(args: argparse.Namespace) -> int:
     )
 
 
+def _args_report(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recording", metavar="FILE.mcap", help="a recording made by motionbase")
+    p.add_argument(
+        "--out", metavar="DIR", help="folder for the PNGs and summary.txt (default <stem>_report/)"
+    )
+
+
+@command(
+    "report",
+    "plot a recording's cueing (aircraft vs platform, perceived motion, actuators) with metrics",
+    _args_report,
+)
+def run_report(args: argparse.Namespace) -> int:
+    from motionbase.io.report_plots import write_report
+
+    print(write_report(args.recording, args.out).summary_text())
+    return 0
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
