@@ -152,6 +152,18 @@ class ProgressBar:
 # --------------------------------------------------------------------------- jobs
 
 
+def _close_sinks(sinks: list[Any], *, quiet: bool) -> None:
+    """Close every sink (last opened first), even when one fails; then raise the first failure."""
+    first: BaseException | None = None
+    for sink in reversed(sinks):
+        try:
+            sink.__exit__(None, None, None)
+        except Exception as exc:  # noqa: BLE001 - the others must still close
+            first = first or exc
+    if first is not None and not quiet:
+        raise first
+
+
 def _drive(
     title: str,
     config: PipelineConfig,
@@ -192,9 +204,10 @@ def _drive(
                 sink.__enter__()
                 sinks.append(sink)
             summary = run(pipeline, source, sinks, paced=paced, stop=stop, progress=on_tick)
-        finally:
-            for sink in reversed(sinks):
-                sink.__exit__(None, None, None)
+        except BaseException:
+            _close_sinks(sinks, quiet=True)  # the failure that is propagating says it all
+            raise
+        _close_sinks(sinks, quiet=False)
     finally:
         restore()
         if bar is not None:

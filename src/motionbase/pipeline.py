@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from motionbase import __version__
-from motionbase.errors import ConfigError
+from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.safety import (
     RATE_LIMITED,
     UNSAFE_TARGET,
@@ -613,6 +613,12 @@ def run(
     After the source ends (or a stop is requested) the pipeline keeps ticking on
     the last sample until the platform is parked (at most ``max_park_s``).
 
+    Faults: when the source raises, or a sink's ``write`` raises, the run stops
+    (the failed sink is dropped), ramps to park on held samples through the
+    remaining sinks, and then re-raises the failure (a
+    :class:`~motionbase.errors.MotionbaseError` with "the platform was parked"
+    added to its message; any other exception unchanged).
+
     Parameters
     ----------
     pipeline : Pipeline
@@ -622,25 +628,47 @@ def run(
     sinks : sequence
         Objects with ``write(output)``, already entered.
     paced : bool
-        Sleep between park ticks to keep real time (live and ``--realtime`` sources).
+        Real-time run (live and ``--realtime`` sources pace the source ticks; the
+        park ticks are paced here). Each tick is due at its source time on the
+        wall clock (anchored at the first tick, re-anchored when the source's clock
+        jumps) and must be done one ``dt`` later: the worst lateness goes to
+        ``pipeline.health.worst_overrun_s`` (s, 0 when never late).
     stop : StopRequest, optional
         Raised to stop (ramp to park) or E-stop.
     progress : callable, optional
         Called with every output.
     """
-    stop = stop or StopRequest()
+    stop = stop if stop is not None else StopRequest()  # (an unset StopRequest is falsy)
     summary = RunSummary(health=pipeline.health)
     robot = pipeline.robot
+    health = pipeline.health
+    dt = pipeline.dt
     peak_angle = np.zeros(robot.n)
     peak_speed = np.zeros(robot.n)
     wall0 = time.perf_counter()
     t_first: float | None = None
     t_last = 0.0
+    active = list(sinks)
+    failure: BaseException | None = None  # the first source or sink failure
+    # paced runs: tick k is due at anchor_wall + (t_k - anchor_t) and must be done one dt later
+    anchor: tuple[float, float] | None = None
+    prev_t: float | None = None
 
-    def emit(out: PipelineOutput) -> None:
-        nonlocal t_first, t_last
-        for sink in sinks:
-            sink.write(out)
+    def fail(exc: BaseException, what: str) -> None:
+        nonlocal failure
+        if failure is None:
+            failure = exc
+            summary.stopped_by = f"{what} failure"
+            stop.set(f"{what} failure")
+
+    def emit(out: PipelineOutput, started: float) -> None:
+        nonlocal t_first, t_last, anchor, prev_t
+        for sink in tuple(active):
+            try:
+                sink.write(out)
+            except Exception as exc:  # noqa: BLE001 - drop the sink, park on the others
+                active.remove(sink)
+                fail(exc, "sink")
         if progress is not None:
             progress(out)
         summary.samples += 1
@@ -650,29 +678,65 @@ def run(
         if t_first is None:
             t_first = out.t
         t_last = out.t
+        if paced:
+            if anchor is None or prev_t is None or abs(out.t - prev_t - dt) > 0.5 * dt:
+                anchor = (started, out.t)  # first tick, or the source's clock jumped
+            late = time.perf_counter() - (anchor[0] + (out.t - anchor[1]) + dt)
+            if late > health.worst_overrun_s:
+                health.worst_overrun_s = late
+        prev_t = out.t
+
+    def apply_stop() -> None:
+        if pipeline._phase in ("starting", "running"):
+            pipeline.estop() if stop.estop else pipeline.stop()
+        elif stop.estop and not pipeline._estop:
+            pipeline.estop()
 
     stopping_requested = False
-    for state in source:
-        if stop and not stopping_requested:
+    iterator = iter(source)
+    while True:
+        try:
+            state = next(iterator)
+        except StopIteration:
+            break
+        except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
+            fail(exc, "source")
+            break
+        started = time.perf_counter()
+        if stop and (not stopping_requested or (stop.estop and not pipeline._estop)):
+            if not stopping_requested:
+                summary.stopped_by = stop.reason
             stopping_requested = True
-            summary.stopped_by = stop.reason
-            pipeline.estop() if stop.estop else pipeline.stop()
+            apply_stop()
         fresh = bool(getattr(source, "fresh", True))
-        emit(pipeline.step(state, fresh))
+        emit(pipeline.step(state, fresh), started)
         if pipeline.parked:
             break
     # park ramp on held samples
     if not pipeline.parked:
         if not stopping_requested:
+            if stop:
+                summary.stopped_by = stop.reason
             pipeline.stop()
-        for _ in range(int(max_park_s / pipeline.dt)):
+        for _ in range(int(max_park_s / dt)):
             if pipeline.parked:
                 break
             if stop.estop and not pipeline._estop:
                 pipeline.estop()
-            emit(pipeline.step(None))
-            if paced:
-                time.sleep(pipeline.dt)
+            if paced and anchor is not None and prev_t is not None:
+                wait = anchor[0] + (prev_t + dt - anchor[1]) - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+            emit(pipeline.step(None), time.perf_counter())
+    if failure is not None:
+        # parked first; then the failure, as one clear line when it is ours, else as is (a bug)
+        if isinstance(failure, MotionbaseError):
+            try:
+                again = type(failure)(f"{failure} (the platform was parked)")
+            except TypeError:
+                again = MotionbaseError(f"{failure} (the platform was parked)")
+            raise again from failure
+        raise failure
     summary.wall_time_s = time.perf_counter() - wall0
     summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
     summary.peak_angle = peak_angle

@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from motionbase.errors import SinkError
 from motionbase.io.mcap_log import McapLogger
 
 
@@ -74,7 +75,13 @@ class PipelineLog:
         self._last_t = 0.0
 
     def __enter__(self) -> PipelineLog:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SinkError(
+                f"{self.path}: cannot create the folder {self.path.parent}: "
+                f"{exc.strerror or exc} (choose another --out path)"
+            ) from None
         self._logger.start()
         return self
 

@@ -1,0 +1,413 @@
+"""The whole pipeline under attack: nothing bad ever reaches an actuator, for both robots.
+
+Hypothesis drives the real :class:`~motionbase.pipeline.Pipeline` (shipped presets, both
+robots) with arbitrary sequences of good, non-finite and absurd aircraft samples, time
+gaps and jumps (forward and backward), stale stretches, stops and E-stops at random
+ticks. Every command must be finite, inside the angle limits, and within the speed and
+acceleration limits measured from the commands themselves (finite differences, starting
+from park at rest), and a stop must end parked within a time computed from the limits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from motionbase.app import load_config
+from motionbase.pipeline import Pipeline, PipelineConfig, RunSummary, run, with_overrides
+from motionbase.state import AircraftState
+
+G = 9.80665
+LEVEL = ([0.0, 0.0, -G], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+
+# rounding only: the commands are differences of doubles of order 1 rad
+SPEED_TOL = 1e-9  # rad/s
+ACCEL_TOL = 1e-6  # rad/s^2
+
+
+def _config(planar: bool, rate_hz: float = 120.0) -> PipelineConfig:
+    return load_config(planar=planar, rate_hz=rate_hz)
+
+
+CONFIGS = {
+    (planar, rate): _config(planar, rate) for planar in (False, True) for rate in (60.0, 120.0)
+}
+
+
+def check_commands(pipeline: Pipeline, angles: list[np.ndarray]) -> None:
+    """Finite, in the angle limits, speed and acceleration limits from park at rest."""
+    lim = pipeline.robot.limits
+    dt = pipeline.dt
+    park = pipeline.robot.park_angles
+    q = np.array([park, park, *angles])  # at rest at park before the first tick
+    assert np.isfinite(q).all(), "non-finite actuator command"
+    assert (q >= lim.lower).all() and (q <= lim.upper).all(), "command outside the angle limits"
+    v = np.diff(q, axis=0) / dt
+    excess_v = np.abs(v) - lim.max_speed
+    assert excess_v.max() <= SPEED_TOL, f"speed limit exceeded by {excess_v.max():.3g} rad/s"
+    a = np.diff(v, axis=0) / dt
+    excess_a = np.abs(a) - lim.max_accel
+    assert excess_a.max() <= ACCEL_TOL, f"acceleration limit exceeded by {excess_a.max():.3g}"
+
+
+def park_bound_s(pipeline: Pipeline, soft: bool) -> float:
+    """Longest time to park from anywhere, computed from the limits alone.
+
+    From any speed the actuator stops within vmax/amax; it then crosses at most the
+    whole range (plus what it travelled while braking) on a trapezoidal profile,
+    which takes distance/vmax + vmax/amax. A soft stop first blends the target to
+    park over ``soft_start_s``; an E-stop heads for park at once.
+    """
+    lim = pipeline.robot.limits
+    vmax, amax = lim.max_speed, lim.max_accel
+    span = lim.upper - lim.lower + vmax**2 / (2 * amax)
+    t = float(np.max(vmax / amax + span / vmax + vmax / amax))
+    if soft:
+        t += pipeline.config.soft_start_s
+    return t + 3 * pipeline.dt
+
+
+# --------------------------------------------------------------------------- strategies
+
+finite3 = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)
+
+
+@dataclass(frozen=True)
+class Tick:
+    kind: str  # "good", "bad", "back", "none"
+    force: tuple[float, ...] = (0.0, 0.0, -G)
+    rates: tuple[float, ...] = (0.0, 0.0, 0.0)
+    attitude: tuple[float, ...] = (0.0, 0.0, 0.0)
+    jump_s: float = 0.0  # forward time jump before this tick
+    back_s: float = 0.0  # for "back": how far before the previous tick
+    bad_time: bool = False  # "bad" with a non-finite time
+    stale: bool = False
+    action: str = ""  # "", "stop", "estop"
+
+
+NASTY = [math.nan, math.inf, -math.inf, 1e6, -1e6, 1e3, -1e300]
+
+
+@st.composite
+def good_tick(draw, strength: float = 1.0) -> Tick:
+    f = draw(finite3)
+    w = draw(finite3)
+    att = draw(finite3)
+    return Tick(
+        "good",
+        force=(60 * strength * f[0], 60 * strength * f[1], -G + 60 * strength * f[2]),
+        rates=tuple(8 * strength * x for x in w),
+        attitude=tuple(3 * x for x in att),
+    )
+
+
+@st.composite
+def bad_tick(draw) -> Tick:
+    base = draw(good_tick())
+    which = draw(st.sampled_from(["force", "rates", "attitude", "time"]))
+    if which == "time":
+        return Tick("bad", base.force, base.rates, base.attitude, bad_time=True)
+    vec = list(getattr(base, which))
+    vec[draw(st.integers(0, 2))] = draw(st.sampled_from(NASTY))
+    if which == "attitude" and all(math.isfinite(x) and abs(x) < 1e3 for x in vec):
+        vec[0] = 1e3  # an angle of 1e3 rad
+    if which == "rates" and all(math.isfinite(x) and abs(x) < 1e3 for x in vec):
+        vec[0] = 1e3
+    return Tick(**{**base.__dict__, "kind": "bad", which: tuple(vec)})
+
+
+@st.composite
+def tick(draw) -> Tick:
+    t = draw(
+        st.one_of(
+            good_tick(),
+            good_tick(),
+            bad_tick(),
+            st.builds(Tick, kind=st.just("back"), back_s=st.floats(0.0, 5.0)),
+            st.just(Tick("none")),
+        )
+    )
+    jump = draw(st.sampled_from([0.0, 0.0, 0.0, 0.0, 0.3, 0.6, 5.0, 1e4]))
+    stale = draw(st.booleans()) and draw(st.booleans())
+    action = draw(st.sampled_from(["", "", "", "", "", "", "", "", "", "stop", "estop"]))
+    return Tick(**{**t.__dict__, "jump_s": jump, "stale": stale, "action": action})
+
+
+def stretches(inner, max_len: int):
+    """Runs of the same tick repeated (so stale stretches, ramps and fades have time to act)."""
+    return st.lists(
+        st.tuples(inner, st.integers(1, 60)),
+        min_size=1,
+        max_size=max_len,
+    ).map(lambda runs: [t for t, n in runs for _ in range(n)])
+
+
+def drive(pipeline: Pipeline, ticks: list[Tick]) -> tuple[list, int]:
+    """Feed the ticks; return the outputs and the number of samples that must be rejected."""
+    dt = pipeline.dt
+    clock = 0.0  # time of the latest tick the pipeline saw (its output time)
+    outputs = []
+    must_reject = 0
+    started = False
+    for k in ticks:
+        if k.action == "stop":
+            pipeline.stop()
+        elif k.action == "estop":
+            pipeline.estop()
+        nxt = clock + dt + k.jump_s if started else 0.0
+        if k.kind == "none":
+            state = None
+        elif k.kind == "back":
+            state = AircraftState(clock - k.back_s, *LEVEL) if started else None
+            must_reject += state is not None
+        else:
+            t = math.nan if k.bad_time else nxt
+            state = AircraftState(t, k.force, k.rates, k.attitude)
+            must_reject += k.kind == "bad"
+        out = pipeline.step(state, fresh=not k.stale)
+        outputs.append(out)
+        clock = out.t
+        started = True
+    return outputs, must_reject
+
+
+def park(pipeline: Pipeline, soft: bool = True) -> list:
+    """Stop and tick on held samples until parked; fail past the bound from the limits."""
+    pipeline.stop()
+    outputs = []
+    bound = park_bound_s(pipeline, soft=soft)
+    for _ in range(int(math.ceil(bound / pipeline.dt)) + 1):
+        if pipeline.parked:
+            break
+        outputs.append(pipeline.step(None))
+    assert pipeline.parked, f"not parked within {bound:.2f} s of the stop"
+    assert np.array_equal(
+        outputs[-1].angles if outputs else pipeline._q, pipeline.robot.park_angles
+    )
+    return outputs
+
+
+# --------------------------------------------------------------------------- fuzzing
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(ticks=stretches(tick(), 12), rate=st.sampled_from([60.0, 120.0]), data=st.data())
+def test_any_input_sequence_gives_safe_commands_and_parks(planar, ticks, rate, data):
+    pipeline = Pipeline(CONFIGS[(planar, rate)])
+    outputs, must_reject = drive(pipeline, ticks)
+    outputs += park(pipeline)
+    check_commands(pipeline, [o.angles for o in outputs])
+    h = pipeline.health
+    assert h.rejected_inputs == must_reject
+    assert h.samples == len(outputs)
+    assert h.estops == sum(k.action == "estop" for k in ticks)
+    # output time strictly increases whatever the source's clock did
+    t = np.array([o.t for o in outputs])
+    assert np.isfinite(t).all() and (np.diff(t) > 0).all()
+    # every logged pose and washout output is finite too
+    assert all(np.isfinite(o.platform_pose).all() for o in outputs)
+    assert all(np.isfinite(o.washout_pose).all() for o in outputs)
+    if planar:
+        rrr3 = pipeline.robot.kin
+        servo = np.array([o.servo_deg for o in outputs])
+        assert np.array_equal(servo, rrr3.to_servo(np.array([o.angles for o in outputs])))
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    good=st.lists(good_tick(strength=0.05), min_size=1, max_size=40),
+    bad=st.lists(st.one_of(bad_tick(), st.just(Tick("back", back_s=0.0))), max_size=40),
+    order=st.randoms(use_true_random=False),
+)
+def test_rejected_samples_never_reach_the_washout(planar, good, bad, order):
+    """A run with bad samples equals the run where each is replaced by a hold of the last good one.
+
+    The hold is built here, independently: the last valid sample again, at the next tick's
+    time. Inputs are gentle (no clamping), so the two runs see the same washout history only
+    if no rejected number ever entered it.
+    """
+    seq = [("good", k) for k in good] + [("bad", k) for k in bad]
+    order.shuffle(seq)
+    seq.insert(0, ("good", good[0]))  # a valid sample first, so there is something to hold
+    config = CONFIGS[(planar, 120.0)]
+    a, b = Pipeline(config), Pipeline(config)
+    dt = config.dt
+    last = None
+    prev_t = 0.0
+    for i, (kind, k) in enumerate(seq):
+        t = i * dt
+        if kind == "good":
+            state = AircraftState(t, k.force, k.rates, k.attitude)
+            last = state
+            hold = state
+        elif k.kind == "back":
+            # the time did not advance: the previous tick's again
+            state = AircraftState(prev_t, k.force, k.rates, k.attitude)
+            hold = AircraftState(t, last.specific_force, last.angular_velocity, last.attitude)
+        else:
+            state = AircraftState(math.nan if k.bad_time else t, k.force, k.rates, k.attitude)
+            hold = AircraftState(t, last.specific_force, last.angular_velocity, last.attitude)
+        oa, ob = a.step(state), b.step(hold)
+        assert oa.t == pytest.approx(ob.t, abs=1e-12)  # a held tick's time is the pipeline's
+        prev_t = oa.t
+        assert np.array_equal(oa.washout_pose, ob.washout_pose)
+        assert np.array_equal(oa.angles, ob.angles)
+        assert oa.accepted == (kind == "good")
+    assert a.health.rejected_inputs == len(bad)
+    assert b.health.rejected_inputs == 0
+    assert a.health.clamps == b.health.clamps == 0
+
+
+# --------------------------------------------------------------------------- ramps
+
+
+def _full_motion(pipeline: Pipeline, seconds: float, t0: float = 0.0) -> list:
+    """Strong sinusoidal manoeuvring (in every axis) that drives the platform to its limits."""
+    out = []
+    dt = pipeline.dt
+    for i in range(int(seconds / dt)):
+        t = t0 + i * dt
+        s = math.sin(2 * math.pi * 0.7 * t)
+        c = math.cos(2 * math.pi * 0.45 * t)
+        state = AircraftState(t, [25 * s, 25 * c, -G + 20 * s], [4 * c, 4 * s, 4 * c], [0, 0, 0])
+        out.append(pipeline.step(state))
+    return out
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+def test_soft_start_ramps_from_park_within_the_limits(planar):
+    pipeline = Pipeline(CONFIGS[(planar, 120.0)])
+    cfg = pipeline.config
+    out = _full_motion(pipeline, cfg.soft_start_s + 3.0)
+    check_commands(pipeline, [o.angles for o in out])
+    phases = [o.phase for o in out]
+    n_start = phases.index("running")
+    # the blend takes soft_start_s (to a tick), then it runs
+    assert abs(n_start * pipeline.dt - cfg.soft_start_s) <= 1.5 * pipeline.dt
+    assert set(phases[:n_start]) == {"starting"}
+    # the first command is a small step away from park, not a jump to the live pose
+    first = out[0].angles - pipeline.robot.park_angles
+    assert np.abs(first).max() <= pipeline.robot.limits.max_accel.max() * pipeline.dt**2 + 1e-12
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+@pytest.mark.parametrize("kind", ["stop", "estop"])
+def test_stop_and_estop_from_full_motion_park_within_limits_in_bounded_time(planar, kind):
+    pipeline = Pipeline(CONFIGS[(planar, 120.0)])
+    out = _full_motion(pipeline, pipeline.config.soft_start_s + 4.0)
+    moving = np.abs(pipeline._v).max()
+    assert moving > 0.05  # it was really moving when stopped
+    if kind == "estop":
+        pipeline.estop()
+    # the source keeps going (held samples would do the same): the stop must still win
+    t0 = out[-1].t + pipeline.dt
+    bound = park_bound_s(pipeline, soft=kind == "stop")
+    after = []
+    for i in range(int(bound / pipeline.dt) + 2):
+        if kind == "stop" and i == 0:
+            pipeline.stop()
+        if pipeline.parked:
+            break
+        after += _full_motion(pipeline, pipeline.dt, t0 + i * pipeline.dt)
+    assert pipeline.parked, f"{kind}: not parked within {bound:.2f} s"
+    assert np.array_equal(after[-1].angles, pipeline.robot.park_angles)
+    assert after[-1].phase == "parked"
+    check_commands(pipeline, [o.angles for o in out + after])
+    assert pipeline.health.estops == (kind == "estop")
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+def test_estop_during_a_soft_stop_and_a_second_estop_still_park(planar):
+    pipeline = Pipeline(CONFIGS[(planar, 120.0)])
+    out = _full_motion(pipeline, pipeline.config.soft_start_s + 1.0)
+    pipeline.stop()
+    out += [pipeline.step(None) for _ in range(20)]
+    pipeline.estop()
+    out += [pipeline.step(None) for _ in range(5)]
+    pipeline.estop()
+    out += park(pipeline, soft=False)
+    check_commands(pipeline, [o.angles for o in out])
+    assert pipeline.health.estops == 2
+
+
+# --------------------------------------------------------------------------- run loop
+
+
+class ListSource:
+    """A finite in-memory source (optionally marking samples stale)."""
+
+    def __init__(self, states, fresh=None) -> None:
+        self.states = list(states)
+        self.flags = list(fresh) if fresh is not None else [True] * len(self.states)
+        self.fresh = True
+
+    def __iter__(self):
+        for s, f in zip(self.states, self.flags, strict=True):
+            self.fresh = f
+            yield s
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.outputs = []
+
+    def write(self, out) -> None:
+        self.outputs.append(out)
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+def test_run_counts_every_safety_event_in_health(planar):
+    """Rejected inputs, clamps, rate limiting, watchdog fades and E-stops are all counted."""
+    config = CONFIGS[(planar, 120.0)]
+    pipeline = Pipeline(config)
+    dt = config.dt
+    states, fresh = [], []
+    n = int(8.0 / dt)
+    for i in range(n):
+        t = i * dt
+        s = math.sin(2 * math.pi * 0.3 * t)
+        f = [40 * s, 40 * s, -G]
+        w = [3 * s, 3 * s, 6 * s]
+        if i in (300, 301, 302):
+            f = [math.nan, 0.0, -G]
+        if i == 400:
+            w = [1e3, 0.0, 0.0]
+        states.append(AircraftState(t, f, w))
+        fresh.append(not (500 <= i < 560 or 700 <= i < 720))
+    sink = Recorder()
+    stop_at = 900
+
+    def progress(out):
+        if len(sink.outputs) == stop_at:
+            stop.set("test", estop=True)
+
+    from motionbase.pipeline import StopRequest
+
+    stop = StopRequest()
+    summary = run(pipeline, ListSource(states, fresh), [sink], stop=stop, progress=progress)
+    h = pipeline.health
+    assert isinstance(summary, RunSummary)
+    assert h.rejected_inputs == 4
+    assert h.watchdog_fades == 2
+    assert h.estops == 1
+    assert h.clamps == sum(o.clamped for o in sink.outputs) > 0
+    assert h.rate_limited == sum(o.rate_limited for o in sink.outputs) > 0
+    assert pipeline.parked and summary.stopped_by == "test"
+    check_commands(pipeline, [o.angles for o in sink.outputs])
+
+
+def test_a_long_stall_resets_the_washout_and_fades_motion_back_in():
+    config = with_overrides(CONFIGS[(False, 120.0)], stale_timeout_s=0.5)
+    pipeline = Pipeline(config)
+    out = _full_motion(pipeline, 4.0)
+    jumped = _full_motion(pipeline, 1.0, t0=out[-1].t + 30.0)
+    assert pipeline.health.time_jumps == 1
+    assert jumped[0].fade == pytest.approx(config.dt / config.fade_s)
+    check_commands(pipeline, [o.angles for o in out + jumped])
