@@ -92,27 +92,31 @@ def _limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, a
             vt = min(max((tgt - target_prev[i]) / dt, -vmax[i]), vmax[i])
         # error left after the feed-forward, closed no faster than the braking curve allows
         e = tgt - q_prev[i] - vt * dt
-        fb = min(_brake_speed(abs(e), u, dt), abs(e) / dt)
-        v_des = vt + fb if e >= 0.0 else vt - fb
+        cap = _brake_speed(abs(e), u, dt)
         # never approach an angle limit faster than one can stop before it
-        v_des = min(
-            max(v_des, -_brake_speed(q_prev[i] - lower[i], u, dt)),
-            _brake_speed(upper[i] - q_prev[i], u, dt),
-        )
-        v = min(max(v_des, v_prev[i] - u), v_prev[i] + u)
-        v = min(max(v, -vmax[i]), vmax[i])
-        # land exactly on the target when the full step is allowed
-        q = tgt if v == (tgt - q_prev[i]) / dt else q_prev[i] + v * dt
-        # safety net against rounding: never outside the limits
-        if q > upper[i]:
-            q = upper[i]
-        elif q < lower[i]:
-            q = lower[i]
-        v = (q - q_prev[i]) / dt
-        if status != 2 and q != tgt:
-            status = 1
+        v_hi = _brake_speed(upper[i] - q_prev[i], u, dt)
+        v_lo = -_brake_speed(q_prev[i] - lower[i], u, dt)
+        v_full = (tgt - q_prev[i]) / dt
+        if (
+            abs(e) / dt <= cap
+            and abs(v_full) <= vmax[i]
+            and abs(v_full - v_prev[i]) <= u
+            and v_lo <= v_full <= v_hi
+        ):
+            q = tgt  # the whole step is allowed: land exactly on the target
+        else:
+            fb = min(cap, abs(e) / dt)
+            v = vt + fb if e >= 0.0 else vt - fb
+            v = min(max(v, v_lo), v_hi)
+            v = min(max(v, v_prev[i] - u), v_prev[i] + u)
+            v = min(max(v, -vmax[i]), vmax[i])
+            q = q_prev[i] + v * dt
+            # safety net against rounding: never outside the limits
+            q = min(max(q, lower[i]), upper[i])
+            if status != 2:
+                status = 1
+        v_out[i] = (q - q_prev[i]) / dt
         q_out[i] = q
-        v_out[i] = v
     return status
 
 

@@ -1,0 +1,135 @@
+"""`motionbase stream`: real pymavlink senders on loopback UDP and real logs, end to end."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_mavlink_source import BIN, TLOG, att_values, f32, imu_values, send_good, sender
+
+from motionbase import app
+from motionbase.io.mcap_source import McapSource, read_messages
+from motionbase.pipeline import PipelineConfig
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _arr(msgs, key):
+    return np.array([m[key] for m in msgs], dtype=float)
+
+
+def check_actuators_safe(path: Path) -> tuple[np.ndarray, np.ndarray, PipelineConfig]:
+    """Every command finite, within angle, speed and acceleration limits."""
+    msgs = read_messages(path)
+    config = PipelineConfig.from_dict(McapSource(path).metadata["pipeline_config"])
+    g = config.geometry
+    angles = _arr(msgs["/platform/actuators"], "angles")
+    t = _arr(msgs["/platform/actuators"], "t")
+    assert np.isfinite(angles).all()
+    lo, hi = np.asarray(g.angle_min), np.asarray(g.angle_max)
+    assert (angles >= lo).all() and (angles <= hi).all()
+    speed = np.diff(angles, axis=0) / np.diff(t)[:, None]
+    assert (np.abs(speed) <= np.asarray(g.max_speed) + 1e-6).all()
+    accel = np.diff(speed, axis=0) / np.diff(t)[1:, None]
+    assert (np.abs(accel) <= np.asarray(g.max_accel) + 1e-3).all()
+    return t, angles, config
+
+
+def test_logged_states_are_what_the_sender_sent(tmp_path):
+    port = free_udp_port()
+    out = tmp_path / "live.mcap"
+    with sender(port, send_good) as sent:
+        result = app.stream(
+            f"udpin:127.0.0.1:{port}", duration_s=3.0, out=out, rate_hz=100, progress=False
+        )
+    assert len(sent) > 200
+    states = [m for m in read_messages(out)["/aircraft/state"] if m["fresh"]]
+    assert len(states) > 150
+    n = len(sent) + 10
+    f_table = {f32(imu_values(i)[0]): i for i in range(n)}
+    w_table = {f32(imu_values(i)[1]): i for i in range(n)}
+    a_table = {f32(att_values(i)): i for i in range(n)}
+    for m in states:
+        # SI units and FRD axes as sent (HIGHRES_IMU and ATTITUDE are SI already)
+        i = f_table[tuple(m["specific_force"])]
+        assert w_table[tuple(m["angular_velocity"])] == i
+        assert abs(a_table[tuple(m["attitude"])] - i) <= 1
+    check_actuators_safe(out)
+    assert "0 rejected" in "\n".join(result.notes)
+
+
+def test_silent_sender_fades_to_neutral_and_resumes_without_a_jump(tmp_path):
+    port = free_udp_port()
+    out = tmp_path / "gap.mcap"
+    # send 0-3 s, silence 3-5.5 s, send again 5.5-8 s
+    with sender(port, send_good, phases=((0.0, 3.0), (5.5, 8.0))):
+        app.stream(f"udpin:127.0.0.1:{port}", duration_s=8.0, out=out, rate_hz=100, progress=False)
+    t, angles, config = check_actuators_safe(out)
+    msgs = read_messages(out)
+    pose = _arr(msgs["/platform/pose"], "pose")
+    fresh = np.array([m["fresh"] for m in msgs["/aircraft/state"]])
+    t_state = _arr(msgs["/aircraft/state"], "t")
+    stale_t = t_state[~fresh]
+    gap = stale_t[(stale_t > 2.0) & (stale_t < 7.0)]
+    assert len(gap) > 100, "the silence was not seen"
+    gap_start, gap_end = gap.min(), gap.max()
+    # faded to neutral within the fade time after the watchdog fired (limiter lag allowed)
+    settled = (t > gap_start + config.fade_s + 0.2) & (t < gap_end)
+    assert settled.sum() > 50
+    assert np.abs(pose[settled]).max() < 1e-6
+    # resumes smoothly: no tick after the gap needs the safety stage's speed limit
+    after = (t > gap_end) & (t < gap_end + 2.0)
+    limited = np.array([m["rate_limited"] for m in msgs["/platform/pose"]])
+    assert not limited[after].any()
+    speed = np.abs(np.diff(angles, axis=0)) / np.diff(t)[:, None]
+    assert speed[after[1:]].max() < 0.5 * min(config.geometry.max_speed)
+    health = msgs["/health"][-1]
+    assert health["watchdog_fades"] >= 1
+
+
+def test_other_systems_and_garbage_never_reach_the_platform(tmp_path):
+    port = free_udp_port()
+    out = tmp_path / "noisy.mcap"
+    marker_f = (3.0, -2.0, -5.0)  # what the intruder sends: far from the real sender's values
+
+    def intruder(mav, i):
+        mav.highres_imu_send(i * 10_000, *marker_f, 1.0, 1.0, 1.0, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
+
+    stop = threading.Event()
+
+    def garbage():
+        rng = np.random.default_rng(1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            while not stop.wait(0.02):
+                s.sendto(rng.integers(0, 256, 64, dtype=np.uint8).tobytes(), ("127.0.0.1", port))
+
+    th = threading.Thread(target=garbage, daemon=True)
+    th.start()
+    try:
+        with sender(port, send_good), sender(port, intruder, sysid=42):
+            result = app.stream(f"udpin:127.0.0.1:{port}", duration_s=3.0, out=out, progress=False)
+    finally:
+        stop.set()
+        th.join(5)
+    states = read_messages(out)["/aircraft/state"]
+    forces = np.array([m["specific_force"] for m in states])
+    assert not np.any(np.all(np.isclose(forces, marker_f), axis=1))
+    notes = "\n".join(result.notes)
+    assert "other system 0" not in notes  # the intruder was counted
+    check_actuators_safe(out)
+
+
+@pytest.mark.parametrize("log", [TLOG, BIN], ids=["vtol.tlog", "erle_plane_329.BIN"])
+def test_real_logs_stream_to_finite_angles_within_limits(log, tmp_path):
+    out = tmp_path / "log.mcap"
+    result = app.stream(str(log), realtime=False, out=out, progress=False)
+    assert result.summary.samples > 10_000
+    t, angles, _ = check_actuators_safe(out)
+    assert np.ptp(angles, axis=0).min() > np.radians(1)  # the flight does move every crank
