@@ -225,6 +225,7 @@ def fly(
     duration_s: float | None = None,
     out: str | Path | None = None,
     progress: bool = True,
+    outputs: list[str] | None = None,
 ) -> JobResult:
     """Fly a JSBSim script through the pipeline and log it to MCAP.
 
@@ -242,8 +243,12 @@ def fly(
         Stop after this much simulated time, s.
     out : path, optional
         Output file; default ``recordings/<script>.mcap`` (``<script>_planar`` in planar mode).
+    outputs : list of str, optional
+        Motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`); they pace
+        the run to real time.
     """
     from motionbase.io.jsbsim_source import JsbsimSource
+    from motionbase.io.motor_output import open_outputs
 
     if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
@@ -257,14 +262,18 @@ def fly(
             planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
         )
         robot = "3-RRR" if planar else "6-RUS"
-        return _drive(
+        drives = open_outputs(outputs, config)
+        result = _drive(
             f"flew {name} on the {robot}",
             config,
             source,
             out_path,
             paced=realtime,
             progress=progress,
+            extra_sinks=drives,
         )
+        result.notes.extend(d.stats_line() for d in drives)
+        return result
 
 
 def replay(
@@ -276,6 +285,7 @@ def replay(
     washout: str | None = None,
     planar: bool | None = None,
     progress: bool = True,
+    outputs: list[str] | None = None,
 ) -> JobResult:
     """Re-run the pipeline on a recording's aircraft states, with its recorded configuration.
 
@@ -290,8 +300,11 @@ def replay(
         report of the largest difference per topic when they differ.
     platform, washout, planar : optional
         Override the recorded configuration.
+    outputs : list of str, optional
+        Motor-drive output URLs; they pace the replay to real time.
     """
     from motionbase.io.mcap_source import McapSource, read_messages
+    from motionbase.io.motor_output import open_outputs
 
     src_path = Path(path)
     with McapSource(src_path) as source:
@@ -314,6 +327,7 @@ def replay(
             tmp = tempfile.TemporaryDirectory(prefix="motionbase-replay-")
             out_path = Path(tmp.name) / "replay.mcap"
         try:
+            drives = open_outputs(outputs, config)
             result = _drive(
                 f"replayed {src_path.name}",
                 config,
@@ -321,8 +335,10 @@ def replay(
                 out_path,
                 paced=False,
                 progress=progress,
+                extra_sinks=drives,
             )
             result.notes.extend(notes)
+            result.notes.extend(d.stats_line() for d in drives)
             if check:
                 report = compare_recordings(read_messages(src_path), read_messages(out_path))
                 result.notes.extend(report.lines())

@@ -115,6 +115,7 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
         "--duration", type=_positive_float, metavar="S", help="stop after S simulated seconds"
     )
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default recordings/<script>.mcap)")
+    _add_output_option(p)
 
 
 @command(
@@ -132,6 +133,7 @@ def run_fly(args: argparse.Namespace) -> int:
             realtime=args.realtime,
             duration_s=args.duration,
             out=args.out,
+            outputs=args.output,
         )
     )
 
@@ -147,6 +149,7 @@ def _args_replay(p: argparse.ArgumentParser) -> None:
     p.add_argument("--platform", help="override the recorded geometry (preset or TOML path)")
     p.add_argument("--washout", help="override the recorded washout parameters")
     p.add_argument("--planar", action="store_true", default=None, help="override: drive the 3-RRR")
+    _add_output_option(p)
 
 
 @command("replay", "re-run the pipeline on a recording's aircraft states", _args_replay)
@@ -161,6 +164,7 @@ def run_replay(args: argparse.Namespace) -> int:
             platform=args.platform,
             washout=args.washout,
             planar=args.planar,
+            outputs=args.output,
         )
     )
 
@@ -324,6 +328,64 @@ def run_report(args: argparse.Namespace) -> int:
     from motionbase.io.report_plots import write_report
 
     print(write_report(args.recording, args.out).summary_text())
+    return 0
+
+
+# --- motor-drive output (issue 8) ---
+
+
+def _add_output_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--output",
+        action="append",
+        metavar="URL",
+        help="send the safe crank angles to motor drives (repeatable): "
+        "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
+        "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
+        "motionbase.io.motor_output); paces the run to real time",
+    )
+
+
+def _args_output(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--test",
+        metavar="URL",
+        required=True,
+        help="sweep each motor in turn about neutral through this output URL",
+    )
+    p.add_argument(
+        "--platform", default="ceart", help="6-RUS geometry preset or TOML path with [output]"
+    )
+    p.add_argument(
+        "--range-deg", type=_positive_float, default=5.0, help="sweep half-range, deg (default 5)"
+    )
+    p.add_argument(
+        "--speed-deg-s",
+        type=_positive_float,
+        default=10.0,
+        help="peak crank speed, deg/s (default 10)",
+    )
+    p.add_argument(
+        "--rate", type=_positive_float, default=100.0, help="command rate, Hz (default 100)"
+    )
+
+
+@command(
+    "output",
+    "check motor wiring and signs: sweep each motor slowly about neutral, one at a time",
+    _args_output,
+)
+def run_output(args: argparse.Namespace) -> int:
+    from motionbase.io.motor_output import output_test
+    from motionbase.platform import Rus6Geometry
+
+    output_test(
+        args.test,
+        Rus6Geometry.preset(args.platform),
+        range_deg=args.range_deg,
+        speed_deg_s=args.speed_deg_s,
+        rate_hz=args.rate,
+    )
     return 0
 
 

@@ -19,3 +19,15 @@ from motionbase.io.mavlink_source import (  # noqa: E402, F401
     MavlinkTick,
     load_signing_key,
 )
+
+# --- motor-drive output (issue 8) ---
+# isort: split
+from motionbase.io.motor_output import (  # noqa: E402, F401
+    BinaryFormat,
+    MotorOutput,
+    TextFormat,
+    open_output,
+    open_outputs,
+    output_test,
+    parse_format,
+)

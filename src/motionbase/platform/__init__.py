@@ -1,6 +1,7 @@
 """Kinematics of the motion platforms: the 6-RUS rotary platform and the planar 3-RRR robot."""
 
 from motionbase.platform.calibration import CursorCalibration
+from motionbase.platform.output_map import OutputMapping, sweep_profile
 from motionbase.platform.rrr3 import Rrr3, Rrr3Geometry
 from motionbase.platform.rus6 import JacobianResult, JointPoints, Rus6, rotation_matrix
 from motionbase.platform.rus6_geometry import Rus6Geometry
@@ -17,6 +18,7 @@ __all__ = [
     "CursorCalibration",
     "JacobianResult",
     "JointPoints",
+    "OutputMapping",
     "Rrr3",
     "Rrr3Geometry",
     "Rus6",
@@ -25,5 +27,6 @@ __all__ = [
     "reachability_grid",
     "rotation_matrix",
     "single_axis_envelope",
+    "sweep_profile",
     "workspace_slices",
 ]

@@ -338,10 +338,11 @@ class OutputMapping:
 
     def describe(self) -> str:
         """One line for humans."""
-        extra = {
-            "counts": f", {self.counts_per_rev:g} counts/rev",
-            "range": f", {self.range_lo}..{self.range_hi}",
-        }.get(self.unit, "")
+        extra = ""
+        if self.unit == "counts":
+            extra = f", {self.counts_per_rev:g} counts/rev"
+        elif self.unit == "range":
+            extra = f", {self.range_lo}..{self.range_hi}"
         mirrored = [i + 1 for i, s in enumerate(self.sign) if s < 0]
         return (
             f"unit {self.unit}{extra}; mirrored motors {mirrored or 'none'}; gear ratios "

@@ -1,0 +1,1014 @@
+r"""Motor-drive output: safe crank angles streamed to servo drives over serial or UDP.
+
+A drive output is chosen by a URL (``--output URL`` on ``fly`` and ``replay``)::
+
+    serial:/dev/ttyUSB0?baud=250000&rate=500&format=...   any pyserial URL or device path
+    serial:loop://?format=...                             (``loop://``, a pty path, ...)
+    udp:192.168.1.50:4123?rate=1000&format=...
+
+Query keys: ``format`` (below; URL-encode it: ``%7B`` ``{``, ``%7D`` ``}``, ``%2B`` ``+``,
+``%26`` ``&``, ``%23`` ``#``; a literal ``+`` means a space), ``rate`` (frames per second,
+default 100), ``baud`` (serial, default 115200). Other keys of a serial URL go to pyserial.
+
+Format language
+---------------
+``format=text:TEMPLATE`` (or a template without a prefix): the frame is the template with each
+placeholder ``{N}`` or ``{N:SPEC}`` replaced by motor N's drive value (N = 1..6). SPEC is
+Python's format mini-language: ``{1:d}`` decimal (the default), ``{1:04x}`` four hex digits,
+``{1:X}``, ``{1:o}``, ``{1:b}``, ``{1:+06d}``, ``{1:.2f}`` two decimals (``f``/``e``/``g``
+keep the value as a float; every other type rounds it to an integer). A zero-padded width
+(``04x``) is an exact width: a value needing more digits is never sent. Negative values are
+never sent with ``x``/``X``/``o``/``b``. ``{{`` and ``}}`` are literal braces; ``\n``, ``\r``,
+``\t``, ``\\`` and ``\xHH`` are escapes; SimTools' ``<Axis1a>`` means ``{1}``. Example (FlyPT
+Mover style): ``text:A{1}B{2}C{3}D{4}E{5}F{6}\n``.
+
+``format=bin:TOKENS`` (tokens separated by commas or spaces): a binary frame, built from
+
+* ``0xHEX`` literal bytes (an even number of hex digits), e.g. a header ``0xFFFE``;
+* an axis field ``[N:]TYPE[*SCALE]``: TYPE is ``u8``/``i8``, or ``u16``/``i16``/``u24``/
+  ``i24``/``u32``/``i32`` followed by ``be`` (big endian) or ``le`` (little endian); the value
+  sent is ``round(drive value * SCALE)`` (default SCALE 1; e.g. ``i16le*100`` sends
+  centidegrees for ``unit = "deg"``). Without ``N:`` a field takes the next motor;
+  ``6xTYPE`` repeats a field for the next 6 motors. A value that does not fit the type is never
+  sent;
+* a checksum ``sum8`` (sum of bytes mod 256), ``xor8``, ``crc16`` (CRC-16/MODBUS, appended
+  little endian) or ``crc16ccitt`` (CRC-16/CCITT-FALSE, appended big endian), over every byte
+  before it, or from byte offset K with ``sum8@K`` (e.g. ``@2`` to skip a 2-byte header).
+
+Example: ``bin:0xFFFE,6xu16be,sum8@2``.
+
+``format=PATH.toml``: a file with ``text = "..."`` or ``binary = "..."`` (the same languages;
+TOML strings need no URL encoding) and optionally ``rate_hz``.
+
+Behaviour
+---------
+* ``write(output)`` (pipeline thread) maps ``output.angles`` (the safe crank angles, after the
+  safety stage) through the :class:`~motionbase.platform.output_map.OutputMapping`, checks
+  every value against the drive range and the wire format, and encodes the frame. A command
+  that does not fit is never sent: the last good frame is held and ``held`` counts it.
+* A sender thread sends the latest frame at a fixed rate, independent of the pipeline's rate
+  (no queue: a frame not sent before the next command is replaced).
+* ``realtime=True`` (default): ``write`` sleeps when the pipeline's time runs ahead of the wall
+  clock, so a fast replay or an unpaced flight moves the motors at real speed.
+* ``close()`` stops the sender and sends the latest command once more: the pipeline ramps to
+  park before the sinks close, so the last frame on the wire is the park command.
+* A peer that goes away (a closed pty, a USB port unplugged, nobody listening on UDP) gives one
+  warning line; the pipeline and its log go on; a serial port is reopened once a second and
+  sending resumes (``link back`` line) when it returns.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+from urllib.parse import parse_qsl, urlencode
+
+import numpy as np
+
+from motionbase.config import read_toml
+from motionbase.errors import ConfigError, SinkError
+from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
+from motionbase.platform.output_map import OutputMapping, sweep_profile
+
+__all__ = [
+    "BinaryFormat",
+    "MotorOutput",
+    "TextFormat",
+    "crc16_ccitt",
+    "crc16_modbus",
+    "mapping_for",
+    "open_output",
+    "open_outputs",
+    "output_test",
+    "parse_format",
+]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
+DEFAULT_RATE_HZ = 100.0
+DEFAULT_BAUD = 115200
+
+
+# --------------------------------------------------------------------------- checksums
+
+
+def _crc_table(poly: int, reflected: bool) -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        if reflected:
+            crc = byte
+            for _ in range(8):
+                crc = (crc >> 1) ^ poly if crc & 1 else crc >> 1
+        else:
+            crc = byte << 8
+            for _ in range(8):
+                crc = ((crc << 1) ^ poly) if crc & 0x8000 else crc << 1
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+_MODBUS = _crc_table(0xA001, True)
+_CCITT = _crc_table(0x1021, False)
+
+
+def crc16_modbus(data: bytes) -> int:
+    """CRC-16/MODBUS (poly 0x8005 reflected, init 0xFFFF); ``b"123456789"`` gives 0x4B37."""
+    crc = 0xFFFF
+    for b in data:
+        crc = (crc >> 8) ^ _MODBUS[(crc ^ b) & 0xFF]
+    return crc
+
+
+def crc16_ccitt(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF); ``b"123456789"`` gives 0x29B1."""
+    crc = 0xFFFF
+    for b in data:
+        crc = ((crc << 8) & 0xFFFF) ^ _CCITT[((crc >> 8) ^ b) & 0xFF]
+    return crc
+
+
+_CHECKSUMS: dict[str, tuple[Callable[[bytes], int], int, str]] = {
+    "sum8": (lambda d: sum(d) & 0xFF, 1, "big"),
+    "xor8": (lambda d: _xor(d), 1, "big"),
+    "crc16": (crc16_modbus, 2, "little"),
+    "crc16ccitt": (crc16_ccitt, 2, "big"),
+}
+
+
+def _xor(data: bytes) -> int:
+    x = 0
+    for b in data:
+        x ^= b
+    return x
+
+
+# --------------------------------------------------------------------------- formats
+
+_INT_TYPES = set("dxXobcn")
+_FLOAT_TYPES = set("fFeEgG%")
+_UNSIGNED_TYPES = set("xXob")
+_SPEC_RE = re.compile(
+    r"^(?:(?P<fill>.)?(?P<align>[<>=^]))?(?P<sign>[-+ ])?(?P<alt>#)?(?P<zero>0)?"
+    r"(?P<width>\d+)?(?P<grouping>[,_])?(?:\.(?P<prec>\d+))?(?P<type>[a-zA-Z%])?$"
+)
+_ESCAPES = {"n": "\n", "r": "\r", "t": "\t", "\\": "\\", "0": "\0"}
+
+
+def _unescape(text: str) -> str:
+    out, i = [], 0
+    while i < len(text):
+        c = text[i]
+        if c == "\\" and i + 1 < len(text):
+            nxt = text[i + 1]
+            if nxt in _ESCAPES:
+                out.append(_ESCAPES[nxt])
+                i += 2
+                continue
+            if nxt == "x" and re.fullmatch(r"[0-9a-fA-F]{2}", text[i + 2 : i + 4]):
+                out.append(chr(int(text[i + 2 : i + 4], 16)))
+                i += 4
+                continue
+        out.append(c)
+        i += 1
+    return "".join(out)
+
+
+@dataclass(frozen=True)
+class _TextField:
+    axis: int  # 0-based
+    spec: str
+    integer: bool
+    unsigned: bool
+    exact_width: int | None
+    pattern: str
+    resolution: float | None
+
+
+class TextFormat:
+    """A text template frame (see the module docstring for the language).
+
+    Parameters
+    ----------
+    template : str
+        The template, escapes not yet expanded (``A{1}B{2}\\n``).
+    n_axes : int
+        Number of motors; a placeholder above it is an error.
+    """
+
+    kind = "text"
+
+    def __init__(self, template: str, n_axes: int = 6) -> None:
+        self.template = template
+        src = re.sub(r"<Axis(\d+)a>", r"{\1}", template)
+        src = _unescape(src)
+        literals: list[str] = []  # literal, field, literal, field, ..., literal
+        regex: list[str] = []
+        fields: list[_TextField] = []
+        pos = 0
+        literal = ""
+        for m in re.finditer(r"\{\{|\}\}|\{([^{}]*)\}|[{}]", src):
+            literal += src[pos : m.start()]
+            pos = m.end()
+            tok = m.group(0)
+            if tok in ("{{", "}}"):
+                literal += tok[0]
+                continue
+            if m.group(1) is None:
+                raise ConfigError(f"text format {template!r}: unmatched {tok!r} (write {tok * 2})")
+            fields.append(self._field(m.group(1), n_axes))
+            literals += [literal, ""]
+            regex += [re.escape(literal), fields[-1].pattern]
+            literal = ""
+        literal += src[pos:]
+        literals.append(literal)
+        regex.append(re.escape(literal))
+        if not fields:
+            raise ConfigError(f"text format {template!r}: no placeholder like {{1}} (add one)")
+        try:
+            (src.encode("latin-1"))
+        except UnicodeEncodeError:
+            raise ConfigError(f"text format {template!r}: only 8-bit characters") from None
+        self.fields = tuple(fields)
+        self._literals = literals
+        self._axes = [f.axis for f in fields]
+        self._regex = re.compile("".join(regex).encode("latin-1"), re.S)
+        self.axes = sorted(set(self._axes))
+
+    def _field(self, body: str, n_axes: int) -> _TextField:
+        where = f"text format {self.template!r}: placeholder {{{body}}}"
+        num, _, spec = body.partition(":")
+        if not num.strip().isdigit() or not 1 <= int(num) <= n_axes:
+            raise ConfigError(f"{where}: the motor number must be 1..{n_axes}")
+        m = _SPEC_RE.match(spec)
+        if m is None:
+            raise ConfigError(f"{where}: {spec!r} is not a format spec (e.g. 04x, .2f, d)")
+        typ = m.group("type") or "d"
+        if typ not in _INT_TYPES | _FLOAT_TYPES or typ in "cn%":
+            raise ConfigError(f"{where}: unsupported type {typ!r} (use d, x, X, o, b, f, e, g)")
+        if not m.group("type"):
+            spec += "d"
+        integer = typ in _INT_TYPES
+        if integer and m.group("prec"):
+            raise ConfigError(f"{where}: an integer type takes no precision")
+        width = int(m.group("width")) if m.group("width") else None
+        zero = bool(m.group("zero")) or (m.group("fill") == "0" and m.group("align") in "=>")
+        exact = width if zero and width else None
+        digits = {"d": r"\d", "x": r"[0-9a-f]", "X": r"[0-9A-F]", "o": r"[0-7]", "b": r"[01]"}
+        if integer:
+            body_re = digits[typ] + ("+" if exact is None else "")
+            if m.group("alt"):
+                body_re = r"(?:0[xXob])?" + body_re
+            pattern = r"[-+ ]?" + body_re if exact is None else rf"[-+ 0-9a-fA-FxXob]{{{exact}}}"
+        else:
+            pattern = r"[-+ ]?[0-9.]+(?:[eE][-+]?\d+)?" if exact is None else rf".{{{exact}}}"
+        prec = int(m.group("prec")) if m.group("prec") else 6
+        res = 1.0 if integer else (10.0**-prec if typ in "fF" else None)
+        return _TextField(
+            int(num) - 1,
+            spec,
+            integer,
+            typ in _UNSIGNED_TYPES,
+            exact,
+            "(" + pattern + ")",
+            res,
+        )
+
+    def encode(self, values: Sequence[float]) -> bytes | None:
+        """The frame for drive values (one per motor), or None when a value cannot be written."""
+        out = self._literals[:]
+        for k, f in enumerate(self.fields):
+            v = values[f.axis]
+            if v != v:  # NaN
+                return None
+            if f.integer:
+                v = int(round(v))
+                if f.unsigned and v < 0:
+                    return None
+            text = format(v, f.spec)
+            if f.exact_width is not None and len(text) != f.exact_width:
+                return None
+            out[2 * k + 1] = text
+        return "".join(out).encode("latin-1")
+
+    def decode(self, frame: bytes) -> list[float | None]:
+        """Drive values of one frame, per motor (None for a motor the template omits)."""
+        m = self._regex.fullmatch(frame)
+        if m is None:
+            raise SinkError(f"frame {frame!r} does not match the template {self.template!r}")
+        out: list[float | None] = [None] * (max(self._axes) + 1)
+        for f, g in zip(self.fields, m.groups(), strict=True):
+            s = g.decode("latin-1").strip()
+            if f.integer:
+                base = {"x": 16, "X": 16, "o": 8, "b": 2}.get(f.spec[-1], 10)
+                out[f.axis] = float(int(s, 0 if "#" in f.spec else base))
+            else:
+                out[f.axis] = float(s)
+        return out
+
+    def split(self, data: bytes) -> tuple[list[bytes], bytes]:
+        """Whole frames in a byte stream and the unmatched remainder (for readers)."""
+        frames, pos = [], 0
+        pat = self._regex
+        while True:
+            m = pat.search(data, pos)
+            if m is None:
+                return frames, data[pos:]
+            frames.append(m.group(0))
+            pos = m.end()
+
+    def resolution(self) -> list[float | None]:
+        """Per motor, the step of the written value (drive units; None when not fixed)."""
+        res: list[float | None] = [None] * (max(self._axes) + 1)
+        for f in self.fields:
+            res[f.axis] = f.resolution
+        return res
+
+    def describe(self) -> str:
+        return f"text:{self.template}"
+
+
+_TYPE_RE = re.compile(r"^(?P<s>[ui])(?P<bits>8|16|24|32)(?P<end>be|le)?$")
+
+
+@dataclass(frozen=True)
+class _BinField:
+    kind: str  # "lit", "axis", "sum"
+    data: bytes = b""
+    axis: int = 0
+    size: int = 0
+    order: str = "big"
+    signed: bool = False
+    scale: float = 1.0
+    lo: int = 0
+    hi: int = 0
+    checksum: str = ""
+    start: int = 0
+
+
+class BinaryFormat:
+    """A binary frame (see the module docstring for the language).
+
+    Parameters
+    ----------
+    spec : str
+        Tokens such as ``0xFFFE,6xu16be,sum8@2``.
+    n_axes : int
+        Number of motors.
+    """
+
+    kind = "binary"
+
+    def __init__(self, spec: str, n_axes: int = 6) -> None:
+        self.spec = spec
+        where = f"binary format {spec!r}"
+        items: list[_BinField] = []
+        next_axis = 0
+        offset = 0
+        tokens = [t for t in re.split(r"[,\s]+", spec.strip()) if t]
+        if not tokens:
+            raise ConfigError(f"{where}: empty (e.g. 0xFFFE,6xu16be,sum8@2)")
+        for tok in tokens:
+            low = tok.lower()
+            if low.startswith("0x"):
+                hexd = tok[2:]
+                if not hexd or len(hexd) % 2 or not re.fullmatch(r"[0-9a-fA-F]+", hexd):
+                    raise ConfigError(f"{where}: {tok!r}: literal bytes need pairs of hex digits")
+                items.append(_BinField("lit", data=bytes.fromhex(hexd)))
+                offset += len(hexd) // 2
+                continue
+            name, _, start = low.partition("@")
+            if name in _CHECKSUMS:
+                k = int(start) if start.isdigit() else 0 if not start else -1
+                if k < 0 or k > offset:
+                    raise ConfigError(f"{where}: {tok!r}: start offset must be 0..{offset}")
+                items.append(_BinField("sum", checksum=name, start=k, size=_CHECKSUMS[name][1]))
+                offset += _CHECKSUMS[name][1]
+                continue
+            m = re.fullmatch(r"(?:(\d+)x)?(?:(\d+):)?([a-z0-9]+)(?:\*([0-9.eE+-]+))?", low)
+            t = _TYPE_RE.match(m.group(3)) if m else None
+            if m is None or t is None:
+                raise ConfigError(
+                    f"{where}: unknown token {tok!r} (expected 0xHEX, [N:]u16be[*SCALE], "
+                    "6xu16le, sum8, xor8, crc16, crc16ccitt)"
+                )
+            bits = int(t.group("bits"))
+            if bits > 8 and not t.group("end"):
+                raise ConfigError(f"{where}: {tok!r}: say the byte order, e.g. {tok}be or {tok}le")
+            repeat = int(m.group(1)) if m.group(1) else 1
+            if m.group(2) and repeat != 1:
+                raise ConfigError(f"{where}: {tok!r}: use either N: or Kx, not both")
+            try:
+                scale = float(m.group(4)) if m.group(4) else 1.0
+            except ValueError:
+                raise ConfigError(f"{where}: {tok!r}: bad scale") from None
+            if not (scale > 0 and math.isfinite(scale)):
+                raise ConfigError(f"{where}: {tok!r}: the scale must be > 0")
+            signed = t.group("s") == "i"
+            lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+            for _ in range(repeat):
+                axis = int(m.group(2)) - 1 if m.group(2) else next_axis
+                if not 0 <= axis < n_axes:
+                    raise ConfigError(f"{where}: {tok!r}: motor {axis + 1} is not 1..{n_axes}")
+                next_axis = axis + 1
+                order = "little" if t.group("end") == "le" else "big"
+                items.append(
+                    _BinField("axis", axis=axis, size=bits // 8, order=order, signed=signed,
+                              scale=scale, lo=lo, hi=hi)
+                )  # fmt: skip
+                offset += bits // 8
+        if not any(i.kind == "axis" for i in items):
+            raise ConfigError(f"{where}: no axis field (add e.g. 6xu16be)")
+        self.items = tuple(items)
+        self.size = offset
+        self.header = items[0].data if items[0].kind == "lit" else b""
+        self.axes = sorted({i.axis for i in items if i.kind == "axis"})
+
+    def encode(self, values: Sequence[float]) -> bytes | None:
+        """The frame for drive values (one per motor), or None when a value does not fit."""
+        out = bytearray()
+        for i in self.items:
+            kind = i.kind
+            if kind == "axis":
+                v = values[i.axis] * i.scale
+                if not (i.lo - 0.5 <= v <= i.hi + 0.5):  # False for NaN
+                    return None
+                iv = int(round(v))
+                if iv < i.lo or iv > i.hi:
+                    return None
+                out += iv.to_bytes(i.size, i.order, signed=i.signed)
+            elif kind == "lit":
+                out += i.data
+            else:
+                fn, size, order = _CHECKSUMS[i.checksum]
+                out += fn(bytes(out[i.start :])).to_bytes(size, order)
+        return bytes(out)
+
+    def decode(self, frame: bytes) -> list[float | None]:
+        """Drive values of one frame, per motor; the literals and checksums must match."""
+        if len(frame) != self.size:
+            raise SinkError(f"frame of {len(frame)} bytes, expected {self.size}")
+        out: list[float | None] = [None] * (max(self.axes) + 1)
+        pos = 0
+        for i in self.items:
+            if i.kind == "lit":
+                if frame[pos : pos + len(i.data)] != i.data:
+                    raise SinkError(f"frame {frame.hex()}: literal bytes differ at {pos}")
+                pos += len(i.data)
+            elif i.kind == "axis":
+                iv = int.from_bytes(frame[pos : pos + i.size], i.order, signed=i.signed)
+                out[i.axis] = iv / i.scale
+                pos += i.size
+            else:
+                fn, size, order = _CHECKSUMS[i.checksum]
+                want = fn(frame[i.start : pos]).to_bytes(size, order)
+                if frame[pos : pos + size] != want:
+                    raise SinkError(f"frame {frame.hex()}: {i.checksum} mismatch")
+                pos += size
+        return out
+
+    def split(self, data: bytes) -> tuple[list[bytes], bytes]:
+        """Whole valid frames in a byte stream (resynchronising on the header) and the rest."""
+        frames, pos = [], 0
+        while len(data) - pos >= self.size:
+            if self.header and not data.startswith(self.header, pos):
+                k = data.find(self.header, pos + 1)
+                if k < 0:
+                    pos = max(pos, len(data) - len(self.header) + 1)
+                    break
+                pos = k
+                continue
+            frame = data[pos : pos + self.size]
+            try:
+                self.decode(frame)
+            except SinkError:
+                pos += 1
+                continue
+            frames.append(frame)
+            pos += self.size
+        return frames, data[pos:]
+
+    def resolution(self) -> list[float | None]:
+        """Per motor, the step of the written value in drive units (1 / scale)."""
+        res: list[float | None] = [None] * (max(self.axes) + 1)
+        for i in self.items:
+            if i.kind == "axis":
+                res[i.axis] = 1.0 / i.scale
+        return res
+
+    def describe(self) -> str:
+        return f"bin:{self.spec}"
+
+
+FrameFormat = TextFormat | BinaryFormat
+
+
+def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any]]:
+    """A frame format from its text: ``text:...``, ``bin:...``, a ``.toml`` path or a template.
+
+    Returns the format and the extra settings a TOML file gave (``rate_hz``).
+    """
+    if text.startswith("bin:"):
+        return BinaryFormat(text[4:], n_axes), {}
+    if text.startswith("text:"):
+        return TextFormat(text[5:], n_axes), {}
+    path = text[1:] if text.startswith("@") else text
+    if path.endswith(".toml"):
+        data = read_toml(path)
+        extra = {k: v for k, v in data.items() if k not in ("text", "binary")}
+        unknown = set(extra) - {"rate_hz"}
+        if unknown or ("text" in data) == ("binary" in data):
+            raise ConfigError(
+                f"{path}: a format file needs exactly one of 'text' or 'binary' "
+                "(and optionally rate_hz)"
+            )
+        if "text" in data:
+            return TextFormat(str(data["text"]), n_axes), extra
+        return BinaryFormat(str(data["binary"]), n_axes), extra
+    return TextFormat(text, n_axes), {}
+
+
+# --------------------------------------------------------------------------- transports
+
+
+class _SerialTransport:
+    def __init__(self, url: str, baud: int) -> None:
+        self.url, self.baud = url, baud
+        self.port: Any = None
+        self.label = f"serial:{url}"
+
+    def open(self) -> None:
+        self.port = open_serial_port(self.url, self.baud, timeout=0, write_timeout=0.2)
+
+    def reopen(self) -> bool:
+        close_quietly(self.port)
+        self.port = None
+        try:
+            self.open()
+            return True
+        except SinkError:
+            return False
+
+    def send(self, frame: bytes) -> None:
+        if self.port is None:
+            raise OSError("port closed")
+        try:
+            self.port.write(frame)
+            n = self.port.in_waiting  # drain what the drive prints
+            if n:
+                self.port.read(n)
+        except SERIAL_ERRORS as exc:
+            raise OSError(str(exc)) from None
+
+    def close(self) -> None:
+        close_quietly(self.port)
+        self.port = None
+
+
+class _UdpTransport:
+    def __init__(self, host: str, port: int) -> None:
+        self.host, self.port_no = host, port
+        self.sock: socket.socket | None = None
+        self.label = f"udp:{host}:{port}"
+
+    def open(self) -> None:
+        try:
+            infos = socket.getaddrinfo(self.host, self.port_no, type=socket.SOCK_DGRAM)
+            family, _, _, _, addr = infos[0]
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+            sock.setblocking(False)
+            sock.connect(addr)  # connected: the kernel reports ECONNREFUSED on a later send
+        except OSError as exc:
+            raise SinkError(
+                f"cannot open UDP output {self.label}: {exc} (check the host)"
+            ) from None
+        self.sock = sock
+
+    def reopen(self) -> bool:
+        return self.sock is not None  # a UDP socket stays usable; errors are per datagram
+
+    def send(self, frame: bytes) -> None:
+        self.sock.send(frame)  # type: ignore[union-attr]
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+
+# --------------------------------------------------------------------------- the sink
+
+
+class MotorOutput:
+    """A fixed-rate motor-drive sink (see the module docstring).
+
+    Parameters
+    ----------
+    transport : object
+        ``open()``, ``send(bytes)`` (raises OSError), ``reopen() -> bool``, ``close()`` and a
+        ``label`` (made by :func:`open_output`).
+    frame_format : TextFormat or BinaryFormat
+    mapping : OutputMapping
+    rate_hz : float
+        Frames per second (fixed, independent of the pipeline's rate).
+    realtime : bool
+        Sleep in ``write`` when the pipeline's time runs ahead of the wall clock.
+    url : str
+        The URL it was opened from (messages and metadata).
+
+    Attributes
+    ----------
+    frames_sent, commands, held, send_errors : int
+        Frames on the wire; commands accepted; commands never sent because a value was
+        outside the drive's range or the wire format; failed sends.
+    last_values : ndarray or None
+        Drive values of the latest accepted command.
+    link_up : bool
+    """
+
+    def __init__(
+        self,
+        transport: Any,
+        frame_format: FrameFormat,
+        mapping: OutputMapping,
+        *,
+        rate_hz: float = DEFAULT_RATE_HZ,
+        realtime: bool = True,
+        url: str = "",
+    ) -> None:
+        if not (rate_hz > 0 and math.isfinite(rate_hz)) or rate_hz > 10_000:
+            raise ConfigError(f"output {url}: rate must be in (0, 10000] Hz, got {rate_hz!r}")
+        missing = [a + 1 for a in frame_format.axes if a >= mapping.n]
+        if missing:
+            raise ConfigError(
+                f"output {url}: the format uses motor {missing[0]} but the mapping has {mapping.n}"
+            )
+        self.transport = transport
+        self.format = frame_format
+        self.mapping = mapping
+        self.rate_hz = float(rate_hz)
+        self.realtime = realtime
+        self.url = url or transport.label
+        self.label = transport.label  # the URL without its query, for messages
+        self.frames_sent = 0
+        self.commands = 0
+        self.held = 0
+        self.send_errors = 0
+        self.last_values: np.ndarray | None = None
+        self.link_up = True
+        self._latest: bytes | None = None
+        self._last_sent: bytes | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._opened = False
+        self._holding = False
+        self._anchor: tuple[float, float] | None = None
+        self._next_retry = 0.0
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def open(self) -> MotorOutput:
+        if self._opened:
+            return self
+        self.transport.open()
+        self._opened = True
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"output {self.url}", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the sender, send the latest command once more (the park command at the end of
+        a run), close the link. Idempotent."""
+        if not self._opened:
+            return
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        if self._latest is not None:
+            self._send(self._latest, final=True)
+        self.transport.close()
+        self._opened = False
+
+    def __enter__(self) -> MotorOutput:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- the pipeline side ------------------------------------------------------------------
+    def write(self, output: Any) -> bool:
+        """Offer the latest safe command; returns False when it was held (never sent).
+
+        Parameters
+        ----------
+        output : PipelineOutput, or an object with ``angles`` (rad, shape (n,)) and optionally
+            ``t`` (s), or an array of crank angles (rad).
+        """
+        angles = getattr(output, "angles", output)
+        values = self.mapping.to_drive(angles)
+        frame = self.format.encode(values) if self.mapping.in_range(values).all() else None
+        if frame is None:
+            self.held += 1
+            if not self._holding:
+                self._holding = True
+                log.warning("output %s: %s; holding the last frame", self.label, self._why(values))
+        else:
+            self._holding = False
+            self._latest = frame
+            self.last_values = values
+            self.commands += 1
+        t = getattr(output, "t", None)
+        if self.realtime and t is not None:
+            self._pace(float(t))
+        return frame is not None
+
+    def _why(self, values: np.ndarray) -> str:
+        ok = self.mapping.in_range(values)
+        for i in range(len(values)):
+            if not ok[i]:
+                return (
+                    f"motor {i + 1} value {values[i]:g} is outside the drive range "
+                    f"{self.mapping.drive_min[i]:g}..{self.mapping.drive_max[i]:g}"
+                )
+        return f"values {np.round(values, 3).tolist()} do not fit {self.format.describe()!r}"
+
+    def _pace(self, t: float) -> None:
+        now = time.monotonic()
+        if self._anchor is None:
+            self._anchor = (now, t)
+            return
+        wall0, t0 = self._anchor
+        ahead = (t - t0) - (now - wall0)
+        if ahead > 0:
+            time.sleep(ahead)
+        elif ahead < -0.05:  # fell behind (a stall): never rush to catch up
+            self._anchor = (now, t)
+
+    # -- the sender thread ------------------------------------------------------------------
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        nxt = time.monotonic()
+        wait = self._stop.wait
+        while not self._stop.is_set():
+            frame = self._latest
+            if frame is not None:
+                self._send(frame)
+            nxt += period
+            delay = nxt - time.monotonic()
+            if delay > 0:
+                wait(delay)
+            elif delay < -period:
+                nxt = time.monotonic()  # overrun: skip, never burst
+
+    def _send(self, frame: bytes, final: bool = False) -> None:
+        if not self.link_up:
+            now = time.monotonic()
+            if now < self._next_retry and not final:
+                return
+            self._next_retry = now + 1.0
+            if not self.transport.reopen():
+                return
+        try:
+            self.transport.send(frame)
+        except OSError as exc:
+            self.send_errors += 1
+            if self.link_up:
+                self.link_up = False
+                self._next_retry = time.monotonic() + 1.0
+                reason = exc.strerror or str(exc) or type(exc).__name__
+                log.warning(
+                    "output %s: the drive link is down (%s); the pipeline and its log go on, "
+                    "frames are dropped until it returns",
+                    self.label,
+                    reason,
+                )
+            return
+        if not self.link_up:
+            self.link_up = True
+            log.warning("output %s: link back, sending again", self.label)
+        self.frames_sent += 1
+        self._last_sent = frame
+
+    @property
+    def last_frame(self) -> bytes | None:
+        """The last frame put on the wire."""
+        return self._last_sent
+
+    def describe(self) -> dict[str, Any]:
+        """Plain data for the log's metadata."""
+        return {
+            "kind": "motor_output",
+            "url": self.url,
+            "format": self.format.describe(),
+            "rate_hz": self.rate_hz,
+            "mapping": self.mapping.to_dict(),
+        }
+
+    def stats_line(self) -> str:
+        return (
+            f"output {self.label}: {self.frames_sent} frames sent at {self.rate_hz:g} Hz, "
+            f"{self.commands} commands, {self.held} held out of range, "
+            f"{self.send_errors} send errors"
+        )
+
+
+# --------------------------------------------------------------------------- opening
+
+
+def _split_query(rest: str) -> tuple[str, dict[str, str], list[tuple[str, str]]]:
+    base, sep, query = rest.partition("?")
+    ours: dict[str, str] = {}
+    other: list[tuple[str, str]] = []
+    if sep:
+        for k, v in parse_qsl(query, keep_blank_values=True):
+            if k in ("format", "rate", "baud"):
+                ours[k] = v
+            else:
+                other.append((k, v))
+    return base, ours, other
+
+
+def open_output(
+    url: str,
+    mapping: OutputMapping,
+    *,
+    rate_hz: float | None = None,
+    realtime: bool = True,
+) -> MotorOutput:
+    """A motor-drive sink for ``url`` (not yet open: use ``with`` or ``open()``).
+
+    Parameters
+    ----------
+    url : str
+        ``serial:PYSERIAL_URL?baud=..&rate=..&format=..`` or ``udp:HOST:PORT?rate=..&format=..``
+        (see the module docstring).
+    mapping : OutputMapping
+        Crank angle to drive value, per motor.
+    rate_hz : float, optional
+        Overrides the URL's ``rate``.
+    realtime : bool
+        Pace ``write`` to the wall clock (see :class:`MotorOutput`).
+    """
+    scheme, colon, rest = url.partition(":")
+    if not colon or scheme not in ("serial", "udp"):
+        raise ConfigError(
+            f"output {url!r}: expected serial:DEVICE_OR_PYSERIAL_URL?... or udp:HOST:PORT?..."
+        )
+    base, ours, other = _split_query(rest)
+    fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
+    rate = rate_hz or (float(ours["rate"]) if "rate" in ours else None)
+    rate = rate or float(extra.get("rate_hz", DEFAULT_RATE_HZ))
+    if scheme == "serial":
+        try:
+            baud = int(ours.get("baud", DEFAULT_BAUD))
+        except ValueError:
+            raise ConfigError(f"output {url!r}: baud must be an integer") from None
+        if not base:
+            raise ConfigError(f"output {url!r}: give a device or pyserial URL after 'serial:'")
+        dev = base + ("?" + urlencode(other) if other else "")
+        size = (
+            fmt.size if isinstance(fmt, BinaryFormat) else len(fmt.encode([0] * mapping.n) or b"")
+        )
+        if size * 10 * rate > baud:
+            log.warning(
+                "output %s: %d-byte frames at %g Hz need %d baud, more than %d: frames will be "
+                "dropped (raise baud or lower rate)",
+                url, size, rate, size * 10 * rate, baud,
+            )  # fmt: skip
+        transport: Any = _SerialTransport(dev, baud)
+    else:
+        if other:
+            raise ConfigError(f"output {url!r}: unknown key {other[0][0]!r} (format, rate)")
+        host, _, port = base.rpartition(":")
+        host = host.strip("[]")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")
+        transport = _UdpTransport(host, int(port))
+    return MotorOutput(transport, fmt, mapping, rate_hz=rate, realtime=realtime, url=url)
+
+
+def open_outputs(urls: Sequence[str] | None, config: Any) -> list[MotorOutput]:
+    """Motor-drive sinks for a job's ``--output`` URLs, mapped by :func:`mapping_for`."""
+    if not urls:
+        return []
+    mapping = mapping_for(config)
+    return [open_output(u, mapping) for u in urls]
+
+
+def mapping_for(config: Any) -> OutputMapping:
+    """The geometry's ``[output]`` mapping, or degrees for every motor when it has none."""
+    out = getattr(config.geometry, "output", None)
+    if out is not None:
+        return out
+    from motionbase.pipeline import make_robot
+
+    lim = make_robot(config).limits
+    return OutputMapping.default(lim.lower, lim.upper)
+
+
+# --------------------------------------------------------------------------- wiring check
+
+
+@dataclass(frozen=True)
+class _Command:
+    t: float
+    angles: np.ndarray
+
+
+def output_test(
+    url: str,
+    geometry: Any,
+    *,
+    range_deg: float = 5.0,
+    speed_deg_s: float = 10.0,
+    rate_hz: float = 100.0,
+    echo: Callable[[str], None] | None = None,
+) -> list[str]:
+    """Sweep each motor in turn through ``+-range_deg`` about neutral, slowly, for a wiring and
+    sign check: park -> neutral, motor 1 up, down, back, motor 2, ..., neutral -> park.
+
+    Every command passes the safety stage (speed and acceleration limits) and is sent in real
+    time through :func:`open_output`. Prints (``echo``) which motor moves and its drive values.
+
+    Parameters
+    ----------
+    url : str
+        The output URL.
+    geometry : Rus6Geometry
+        Geometry with its ``[output]`` mapping (degrees when it has none).
+    range_deg : float
+        Half-range of each sweep about neutral, deg.
+    speed_deg_s : float
+        Peak crank speed, deg/s (capped by the geometry's speed limit).
+    rate_hz : float
+        Command rate, Hz.
+
+    Returns
+    -------
+    list of str
+        The lines printed.
+    """
+    from motionbase.safety import ActuatorLimits, limit_command
+
+    echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
+    mapping = geometry.output or OutputMapping.default(geometry.angle_min, geometry.angle_max)
+    lower, upper = np.array(geometry.angle_min), np.array(geometry.angle_max)
+    vmax, amax = np.array(geometry.max_speed), np.array(geometry.max_accel)
+    speed = min(math.radians(speed_deg_s), float(vmax.min()))
+    dt = 1.0 / rate_hz
+    park = np.full(mapping.n, float(geometry.park_angle))
+    neutral = np.asarray(geometry.neutral_angle, dtype=float)
+    angles, motor = sweep_profile(
+        park,
+        neutral,
+        lower,
+        upper,
+        range_rad=math.radians(range_deg),
+        speed=speed,
+        accel=0.5 * float(amax.min()),
+        dt=dt,
+    )
+    limits = ActuatorLimits.broadcast(mapping.n, lower, upper, vmax, amax)
+    lines: list[str] = []
+
+    def say(s: str) -> None:
+        lines.append(s)
+        echo(s)
+
+    sink = open_output(url, mapping, rate_hz=rate_hz, realtime=True)
+    say(f"output test on {sink.label}: {mapping.describe()}")
+    say(f"moving from park to neutral at up to {math.degrees(speed):.1f} deg/s")
+    q, v, wanted = angles[0].copy(), np.zeros(mapping.n), angles[0]
+    current = 0
+    with sink:
+        for k in range(len(angles)):
+            if motor[k] != current:
+                current = int(motor[k])
+                if current:
+                    i = current - 1
+                    up = neutral.copy()
+                    up[i] += math.radians(range_deg)
+                    dn = neutral.copy()
+                    dn[i] -= math.radians(range_deg)
+                    d0, d1, d2 = (
+                        float(np.round(mapping.to_drive(a)[i], 6)) + 0.0 for a in (neutral, up, dn)
+                    )
+                    say(
+                        f"motor {current}: crank +{range_deg:g} deg (tip up), -{range_deg:g} deg, "
+                        f"back to neutral; drive value {d0:g} -> {d1:g} -> {d2:g} -> {d0:g}"
+                    )
+                else:
+                    say("moving from neutral back to park")
+            q, v, _ = limit_command(q, v, wanted, angles[k], dt, limits)
+            wanted = angles[k]
+            sink.write(_Command(k * dt, q))
+    say(sink.stats_line())
+    return lines
