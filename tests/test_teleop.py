@@ -114,7 +114,7 @@ def test_teleop_file_to_pty_sends_exactly_the_predicted_servo_commands(tmp_path)
     try:
         rc = main([
             "teleop", "--input", f"file:{tmp_path / 'cursor.csv'}", "--serial", board.path,
-            "--calibration", str(tmp_path / "cal.toml"), "--rate", "50",
+            "--calibration", str(tmp_path / "cal.toml"), "--rate", "50", "--rrr3", "udesc",
             "--out", str(tmp_path / "run.mcap"),
         ])  # fmt: skip
         assert rc == 0

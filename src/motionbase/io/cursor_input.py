@@ -5,14 +5,18 @@ Every source gives screen pixels ``(u, v)`` (u right, v down) and shares one sma
 ``open()`` / ``close()`` (or ``with``), ``read(t) -> (u, v) | None`` (the latest cursor at loop
 time ``t`` s since the start; None before the first), ``finished(t) -> bool``, ``size_px``
 (window size for a default calibration) and ``show(...)`` (draws the robot; a no-op except for
-the mouse window), ``describe()`` for the log.
+the mouse window), ``describe()`` for the log. Live sources (UDP, mouse) set ``watchdog = True``
+and keep ``updated_t``, the loop time (s) at which their latest *new* point arrived, so the
+teleop loop can hold position when the input goes stale.
 
 - :class:`FileCursor`: a CSV of ``t,x,y`` rows (seconds, pixels), looked up by time, so a
   replay gives the same targets at the same loop ticks however the loop is paced.
 - :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
   127.0.0.1 by default; malformed lines are counted and ignored.
 - :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
-  a headless machine under Xvfb (``xvfb-run motionbase teleop``).
+  a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
+  tick while it is inside the window (a resting pointer is live input; outside the window the
+  input goes stale). Escape or space E-stops (the robot parks at home).
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ DEFAULT_SIZE_PX = (1310, 715)
 class _Base:
     size_px: tuple[int, int] = DEFAULT_SIZE_PX
     rejected = 0
+    watchdog = False  #: True for live sources, which keep ``updated_t``
+    updated_t: float | None = None  #: loop time of the latest new point, s
 
     def open(self) -> Any:
         return self
@@ -132,6 +138,8 @@ class UdpCursor(_Base):
         self._latest: tuple[float, float] | None = None
         self.received = 0
         self.rejected = 0
+        self.watchdog = True
+        self.updated_t: float | None = None
 
     def open(self) -> UdpCursor:
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -171,6 +179,7 @@ class UdpCursor(_Base):
                 else:
                     self._latest = p
                     self.received += 1
+                    self.updated_t = t
         return self._latest
 
     def describe(self) -> dict[str, Any]:
@@ -221,6 +230,14 @@ class TkCursor(_Base):
         self._latest: tuple[float, float] | None = None
         self._closed = False
         self._items: list[int] = []
+        self._stop: Any = None
+        self.watchdog = True
+        self.updated_t: float | None = None
+        self._moved = False
+
+    def bind_stop(self, stop: Any) -> None:
+        """E-stop ``stop`` (a :class:`~motionbase.pipeline.StopRequest`) on Escape or space."""
+        self._stop = stop
 
     def view(self, xy: Any) -> np.ndarray:
         """Metres (..., 2) -> window pixels (..., 2) (v down)."""
@@ -252,6 +269,8 @@ class TkCursor(_Base):
         self._canvas = tk.Canvas(self._root, width=w, height=h, background="#f2f2f2")
         self._canvas.pack()
         self._canvas.bind("<Motion>", self._on_motion)
+        for key in ("<Escape>", "<space>"):
+            self._root.bind(key, self._on_estop)
         self._root.protocol("WM_DELETE_WINDOW", self._on_close)
         self._draw_workspace()
         self._root.update()
@@ -271,6 +290,11 @@ class TkCursor(_Base):
 
     def _on_motion(self, event: Any) -> None:
         self._latest = (float(event.x), float(event.y))
+        self._moved = True
+
+    def _on_estop(self, event: Any) -> None:
+        if self._stop is not None:
+            self._stop.set(f"key {event.keysym}", estop=True)
 
     def _on_close(self) -> None:
         self._closed = True
@@ -280,8 +304,19 @@ class TkCursor(_Base):
             raise SourceError("mouse window is not open")
         try:
             self._root.update()
+            c = self._canvas
+            u = c.winfo_pointerx() - c.winfo_rootx()
+            v = c.winfo_pointery() - c.winfo_rooty()
         except Exception:
             self._closed = True
+            return self._latest
+        w, h = self.size_px
+        if 0 <= u < w and 0 <= v < h:  # the pointer is over the window: live input
+            self._latest = (float(u), float(v))
+            self._moved = True
+        if self._moved:
+            self.updated_t = t
+            self._moved = False
         return self._latest
 
     def finished(self, t: float) -> bool:
