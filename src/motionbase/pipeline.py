@@ -36,7 +36,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -272,9 +272,8 @@ def make_robot(config: PipelineConfig) -> _Robot:
 # --------------------------------------------------------------------------- outputs
 
 
-@dataclass(frozen=True, slots=True)
-class PipelineOutput:
-    """Everything one tick produced (what the sinks log and send).
+class PipelineOutput(NamedTuple):
+    """Everything one tick produced (what the sinks log and send); immutable.
 
     Attributes
     ----------
@@ -360,6 +359,8 @@ class Pipeline:
         self.robot = make_robot(config)
         self.washout = ClassicalWashout(config.washout, self.dt)
         self.health = Health()
+        self._level_f = np.array([0.0, 0.0, -config.washout.gravity])
+        self._zero3 = np.zeros(3)
         self.reset()
 
     # -- lifecycle -------------------------------------------------------------
@@ -448,11 +449,10 @@ class Pipeline:
 
         # 2. washout (a hold of the last valid sample, or level flight before any)
         if use is None:
-            f = np.array([0.0, 0.0, -cfg.washout.gravity])
-            w = np.zeros(3)
+            f, w = self._level_f, self._zero3
         else:
             f, w = use.specific_force, use.angular_velocity
-        washout_pose = np.asarray(self.washout.step(f, w), dtype=float)
+        washout_pose = self.washout.step(f, w)
 
         # 3. watchdog fade
         stale = not fresh
@@ -461,7 +461,7 @@ class Pipeline:
         self._stale = stale
         step_fade = dt / cfg.fade_s
         self._fade = max(0.0, self._fade - step_fade) if stale else min(1.0, self._fade + step_fade)
-        live6 = smoothstep(self._fade) * washout_pose
+        live6 = washout_pose if self._fade == 1.0 else smoothstep(self._fade) * washout_pose
 
         # 4. soft start / stop blend
         step_blend = dt / cfg.soft_start_s
@@ -515,7 +515,7 @@ class Pipeline:
             servo_deg=robot.servo(q),
             rate_limited=rate_limited,
             held=held,
-            phase=self.phase,
+            phase="parked" if self._phase == "stopping" and self.parked else self._phase,
             fade=self._fade,
         )
 

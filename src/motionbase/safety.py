@@ -192,6 +192,37 @@ class InputLimits:
     max_attitude: float = 10.0
 
 
+_INPUT_PROBLEMS = (
+    None,
+    "time is not finite",
+    "time did not advance",
+    "specific force is not finite",
+    "specific force beyond its bound",
+    "angular velocity is not finite",
+    "angular velocity beyond its bound",
+    "attitude is not finite",
+    "attitude beyond its bound",
+)
+
+
+@numba.njit(cache=True)
+def _input_code(t, last_t, f, w, att, max_f, max_w, max_att):
+    if not np.isfinite(t):
+        return 1
+    if t <= last_t:
+        return 2
+    code = 3
+    for vec, bound in ((f, max_f), (w, max_w), (att, max_att)):
+        for k in range(3):
+            if not np.isfinite(vec[k]):
+                return code
+        for k in range(3):
+            if abs(vec[k]) > bound:
+                return code + 1
+        code += 2
+    return 0
+
+
 def input_problem(
     t: float,
     specific_force: np.ndarray,
@@ -200,21 +231,29 @@ def input_problem(
     last_t: float | None,
     limits: InputLimits,
 ) -> str | None:
-    """Why an aircraft sample must be rejected, or None when it is usable."""
-    if not np.isfinite(t):
-        return "time is not finite"
-    if last_t is not None and t <= last_t:
-        return "time did not advance"
-    for name, vec, bound in (
-        ("specific force", specific_force, limits.max_specific_force),
-        ("angular velocity", angular_velocity, limits.max_angular_velocity),
-        ("attitude", attitude, limits.max_attitude),
-    ):
-        if not np.isfinite(vec).all():
-            return f"{name} is not finite"
-        if np.abs(vec).max() > bound:
-            return f"{name} beyond {bound:g}"
-    return None
+    """Why an aircraft sample must be rejected, or None when it is usable.
+
+    Parameters
+    ----------
+    t : float
+        Sample time, s; must be finite and later than ``last_t``.
+    specific_force, angular_velocity, attitude : ndarray, shape (3,)
+        m/s^2, rad/s, rad; each finite and within its bound in ``limits``.
+    last_t : float or None
+        Time of the previous tick, s (None before the first).
+    limits : InputLimits
+    """
+    code = _input_code(
+        float(t),
+        -np.inf if last_t is None else float(last_t),
+        specific_force,
+        angular_velocity,
+        attitude,
+        limits.max_specific_force,
+        limits.max_angular_velocity,
+        limits.max_attitude,
+    )
+    return _INPUT_PROBLEMS[code]
 
 
 def smoothstep(x: float) -> float:
