@@ -370,17 +370,17 @@ def build_report(
     aircraft_w = _hold_last(w_raw, good, np.zeros(3))
     dt = _dt(metadata, t_air)
 
-    # the cab pose the cue comes from
-    pose_n = platform_pose[rows]
+    # the cab pose the cue comes from, on every tick (so derivatives at the end of the
+    # aircraft data use the following ticks), then on the aircraft ticks
     if planar:
         from motionbase.platform import Rrr3
 
         # the inverse of the pipeline's planar mapping (surge -> x, sway -> y, yaw -> phi)
         home = np.asarray(Rrr3(g).home, dtype=float)
         scale = np.array([config.planar_scale_m, config.planar_scale_m, config.planar_yaw_scale])
-        d = (pose_n - home) / scale
-        cab_pose = np.zeros((d.shape[0], 6))
-        cab_pose[:, 0], cab_pose[:, 1], cab_pose[:, 5] = d[:, 0], d[:, 1], d[:, 2]
+        d = (platform_pose - home) / scale
+        cab_all = np.zeros((d.shape[0], 6))
+        cab_all[:, 0], cab_all[:, 1], cab_all[:, 5] = d[:, 0], d[:, 1], d[:, 2]
         reach = planar_reach(g, config.planar_scale_m, config.planar_yaw_scale)
         compared = (
             "Planar mode: the 3-RRR's [x, y, phi] about its home pose, divided by "
@@ -391,15 +391,16 @@ def build_report(
             "surge/sway force is washed out to zero."
         )
     else:
-        cab_pose = pose_n
+        cab_all = platform_pose
         reach = rus6_reach(g)
         compared = (
             "6-RUS: the aircraft's specific force at the pilot and body rates against the cab's "
             "specific force R^T (p'' - g) (acceleration plus the gravity component of the tilt) "
             "and body rates, from the realised platform pose (after clamping and safety)."
         )
-    cue_f = platform_specific_force(cab_pose, dt, gravity)
-    cue_w = platform_angular_velocity(cab_pose, dt)
+    cab_pose = cab_all[rows]
+    cue_f = platform_specific_force(cab_all, dt, gravity)[rows]
+    cue_w = platform_angular_velocity(cab_all, dt)[rows]
 
     # metrics over the running phase ----------------------------------------------
     running = phase[rows] == "running"
@@ -507,9 +508,10 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         f"  {'workspace usage [% of reach]':<36s}" + _cells(100 * m.workspace_usage, ".0f", 8),
         f"  {'reach (-) [m | deg]':<36s}" + _cells(_display(r.reach[0]), ".3g", 8),
         f"  {'reach (+) [m | deg]':<36s}" + _cells(_display(r.reach[1]), ".3g", 8),
-        "",
-        "run:",
     ]
+    if np.nanmax(m.workspace_usage) > 1.0:
+        lines.append("  (over 100 %: the pose went beyond the single-axis reach by combining axes)")
+    lines += ["", "run:"]
     shares = [
         ("clamped", r.clamped),
         ("rate-limited", r.rate_limited),

@@ -1,0 +1,228 @@
+"""``motionbase report``: plots, summary and cueing metrics of real (short) JSBSim recordings."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+from scipy.interpolate import CubicSpline
+from scipy.spatial.transform import Rotation
+
+from motionbase.app import fly
+from motionbase.cli import main
+from motionbase.errors import LogFormatError
+from motionbase.io.mcap_log import McapLogger
+from motionbase.io.mcap_source import read_messages, read_metadata
+from motionbase.io.report_plots import default_report_dir, write_report
+from motionbase.report import build_report
+
+G = 9.80665
+PNGS = (
+    "specific_force.png",
+    "angular_velocity.png",
+    "perceived.png",
+    "pose.png",
+    "actuators.png",
+    "timeline.png",
+)
+AIRCRAFT_RGB = (0x1F, 0x4E, 0x9C)  # the report's aircraft colour
+CUE_RGB = (0xD9, 0x48, 0x0F)  # the report's platform colour
+
+
+@pytest.fixture(scope="module")
+def rus6_flight(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rus6") / "c1723.mcap"
+    fly("c1723", duration_s=10, out=path, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def planar_flight(tmp_path_factory):
+    path = tmp_path_factory.mktemp("planar") / "c1723_planar.mcap"
+    fly("c1723", planar=True, duration_s=10, out=path, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def rus6_written(rus6_flight):
+    """The report written through the CLI with the default output folder."""
+    assert main(["report", str(rus6_flight)]) == 0
+    return default_report_dir(rus6_flight)
+
+
+@pytest.fixture(scope="module")
+def planar_written(planar_flight, tmp_path_factory):
+    out = tmp_path_factory.mktemp("planar_report") / "rep"
+    files = write_report(planar_flight, out)
+    assert files.out_dir == out
+    return out
+
+
+def _colour_pixels(img: np.ndarray, rgb: tuple[int, int, int], tol: float = 0.06) -> int:
+    target = np.array(rgb) / 255.0
+    return int((np.abs(img[..., :3] - target) < tol).all(axis=-1).sum())
+
+
+def _check_images(folder):
+    for name in PNGS:
+        img = imread(folder / name)  # raises on a broken PNG
+        h, w = img.shape[:2]
+        assert h >= 300 and w >= 600, (name, img.shape)
+        rgb = np.round(img[..., :3] * 255).astype(np.int32)
+        packed = (rgb[..., 0] << 16 | rgb[..., 1] << 8 | rgb[..., 2]).ravel()
+        assert not (packed == packed[0]).all(), f"{name}: blank image"
+        assert np.unique(packed).size > 50, f"{name}: almost no content"
+        # the drawn series: the platform colour is on every plot, the aircraft colour on the
+        # comparisons
+        assert _colour_pixels(img, CUE_RGB) > 300, f"{name}: no platform curve"
+        if name in PNGS[:3]:
+            assert _colour_pixels(img, AIRCRAFT_RGB) > 300, f"{name}: no aircraft curve"
+
+
+def test_rus6_pngs_are_real_images(rus6_written, rus6_flight):
+    assert rus6_written == rus6_flight.parent / "c1723_report"
+    _check_images(rus6_written)
+
+
+def test_planar_pngs_are_real_images(planar_written):
+    _check_images(planar_written)
+
+
+def _row(text: str, label: str) -> list[str]:
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith(label))
+    return line[len(line) - len(line.lstrip()) + len(label) :].split()
+
+
+METRIC_ROWS = (
+    "specific force RMSE [m/s^2]",
+    "specific force correlation",
+    "specific force false cues [%]",
+    "angular velocity RMSE [deg/s]",
+    "angular velocity correlation",
+    "angular velocity false cues [%]",
+    "workspace usage [% of reach]",
+)
+
+
+def test_rus6_summary_names_every_metric_with_finite_numbers(rus6_written):
+    text = (rus6_written / "summary.txt").read_text()
+    for label in METRIC_ROWS:
+        cells = _row(text, label)
+        n = 6 if label.startswith("workspace") else 3
+        assert len(cells) == n, (label, cells)
+        values = [float(c) for c in cells]  # "n/a" would fail here
+        assert all(math.isfinite(v) for v in values), (label, values)
+        if "correlation" in label:
+            assert all(-1.0 <= v <= 1.0 for v in values)
+        if "false cues" in label or "workspace" in label:
+            assert all(0.0 <= v for v in values)
+        if "false cues" in label:
+            assert all(v <= 100.0 for v in values)
+    # crank range within the recorded limits (+-60 deg for ceart)
+    for line in text.splitlines():
+        m = re.match(r"\s+(\d): +(-?[\d.]+) \.\. +(-?[\d.]+) +\((-?[\d.]+) \.\. (-?[\d.]+)\)", line)
+        if m:
+            lo, hi, lim_lo, lim_hi = map(float, m.groups()[1:])
+            assert lim_lo <= lo <= hi <= lim_hi
+
+
+def test_planar_summary_says_what_the_robot_cannot_cue(planar_written):
+    text = (planar_written / "summary.txt").read_text()
+    assert "planar" in text and "cannot tilt" in text
+    # the 3-RRR has no heave, roll or pitch: those comparisons are undefined, not zero
+    assert _row(text, "specific force correlation")[2] == "n/a"
+    roll, pitch, yaw = _row(text, "angular velocity correlation")
+    assert roll == "n/a" and pitch == "n/a" and math.isfinite(float(yaw))
+    usage = _row(text, "workspace usage [% of reach]")
+    assert usage[2:5] == ["n/a", "n/a", "n/a"]
+    assert all(math.isfinite(float(u)) for u in usage[:2] + usage[5:])
+    x, y, _ = _row(text, "specific force RMSE [m/s^2]")
+    assert math.isfinite(float(x)) and math.isfinite(float(y))
+
+
+def test_tilt_coordination_cue_follows_the_sustained_forward_force(rus6_flight):
+    """c1723 accelerates steadily from about 3.5 s: the platform must pitch nose up and the
+    pilot feel a forward force of about the washout gain times the aircraft's, from tilt."""
+    msgs = read_messages(rus6_flight)
+    meta = read_metadata(rus6_flight)
+    r = build_report(msgs, meta)
+    seg = (r.t >= 6.0) & (r.t <= 9.5)
+    f_air = r.aircraft_f[seg, 0]
+    assert f_air.min() > 1.0  # the aircraft's sustained forward force, independent of us
+    pitch = r.cab_pose[seg, 4]
+    assert (pitch > np.radians(2.0)).all()  # nose up (FRD: positive pitch)
+    cue = r.cue_f[seg, 0]
+    assert (cue > 0).all()
+    # sustained: the translation has washed out, the force is gravity's share through the tilt
+    assert np.abs(cue - G * np.sin(pitch)).max() < 0.1
+    gain = meta["pipeline_config"]["washout"]["scaling"]["specific_force_gain"][0]
+    ratio = cue.mean() / f_air.mean()
+    assert abs(ratio - gain) < 0.25 * gain, (ratio, gain)
+
+
+def _reproduce_platform(msgs):
+    """The aircraft replaced by exactly what the recorded platform pose makes the pilot feel,
+    computed another way: spline accelerations and scipy rotations."""
+    poses = msgs["/platform/pose"]
+    t = np.array([p["t"] for p in poses])
+    pose = np.array([p["pose"] for p in poses])
+    acc = CubicSpline(t, pose[:, :3])(t, 2)
+    rot = Rotation.from_euler("ZYX", pose[:, [5, 4, 3]])  # R = Rz Ry Rx, platform -> base
+    f = np.einsum("nji,nj->ni", rot.as_matrix(), acc - np.array([0.0, 0.0, G]))
+    w = np.zeros_like(f)  # body rates from relative rotations over two steps
+    w[1:-1] = (rot[:-2].inv() * rot[2:]).as_rotvec() / (t[2:] - t[:-2])[:, None]
+    w[0], w[-1] = w[1], w[-2]
+    index = {x: i for i, x in enumerate(t)}
+    air = []
+    for m in msgs["/aircraft/state"]:
+        i = index[m["t"]]
+        air.append({**m, "specific_force": f[i].tolist(), "angular_velocity": w[i].tolist()})
+    return {**msgs, "/aircraft/state": air}
+
+
+def test_exact_reproduction_scores_near_perfect(rus6_flight):
+    msgs = read_messages(rus6_flight)
+    meta = read_metadata(rus6_flight)
+    real = build_report(msgs, meta).metrics
+    rep = build_report(_reproduce_platform(msgs), meta)
+    perfect = rep.metrics
+    # the plotted cue is the reproduced motion, sample by sample, while running
+    run = rep.running
+    np.testing.assert_allclose(rep.cue_f[run], rep.aircraft_f[run], atol=0.05)
+    np.testing.assert_allclose(rep.cue_w[run], rep.aircraft_w[run], atol=np.radians(0.2))
+    assert (perfect.correlation_specific_force > 0.98).all(), perfect.correlation_specific_force
+    assert (perfect.correlation_angular_velocity > 0.98).all(), perfect.correlation_angular_velocity
+    assert (perfect.rmse_specific_force < 0.05).all()  # m/s^2, well under the 0.17 threshold
+    assert (np.degrees(perfect.rmse_angular_velocity) < 0.1).all()
+    assert (perfect.false_cue_angular_velocity == 0).all()
+    # the false-cue count has no margin at the threshold: allow the few samples where the two
+    # derivative methods straddle it
+    assert (perfect.false_cue_specific_force < 0.05).all()
+    # and the metric tells real washout cueing (gain 0.5, washed out) from a perfect one
+    assert (perfect.rmse_specific_force[:2] < 0.1 * real.rmse_specific_force[:2]).all()
+    # the platform pose is the same: so is its workspace usage
+    np.testing.assert_array_equal(perfect.workspace_usage, real.workspace_usage)
+
+
+def test_not_mcap_is_a_one_line_error(tmp_path, capsys):
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("hello, not a recording\n")
+    assert main(["report", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "not an MCAP file" in err and str(bad) in err
+
+
+def test_recording_without_aircraft_state_is_a_one_line_error(tmp_path, capsys):
+    path = tmp_path / "empty.mcap"
+    with McapLogger(path, {"note": "no aircraft"}) as log:
+        for k in range(5):
+            log.add("/washout/pose", k / 120, {"pose": [0.0] * 6})
+    with pytest.raises(LogFormatError, match="/aircraft/state"):
+        write_report(path, tmp_path / "out")
+    assert main(["report", str(path), "--out", str(tmp_path / "out2")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "/aircraft/state" in err
+    assert not (tmp_path / "out2").exists()
