@@ -2,8 +2,9 @@
 
 Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
 
-* ``/aircraft/state``: the sample as the source gave it (non-finite numbers as
-  ``null``), with ``fresh`` and ``accepted`` flags; replays feed it back.
+* ``/aircraft/state``: the sample as the source gave it (non-finite numbers kept:
+  the logger writes them as strings), with ``fresh`` and ``accepted`` flags and the
+  source's own time ``source_t``; replays feed it back.
 * ``/washout/pose``: the washout output before fades and clamping.
 * 6-RUS: ``/platform/pose`` (after clamping and safety, with ``clamped``,
   ``phase``, ``fade``, ``rate_limited``, ``held``), ``/platform/actuators``
@@ -14,7 +15,6 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -23,28 +23,19 @@ from motionbase.errors import SinkError
 from motionbase.io.mcap_log import McapLogger
 
 
-def _floats(values) -> list[float | None]:
-    """Plain floats for JSON; non-finite values become null (JSON has no NaN)."""
-    out = []
-    for v in values:
-        f = float(v)
-        out.append(f if math.isfinite(f) else None)
-    return out
-
-
 def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any]:
-    """The ``/aircraft/state`` message of one sample."""
+    """The ``/aircraft/state`` message of one sample (numpy arrays; the logger encodes them)."""
     msg: dict[str, Any] = {
         "t": t,
-        "source_t": float(state.t) if math.isfinite(state.t) else None,
-        "specific_force": _floats(state.specific_force),
-        "angular_velocity": _floats(state.angular_velocity),
-        "attitude": _floats(state.attitude),
-        "fresh": bool(fresh),
-        "accepted": bool(accepted),
+        "source_t": state.t,
+        "specific_force": state.specific_force,
+        "angular_velocity": state.angular_velocity,
+        "attitude": state.attitude,
+        "fresh": fresh,
+        "accepted": accepted,
     }
     if state.angular_acceleration is not None:
-        msg["angular_acceleration"] = _floats(state.angular_acceleration)
+        msg["angular_acceleration"] = state.angular_acceleration
     return msg
 
 
@@ -106,9 +97,9 @@ class PipelineLog:
         self._last_t = t
         if out.state is not None:
             log("/aircraft/state", t, state_message(t, out.state, out.fresh, out.accepted))
-        log("/washout/pose", t, {"t": t, "pose": out.washout_pose.tolist()})
-        pose = out.platform_pose.tolist()
-        angles = out.angles.tolist()
+        log("/washout/pose", t, {"t": t, "pose": out.washout_pose})
+        pose = out.platform_pose
+        angles = out.angles
         if out.servo_deg is None:
             log(
                 "/platform/pose",
@@ -142,7 +133,7 @@ class PipelineLog:
             log(
                 "/planar/actuators",
                 t,
-                {"t": t, "angles": angles, "servo_deg": [int(d) for d in out.servo_deg]},
+                {"t": t, "angles": angles, "servo_deg": out.servo_deg},
             )
         if self._health is not None:
             if self._next_health_t is None:
