@@ -32,7 +32,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     except PermissionError:
         raise ConfigError(f"{p}: permission denied (check the file's permissions)") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+        raise ConfigError(f"{p}: not valid TOML: {exc} (fix the syntax there)") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{p}: not a text TOML file") from None
 
@@ -76,7 +76,8 @@ def check_keys(
     unknown = sorted(set(table) - allowed)
     if unknown:
         raise ConfigError(
-            f"{source}: unknown field {unknown[0]!r} (known fields: {', '.join(sorted(allowed))})"
+            f"{source}: unknown field {unknown[0]!r}: remove it or fix its spelling "
+            f"(known fields: {', '.join(sorted(allowed))})"
         )
     missing = [k for k in required if k not in table]
     if missing:

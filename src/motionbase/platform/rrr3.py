@@ -263,6 +263,16 @@ class Rrr3Geometry:
             raise ConfigError(f"{source}: 'servo' and 'safety' must be tables")
         check_keys(f"{source} [servo]", servo, _SERVO_KEYS, required=_SERVO_KEYS)
         check_keys(f"{source} [safety]", safety, _SAFETY_KEYS, required=_SAFETY_KEYS)
+        try:
+            return cls._from_tables(data, servo, safety)
+        except ConfigError as exc:  # name the file rather than the geometry's inner name
+            msg, prefix = str(exc), f"rrr3 geometry {data.get('name', 'custom')!r}"
+            if source != "rrr3 geometry" and msg.startswith(prefix):
+                raise ConfigError(source + msg[len(prefix) :]) from None
+            raise
+
+    @classmethod
+    def _from_tables(cls, data: dict, servo: dict, safety: dict) -> Rrr3Geometry:
         return cls(
             name=data.get("name", "custom"),
             base_side=data["base_side"],

@@ -146,7 +146,8 @@ class Rus6Geometry:
             for i, v in enumerate(getattr(self, f)):
                 if v <= 0:
                     raise ConfigError(
-                        f"{src}: field {f!r}: leg {i + 1} must be > 0 {unit}, got {v:g}"
+                        f"{src}: field {f!r}: leg {i + 1} must be > 0 {unit}, got {v:g} "
+                        "(fix the value)"
                     )
         lo, hi = np.array(self.angle_min), np.array(self.angle_max)
         for i in range(N_LEGS):
@@ -154,7 +155,7 @@ class Rus6Geometry:
                 raise ConfigError(
                     f"{src}: fields 'angle_min'/'angle_max': leg {i + 1} needs "
                     f"-180 < min < max < 180 deg, got {math.degrees(lo[i]):g} .. "
-                    f"{math.degrees(hi[i]):g} deg"
+                    f"{math.degrees(hi[i]):g} deg (fix the limits)"
                 )
         self._check_rods(src)
         neutral = self.neutral_angle

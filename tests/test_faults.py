@@ -1,0 +1,345 @@
+"""Fault injection end to end: a failing source, a vanishing serial port, a full disk, an
+unwritable output, SIGTERM and SIGKILL, and configuration mistakes through the CLI.
+
+In every case: no actuator command outside the limits (checked on the log), a clear one-line
+message (exit status 2 for what a user can fix), and a log that reads back up to the fault.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pty
+import re
+import resource
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from motionbase import app, cli
+from motionbase.errors import SinkError, SourceError
+from motionbase.io.mcap_source import McapSource, read_messages
+from motionbase.io.serial_link import ServoSerialSink
+from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.state import AircraftState
+
+G = 9.80665
+SPEED_TOL = 1e-9  # rad/s, rounding only
+ACCEL_TOL = 1e-6  # rad/s^2
+
+
+def check_logged_commands(path: Path) -> tuple[PipelineConfig, np.ndarray, dict]:
+    """Every logged actuator command is finite, in limits and in speed/acceleration limits."""
+    msgs = read_messages(path)
+    with McapSource(path) as src:
+        config = PipelineConfig.from_dict(src.metadata["pipeline_config"])
+    pipeline = Pipeline(config)  # the limits and park exactly as the run had them
+    lim = pipeline.robot.limits
+    topic = "/planar/actuators" if config.robot == "rrr3" else "/platform/actuators"
+    q = np.array([m["angles"] for m in msgs[topic]], dtype=float)
+    t = np.array([m["t"] for m in msgs[topic]], dtype=float)
+    assert len(q) > 0
+    assert np.isfinite(q).all()
+    assert (q >= lim.lower).all() and (q <= lim.upper).all()
+    park = pipeline.robot.park_angles
+    q0 = np.vstack([park, park, q])
+    assert np.allclose(np.diff(t), config.dt, rtol=1e-6)  # a gap-free, fixed-rate record
+    v = np.diff(q0, axis=0) / config.dt
+    assert (np.abs(v) - lim.max_speed).max() <= SPEED_TOL
+    a = np.diff(v, axis=0) / config.dt
+    assert (np.abs(a) - lim.max_accel).max() <= ACCEL_TOL
+    return config, q, msgs
+
+
+def park_angles(config: PipelineConfig) -> np.ndarray:
+    return Pipeline(config).robot.park_angles
+
+
+def cli_run(*args: str, cwd: Path, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "motionbase.cli", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        **kw,
+    )
+
+
+def assert_one_line_error(proc_or_text, *needles: str) -> str:
+    text = proc_or_text if isinstance(proc_or_text, str) else proc_or_text.stderr
+    assert "Traceback" not in text, text
+    lines = [ln for ln in text.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1, text
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
+
+
+# --------------------------------------------------------------------------- a failing source
+
+
+class FailingSource:
+    """A fake source: strong manoeuvring for ``n`` samples, then it raises ``error``."""
+
+    rate_hz = 120.0
+    duration_s = None
+
+    def __init__(self, n: int, error: Exception) -> None:
+        self.n = n
+        self.error = error
+        self.fresh = True
+
+    def describe(self) -> dict:
+        return {"kind": "failing test source", "n": self.n}
+
+    def __iter__(self):
+        dt = 1.0 / self.rate_hz
+        for i in range(self.n):
+            t = i * dt
+            s = math.sin(2 * math.pi * 0.7 * t)
+            yield AircraftState(t, [25 * s, 20 * s, -G + 10 * s], [3 * s, 3 * s, 3 * s])
+        raise self.error
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+def test_a_source_that_raises_mid_run_parks_and_reports_one_clear_error(tmp_path, planar):
+    out = tmp_path / "fail.mcap"
+    config = app.load_config(planar=planar)
+    n = 600  # 5 s: in full motion when it fails
+    source = FailingSource(n, SourceError("MAVLink link lost: no heartbeat for 3 s"))
+    with pytest.raises(SourceError) as info:
+        app._drive("test", config, source, out, paced=False, progress=False)
+    message = str(info.value)
+    assert "\n" not in message
+    assert "MAVLink link lost" in message and "parked" in message
+    config, q, msgs = check_logged_commands(out)
+    with McapSource(out) as src:
+        assert not src.truncated  # the log was finished properly
+    assert len(msgs["/aircraft/state"]) == n  # every sample before the fault is logged
+    assert len(q) > n  # and the park ramp after it
+    assert np.array_equal(q[-1], park_angles(config))
+    assert msgs["/health"][-1]["samples"] == len(q)
+
+
+def test_a_source_bug_parks_then_propagates_unchanged(tmp_path):
+    out = tmp_path / "bug.mcap"
+    source = FailingSource(300, ZeroDivisionError("a bug in a source"))
+    with pytest.raises(ZeroDivisionError):
+        app._drive("test", app.load_config(), source, out, paced=False, progress=False)
+    config, q, _ = check_logged_commands(out)
+    assert np.array_equal(q[-1], park_angles(config))
+
+
+# --------------------------------------------------------------------------- serial port
+
+
+class Board:
+    """The far end of a pty pair: sends the ready line, records what it receives."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = pty.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self.data = bytearray()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            if not self.data:
+                os.write(self.master, b"Rolling\r\n")
+            r, _, _ = select.select([self.master], [], [], 0.02)
+            if r:
+                try:
+                    chunk = os.read(self.master, 1024)
+                except OSError:
+                    return
+                self.data += chunk
+
+    def vanish(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class PacedSource(FailingSource):
+    """Samples about every 2 ms of wall time, so serial frames (50 Hz) go out."""
+
+    def __iter__(self):
+        dt = 1.0 / self.rate_hz
+        for i in range(self.n):
+            time.sleep(0.002)
+            t = i * dt
+            s = math.sin(2 * math.pi * 0.7 * t)
+            yield AircraftState(t, [25 * s, 20 * s, -G], [3 * s, 3 * s, 3 * s])
+
+
+def test_a_vanishing_serial_port_parks_the_logged_platform_and_says_so(tmp_path):
+    board = Board()
+    out = tmp_path / "serial.mcap"
+    config = app.load_config(planar=True)
+    vanish_at = 400
+    count = 0
+
+    def on_output(_o) -> None:
+        nonlocal count
+        count += 1
+        if count == vanish_at:
+            board.vanish()
+
+    sink = ServoSerialSink(board.path, ready_timeout_s=2.0)
+    try:
+        with pytest.raises(SinkError) as info:
+            app._drive(
+                "test",
+                config,
+                PacedSource(1200, RuntimeError("unused")),
+                out,
+                paced=False,
+                progress=False,
+                extra_sinks=[sink],
+                on_output=on_output,
+            )
+    finally:
+        board.vanish()
+    message = str(info.value)
+    assert "vanished" in message and "parked" in message and "\n" not in message
+    assert sink.frames_sent > 0
+    config, q, msgs = check_logged_commands(out)
+    assert np.array_equal(q[-1], park_angles(config))
+    # it stopped soon after the port went (not at the end of the source)
+    assert len(msgs["/aircraft/state"]) < 1200
+    with McapSource(out) as src:
+        assert not src.truncated
+
+
+# --------------------------------------------------------------------------- disk and output
+
+
+def test_a_full_disk_ends_with_one_line_and_a_log_readable_up_to_the_fault(tmp_path):
+    out = tmp_path / "full.mcap"
+    limit = 600_000  # bytes: a few seconds of flight, then the "disk" is full
+
+    def small_disk() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    proc = cli_run("fly", "c1723", "--out", str(out), cwd=tmp_path, preexec_fn=small_disk)
+    assert proc.returncode == 2, proc.stderr
+    line = assert_one_line_error(proc, str(out), "cannot write the MCAP log")
+    assert "disk full" in line or "too large" in line.lower()
+    assert out.stat().st_size <= limit
+    with McapSource(out) as src:
+        states = list(src)
+        assert src.truncated
+    assert len(states) > 120  # more than a second survived
+    check_logged_commands(out)
+
+
+def test_dev_full_and_an_uncreatable_folder_are_one_line_errors(tmp_path):
+    proc = cli_run("fly", "--duration", "1", "--out", "/dev/full", cwd=tmp_path)
+    assert proc.returncode == 2
+    assert_one_line_error(proc, "/dev/full", "No space left")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    bad = blocker / "sub" / "x.mcap"
+    proc = cli_run("fly", "--duration", "1", "--out", str(bad), cwd=tmp_path)
+    assert proc.returncode == 2
+    assert_one_line_error(proc, str(bad), "--out")
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+PRESETS = Path(app.__file__).parent / "presets"
+
+
+def _edited(tmp_path: Path, preset: str, name: str, pattern: str, repl: str) -> Path:
+    text = (PRESETS / preset).read_text()
+    new, n = re.subn(pattern, repl, text, count=1, flags=re.M)
+    assert n == 1, pattern
+    path = tmp_path / name
+    path.write_text(new)
+    return path
+
+
+FIX_WORDS = ("fix", "choose", "check", "remove", "add", "use", "give", "see --help")
+
+
+def _case_files(tmp_path: Path) -> list[tuple[list[str], tuple[str, ...]]]:
+    """(CLI arguments, words the one-line message must contain)."""
+    neg = _edited(tmp_path, "rus6_ceart.toml", "neg.toml", r"^crank = 0\.184", "crank = -0.184")
+    unk = _edited(
+        tmp_path, "rus6_ceart.toml", "unk.toml", r"^rod = 0\.724", "rod = 0.724\nrods = 1"
+    )
+    spd = _edited(
+        tmp_path, "rus6_ceart.toml", "speed.toml", r"^max_speed = 3\.0", "max_speed = -3.0"
+    )
+    rng = _edited(
+        tmp_path, "rus6_ceart.toml", "range.toml", r"^angle_max_deg = 60\.0", "angle_max_deg = -70"
+    )
+    wneg = _edited(
+        tmp_path,
+        "washout_default.toml",
+        "wneg.toml",
+        r"^specific_force_gain = .*$",
+        "specific_force_gain = [0.5, -0.5, 0.3]",
+    )
+    wunk = _edited(tmp_path, "washout_default.toml", "wunk.toml", r"^g = ", "gg = 1\ng = ")
+    pneg = _edited(tmp_path, "rrr3_udesc.toml", "pneg.toml", r"^crank = 0\.04445", "crank = -0.04")
+    syntax = tmp_path / "syntax.toml"
+    syntax.write_text("crank = = 1\n")
+    return [
+        (["--platform", str(neg)], ("neg.toml", "crank")),
+        (["--platform", str(unk)], ("unk.toml", "rods")),
+        (["--platform", str(spd)], ("speed.toml", "max_speed")),
+        (["--platform", str(rng)], ("range.toml", "angle_m")),
+        (["--platform", str(syntax)], ("syntax.toml",)),
+        (["--washout", str(wneg)], ("wneg.toml", "specific_force_gain")),
+        (["--washout", str(wunk)], ("wunk.toml", "gg")),
+        (["--washout", str(tmp_path / "missing.toml")], ("missing.toml", "not found")),
+        (["--planar", "--platform", str(pneg)], ("pneg.toml", "crank")),
+        (["--platform", "no_such_preset"], ("no_such_preset", "ceart")),
+        (["--washout", "no_such_preset"], ("no_such_preset", "default")),
+        (["--duration", "abc"], ("--duration", "abc")),
+        (["--duration", "-3"], ("--duration",)),
+        (["--duration", "nan"], ("--duration",)),
+        (["--duration", "inf"], ("--duration",)),
+    ]
+
+
+def test_configuration_mistakes_give_one_line_naming_file_field_and_fix(tmp_path, capsys):
+    """In-process ``cli.main`` (same code path as the console script, much faster)."""
+    for args, needles in _case_files(tmp_path):
+        try:
+            code = cli.main(["fly", *args, "--out", str(tmp_path / "x.mcap")])
+        except SystemExit as exc:  # argparse errors exit through SystemExit
+            code = exc.code
+        err = capsys.readouterr().err
+        assert code == 2, (args, err)
+        line = assert_one_line_error(err, *needles)
+        assert any(w in line.lower() for w in FIX_WORDS), (args, line)
+        assert not (tmp_path / "x.mcap").exists(), args  # nothing was flown
+
+
+def test_configuration_mistake_through_the_console_script(tmp_path):
+    bad = _edited(tmp_path, "rus6_ceart.toml", "bad.toml", r"^rod = 0\.724", "rod = -1.0")
+    proc = cli_run("fly", "--platform", str(bad), cwd=tmp_path)
+    assert proc.returncode == 2
+    line = assert_one_line_error(proc, "bad.toml", "'rod'")
+    assert "fix" in line
+    assert proc.stdout == ""
