@@ -98,43 +98,22 @@ class PipelineLog:
         if out.state is not None:
             log("/aircraft/state", t, state_message(t, out.state, out.fresh, out.accepted))
         log("/washout/pose", t, {"t": t, "pose": out.washout_pose})
-        pose = out.platform_pose
-        angles = out.angles
+        pose_msg = {
+            "t": t,
+            "pose": out.platform_pose,
+            "clamped": out.clamped,
+            "rate_limited": out.rate_limited,
+            "held": out.held,
+            "phase": out.phase,
+            "fade": out.fade,
+        }
         if out.servo_deg is None:
-            log(
-                "/platform/pose",
-                t,
-                {
-                    "t": t,
-                    "pose": pose,
-                    "clamped": out.clamped,
-                    "rate_limited": out.rate_limited,
-                    "held": out.held,
-                    "phase": out.phase,
-                    "fade": out.fade,
-                },
-            )
-            log("/platform/actuators", t, {"t": t, "angles": angles})
-            self._logger.add_transform(t, pose)
+            log("/platform/pose", t, pose_msg)
+            log("/platform/actuators", t, {"t": t, "angles": out.angles})
+            self._logger.add_transform(t, out.platform_pose)
         else:
-            log(
-                "/planar/pose",
-                t,
-                {
-                    "t": t,
-                    "pose": pose,
-                    "clamped": out.clamped,
-                    "rate_limited": out.rate_limited,
-                    "held": out.held,
-                    "phase": out.phase,
-                    "fade": out.fade,
-                },
-            )
-            log(
-                "/planar/actuators",
-                t,
-                {"t": t, "angles": angles, "servo_deg": out.servo_deg},
-            )
+            log("/planar/pose", t, pose_msg)
+            log("/planar/actuators", t, {"t": t, "angles": out.angles, "servo_deg": out.servo_deg})
         if self._health is not None:
             if self._next_health_t is None:
                 self._next_health_t = t
