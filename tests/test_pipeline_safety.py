@@ -411,3 +411,88 @@ def test_a_long_stall_resets_the_washout_and_fades_motion_back_in():
     assert pipeline.health.time_jumps == 1
     assert jumped[0].fade == pytest.approx(config.dt / config.fade_s)
     check_commands(pipeline, [o.angles for o in out + jumped])
+
+
+class PacedListSource(ListSource):
+    """Delivers each sample at its own time on the wall clock (like a --realtime source)."""
+
+    rate_hz = 120.0
+    duration_s = None
+
+    def describe(self) -> dict:
+        return {"kind": "paced test source"}
+
+    def __iter__(self):
+        import time
+
+        start = time.perf_counter()
+        t0 = self.states[0].t
+        for s, f in zip(self.states, self.flags, strict=True):
+            wait = start + (s.t - t0) - time.perf_counter() if math.isfinite(s.t) else 0.0
+            if wait > 0:
+                time.sleep(wait)
+            self.fresh = f
+            yield s
+
+
+def test_health_record_in_the_log_counts_every_event_and_the_worst_overrun(tmp_path):
+    """The last ``/health`` record agrees with the per-tick flags of the same log, counts the
+    SIGTERM E-stop (delivered to this very process), and measures a forced loop overrun."""
+    import os
+    import signal
+    import time
+
+    from motionbase import app
+    from motionbase.io.mcap_source import read_messages
+
+    config = CONFIGS[(False, 120.0)]
+    dt = config.dt
+    states, fresh = [], []
+    for i in range(int(2.5 / dt)):
+        t = i * dt
+        s = math.sin(2 * math.pi * 0.5 * t)
+        f = [60 * s, 60 * s, -G]
+        if i in (40, 41):
+            f = [math.inf, 0.0, -G]
+        w = [1e3, 0.0, 0.0] if i == 50 else [4 * s, 4 * s, 8 * s]
+        t_i = t - 5 * dt if i == 60 else t  # one sample back in time
+        states.append(AircraftState(t_i, f, w))
+        fresh.append(not (100 <= i < 110 or 150 <= i < 160))
+    slow_tick = 120
+
+    def on_output(out) -> None:
+        on_output.n += 1
+        if on_output.n == slow_tick:
+            time.sleep(3 * dt)  # a loop overrun of at least 2 dt
+        if on_output.n == int(2.0 / dt):
+            os.kill(os.getpid(), signal.SIGTERM)  # app._drive turns it into an E-stop
+
+    on_output.n = 0
+    out = tmp_path / "health.mcap"
+    result = app._drive(
+        "test",
+        config,
+        PacedListSource(states, fresh),
+        out,
+        paced=True,
+        progress=False,
+        on_output=on_output,
+    )
+    assert result.summary.stopped_by == "SIGTERM"
+    msgs = read_messages(out)
+    health = msgs["/health"][-1]
+    logged_states = msgs["/aircraft/state"]
+    poses = msgs["/platform/pose"]
+    flags = [m["fresh"] for m in logged_states]
+    assert health["rejected_inputs"] == sum(not m["accepted"] for m in logged_states) == 4
+    assert health["clamps"] == sum(m["clamped"] for m in poses) > 0
+    assert health["rate_limited"] == sum(m["rate_limited"] for m in poses) > 0
+    fades = sum(a and not b for a, b in zip([True, *flags], flags, strict=False))
+    assert health["watchdog_fades"] == fades == 2
+    assert health["estops"] == 1
+    assert health["worst_overrun_s"] >= 2 * dt - 1e-4
+    assert health["samples"] == len(poses)
+    assert poses[-1]["phase"] == "parked"
+    # health records come at least once per second of source time
+    t_health = [m["t"] for m in msgs["/health"]]
+    assert np.diff(t_health).max() <= 1.0 + 1e-9 and t_health[-1] == poses[-1]["t"]
