@@ -234,7 +234,10 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="FILE.mcap", help="log to this MCAP file")
     p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
     p.add_argument(
-        "--rrr3", default="udesc", metavar="PRESET|FILE.toml", help="3-RRR geometry (default udesc)"
+        "--rrr3",
+        default="udesc_symmetric",
+        metavar="PRESET|FILE.toml",
+        help="3-RRR geometry (default udesc_symmetric; the thesis's robot as built: udesc)",
     )
     p.add_argument(
         "--no-clamp",
@@ -254,7 +257,8 @@ def run_teleop(args: argparse.Namespace) -> int:
     )  # fmt: skip
     print(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
-        f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input"
+        f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input, "
+        f"{stats.stale_ticks} stale, {stats.estops} E-stops (stopped by {stats.stopped_by})"
     )
     return 0
 

@@ -302,8 +302,8 @@ def run_teleop(
             if sink.write(servo, t=t):
                 stats.frames_sent += 1
         if logger is not None:
-            if pixel is not None:
-                logger.add("/cursor", t, {"pixel": list(pixel), "target": list(target_xy or ())})
+            if target_xy is not None:  # a cursor sample that was used (not while parking)
+                logger.add("/cursor", t, {"pixel": list(pixel), "target": list(target_xy)})
             logger.add("/planar/pose", t, {"pose": pose.tolist()})
             logger.add("/planar/actuators", t, {"angles": q.tolist(), "servo_deg": servo})
             if k % max(1, int(round(rate_hz))) == 0:

@@ -220,16 +220,21 @@ class TkCursor(_Base):
         self.size_px = (int(size_px[0]), int(size_px[1]))
         L = rrr3.geometry.base_side
         w, h = self.size_px
-        margin = 20
-        s = min((w - 2 * margin) / L, (h - 2 * margin) / (L * math.sqrt(3) / 2))
+        # the cranks reach a crank length beyond the base triangle: keep them and the motor
+        # labels inside the window
+        a = rrr3.geometry.crank
+        margin = 26
+        H = L * math.sqrt(3) / 2
+        s = min((w - 2 * margin) / (L + 2 * a), (h - 2 * margin) / (H + 2 * a))
         ox = (w - s * L) / 2
-        oy = h - (h - s * L * math.sqrt(3) / 2) / 2
+        oy = h - (h - s * H) / 2
         self.scale, self.origin = s, (ox, oy)
         self._root: Any = None
         self._canvas: Any = None
         self._latest: tuple[float, float] | None = None
         self._closed = False
         self._items: list[int] = []
+        self._status_item: Any = None
         self._stop: Any = None
         self.watchdog = True
         self.updated_t: float | None = None
@@ -277,16 +282,25 @@ class TkCursor(_Base):
         return self
 
     def _draw_workspace(self) -> None:
-        ws = self.rrr3.workspace(90, 90, 1, phi_range=(0.0, 0.0))
+        c = self._canvas
+        ws = self.rrr3.workspace(150, 150, 1, phi_range=(0.0, 0.0))
         dx = (ws.x[1] - ws.x[0]) * self.scale / 2 + 0.5
         dy = (ws.y[1] - ws.y[0]) * self.scale / 2 + 0.5
         for i, j in zip(*np.nonzero(ws.valid[:, :, 0]), strict=True):
             u, v = self.view([ws.x[i], ws.y[j]])
-            self._canvas.create_rectangle(
-                u - dx, v - dy, u + dx, v + dy, fill="#bcd3f0", outline=""
-            )
+            c.create_rectangle(u - dx, v - dy, u + dx, v + dy, fill="#bcd3f0", outline="")
         A = self.view(self.rrr3.geometry.base_points)
-        self._canvas.create_polygon(*A.ravel().tolist(), outline="#888888", fill="")
+        c.create_polygon(*A.ravel().tolist(), outline="#888888", fill="")
+        for i, (u, v) in enumerate(A):
+            c.create_oval(u - 6, v - 6, u + 6, v + 6, fill="#555555", outline="")
+            c.create_text(u, v + (16 if i < 2 else -16), text=f"motor {i + 1}", fill="#555555")
+        c.create_text(
+            8, 8, anchor="nw", fill="#333333",
+            text="blue: reachable centre (phi = 0)\n"
+            "ring: target (green ok, red held/stale)\n"
+            "Esc or space: E-stop",
+        )  # fmt: skip
+        self._status_item = c.create_text(8, 60, anchor="nw", fill="#c0392b", text="")
 
     def _on_motion(self, event: Any) -> None:
         self._latest = (float(event.x), float(event.y))
@@ -322,7 +336,17 @@ class TkCursor(_Base):
     def finished(self, t: float) -> bool:
         return self._closed
 
-    def show(self, *, points: Any = None, target: Any = None, held: bool = False, **_: Any):
+    def show(
+        self,
+        *,
+        points: Any = None,
+        target: Any = None,
+        held: bool = False,
+        parking: bool = False,
+        **_: Any,
+    ) -> None:
+        """Draw the links (A-B-C per chain), the platform (C1 C2 C3, see-through so the
+        workspace stays visible), its centre (the controlled point) and the cursor target."""
         if self._canvas is None or self._closed:
             return
         c = self._canvas
@@ -331,15 +355,28 @@ class TkCursor(_Base):
         self._items = []
         if points is not None:
             A, B, C = (self.view(p) for p in points)
-            for i in range(3):
-                self._items.append(c.create_line(*A[i], *B[i], *C[i], fill="#333333", width=3))
             self._items.append(
-                c.create_polygon(*C.ravel().tolist(), fill="#e07b39", outline="#8a4514")
-            )
+                c.create_polygon(
+                    *C.ravel().tolist(), fill="#e07b39", stipple="gray50", outline="#8a4514",
+                    width=2,
+                )
+            )  # fmt: skip
+            for i in range(3):
+                self._items.append(c.create_line(*A[i], *B[i], fill="#222222", width=4))
+                self._items.append(c.create_line(*B[i], *C[i], fill="#666666", width=2))
+                for p, r in ((B[i], 3), (C[i], 3)):
+                    self._items.append(
+                        c.create_oval(p[0] - r, p[1] - r, p[0] + r, p[1] + r, fill="#222222")
+                    )
+            u, v = C.mean(axis=0)
+            self._items.append(c.create_oval(u - 4, v - 4, u + 4, v + 4, fill="#8a4514"))
         if target is not None and np.all(np.isfinite(target)):
             u, v = self.view(target)
             color = "#c0392b" if held else "#27ae60"
-            self._items.append(c.create_oval(u - 5, v - 5, u + 5, v + 5, outline=color, width=2))
+            self._items.append(c.create_oval(u - 7, v - 7, u + 7, v + 7, outline=color, width=2))
+            self._items.append(c.create_line(u - 11, v, u + 11, v, fill=color))
+            self._items.append(c.create_line(u, v - 11, u, v + 11, fill=color))
+        c.itemconfigure(self._status_item, text="E-STOP: parking at home" if parking else "")
 
     def close(self) -> None:
         if self._root is not None:
