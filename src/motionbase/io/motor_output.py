@@ -544,6 +544,7 @@ class _SerialTransport:
         self.url, self.baud = url, baud
         self.port: Any = None
         self.label = f"serial:{url}"
+        self.reopen_on_error = True
 
     def open(self) -> None:
         self.port = open_serial_port(self.url, self.baud, timeout=0, write_timeout=0.2)
@@ -578,6 +579,7 @@ class _UdpTransport:
         self.host, self.port_no = host, port
         self.sock: socket.socket | None = None
         self.label = f"udp:{host}:{port}"
+        self.reopen_on_error = False  # the socket stays usable; errors are per datagram
 
     def open(self) -> None:
         try:
@@ -593,7 +595,7 @@ class _UdpTransport:
         self.sock = sock
 
     def reopen(self) -> bool:
-        return self.sock is not None  # a UDP socket stays usable; errors are per datagram
+        return self.sock is not None
 
     def send(self, frame: bytes) -> None:
         self.sock.send(frame)  # type: ignore[union-attr]
@@ -672,6 +674,8 @@ class MotorOutput:
         self._holding = False
         self._anchor: tuple[float, float] | None = None
         self._next_retry = 0.0
+        self._last_error = -math.inf
+        self._broken = False
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> MotorOutput:
@@ -769,20 +773,23 @@ class MotorOutput:
                 nxt = time.monotonic()  # overrun: skip, never burst
 
     def _send(self, frame: bytes, final: bool = False) -> None:
-        if not self.link_up:
-            now = time.monotonic()
+        now = time.monotonic()
+        if self._broken:  # a serial port that failed: reopen it once a second
             if now < self._next_retry and not final:
                 return
             self._next_retry = now + 1.0
             if not self.transport.reopen():
                 return
+            self._broken = False
         try:
             self.transport.send(frame)
         except OSError as exc:
             self.send_errors += 1
+            self._last_error = now
+            self._broken = self.transport.reopen_on_error
+            self._next_retry = now + 1.0
             if self.link_up:
                 self.link_up = False
-                self._next_retry = time.monotonic() + 1.0
                 reason = exc.strerror or str(exc) or type(exc).__name__
                 log.warning(
                     "output %s: the drive link is down (%s); the pipeline and its log go on, "
@@ -791,11 +798,13 @@ class MotorOutput:
                     reason,
                 )
             return
-        if not self.link_up:
-            self.link_up = True
-            log.warning("output %s: link back, sending again", self.label)
         self.frames_sent += 1
         self._last_sent = frame
+        # UDP reports a refused datagram on a later send: call the link back only after a
+        # second without errors.
+        if not self.link_up and now - self._last_error >= 1.0:
+            self.link_up = True
+            log.warning("output %s: link back, sending again", self.label)
 
     @property
     def last_frame(self) -> bytes | None:
@@ -864,8 +873,15 @@ def open_output(
         )
     base, ours, other = _split_query(rest)
     fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
-    rate = rate_hz or (float(ours["rate"]) if "rate" in ours else None)
-    rate = rate or float(extra.get("rate_hz", DEFAULT_RATE_HZ))
+    if rate_hz is not None:
+        rate = float(rate_hz)
+    else:
+        try:
+            rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"output {url!r}: rate must be a number of frames per second"
+            ) from None
     if scheme == "serial":
         try:
             baud = int(ours.get("baud", DEFAULT_BAUD))
@@ -975,7 +991,13 @@ def output_test(
         speed=speed,
         accel=0.5 * float(amax.min()),
         dt=dt,
+        dwell_s=0.2,
     )
+    hold = max(1, int(0.2 * rate_hz))  # rest at park before and after the sweep
+    angles = np.concatenate(
+        [np.repeat(angles[:1], hold, 0), angles, np.repeat(angles[-1:], hold, 0)]
+    )
+    motor = np.concatenate([np.zeros(hold, int), motor, np.zeros(hold, int)])
     limits = ActuatorLimits.broadcast(mapping.n, lower, upper, vmax, amax)
     lines: list[str] = []
 

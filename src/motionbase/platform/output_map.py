@@ -374,6 +374,7 @@ def sweep_profile(
     speed: float,
     accel: float,
     dt: float,
+    dwell_s: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Crank commands of the wiring check: park -> neutral, each motor in turn through
     ``+range, -range`` about neutral, neutral -> park.
@@ -393,6 +394,8 @@ def sweep_profile(
         Peak crank acceleration, rad/s^2 (> 0).
     dt : float
         Sample period, s.
+    dwell_s : float
+        Rest this long at each end of a sweep, s (so a slow sender or a watcher sees it).
 
     Returns
     -------
@@ -419,6 +422,8 @@ def sweep_profile(
             nxt = neutral.copy()
             nxt[i] += target
             seg.append(_move(cur, nxt, speed, accel, dt))
+            if target != 0.0 and dwell_s > 0:
+                seg.append(np.repeat(nxt[None, :], math.ceil(dwell_s / dt), axis=0))
             cur = nxt
         block = np.concatenate(seg)
         parts.append(block)

@@ -1,0 +1,544 @@
+"""Motor-drive output through real pseudo-terminals and real UDP sockets on loopback.
+
+The readers here decode frames with their own parsers (regex, struct, binascii), not the
+library's, and turn drive values back into crank angles with their own formulas.
+"""
+
+from __future__ import annotations
+
+import binascii
+import logging
+import math
+import os
+import pty
+import re
+import select
+import socket
+import struct
+import threading
+import time
+import tty
+from collections.abc import Callable
+from urllib.parse import quote
+
+import numpy as np
+import pytest
+
+from motionbase.app import fly, load_config
+from motionbase.cli import main
+from motionbase.config import preset_path
+from motionbase.errors import ConfigError, SinkError
+from motionbase.io.mcap_source import read_messages
+from motionbase.io.motor_output import (
+    BinaryFormat,
+    TextFormat,
+    crc16_ccitt,
+    crc16_modbus,
+    open_output,
+)
+from motionbase.pipeline import Pipeline, run
+from motionbase.platform import OutputMapping, Rus6Geometry
+from motionbase.state import AircraftState
+
+GEOMETRY = Rus6Geometry.preset("ceart")
+QMIN, QMAX = math.radians(-60.0), math.radians(60.0)
+LO, HI = np.full(6, QMIN), np.full(6, QMAX)
+MIRROR = [1, -1, 1, -1, 1, -1]
+
+
+# --------------------------------------------------------------------------- peers
+
+
+class PtyPeer:
+    """The drive's end of a pseudo-terminal: records every byte until closed."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = pty.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self.data = bytearray()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            r, _, _ = select.select([self.master], [], [], 0.02)
+            if r:
+                try:
+                    self.data += os.read(self.master, 65536)
+                except OSError:
+                    return
+
+    def frames(self, split: Callable[[bytes], list[bytes]]) -> list[bytes]:
+        return split(bytes(self.data))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class UdpPeer:
+    """A UDP listener on loopback: one datagram per frame."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.02)
+        self.port = self.sock.getsockname()[1]
+        self.datagrams: list[bytes] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.datagrams.append(self.sock.recv(65536))
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+
+    def frames(self, split) -> list[bytes]:
+        return list(self.datagrams)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.sock.close()
+
+
+def wait_until(pred: Callable[[], bool], timeout: float = 5.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.005)
+    return pred()
+
+
+# --------------------------------------------------------------------------- independent decoders
+
+
+def _text_split(pattern: bytes) -> Callable[[bytes], list[bytes]]:
+    rx = re.compile(pattern)
+    return lambda data: [m.group(0) for m in rx.finditer(data)]
+
+
+def _fixed_split(header: bytes, size: int, valid) -> Callable[[bytes], list[bytes]]:
+    def split(data: bytes) -> list[bytes]:
+        out, pos = [], 0
+        while True:
+            k = data.find(header, pos)
+            if k < 0 or k + size > len(data):
+                return out
+            frame = data[k : k + size]
+            if valid(frame):
+                out.append(frame)
+                pos = k + size
+            else:
+                pos = k + 1
+
+    return split
+
+
+def _crc_modbus_bitwise(data: bytes) -> int:
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def _range_to_angle(v, sign, lo=0, hi=4095):
+    frac = (np.asarray(v, float) - lo) / (hi - lo)
+    span = QMAX - QMIN
+    return np.where(np.asarray(sign) > 0, QMIN + frac * span, QMAX - frac * span)
+
+
+FLYPT = rb"A(\d+)B(\d+)C(\d+)D(\d+)E(\d+)F(\d+)\n"
+HEX16 = rb"([0-9A-F]{4}) ([0-9A-F]{4}) ([0-9A-F]{4}) ([0-9A-F]{4}) ([0-9A-F]{4}) ([0-9A-F]{4})\r\n"
+DEG2 = rb"M" + rb";".join([rb"(-?\d+\.\d\d)"] * 6) + rb"\n"
+
+# name: (format, mapping table, split, decode -> drive values, drive -> crank angle, tolerance)
+CASES = {
+    "text-flypt-range12": (
+        r"text:A{1}B{2}C{3}D{4}E{5}F{6}\n",
+        {"unit": "range", "sign": MIRROR, "range_lo": 0, "range_hi": 4095},
+        _text_split(FLYPT),
+        lambda f: [int(x) for x in re.fullmatch(FLYPT, f).groups()],
+        lambda v: _range_to_angle(v, MIRROR),
+        math.radians(120.0) / 4095,
+    ),
+    "text-hex-range16": (
+        r"text:{1:04X} {2:04X} {3:04X} {4:04X} {5:04X} {6:04X}\r\n",
+        {"unit": "range", "range_lo": 0, "range_hi": 65535},
+        _text_split(HEX16),
+        lambda f: [int(x, 16) for x in re.fullmatch(HEX16, f).groups()],
+        lambda v: _range_to_angle(v, [1] * 6, 0, 65535),
+        math.radians(120.0) / 65535,
+    ),
+    "text-simtools-deg": (
+        r"text:M<Axis1a>;<Axis2a>;<Axis3a>;<Axis4a>;<Axis5a>;<Axis6a>\n",
+        {"unit": "deg", "sign": MIRROR},
+        _text_split(rb"M(?:-?\d+;){5}-?\d+\n"),
+        lambda f: [int(x) for x in f[1:-1].split(b";")],
+        lambda v: np.radians(v) * np.array(MIRROR),
+        math.radians(1.0),
+    ),
+    "text-float-deg": (
+        r"text:M{1:.2f};{2:.2f};{3:.2f};{4:.2f};{5:.2f};{6:.2f}\n",
+        {"unit": "deg", "zero_offset_deg": 90.0},
+        _text_split(DEG2),
+        lambda f: [float(x) for x in re.fullmatch(DEG2, f).groups()],
+        lambda v: np.radians(np.asarray(v) - 90.0),
+        math.radians(0.01),
+    ),
+    "bin-u16be-sum8": (
+        "bin:0xFFFE,6xu16be,sum8@2",
+        {"unit": "range", "sign": MIRROR, "range_lo": 0, "range_hi": 4095},
+        _fixed_split(b"\xff\xfe", 15, lambda f: sum(f[2:14]) & 0xFF == f[14]),
+        lambda f: list(struct.unpack(">6H", f[2:14])),
+        lambda v: _range_to_angle(v, MIRROR),
+        math.radians(120.0) / 4095,
+    ),
+    "bin-i32le-crc16-counts-geared": (
+        "bin:0xAA55 6xi32le crc16",
+        {"unit": "counts", "counts_per_rev": 131072, "gear_ratio": 10.0, "sign": MIRROR},
+        _fixed_split(
+            b"\xaa\x55",
+            28,
+            lambda f: _crc_modbus_bitwise(f[:26]) == int.from_bytes(f[26:], "little"),
+        ),
+        lambda f: list(struct.unpack("<6i", f[2:26])),
+        lambda v: np.asarray(v) * 2 * math.pi / 131072 / 10.0 * np.array(MIRROR),
+        2 * math.pi / 131072 / 10.0,
+    ),
+    "bin-i16le-centideg-ccitt": (
+        "bin:0x02,6xi16le*100,crc16ccitt",
+        {"unit": "deg"},
+        _fixed_split(
+            b"\x02", 15, lambda f: binascii.crc_hqx(f[:13], 0xFFFF) == int.from_bytes(f[13:], "big")
+        ),
+        lambda f: [x / 100 for x in struct.unpack("<6h", f[1:13])],
+        lambda v: np.radians(v),
+        math.radians(0.01),
+    ),
+    "bin-u24be-xor8": (
+        "bin:0x7E,1:u24be,2:u24be,3:u24be,4:u24be,5:u24be,6:u24be,xor8@1",
+        {"unit": "range", "range_lo": 0, "range_hi": 16777215},
+        _fixed_split(
+            b"\x7e", 20, lambda f: np.bitwise_xor.reduce(np.frombuffer(f[1:19], np.uint8)) == f[19]
+        ),
+        lambda f: [int.from_bytes(f[1 + 3 * i : 4 + 3 * i], "big") for i in range(6)],
+        lambda v: _range_to_angle(v, [1] * 6, 0, 16777215),
+        math.radians(120.0) / 16777215,
+    ),
+}
+
+
+def mapping(table) -> OutputMapping:
+    return OutputMapping.from_dict(table, angle_min=LO, angle_max=HI)
+
+
+def commands() -> list[np.ndarray]:
+    rng = np.random.default_rng(8)
+    cmds = [np.zeros(6), LO.copy(), HI.copy(), np.radians([10, -20, 30, -40, 50, -55.5])]
+    cmds += list(rng.uniform(QMIN, QMAX, size=(3, 6)))
+    return cmds
+
+
+def url_for(transport: str, peer, fmt: str, rate: float = 200.0) -> str:
+    where = f"serial:{peer.path}" if transport == "pty" else f"udp:127.0.0.1:{peer.port}"
+    return f"{where}?rate={rate:g}&format={quote(fmt, safe='')}"
+
+
+@pytest.fixture(params=["pty", "udp"])
+def peer(request):
+    p = PtyPeer() if request.param == "pty" else UdpPeer()
+    p.kind = request.param
+    yield p
+    p.close()
+
+
+# --------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_each_format_round_trips_within_one_unit(peer, case):
+    fmt, table, split, decode, to_angle, tol = CASES[case]
+    m = mapping(table)
+    with open_output(url_for(peer.kind, peer, fmt), m, realtime=False) as sink:
+        for q in commands():
+            assert sink.write(q)
+
+            def got(q=q) -> bool:
+                frames = peer.frames(split)
+                if not frames:
+                    return False
+                back = to_angle(decode(frames[-1]))
+                return bool(np.all(np.abs(back - q) <= tol * (1 + 1e-9)))
+
+            assert wait_until(got), f"{case}: never saw {np.degrees(q)} deg on the wire"
+    frames = peer.frames(split)
+    assert len(frames) >= len(commands())
+    # every frame on the wire decodes to one of the commands (no torn or stray frames)
+    cmds = commands()
+    for f in frames:
+        back = to_angle(decode(f))
+        assert any(np.all(np.abs(back - q) <= tol * (1 + 1e-9)) for q in cmds)
+    # the library's own decoder agrees with the independent one
+    lib = BinaryFormat(fmt[4:]) if fmt.startswith("bin:") else TextFormat(fmt[5:])
+    np.testing.assert_allclose(lib.decode(frames[-1]), decode(frames[-1]))
+
+
+def test_mirrored_motor_goes_the_other_way_on_the_wire():
+    fmt, table, split, decode, _, _ = CASES["bin-u16be-sum8"]
+    peer = UdpPeer()
+    try:
+        with open_output(url_for("udp", peer, fmt), mapping(table), realtime=False) as sink:
+            seen = []
+            for deg in (0.0, 10.0):
+                sink.write(np.full(6, math.radians(deg)))
+                n = len(peer.datagrams)
+                assert wait_until(lambda n=n: len(peer.datagrams) > n + 2)
+                seen.append(np.array(decode(peer.datagrams[-1])))
+        up = seen[1] - seen[0]
+        assert np.all(up[0::2] > 0) and np.all(up[1::2] < 0)  # motors 2, 4, 6 are mirrored
+        assert np.all(np.abs(up[0::2] + up[1::2]) <= 1)  # equal and opposite, up to rounding
+        # 10 deg of a 120 deg crank range over 4095 steps
+        assert abs(up[0] - 4095 * 10 / 120) <= 1
+    finally:
+        peer.close()
+
+
+def test_checksum_reference_values():
+    assert crc16_modbus(b"123456789") == 0x4B37 == _crc_modbus_bitwise(b"123456789")
+    assert crc16_ccitt(b"123456789") == 0x29B1 == binascii.crc_hqx(b"123456789", 0xFFFF)
+
+
+# --------------------------------------------------------------------------- never send bad values
+
+
+def test_out_of_range_commands_are_never_sent(caplog):
+    fmt, table, split, decode, to_angle, tol = CASES["text-flypt-range12"]
+    peer = PtyPeer()
+    good = np.radians([5.0, -5.0, 10.0, 0.0, 0.0, 0.0])
+    try:
+        with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
+            with open_output(url_for("pty", peer, fmt), mapping(table), realtime=False) as sink:
+                assert sink.write(good)
+                assert wait_until(lambda: len(peer.frames(split)) >= 2)
+                beyond = good.copy()
+                beyond[2] = math.radians(61.0)  # past the crank limit
+                nan = good.copy()
+                nan[4] = np.nan
+                assert not sink.write(beyond)
+                assert not sink.write(nan)
+                assert not sink.write(beyond)
+                n = len(peer.frames(split))
+                assert wait_until(lambda: len(peer.frames(split)) >= n + 5)  # still sending
+                assert sink.held == 3 and sink.commands == 1
+        for f in peer.frames(split):
+            values = decode(f)
+            assert all(0 <= v <= 4095 for v in values)
+            np.testing.assert_allclose(to_angle(values), good, atol=tol)
+        held = [r for r in caplog.records if "holding the last frame" in r.getMessage()]
+        assert len(held) == 1 and "motor 3" in held[0].getMessage()  # one line per episode
+    finally:
+        peer.close()
+
+
+def test_a_value_too_wide_for_the_field_is_never_sent():
+    # counts up to +-2000 do not fit a u8 field
+    m = mapping({"unit": "counts", "counts_per_rev": 12000})
+    peer = UdpPeer()
+    try:
+        with open_output(
+            f"udp:127.0.0.1:{peer.port}?format=bin:0x55,6xu8", m, realtime=False
+        ) as sink:
+            assert sink.write(np.radians([1.0, 2, 3, 4, 5, 6]))  # 33..200 counts: fits
+            assert not sink.write(np.radians([1.0, 2, 3, 4, 5, 10]))  # 333 counts: does not
+            assert not sink.write(np.radians([-1.0, 2, 3, 4, 5, 6]))  # negative: does not
+            assert wait_until(lambda: len(peer.datagrams) >= 3)
+        assert {d for d in peer.datagrams} == {bytes([0x55, 33, 67, 100, 133, 167, 200])}
+    finally:
+        peer.close()
+
+
+# --------------------------------------------------------------------------- rate and park
+
+
+def test_fixed_rate_sends_only_the_latest_command():
+    fmt, table, split, decode, to_angle, tol = CASES["bin-i16le-centideg-ccitt"]
+    peer = UdpPeer()
+    try:
+        sink = open_output(url_for("udp", peer, fmt, rate=20), mapping(table), realtime=False)
+        with sink:
+            sink.write(np.zeros(6))
+            assert wait_until(lambda: len(peer.datagrams) >= 3)  # repeated without new writes
+            first = set(peer.datagrams)
+            qs = np.linspace(0, math.radians(50), 2000)
+            for a in qs:
+                sink.write(np.full(6, a))
+        # 2000 commands in a burst: far fewer frames (no queue), the last one the last command
+        assert sink.commands == 2001
+        assert sink.frames_sent < 1000 and len(peer.datagrams) < 1000
+        assert wait_until(lambda: len(peer.datagrams) == sink.frames_sent)
+        assert len(first) == 1
+        np.testing.assert_allclose(to_angle(decode(peer.datagrams[-1])), qs[-1], atol=tol)
+    finally:
+        peer.close()
+
+
+def test_the_last_frame_is_the_park_command_after_a_pipeline_run(peer):
+    fmt, table, split, decode, to_angle, tol = CASES["bin-u16be-sum8"]
+    config = load_config(rate_hz=120.0)
+    states = [
+        AircraftState(k / 120, np.array([2.0, 1.0, -9.80665]), np.array([0.1, 0.2, 0.0]))
+        for k in range(120)
+    ]
+    sink = open_output(url_for(peer.kind, peer, fmt), mapping(table), realtime=False)
+    with sink:
+        summary = run(Pipeline(config), states, [sink])
+    assert summary.samples > 120
+    park = np.full(6, GEOMETRY.park_angle)
+    assert wait_until(lambda: len(peer.frames(split)) == sink.frames_sent)
+    frames = peer.frames(split)
+    np.testing.assert_allclose(to_angle(decode(frames[-1])), park, atol=tol)
+    # and the platform did move away from park on the way
+    assert max(np.abs(to_angle(decode(f)) - park).max() for f in frames) > math.radians(10)
+
+
+# --------------------------------------------------------------------------- the peer goes away
+
+
+def test_killing_the_peers_warns_once_and_the_flight_and_log_go_on(tmp_path, caplog):
+    fmt = CASES["text-flypt-range12"][0]
+    pty_peer = PtyPeer()
+    dead = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    dead.bind(("127.0.0.1", 0))
+    dead_port = dead.getsockname()[1]
+    dead.close()  # nobody listens there: ECONNREFUSED
+
+    def kill_when_running():
+        wait_until(lambda: len(pty_peer.data) >= 500, timeout=20)
+        pty_peer.close()
+
+    killer = threading.Thread(target=kill_when_running, daemon=True)
+    killer.start()
+    out = tmp_path / "fly.mcap"
+    with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
+        result = fly(
+            "c1723",
+            duration_s=1.0,
+            out=out,
+            progress=False,
+            outputs=[
+                f"serial:{pty_peer.path}?rate=200&format={quote(fmt, safe='')}",
+                f"udp:127.0.0.1:{dead_port}?rate=200&format={quote(fmt, safe='')}",
+            ],
+        )
+    killer.join(5)
+    assert not result.failed
+    assert result.summary.stopped_by == "end of source"
+    msgs = read_messages(out)
+    assert len(msgs["/platform/actuators"]) == result.summary.samples > 120
+    down = [r.getMessage() for r in caplog.records if "link is down" in r.getMessage()]
+    assert len(down) == 2, down  # one line per output
+    assert any("serial:" + pty_peer.path in m for m in down)
+    assert any("udp:" in m and "refused" in m.lower() for m in down)
+    assert all("\n" not in m for m in down)
+    notes = "\n".join(result.notes)
+    assert re.search(r"serial:\S+: \d+ frames sent .* [1-9]\d* send errors", notes)
+    assert re.search(r"udp:\S+: \d+ frames sent .* [1-9]\d* send errors", notes)
+
+
+# --------------------------------------------------------------------------- URLs and CLI
+
+
+@pytest.mark.parametrize(
+    ("url", "err", "match"),
+    [
+        ("tcp:1.2.3.4:5", ConfigError, "expected serial:"),
+        ("udp:127.0.0.1", ConfigError, "udp:HOST:PORT"),
+        ("udp:127.0.0.1:9?format=bin:0xFFF,6xu16be", ConfigError, "pairs of hex"),
+        ("udp:127.0.0.1:9?format=bin:6xu16", ConfigError, "byte order"),
+        ("udp:127.0.0.1:9?format=bin:0xFF,7:u8", ConfigError, "motor 7"),
+        ("udp:127.0.0.1:9?format=bin:6xu16be,sum8@99", ConfigError, "start offset"),
+        ("udp:127.0.0.1:9?format=bin:6xf32be", ConfigError, "unknown token"),
+        ("udp:127.0.0.1:9?format=text:A%7B7%7D", ConfigError, "1..6"),
+        ("udp:127.0.0.1:9?format=text:A%7B1:q%7D", ConfigError, "format spec|unsupported"),
+        ("udp:127.0.0.1:9?format=text:nothing", ConfigError, "no placeholder"),
+        ("udp:127.0.0.1:9?speed=3", ConfigError, "unknown key 'speed'"),
+        ("udp:127.0.0.1:9?rate=0", ConfigError, "rate"),
+        ("serial:/dev/ttyDOES_NOT_EXIST?format=text:%7B1%7D", SinkError, "cannot open serial"),
+    ],
+)
+def test_bad_urls_say_what_is_wrong(url, err, match):
+    m = mapping({"unit": "deg"})
+    with pytest.raises(err, match=match):
+        open_output(url, m, realtime=False).open()
+
+
+def test_format_from_a_toml_file_and_loop_url(tmp_path):
+    path = tmp_path / "drive.toml"
+    path.write_text('binary = "0xFFFE,6xu16be,sum8@2"\nrate_hz = 250\n')
+    sink = open_output(f"serial:loop://?format={path}", mapping({"unit": "deg"}), realtime=False)
+    assert sink.rate_hz == 250 and sink.format.describe() == "bin:0xFFFE,6xu16be,sum8@2"
+    with sink:
+        sink.write(np.radians([1.0, 2, 3, 4, 5, 6]))
+        assert wait_until(lambda: sink.frames_sent > 2)
+    values = struct.unpack(">6H", sink.last_frame[2:14])
+    assert sink.last_frame[:2] == b"\xff\xfe" and values == (1, 2, 3, 4, 5, 6)
+
+
+def test_output_test_sweeps_each_motor_in_turn_through_a_pty(tmp_path, capsys):
+    geo = tmp_path / "mirrored.toml"
+    geo.write_text(
+        preset_path("rus6", "ceart").read_text()
+        + '\n[output]\nunit = "range"\nsign = [1, -1, 1, -1, 1, -1]\nrange_lo = 0\n'
+        "range_hi = 4095\n"
+    )
+    fmt, _, split, decode, to_angle, tol = CASES["text-flypt-range12"]
+    peer = PtyPeer()
+    try:
+        rc = main(
+            ["output", "--test", url_for("pty", peer, fmt, rate=100), "--platform", str(geo)]
+            + ["--speed-deg-s", "150", "--range-deg", "5"]
+        )
+        assert rc == 0
+        assert wait_until(lambda: len(peer.frames(split)) > 300)
+        time.sleep(0.05)
+        frames = peer.frames(split)
+    finally:
+        peer.close()
+    printed = capsys.readouterr().out
+    for i in range(1, 7):
+        assert f"motor {i}:" in printed
+    values = np.array([decode(f) for f in frames], dtype=float)
+    angles = to_angle(values)
+    park = GEOMETRY.park_angle
+    np.testing.assert_allclose(angles[0], park, atol=tol)
+    np.testing.assert_allclose(angles[-1], park, atol=tol)
+    # at neutral (0 deg) every motor sits mid-range; then one motor at a time leaves it
+    dev = np.abs(angles) > 2 * tol
+    moving = [int(np.flatnonzero(d)[0]) + 1 for d in dev if d.sum() == 1]
+    order = list(dict.fromkeys(moving))
+    assert order == [1, 2, 3, 4, 5, 6]
+    for i in range(6):
+        only_i = angles[dev.sum(axis=1) == 1][:, i]
+        assert only_i.max() == pytest.approx(math.radians(5), abs=tol)
+        assert only_i.min() == pytest.approx(math.radians(-5), abs=tol)
+    # a mirrored motor's drive value falls as its crank rises
+    seg2 = values[(dev.sum(axis=1) == 1) & dev[:, 1]]
+    assert seg2[:, 1].min() < 2047 < seg2[:, 0].max() + 1
+    # within the speed asked for (150 deg/s at 100 Hz)
+    assert np.abs(np.diff(angles, axis=0)).max() <= math.radians(150) / 100 + 2 * tol
