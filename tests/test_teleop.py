@@ -228,3 +228,120 @@ def test_file_cursor_errors(tmp_path):
     with pytest.raises(SourceError, match="cannot read"):
         FileCursor(tmp_path / "missing.csv")
     assert main(["teleop", "--input", "joystick", "--duration", "0.1"]) == 2
+
+
+def _sender(port, points, period_s, stop):
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for p in points:
+            if stop.is_set():
+                return
+            tx.sendto(f"{p[0]} {p[1]}\n".encode(), ("127.0.0.1", port))
+            stop.wait(period_s)
+    finally:
+        tx.close()
+
+
+def test_stale_udp_input_holds_position_then_resumes():
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    goal = (U0 + 1200, V0 - 400)  # 2.4 cm right, 0.8 cm up: reachable, about 0.4 s away
+    assert rrr3.reachable(np.array([*cal_xy(*goal), 0.0]))
+    src = UdpCursor("127.0.0.1", 0).open()
+
+    class Log:
+        def __init__(self):
+            self.m = {}
+
+        def add(self, topic, t, d):
+            self.m.setdefault(topic, []).append((t, d))
+
+    class Sender:
+        """Sends the goal once at the first tick, then silence (the input goes stale), then
+        again every tick from tick 60 on (fresh input)."""
+
+        def __init__(self):
+            self.tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.k = 0
+
+        def write(self, servo, t=None):
+            if self.k == 0 or self.k >= 60:
+                self.tx.sendto(f"{goal[0]} {goal[1]}\n".encode(), ("127.0.0.1", src.port))
+                for _ in range(200):  # loopback: make sure it has arrived before the next read
+                    r, _, _ = select.select([src._sock], [], [], 0.01)
+                    if r:
+                        break
+            self.k += 1
+            return True
+
+    log, sender = Log(), Sender()
+    try:
+        stats = run_teleop(
+            src, rrr3, cal, sink=sender, logger=log, realtime=False, duration_s=2.0,
+            stale_timeout_s=0.1,
+        )  # fmt: skip
+    finally:
+        sender.tx.close()
+        src.close()
+    poses = np.array([d["pose"] for _, d in log.m["/planar/pose"]])
+    q = np.array([d["angles"] for _, d in log.m["/planar/actuators"]])
+    target = np.array([*cal_xy(*goal), 0.0])
+    assert stats.watchdog_fades == 1 and 40 < stats.stale_ticks < 60
+    # held: stopped short of the goal, at rest, before fresh input returned at tick 60
+    assert np.array_equal(q[55], q[59]) and not np.allclose(poses[59], target, atol=1e-3)
+    # resumed and arrived
+    np.testing.assert_allclose(poses[-1], target, atol=1e-9)
+    v = np.diff(q, axis=0) * 50
+    assert np.abs(v).max() <= rrr3.geometry.max_speed * (1 + 1e-9)
+    assert np.abs(np.diff(v, axis=0)).max() * 50 <= rrr3.geometry.max_accel * (1 + 1e-6)
+
+
+def test_sigint_parks_the_robot_at_home(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    from motionbase.io.mcap_source import read_metadata
+
+    out = tmp_path / "sig.mcap"
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input", f"udp:127.0.0.1:{port}"]
+    cmd += ["--out", str(out), "--duration", "60"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stop = threading.Event()
+    # a gaze-like stream toward the right edge of the default screen mapping
+    pts = [(700 + 20 * i, 357) for i in range(30)]
+    th = threading.Thread(target=_sender, args=(port, pts * 100, 0.02, stop), daemon=True)
+    try:
+        th.start()
+        for _ in range(600):  # wait until the robot has moved away from home
+            if out.exists() and out.stat().st_size > 20000:
+                break
+            threading.Event().wait(0.05)
+        threading.Event().wait(0.5)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        stop.set()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, stderr
+    assert "stopped by SIGINT" in stdout
+    log = read_messages(out)
+    geometry = Rrr3Geometry.from_dict(read_metadata(out)["geometry"])
+    rrr3 = Rrr3(geometry)
+    servo = [tuple(m["servo_deg"]) for m in log["/planar/actuators"]]
+    home = tuple(rrr3.to_servo(rrr3.inverse(rrr3.home)))
+    assert len(set(servo)) > 3  # it had moved
+    assert servo[-1] == home
+    np.testing.assert_allclose(log["/planar/pose"][-1]["pose"], rrr3.home, atol=1e-9)
+    q = np.array([m["angles"] for m in log["/planar/actuators"]])
+    v = np.diff(q, axis=0) * 50
+    assert np.abs(v).max() <= geometry.max_speed * (1 + 1e-9)
+    assert np.abs(np.diff(v, axis=0)).max() * 50 <= geometry.max_accel * (1 + 1e-6)
+    assert log["/health"][-1]["estops"] == 1
