@@ -170,7 +170,8 @@ class _Robot:
     def pose_from_washout(self, pose6: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
-    def washout_from_pose(self, pose: np.ndarray) -> np.ndarray:
+    def washout_from_pose(self, pose: np.ndarray, washout_pose: np.ndarray) -> np.ndarray:
+        """The washout pose that ``pose`` realises (axes the robot lacks keep ``washout_pose``)."""
         raise NotImplementedError
 
     def clamp(self, pose: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -204,7 +205,7 @@ class _Rus6Robot(_Robot):
     def pose_from_washout(self, pose6):
         return pose6
 
-    def washout_from_pose(self, pose):
+    def washout_from_pose(self, pose, washout_pose):
         return pose
 
     def clamp(self, pose):
@@ -242,9 +243,12 @@ class _Rrr3Robot(_Robot):
         # planar base frame: x along motor 1 -> motor 2, y toward motor 3 (see DESIGN.md)
         return self.neutral_pose + self.scale * np.array([pose6[0], pose6[1], pose6[5]])
 
-    def washout_from_pose(self, pose):
+    def washout_from_pose(self, pose, washout_pose):
+        # only surge, sway and yaw were clamped: heave, roll and pitch keep their state
         d = (np.asarray(pose) - self.neutral_pose) / self.scale
-        return np.array([d[0], d[1], 0.0, 0.0, 0.0, d[2]])
+        out = np.array(washout_pose, dtype=float)
+        out[[0, 1, 5]] = d
+        return out
 
     def clamp(self, pose):
         p, clamped = self.kin.clamp(pose)
@@ -481,7 +485,7 @@ class Pipeline:
         if clamped:
             h.clamps += 1
             if self._phase == "running" and self._fade == 1.0 and accepted:
-                self.washout.track(robot.washout_from_pose(pose))
+                self.washout.track(robot.washout_from_pose(pose, washout_pose))
 
         # 6. inverse kinematics (park is commanded by its angles exactly), 7. safety
         if self._phase == "stopping" and s == 0.0:
