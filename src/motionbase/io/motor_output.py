@@ -675,6 +675,7 @@ class MotorOutput:
         self._anchor: tuple[float, float] | None = None
         self._next_retry = 0.0
         self._last_error = -math.inf
+        self._dmin, self._dmax = mapping.drive_min, mapping.drive_max
         self._broken = False
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -718,7 +719,13 @@ class MotorOutput:
         """
         angles = getattr(output, "angles", output)
         values = self.mapping.to_drive(angles)
-        frame = self.format.encode(values) if self.mapping.in_range(values).all() else None
+        vals = values.tolist()  # plain floats: much faster to format than numpy scalars
+        frame = None
+        for x, lo, hi in zip(vals, self._dmin, self._dmax, strict=True):
+            if not lo <= x <= hi:  # False for NaN
+                break
+        else:
+            frame = self.format.encode(vals)
         if frame is None:
             self.held += 1
             if not self._holding:

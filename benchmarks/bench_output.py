@@ -1,0 +1,198 @@
+"""Motor-drive output: cost of formatting and sending one frame, and 1 kHz sustained output.
+
+Run: /work/venv/bin/python benchmarks/bench_output.py
+
+Targets (issue 8): formatting + sending one frame <= 20 us; 1 kHz output with < 10 % of a core.
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import select
+import socket
+import threading
+import time
+import tty
+
+import numpy as np
+
+from motionbase.io.motor_output import open_output
+from motionbase.platform import OutputMapping
+
+LO, HI = np.radians(np.full(6, -60.0)), np.radians(np.full(6, 60.0))
+MAPPINGS = {
+    "range": OutputMapping.from_dict(
+        {"unit": "range", "sign": [1, -1] * 3, "range_lo": 0, "range_hi": 4095},
+        angle_min=LO,
+        angle_max=HI,
+    ),
+    "counts": OutputMapping.from_dict(
+        {"unit": "counts", "counts_per_rev": 131072, "gear_ratio": 10.0},
+        angle_min=LO,
+        angle_max=HI,
+    ),
+}
+FORMATS = {
+    "text A{1}B{2}..": ("text:A%7B1%7DB%7B2%7DC%7B3%7DD%7B4%7DE%7B5%7DF%7B6%7D%5Cn", "range"),
+    "text {1:04X}..": (
+        "text:%7B1:04X%7D%7B2:04X%7D%7B3:04X%7D%7B4:04X%7D%7B5:04X%7D%7B6:04X%7D",
+        "range",
+    ),
+    "bin 6xu16be sum8": ("bin:0xFFFE,6xu16be,sum8@2", "range"),
+    "bin 6xi32le crc16": ("bin:0xAA55,6xi32le,crc16", "counts"),
+}
+
+
+class Drain:
+    """Reads and discards whatever arrives (a UDP socket or a pty master)."""
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.count = 0
+        self.stamps: list[float] = []
+        if kind == "udp":
+            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.sock.bind(("127.0.0.1", 0))
+            self.sock.settimeout(0.05)
+            self.where = f"udp:127.0.0.1:{self.sock.getsockname()[1]}"
+        else:
+            self.master, self.slave = pty.openpty()
+            tty.setraw(self.slave)
+            self.where = f"serial:{os.ttyname(self.slave)}"
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if self.kind == "udp":
+                try:
+                    self.sock.recv(4096)
+                except TimeoutError:
+                    continue
+                self.count += 1
+                self.stamps.append(time.perf_counter())
+            else:
+                r, _, _ = select.select([self.master], [], [], 0.05)
+                if r:
+                    os.read(self.master, 65536)
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(1)
+        if self.kind == "udp":
+            self.sock.close()
+        else:
+            os.close(self.master)
+            os.close(self.slave)
+
+
+def per_frame(n: int = 20000) -> None:
+    rng = np.random.default_rng(1)
+    qs = rng.uniform(-1.0, 1.0, size=(n, 6))
+    print("one frame (us per frame, median / p99), 6 motors:")
+    print(
+        f"  {'format':<20} {'map+check+encode':>18} {'send udp':>12} {'send pty':>12} {'total':>8}"
+    )
+    for name, (fmt, mkey) in FORMATS.items():
+        m = MAPPINGS[mkey]
+        row = []
+        drains = {k: Drain(k) for k in ("udp", "pty")}
+        try:
+            sinks = {
+                k: open_output(f"{d.where}?rate=1&format={fmt}", m, realtime=False)
+                for k, d in drains.items()
+            }
+            for s in sinks.values():
+                s.open()
+            sink = sinks["udp"]
+            t = np.empty(n)
+            for i in range(n):  # the pipeline's side: MotorOutput.write
+                t0 = time.perf_counter_ns()
+                sink.write(qs[i])
+                t[i] = time.perf_counter_ns() - t0
+            enc = t / 1e3
+            frame = sink._latest
+            sends = {}
+            for k, s in sinks.items():
+                tr = s.transport
+                ts = np.empty(n)
+                for i in range(n):
+                    t0 = time.perf_counter_ns()
+                    tr.send(frame)
+                    ts[i] = time.perf_counter_ns() - t0
+                    if k == "pty" and i % 200 == 199:
+                        time.sleep(0.002)  # let the reader keep the pty buffer from filling
+                sends[k] = ts / 1e3
+            for s in sinks.values():
+                s.close()
+        finally:
+            for d in drains.values():
+                d.close()
+        tot_u = np.median(enc) + np.median(sends["udp"])
+        tot_p = np.median(enc) + np.median(sends["pty"])
+        row = (
+            f"  {name:<20} {np.median(enc):8.1f} / {np.percentile(enc, 99):6.1f}"
+            f" {np.median(sends['udp']):5.1f} / {np.percentile(sends['udp'], 99):5.1f}"
+            f" {np.median(sends['pty']):5.1f} / {np.percentile(sends['pty'], 99):5.1f}"
+            f" {tot_u:6.1f} / {tot_p:5.1f}"
+        )
+        print(row)
+
+
+def _thread_cpu_s(tid: int) -> float:
+    with open(f"/proc/self/task/{tid}/stat") as fh:
+        parts = fh.read().rsplit(")", 1)[1].split()
+    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def sustained(rate_hz: float = 1000.0, seconds: float = 5.0) -> None:
+    fmt, mkey = FORMATS["bin 6xu16be sum8"]
+    drain = Drain("udp")
+    sink = open_output(
+        f"{drain.where}?rate={rate_hz:g}&format={fmt}", MAPPINGS[mkey], realtime=False
+    )
+    pipeline_rate = 120.0
+    stop = threading.Event()
+
+    def pipeline() -> None:  # a 120 Hz pipeline offering new commands
+        k = 0
+        while not stop.is_set():
+            sink.write(np.full(6, 0.5 * np.sin(k / pipeline_rate)))
+            k += 1
+            time.sleep(1 / pipeline_rate)
+
+    with sink:
+        tid = sink._thread.native_id
+        writer = threading.Thread(target=pipeline, daemon=True)
+        writer.start()
+        time.sleep(0.5)
+        c0, n0, w0 = _thread_cpu_s(tid), sink.frames_sent, time.perf_counter()
+        p0 = time.process_time()
+        time.sleep(seconds)
+        c1, n1, w1 = _thread_cpu_s(tid), sink.frames_sent, time.perf_counter()
+        p1 = time.process_time()
+        stop.set()
+        writer.join()
+    drain.close()
+    wall = w1 - w0
+    stamps = np.array([s for s in drain.stamps if w0 <= s <= w1])
+    gaps = np.diff(stamps) * 1e3
+    print(
+        f"sustained {rate_hz:g} Hz over UDP for {wall:.1f} s (pipeline writing at 120 Hz): "
+        f"{(n1 - n0) / wall:.1f} frames/s sent, {len(stamps) / wall:.1f} received"
+    )
+    print(
+        f"  sender thread CPU {100 * (c1 - c0) / wall:.1f} % of a core "
+        f"(whole process incl. writer and receiver {100 * (p1 - p0) / wall:.1f} %)"
+    )
+    print(
+        f"  interval ms: median {np.median(gaps):.3f}, p1 {np.percentile(gaps, 1):.3f}, "
+        f"p99 {np.percentile(gaps, 99):.3f}, max {gaps.max():.3f}"
+    )
+
+
+if __name__ == "__main__":
+    per_frame()
+    sustained()
