@@ -46,7 +46,9 @@ def load_config(
     Parameters
     ----------
     planar : bool
-        Drive the 3-RRR robot (preset ``udesc``) instead of the 6-RUS (``ceart``).
+        Drive the 3-RRR robot (preset ``udesc_symmetric``) instead of the 6-RUS (``ceart``).
+        The thesis's robot as built (``udesc``) has a type II singular curve 4 mm below home,
+        so planar washout motion there clamps most sway; pass ``platform="udesc"`` for it.
     platform : str, optional
         Geometry preset name or path to a TOML file of the chosen robot.
     washout : str, optional
@@ -58,7 +60,9 @@ def load_config(
     from motionbase.washout import WashoutParams
 
     if planar:
-        geometry = Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", platform or "udesc"))
+        geometry = Rrr3Geometry.from_toml(
+            resolve_preset_or_path("rrr3", platform or "udesc_symmetric")
+        )
     else:
         geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or "ceart"))
     params = WashoutParams.from_toml(resolve_preset_or_path("washout", washout or "default"))

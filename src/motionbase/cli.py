@@ -106,7 +106,8 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
         help="a JSBSim script shipped with jsbsim (e.g. c1723) or a path (default c1723)",
     )
     p.add_argument(
-        "--platform", help="geometry preset or TOML path (default ceart; udesc with --planar)"
+        "--platform",
+        help="geometry preset or TOML path (default ceart; udesc_symmetric with --planar)",
     )
     p.add_argument("--washout", help="washout preset (default, gentle) or TOML path")
     p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot instead")
