@@ -137,16 +137,40 @@ def _wrap(a):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _bisect_scale(base, delta, G, tmp, trial, n_iter):
-    """Largest s in [0, 1] (to 2^-n_iter) with base + s*delta reachable, given s=0 is.
+def _bisect_scale(base, delta, G, tmp, trial, n_iter, n_scan=32):
+    """Largest s in [0, 1] with base + s*delta reachable, or -1 when none is found.
 
-    Returns s; the pose ``base + s*delta`` was tested reachable with this very code.
+    The scale is scanned downward from 1 in ``n_scan`` uniform steps, then geometrically
+    toward 0 (the reachable set along the segment need not start at s = 0: a translation
+    can make a rotation reachable), then refined by bisection to 2^-n_iter between the largest reachable sample and the
+    unreachable one above it. The pose ``base + s*delta`` was tested reachable with this
+    very code.
     """
     for j in range(6):
         trial[j] = base[j] + delta[j]
     if _ok(trial, G, tmp):
         return 1.0
-    lo, hi = 0.0, 1.0
+    lo = -1.0
+    hi = 1.0
+    sk = 1.0
+    step = 1.0 / n_scan
+    while sk > 0.0:
+        # uniform steps down to `step`, then geometric ones (about 16 % apart) toward 0,
+        # so a reachable stretch close to neutral is found for far-out inputs too
+        if sk > 1.5 * step:
+            sk -= step
+        elif sk > 1e-9:
+            sk *= 0.84
+        else:
+            sk = 0.0
+        for j in range(6):
+            trial[j] = base[j] + sk * delta[j]
+        if _ok(trial, G, tmp):
+            lo = sk
+            break
+        hi = sk
+    if lo < 0.0:
+        return -1.0
     for _ in range(n_iter):
         mid = 0.5 * (lo + hi)
         for j in range(6):
@@ -165,9 +189,9 @@ def _clamp_row(p, G, out):
     1. Non-finite input -> neutral pose.
     2. Reachable as given -> unchanged.
     3. Euler angles wrapped to [-pi, pi) (same rotation); reachable -> that.
-    4. If the rotation alone (zero translation) is reachable: keep the rotation and scale the
-       translation toward zero (largest reachable scale, by bisection).
-    5. Otherwise: zero translation and scale the rotation toward zero.
+    4. Keep the rotation and scale the translation toward zero: the largest reachable
+       scale, found by a scan and bisection.
+    5. If no scale makes it reachable: zero translation and scale the rotation toward zero.
     The result was tested reachable (legs close, cranks within limits) by the same code
     ``reachable`` uses, so it is reachable bit for bit.
     """
@@ -192,20 +216,19 @@ def _clamp_row(p, G, out):
         out[3 + j] = _wrap(p[3 + j])
     if _ok(out, G, tmp):
         return True
-    # rotation only, at zero translation
+    # keep the rotation, scale the translation toward zero
     for j in range(3):
         base[j] = 0.0
         base[3 + j] = out[3 + j]
-    if _ok(base, G, tmp):
-        for j in range(3):
-            delta[j] = out[j]
-            delta[3 + j] = 0.0
-        s = _bisect_scale(base, delta, G, tmp, trial, 52)
-    else:
+        delta[j] = out[j]
+        delta[3 + j] = 0.0
+    s = _bisect_scale(base, delta, G, tmp, trial, 52)
+    if s < 0.0:
+        # no translation makes the rotation reachable: zero translation, scale the rotation
         for j in range(6):
             delta[j] = base[j]
             base[j] = 0.0
-        s = _bisect_scale(base, delta, G, tmp, trial, 52)
+        s = max(_bisect_scale(base, delta, G, tmp, trial, 52), 0.0)
     for j in range(6):
         out[j] = base[j] + s * delta[j]
     return True
