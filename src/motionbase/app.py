@@ -177,10 +177,19 @@ def _drive(
     paced: bool,
     progress: bool,
     extra_sinks: list[Any] | None = None,
+    outputs: list[str] | None = None,
     on_output: Callable[[PipelineOutput], None] | None = None,
 ) -> JobResult:
-    """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks."""
+    """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks.
+
+    ``outputs`` are motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`);
+    their statistics end up in the result's notes.
+    """
+    from motionbase.io.motor_output import open_outputs
     from motionbase.io.pipeline_log import PipelineLog
+
+    drives = open_outputs(outputs, config)
+    extra_sinks = [*(extra_sinks or []), *drives]
 
     pipeline = Pipeline(config)
     stop = StopRequest()
@@ -216,7 +225,7 @@ def _drive(
         restore()
         if bar is not None:
             bar.close()
-    return JobResult(title, summary, out)
+    return JobResult(title, summary, out, notes=[d.stats_line() for d in drives])
 
 
 def fly(
@@ -252,7 +261,6 @@ def fly(
         the run to real time.
     """
     from motionbase.io.jsbsim_source import JsbsimSource
-    from motionbase.io.motor_output import open_outputs
 
     if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
@@ -266,18 +274,15 @@ def fly(
             planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
         )
         robot = "3-RRR" if planar else "6-RUS"
-        drives = open_outputs(outputs, config)
-        result = _drive(
+        return _drive(
             f"flew {name} on the {robot}",
             config,
             source,
             out_path,
             paced=realtime,
             progress=progress,
-            extra_sinks=drives,
+            outputs=outputs,
         )
-        result.notes.extend(d.stats_line() for d in drives)
-        return result
 
 
 def replay(
@@ -308,7 +313,6 @@ def replay(
         Motor-drive output URLs; they pace the replay to real time.
     """
     from motionbase.io.mcap_source import McapSource, read_messages
-    from motionbase.io.motor_output import open_outputs
 
     src_path = Path(path)
     with McapSource(src_path) as source:
@@ -331,7 +335,6 @@ def replay(
             tmp = tempfile.TemporaryDirectory(prefix="motionbase-replay-")
             out_path = Path(tmp.name) / "replay.mcap"
         try:
-            drives = open_outputs(outputs, config)
             result = _drive(
                 f"replayed {src_path.name}",
                 config,
@@ -339,10 +342,9 @@ def replay(
                 out_path,
                 paced=False,
                 progress=progress,
-                extra_sinks=drives,
+                outputs=outputs,
             )
             result.notes.extend(notes)
-            result.notes.extend(d.stats_line() for d in drives)
             if check:
                 report = compare_recordings(read_messages(src_path), read_messages(out_path))
                 result.notes.extend(report.lines())
@@ -429,6 +431,7 @@ def stream(
     out: str | Path | None = None,
     realtime: bool = True,
     progress: bool = True,
+    outputs: list[str] | None = None,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
 
@@ -453,6 +456,8 @@ def stream(
         MCAP log; default ``recordings/stream-<UTC time>.mcap``.
     realtime : bool
         For log files: replay at the recorded timing (True) or as fast as possible.
+    outputs : list of str, optional
+        Motor-drive output URLs (see :func:`fly`).
     """
     from motionbase.io.mavlink_source import MavlinkSource
 
@@ -485,6 +490,7 @@ def stream(
                 paced=bool(realtime),
                 progress=False,
                 extra_sinks=extra,
+                outputs=outputs,
                 on_output=status,
             )
         finally:

@@ -293,6 +293,7 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", metavar="FILE.mcap", help="log file (default recordings/stream-<time>.mcap)"
     )
+    _add_output_option(p)
 
 
 @command("stream", "drive the platform from live MAVLink telemetry until Ctrl-C", _args_stream)
@@ -313,6 +314,7 @@ def run_stream(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             out=args.out,
             realtime=not args.fast,
+            outputs=args.output,
         )
     )
 
