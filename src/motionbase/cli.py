@@ -40,7 +40,12 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="motionbase", description=__doc__.splitlines()[0])
+    parser = _Parser(
+        prog="motionbase",
+        description="Motion-platform middleware for flight simulators: JSBSim or MAVLink "
+        "aircraft states through a classical washout into a 6-RUS platform or a planar "
+        "3-RRR robot, logged to MCAP.",
+    )
     parser.add_argument("--version", action="version", version=f"motionbase {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, help_text, add_arguments, run in COMMANDS:

@@ -142,9 +142,9 @@ def _bisect_scale(base, delta, G, tmp, trial, n_iter, n_scan=32):
 
     The scale is scanned downward from 1 in ``n_scan`` uniform steps, then geometrically
     toward 0 (the reachable set along the segment need not start at s = 0: a translation
-    can make a rotation reachable), then refined by bisection to 2^-n_iter between the largest reachable sample and the
-    unreachable one above it. The pose ``base + s*delta`` was tested reachable with this
-    very code.
+    can make a rotation reachable), then refined by bisection to 2^-n_iter between the
+    largest reachable sample and the unreachable one above it. The pose
+    ``base + s*delta`` was tested reachable with this very code.
     """
     for j in range(6):
         trial[j] = base[j] + delta[j]
