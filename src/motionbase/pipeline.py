@@ -174,6 +174,11 @@ class _Robot:
         """The washout pose that ``pose`` realises (axes the robot lacks keep ``washout_pose``)."""
         raise NotImplementedError
 
+    def solve(self, pose: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
+        """Workspace clamp then inverse kinematics: (reachable pose, clamped, angles)."""
+        clamped_pose, clamped = self.clamp(pose)
+        return clamped_pose, clamped, self.inverse(clamped_pose)
+
     def clamp(self, pose: np.ndarray) -> tuple[np.ndarray, bool]:
         raise NotImplementedError
 
@@ -207,6 +212,9 @@ class _Rus6Robot(_Robot):
 
     def washout_from_pose(self, pose, washout_pose):
         return pose
+
+    def solve(self, pose):
+        return self.kin.clamp_inverse(pose)
 
     def clamp(self, pose):
         p, clamped = self.kin.clamp(pose)
@@ -480,18 +488,18 @@ class Pipeline:
         live = robot.pose_from_washout(live6)
         target = robot.park_pose + s * (live - robot.park_pose) if s < 1.0 else live
 
-        # 5. clamp (+ anti-windup while running at full motion)
-        pose, clamped = robot.clamp(target)
+        # 5. clamp (+ anti-windup while running at full motion), 6. inverse kinematics;
+        # park is commanded by its angles exactly
+        if self._phase == "stopping" and s == 0.0:
+            pose, clamped, wanted = robot.park_pose, False, robot.park_angles
+        else:
+            pose, clamped, wanted = robot.solve(target)
         if clamped:
             h.clamps += 1
             if self._phase == "running" and self._fade == 1.0 and accepted:
                 self.washout.track(robot.washout_from_pose(pose, washout_pose))
 
-        # 6. inverse kinematics (park is commanded by its angles exactly), 7. safety
-        if self._phase == "stopping" and s == 0.0:
-            pose, clamped, wanted = robot.park_pose, False, robot.park_angles
-        else:
-            wanted = robot.inverse(pose)
+        # 7. safety
         q, v, status = limit_command(self._q, self._v, self._wanted, wanted, dt, robot.limits)
         held = bool(status & UNSAFE_TARGET)
         self._wanted = q if held else wanted

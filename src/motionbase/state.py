@@ -8,8 +8,11 @@ import numpy as np
 
 
 def _vec3(value: object) -> np.ndarray:
-    arr = np.asarray(value, dtype=float).reshape(3)
-    arr.setflags(write=False)
+    """A read-only float array of shape (3,) (a copy: the caller's array stays its own)."""
+    arr = np.array(value, dtype=float)
+    if arr.shape != (3,):
+        arr = arr.reshape(3)
+    arr.flags.writeable = False
     return arr
 
 

@@ -402,6 +402,25 @@ class McapLogger:
             message = {"t": t, **message}
         self._append(cid, self._ns(t), encode_message(message))
 
+    def add_many(self, t: float, items: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
+        """Log several messages of one time ``t`` (the pipeline's per-tick path).
+
+        The same as calling :meth:`add` for each ``(topic, message)`` pair, with the
+        per-call checks done once.
+        """
+        if self._state != "open":
+            self._not_open()
+        ns = self._ns(t)
+        ids = self._channel_ids
+        append = self._append
+        for topic, message in items:
+            cid = ids.get(topic)
+            if cid is None:
+                cid = self._register(topic)
+            if "t" not in message:
+                message = {"t": t, **message}
+            append(cid, ns, encode_message(message))
+
     def add_transform(
         self,
         t: float,

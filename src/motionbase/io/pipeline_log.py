@@ -92,12 +92,8 @@ class PipelineLog:
 
     def write(self, out) -> None:
         """Log one :class:`~motionbase.pipeline.PipelineOutput`."""
-        log = self._logger.add
         t = out.t
         self._last_t = t
-        if out.state is not None:
-            log("/aircraft/state", t, state_message(t, out.state, out.fresh, out.accepted))
-        log("/washout/pose", t, {"t": t, "pose": out.washout_pose})
         pose_msg = {
             "t": t,
             "pose": out.platform_pose,
@@ -108,15 +104,27 @@ class PipelineLog:
             "fade": out.fade,
         }
         if out.servo_deg is None:
-            log("/platform/pose", t, pose_msg)
-            log("/platform/actuators", t, {"t": t, "angles": out.angles})
-            self._logger.add_transform(t, out.platform_pose)
+            items = [
+                ("/washout/pose", {"t": t, "pose": out.washout_pose}),
+                ("/platform/pose", pose_msg),
+                ("/platform/actuators", {"t": t, "angles": out.angles}),
+            ]
         else:
-            log("/planar/pose", t, pose_msg)
-            log("/planar/actuators", t, {"t": t, "angles": out.angles, "servo_deg": out.servo_deg})
+            items = [
+                ("/washout/pose", {"t": t, "pose": out.washout_pose}),
+                ("/planar/pose", pose_msg),
+                ("/planar/actuators", {"t": t, "angles": out.angles, "servo_deg": out.servo_deg}),
+            ]
+        if out.state is not None:
+            items.insert(
+                0, ("/aircraft/state", state_message(t, out.state, out.fresh, out.accepted))
+            )
+        self._logger.add_many(t, items)
+        if out.servo_deg is None:
+            self._logger.add_transform(t, out.platform_pose)
         if self._health is not None:
             if self._next_health_t is None:
                 self._next_health_t = t
             if t >= self._next_health_t:
-                log("/health", t, {"t": t, **self._health()})
+                self._logger.add("/health", t, {"t": t, **self._health()})
                 self._next_health_t = t + 1.0

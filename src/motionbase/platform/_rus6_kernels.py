@@ -241,6 +241,14 @@ def clamp_batch(poses, G, out, flags):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def clamp_inverse_one(p, G, out_pose, out_angles):
+    """Clamp one pose and solve its crank angles in one call (the real-time path)."""
+    clamped = _clamp_row(p, G, out_pose)
+    _inverse_row(out_pose, G, out_angles)
+    return clamped
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _constraint_jacobian(p, theta, G, R, jx, jq, resid, omega=False):
     """Leg-closure constraints g_i = |P_i - B_i|^2 - R_i^2 and their derivatives.
 

@@ -320,10 +320,11 @@ class Rus6:
         """The nearest safe pose on the way to neutral, rotation kept first.
 
         A reachable pose is returned unchanged. Otherwise (priority-aware, never per leg):
-        Euler angles are wrapped to [-pi, pi) (the same rotation); if the rotation alone is
-        reachable the translation is scaled toward zero as little as needed (bisection to
-        machine precision), else the translation is dropped and the rotation scaled toward
-        zero. Non-finite input gives the neutral pose.
+        Euler angles are wrapped to [-pi, pi) (the same rotation); the rotation is kept and
+        the translation scaled toward zero as little as needed (a scan, then bisection to
+        machine precision); if no scale of the translation makes the rotation reachable, the
+        translation is dropped and the rotation scaled toward zero. Non-finite input gives
+        the neutral pose.
 
         Returns
         -------
@@ -343,6 +344,30 @@ class Rus6:
         flags = np.empty(flat.shape[0], dtype=np.bool_)
         _k.clamp_batch(flat, self._G, out, flags)
         return out.reshape(lead + (6,)), flags.reshape(lead)
+
+    def clamp_inverse(self, pose: ArrayLike) -> tuple[np.ndarray, bool, np.ndarray]:
+        """:meth:`clamp` then :meth:`inverse` of one pose in a single compiled call.
+
+        The real-time path of the pipeline: the same numbers as the two calls.
+
+        Parameters
+        ----------
+        pose : array_like, shape (6,)
+            ``[x, y, z, roll, pitch, yaw]``, m and rad.
+
+        Returns
+        -------
+        pose : ndarray, shape (6,)
+            The clamped (reachable) pose.
+        clamped : bool
+        angles : ndarray, shape (6,)
+            Its crank angles, rad, within the limits.
+        """
+        p = np.asarray(pose, dtype=np.float64).reshape(6)
+        out = np.empty(6)
+        angles = np.empty(6)
+        clamped = _k.clamp_inverse_one(p, self._G, out, angles)
+        return out, bool(clamped), angles
 
     def warm_up(self) -> None:
         """Compile (or load from the on-disk cache) every kernel now rather than on first use."""
