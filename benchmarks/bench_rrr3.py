@@ -3,9 +3,11 @@
 Run: /work/venv/bin/python benchmarks/bench_rrr3.py
 
 Teleop cycle = calibration (pixel -> m) + clamp (validity check; a full clamp when the target
-is outside) + inverse kinematics + servo mapping + protocol encoding, for one cursor sample,
-as :func:`motionbase.teleop.run_teleop` does it. Budget 20 us. Sweep: 100 x 100 x 73 poses
-(x, y over the base triangle's bounding box, phi -180..180 deg), budget 1 s.
+is outside) + inverse kinematics + servo mapping + protocol encoding, for one cursor sample.
+Budget 20 us. Then the whole loop, :func:`motionbase.teleop.run_teleop` as fast as possible on
+a CSV of cursor points (adds the safety stage, the pose-segment pacing of far jumps and the
+serial sink on ``loop://``): wall time per tick. Sweep: 100 x 100 x 73 poses (x, y over the
+base triangle's bounding box, phi -180..180 deg), budget 1 s.
 """
 
 from __future__ import annotations
@@ -34,6 +36,41 @@ def percentiles(fn, n: int) -> tuple[float, float, float]:
     return tuple(np.percentile(ts, [50, 90, 99]) / 1e3)
 
 
+def loop_per_tick(rrr3: Rrr3, cal: CursorCalibration, n: int = 5000) -> None:
+    """The real teleop loop, unpaced, on n cursor points 20 ms apart (a slow, smooth trace)."""
+    import logging
+    import tempfile
+    import warnings
+    from pathlib import Path
+
+    from motionbase.io.cursor_input import FileCursor
+    from motionbase.io.serial_link import ServoSerialSink
+    from motionbase.teleop import run_teleop
+
+    logging.getLogger("motionbase").setLevel(logging.ERROR)
+    t = np.arange(n) * 0.02
+    u = 655 + 300 * np.sin(0.5 * t)
+    v = 357 + 150 * np.sin(0.7 * t)
+    with tempfile.TemporaryDirectory() as tmp:
+        csv = Path(tmp) / "trace.csv"
+        rows = [f"{a:.3f},{b:.1f},{c:.1f}\n" for a, b, c in zip(t, u, v, strict=True)]
+        for label, points in (("warm-up", 200), ("measured", n)):
+            csv.write_text("".join(rows[:points]))
+            sink = ServoSerialSink("loop://", ready_timeout_s=0.0, rate_hz=1e6)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # loop:// has no board to say "Rolling"
+                sink.open()
+            t0 = time.perf_counter()
+            stats = run_teleop(FileCursor(csv), rrr3, cal, sink=sink, rate_hz=50, realtime=False)
+            wall = time.perf_counter() - t0
+            sink.close()
+            if label == "measured":
+                print(
+                    f"teleop loop (run_teleop, unpaced, serial on loop://): "
+                    f"{1e6 * wall / stats.ticks:.1f} us per tick over {stats.ticks} ticks"
+                )
+
+
 def main() -> None:
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
     cal = CursorCalibration.default(rrr3, 1310, 715)
@@ -53,6 +90,7 @@ def main() -> None:
         f"teleop cycle, target outside (clamped):  median {p[0]:.1f} us, p90 {p[1]:.1f}, "
         f"p99 {p[2]:.1f}"
     )
+    loop_per_tick(rrr3, cal)
     rrr3.workspace(10, 10, 5)  # compile
     best = np.inf
     for _ in range(5):
