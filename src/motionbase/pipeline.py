@@ -31,6 +31,7 @@ Stages of one tick
 
 from __future__ import annotations
 
+import hashlib
 import signal
 import threading
 import time
@@ -38,20 +39,26 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 
 from motionbase import __version__
 from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.platform._rus6_kernels import clamp_inverse_one
 from motionbase.safety import (
+    _INPUT_PROBLEMS,
     RATE_LIMITED,
     UNSAFE_TARGET,
     ActuatorLimits,
     InputLimits,
+    _input_code,
+    _limit_kernel,
     input_problem,
     limit_command,
     smoothstep,
 )
 from motionbase.state import AircraftState
+from motionbase.washout.classical import WashoutInputError, _step, _track
 
 # --------------------------------------------------------------------------- config
 
@@ -352,6 +359,215 @@ class Health:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+# --------------------------------------------------------------------------- fused tick
+
+# Pipeline state, one float vector shared by the fused kernel and the Python path.
+_S_T, _S_TVALID, _S_PHASE, _S_BLEND, _S_FADE, _S_STALE, _S_ESTOP, _S_HAS_LAST = range(8)
+_S_LAST = 8  # held sample: specific force (3), angular velocity (3)
+_S_Q, _S_V, _S_WANTED, _S_POSE = 14, 20, 26, 32  # 6 each
+_S_VNEW = 38  # scratch: the limiter's new speeds
+_NS = 44
+_PHASES = ("starting", "running", "stopping", "parked")
+_PHASE_CODES = {name: float(k) for k, name in enumerate(_PHASES[:3])}
+
+# Pipeline constants of the fused kernel.
+_C_DT, _C_STALE_TIMEOUT, _C_FADE_STEP, _C_BLEND_STEP = 0, 1, 2, 3
+_C_MAX_F, _C_MAX_W, _C_MAX_ATT = 4, 5, 6
+_C_LEVEL = 7  # level flight: (0, 0, -g, 0, 0, 0)
+_C_PARK_POSE, _C_PARK_ANGLES, _C_LO, _C_HI, _C_VMAX, _C_AMAX = 13, 19, 25, 31, 37, 43
+_NC = 49
+
+# Status bits the fused kernel returns.
+_F_PROBLEM = 0xF  # input problem code (safety._INPUT_PROBLEMS), 0 = accepted
+_F_TIME_JUMP = 1 << 4
+_F_FADE_START = 1 << 5
+_F_CLAMPED = 1 << 6
+_F_RATE_LIMITED = 1 << 7
+_F_HELD = 1 << 8
+_F_WASHOUT_ERROR = 1 << 9
+_F_PHASE_SHIFT = 10  # two bits: index into _PHASES
+
+
+def _dependency_stamp() -> str:
+    """Hash of the sources of the kernels the fused tick compiles in.
+
+    numba's on-disk cache keys a function on its own file only; the stamp, a closure
+    variable of the fused kernel, is part of its cache key (numba hashes closure
+    contents), so a change in the washout, kinematics or safety kernels recompiles it.
+    """
+    from motionbase import safety
+    from motionbase.platform import _rus6_kernels
+    from motionbase.washout import classical
+
+    h = hashlib.sha256()
+    for module in (classical, _rus6_kernels, safety):
+        h.update(open(module.__file__, "rb").read())  # noqa: SIM115 - small files, read once
+    return h.hexdigest()
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _smooth(x):  # pragma: no cover - compiled; safety.smoothstep, compiled
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _make_rus6_tick(stamp: str):
+    # the kernels called are module globals: only the stamp is a closure variable
+    @numba.njit(cache=True, error_model="numpy")
+    def rus6_tick(cf, st, G, c, s, t, f, w, att, fresh, wpose, pose, q):  # pragma: no cover
+        """One 6-RUS tick, exactly :meth:`Pipeline.step_reference` but forward kinematics.
+
+        Validation -> washout -> watchdog fade -> soft start/stop -> clamp + inverse
+        (+ anti-windup track) -> safety limiter. Writes the washout pose, the clamped
+        pose and the command into ``wpose``, ``pose``, ``q``; updates the washout state
+        ``st`` and the pipeline state ``s``; returns the status bits (``_F_*``). When
+        the limiter changed the command, ``s``'s pose is left at the previous tick's
+        (the caller solves the forward kinematics from it).
+        """
+        if len(stamp) == 0:  # the stamp only keys the cache
+            return -1
+        dt = c[_C_DT]
+        have_t = s[_S_TVALID] != 0.0
+        # 1. validation
+        code = _input_code(
+            t, s[_S_T] if have_t else -np.inf, f, w, att, c[_C_MAX_F], c[_C_MAX_W], c[_C_MAX_ATT]
+        )
+        flags = code
+        accepted = code == 0
+        if accepted:
+            if have_t and t - s[_S_T] > c[_C_STALE_TIMEOUT]:
+                flags |= _F_TIME_JUMP
+                st[:] = 0.0
+                s[_S_FADE] = 0.0
+            s[_S_HAS_LAST] = 1.0
+            for i in range(3):
+                s[_S_LAST + i] = f[i]
+                s[_S_LAST + 3 + i] = w[i]
+            s[_S_T] = t
+        else:
+            s[_S_T] = (s[_S_T] if have_t else 0.0) + dt
+        s[_S_TVALID] = 1.0
+        # 2. washout on the held sample (level flight before any)
+        if s[_S_HAS_LAST] != 0.0:
+            u = s[_S_LAST : _S_LAST + 6]
+        else:
+            u = c[_C_LEVEL : _C_LEVEL + 6]
+        if not _step(cf, st, u, wpose):
+            return flags | _F_WASHOUT_ERROR
+        # 3. watchdog fade
+        if not fresh:
+            if s[_S_STALE] == 0.0:
+                flags |= _F_FADE_START
+            s[_S_STALE] = 1.0
+            x = s[_S_FADE] - c[_C_FADE_STEP]
+            fade = x if x > 0.0 else 0.0
+        else:
+            s[_S_STALE] = 0.0
+            x = s[_S_FADE] + c[_C_FADE_STEP]
+            fade = x if x < 1.0 else 1.0
+        s[_S_FADE] = fade
+        sf = 1.0 if fade == 1.0 else _smooth(fade)
+        # 4. soft start / stop
+        phase = s[_S_PHASE]
+        blend = s[_S_BLEND]
+        if phase == 0.0:
+            x = blend + c[_C_BLEND_STEP]
+            blend = x if x < 1.0 else 1.0
+            if blend >= 1.0:
+                phase = 1.0
+        elif phase == 2.0 and s[_S_ESTOP] == 0.0:
+            x = blend - c[_C_BLEND_STEP]
+            blend = x if x > 0.0 else 0.0
+        s[_S_PHASE] = phase
+        s[_S_BLEND] = blend
+        b = _smooth(blend)
+        target = np.empty(6)
+        for i in range(6):
+            live = wpose[i] if fade == 1.0 else sf * wpose[i]
+            if b < 1.0:
+                p0 = c[_C_PARK_POSE + i]
+                target[i] = p0 + b * (live - p0)
+            else:
+                target[i] = live
+        # 5. clamp (+ anti-windup), 6. inverse kinematics; park by its angles exactly
+        wanted = np.empty(6)
+        clamped = False
+        if phase == 2.0 and b == 0.0:
+            for i in range(6):
+                pose[i] = c[_C_PARK_POSE + i]
+                wanted[i] = c[_C_PARK_ANGLES + i]
+        else:
+            clamped = clamp_inverse_one(target, G, pose, wanted)
+        if clamped:
+            flags |= _F_CLAMPED
+            if phase == 1.0 and fade == 1.0 and accepted:
+                for i in range(6):
+                    if not np.isfinite(pose[i]):
+                        return flags | _F_WASHOUT_ERROR
+                _track(st, pose)
+        # 7. safety
+        status = _limit_kernel(
+            s[_S_Q : _S_Q + 6],
+            s[_S_V : _S_V + 6],
+            s[_S_WANTED : _S_WANTED + 6],
+            wanted,
+            dt,
+            c[_C_LO : _C_LO + 6],
+            c[_C_HI : _C_HI + 6],
+            c[_C_VMAX : _C_VMAX + 6],
+            c[_C_AMAX : _C_AMAX + 6],
+            q,
+            s[_S_VNEW : _S_VNEW + 6],
+        )
+        held = (status & 2) != 0
+        limited = (status & 1) != 0
+        at_park = True
+        for i in range(6):
+            s[_S_WANTED + i] = q[i] if held else wanted[i]
+            s[_S_Q + i] = q[i]
+            v = s[_S_VNEW + i]
+            s[_S_V + i] = v
+            if not (q[i] == c[_C_PARK_ANGLES + i] and v == 0.0):
+                at_park = False
+            if not (held or limited):
+                s[_S_POSE + i] = pose[i]
+        if held:
+            flags |= _F_HELD
+        if limited:
+            flags |= _F_RATE_LIMITED
+        out_phase = 3 if (phase == 2.0 and blend == 0.0 and at_park) else int(phase)
+        return flags | (out_phase << _F_PHASE_SHIFT)
+
+    return rus6_tick
+
+
+_rus6_tick = _make_rus6_tick(_dependency_stamp())
+
+
+def _pipeline_constants(config: PipelineConfig, robot: _Robot) -> np.ndarray:
+    c = np.zeros(_NC)
+    c[_C_DT] = config.dt
+    c[_C_STALE_TIMEOUT] = config.stale_timeout_s
+    c[_C_FADE_STEP] = config.dt / config.fade_s
+    c[_C_BLEND_STEP] = config.dt / config.soft_start_s
+    lim = config.input_limits
+    c[_C_MAX_F] = lim.max_specific_force
+    c[_C_MAX_W] = lim.max_angular_velocity
+    c[_C_MAX_ATT] = lim.max_attitude
+    c[_C_LEVEL + 2] = -config.washout.gravity
+    if robot.n == 6:
+        c[_C_PARK_POSE : _C_PARK_POSE + 6] = robot.park_pose
+        c[_C_PARK_ANGLES : _C_PARK_ANGLES + 6] = robot.park_angles
+        c[_C_LO : _C_LO + 6] = robot.limits.lower
+        c[_C_HI : _C_HI + 6] = robot.limits.upper
+        c[_C_VMAX : _C_VMAX + 6] = robot.limits.max_speed
+        c[_C_AMAX : _C_AMAX + 6] = robot.limits.max_accel
+    return c
+
+
 # --------------------------------------------------------------------------- core
 
 
@@ -361,9 +577,13 @@ class Pipeline:
     Parameters
     ----------
     config : PipelineConfig
+    fast : bool
+        6-RUS: run each tick in one compiled kernel (the default). ``False`` runs
+        the reference path, stage by stage in Python (:meth:`step_reference`); both
+        give bit-identical outputs and share one state, so they can be mixed.
     """
 
-    def __init__(self, config: PipelineConfig) -> None:
+    def __init__(self, config: PipelineConfig, *, fast: bool = True) -> None:
         from motionbase.washout import ClassicalWashout
 
         self.config = config
@@ -373,18 +593,120 @@ class Pipeline:
         self.health = Health()
         self._level_f = np.array([0.0, 0.0, -config.washout.gravity])
         self._zero3 = np.zeros(3)
+        # the whole mutable state in one vector (see _S_*), shared by both paths
+        self._s = np.zeros(_NS)
+        n = self.robot.n
+        self._qs = self._s[_S_Q : _S_Q + n]
+        self._vs = self._s[_S_V : _S_V + n]
+        self._wanted_s = self._s[_S_WANTED : _S_WANTED + n]
+        self._pose_s = self._s[_S_POSE : _S_POSE + len(self.robot.park_pose)]
+        self._c = _pipeline_constants(config, self.robot)
+        self._fast = bool(fast) and config.robot == "rus6"
+        self._G = self.robot.kin._G if config.robot == "rus6" else None
         self.reset()
+
+    # -- state (views of the state vector) ---------------------------------------
+    @property
+    def _q(self) -> np.ndarray:
+        """Last command, rad (the live state: copy it to keep it)."""
+        return self._qs
+
+    @_q.setter
+    def _q(self, value: np.ndarray) -> None:
+        self._qs[:] = value
+
+    @property
+    def _v(self) -> np.ndarray:
+        """Speed of the last command, rad/s (the live state)."""
+        return self._vs
+
+    @_v.setter
+    def _v(self, value: np.ndarray) -> None:
+        self._vs[:] = value
+
+    @property
+    def _wanted(self) -> np.ndarray:
+        return self._wanted_s
+
+    @_wanted.setter
+    def _wanted(self, value: np.ndarray) -> None:
+        self._wanted_s[:] = value
+
+    @property
+    def _pose(self) -> np.ndarray:
+        return self._pose_s
+
+    @_pose.setter
+    def _pose(self, value: np.ndarray) -> None:
+        self._pose_s[:] = value
+
+    @property
+    def _t(self) -> float | None:
+        return float(self._s[_S_T]) if self._s[_S_TVALID] else None
+
+    @_t.setter
+    def _t(self, value: float | None) -> None:
+        self._s[_S_TVALID] = value is not None
+        self._s[_S_T] = 0.0 if value is None else value
+
+    @property
+    def _phase(self) -> str:
+        return _PHASES[int(self._s[_S_PHASE])]
+
+    @_phase.setter
+    def _phase(self, value: str) -> None:
+        self._s[_S_PHASE] = _PHASE_CODES[value]
+
+    @property
+    def _blend(self) -> float:
+        return float(self._s[_S_BLEND])
+
+    @_blend.setter
+    def _blend(self, value: float) -> None:
+        self._s[_S_BLEND] = value
+
+    @property
+    def _fade(self) -> float:
+        return float(self._s[_S_FADE])
+
+    @_fade.setter
+    def _fade(self, value: float) -> None:
+        self._s[_S_FADE] = value
+
+    @property
+    def _stale(self) -> bool:
+        return bool(self._s[_S_STALE])
+
+    @_stale.setter
+    def _stale(self, value: bool) -> None:
+        self._s[_S_STALE] = bool(value)
+
+    @property
+    def _estop(self) -> bool:
+        return bool(self._s[_S_ESTOP])
+
+    @_estop.setter
+    def _estop(self, value: bool) -> None:
+        self._s[_S_ESTOP] = bool(value)
+
+    def _hold(self, state: AircraftState | None) -> None:
+        """Keep ``state``'s specific force and rates as the held sample (None: no sample)."""
+        s = self._s
+        s[_S_HAS_LAST] = state is not None
+        if state is not None:
+            s[_S_LAST : _S_LAST + 3] = state.specific_force
+            s[_S_LAST + 3 : _S_LAST + 6] = state.angular_velocity
 
     # -- lifecycle -------------------------------------------------------------
     def reset(self) -> None:
         """Back to parked, filters at rest, counters kept."""
         self.washout.reset()
-        self._q = self.robot.park_angles.copy()
-        self._v = np.zeros(self.robot.n)
-        self._wanted = self._q
-        self._pose = self.robot.park_pose.copy()
-        self._last_state: AircraftState | None = None
-        self._t: float | None = None
+        self._q = self.robot.park_angles
+        self._v = 0.0
+        self._wanted = self.robot.park_angles
+        self._pose = self.robot.park_pose
+        self._hold(None)
+        self._t = None
         self._phase = "starting"
         self._blend = 0.0  # 0 = park, 1 = live
         self._fade = 1.0
@@ -406,11 +728,12 @@ class Pipeline:
     @property
     def parked(self) -> bool:
         """True once stopped with the actuators at park and at rest."""
+        s = self._s
         return (
-            self._phase == "stopping"
-            and self._blend == 0.0
-            and bool(np.all(self._q == self.robot.park_angles))
-            and bool(np.all(self._v == 0.0))
+            s[_S_PHASE] == 2.0
+            and s[_S_BLEND] == 0.0
+            and bool(np.all(self._qs == self.robot.park_angles))
+            and bool(np.all(self._vs == 0.0))
         )
 
     @property
@@ -428,6 +751,103 @@ class Pipeline:
         fresh : bool
             False when the source says the sample is a stale hold.
         """
+        if state is None or not self._fast:
+            return self.step_reference(state, fresh)
+        h = self.health
+        h.samples += 1
+        wpose = np.empty(6)
+        pose = np.empty(6)
+        q = np.empty(6)
+        flags = _rus6_tick(
+            self.washout._cf,
+            self.washout._st,
+            self._G,
+            self._c,
+            self._s,
+            state.t,
+            state.specific_force,
+            state.angular_velocity,
+            state.attitude,
+            bool(fresh),
+            wpose,
+            pose,
+            q,
+        )
+        if flags & 0x3FF:  # anything but the phase: the rare paths
+            return self._after_rare_tick(state, fresh, flags, wpose, pose, q)
+        return PipelineOutput(
+            state.t,
+            state,
+            fresh,
+            True,
+            wpose,
+            pose,
+            False,
+            q,
+            None,
+            False,
+            False,
+            _PHASES[flags >> _F_PHASE_SHIFT],
+            float(self._s[_S_FADE]),
+        )
+
+    def _after_rare_tick(
+        self,
+        state: AircraftState,
+        fresh: bool,
+        flags: int,
+        wpose: np.ndarray,
+        pose: np.ndarray,
+        q: np.ndarray,
+    ) -> PipelineOutput:
+        """The fused tick's bookkeeping when it did more than the plain path."""
+        h = self.health
+        if flags & _F_WASHOUT_ERROR:
+            raise WashoutInputError(
+                "washout input or tracked pose is not finite (reject the sample before the washout)"
+            )
+        code = flags & _F_PROBLEM
+        if code:
+            h.rejected_inputs += 1
+            h.last_rejection = _INPUT_PROBLEMS[code]
+        if flags & _F_TIME_JUMP:
+            h.time_jumps += 1
+        if flags & _F_FADE_START:
+            h.watchdog_fades += 1
+        clamped = bool(flags & _F_CLAMPED)
+        if clamped:
+            h.clamps += 1
+        held = bool(flags & _F_HELD)
+        rate_limited = bool(flags & _F_RATE_LIMITED)
+        if held:
+            h.unsafe_commands += 1
+        if rate_limited:
+            h.rate_limited += 1
+        if held or rate_limited:
+            # the actuators realise another pose than the one asked: say which
+            achieved = self.robot.forward(q, guess=self._pose)
+            if np.isfinite(achieved).all():
+                pose = achieved
+            self._pose = pose
+        return PipelineOutput(
+            state.t if code == 0 else float(self._s[_S_T]),
+            state,
+            fresh,
+            code == 0,
+            wpose,
+            pose,
+            clamped,
+            q,
+            None,
+            rate_limited,
+            held,
+            _PHASES[flags >> _F_PHASE_SHIFT],
+            float(self._s[_S_FADE]),
+        )
+
+    def step_reference(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
+        """:meth:`step`, stage by stage in Python (the planar robot's path, and the
+        reference the fused 6-RUS kernel is tested against)."""
         cfg = self.config
         dt = self.dt
         h = self.health
@@ -450,20 +870,19 @@ class Pipeline:
                     h.time_jumps += 1
                     self.washout.reset()
                     self._fade = 0.0
-                self._last_state = state
+                self._hold(state)
             else:
                 accepted = False
                 h.rejected_inputs += 1
                 h.last_rejection = problem
         t = state.t if accepted else (self._t if self._t is not None else 0.0) + dt
         self._t = t
-        use = self._last_state
 
         # 2. washout (a hold of the last valid sample, or level flight before any)
-        if use is None:
+        if not self._s[_S_HAS_LAST]:
             f, w = self._level_f, self._zero3
         else:
-            f, w = use.specific_force, use.angular_velocity
+            f, w = self._s[_S_LAST : _S_LAST + 3], self._s[_S_LAST + 3 : _S_LAST + 6]
         washout_pose = self.washout.step(f, w)
 
         # 3. watchdog fade
@@ -472,16 +891,19 @@ class Pipeline:
             h.watchdog_fades += 1
         self._stale = stale
         step_fade = dt / cfg.fade_s
-        self._fade = max(0.0, self._fade - step_fade) if stale else min(1.0, self._fade + step_fade)
-        live6 = washout_pose if self._fade == 1.0 else smoothstep(self._fade) * washout_pose
+        fade = self._fade
+        fade = max(0.0, fade - step_fade) if stale else min(1.0, fade + step_fade)
+        self._fade = fade
+        live6 = washout_pose if fade == 1.0 else smoothstep(fade) * washout_pose
 
         # 4. soft start / stop blend
         step_blend = dt / cfg.soft_start_s
-        if self._phase == "starting":
+        phase = self._phase
+        if phase == "starting":
             self._blend = min(1.0, self._blend + step_blend)
             if self._blend >= 1.0:
-                self._phase = "running"
-        elif self._phase == "stopping" and not self._estop:
+                phase = self._phase = "running"
+        elif phase == "stopping" and not self._estop:
             self._blend = max(0.0, self._blend - step_blend)
         s = smoothstep(self._blend)
         robot = self.robot
@@ -490,13 +912,13 @@ class Pipeline:
 
         # 5. clamp (+ anti-windup while running at full motion), 6. inverse kinematics;
         # park is commanded by its angles exactly
-        if self._phase == "stopping" and s == 0.0:
+        if phase == "stopping" and s == 0.0:
             pose, clamped, wanted = robot.park_pose, False, robot.park_angles
         else:
             pose, clamped, wanted = robot.solve(target)
         if clamped:
             h.clamps += 1
-            if self._phase == "running" and self._fade == 1.0 and accepted:
+            if phase == "running" and fade == 1.0 and accepted:
                 self.washout.track(robot.washout_from_pose(pose, washout_pose))
 
         # 7. safety
@@ -527,8 +949,8 @@ class Pipeline:
             servo_deg=robot.servo(q),
             rate_limited=rate_limited,
             held=held,
-            phase="parked" if self._phase == "stopping" and self.parked else self._phase,
-            fade=self._fade,
+            phase="parked" if phase == "stopping" and self.parked else phase,
+            fade=fade,
         )
 
 
