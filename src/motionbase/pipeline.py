@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import hashlib
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -957,6 +958,20 @@ class Pipeline:
 # --------------------------------------------------------------------------- loop
 
 
+#: Thread switch interval while :func:`run` runs, s (see its notes).
+SWITCH_INTERVAL_S = 2e-4
+
+
+@numba.njit(cache=True)
+def _track_peaks(peak_angle, peak_speed, angles, speeds):  # pragma: no cover - compiled
+    """np.maximum(peak, |x|, out=peak) for both, in one call (NaN sticks, as there)."""
+    for i in range(angles.shape[0]):
+        for peak, x in ((peak_angle, angles[i]), (peak_speed, speeds[i])):
+            a = abs(x)
+            if peak[i] == peak[i] and not (a <= peak[i]):
+                peak[i] = a
+
+
 @dataclass
 class RunSummary:
     """What a run did, for the end-of-run report.
@@ -1071,7 +1086,42 @@ def run(
         Raised to stop (ramp to park) or E-stop.
     progress : callable, optional
         Called with every output.
+
+    Notes
+    -----
+    While it runs, the interpreter's thread switch interval is lowered to
+    ``SWITCH_INTERVAL_S`` (and restored after): the MCAP writer thread needs the
+    GIL for short stretches between its GIL-free calls (compression, checksum,
+    file writes), and with Python's default 5 ms it waits up to 5 ms for each one
+    behind the busy loop, falls seconds behind in as-fast-as-possible runs and
+    queues chunks in memory.
     """
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(min(old, SWITCH_INTERVAL_S))
+    try:
+        return _run(
+            pipeline,
+            source,
+            sinks,
+            paced=paced,
+            stop=stop,
+            progress=progress,
+            max_park_s=max_park_s,
+        )
+    finally:
+        sys.setswitchinterval(old)
+
+
+def _run(
+    pipeline: Pipeline,
+    source: Iterable[AircraftState],
+    sinks: Sequence[Any],
+    *,
+    paced: bool,
+    stop: StopRequest | None,
+    progress: Callable[[PipelineOutput], None] | None,
+    max_park_s: float,
+) -> RunSummary:
     stop = stop if stop is not None else StopRequest()  # (an unset StopRequest is falsy)
     summary = RunSummary(health=pipeline.health)
     robot = pipeline.robot
@@ -1107,8 +1157,7 @@ def run(
             progress(out)
         summary.samples += 1
         summary.clamped += out.clamped
-        np.maximum(peak_angle, np.abs(out.angles), out=peak_angle)
-        np.maximum(peak_speed, np.abs(pipeline._v), out=peak_speed)
+        _track_peaks(peak_angle, peak_speed, out.angles, pipeline._v)
         if t_first is None:
             t_first = out.t
         t_last = out.t

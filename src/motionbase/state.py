@@ -52,6 +52,29 @@ class AircraftState:
         if self.angular_acceleration is not None:
             object.__setattr__(self, "angular_acceleration", _vec3(self.angular_acceleration))
 
+    @classmethod
+    def from_vector(cls, t: float, vector: np.ndarray) -> AircraftState:
+        """A state on one float vector, without copies or checks (the sources' fast path).
+
+        Parameters
+        ----------
+        t : float
+            Time, s.
+        vector : ndarray of float64, shape (9,) or (12,), C-contiguous
+            ``[specific_force, angular_velocity, attitude(, angular_acceleration)]`` in the
+            units of the fields. The state takes it over: it is made read-only and its
+            fields are views of it; the caller must not keep writing to it.
+        """
+        vector.flags.writeable = False
+        obj = object.__new__(cls)
+        fields_ = obj.__dict__
+        fields_["t"] = t
+        fields_["specific_force"] = vector[0:3]
+        fields_["angular_velocity"] = vector[3:6]
+        fields_["attitude"] = vector[6:9]
+        fields_["angular_acceleration"] = vector[9:12] if len(vector) == 12 else None
+        return obj
+
     def is_finite(self) -> bool:
         """True when every number in the sample is finite."""
         parts = [self.specific_force, self.angular_velocity, self.attitude]

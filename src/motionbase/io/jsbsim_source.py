@@ -27,6 +27,7 @@ from types import TracebackType
 from typing import Any
 
 import jsbsim
+import numpy as np
 
 from motionbase.errors import ConfigError, SourceError
 from motionbase.state import AircraftState
@@ -407,6 +408,8 @@ class JsbsimSource:
         run = fdm.run
         get = [n.get_double_value for n in self._nodes]
         sim_time = fdm.get_sim_time
+        from_vector = AircraftState.from_vector
+        array = np.array
         decimation = self._decimation
         realtime = self.realtime
         wall0 = 0.0
@@ -420,14 +423,11 @@ class JsbsimSource:
                 if not alive:
                     return
             v = [g() for g in get]
+            v[0] *= FT_TO_M
+            v[1] *= FT_TO_M
+            v[2] *= FT_TO_M
             t = sim_time()
-            state = AircraftState(
-                t=t,
-                specific_force=(v[0] * FT_TO_M, v[1] * FT_TO_M, v[2] * FT_TO_M),
-                angular_velocity=v[3:6],
-                attitude=v[6:9],
-                angular_acceleration=v[9:12],
-            )
+            state = from_vector(t, array(v))
             if realtime:
                 now = time.perf_counter()
                 if k == 0:

@@ -64,6 +64,7 @@ from mcap.records import (
 )
 
 from motionbase.errors import ConfigError, SinkError
+from motionbase.io._log_kernels import message_indexes
 
 try:  # optional speed-up: float formatting dominates the cost of a message
     import orjson as _orjson
@@ -82,7 +83,6 @@ LOG_FORMAT = "1"
 # opcode, record length, channel id, sequence, log_time, publish_time
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
-_MESSAGE_INDEX_HEADER = struct.Struct("<BQHI")
 _COMPRESSIONS = ("zstd", "lz4", "none")
 
 
@@ -186,6 +186,19 @@ def quaternion_from_euler_zyx(roll: float, pitch: float, yaw: float) -> tuple[fl
     )
 
 
+def transform_message(
+    sec: Any, nsec: Any, parent: str, child: str, x: Any, y: Any, z: Any, q: Sequence[Any]
+) -> dict[str, Any]:
+    """The ``foxglove.FrameTransform`` message (a plain dict, fields in the logged order)."""
+    return {
+        "timestamp": {"sec": sec, "nsec": nsec},
+        "parent_frame_id": parent,
+        "child_frame_id": child,
+        "translation": {"x": x, "y": y, "z": z},
+        "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+    }
+
+
 _TRANSFORM_FORMAT = (
     '{"timestamp":{"sec":%d,"nsec":%d},"parent_frame_id":"%s","child_frame_id":"%s",'
     '"translation":{"x":%r,"y":%r,"z":%r},"rotation":{"x":%r,"y":%r,"z":%r,"w":%r}}'
@@ -279,7 +292,6 @@ class McapLogger:
         self._end_ns = 0
         # chunk in progress
         self._buf = bytearray()
-        self._index: dict[int, list[int]] = {}
         self._chunk_start_ns = 0
         self._chunk_end_ns = 0
         self._chunk_messages = 0
@@ -455,8 +467,7 @@ class McapLogger:
         cid = self._channel_ids.get("/tf")
         if cid is None:
             cid = self._register("/tf")
-        if self._last_static_ns < 0 or ns - self._last_static_ns >= 1_000_000_000:
-            self._last_static_ns = ns
+        if self.static_transform_due(ns):
             self._append(
                 cid,
                 ns,
@@ -467,6 +478,48 @@ class McapLogger:
             raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
         q = quaternion_from_euler_zyx(p[3], p[4], p[5])
         self._append(cid, ns, self._transform_bytes(ns, parent, child, p[0], p[1], p[2], q))
+
+    def channel_id(self, topic: str) -> int:
+        """The channel id of ``topic`` (registered now if it is new)."""
+        cid = self._channel_ids.get(topic)
+        return cid if cid is not None else self._register(topic)
+
+    def static_transform_due(self, ns: int) -> bool:
+        """True (and noted) when the ``world`` -> ``base`` transform is due at ``ns``."""
+        if self._last_static_ns < 0 or ns - self._last_static_ns >= 1_000_000_000:
+            self._last_static_ns = ns
+            return True
+        return False
+
+    def add_records(self, ns: int, records: Any, count: int) -> None:
+        """Append ``count`` already-encoded MCAP Message records, all at ``ns`` (the fast path).
+
+        Parameters
+        ----------
+        ns : int
+            Their log time, ns (``>= 0``; every record carries it).
+        records : bytes, bytearray or memoryview
+            Complete Message records (opcode, length, channel id from
+            :meth:`channel_id`, sequence, log and publish time ``ns``, JSON data).
+        count : int
+            How many records ``records`` holds.
+        """
+        if self._state != "open":
+            self._not_open()
+        self._buf += records
+        if self._chunk_messages:
+            if ns < self._chunk_start_ns:
+                self._chunk_start_ns = ns
+            elif ns > self._chunk_end_ns:
+                self._chunk_end_ns = ns
+        else:
+            self._chunk_start_ns = self._chunk_end_ns = ns
+        self._chunk_messages += count
+        if (
+            len(self._buf) >= self.chunk_size
+            or ns - self._chunk_start_ns >= self._flush_interval_ns
+        ):
+            self._flush_chunk()
 
     def flush(self) -> None:
         """Write the chunk in progress now (e.g. before a risky operation or on E-stop)."""
@@ -484,15 +537,7 @@ class McapLogger:
                 _TRANSFORM_FORMAT % (sec, nsec, parent, child, x, y, z, q[0], q[1], q[2], q[3])
             ).encode()
         sec, nsec = divmod(ns, 1_000_000_000)
-        return encode_message(
-            {
-                "timestamp": {"sec": sec, "nsec": nsec},
-                "parent_frame_id": parent,
-                "child_frame_id": child,
-                "translation": {"x": x, "y": y, "z": z},
-                "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
-            }
-        )
+        return encode_message(transform_message(sec, nsec, parent, child, x, y, z, q))
 
     def _ns(self, t: float) -> int:
         t = float(t)
@@ -539,15 +584,10 @@ class McapLogger:
         return channel.id
 
     def _append(self, cid: int, ns: int, data: bytes) -> None:
+        # the message indexes and counts are built from the records by the writer thread
         buf = self._buf
-        index = self._index.get(cid)
-        if index is None:
-            index = self._index[cid] = []
-        index.append(ns)
-        index.append(len(buf))
         buf += _MESSAGE_HEADER.pack(0x05, _MESSAGE_FIXED + len(data), cid, 0, ns, ns)
         buf += data
-        self._channel_counts[cid] += 1
         if self._chunk_messages:
             if ns < self._chunk_start_ns:
                 self._chunk_start_ns = ns
@@ -562,7 +602,8 @@ class McapLogger:
     def _flush_chunk(self) -> None:
         if not self._chunk_messages:
             return
-        self._submit((bytes(self._buf), self._index, self._chunk_start_ns, self._chunk_end_ns))
+        # hand the buffer itself over (no copy): the writer thread owns it from now on
+        self._submit((self._buf, self._chunk_start_ns, self._chunk_end_ns))
         if self._message_count:
             self._start_ns = min(self._start_ns, self._chunk_start_ns)
             self._end_ns = max(self._end_ns, self._chunk_end_ns)
@@ -570,12 +611,11 @@ class McapLogger:
             self._start_ns, self._end_ns = self._chunk_start_ns, self._chunk_end_ns
         self._message_count += self._chunk_messages
         self._buf = bytearray()
-        self._index = {}
         self._chunk_messages = 0
 
     # Everything below `_submit` runs in the writer thread (or inline when
     # background=False): compression, file writes, flushes.
-    def _submit(self, item: bytes | tuple[bytes, dict[int, list[int]], int, int]) -> None:
+    def _submit(self, item: bytes | tuple[bytearray, int, int]) -> None:
         if self._queue is not None:
             self._queue.put(item)
         else:
@@ -601,15 +641,13 @@ class McapLogger:
         self._queue = None
         self._worker = None
 
-    def _do(self, item: bytes | tuple[bytes, dict[int, list[int]], int, int]) -> None:
+    def _do(self, item: bytes | tuple[bytearray, int, int]) -> None:
         if isinstance(item, bytes):
             self._write(item)
         else:
             self._write_chunk(*item)
 
-    def _write_chunk(
-        self, records: bytes, index: dict[int, list[int]], start_ns: int, end_ns: int
-    ) -> None:
+    def _write_chunk(self, records: bytearray, start_ns: int, end_ns: int) -> None:
         compressed = self._compress(records)
         chunk = Chunk(
             compression="" if self.compression == "none" else self.compression,
@@ -624,19 +662,20 @@ class McapLogger:
         chunk_bytes = rb.end()
         chunk_start = self._pos
         index_start = chunk_start + len(chunk_bytes)
-        parts = [chunk_bytes]
-        offsets: dict[int, int] = {}
-        length = 0
-        for cid, flat in index.items():
-            offsets[cid] = index_start + length
-            body = struct.pack(f"<{len(flat)}Q", *flat)
-            part = (
-                _MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + len(body), cid, len(body))
-                + body
-            )
-            parts.append(part)
-            length += len(part)
-        self._write(b"".join(parts))
+        # message indexes from the records themselves, compiled and without the GIL
+        room = len(self._channels) + 1
+        out = np.empty(len(records) + 15 * room, np.uint8)
+        ids = np.empty(room, np.int64)
+        starts = np.empty(room, np.int64)
+        counts = np.empty(room, np.int64)
+        times = np.empty(2, np.int64)
+        rec = np.frombuffer(records, np.uint8)
+        nch, length, _ = message_indexes(rec, index_start, out, ids, starts, counts, times)
+        offsets = dict(zip(ids[:nch].tolist(), starts[:nch].tolist(), strict=True))
+        for cid, count in zip(ids[:nch].tolist(), counts[:nch].tolist(), strict=True):
+            self._channel_counts[cid] += count
+        self._write(chunk_bytes)
+        self._write(memoryview(out[:length]))
         self._chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start_ns,
