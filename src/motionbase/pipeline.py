@@ -1157,7 +1157,7 @@ def _run(
             progress(out)
         summary.samples += 1
         summary.clamped += out.clamped
-        _track_peaks(peak_angle, peak_speed, out.angles, pipeline._v)
+        _track_peaks(peak_angle, peak_speed, out.angles, speeds)
         if t_first is None:
             t_first = out.t
         t_last = out.t
@@ -1177,6 +1177,12 @@ def _run(
 
     stopping_requested = False
     iterator = iter(source)
+    # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
+    speeds = pipeline._v
+    stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
+    has_fresh = hasattr(source, "fresh")
+    clock = time.perf_counter
+    step = pipeline.step
     while True:
         try:
             state = next(iterator)
@@ -1185,15 +1191,15 @@ def _run(
         except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
             fail(exc, "source")
             break
-        started = time.perf_counter()
-        if stop and (not stopping_requested or (stop.estop and not pipeline._estop)):
+        started = clock() if paced else 0.0
+        if stop_raised() and (not stopping_requested or (stop.estop and not pipeline._estop)):
             if not stopping_requested:
                 summary.stopped_by = stop.reason
             stopping_requested = True
             apply_stop()
-        fresh = bool(getattr(source, "fresh", True))
-        emit(pipeline.step(state, fresh), started)
-        if pipeline.parked:
+        out = step(state, bool(source.fresh) if has_fresh else True)
+        emit(out, started)
+        if out.phase == "parked":
             break
     # park ramp on held samples
     if not pipeline.parked:

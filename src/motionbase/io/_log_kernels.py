@@ -4,7 +4,9 @@
   template and the JSON text of the tick's numbers (one ``orjson.dumps`` call
   formats them all, shortest round-trip form), so no per-message Python runs.
 * :func:`message_indexes` builds a chunk's MessageIndex records by scanning its
-  Message records; it runs in the writer thread and releases the GIL.
+  Message records and computes its CRC-32; it runs in the writer thread and
+  releases the GIL (every GIL hand-over between the writer thread and the busy
+  pipeline loop costs two thread switches, so the writer makes as few as it can).
 """
 
 from __future__ import annotations
@@ -21,6 +23,52 @@ OP_SEC = 4  # the decimal integer ns // 1e9
 OP_NSEC = 5  # the decimal integer ns % 1e9
 
 MAX_TOKENS = 128
+
+
+def crc32_tables() -> np.ndarray:
+    """Slicing-by-8 tables of the CRC-32 of zlib (reflected, polynomial 0xEDB88320)."""
+    t = np.zeros((8, 256), dtype=np.uint32)
+    for i in range(256):
+        c = i
+        for _ in range(8):
+            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
+        t[0, i] = c
+    for i in range(256):
+        c = int(t[0, i])
+        for k in range(1, 8):
+            c = int(t[0, c & 0xFF]) ^ (c >> 8)
+            t[k, i] = c
+    return t
+
+
+@njit(cache=True, nogil=True)
+def crc32(data, tables):  # pragma: no cover - compiled
+    """zlib.crc32(data) (slicing by 8)."""
+    crc = np.uint32(0xFFFFFFFF)
+    n = len(data)
+    i = 0
+    while i + 8 <= n:
+        a = crc ^ (
+            np.uint32(data[i])
+            | (np.uint32(data[i + 1]) << 8)
+            | (np.uint32(data[i + 2]) << 16)
+            | (np.uint32(data[i + 3]) << 24)
+        )
+        crc = (
+            tables[7, a & 0xFF]
+            ^ tables[6, (a >> 8) & 0xFF]
+            ^ tables[5, (a >> 16) & 0xFF]
+            ^ tables[4, a >> 24]
+            ^ tables[3, data[i + 4]]
+            ^ tables[2, data[i + 5]]
+            ^ tables[1, data[i + 6]]
+            ^ tables[0, data[i + 7]]
+        )
+        i += 8
+    while i < n:
+        crc = tables[0, (crc ^ data[i]) & 0xFF] ^ (crc >> 8)
+        i += 1
+    return crc ^ np.uint32(0xFFFFFFFF)
 
 
 @njit(cache=True, inline="always")
@@ -47,22 +95,14 @@ def _put_int(out, pos, value):  # pragma: no cover - compiled
     return pos + n
 
 
-@njit(cache=True)
-def fill_template(values, n_tokens, ops, pool, ns, out):  # pragma: no cover - compiled
-    """Message records of one tick into ``out``; returns their length, or -1.
-
-    ``values`` is the JSON text of the tick's values (nested arrays of numbers,
-    booleans and plain strings); its tokens, split at ``[``, ``]`` and ``,``, are
-    inserted where the template says. -1 (nothing usable written) when the
-    token count is not ``n_tokens`` or a token is ``null`` (a NaN or an
-    infinity: the caller takes the general path).
-    """
+@njit(cache=True, inline="always")
+def _fill(values, v0, v1, n_tokens, ops, r0, r1, pool, ns, out, pos):  # pragma: no cover
+    # tokens of values[v0:v1]
     starts = np.empty(MAX_TOKENS, np.int64)
     ends = np.empty(MAX_TOKENS, np.int64)
     nt = 0
-    n = len(values)
     start = -1
-    for i in range(n):
+    for i in range(v0, v1):
         c = values[i]
         if c == 44 or c == 93 or c == 91:  # , ] [
             if start >= 0:
@@ -78,11 +118,10 @@ def fill_template(values, n_tokens, ops, pool, ns, out):  # pragma: no cover - c
             start = i
     if start >= 0 or nt != n_tokens:
         return -1
-    pos = 0
     rec = 0
     sec = ns // 1_000_000_000
     nsec = ns - sec * 1_000_000_000
-    for r in range(ops.shape[0]):
+    for r in range(r0, r1):
         op = ops[r, 0]
         a = ops[r, 1]
         if op == OP_LITERAL:
@@ -90,9 +129,7 @@ def fill_template(values, n_tokens, ops, pool, ns, out):  # pragma: no cover - c
             out[pos : pos + b] = pool[a : a + b]
             pos += b
         elif op == OP_TOKEN:
-            s = starts[a]
-            e = ends[a]
-            for k in range(s, e):
+            for k in range(starts[a], ends[a]):
                 out[pos] = values[k]
                 pos += 1
         elif op == OP_BEGIN:
@@ -113,6 +150,75 @@ def fill_template(values, n_tokens, ops, pool, ns, out):  # pragma: no cover - c
         else:
             pos = _put_int(out, pos, nsec)
     return pos
+
+
+@njit(cache=True)
+def fill_template(values, n_tokens, ops, pool, ns, out):  # pragma: no cover - compiled
+    """Message records of one tick into ``out``; returns their length, or -1.
+
+    ``values`` is the JSON text of the tick's values (nested arrays of numbers,
+    booleans and plain strings); its tokens, split at ``[``, ``]`` and ``,``, are
+    inserted where the template says. -1 (nothing usable written) when the
+    token count is not ``n_tokens`` or a token is ``null`` (a NaN or an
+    infinity: the caller takes the general path).
+    """
+    return _fill(values, 0, len(values), n_tokens, ops, 0, ops.shape[0], pool, ns, out, 0)
+
+
+#: Opcode of a deferred tick inside a chunk buffer (not an MCAP opcode): u64 length,
+#: u16 template, u64 log time, then the values text; :func:`expand_records` turns it
+#: into the tick's Message records in the writer thread.
+DEFERRED = 0xFF
+
+
+@njit(cache=True, nogil=True)
+def expand_records(buf, ops, bounds, pool, n_tokens, out):  # pragma: no cover - compiled
+    """Copy the records of ``buf`` into ``out``, deferred ticks filled from their template.
+
+    Template ``k`` is ``ops[bounds[k]:bounds[k + 1]]`` with ``n_tokens[k]`` tokens.
+    Returns the length written, or -1 - (offset of a deferred tick that does not
+    fit its template).
+    """
+    n = len(buf)
+    pos = 0
+    i = 0
+    while i + 9 <= n:
+        length = np.int64(0)
+        for k in range(8):
+            length |= np.int64(buf[i + 1 + k]) << (8 * k)
+        if buf[i] == DEFERRED:
+            tid = np.int64(buf[i + 9]) | (np.int64(buf[i + 10]) << 8)
+            ns = np.int64(0)
+            for k in range(8):
+                ns |= np.int64(buf[i + 11 + k]) << (8 * k)
+            got = _fill(
+                buf,
+                i + 19,
+                i + 9 + length,
+                n_tokens[tid],
+                ops,
+                bounds[tid],
+                bounds[tid + 1],
+                pool,
+                ns,
+                out,
+                pos,
+            )
+            if got < 0:
+                return -1 - i
+            pos = got
+        else:
+            out[pos : pos + 9 + length] = buf[i : i + 9 + length]
+            pos += 9 + length
+        i += 9 + length
+    return pos
+
+
+@njit(cache=True, nogil=True)
+def chunk_summary(rec, tables, index_start, out, ids, offsets, counts, times):  # pragma: no cover
+    """:func:`message_indexes` and the CRC-32 of ``rec`` in one GIL-free call."""
+    nch, length, m = message_indexes(rec, index_start, out, ids, offsets, counts, times)
+    return nch, length, m, np.int64(crc32(rec, tables))
 
 
 @njit(cache=True, nogil=True)

@@ -414,14 +414,20 @@ class JsbsimSource:
         realtime = self.realtime
         wall0 = 0.0
         t0 = 0.0
+        steps = range(decimation)
         for k in range(self._samples):
-            for _ in range(decimation):
-                try:
+            try:
+                if decimation == 1:
                     alive = run()
-                except jsbsim.BaseError as exc:
-                    raise SourceError(f"JSBSim stopped: {exc}{self._problems()}") from None
-                if not alive:
-                    return
+                else:
+                    for _ in steps:
+                        alive = run()
+                        if not alive:
+                            break
+            except jsbsim.BaseError as exc:
+                raise SourceError(f"JSBSim stopped: {exc}{self._problems()}") from None
+            if not alive:
+                return
             v = [g() for g in get]
             v[0] *= FT_TO_M
             v[1] *= FT_TO_M

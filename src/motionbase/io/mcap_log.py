@@ -51,7 +51,6 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -64,7 +63,13 @@ from mcap.records import (
 )
 
 from motionbase.errors import ConfigError, SinkError
-from motionbase.io._log_kernels import message_indexes
+from motionbase.io._log_kernels import (
+    DEFERRED,
+    OP_LITERAL,
+    chunk_summary,
+    crc32_tables,
+    expand_records,
+)
 
 try:  # optional speed-up: float formatting dominates the cost of a message
     import orjson as _orjson
@@ -84,6 +89,11 @@ LOG_FORMAT = "1"
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
 _COMPRESSIONS = ("zstd", "lz4", "none")
+# Chunk record up to its compression name: opcode, length, start, end, size, CRC, name length
+_CHUNK_HEADER = struct.Struct("<BQQQQII")
+_U64 = struct.Struct("<Q")
+_DEFERRED_HEADER = struct.Struct("<BQHQ")
+_CRC_TABLES = crc32_tables()
 
 
 def _json_default(obj: Any) -> Any:
@@ -292,6 +302,10 @@ class McapLogger:
         self._end_ns = 0
         # chunk in progress
         self._buf = bytearray()
+        self._chunk_extra = 0  # bytes the deferred ticks of the chunk will grow by
+        self._chunk_deferred = 0
+        self._template_parts: list[tuple[np.ndarray, np.ndarray, int, int]] = []
+        self._template_set: tuple[Any, ...] | None = None
         self._chunk_start_ns = 0
         self._chunk_end_ns = 0
         self._chunk_messages = 0
@@ -491,6 +505,73 @@ class McapLogger:
             return True
         return False
 
+    def register_template(
+        self, ops: np.ndarray, pool: np.ndarray, n_tokens: int, n_messages: int
+    ) -> int:
+        """Register a tick template for :meth:`add_deferred`; returns its id.
+
+        ``ops`` (rows ``(op, a, b)``, see ``_log_kernels``; channel ids from
+        :meth:`channel_id`) and ``pool`` (its literal bytes) describe the Message
+        records of one tick with ``n_tokens`` values in ``n_messages`` messages.
+        """
+        self._template_parts.append((ops, pool, n_tokens, n_messages))
+        ops_all, pools, bounds, tokens = [], [], [0], []
+        base = 0
+        widest = 0
+        for o, pl, nt, nm in self._template_parts:
+            o = o.copy()
+            o[o[:, 0] == OP_LITERAL, 1] += base
+            ops_all.append(o)
+            pools.append(pl)
+            base += len(pl)
+            bounds.append(bounds[-1] + len(o))
+            tokens.append(nt)
+            widest = max(widest, len(pl) + 31 * nm + 40)
+        self._template_set = (
+            np.ascontiguousarray(np.concatenate(ops_all)),
+            np.array(bounds, dtype=np.int64),
+            np.ascontiguousarray(np.concatenate(pools)),
+            np.array(tokens, dtype=np.int64),
+            widest,
+        )
+        return len(self._template_parts) - 1
+
+    def add_deferred(self, ns: int, template: int, values: bytes, count: int) -> None:
+        """Append one tick whose ``count`` records the writer thread fills from a template.
+
+        Parameters
+        ----------
+        ns : int
+            Log time of every record, ns (``>= 0``).
+        template : int
+            A :meth:`register_template` id.
+        values : bytes
+            JSON text of the tick's values (no ``null``; as many tokens as the
+            template takes): the records are the template with these tokens in.
+        count : int
+            Messages the template writes.
+        """
+        if self._state != "open":
+            self._not_open()
+        buf = self._buf
+        buf += _DEFERRED_HEADER.pack(DEFERRED, 10 + len(values), template, ns)
+        buf += values
+        self._chunk_deferred += 1
+        self._chunk_extra += self._template_set[4]
+        if self._chunk_messages:
+            if ns < self._chunk_start_ns:
+                self._chunk_start_ns = ns
+            elif ns > self._chunk_end_ns:
+                self._chunk_end_ns = ns
+        else:
+            self._chunk_start_ns = self._chunk_end_ns = ns
+        self._chunk_messages += count
+        if (
+            len(buf) + self._chunk_extra >= self.chunk_size
+            or ns - self._chunk_start_ns >= self._flush_interval_ns
+        ):
+            self._flush_chunk()
+
     def add_records(self, ns: int, records: Any, count: int) -> None:
         """Append ``count`` already-encoded MCAP Message records, all at ``ns`` (the fast path).
 
@@ -603,7 +684,8 @@ class McapLogger:
         if not self._chunk_messages:
             return
         # hand the buffer itself over (no copy): the writer thread owns it from now on
-        self._submit((self._buf, self._chunk_start_ns, self._chunk_end_ns))
+        deferred = (self._template_set, self._chunk_deferred) if self._chunk_deferred else None
+        self._submit((self._buf, self._chunk_start_ns, self._chunk_end_ns, deferred))
         if self._message_count:
             self._start_ns = min(self._start_ns, self._chunk_start_ns)
             self._end_ns = max(self._end_ns, self._chunk_end_ns)
@@ -612,10 +694,12 @@ class McapLogger:
         self._message_count += self._chunk_messages
         self._buf = bytearray()
         self._chunk_messages = 0
+        self._chunk_deferred = 0
+        self._chunk_extra = 0
 
     # Everything below `_submit` runs in the writer thread (or inline when
     # background=False): compression, file writes, flushes.
-    def _submit(self, item: bytes | tuple[bytearray, int, int]) -> None:
+    def _submit(self, item: bytes | tuple[bytearray, int, int, Any]) -> None:
         if self._queue is not None:
             self._queue.put(item)
         else:
@@ -641,50 +725,75 @@ class McapLogger:
         self._queue = None
         self._worker = None
 
-    def _do(self, item: bytes | tuple[bytearray, int, int]) -> None:
+    def _do(self, item: bytes | tuple[bytearray, int, int, Any]) -> None:
         if isinstance(item, bytes):
             self._write(item)
         else:
             self._write_chunk(*item)
 
-    def _write_chunk(self, records: bytearray, start_ns: int, end_ns: int) -> None:
+    def _write_chunk(
+        self, records: bytearray, start_ns: int, end_ns: int, deferred: Any = None
+    ) -> None:
+        # Runs in the writer thread beside the busy pipeline loop: every GIL hand-over
+        # costs both threads two switches, so the work is a few GIL-free calls
+        # (deferred ticks filled in; compression; CRC and message indexes, compiled;
+        # one file write) with little Python between them.
+        rec = np.frombuffer(records, np.uint8)
+        if deferred is not None:
+            (ops, bounds, pool, tokens, widest), count = deferred
+            # tokens may be used twice (the /tf translation): 2x the values text
+            out = np.empty(2 * len(rec) + widest * count, np.uint8)
+            n = expand_records(rec, ops, bounds, pool, tokens, out)
+            if n < 0:  # a bug, not a disk problem: say where
+                self._failure = (
+                    f"{self.path}: deferred tick at byte {-1 - n} of a chunk does not fit "
+                    "its template (motionbase bug); the file is readable up to here"
+                )
+                self._failure_reported = True
+                self._state = "failed"
+                raise SinkError(self._failure)
+            rec = out[:n]
+            records = rec
         compressed = self._compress(records)
-        chunk = Chunk(
-            compression="" if self.compression == "none" else self.compression,
-            data=compressed,
-            message_start_time=start_ns,
-            message_end_time=end_ns,
-            uncompressed_crc=zlib.crc32(records),
-            uncompressed_size=len(records),
-        )
-        rb = RecordBuilder()
-        chunk.write(rb)
-        chunk_bytes = rb.end()
+        compression = "" if self.compression == "none" else self.compression
+        name = compression.encode()
+        # Chunk record: opcode, length, start and end time, uncompressed size and CRC,
+        # compression (string), records (u64-prefixed bytes); the CRC is filled below
+        head_len = 8 + 8 + 8 + 4 + 4 + len(name) + 8
+        chunk_len = 9 + head_len + len(compressed)
         chunk_start = self._pos
-        index_start = chunk_start + len(chunk_bytes)
-        # message indexes from the records themselves, compiled and without the GIL
+        index_start = chunk_start + chunk_len
         room = len(self._channels) + 1
         out = np.empty(len(records) + 15 * room, np.uint8)
         ids = np.empty(room, np.int64)
         starts = np.empty(room, np.int64)
         counts = np.empty(room, np.int64)
-        times = np.empty(2, np.int64)
-        rec = np.frombuffer(records, np.uint8)
-        nch, length, _ = message_indexes(rec, index_start, out, ids, starts, counts, times)
+        nch, length, _, crc = chunk_summary(
+            rec, _CRC_TABLES, index_start, out, ids, starts, counts, np.empty(2, np.int64)
+        )
+        head = _CHUNK_HEADER.pack(
+            Opcode.CHUNK,
+            head_len + len(compressed),
+            start_ns,
+            end_ns,
+            len(records),
+            crc,
+            len(name),
+        )
+        data = b"".join((head, name, _U64.pack(len(compressed)), compressed, out[:length]))
         offsets = dict(zip(ids[:nch].tolist(), starts[:nch].tolist(), strict=True))
         for cid, count in zip(ids[:nch].tolist(), counts[:nch].tolist(), strict=True):
             self._channel_counts[cid] += count
-        self._write(chunk_bytes)
-        self._write(memoryview(out[:length]))
+        self._write(data)
         self._chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start_ns,
                 message_end_time=end_ns,
                 chunk_start_offset=chunk_start,
-                chunk_length=len(chunk_bytes),
+                chunk_length=chunk_len,
                 message_index_offsets=offsets,
                 message_index_length=length,
-                compression=chunk.compression,
+                compression=compression,
                 compressed_size=len(compressed),
                 uncompressed_size=len(records),
             )

@@ -32,7 +32,6 @@ from motionbase.io._log_kernels import (
     OP_NSEC,
     OP_SEC,
     OP_TOKEN,
-    fill_template,
 )
 from motionbase.io.mcap_log import (
     McapLogger,
@@ -232,8 +231,6 @@ class PipelineLog:
         self._next_health_t = -math.inf  # the first tick writes /health
         self._last_t = 0.0
         self._templates: dict[tuple[bool, bool, bool, bool], tuple[Any, ...]] = {}
-        self._scratch = np.empty(64 * 1024, dtype=np.uint8)
-        self._view = memoryview(self._scratch)
 
     def __enter__(self) -> PipelineLog:
         try:
@@ -294,21 +291,22 @@ class PipelineLog:
             values = _orjson.dumps(_tick_values(out, quaternion), option=_ORJSON_NUMPY)
         except TypeError:  # an unusual value: the general path says what is wrong
             return False
-        key = (
-            st is not None,
-            st is not None and st.angular_acceleration is not None,
-            planar,
-            static,
-        )
+        # a NaN or an infinity (orjson writes null): the general path writes it as text
+        if b"null" in values:
+            return False
+        acc = st is not None and st.angular_acceleration is not None
+        key = (st is not None, acc, planar, static)
         template = self._templates.get(key)
         if template is None:
-            template = self._templates[key] = _build_template(key, logger.channel_id)
-        n = fill_template(values, template[2], template[0], template[1], ns, self._scratch)
-        if n < 0:  # a NaN or an infinity in the sample: the general path writes it as text
+            ops, pool, n_tokens, n_messages = _build_template(key, logger.channel_id)
+            tid = logger.register_template(ops, pool, n_tokens, n_messages)
+            template = self._templates[key] = (tid, n_tokens, n_messages)
+        if values.count(b",") + 1 != template[1]:  # not the template's values: general path
             return False
         if static:
             logger.static_transform_due(ns)
-        logger.add_records(ns, self._view[:n], template[3])
+        # the writer thread fills the template in (compiled, GIL-free)
+        logger.add_deferred(ns, template[0], values, template[2])
         return True
 
     def _write_general(self, logger: McapLogger | None, out) -> None:
