@@ -45,7 +45,7 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.errors import ConfigError, MotionbaseError
-from motionbase.platform._rus6_kernels import clamp_inverse_one
+from motionbase.platform._rus6_kernels import _inverse_row, _within, clamp_inverse_one
 from motionbase.safety import (
     _INPUT_PROBLEMS,
     RATE_LIMITED,
@@ -500,6 +500,10 @@ def _make_rus6_tick(stamp: str):
             for i in range(6):
                 pose[i] = c[_C_PARK_POSE + i]
                 wanted[i] = c[_C_PARK_ANGLES + i]
+        elif _inverse_row(target, G, wanted) == 0 and _within(wanted, G):
+            # reachable as it is (what clamp_inverse_one finds first): its angles are solved
+            for i in range(6):
+                pose[i] = target[i]
         else:
             clamped = clamp_inverse_one(target, G, pose, wanted)
         if clamped:
