@@ -406,7 +406,10 @@ class JsbsimSource:
         self._install_logger()  # JSBSim's logger is per thread
         fdm = self._fdm
         run = fdm.run
-        get = [n.get_double_value for n in self._nodes]
+        # the getters of PROPERTIES, in order
+        fx, fy, fz, p, q, r, phi, theta, psi, pdot, qdot, rdot = (
+            n.get_double_value for n in self._nodes
+        )
         sim_time = fdm.get_sim_time
         from_vector = AircraftState.from_vector
         array = np.array
@@ -428,18 +431,31 @@ class JsbsimSource:
                 raise SourceError(f"JSBSim stopped: {exc}{self._problems()}") from None
             if not alive:
                 return
-            v = [g() for g in get]
-            v[0] *= FT_TO_M
-            v[1] *= FT_TO_M
-            v[2] *= FT_TO_M
-            t = sim_time()
-            state = from_vector(t, array(v))
+            state = from_vector(
+                sim_time(),
+                array(
+                    (
+                        fx() * FT_TO_M,
+                        fy() * FT_TO_M,
+                        fz() * FT_TO_M,
+                        p(),
+                        q(),
+                        r(),
+                        phi(),
+                        theta(),
+                        psi(),
+                        pdot(),
+                        qdot(),
+                        rdot(),
+                    )
+                ),
+            )
             if realtime:
                 now = time.perf_counter()
                 if k == 0:
-                    wall0, t0 = now, t
+                    wall0, t0 = now, state.t
                 else:
-                    delay = wall0 + (t - t0) - now
+                    delay = wall0 + (state.t - t0) - now
                     if delay > 0:
                         time.sleep(delay)
             yield state

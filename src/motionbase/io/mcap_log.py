@@ -890,7 +890,8 @@ class McapLogger:
         if name == "zstd":
             import zstandard
 
-            return zstandard.ZstdCompressor(level=3).compress
+            # level 1: about twice as fast as 3 and, on these JSON chunks, no larger
+            return zstandard.ZstdCompressor(level=1).compress
         if name == "lz4":
             try:
                 import lz4.frame
