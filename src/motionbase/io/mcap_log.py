@@ -94,6 +94,31 @@ _CHUNK_HEADER = struct.Struct("<BQQQQII")
 _U64 = struct.Struct("<Q")
 _DEFERRED_HEADER = struct.Struct("<BQHQ")
 _CRC_TABLES = crc32_tables()
+_WARM = False
+
+
+def _warm_up_kernels() -> None:
+    """Load (or compile) the writer's compiled kernels once per process."""
+    global _WARM
+    if _WARM:
+        return
+    rec = np.frombuffer(
+        _MESSAGE_HEADER.pack(0x05, _MESSAGE_FIXED + 2, 1, 0, 5, 5) + b"{}", np.uint8
+    )
+    ids, starts, counts = (np.empty(2, np.int64) for _ in range(3))
+    chunk_summary(
+        rec, _CRC_TABLES, 0, np.empty(64, np.uint8), ids, starts, counts, np.empty(2, np.int64)
+    )
+    ops = np.zeros((0, 3), np.int64)
+    expand_records(
+        rec,
+        ops,
+        np.zeros(2, np.int64),
+        np.zeros(0, np.uint8),
+        np.zeros(1, np.int64),
+        np.empty(64, np.uint8),
+    )
+    _WARM = True
 
 
 def _json_default(obj: Any) -> Any:
@@ -344,6 +369,7 @@ class McapLogger:
         )
         self._write(data)
         self._sync()
+        _warm_up_kernels()  # now, not in the middle of the first chunk
         if self.background:
             self._queue = queue.SimpleQueue()
             self._worker = threading.Thread(
