@@ -1,8 +1,9 @@
 """Compiled (numba) helpers of the MCAP log. Internal: used by ``mcap_log`` and ``pipeline_log``.
 
-* :func:`fill_template` writes one pipeline tick's MCAP Message records from a
-  template and the JSON text of the tick's numbers (one ``orjson.dumps`` call
-  formats them all, shortest round-trip form), so no per-message Python runs.
+* :func:`expand_records` turns the deferred ticks of a chunk buffer into MCAP
+  Message records, each from a template and the JSON text of the tick's numbers
+  (one ``orjson.dumps`` call on the main thread formats them all, shortest
+  round-trip form), so no per-message Python runs.
 * :func:`message_indexes` builds a chunk's MessageIndex records by scanning its
   Message records and computes its CRC-32; it runs in the writer thread and
   releases the GIL (every GIL hand-over between the writer thread and the busy
@@ -150,19 +151,6 @@ def _fill(values, v0, v1, n_tokens, ops, r0, r1, pool, ns, out, pos):  # pragma:
         else:
             pos = _put_int(out, pos, nsec)
     return pos
-
-
-@njit(cache=True)
-def fill_template(values, n_tokens, ops, pool, ns, out):  # pragma: no cover - compiled
-    """Message records of one tick into ``out``; returns their length, or -1.
-
-    ``values`` is the JSON text of the tick's values (nested arrays of numbers,
-    booleans and plain strings); its tokens, split at ``[``, ``]`` and ``,``, are
-    inserted where the template says. -1 (nothing usable written) when the
-    token count is not ``n_tokens`` or a token is ``null`` (a NaN or an
-    infinity: the caller takes the general path).
-    """
-    return _fill(values, 0, len(values), n_tokens, ops, 0, ops.shape[0], pool, ns, out, 0)
 
 
 #: Opcode of a deferred tick inside a chunk buffer (not an MCAP opcode): u64 length,

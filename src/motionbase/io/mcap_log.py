@@ -23,11 +23,16 @@ Speed
     The per-message path (:meth:`McapLogger.add`) encodes with orjson when it
     is installed (about 10 times faster), else a prebuilt
     :class:`json.JSONEncoder`, and appends the MCAP message record to the chunk
-    buffer with one precompiled :class:`struct.Struct`. Compression and file
-    writes run in a writer thread, so ``add`` never waits for the disk.
-    Chunks, message indexes and the summary use the ``mcap`` library's record
-    classes. Floats are written in their shortest round-trip form (Python's
-    ``repr``), so a reader gets back the very same doubles.
+    buffer with one precompiled :class:`struct.Struct`. The pipeline log's
+    per-tick path (:meth:`McapLogger.add_deferred`) appends only the text of the
+    tick's numbers (one orjson call) and a template id; the writer thread fills
+    the template in. Everything else runs in the writer thread, in as few
+    GIL-free calls as it can (each GIL hand-over to a busy pipeline loop costs
+    thread switches): template filling, CRC-32 and message indexes (compiled),
+    compression, one file write per chunk; the main thread hands its chunk
+    buffer over without a copy. Floats are written in their shortest
+    round-trip form (Python's ``repr``, orjson's Ryu), so a reader gets back the
+    very same doubles.
 """
 
 from __future__ import annotations
@@ -594,36 +599,6 @@ class McapLogger:
         self._chunk_messages += count
         if (
             len(buf) + self._chunk_extra >= self.chunk_size
-            or ns - self._chunk_start_ns >= self._flush_interval_ns
-        ):
-            self._flush_chunk()
-
-    def add_records(self, ns: int, records: Any, count: int) -> None:
-        """Append ``count`` already-encoded MCAP Message records, all at ``ns`` (the fast path).
-
-        Parameters
-        ----------
-        ns : int
-            Their log time, ns (``>= 0``; every record carries it).
-        records : bytes, bytearray or memoryview
-            Complete Message records (opcode, length, channel id from
-            :meth:`channel_id`, sequence, log and publish time ``ns``, JSON data).
-        count : int
-            How many records ``records`` holds.
-        """
-        if self._state != "open":
-            self._not_open()
-        self._buf += records
-        if self._chunk_messages:
-            if ns < self._chunk_start_ns:
-                self._chunk_start_ns = ns
-            elif ns > self._chunk_end_ns:
-                self._chunk_end_ns = ns
-        else:
-            self._chunk_start_ns = self._chunk_end_ns = ns
-        self._chunk_messages += count
-        if (
-            len(self._buf) >= self.chunk_size
             or ns - self._chunk_start_ns >= self._flush_interval_ns
         ):
             self._flush_chunk()
