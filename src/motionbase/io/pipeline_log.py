@@ -26,6 +26,7 @@ import numpy as np
 
 from motionbase.errors import SinkError
 from motionbase.io._log_kernels import (
+    MAX_TOKENS,
     OP_BEGIN,
     OP_END,
     OP_LITERAL,
@@ -338,8 +339,11 @@ class PipelineLog:
         template = self._templates.get(key)
         if template is None:
             ops, pool, n_tokens, n_messages = _build_template(key, logger.channel_id)
-            tid = logger.register_template(ops, pool, n_tokens, n_messages)
-            template = self._templates[key] = (tid, n_tokens, n_messages)
+            if n_tokens > MAX_TOKENS:  # more values than the compiled fill takes
+                template = self._templates[key] = (-1, -1, 0)
+            else:
+                tid = logger.register_template(ops, pool, n_tokens, n_messages)
+                template = self._templates[key] = (tid, n_tokens, n_messages)
         if values.count(b",") + 1 != template[1]:  # not the template's values: general path
             return False
         if static:
