@@ -98,6 +98,10 @@ def test_joint_points_distance_invariants(pose):
 @given(near_home, st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)))
 def test_forward_inverse_round_trip(pose, noise):
     assume(R.reachable(pose))
+    # Near a direct (type II) singularity two assembly modes meet, and Newton from a guess a
+    # fixed distance away may land on the other one: that is the physics, not a bug. Ask the
+    # round trip where the modes are well apart (twice the refusal margin).
+    assume(R.singularity(pose).type2 > 2 * GEOM.type2_margin)
     th = R.inverse(pose)
     guess = pose + np.array(noise) * np.array([0.002, 0.002, 0.02])
     back = R.forward(th, guess=guess)
