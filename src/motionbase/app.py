@@ -202,6 +202,8 @@ def _drive(
         if on_output is not None:
             on_output(o)
 
+    progress_fn = on_tick if (bar is not None and bar.enabled) or on_output is not None else None
+
     sinks: list[Any] = []
     try:
         log = (
@@ -216,7 +218,7 @@ def _drive(
             for sink in extra_sinks or []:
                 sink.__enter__()
                 sinks.append(sink)
-            summary = run(pipeline, source, sinks, paced=paced, stop=stop, progress=on_tick)
+            summary = run(pipeline, source, sinks, paced=paced, stop=stop, progress=progress_fn)
         except BaseException:
             _close_sinks(sinks, quiet=True)  # the failure that is propagating says it all
             raise
