@@ -118,6 +118,67 @@ def test_tilt_is_angle_limited(params):
     assert poses[-1, 3] == pytest.approx(lim, rel=1e-12)  # f_y < 0: right wing down
 
 
+def _tilt_rates(tilt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-tick tilt rate (rad/s) and its change per tick (rad/s), from rest at 0."""
+    rate = np.diff(tilt, axis=0, prepend=0.0) / DT
+    return rate, np.diff(rate, axis=0, prepend=0.0)
+
+
+def test_tilt_brakes_before_the_angle_limit_with_a_continuous_rate(params):
+    """A force far beyond the tilt limit, held, then released: the tilt rate ramps, it is
+    never cut in one tick, and the tilt slows down before the limit instead of halting on it."""
+    on, off = int(15.0 / DT), int(15.0 / DT)
+    f, w = constant(on + off, f=(4.0, -4.0, -G))  # both targets well beyond the limit
+    f[on:] = LEVEL
+    poses = ClassicalWashout(params, DT).run(f, w)
+    tilt = poses[:, 3:5]  # no rotation input: the pose angles are the tilt
+    lim, vmax, amax = params.tilt_angle_limit, params.tilt_rate_limit, params.tilt_accel_limit
+    rate, jump = _tilt_rates(tilt)
+    assert np.max(np.abs(tilt)) <= lim  # never beyond the angle limit, not even by rounding
+    assert np.max(np.abs(rate)) <= vmax * (1 + 1e-9)
+    assert np.max(np.abs(jump)) <= amax * DT * (1 + 1e-9)  # the rate never steps
+    for axis in (0, 1):  # f_y < 0 rolls right wing down (+), f_x > 0 pitches nose up (+)
+        x, v = tilt[:on, axis], rate[:on, axis]
+        k_hold = int(np.argmax(x == lim))  # first tick exactly on the limit
+        assert x[k_hold] == lim and np.all(x[k_hold:] == lim)  # then held there exactly
+        # no faster than from rest at full acceleration, a cruise at the rate limit and
+        # braking at full deceleration; within 1 % of the limit a second after that
+        t_min = lim / vmax + vmax / amax
+        assert k_hold * DT >= t_min - 3 * DT  # (discrete ramps: a tick or two early)
+        assert np.argmax(x >= 0.99 * lim) * DT <= t_min + 1.0
+        # it cruises at the rate limit, then slows down well before the limit (the old
+        # limiter ran into it at full rate) and keeps decelerating until it rests on it
+        k_cruise = int(np.argmax(v >= vmax * (1 - 1e-9)))
+        assert v[k_cruise] > 0.0
+        k_slow = k_cruise + int(np.argmax(v[k_cruise:] < vmax * (1 - 1e-9)))
+        assert lim - x[k_slow] > 0.5 * vmax**2 / amax  # braking starts before the limit
+        assert np.all(np.diff(v[k_slow : k_hold + 1]) <= 1e-12)
+        assert v[k_hold] <= amax * DT  # arrives at (nearly) zero rate
+    # released: back to neutral the same way, no overshoot past neutral
+    assert np.all(np.abs(tilt[-1]) < 1e-12)
+    assert np.all(np.sign(tilt[on:, 0]) >= 0.0) and np.all(np.sign(tilt[on:, 1]) >= 0.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    arrays(np.float64, (24, 2), elements=st.floats(-6.0, 6.0)),
+    st.integers(1, 120),
+)
+def test_tilt_limits_hold_for_any_specific_force_history(levels, hold):
+    """Piecewise-constant forces (jumps of either sign, held for ``hold`` ticks): the tilt
+    never leaves the angle limit and its rate never exceeds the rate limit or steps by
+    more than the acceleration limit allows."""
+    params = WashoutParams.preset("default")
+    fxy = np.repeat(levels, hold, axis=0)
+    f = np.column_stack([fxy, np.full(len(fxy), -G)])
+    poses = ClassicalWashout(params, DT).run(f, np.zeros_like(f))
+    tilt = poses[:, 3:5]
+    rate, jump = _tilt_rates(tilt)
+    assert np.max(np.abs(tilt)) <= params.tilt_angle_limit
+    assert np.max(np.abs(rate)) <= params.tilt_rate_limit * (1 + 1e-9)
+    assert np.max(np.abs(jump)) <= params.tilt_accel_limit * DT * (1 + 1e-9)
+
+
 # --- heave ---------------------------------------------------------------------------------
 
 

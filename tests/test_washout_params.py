@@ -98,6 +98,8 @@ def _base() -> dict:
         (lambda d: d["tilt"].update(rate_limit_deg_s=-3.0), "rate_limit_deg_s"),
         (lambda d: d["tilt"].update(wn=-2.0), "tilt.wn"),
         (lambda d: d["tilt"].update(angle_limit_deg=90.0), "< 90 deg"),
+        (lambda d: d["tilt"].update(accel_limit_deg_s2=0.0), "accel_limit_deg_s2.*> 0"),
+        (lambda d: d["tilt"].update(accel_limit_deg_s2=-8.0), "accel_limit_deg_s2"),
         (
             lambda d: d["scaling"].update(specific_force_gain=[0.5, -0.1, 0.3]),
             "specific_force_gain",
@@ -134,6 +136,18 @@ def test_error_messages_name_the_source_and_files_errors_are_config_errors(tmp_p
     bad.write_text("[tilt\nwn = 2")
     with pytest.raises(ConfigError, match="not valid TOML"):
         WashoutParams.from_toml(bad)
+
+
+def test_tilt_accel_limit_is_optional_in_files_written_before_it():
+    """Older files (and MCAP metadata) have no tilt.accel_limit_deg_s2: the default applies."""
+    from motionbase.washout.params import DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
+
+    d = copy.deepcopy(_base())
+    del d["tilt"]["accel_limit_deg_s2"]
+    p = WashoutParams.from_dict(d, source="old.toml")
+    assert p.tilt_accel_limit_deg_s2 == DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
+    assert p.tilt_accel_limit == pytest.approx(math.radians(DEFAULT_TILT_ACCEL_LIMIT_DEG_S2))
+    assert WashoutParams.from_dict(p.to_dict()) == p  # written back with the key
 
 
 def test_direct_construction_is_validated_too():
@@ -174,6 +188,7 @@ def test_any_valid_parameter_set_round_trips_exactly(gains, pos, angle, method, 
         tilt_angle_limit_deg=angle,
         rotational_wn=tuple(pos[18:21]),
         rotational_zeta=tuple(pos[9:12]),
+        tilt_accel_limit_deg_s2=pos[20],
         g=9.81,
         method=method,
         description=text,

@@ -16,8 +16,10 @@ simulation motion-base drive algorithms: part 1", UTIAS Report 296, 1985):
        f_l = wn_l^2/(s^2 + 2 zeta_l wn_l s + wn_l^2) f_s      (x, y only)
        pitch_t = asin(f_lx / g),  roll_t = -asin(f_ly / (g cos pitch_t))
 
-   then each is angle-limited and rate-limited (``|d tilt/dt| <= tilt_rate_limit``,
-   below the semicircular canals' threshold). A cab at rest tilted by (roll, pitch)
+   then each is angle-limited and followed by a tracker that limits the tilt rate
+   (``|d tilt/dt| <= tilt_rate_limit``, below the semicircular canals' threshold)
+   *and* the tilt acceleration (``|d^2 tilt/dt^2| <= tilt_accel_limit``), so the tilt
+   rate never steps (see "Tilt tracker" below). A cab at rest tilted by (roll, pitch)
    feels ``f = (g sin pitch, -g sin roll cos pitch, -g cos roll cos pitch)``, so a
    sustained forward ``f_x > 0`` pitches the nose up and a sustained ``f_y > 0`` rolls
    left wing down (negative roll). The tilt is never high-passed.
@@ -42,6 +44,29 @@ vector, inspectable as a :class:`WashoutState`. ``step`` and ``run`` call the sa
 compiled kernel (numba, compiled on first use and cached on disk), so they give
 bit-identical numbers.
 
+Tilt tracker
+------------
+Per tilt axis, each sample (angles in rad, ``u = tilt_accel_limit * dt``), the
+discrete braking curve of :mod:`motionbase.safety` applied to the tilt:
+
+- the target is the angle-limited tilt ``clip(tilt_t, -lim, lim)``; its own rate,
+  limited to the rate limit, is fed forward so a slow target is followed without lag;
+- the error left after the feed-forward is closed no faster than the *glide speed*
+  of the remaining distance ``d``: the lower of the speed from which the tilt can
+  still stop in time braking by ``u`` per tick (the braking curve of the safety
+  stage) and ``d a/v_max`` (plus a tenth of ``u``, so that it lands in finite time).
+  Along the glide the deceleration is proportional to the speed, with the time
+  constant ``v_max/a`` (0.375 s for 3 deg/s and 8 deg/s^2): equal to ``a`` at the rate
+  limit and easing off toward the stop, so it lands on a fixed target without
+  overshoot and without a kink in the rate;
+- the tilt never approaches ``+-lim`` faster than the glide speed of its distance to
+  it: it decelerates on the way to the angle limit instead of halting there in one
+  tick (the old limiter's rate step, a felt rotational jerk that the crank limiter
+  then had to absorb);
+- the rate changes by at most ``u`` per tick and stays within the rate limit; when all
+  the limits allow the whole step, the tilt lands exactly on the target (bit-exact
+  hold of a constant target or of the angle limit).
+
 Anti-windup (back-calculation)
 ------------------------------
 When the platform cannot reach the commanded pose, the pipeline clamps it and calls
@@ -56,9 +81,9 @@ the platform really is:
   whatever the states hold, they decay back to neutral with the filter's own
   poles: the pose can neither stick at the limit nor pump past neutral.
 - rotation, roll and pitch: when the clamp scaled the angle toward neutral
-  (``achieved = s * commanded``, ``0 <= s <= 1``), the tilt angle and the
-  high-pass angle are both scaled by ``s``; the rate limiter then brings the tilt
-  back at no more than its rate limit. Otherwise (and for yaw) the difference goes
+  (``achieved = s * commanded``, ``0 <= s <= 1``), the tilt angle, its rate and
+  the high-pass angle are all scaled by ``s``; the tilt tracker then brings the
+  tilt back within its rate and acceleration limits. Otherwise (and for yaw) the difference goes
   to the high-pass angle state.
 """
 
@@ -71,6 +96,7 @@ import numba
 import numpy as np
 
 from motionbase.errors import MotionbaseError
+from motionbase.safety import _brake_speed
 from motionbase.washout.filters import (
     discretise,
     lowpass2,
@@ -93,8 +119,8 @@ _TPHI, _TG0, _TG1 = 0, 27, 36  # translational: 3 axes x (3x3), 3 x 3, 3 x 3
 _RPHI, _RG0, _RG1 = 45, 57, 63  # rotational: 3 axes x (2x2), 3 x 2, 3 x 2
 _LPHI, _LG0, _LG1 = 69, 77, 81  # tilt low-pass: 2 axes x (2x2), 2 x 2, 2 x 2
 _KF, _FLIM, _KW, _WLIM = 85, 88, 91, 94
-_G, _TSTEP, _TLIM = 97, 98, 99
-_NC = 100
+_G, _TVMAX, _TLIM, _TU, _DT, _TK = 97, 98, 99, 100, 101, 102
+_NC = 103
 
 # state
 _QT, _UT = 0, 9  # translational states (axis*3 + [integral, position, velocity]), inputs
@@ -102,8 +128,11 @@ _QL, _UL = 12, 16  # tilt low-pass states (axis*2 + [output, rate]), inputs
 _TILT = 18  # tilt angles (roll, pitch)
 _QR, _UR = 20, 26  # rotational states (axis*2 + [integral, angle]), inputs
 _POSE = 29  # last pose sent (6)
-_NS = 35
+_TRATE = 35  # tilt rates (roll, pitch)
+_TTGT = 37  # last angle-limited tilt targets (roll, pitch)
+_NS = 39
 
+_GLIDE_END = 0.1  # the glide lands at a speed of this share of one tick's speed change
 _COS_MIN = 1e-3  # guard of 1/cos(pitch) in T_s (pitch within 0.06 deg of +-90 deg)
 
 
@@ -114,6 +143,57 @@ def _clip(x: float, lo: float, hi: float) -> float:
     if x > hi:
         return hi
     return x
+
+
+@numba.njit(cache=True, inline="always")
+def _glide_speed(dist, u, dt, k):  # pragma: no cover - compiled
+    """Largest tilt speed at ``dist`` from where it must stop (rad, rad/s).
+
+    The lower of the discrete braking curve of :mod:`motionbase.safety` (stop in time
+    braking by ``u`` per tick) and the glide ``k dist + u`` (``k = a/v_max``): the
+    deceleration is proportional to the speed (time constant ``1/k``), equal to the
+    acceleration limit only at the rate limit, so the tilt eases onto a stop.
+    """
+    return min(_brake_speed(dist, u, dt), k * dist + _GLIDE_END * u)
+
+
+@numba.njit(cache=True, inline="always")
+def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
+    """Tilt axis ``i`` one tick toward ``tgt`` (within +-lim); returns the new tilt.
+
+    Rate, acceleration and angle limits with the braking curve of
+    :func:`motionbase.safety._limit_kernel` (module docstring, "Tilt tracker").
+    """
+    dt = cf[_DT]
+    lim = cf[_TLIM]
+    vmax = cf[_TVMAX]
+    u = cf[_TU]
+    q0 = st[_TILT + i]
+    v0 = st[_TRATE + i]
+    vt = _clip((tgt - st[_TTGT + i]) / dt, -vmax, vmax)  # the target's own rate, fed forward
+    e = tgt - q0 - vt * dt
+    cap = _glide_speed(abs(e), u, dt, cf[_TK])
+    v_hi = _glide_speed(lim - q0, u, dt, cf[_TK])
+    v_lo = -_glide_speed(q0 + lim, u, dt, cf[_TK])
+    v_full = (tgt - q0) / dt
+    if (
+        abs(e) / dt <= cap
+        and abs(v_full) <= vmax
+        and abs(v_full - v0) <= u
+        and v_lo <= v_full <= v_hi
+    ):
+        q = tgt  # the whole step is allowed: land exactly on the target
+    else:
+        fb = min(cap, abs(e) / dt)
+        v = vt + fb if e >= 0.0 else vt - fb
+        v = _clip(v, v_lo, v_hi)
+        v = _clip(v, v0 - u, v0 + u)
+        v = _clip(v, -vmax, vmax)
+        q = _clip(q0 + v * dt, -lim, lim)  # safety net against rounding
+    st[_TRATE + i] = (q - q0) / dt
+    st[_TTGT + i] = tgt
+    st[_TILT + i] = q
+    return q
 
 
 @numba.njit(cache=True, inline="always")
@@ -149,13 +229,8 @@ def _step_kernel(cf, st, fx, fy, fz, wx, wy, wz, out):  # pragma: no cover - com
     cpt = max(np.cos(pitch_t), _COS_MIN)
     roll_t = -np.arcsin(_clip(fl1 / (g * cpt), -1.0, 1.0))
     tlim = cf[_TLIM]
-    tstep = cf[_TSTEP]
-    tr = st[_TILT + 0]
-    tp = st[_TILT + 1]
-    tr = tr + _clip(_clip(roll_t, -tlim, tlim) - tr, -tstep, tstep)
-    tp = tp + _clip(_clip(pitch_t, -tlim, tlim) - tp, -tstep, tstep)
-    st[_TILT + 0] = tr
-    st[_TILT + 1] = tp
+    tr = _tilt_track(cf, st, 0, _clip(roll_t, -tlim, tlim))
+    tp = _tilt_track(cf, st, 1, _clip(pitch_t, -tlim, tlim))
 
     # 3. rotational channel: Euler rates at the previous attitude, high-pass, integrate
     ph = st[_POSE + 3]
@@ -273,6 +348,7 @@ def _track(st, ach):  # pragma: no cover - compiled
             s = ach[3 + j] / cmd
             if 0.0 <= s <= 1.0:
                 st[_TILT + j] = st[_TILT + j] * s
+                st[_TRATE + j] = st[_TRATE + j] * s
                 st[_QR + 2 * j + 1] = ach[3 + j] - st[_TILT + j]
                 continue
         tilt = st[_TILT + j] if j < 2 else 0.0
@@ -300,6 +376,10 @@ class WashoutState:
         Last scaled specific force x, y, m/s^2.
     tilt : ndarray, shape (2,)
         Tilt-coordination angles (roll, pitch), rad, after rate and angle limits.
+    tilt_rate : ndarray, shape (2,)
+        Their rates over the last sample, rad/s.
+    tilt_target : ndarray, shape (2,)
+        The last angle-limited tilt targets (roll, pitch) the tracker followed, rad.
     rotational : ndarray, shape (3, 2)
         Per axis roll, pitch, yaw: (integral of angle [rad s], high-passed angle [rad]).
     rotational_input : ndarray, shape (3,)
@@ -313,6 +393,8 @@ class WashoutState:
     tilt_lowpass: np.ndarray
     tilt_lowpass_input: np.ndarray
     tilt: np.ndarray
+    tilt_rate: np.ndarray
+    tilt_target: np.ndarray
     rotational: np.ndarray
     rotational_input: np.ndarray
     pose: np.ndarray
@@ -325,6 +407,8 @@ class WashoutState:
             "tilt_lowpass": st[_QL:_UL].reshape(2, 2),
             "tilt_lowpass_input": st[_UL : _UL + 2],
             "tilt": st[_TILT : _TILT + 2],
+            "tilt_rate": st[_TRATE : _TRATE + 2],
+            "tilt_target": st[_TTGT : _TTGT + 2],
             "rotational": st[_QR:_UR].reshape(3, 2),
             "rotational_input": st[_UR : _UR + 3],
             "pose": st[_POSE : _POSE + 6],
@@ -343,6 +427,8 @@ class WashoutState:
         st[_QL:_UL] = self.tilt_lowpass.ravel()
         st[_UL : _UL + 2] = self.tilt_lowpass_input
         st[_TILT : _TILT + 2] = self.tilt
+        st[_TRATE : _TRATE + 2] = self.tilt_rate
+        st[_TTGT : _TTGT + 2] = self.tilt_target
         st[_QR:_UR] = self.rotational.ravel()
         st[_UR : _UR + 3] = self.rotational_input
         st[_POSE : _POSE + 6] = self.pose
@@ -383,8 +469,11 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
     cf[_KW : _KW + 3] = params.angular_velocity_gain
     cf[_WLIM : _WLIM + 3] = params.angular_velocity_limit
     cf[_G] = params.g
-    cf[_TSTEP] = params.tilt_rate_limit * dt
+    cf[_TVMAX] = params.tilt_rate_limit
     cf[_TLIM] = params.tilt_angle_limit
+    cf[_TU] = params.tilt_accel_limit * dt
+    cf[_DT] = dt
+    cf[_TK] = params.tilt_accel_limit / params.tilt_rate_limit  # 1/tau of the glide
     return cf
 
 

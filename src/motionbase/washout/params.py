@@ -22,6 +22,7 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
     zeta = 1.0
     rate_limit_deg_s = 3.0
     angle_limit_deg = 8.0
+    accel_limit_deg_s2 = 8.0     # optional (default 8 deg/s^2)
 
     [rotational]                 # s/(s^2 + 2 zeta wn s + wn^2) on Euler rates, per axis
     wn = [1.0, 0.8, 1.0]         # rad/s
@@ -29,8 +30,11 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
 
 The dataclass fields mirror the file one to one (angles stay in degrees where the
 name says ``_deg``), so ``from_dict(p.to_dict()) == p`` exactly; the SI values the
-filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit`` and
-``tilt_angle_limit`` (radians).
+filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit``,
+``tilt_angle_limit`` and ``tilt_accel_limit`` (radians).
+
+``tilt.accel_limit_deg_s2`` may be left out (files written before it existed): it then
+takes :data:`DEFAULT_TILT_ACCEL_LIMIT_DEG_S2`.
 """
 
 from __future__ import annotations
@@ -55,6 +59,11 @@ from motionbase.errors import ConfigError
 from motionbase.washout.filters import METHODS
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
+#: Tilt acceleration limit when a file does not give one, deg/s^2. With the 3 deg/s rate
+#: limit the tilt rate builds up in 0.375 s and glides onto the angle limit with that time
+#: constant (braking starts about 1.1 deg before it); the linear tilt path needs at most
+#: ~5.6 deg/s^2 for a 0.5 m/s^2 cue at 10 rad/s, so small cues are not distorted.
+DEFAULT_TILT_ACCEL_LIMIT_DEG_S2 = 8.0
 
 Vec3 = tuple[float, float, float]
 
@@ -66,10 +75,14 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "angular_velocity_limit_deg_s",
     ),
     "translational": ("wn", "zeta", "wb"),
-    "tilt": ("wn", "zeta", "rate_limit_deg_s", "angle_limit_deg"),
+    "tilt": ("wn", "zeta", "rate_limit_deg_s", "angle_limit_deg", "accel_limit_deg_s2"),
     "rotational": ("wn", "zeta"),
 }
 _TOP = ("description", "g", "method")
+#: Keys that may be left out of a file, per section, with their default.
+_OPTIONAL: dict[str, dict[str, float]] = {
+    "tilt": {"accel_limit_deg_s2": DEFAULT_TILT_ACCEL_LIMIT_DEG_S2},
+}
 
 
 @dataclass(frozen=True)
@@ -98,6 +111,10 @@ class WashoutParams:
         Largest tilt angle, deg, in [0, 90); 0 disables tilt coordination.
     rotational_wn, rotational_zeta : (3,) float
         Second-order high-pass on the Euler rates per axis (roll, pitch, yaw).
+    tilt_accel_limit_deg_s2 : float
+        Largest change of the tilt rate, deg/s^2, > 0: the tilt rate builds up and
+        dies down smoothly, and the tilt brakes before its angle limit instead of
+        stopping dead on it.
     g : float
         Gravity, m/s^2, > 0.
     method : str
@@ -119,6 +136,7 @@ class WashoutParams:
     tilt_angle_limit_deg: float
     rotational_wn: Vec3
     rotational_zeta: Vec3
+    tilt_accel_limit_deg_s2: float = DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
     g: float = STANDARD_GRAVITY
     method: str = "tustin"
     description: str = ""
@@ -150,6 +168,11 @@ class WashoutParams:
     def tilt_angle_limit(self) -> float:
         """Largest tilt angle, rad."""
         return math.radians(self.tilt_angle_limit_deg)
+
+    @property
+    def tilt_accel_limit(self) -> float:
+        """Largest tilt acceleration, rad/s^2."""
+        return math.radians(self.tilt_accel_limit_deg_s2)
 
     # --- construction ---------------------------------------------------------------------
 
@@ -186,9 +209,11 @@ class WashoutParams:
             table = d[section]
             if not isinstance(table, dict):
                 raise ConfigError(f"{source}: [{section}] must be a table, got {table!r}")
-            check_keys(f"{source} [{section}]", table, keys, required=keys)
+            optional = _OPTIONAL.get(section, {})
+            required = tuple(k for k in keys if k not in optional)
+            check_keys(f"{source} [{section}]", table, keys, required=required)
             for key in keys:
-                flat[_field(section, key)] = table[key]
+                flat[_field(section, key)] = table.get(key, optional.get(key))
         flat["g"] = d.get("g", STANDARD_GRAVITY)
         flat["method"] = d.get("method", "tustin")
         flat["description"] = d.get("description", "")
@@ -256,6 +281,7 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         "tilt_zeta": num("tilt", "zeta", strict=True),
         "tilt_rate_limit_deg_s": num("tilt", "rate_limit_deg_s", strict=True, unit="deg/s"),
         "tilt_angle_limit_deg": num("tilt", "angle_limit_deg", strict=False, unit="deg"),
+        "tilt_accel_limit_deg_s2": num("tilt", "accel_limit_deg_s2", strict=True, unit="deg/s^2"),
         "rotational_wn": vec("rotational", "wn", strict=True, unit="rad/s"),
         "rotational_zeta": vec("rotational", "zeta", strict=True),
         "g": as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2"),
