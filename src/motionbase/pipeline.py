@@ -615,6 +615,7 @@ class Pipeline:
         self._fast = bool(fast) and config.robot == "rus6"
         self._G = self.robot.kin._G if config.robot == "rus6" else None
         self.reset()
+        self.warm_up()
 
     # -- state (views of the state vector) ---------------------------------------
     @property
@@ -723,6 +724,17 @@ class Pipeline:
         self._fade = 1.0
         self._stale = False
         self._estop = False
+
+    def warm_up(self) -> None:
+        """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
+        time; the pipeline is left reset, its counters untouched."""
+        counts = self.health.as_dict()
+        self.step(AircraftState(0.0, self._level_f, self._zero3))
+        self.step(None)
+        self.robot.forward(self.robot.park_angles, guess=self.robot.park_pose)
+        self.reset()
+        for name, value in counts.items():
+            setattr(self.health, name, value)
 
     def stop(self) -> None:
         """Ramp back to park over ``soft_start_s`` (end of run, Ctrl-C)."""
@@ -1088,10 +1100,10 @@ def run(
         Objects with ``write(output)``, already entered.
     paced : bool
         Real-time run (live and ``--realtime`` sources pace the source ticks; the
-        park ticks are paced here). Each tick is due at its source time on the
-        wall clock (anchored at the first tick, re-anchored when the source's clock
-        jumps) and must be done one ``dt`` later: the worst lateness goes to
-        ``pipeline.health.worst_overrun_s`` (s, 0 when never late).
+        park ticks are paced here). A tick is due when the source hands it over and
+        must be processed (pipeline step and every sink) within one ``dt``: the worst
+        excess goes to ``pipeline.health.worst_overrun_s`` (s, 0 when never late). A
+        source that stalls is the watchdog's business, not an overrun.
     stop : StopRequest, optional
         Raised to stop (ramp to park) or E-stop.
     progress : callable, optional
@@ -1144,9 +1156,7 @@ def _run(
     t_last = 0.0
     active = list(sinks)
     failure: BaseException | None = None  # the first source or sink failure
-    # paced runs: tick k is due at anchor_wall + (t_k - anchor_t) and must be done one dt later
-    anchor: tuple[float, float] | None = None
-    prev_t: float | None = None
+    last_started: float | None = None  # paced runs: when the last tick was handed over
 
     def fail(exc: BaseException, what: str) -> None:
         nonlocal failure
@@ -1156,7 +1166,7 @@ def _run(
             stop.set(f"{what} failure")
 
     def emit(out: PipelineOutput, started: float) -> None:
-        nonlocal t_first, t_last, anchor, prev_t
+        nonlocal t_first, t_last, last_started
         for sink in tuple(active):
             try:
                 sink.write(out)
@@ -1172,12 +1182,11 @@ def _run(
             t_first = out.t
         t_last = out.t
         if paced:
-            if anchor is None or prev_t is None or abs(out.t - prev_t - dt) > 0.5 * dt:
-                anchor = (started, out.t)  # first tick, or the source's clock jumped
-            late = time.perf_counter() - (anchor[0] + (out.t - anchor[1]) + dt)
+            # a tick is due when the source hands it over and must be done within one period
+            late = time.perf_counter() - started - dt
             if late > health.worst_overrun_s:
                 health.worst_overrun_s = late
-        prev_t = out.t
+            last_started = started
 
     def apply_stop() -> None:
         if pipeline._phase in ("starting", "running"):
@@ -1222,8 +1231,8 @@ def _run(
                 break
             if stop.estop and not pipeline._estop:
                 pipeline.estop()
-            if paced and anchor is not None and prev_t is not None:
-                wait = anchor[0] + (prev_t + dt - anchor[1]) - time.perf_counter()
+            if paced and last_started is not None:
+                wait = last_started + dt - time.perf_counter()
                 if wait > 0:
                     time.sleep(wait)
             emit(pipeline.step(None), time.perf_counter())
