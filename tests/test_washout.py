@@ -386,11 +386,16 @@ def test_anti_windup_returns_to_neutral_without_extra_overshoot(params):
     assert np.all(
         np.max(np.abs(achieved[rel]), axis=0) <= np.max(np.abs(free[rel]), axis=0) + 1e-12
     )
-    # promptly: within the time the free run needs to settle to 1 % of its excursion
+    # promptly: within the time the free run needs to settle to 1 % of its excursion,
+    # counted from when the clamp lets go (the box clamp scales the whole pose, so it keeps
+    # acting for several seconds after the input is removed, while the slower axes are still
+    # beyond their limits; until then the pose is the clamp's, not the filter's)
     scale = np.max(np.abs(free[rel]), axis=0)
     settled_free = np.all(np.abs(free[rel]) <= 0.01 * scale, axis=1)
     t_free = np.argmax(settled_free & np.flip(np.cumprod(np.flip(settled_free)) > 0)) * DT
-    k_check = n_on + int((t_free * 1.5 + 5.0) / DT)
+    k_released = int(np.max(np.nonzero(np.any(out != achieved, axis=1))[0]))
+    assert k_released >= n_on
+    k_check = k_released + int((t_free * 1.5 + 5.0) / DT)
     assert k_check < len(f)
     assert np.all(np.abs(achieved[k_check:]) <= 0.01 * scale)
     assert np.all(np.abs(achieved[-1]) <= 1e-3 * scale)  # no sticking
