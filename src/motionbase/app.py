@@ -230,6 +230,11 @@ def _drive(
     return JobResult(title, summary, out, notes=[d.stats_line() for d in drives])
 
 
+def _check_duration(duration_s: float | None) -> None:
+    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
+        raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
+
+
 def fly(
     script: str = "c1723",
     *,
@@ -264,8 +269,7 @@ def fly(
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
-    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
-        raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
+    _check_duration(duration_s)
     name = Path(script).stem
     out_path = (
         Path(out) if out is not None else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
@@ -463,8 +467,7 @@ def stream(
     """
     from motionbase.io.mavlink_source import MavlinkSource
 
-    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
-        raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
+    _check_duration(duration_s)
     if serial and not planar:
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
     config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
