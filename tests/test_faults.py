@@ -8,21 +8,17 @@ message (exit status 2 for what a user can fix), and a log that reads back up to
 from __future__ import annotations
 
 import math
-import os
-import pty
 import re
 import resource
-import select
 import signal
 import subprocess
 import sys
-import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
 import pytest
+from pty_board import Board
 
 from motionbase import app, cli
 from motionbase.errors import SinkError, SourceError
@@ -142,40 +138,6 @@ def test_a_source_bug_parks_then_propagates_unchanged(tmp_path):
 # --------------------------------------------------------------------------- serial port
 
 
-class Board:
-    """The far end of a pty pair: sends the ready line, records what it receives."""
-
-    def __init__(self) -> None:
-        self.master, self.slave = pty.openpty()
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
-        self.data = bytearray()
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            if not self.data:
-                os.write(self.master, b"Rolling\r\n")
-            r, _, _ = select.select([self.master], [], [], 0.02)
-            if r:
-                try:
-                    chunk = os.read(self.master, 1024)
-                except OSError:
-                    return
-                self.data += chunk
-
-    def vanish(self) -> None:
-        self.stop.set()
-        self.thread.join(2)
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-
-
 class PacedSource(FailingSource):
     """Samples about every 2 ms of wall time, so serial frames (50 Hz) go out."""
 
@@ -199,7 +161,7 @@ def test_a_vanishing_serial_port_parks_the_logged_platform_and_says_so(tmp_path)
         nonlocal count
         count += 1
         if count == vanish_at:
-            board.vanish()
+            board.close()
 
     sink = ServoSerialSink(board.path, ready_timeout_s=2.0)
     try:
@@ -215,7 +177,7 @@ def test_a_vanishing_serial_port_parks_the_logged_platform_and_says_so(tmp_path)
                 on_output=on_output,
             )
     finally:
-        board.vanish()
+        board.close()
     message = str(info.value)
     assert "vanished" in message and "parked" in message and "\n" not in message
     assert sink.frames_sent > 0

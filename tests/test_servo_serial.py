@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import pty
-import select
 import threading
-import tty
 import warnings
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pty_board import Board
 
 from motionbase.errors import SinkError
 from motionbase.io.serial_link import ServoSerialSink
@@ -56,44 +53,6 @@ def test_decoder_ignores_what_the_firmware_ignores():
 def test_encoder_refuses_out_of_range(bad):
     with pytest.raises(SinkError):
         encode(bad)
-
-
-class Board:
-    """The far end of a pty pair: prints the ready line until the host speaks, records bytes."""
-
-    def __init__(self, ready: bool = True) -> None:
-        self.master, self.slave = pty.openpty()
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
-        self.ready = ready
-        self.data = bytearray()
-        self.stop = threading.Event()
-        self.got_first = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            if self.ready and not self.got_first.is_set():
-                os.write(self.master, b"Rolling\r\n")
-            r, _, _ = select.select([self.master], [], [], 0.02)
-            if r:
-                try:
-                    chunk = os.read(self.master, 1024)
-                except OSError:
-                    return
-                if chunk:
-                    self.data += chunk
-                    self.got_first.set()
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(2)
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
 
 
 class FakeClock:

@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import bisect
 import math
-import os
-import pty
 import select
 import socket
 import threading
-import tty
 
 import numpy as np
 import pytest
+from pty_board import Board
 
 from motionbase.cli import main
 from motionbase.errors import SourceError
@@ -52,36 +50,6 @@ def expected_servo(x, y, phi=0.0, modes=(1, -1, -1)):
             deg = deg + 225 if deg < 0 else deg - 135
         out.append(math.floor(deg + 0.5))
     return tuple(out)
-
-
-class Board:
-    """The Arduino's side of a pty pair: says Rolling until the host speaks, records bytes."""
-
-    def __init__(self) -> None:
-        self.master, self.slave = pty.openpty()
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
-        self.data = bytearray()
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            if not self.data:
-                os.write(self.master, b"Rolling\r\n")
-            r, _, _ = select.select([self.master], [], [], 0.02)
-            if r:
-                try:
-                    self.data += os.read(self.master, 4096)
-                except OSError:
-                    return
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(2)
-        os.close(self.master)
-        os.close(self.slave)
 
 
 def write_csv(path, duration=1.2, omega=2.0):

@@ -1,0 +1,52 @@
+"""A fake Arduino for serial tests: the far end of a real pseudo-terminal pair.
+
+It prints the sketch's ready line (``Rolling``) until the host first speaks, then records
+every byte it receives; :meth:`Board.close` makes the port vanish as an unplugged board does.
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import select
+import threading
+import tty
+
+
+class Board:
+    """The board's side of a pty pair; ``path`` is the host's device."""
+
+    def __init__(self, ready: bool = True) -> None:
+        self.master, self.slave = pty.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self.ready = ready
+        self.data = bytearray()
+        self.stop = threading.Event()
+        self.got_first = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            if self.ready and not self.got_first.is_set():
+                os.write(self.master, b"Rolling\r\n")
+            r, _, _ = select.select([self.master], [], [], 0.02)
+            if r:
+                try:
+                    chunk = os.read(self.master, 4096)
+                except OSError:
+                    return
+                if chunk:
+                    self.data += chunk
+                    self.got_first.set()
+
+    def close(self) -> None:
+        """Stop reading and close both ends (the port vanishes)."""
+        self.stop.set()
+        self.thread.join(2)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
