@@ -201,18 +201,14 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
     _args_workspace,
 )
 def run_workspace(args: argparse.Namespace) -> int:
-    if getattr(args, "planar", False):
+    if args.planar:
         from motionbase.io.planar_plots import planar_workspace_report
 
         print(planar_workspace_report(args.rrr3, args.plot))
-        return 0
-    return _workspace_rus6(args)
+    else:
+        from motionbase.io.workspace_plots import rus6_workspace_report
 
-
-def _workspace_rus6(args: argparse.Namespace) -> int:
-    from motionbase.io.workspace_plots import rus6_workspace_report
-
-    print(rus6_workspace_report(args.platform, args.plot))
+        print(rus6_workspace_report(args.platform, args.plot))
     return 0
 
 
