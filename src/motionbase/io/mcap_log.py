@@ -589,19 +589,7 @@ class McapLogger:
         buf += values
         self._chunk_deferred += 1
         self._chunk_extra += self._template_set[4]
-        if self._chunk_messages:
-            if ns < self._chunk_start_ns:
-                self._chunk_start_ns = ns
-            elif ns > self._chunk_end_ns:
-                self._chunk_end_ns = ns
-        else:
-            self._chunk_start_ns = self._chunk_end_ns = ns
-        self._chunk_messages += count
-        if (
-            len(buf) + self._chunk_extra >= self.chunk_size
-            or ns - self._chunk_start_ns >= self._flush_interval_ns
-        ):
-            self._flush_chunk()
+        self._added(ns, count)
 
     def flush(self) -> None:
         """Write the chunk in progress now (e.g. before a risky operation or on E-stop)."""
@@ -670,6 +658,10 @@ class McapLogger:
         buf = self._buf
         buf += _MESSAGE_HEADER.pack(0x05, _MESSAGE_FIXED + len(data), cid, 0, ns, ns)
         buf += data
+        self._added(ns, 1)
+
+    def _added(self, ns: int, count: int) -> None:
+        """Account ``count`` messages at ``ns`` to the chunk; write it when full or old."""
         if self._chunk_messages:
             if ns < self._chunk_start_ns:
                 self._chunk_start_ns = ns
@@ -677,8 +669,11 @@ class McapLogger:
                 self._chunk_end_ns = ns
         else:
             self._chunk_start_ns = self._chunk_end_ns = ns
-        self._chunk_messages += 1
-        if len(buf) >= self.chunk_size or ns - self._chunk_start_ns >= self._flush_interval_ns:
+        self._chunk_messages += count
+        if (
+            len(self._buf) + self._chunk_extra >= self.chunk_size
+            or ns - self._chunk_start_ns >= self._flush_interval_ns
+        ):
             self._flush_chunk()
 
     def _flush_chunk(self) -> None:
