@@ -68,7 +68,9 @@ def main() -> None:
                 mark["acc1"] = source.stats.accepted
 
             meta = app.run_metadata(config, source)
-            with PipelineLog(Path(tmp) / "s.mcap", meta, health=pipeline.health.as_dict) as log:
+            planar = config.robot == "rrr3"
+            health = pipeline.health.as_dict
+            with PipelineLog(Path(tmp) / "s.mcap", meta, health=health, planar=planar) as log:
                 run(pipeline, source, [log], paced=True, progress=on_tick)
         proc.join(timeout=10)
     wall = mark["wall1"] - mark["wall0"]

@@ -54,9 +54,9 @@ def _outputs(planar: bool, n: int = 900) -> list:
     return outs
 
 
-def _write(path: Path, outs: list, fast: bool) -> None:
+def _write(path: Path, outs: list, fast: bool, planar: bool | None = None) -> None:
     health = {"samples": 0}
-    log = PipelineLog(path, {"kind": "test"}, health=lambda: dict(health))
+    log = PipelineLog(path, {"kind": "test"}, health=lambda: dict(health), planar=planar)
     if not fast:
         log._write_fast = lambda logger, out, t: False
     with log:
@@ -71,12 +71,14 @@ def _messages(path: Path) -> list[tuple[str, int, bytes]]:
         return [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages()]
 
 
+@pytest.mark.parametrize("prepared", [False, True], ids=["lazy", "prepared"])
 @pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
-def test_fast_path_writes_the_general_paths_bytes(tmp_path, planar):
+def test_fast_path_writes_the_general_paths_bytes(tmp_path, planar, prepared):
+    # prepared: every kind of tick's template built when the log starts (``planar=``)
     outs = _outputs(planar)
     assert any(o.state is not None and not o.accepted for o in outs)
     _write(tmp_path / "general.mcap", outs, fast=False)
-    _write(tmp_path / "fast.mcap", outs, fast=True)
+    _write(tmp_path / "fast.mcap", outs, fast=True, planar=planar if prepared else None)
     general = _messages(tmp_path / "general.mcap")
     fast = _messages(tmp_path / "fast.mcap")
     assert len(fast) == len(general)

@@ -257,6 +257,11 @@ class PipelineLog:
         description); stored in the file's ``motionbase`` metadata record.
     health : callable, optional
         Returns the current health counters (a dict) for ``/health``.
+    planar : bool, optional
+        The robot the outputs come from (True: the 3-RRR in planar mode). When
+        given, the encodings of every kind of tick are prepared when the log starts
+        instead of at each kind's first tick (about a millisecond each, which would
+        make that tick late in a 1 kHz real-time loop).
     """
 
     def __init__(
@@ -264,10 +269,13 @@ class PipelineLog:
         path: str | Path,
         metadata: Mapping[str, Any],
         health: Callable[[], dict[str, Any]] | None = None,
+        *,
+        planar: bool | None = None,
     ) -> None:
         self.path = Path(path)
         self._logger = McapLogger(self.path, metadata)
         self._health = health
+        self._planar = planar
         self._next_health_t = -math.inf  # the first tick writes /health
         self._last_t = 0.0
         self._templates: dict[tuple[bool, bool, bool, bool], tuple[Any, ...]] = {}
@@ -281,6 +289,12 @@ class PipelineLog:
                 f"{exc.strerror or exc} (choose another --out path)"
             ) from None
         self._logger.start()
+        if self._planar is not None and _orjson is not None:
+            # every kind of tick of this robot: with or without a sample (park ticks),
+            # with or without angular acceleration, with or without the static /tf
+            for key in ((True, False), (True, True), (False, False)):
+                for static in (True, False) if not self._planar else (False,):
+                    self._template(self._logger, (*key, self._planar, static))
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -336,14 +350,7 @@ class PipelineLog:
             return False
         acc = st is not None and st.angular_acceleration is not None
         key = (st is not None, acc, planar, static)
-        template = self._templates.get(key)
-        if template is None:
-            ops, pool, n_tokens, n_messages = _build_template(key, logger.channel_id)
-            if n_tokens > MAX_TOKENS:  # more values than the compiled fill takes
-                template = self._templates[key] = (-1, -1, 0)
-            else:
-                tid = logger.register_template(ops, pool, n_tokens, n_messages)
-                template = self._templates[key] = (tid, n_tokens, n_messages)
+        template = self._templates.get(key) or self._template(logger, key)
         if values.count(b",") + 1 != template[1]:  # not the template's values: general path
             return False
         if static:
@@ -351,6 +358,22 @@ class PipelineLog:
         # the writer thread fills the template in (compiled, GIL-free)
         logger.add_deferred(ns, template[0], values, template[2])
         return True
+
+    def _template(
+        self, logger: McapLogger, key: tuple[bool, bool, bool, bool]
+    ) -> tuple[int, int, int]:
+        """Build and register the template of one kind of tick: (id, tokens, messages)."""
+        ops, pool, n_tokens, n_messages = _build_template(key, logger.channel_id)
+        if n_tokens > MAX_TOKENS:  # more values than the compiled fill takes
+            template = (-1, -1, 0)
+        else:
+            template = (
+                logger.register_template(ops, pool, n_tokens, n_messages),
+                n_tokens,
+                n_messages,
+            )
+        self._templates[key] = template
+        return template
 
     def _write_general(self, logger: McapLogger | None, out) -> None:
         if logger is None:
