@@ -2,7 +2,10 @@
 
 Run: ``python benchmarks/bench_load.py`` (about a minute or two; ``--minutes M`` for another
 length, ``--planar`` for the 3-RRR robot, ``--paced`` to run on the wall clock and read the
-worst loop overrun from the log's ``/health`` record, which then takes the flight's length).
+loop overruns from the log's ``/health`` record, which then takes the flight's length).
+``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
+50 us of computing per tick and nothing else, to tell what the machine does to any loop
+(a virtual machine's host taking the CPU away) from what the pipeline costs.
 
 The source is synthetic but physically plausible: a sum of sines in specific force
 (about +-2 m/s^2 surge and sway around 1 g, +-1.5 m/s^2 heave) and body rates (about
@@ -104,13 +107,63 @@ class TimedLog(PipelineLog):
         self.n += 1
 
 
+def floor(minutes: float, rate_hz: float, work_s: float = 50e-6) -> None:
+    """The machine's own overruns: a paced loop computing ``work_s`` a tick, nothing else."""
+    n = int(round(minutes * 60.0 * rate_hz))
+    dt = 1.0 / rate_hz
+    clock, cpu_clock = time.perf_counter, time.thread_time
+    late = []  # (wall s, CPU s) of the late ticks
+    steal0 = _steal_s()
+    start = clock()
+    for k in range(n):
+        delay = start + k * dt - clock()
+        if delay > 0:
+            time.sleep(delay)
+        t0, c0 = clock(), cpu_clock()
+        while clock() - t0 < work_s:
+            pass
+        wall = clock() - t0
+        if wall > dt:
+            late.append((wall, cpu_clock() - c0))
+    off_cpu = sum(c < dt for _, c in late)
+    worst = max((w for w, _ in late), default=dt) - dt
+    print(
+        f"bench_load --floor: {minutes:g} min of a paced {rate_hz:g} Hz loop computing "
+        f"{work_s * 1e6:.0f} us a tick and nothing else (no pipeline, no log)"
+    )
+    print(
+        f"  overruns {len(late)} of {n} ticks ({100 * len(late) / n:.4f} %), "
+        f"{off_cpu} of them off the CPU; worst {1e3 * worst:.2f} ms late"
+    )
+    steal1 = _steal_s()
+    if steal0 is not None and steal1 is not None:
+        print(
+            f"  CPU time the host took from this machine during the run (/proc/stat steal, "
+            f"all CPUs): {steal1 - steal0:.2f} s"
+        )
+
+
+def _steal_s() -> float | None:
+    """Seconds of steal time (a VM's vCPUs not run by the host) summed over CPUs, or None."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--planar", action="store_true")
     ap.add_argument("--paced", action="store_true")
+    ap.add_argument("--floor", action="store_true")
     args = ap.parse_args()
+    if args.floor:
+        floor(args.minutes, args.rate)
+        return
 
     config = load_config(planar=args.planar, rate_hz=args.rate)
     duration = args.minutes * 60.0
@@ -126,6 +179,7 @@ def main() -> None:
             path,
             run_metadata(config, source),
             health=pipeline.health.as_dict,
+            planar=args.planar,
             source=source,
             capacity=n_total,
         )
@@ -136,6 +190,7 @@ def main() -> None:
                 rss[f"{100 * log.n // n_total}%"] = rss_mb()
 
         with log:
+            steal0 = _steal_s()
             wall0 = time.perf_counter()
             summary = run(
                 pipeline,
@@ -146,6 +201,7 @@ def main() -> None:
                 progress=progress,
             )
             wall = time.perf_counter() - wall0
+            steal1 = _steal_s()
             rss["end"] = rss_mb()
         size = path.stat().st_size
         health = read_messages(path)["/health"][-1]
@@ -186,11 +242,18 @@ def main() -> None:
         "watchdog_fades",
         "time_jumps",
         "estops",
+        "overruns",
+        "overruns_off_cpu",
         "worst_overrun_s",
     )
     print("  /health: " + ", ".join(f"{k} {health.get(k)}" for k in keys))
     if not args.paced:
-        print("  (worst_overrun_s is measured only with --paced, on the wall clock)")
+        print("  (overruns are measured only with --paced, on the wall clock)")
+    elif steal0 is not None and steal1 is not None:
+        print(
+            f"  CPU time the host took from this machine during the run (/proc/stat steal, "
+            f"all CPUs): {steal1 - steal0:.2f} s"
+        )
 
 
 if __name__ == "__main__":

@@ -491,8 +491,39 @@ def test_health_record_in_the_log_counts_every_event_and_the_worst_overrun(tmp_p
     assert health["watchdog_fades"] == fades == 2
     assert health["estops"] == 1
     assert health["worst_overrun_s"] >= 2 * dt - 1e-4
+    assert health["overruns"] >= 1 and health["overruns_off_cpu"] >= 1  # the sleeping tick
     assert health["samples"] == len(poses)
     assert poses[-1]["phase"] == "parked"
     # health records come at least once per second of source time
     t_health = [m["t"] for m in msgs["/health"]]
     assert np.diff(t_health).max() <= 1.0 + 1e-9 and t_health[-1] == poses[-1]["t"]
+
+
+def test_overruns_tell_a_waiting_loop_from_a_computing_one():
+    """A tick that sleeps past its period is late while off the CPU; one that computes past
+    it is late on the CPU. Both are counted; only the first as ``overruns_off_cpu``."""
+    import time
+
+    config = CONFIGS[(False, 120.0)]
+    dt = config.dt
+    states = [AircraftState(i * dt, [0.0, 0.0, -G], [0.0, 0.0, 0.0]) for i in range(60)]
+
+    class SlowSink:
+        n = 0
+
+        def write(self, out) -> None:
+            self.n += 1
+            if self.n == 20:
+                time.sleep(3 * dt)  # waiting: the thread's CPU time stays far below dt
+            elif self.n == 40:
+                cpu0 = time.thread_time()
+                while time.thread_time() - cpu0 < 3 * dt:  # computing: 3 dt of CPU time
+                    pass
+
+    pipeline = Pipeline(config)
+    run(pipeline, PacedListSource(states, [True] * len(states)), [SlowSink()], paced=True)
+    h = pipeline.health
+    assert h.overruns >= 2
+    assert h.overruns_off_cpu >= 1  # the sleeping tick
+    assert h.overruns - h.overruns_off_cpu >= 1  # the computing tick
+    assert h.worst_overrun_s >= 2 * dt - 1e-4

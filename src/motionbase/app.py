@@ -101,6 +101,12 @@ class JobResult:
             f"rate-limited commands {h.rate_limited}; unsafe commands held {h.unsafe_commands}; "
             f"watchdog fades {h.watchdog_fades}; E-stops {h.estops}",
         ]
+        if h.overruns:
+            lines.append(
+                f"real-time loop: {h.overruns} ticks late (worst by "
+                f"{1e3 * h.worst_overrun_s:.1f} ms; {h.overruns_off_cpu} of them while the loop "
+                "was waiting for the CPU or for I/O)"
+            )
         if s.peak_angle is not None:
             lo, hi = s.angle_limits
             lines.append("actuator  peak |angle| deg (limits)     peak speed deg/s (limit)")
@@ -207,7 +213,12 @@ def _drive(
     sinks: list[Any] = []
     try:
         log = (
-            PipelineLog(out, run_metadata(config, source), health=pipeline.health.as_dict)
+            PipelineLog(
+                out,
+                run_metadata(config, source),
+                health=pipeline.health.as_dict,
+                planar=config.robot == "rrr3",
+            )
             if out
             else None
         )
@@ -515,7 +526,7 @@ def stream(
 
 
 # Fields that depend on the wall clock or the machine, never compared.
-_UNCOMPARED = {"/health": {"worst_overrun_s"}}
+_UNCOMPARED = {"/health": {"overruns", "overruns_off_cpu", "worst_overrun_s"}}
 
 
 @dataclass

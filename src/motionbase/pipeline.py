@@ -349,7 +349,16 @@ class PipelineOutput(NamedTuple):
 
 @dataclass
 class Health:
-    """Counts of everything the safety layers did (logged as ``/health``)."""
+    """Counts of everything the safety layers did (logged as ``/health``).
+
+    The loop's timing (real-time runs only, see :func:`run`): ``overruns`` counts
+    ticks processed later than one period after the source handed them over,
+    ``worst_overrun_s`` is the largest lateness (s), and ``overruns_off_cpu`` counts
+    the late ticks in which the loop's thread ran for less than one period: it was
+    waiting (for a CPU held by another process, the OS or a virtual machine's host,
+    or for blocking I/O), not computing. Those point at the machine, the others at
+    the work done in a tick.
+    """
 
     samples: int = 0
     rejected_inputs: int = 0
@@ -359,6 +368,8 @@ class Health:
     watchdog_fades: int = 0
     time_jumps: int = 0
     estops: int = 0
+    overruns: int = 0
+    overruns_off_cpu: int = 0
     worst_overrun_s: float = 0.0
     last_rejection: str = ""
 
@@ -1183,9 +1194,13 @@ def _run(
         t_last = out.t
         if paced:
             # a tick is due when the source hands it over and must be done within one period
-            late = time.perf_counter() - started - dt
-            if late > health.worst_overrun_s:
-                health.worst_overrun_s = late
+            late = clock() - started - dt
+            if late > 0.0:
+                health.overruns += 1
+                if cpu_clock() - cpu_started < dt:
+                    health.overruns_off_cpu += 1  # the thread was waiting, not computing
+                if late > health.worst_overrun_s:
+                    health.worst_overrun_s = late
             last_started = started
 
     def apply_stop() -> None:
@@ -1201,7 +1216,11 @@ def _run(
     stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
     has_fresh = hasattr(source, "fresh")
     clock = time.perf_counter
+    cpu_clock = time.thread_time  # the loop thread's CPU time (tells waiting from computing)
+    started = cpu_started = 0.0
     step = pipeline.step
+    scratch = np.zeros(robot.n)
+    _track_peaks(scratch, scratch.copy(), scratch, scratch)  # loaded now, not in the first tick
     while True:
         try:
             state = next(iterator)
@@ -1210,7 +1229,8 @@ def _run(
         except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
             fail(exc, "source")
             break
-        started = clock() if paced else 0.0
+        if paced:
+            started, cpu_started = clock(), cpu_clock()
         if stop_raised() and (not stopping_requested or (stop.estop and not pipeline._estop)):
             if not stopping_requested:
                 summary.stopped_by = stop.reason
@@ -1232,10 +1252,11 @@ def _run(
             if stop.estop and not pipeline._estop:
                 pipeline.estop()
             if paced and last_started is not None:
-                wait = last_started + dt - time.perf_counter()
+                wait = last_started + dt - clock()
                 if wait > 0:
                     time.sleep(wait)
-            emit(pipeline.step(None), time.perf_counter())
+            started, cpu_started = clock(), cpu_clock()
+            emit(pipeline.step(None), started)
     if failure is not None:
         # parked first; then the failure, as one clear line when it is ours, else as is (a bug)
         if isinstance(failure, MotionbaseError):

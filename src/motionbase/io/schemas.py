@@ -139,6 +139,12 @@ HEALTH = _topic(
         "rate_limited": dict(_COUNT, description="commands limited in speed or acceleration"),
         "watchdog_fades": dict(_COUNT, description="fades to neutral on stale input"),
         "estops": dict(_COUNT, description="emergency stops"),
+        "overruns": dict(_COUNT, description="real-time ticks processed later than one period"),
+        "overruns_off_cpu": dict(
+            _COUNT,
+            description="overruns in which the loop thread ran for less than one period "
+            "(it waited for the CPU or for I/O)",
+        ),
         "worst_overrun_s": {
             "type": "number",
             "minimum": 0,
