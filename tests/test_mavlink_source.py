@@ -1,15 +1,19 @@
 """MavlinkSource against real pymavlink senders on loopback UDP and real logs.
 
-Every live test runs a real pymavlink connection in a thread, sending to the
-source's ``udpin`` port (bound to port 0: a free port, no race). Each test is
-bounded by the source's ``duration_s``.
+Every live test runs a real pymavlink connection in a thread (or, where its timing
+matters, in another process: ``mavlink_sender.py``), sending to the source's ``udpin``
+port (bound to port 0: a free port, no race). Each test is bounded by the source's
+``duration_s``.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -19,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from mavlink_sender import att_values, imu_values, send_good
 from scipy.spatial.transform import Rotation
 
 from motionbase.errors import ConfigError, SourceError
@@ -39,28 +44,9 @@ ML = mavutil.mavlink
 # --------------------------------------------------------------------------- helpers
 
 
-def imu_values(i: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Specific force (m/s^2) and rates (rad/s) of sample i: varied, physically sane."""
-    f = (0.5 * math.sin(0.1 * i), 0.3 * math.cos(0.1 * i), -G + 0.2 * math.sin(0.05 * i))
-    w = (0.1 * math.sin(0.2 * i), -0.05 * math.cos(0.1 * i), 0.02 * math.sin(0.3 * i))
-    return f, w
-
-
-def att_values(i: int) -> tuple[float, float, float]:
-    """Roll, pitch, yaw (rad) of sample i, yaw within [-pi, pi)."""
-    yaw = (0.03 * i + math.pi) % (2 * math.pi) - math.pi
-    return 0.2 * math.sin(0.07 * i), 0.1 * math.cos(0.05 * i), yaw
-
-
 def f32(values: tuple[float, ...]) -> tuple[float, ...]:
     """What a MAVLink float field carries: the value rounded to float32."""
     return tuple(float(np.float32(v)) for v in values)
-
-
-def send_good(mav: Any, i: int) -> None:
-    f, w = imu_values(i)
-    mav.highres_imu_send(i * 10_000, *f, *w, 0.0, 0.0, 0.0, 1013.0, 0.0, 0.0, 20.0, 0x3F)
-    mav.attitude_send(i * 10, *att_values(i), *w)
 
 
 @contextmanager
@@ -119,6 +105,30 @@ def sender(
         conn.close()
     if errors:
         raise errors[0]
+
+
+@contextmanager
+def sender_process(port: int, phases: tuple[tuple[float, float], ...]) -> Iterator[list[int]]:
+    """Run ``send_good`` at 100 Hz during ``phases`` in another process (``mavlink_sender``);
+    enter once it is connected; the list yielded holds the indices sent once the block ends
+    (the block must outlast the last phase)."""
+    script = Path(__file__).with_name("mavlink_sender.py")
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(port), "100", json.dumps(phases)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    sent: list[int] = []
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
+        yield sent
+        out, _ = proc.communicate(timeout=10)
+        assert proc.returncode == 0
+        sent.extend(json.loads(out))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def run_live(src: MavlinkSource) -> list[tuple[Any, Any]]:
@@ -199,7 +209,8 @@ def test_silent_sender_marks_ticks_stale_then_recovers() -> None:
         request_streams=False,
     ) as src:
         port = src.local_address[1]
-        with sender(port, send_good, phases=((0.0, 0.6), (1.3, 1.8))) as sent:
+        # the sender is another process: its timing holds when this one is busy
+        with sender_process(port, phases=((0.0, 0.6), (1.3, 1.8))) as sent:
             ticks = run_live(src)
         stats = src.stats
     fresh = [t.fresh for _, t in ticks]
