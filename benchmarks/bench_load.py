@@ -2,7 +2,8 @@
 
 Run: ``python benchmarks/bench_load.py`` (about a minute or two; ``--minutes M`` for another
 length, ``--planar`` for the 3-RRR robot, ``--paced`` to run on the wall clock and read the
-loop overruns from the log's ``/health`` record, which then takes the flight's length).
+loop overruns from the log's ``/health`` record, which then takes the flight's length;
+``--no-log`` leaves the MCAP writes out, to see their share).
 ``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
 50 us of computing per tick and nothing else, to tell what the machine does to any loop
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
@@ -85,6 +86,7 @@ class SyntheticFlight:
             att = (0.1 * math.sin(0.2 * t), 0.05 * math.sin(0.15 * t), 0.3 * t % (2 * math.pi))
             att = (att[0], att[1], att[2] - math.pi)
             state = AircraftState(t, (x[0], x[1], -G + x[2]), (x[3], x[4], x[5]), att)
+            self.handed_cpu = time.thread_time()
             self.handed_at = time.perf_counter()
             yield state
 
@@ -92,18 +94,22 @@ class SyntheticFlight:
 class TimedLog(PipelineLog):
     """The MCAP sink, timing each tick from the source's hand-over to the end of its write."""
 
-    def __init__(self, *a, source: SyntheticFlight, capacity: int, **kw) -> None:
+    def __init__(self, *a, source: SyntheticFlight, capacity: int, log: bool = True, **kw) -> None:
         super().__init__(*a, **kw)
         self.source = source
+        self.log = log  # False: time the ticks, log only the final /health (the log's share)
         self.times = np.zeros(capacity)  # preallocated: the measurement itself stays flat
+        self.cpu = np.zeros(capacity)  # the loop thread's CPU time in the same span
         self.n = 0
 
     def write(self, out) -> None:
-        super().write(out)
+        if self.log:
+            super().write(out)
         if out.state is None:
             return  # park ticks after the flight
         if self.n < len(self.times):
             self.times[self.n] = time.perf_counter() - self.source.handed_at
+            self.cpu[self.n] = time.thread_time() - self.source.handed_cpu
         self.n += 1
 
 
@@ -160,6 +166,7 @@ def main() -> None:
     ap.add_argument("--planar", action="store_true")
     ap.add_argument("--paced", action="store_true")
     ap.add_argument("--floor", action="store_true")
+    ap.add_argument("--no-log", action="store_true", help="skip the MCAP writes (their share)")
     args = ap.parse_args()
     if args.floor:
         floor(args.minutes, args.rate)
@@ -182,6 +189,7 @@ def main() -> None:
             planar=args.planar,
             source=source,
             capacity=n_total,
+            log=not args.no_log,
         )
         every = max(1, n_total // 10)
 
@@ -209,9 +217,13 @@ def main() -> None:
     # the first ticks include numba dispatch warm-up: report them separately
     samples = log.times[: min(log.n, len(log.times))]
     loop = samples[10:] * 1e6
-    over = int((loop > budget * 1e6).sum())
+    cpu = log.cpu[10 : len(samples)] * 1e6
+    late = loop > budget * 1e6
+    over = int(late.sum())
+    computing = np.nonzero(late & (cpu >= budget * 1e6))[0]
     robot = "3-RRR (planar)" if args.planar else "6-RUS"
-    print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}")
+    what = " (--no-log: no MCAP writes but the final /health)" if args.no_log else ""
+    print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
         f"({summary.sim_time_s / wall:.1f}x real time), source + pipeline + MCAP log"
@@ -225,6 +237,15 @@ def main() -> None:
         f"  overruns vs the {budget * 1e3:g} ms budget: {over} of {len(loop)} ticks "
         f"({100 * over / len(loop):.4f} %); first 10 ticks (warm-up) max "
         f"{samples[:10].max() * 1e6:.0f} us"
+    )
+    print(
+        f"    of which the loop thread was waiting (CPU time under the budget): "
+        f"{over - len(computing)}; computing: {len(computing)}"
+        + "".join(
+            f"\n      tick {k + 10} (t {(k + 10) / args.rate:.3f} s): "
+            f"{loop[k]:.0f} us wall, {cpu[k]:.0f} us CPU"
+            for k in computing[:10]
+        )
     )
     middle = rss.get("50%", math.nan)
     print(

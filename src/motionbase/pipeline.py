@@ -355,9 +355,10 @@ class Health:
     ticks processed later than one period after the source handed them over,
     ``worst_overrun_s`` is the largest lateness (s), and ``overruns_off_cpu`` counts
     the late ticks in which the loop's thread ran for less than one period: it was
-    waiting (for a CPU held by another process, the OS or a virtual machine's host,
-    or for blocking I/O), not computing. Those point at the machine, the others at
-    the work done in a tick.
+    waiting, not computing (for a CPU taken by another process, the OS or a virtual
+    machine's host; for the interpreter lock, held by another thread such as the
+    log's writer; or for blocking I/O). The others were late computing: the work
+    of the tick itself was too much for the period.
     """
 
     samples: int = 0

@@ -143,7 +143,7 @@ HEALTH = _topic(
         "overruns_off_cpu": dict(
             _COUNT,
             description="overruns in which the loop thread ran for less than one period "
-            "(it waited for the CPU or for I/O)",
+            "(it waited for the CPU, the interpreter lock or I/O)",
         ),
         "worst_overrun_s": {
             "type": "number",
