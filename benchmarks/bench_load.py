@@ -98,8 +98,11 @@ class TimedLog(PipelineLog):
         super().__init__(*a, **kw)
         self.source = source
         self.log = log  # False: time the ticks, log only the final /health (the log's share)
-        self.times = np.zeros(capacity)  # preallocated: the measurement itself stays flat
+        # preallocated and touched (fill) now: the measurement adds no memory during the run
+        self.times = np.zeros(capacity)
         self.cpu = np.zeros(capacity)  # the loop thread's CPU time in the same span
+        self.times.fill(0.0)
+        self.cpu.fill(0.0)
         self.n = 0
 
     def write(self, out) -> None:
