@@ -1113,9 +1113,11 @@ def run(
     paced : bool
         Real-time run (live and ``--realtime`` sources pace the source ticks; the
         park ticks are paced here). A tick is due when the source hands it over and
-        must be processed (pipeline step and every sink) within one ``dt``: the worst
-        excess goes to ``pipeline.health.worst_overrun_s`` (s, 0 when never late). A
-        source that stalls is the watchdog's business, not an overrun.
+        must be processed (pipeline step and every sink) within one ``dt``: late ticks
+        are counted in ``pipeline.health`` (``overruns``, ``overruns_off_cpu``) with
+        the worst excess in ``worst_overrun_s`` (s, 0 when never late); see
+        :class:`Health`. A source that stalls is the watchdog's business, not an
+        overrun.
     stop : StopRequest, optional
         Raised to stop (ramp to park) or E-stop.
     progress : callable, optional
