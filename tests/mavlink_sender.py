@@ -17,7 +17,9 @@ from __future__ import annotations
 import json
 import math
 import sys
+import threading
 import time
+from collections.abc import Callable, Sequence
 from typing import Any
 
 G = 9.80665
@@ -43,23 +45,38 @@ def send_good(mav: Any, i: int) -> None:
     mav.attitude_send(i * 10, *att_values(i), *w)
 
 
+def send_loop(
+    mav: Any,
+    make: Callable[[Any, int], None],
+    sent: list[int],
+    rate_hz: float,
+    phases: Sequence[Sequence[float]] | None = None,
+    stop: threading.Event | None = None,
+) -> None:
+    """Send sample ``i`` with ``make(mav, i)`` at ``i / rate_hz`` s during ``phases``
+    (``(start_s, stop_s)`` windows from now; None: always) until the last phase ends or
+    ``stop`` is set; append each index sent to ``sent``."""
+    stop = stop or threading.Event()
+    t0 = time.monotonic()
+    i = 0
+    while not stop.is_set():
+        now = time.monotonic() - t0
+        if phases is not None and now > phases[-1][1]:
+            return
+        if phases is None or any(a <= now < b for a, b in phases):
+            make(mav, i)
+            sent.append(i)
+        i += 1
+        stop.wait(max(0.0, t0 + i / rate_hz - time.monotonic()))
+
+
 def main(port: int, rate_hz: float, phases: list[list[float]]) -> None:
     from pymavlink import mavutil
 
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1)
     sent: list[int] = []
     print("ready", flush=True)
-    t0 = time.monotonic()
-    i = 0
-    while True:
-        now = time.monotonic() - t0
-        if now > phases[-1][1]:
-            break
-        if any(a <= now < b for a, b in phases):
-            send_good(conn.mav, i)
-            sent.append(i)
-        i += 1
-        time.sleep(max(0.0, t0 + i / rate_hz - time.monotonic()))
+    send_loop(conn.mav, send_good, sent, rate_hz, phases)
     conn.close()
     print(json.dumps(sent), flush=True)
 

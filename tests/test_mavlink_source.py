@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from mavlink_sender import att_values, imu_values, send_good
+from mavlink_sender import att_values, imu_values, send_good, send_loop
 from scipy.spatial.transform import Rotation
 
 from motionbase.errors import ConfigError, SourceError
@@ -78,22 +78,9 @@ def sender(
 
     def run() -> None:
         try:
-            loop()
+            send_loop(conn.mav, make, sent, rate_hz, phases, stop)
         except BaseException as exc:  # surfaced in the test thread below
             errors.append(exc)
-
-    def loop() -> None:
-        t0 = time.monotonic()
-        i = 0
-        while not stop.is_set():
-            now = time.monotonic() - t0
-            if phases is not None and now > phases[-1][1]:
-                return
-            if phases is None or any(a <= now < b for a, b in phases):
-                make(conn.mav, i)
-                sent.append(i)
-            i += 1
-            stop.wait(max(0.0, t0 + i / rate_hz - time.monotonic()))
 
     th = threading.Thread(target=run, daemon=True)
     th.start()
