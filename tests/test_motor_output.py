@@ -9,20 +9,17 @@ from __future__ import annotations
 import binascii
 import logging
 import math
-import os
-import pty
 import re
-import select
 import socket
 import struct
 import threading
 import time
-import tty
 from collections.abc import Callable
 from urllib.parse import quote
 
 import numpy as np
 import pytest
+from pty_board import Board
 
 from motionbase.app import fly, load_config
 from motionbase.cli import main
@@ -49,38 +46,15 @@ MIRROR = [1, -1, 1, -1, 1, -1]
 # --------------------------------------------------------------------------- peers
 
 
-class PtyPeer:
-    """The drive's end of a pseudo-terminal: records every byte until closed."""
+class PtyPeer(Board):
+    """The drive's end of a pseudo-terminal: records every byte until closed (a board that
+    prints no ready line)."""
 
     def __init__(self) -> None:
-        self.master, self.slave = pty.openpty()
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
-        self.data = bytearray()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            r, _, _ = select.select([self.master], [], [], 0.02)
-            if r:
-                try:
-                    self.data += os.read(self.master, 65536)
-                except OSError:
-                    return
+        super().__init__(ready=False)
 
     def frames(self, split: Callable[[bytes], list[bytes]]) -> list[bytes]:
         return split(bytes(self.data))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
 
 
 class UdpPeer:
