@@ -139,9 +139,10 @@ def test_from_aircraft_applies_initial_conditions(capfd) -> None:
         JsbsimSource.from_aircraft("c172xx", init)
 
 
-def test_realtime_paces_to_the_wall_clock_without_busy_waiting() -> None:
-    """~1 s of flight: each sample arrives at its simulated time (sleeping, not spinning)."""
-    src = JsbsimSource("c1723", duration_s=1.0, realtime=True)
+@pytest.mark.parametrize("busy_wait", [False, True], ids=["sleeping", "busy-waiting"])
+def test_realtime_paces_to_the_wall_clock(busy_wait: bool) -> None:
+    """~1 s of flight: each sample arrives at its simulated time, sleeping or spinning between."""
+    src = JsbsimSource("c1723", duration_s=1.0, realtime=True, busy_wait=busy_wait)
     arrivals = []
     cpu0 = time.process_time()
     wall0 = time.perf_counter()
@@ -156,4 +157,7 @@ def test_realtime_paces_to_the_wall_clock_without_busy_waiting() -> None:
     assert lateness.min() > -1e-3  # never ahead of the clock
     assert lateness.max() < 0.05  # generous: the machine is shared
     assert wall > 0.95 * (arrivals[-1][1] - t0)
-    assert cpu < 0.5 * wall  # sleeping, not busy-waiting
+    if busy_wait:
+        assert cpu > 0.5 * wall  # it kept the processor between the samples
+    else:
+        assert cpu < 0.5 * wall  # it slept

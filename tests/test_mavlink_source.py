@@ -155,9 +155,14 @@ def check_states_match_sent(ticks: list[tuple[Any, Any]], n: int, *, lossless: b
 # --------------------------------------------------------------------------- live link
 
 
-def test_highres_imu_and_attitude_at_100hz_arrive_unchanged() -> None:
+@pytest.mark.parametrize("busy_wait", [False, True], ids=["sleeping", "busy-waiting"])
+def test_highres_imu_and_attitude_at_100hz_arrive_unchanged(busy_wait: bool) -> None:
     with MavlinkSource(
-        "udpin:127.0.0.1:0", rate_hz=100.0, duration_s=2.0, request_streams=False
+        "udpin:127.0.0.1:0",
+        rate_hz=100.0,
+        duration_s=2.0,
+        request_streams=False,
+        busy_wait=busy_wait,
     ) as src:
         host, port = src.local_address
         assert host == "127.0.0.1" and port > 0

@@ -227,6 +227,8 @@ def test_cli_user_mistakes_exit_2_with_one_line(tmp_path):
         ["fly", "no_such_script"],
         ["fly", "--platform", "no_such_preset"],
         ["fly", "--duration", "-3"],
+        ["fly", "--busy-wait"],  # busy-waiting paces a --realtime flight
+        ["stream", "--mavlink", "flight.tlog", "--fast", "--busy-wait"],
     ):
         proc = subprocess.run(
             [sys.executable, "-m", "motionbase.cli", *args],

@@ -181,6 +181,7 @@ def _drive(
     out: Path | None,
     *,
     paced: bool,
+    busy_wait: bool = False,
     progress: bool,
     extra_sinks: list[Any] | None = None,
     outputs: list[str] | None = None,
@@ -229,7 +230,15 @@ def _drive(
             for sink in extra_sinks or []:
                 sink.__enter__()
                 sinks.append(sink)
-            summary = run(pipeline, source, sinks, paced=paced, stop=stop, progress=progress_fn)
+            summary = run(
+                pipeline,
+                source,
+                sinks,
+                paced=paced,
+                busy_wait=busy_wait,
+                stop=stop,
+                progress=progress_fn,
+            )
         except BaseException:
             _close_sinks(sinks, quiet=True)  # the failure that is propagating says it all
             raise
@@ -253,6 +262,7 @@ def fly(
     washout: str | None = None,
     planar: bool = False,
     realtime: bool = False,
+    busy_wait: bool = False,
     duration_s: float | None = None,
     out: str | Path | None = None,
     progress: bool = True,
@@ -270,6 +280,9 @@ def fly(
         Drive the 3-RRR robot.
     realtime : bool
         Pace the simulation to wall-clock time.
+    busy_wait : bool
+        With ``realtime``: wait for each tick by busy-waiting instead of sleeping
+        (one processor at 100 %, far fewer late ticks; :mod:`motionbase.pacing`).
     duration_s : float, optional
         Stop after this much simulated time, s.
     out : path, optional
@@ -281,11 +294,13 @@ def fly(
     from motionbase.io.jsbsim_source import JsbsimSource
 
     _check_duration(duration_s)
+    if busy_wait and not realtime:
+        raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
     name = Path(script).stem
     out_path = (
         Path(out) if out is not None else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
     )
-    source = JsbsimSource(script, duration_s=duration_s, realtime=realtime)
+    source = JsbsimSource(script, duration_s=duration_s, realtime=realtime, busy_wait=busy_wait)
     with source:
         config = load_config(
             planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
@@ -297,6 +312,7 @@ def fly(
             source,
             out_path,
             paced=realtime,
+            busy_wait=busy_wait,
             progress=progress,
             outputs=outputs,
         )
@@ -447,6 +463,7 @@ def stream(
     duration_s: float | None = None,
     out: str | Path | None = None,
     realtime: bool = True,
+    busy_wait: bool = False,
     progress: bool = True,
     outputs: list[str] | None = None,
 ) -> JobResult:
@@ -473,6 +490,8 @@ def stream(
         MCAP log; default ``recordings/stream-<UTC time>.mcap``.
     realtime : bool
         For log files: replay at the recorded timing (True) or as fast as possible.
+    busy_wait : bool
+        Wait for each tick by busy-waiting instead of sleeping (see :func:`fly`).
     outputs : list of str, optional
         Motor-drive output URLs (see :func:`fly`).
     """
@@ -481,6 +500,8 @@ def stream(
     _check_duration(duration_s)
     if serial and not planar:
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
+    if busy_wait and not realtime:
+        raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
     config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
     if out is None:
         out = RECORDINGS / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
@@ -492,6 +513,7 @@ def stream(
         signing_key=signing_key,
         duration_s=duration_s,
         realtime=realtime,
+        busy_wait=busy_wait,
         stale_timeout_s=config.stale_timeout_s,
     )
     extra = [PlanarServoOutput(serial)] if serial else []
@@ -504,6 +526,7 @@ def stream(
                 source,
                 Path(out),
                 paced=bool(realtime),
+                busy_wait=busy_wait,
                 progress=False,
                 extra_sinks=extra,
                 outputs=outputs,

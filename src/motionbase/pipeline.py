@@ -51,6 +51,7 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.pacing import wait_until
 from motionbase.platform._rus6_kernels import _inverse_row, _within, clamp_inverse_one
 from motionbase.safety import (
     _INPUT_PROBLEMS,
@@ -1087,6 +1088,7 @@ def run(
     sinks: Sequence[Any] = (),
     *,
     paced: bool = False,
+    busy_wait: bool = False,
     stop: StopRequest | None = None,
     progress: Callable[[PipelineOutput], None] | None = None,
     max_park_s: float = 30.0,
@@ -1118,6 +1120,10 @@ def run(
         the worst excess in ``worst_overrun_s`` (s, 0 when never late); see
         :class:`Health`. A source that stalls is the watchdog's business, not an
         overrun.
+    busy_wait : bool
+        Paced runs: the park ticks wait by busy-waiting instead of sleeping
+        (:func:`motionbase.pacing.wait_until`); the source paces its own ticks
+        (``busy_wait`` of the paced sources).
     stop : StopRequest, optional
         Raised to stop (ramp to park) or E-stop.
     progress : callable, optional
@@ -1140,6 +1146,7 @@ def run(
             source,
             sinks,
             paced=paced,
+            busy_wait=busy_wait,
             stop=stop,
             progress=progress,
             max_park_s=max_park_s,
@@ -1154,6 +1161,7 @@ def _run(
     sinks: Sequence[Any],
     *,
     paced: bool,
+    busy_wait: bool,
     stop: StopRequest | None,
     progress: Callable[[PipelineOutput], None] | None,
     max_park_s: float,
@@ -1255,9 +1263,7 @@ def _run(
             if stop.estop and not pipeline._estop:
                 pipeline.estop()
             if paced and last_started is not None:
-                wait = last_started + dt - clock()
-                if wait > 0:
-                    time.sleep(wait)
+                wait_until(last_started + dt, busy=busy_wait)
             started, cpu_started = clock(), cpu_clock()
             emit(pipeline.step(None), started)
     if failure is not None:

@@ -1,0 +1,69 @@
+"""wait_until: returns at its deadline, never before; busy-waiting lets the other threads run."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from motionbase.pacing import wait_until
+
+
+class StepClock:
+    """A clock that moves 1 ms each time it is read (no real time passes)."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self.reads = 0
+
+    def __call__(self) -> float:
+        self.reads += 1
+        self.now += 1e-3
+        return self.now
+
+
+def test_busy_wait_reads_the_clock_until_the_deadline() -> None:
+    clock = StepClock()
+    wait_until(0.0105, busy=True, clock=clock)
+    assert clock.now >= 0.0105  # not before the deadline
+    assert clock.reads == 11  # and not one reading after it: 1..10 ms are early, 11 ms is due
+    again = StepClock()
+    again.now = 1.0
+    wait_until(0.5, busy=True, clock=again)  # a deadline in the past: one look, return
+    assert again.reads == 1
+
+
+@pytest.mark.parametrize("busy", [False, True], ids=["sleeping", "busy-waiting"])
+def test_returns_at_the_deadline_never_before(busy: bool) -> None:
+    for _ in range(20):
+        deadline = time.perf_counter() + 2e-3
+        wait_until(deadline, busy=busy)
+        assert time.perf_counter() >= deadline
+    # the same on another clock of the same machine
+    deadline = time.monotonic() + 2e-3
+    wait_until(deadline, busy=busy, clock=time.monotonic)
+    assert time.monotonic() >= deadline
+
+
+def test_busy_waiting_leaves_the_interpreter_to_other_threads() -> None:
+    """The MCAP writer and the motor-drive sender run while the loop busy-waits."""
+    done = threading.Event()
+    turns = []
+
+    def worker() -> None:
+        while not done.is_set():
+            turns.append(time.perf_counter())
+            time.sleep(1e-4)
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    try:
+        start = time.perf_counter()
+        wait_until(start + 0.2, busy=True)
+        end = time.perf_counter()
+    finally:
+        done.set()
+        thread.join()
+    during = [t for t in turns if start <= t <= end]
+    assert len(during) > 20  # it ran all along (about every 0.1 ms asked, 2000 possible)
