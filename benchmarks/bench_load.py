@@ -3,7 +3,8 @@
 Run: ``python benchmarks/bench_load.py`` (about a minute or two; ``--minutes M`` for another
 length, ``--planar`` for the 3-RRR robot, ``--paced`` to run on the wall clock and read the
 loop overruns from the log's ``/health`` record, which then takes the flight's length;
-``--no-log`` leaves the MCAP writes out, to see their share).
+``--no-log`` leaves the MCAP writes out, to see their share; ``--busy-wait`` waits for
+each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --busy-wait``).
 ``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
 50 us of computing per tick and nothing else, to tell what the machine does to any loop
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
@@ -36,6 +37,7 @@ import numpy as np
 from motionbase.app import load_config, run_metadata
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.pipeline_log import PipelineLog
+from motionbase.pacing import wait_until
 from motionbase.pipeline import Pipeline, StopRequest, run
 from motionbase.state import AircraftState
 
@@ -53,11 +55,17 @@ class SyntheticFlight:
     """Sum of sines in specific force and body rates at ``rate_hz`` for ``duration_s``."""
 
     def __init__(
-        self, rate_hz: float, duration_s: float, seed: int = 7, paced: bool = False
+        self,
+        rate_hz: float,
+        duration_s: float,
+        seed: int = 7,
+        paced: bool = False,
+        busy_wait: bool = False,
     ) -> None:
         self.rate_hz = rate_hz
         self.duration_s = duration_s
         self.paced = paced  # hand each sample over at its time on the wall clock
+        self.busy_wait = busy_wait  # wait for it by busy-waiting (else sleeping)
         self.fresh = True
         rng = np.random.default_rng(seed)
         self.freq = np.array([0.05, 0.13, 0.31, 0.7, 1.6, 3.0])  # Hz
@@ -68,7 +76,11 @@ class SyntheticFlight:
         self.rng = rng
 
     def describe(self) -> dict:
-        return {"kind": "synthetic sum of sines", "rate_hz": self.rate_hz}
+        return {
+            "kind": "synthetic sum of sines",
+            "rate_hz": self.rate_hz,
+            "busy_wait": self.busy_wait,
+        }
 
     def __iter__(self):
         n = int(round(self.duration_s * self.rate_hz))
@@ -79,9 +91,7 @@ class SyntheticFlight:
         for k in range(n):
             t = k * dt
             if self.paced:
-                delay = start + t - time.perf_counter()
-                if delay > 0:
-                    time.sleep(delay)
+                wait_until(start + t, busy=self.busy_wait)
             x = (self.amp * np.sin(w * t + self.phase)).sum(axis=1) + noise[k]
             att = (0.1 * math.sin(0.2 * t), 0.05 * math.sin(0.15 * t), 0.3 * t % (2 * math.pi))
             att = (att[0], att[1], att[2] - math.pi)
@@ -116,7 +126,7 @@ class TimedLog(PipelineLog):
         self.n += 1
 
 
-def floor(minutes: float, rate_hz: float, work_s: float = 50e-6) -> None:
+def floor(minutes: float, rate_hz: float, busy_wait: bool, work_s: float = 50e-6) -> None:
     """The machine's own overruns: a paced loop computing ``work_s`` a tick, nothing else."""
     n = int(round(minutes * 60.0 * rate_hz))
     dt = 1.0 / rate_hz
@@ -125,9 +135,7 @@ def floor(minutes: float, rate_hz: float, work_s: float = 50e-6) -> None:
     steal0 = _steal_s()
     start = clock()
     for k in range(n):
-        delay = start + k * dt - clock()
-        if delay > 0:
-            time.sleep(delay)
+        wait_until(start + k * dt, busy=busy_wait)
         t0, c0 = clock(), cpu_clock()
         while clock() - t0 < work_s:
             pass
@@ -138,7 +146,8 @@ def floor(minutes: float, rate_hz: float, work_s: float = 50e-6) -> None:
     worst = max((w for w, _ in late), default=dt) - dt
     print(
         f"bench_load --floor: {minutes:g} min of a paced {rate_hz:g} Hz loop computing "
-        f"{work_s * 1e6:.0f} us a tick and nothing else (no pipeline, no log)"
+        f"{work_s * 1e6:.0f} us a tick and nothing else (no pipeline, no log), "
+        f"{'busy-waiting' if busy_wait else 'sleeping'} between ticks"
     )
     print(
         f"  overruns {len(late)} of {n} ticks ({100 * len(late) / n:.4f} %), "
@@ -170,14 +179,17 @@ def main() -> None:
     ap.add_argument("--paced", action="store_true")
     ap.add_argument("--floor", action="store_true")
     ap.add_argument("--no-log", action="store_true", help="skip the MCAP writes (their share)")
+    ap.add_argument(
+        "--busy-wait", action="store_true", help="paced: busy-wait between ticks, not sleep"
+    )
     args = ap.parse_args()
     if args.floor:
-        floor(args.minutes, args.rate)
+        floor(args.minutes, args.rate, args.busy_wait)
         return
 
     config = load_config(planar=args.planar, rate_hz=args.rate)
     duration = args.minutes * 60.0
-    source = SyntheticFlight(args.rate, duration, paced=args.paced)
+    source = SyntheticFlight(args.rate, duration, paced=args.paced, busy_wait=args.busy_wait)
     pipeline = Pipeline(config)
     budget = 1.0 / args.rate
     n_total = int(round(duration * args.rate))
@@ -208,6 +220,7 @@ def main() -> None:
                 source,
                 [log],
                 paced=args.paced,
+                busy_wait=args.busy_wait,
                 stop=StopRequest(),
                 progress=progress,
             )
@@ -226,6 +239,8 @@ def main() -> None:
     computing = np.nonzero(late & (cpu >= budget * 1e6))[0]
     robot = "3-RRR (planar)" if args.planar else "6-RUS"
     what = " (--no-log: no MCAP writes but the final /health)" if args.no_log else ""
+    if args.paced:
+        what += ", busy-waiting between ticks" if args.busy_wait else ", sleeping between ticks"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
