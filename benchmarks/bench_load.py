@@ -8,6 +8,8 @@ each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --
 ``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
 50 us of computing per tick and nothing else, to tell what the machine does to any loop
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
+``--hiccups`` measures the stalls themselves: a loop that only reads the clock, counting
+the gaps in which it did not run (as jHiccup does).
 
 The source is synthetic but physically plausible: a sum of sines in specific force
 (about +-2 m/s^2 surge and sway around 1 g, +-1.5 m/s^2 heave) and body rates (about
@@ -98,6 +100,7 @@ class SyntheticFlight:
             state = AircraftState(t, (x[0], x[1], -G + x[2]), (x[3], x[4], x[5]), att)
             self.handed_cpu = time.thread_time()
             self.handed_at = time.perf_counter()
+            self.due = start + t  # when the sample was due on the wall clock
             yield state
 
 
@@ -111,8 +114,10 @@ class TimedLog(PipelineLog):
         # preallocated and touched (fill) now: the measurement adds no memory during the run
         self.times = np.zeros(capacity)
         self.cpu = np.zeros(capacity)  # the loop thread's CPU time in the same span
+        self.since_due = np.zeros(capacity)  # from the sample's due time to the end of its write
         self.times.fill(0.0)
         self.cpu.fill(0.0)
+        self.since_due.fill(0.0)
         self.n = 0
 
     def write(self, out) -> None:
@@ -121,8 +126,10 @@ class TimedLog(PipelineLog):
         if out.state is None:
             return  # park ticks after the flight
         if self.n < len(self.times):
-            self.times[self.n] = time.perf_counter() - self.source.handed_at
+            now = time.perf_counter()
+            self.times[self.n] = now - self.source.handed_at
             self.cpu[self.n] = time.thread_time() - self.source.handed_cpu
+            self.since_due[self.n] = now - self.source.due
         self.n += 1
 
 
@@ -161,6 +168,48 @@ def floor(minutes: float, rate_hz: float, busy_wait: bool, work_s: float = 50e-6
         )
 
 
+def hiccups(minutes: float, rate_hz: float) -> None:
+    """The machine's stalls: a thread that only reads the clock, timing every gap between reads.
+
+    A gap longer than a few microseconds is time the thread did not run (the OS or a virtual
+    machine's host took the CPU). A stall of ``g`` seconds makes a 1 kHz tick of ``w`` seconds
+    late when it starts inside the tick and ``w + g`` passes the period: with ``n`` stalls of
+    at least one period, about ``n * w * rate_hz`` late ticks whatever the loop computes.
+    """
+    clock = time.perf_counter
+    period = 1.0 / rate_hz
+    steal0 = _steal_s()
+    end = clock() + minutes * 60.0
+    gaps = []
+    prev = clock()
+    while prev < end:
+        now = clock()
+        if now - prev > 50e-6:
+            gaps.append(now - prev)
+        prev = now
+    steal1 = _steal_s()
+    g = np.array(gaps)
+    print(
+        f"bench_load --hiccups: {minutes:g} min of a thread that only reads the clock "
+        "(gaps between two reads: time it did not run)"
+    )
+    for edge in (100e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3):
+        print(f"  gaps >= {edge * 1e3:4g} ms: {int((g >= edge).sum()):6d}")
+    long = g[g >= period]
+    work = 50e-6  # a tick's work, s: a stall of period - work inside it makes it late
+    expected = (g >= period - work).sum() * work * rate_hz
+    print(
+        f"  stalls of at least one period ({period * 1e3:g} ms): {len(long)}, "
+        f"{long.sum():.2f} s in all, longest {1e3 * g.max(initial=0.0):.1f} ms; "
+        f"a tick computing {work * 1e6:.0f} us would be late about {expected:.0f} times"
+    )
+    if steal0 is not None and steal1 is not None:
+        print(
+            f"  CPU time the host took from this machine during the run (/proc/stat steal, "
+            f"all CPUs): {steal1 - steal0:.2f} s"
+        )
+
+
 def _steal_s() -> float | None:
     """Seconds of steal time (a VM's vCPUs not run by the host) summed over CPUs, or None."""
     try:
@@ -182,7 +231,13 @@ def main() -> None:
     ap.add_argument(
         "--busy-wait", action="store_true", help="paced: busy-wait between ticks, not sleep"
     )
+    ap.add_argument(
+        "--hiccups", action="store_true", help="measure the machine's stalls (a clock-reading loop)"
+    )
     args = ap.parse_args()
+    if args.hiccups:
+        hiccups(args.minutes, args.rate)
+        return
     if args.floor:
         floor(args.minutes, args.rate, args.busy_wait)
         return
@@ -265,6 +320,16 @@ def main() -> None:
             for k in computing[:10]
         )
     )
+    if args.paced:
+        # what the actuator sees: the command is ready this long after the sample was due
+        # (the sleep's wake-up, or a backlog after a stall, plus the tick itself)
+        ready = log.since_due[10 : len(samples)] * 1e6
+        print(
+            "  command ready after the sample's due time (wake-up + tick) us: "
+            f"p50 {np.percentile(ready, 50):.1f}  p99 {np.percentile(ready, 99):.1f}  "
+            f"p99.9 {np.percentile(ready, 99.9):.1f}; over 1 period: "
+            f"{int((ready > budget * 1e6).sum())} ticks"
+        )
     middle = rss.get("50%", math.nan)
     print(
         f"  RSS MB: start {rss['start']:.1f}  middle {middle:.1f}  end {rss['end']:.1f}  "
