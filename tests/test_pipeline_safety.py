@@ -527,3 +527,41 @@ def test_overruns_tell_a_waiting_loop_from_a_computing_one():
     assert h.overruns_off_cpu >= 1  # the sleeping tick
     assert h.overruns - h.overruns_off_cpu >= 1  # the computing tick
     assert h.worst_overrun_s >= 2 * dt - 1e-4
+
+
+@pytest.mark.parametrize("busy_wait", [False, True], ids=["sleeping", "busy-waiting"])
+def test_paced_park_ticks_keep_the_period(busy_wait: bool):
+    """After the source ends, the park ramp ticks one period apart on the wall clock, never
+    sooner, whether the loop sleeps or busy-waits between them; the platform ends parked."""
+    import time
+
+    config = CONFIGS[(False, 120.0)]
+    dt = config.dt
+    states = [AircraftState(i * dt, [1.0, 0.0, -G], [0.0, 0.2, 0.0]) for i in range(120)]
+
+    class Clocked:
+        def __init__(self) -> None:
+            self.park_walls: list[float] = []
+            self.last = None
+
+        def write(self, out) -> None:
+            if out.state is None:  # a park tick: no sample of the source's
+                self.park_walls.append(time.perf_counter())
+            self.last = out
+
+    sink = Clocked()
+    pipeline = Pipeline(config)
+    run(
+        pipeline,
+        PacedListSource(states, [True] * len(states)),
+        [sink],
+        paced=True,
+        busy_wait=busy_wait,
+    )
+    assert sink.last is not None and sink.last.phase == "parked"
+    assert len(sink.park_walls) > 10
+    walls = np.array(sink.park_walls)
+    # never ahead of the clock: each tick is due one period after the one before it
+    # started (read here after its step, hence the 1 ms for a step's own variation)
+    assert np.diff(walls).min() > dt - 1e-3
+    assert walls[-1] - walls[0] > (len(walls) - 1) * dt - 1e-3

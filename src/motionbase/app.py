@@ -105,7 +105,8 @@ class JobResult:
             lines.append(
                 f"real-time loop: {h.overruns} ticks late (worst by "
                 f"{1e3 * h.worst_overrun_s:.1f} ms; {h.overruns_off_cpu} of them while the loop "
-                "was waiting for the CPU, the interpreter lock or I/O)"
+                "was waiting for the CPU, the interpreter lock or I/O; --busy-wait and a core "
+                "of its own help, see the README's Safety section)"
             )
         if s.peak_angle is not None:
             lo, hi = s.angle_limits
