@@ -283,7 +283,7 @@ def fly(
         Pace the simulation to wall-clock time.
     busy_wait : bool
         With ``realtime``: wait for each tick by busy-waiting instead of sleeping
-        (one processor at 100 %, far fewer late ticks; :mod:`motionbase.pacing`).
+        (one processor at 100 %, fewer late ticks; :mod:`motionbase.pacing`).
     duration_s : float, optional
         Stop after this much simulated time, s.
     out : path, optional

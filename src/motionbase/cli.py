@@ -362,7 +362,7 @@ def _add_busy_wait_option(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--busy-wait",
         action="store_true",
-        help="wait for each tick by busy-waiting, not sleeping: one CPU at 100 %%, far "
+        help="wait for each tick by busy-waiting, not sleeping: one CPU at 100 %%, "
         "fewer late ticks at 1 kHz (real-time runs)",
     )
 

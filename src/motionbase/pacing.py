@@ -1,8 +1,8 @@
 """Waiting for the wall clock in the real-time loops: by sleeping, or by busy-waiting.
 
-Every paced loop of motionbase (a ``--realtime`` JSBSim flight, a live or replayed
-MAVLink stream, the park ramp after a run, the motor-drive pacing) waits for its next
-tick with :func:`wait_until`. Two ways:
+The paced pipeline loops (a ``--realtime`` JSBSim flight, a live or replayed MAVLink
+stream, the park ramp after a run) wait for their next tick with :func:`wait_until`.
+Two ways:
 
 * sleep (the default): the thread sleeps until the tick is due. The processor is free
   between ticks, but an idle processor is one that the operating system, or a virtual
@@ -11,9 +11,12 @@ tick with :func:`wait_until`. Two ways:
 * busy-wait (``busy=True``): the thread keeps its processor between ticks, reading the
   clock and yielding the interpreter lock to the other threads (the MCAP writer, the
   motor-drive sender) at every turn. It costs one processor at 100 %, and on a machine
-  that takes the CPU away from idle processors it turns far fewer ticks late (see
-  ``benchmarks/RESULTS.md``, issue 7). The usual choice for a 1 kHz loop on a dedicated
-  core.
+  that takes the CPU away from idle processors it turns fewer ticks late and readies each
+  command sooner after its due time (see ``benchmarks/RESULTS.md``, issue 7). The usual
+  choice for a 1 kHz loop on a core of its own.
+
+(The teleoperation loop and the motor-drive outputs' own pacing of unpaced runs still
+sleep.)
 
 Times are seconds on :func:`time.perf_counter` unless a ``clock`` is given
 (:func:`time.monotonic` is the same clock on Linux).

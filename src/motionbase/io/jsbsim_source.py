@@ -131,7 +131,7 @@ class JsbsimSource:
         Default: as fast as possible.
     busy_wait : bool
         With ``realtime``: wait by busy-waiting instead of sleeping (one
-        processor at 100 %, far fewer late ticks at 1 kHz; see
+        processor at 100 %, fewer late ticks at 1 kHz; see
         :mod:`motionbase.pacing`).
     root : str, optional
         JSBSim data folder (aircraft, engine, systems, scripts). Default: the

@@ -373,7 +373,7 @@ class MavlinkSource:
         as fast as possible. A live link is always wall-clock paced.
     busy_wait : bool
         Wait for the next tick by busy-waiting (polling the link) instead of
-        sleeping: one processor at 100 %, far fewer late ticks at 1 kHz (see
+        sleeping: one processor at 100 %, fewer late ticks at 1 kHz (see
         :mod:`motionbase.pacing`).
     request_streams : bool
         On a live link, ask a silent vehicle for HIGHRES_IMU and ATTITUDE at
