@@ -160,12 +160,7 @@ def floor(minutes: float, rate_hz: float, busy_wait: bool, work_s: float = 50e-6
         f"  overruns {len(late)} of {n} ticks ({100 * len(late) / n:.4f} %), "
         f"{off_cpu} of them off the CPU; worst {1e3 * worst:.2f} ms late"
     )
-    steal1 = _steal_s()
-    if steal0 is not None and steal1 is not None:
-        print(
-            f"  CPU time the host took from this machine during the run (/proc/stat steal, "
-            f"all CPUs): {steal1 - steal0:.2f} s"
-        )
+    _print_steal(steal0, _steal_s())
 
 
 def hiccups(minutes: float, rate_hz: float) -> None:
@@ -203,6 +198,11 @@ def hiccups(minutes: float, rate_hz: float) -> None:
         f"{long.sum():.2f} s in all, longest {1e3 * g.max(initial=0.0):.1f} ms; "
         f"a tick computing {work * 1e6:.0f} us would be late about {expected:.0f} times"
     )
+    _print_steal(steal0, steal1)
+
+
+def _print_steal(steal0: float | None, steal1: float | None) -> None:
+    """Print the host's steal time between two :func:`_steal_s` readings (if it has one)."""
     if steal0 is not None and steal1 is not None:
         print(
             f"  CPU time the host took from this machine during the run (/proc/stat steal, "
@@ -353,11 +353,8 @@ def main() -> None:
     print("  /health: " + ", ".join(f"{k} {health.get(k)}" for k in keys))
     if not args.paced:
         print("  (overruns are measured only with --paced, on the wall clock)")
-    elif steal0 is not None and steal1 is not None:
-        print(
-            f"  CPU time the host took from this machine during the run (/proc/stat steal, "
-            f"all CPUs): {steal1 - steal0:.2f} s"
-        )
+    else:
+        _print_steal(steal0, steal1)
 
 
 if __name__ == "__main__":
