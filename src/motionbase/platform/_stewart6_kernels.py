@@ -8,7 +8,10 @@ the one definition of that formula: the class, the clamp and the forward kinemat
 :func:`_platform_joints`. The rotation and the 6x6 solver are the 6-RUS kernels' own.
 
 They compile lazily on first call and are cached on disk (``cache=True``). No fastmath: NaN
-must propagate and comparisons with NaN must stay false.
+must propagate and comparisons with NaN must stay false. numba's on-disk cache keys a kernel
+on its own file only: after changing ``_rotation``, ``_solve6`` or ``_wrap`` in
+``_rus6_kernels.py``, delete this module's cache (``__pycache__/_stewart6_kernels*.nb[ic]``)
+or it keeps the old code compiled in.
 """
 
 from __future__ import annotations

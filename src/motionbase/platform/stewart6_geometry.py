@@ -95,7 +95,10 @@ _OUTPUT_KEYS += ("drive_min", "drive_max")
 
 
 def _is_number(v: Any) -> bool:
-    return not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.number))
+    """A real number: int or float (numpy's too), not a bool, not a string."""
+    return not isinstance(v, (bool, np.bool_)) and isinstance(
+        v, (int, float, np.integer, np.floating)
+    )
 
 
 def _per_leg(source: str, name: str, value: Any, unit: str) -> tuple[float, ...]:
@@ -223,7 +226,7 @@ class Stewart6Geometry:
                 raise ConfigError(
                     f"{src}: field 'neutral_height': leg {i + 1} is {neutral[i]:.4f} m long at "
                     f"the neutral pose, not inside its stroke {lo[i]:g} .. {hi[i]:g} m (fix "
-                    "neutral_height or the length limits)"
+                    "neutral_height, neutral_length or the length limits)"
                 )
         margin = as_float(src, "park_margin", self.park_margin, min_value=0.0, strict_min=True)
         object.__setattr__(self, "park_margin", margin)
