@@ -126,10 +126,10 @@ def test_other_systems_and_garbage_never_reach_the_platform(tmp_path):
     check_actuators_safe(out)
 
 
-@pytest.mark.parametrize("log", [TLOG, BIN], ids=["vtol.tlog", "erle_plane_329.BIN"])
-def test_real_logs_stream_to_finite_angles_within_limits(log, tmp_path):
+@pytest.mark.parametrize("log", [TLOG, BIN])
+def test_real_logs_stream_to_finite_angles_within_limits(log, flight_data, tmp_path):
     out = tmp_path / "log.mcap"
-    result = app.stream(str(log), realtime=False, out=out, progress=False)
+    result = app.stream(str(flight_data / log), realtime=False, out=out, progress=False)
     assert result.summary.samples > 10_000
     t, angles, _ = check_actuators_safe(out)
     assert np.ptp(angles, axis=0).min() > np.radians(1)  # the flight does move every crank
