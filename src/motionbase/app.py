@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from motionbase.config import resolve_preset_or_path
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, resolve_preset_or_path
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -60,11 +60,9 @@ def load_config(
     from motionbase.washout import WashoutParams
 
     if planar:
-        geometry = Rrr3Geometry.from_toml(
-            resolve_preset_or_path("rrr3", platform or "udesc_symmetric")
-        )
+        geometry = Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", platform or DEFAULT_RRR3))
     else:
-        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or "ceart"))
+        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or DEFAULT_RUS6))
     params = WashoutParams.from_toml(resolve_preset_or_path("washout", washout or "default"))
     return PipelineConfig(
         robot="rrr3" if planar else "rus6", geometry=geometry, washout=params, rate_hz=rate_hz
