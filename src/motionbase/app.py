@@ -8,6 +8,7 @@ functions; tests call them directly too. Each returns a :class:`JobResult` whose
 from __future__ import annotations
 
 import math
+import os
 import sys
 import tempfile
 import time
@@ -29,6 +30,17 @@ from motionbase.pipeline import (
 )
 
 RECORDINGS = Path("recordings")
+
+
+def user_recordings_dir() -> Path:
+    """Where ``stream`` logs when not told: ``$XDG_DATA_HOME/motionbase/recordings``, by
+    default ``~/.local/share/motionbase/recordings`` (the log writer creates it on demand), so
+    a live session leaves nothing in the folder it ran from, a checkout say.
+    """
+    base = os.environ.get("XDG_DATA_HOME", "")
+    if not os.path.isabs(base):  # unset, empty or relative: the XDG default
+        base = os.path.join(os.path.expanduser("~"), ".local", "share")
+    return Path(base) / "motionbase" / "recordings"
 
 
 # --------------------------------------------------------------------------- configuration
@@ -486,7 +498,7 @@ def stream(
     duration_s : float, optional
         Stop (and park) after this long, s.
     out : path, optional
-        MCAP log; default ``recordings/stream-<UTC time>.mcap``.
+        MCAP log; default ``stream-<UTC time>.mcap`` in :func:`user_recordings_dir`.
     realtime : bool
         For log files: replay at the recorded timing (True) or as fast as possible.
     busy_wait : bool
@@ -503,7 +515,7 @@ def stream(
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
     config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
     if out is None:
-        out = RECORDINGS / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+        out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
     source = MavlinkSource(
         mavlink,
         rate_hz=rate_hz,

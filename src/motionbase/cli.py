@@ -307,7 +307,10 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fast", action="store_true", help="log files: as fast as possible")
     _add_busy_wait_option(p)
     p.add_argument(
-        "--out", metavar="FILE.mcap", help="log file (default recordings/stream-<time>.mcap)"
+        "--out",
+        metavar="FILE.mcap",
+        help="log file (default ~/.local/share/motionbase/recordings/stream-<time>.mcap, "
+        "under $XDG_DATA_HOME when set)",
     )
     _add_output_option(p)
 
