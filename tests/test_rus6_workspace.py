@@ -110,3 +110,100 @@ def test_cli_workspace(tmp_path, capsys):
     assert main(["workspace", "--platform", "nope"]) == 2
     err = capsys.readouterr().err
     assert "unknown rus6 preset 'nope'" in err and len(err.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------- planar: one default
+
+
+def _planar_robot(capsys, *args: str) -> str:
+    """The 3-RRR geometry ``motionbase workspace`` swept, by the name it printed."""
+    assert main(["workspace", *args]) == 0
+    out = capsys.readouterr().out
+    first = out.splitlines()[0]
+    assert first.startswith("3-RRR robot "), out
+    return first.split("'")[1]
+
+
+def _one_line_error(capsys, *args: str) -> str:
+    assert main(["workspace", *args]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1, captured.err
+    return captured.err
+
+
+def test_workspace_planar_honours_platform_and_rrr3(capsys):
+    # --platform names the robot's geometry with --planar, as for `fly --planar`
+    assert _planar_robot(capsys, "--planar", "--platform", "udesc_symmetric") == "udesc_symmetric"
+    assert _planar_robot(capsys, "--planar", "--platform", "udesc") == "udesc"
+    assert _planar_robot(capsys, "--planar", "--rrr3", "udesc") == "udesc"
+    assert _planar_robot(capsys, "--planar", "--rrr3", "udesc_symmetric") == "udesc_symmetric"
+    # the same geometry named twice is fine; two different ones are refused
+    assert _planar_robot(capsys, "--planar", "--platform", "udesc", "--rrr3", "udesc") == "udesc"
+    err = _one_line_error(capsys, "--planar", "--platform", "udesc", "--rrr3", "udesc_symmetric")
+    assert "--platform" in err and "--rrr3" in err
+    # --rrr3 without --planar would be silently unused: refused, saying what to add
+    err = _one_line_error(capsys, "--rrr3", "udesc")
+    assert "--planar" in err
+    # a 6-RUS preset is not a 3-RRR geometry: one line naming it
+    assert "'ceart'" in _one_line_error(capsys, "--planar", "--platform", "ceart")
+
+
+def test_planar_default_geometry_is_the_same_for_every_command(capsys, tmp_path):
+    """`workspace --planar`, `fly --planar` and `teleop` use one default 3-RRR geometry."""
+    from motionbase.io.mcap_source import read_metadata
+
+    workspace = _planar_robot(capsys, "--planar")
+    fly_out = tmp_path / "fly.mcap"
+    assert main(["fly", "--planar", "--duration", "1", "--out", str(fly_out)]) == 0
+    fly = read_metadata(fly_out)["pipeline_config"]["geometry"]["name"]
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("t,x,y\n0.0,655,357\n0.5,655,357\n")
+    teleop_out = tmp_path / "teleop.mcap"
+    args = ["teleop", "--input", f"file:{csv}", "--duration", "0.5", "--out", str(teleop_out)]
+    assert main(args) == 0
+    teleop = read_metadata(teleop_out)["geometry"]["name"]
+    assert workspace == fly == teleop == "udesc_symmetric"
+
+
+# --------------------------------------------------------------------------- plot file formats
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "planar"])
+def test_workspace_plot_is_written_in_the_format_its_extension_names(planar, tmp_path, capsys):
+    flag = ["--planar"] if planar else []
+    formats = (("svg", b"<?xml"), ("pdf", b"%PDF-"), ("png", b"\x89PNG"), ("PNG", b"\x89PNG"))
+    for ext, magic in formats:
+        path = tmp_path / f"ws.{ext}"
+        assert main(["workspace", *flag, "--plot", str(path)]) == 0
+        assert str(path) in capsys.readouterr().out
+        data = path.read_bytes()
+        assert data.startswith(magic), (ext, data[:16])
+        if ext == "svg":
+            assert b"<svg" in data[:2000]
+    # an extension matplotlib would not honour, or none: refused before any work, one line
+    for name in ("ws.jpeg", "ws.txt", "ws"):
+        err = _one_line_error(capsys, "--plot", str(tmp_path / name), *flag)
+        assert ".png, .svg or .pdf" in err
+        assert not (tmp_path / name).exists()
+
+
+def test_planar_workspace_figure_has_a_legend_naming_what_it_draws():
+    from motionbase.io.planar_plots import planar_workspace_figure
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    ws = rrr3.workspace(30, 30, 13)
+    rect = (0.11, 0.15, 0.07, 0.10)
+    fig = planar_workspace_figure(rrr3, ws, rectangle=rect)
+    assert len(fig.legends) == 1
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    for what in ("valid pose", "base triangle", "motors", "home", "platform at home"):
+        assert any(what in label for label in labels), (what, labels)
+    assert any("rectangle" in label for label in labels)
+    # the legend's entries are the drawn data: the home marker sits at the robot's home pose
+    slice_ax = fig.axes[1]
+    home = next(ln for ln in slice_ax.get_lines() if ln.get_label() == "home")
+    np.testing.assert_allclose(np.r_[home.get_xdata(), home.get_ydata()], rrr3.home[:2])
+    box = next(ln for ln in slice_ax.get_lines() if "rectangle" in ln.get_label())
+    assert (min(box.get_xdata()), max(box.get_xdata())) == rect[:2]
+    assert (min(box.get_ydata()), max(box.get_ydata())) == rect[2:]

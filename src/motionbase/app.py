@@ -8,6 +8,7 @@ functions; tests call them directly too. Each returns a :class:`JobResult` whose
 from __future__ import annotations
 
 import math
+import os
 import sys
 import tempfile
 import time
@@ -16,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from motionbase.config import resolve_preset_or_path
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, resolve_preset_or_path
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -29,6 +30,17 @@ from motionbase.pipeline import (
 )
 
 RECORDINGS = Path("recordings")
+
+
+def user_recordings_dir() -> Path:
+    """Where ``stream`` logs when not told: ``$XDG_DATA_HOME/motionbase/recordings``, by
+    default ``~/.local/share/motionbase/recordings`` (the log writer creates it on demand), so
+    a live session leaves nothing in the folder it ran from, a checkout say.
+    """
+    base = os.environ.get("XDG_DATA_HOME", "")
+    if not os.path.isabs(base):  # unset, empty or relative: the XDG default
+        base = os.path.join(os.path.expanduser("~"), ".local", "share")
+    return Path(base) / "motionbase" / "recordings"
 
 
 # --------------------------------------------------------------------------- configuration
@@ -60,11 +72,9 @@ def load_config(
     from motionbase.washout import WashoutParams
 
     if planar:
-        geometry = Rrr3Geometry.from_toml(
-            resolve_preset_or_path("rrr3", platform or "udesc_symmetric")
-        )
+        geometry = Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", platform or DEFAULT_RRR3))
     else:
-        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or "ceart"))
+        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or DEFAULT_RUS6))
     params = WashoutParams.from_toml(resolve_preset_or_path("washout", washout or "default"))
     return PipelineConfig(
         robot="rrr3" if planar else "rus6", geometry=geometry, washout=params, rate_hz=rate_hz
@@ -488,7 +498,7 @@ def stream(
     duration_s : float, optional
         Stop (and park) after this long, s.
     out : path, optional
-        MCAP log; default ``recordings/stream-<UTC time>.mcap``.
+        MCAP log; default ``stream-<UTC time>.mcap`` in :func:`user_recordings_dir`.
     realtime : bool
         For log files: replay at the recorded timing (True) or as fast as possible.
     busy_wait : bool
@@ -505,7 +515,7 @@ def stream(
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
     config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
     if out is None:
-        out = RECORDINGS / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+        out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
     source = MavlinkSource(
         mavlink,
         rate_hz=rate_hz,

@@ -13,7 +13,8 @@ import sys
 from collections.abc import Callable, Sequence
 
 from motionbase import __version__
-from motionbase.errors import MotionbaseError
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
+from motionbase.errors import ConfigError, MotionbaseError
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
 _Command = tuple[
@@ -112,7 +113,7 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--platform",
-        help="geometry preset or TOML path (default ceart; udesc_symmetric with --planar)",
+        help=f"geometry preset or TOML path (default {DEFAULT_RUS6}; {DEFAULT_RRR3} with --planar)",
     )
     p.add_argument("--washout", help="washout preset (default, gentle) or TOML path")
     p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot instead")
@@ -180,10 +181,15 @@ def run_replay(args: argparse.Namespace) -> int:
 def _args_workspace(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--platform",
-        default="ceart",
-        help="6-RUS geometry preset name or TOML path (default ceart)",
+        metavar="PRESET|FILE.toml",
+        help=f"geometry preset name or TOML path: the 6-RUS (default {DEFAULT_RUS6}), or with "
+        f"--planar the 3-RRR (default {DEFAULT_RRR3})",
     )
-    p.add_argument("--plot", metavar="FILE.png", help="draw the workspace slices to this PNG")
+    p.add_argument(
+        "--plot",
+        metavar="FILE.png|.svg|.pdf",
+        help="draw the workspace to this file, in the format its extension names",
+    )
     p.add_argument(
         "--planar",
         action="store_true",
@@ -191,9 +197,8 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rrr3",
-        default="udesc",
         metavar="PRESET|FILE.toml",
-        help="3-RRR geometry for --planar (default udesc)",
+        help=f"with --planar, the same as --platform: the 3-RRR geometry (default {DEFAULT_RRR3})",
     )
 
 
@@ -206,10 +211,17 @@ def run_workspace(args: argparse.Namespace) -> int:
     if args.planar:
         from motionbase.io.planar_plots import planar_workspace_report
 
-        print(planar_workspace_report(args.rrr3, args.plot))
+        if args.platform and args.rrr3 and args.platform != args.rrr3:
+            raise ConfigError(
+                f"--platform {args.platform} and --rrr3 {args.rrr3} both name the 3-RRR "
+                "geometry with --planar: give one of them"
+            )
+        print(planar_workspace_report(args.platform or args.rrr3, args.plot))
     else:
         from motionbase.io.workspace_plots import rus6_workspace_report
 
+        if args.rrr3:
+            raise ConfigError(f"--rrr3 {args.rrr3} names a 3-RRR geometry: add --planar")
         print(rus6_workspace_report(args.platform, args.plot))
     return 0
 
@@ -239,9 +251,9 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
     p.add_argument(
         "--rrr3",
-        default="udesc_symmetric",
+        default=DEFAULT_RRR3,
         metavar="PRESET|FILE.toml",
-        help="3-RRR geometry (default udesc_symmetric; the thesis's robot as built: udesc)",
+        help=f"3-RRR geometry (default {DEFAULT_RRR3}; the thesis's robot as built: udesc)",
     )
     p.add_argument(
         "--no-clamp",
@@ -295,7 +307,10 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fast", action="store_true", help="log files: as fast as possible")
     _add_busy_wait_option(p)
     p.add_argument(
-        "--out", metavar="FILE.mcap", help="log file (default recordings/stream-<time>.mcap)"
+        "--out",
+        metavar="FILE.mcap",
+        help="log file (default ~/.local/share/motionbase/recordings/stream-<time>.mcap, "
+        "under $XDG_DATA_HOME when set)",
     )
     _add_output_option(p)
 

@@ -47,6 +47,14 @@ def write_toml(path: str | Path, data: Mapping[str, Any]) -> None:
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
 
 
+#: The 6-RUS geometry every command uses when none is named.
+DEFAULT_RUS6 = "ceart"
+#: The 3-RRR geometry every command uses when none is named (``fly --planar``, ``stream
+#: --planar``, ``teleop``, ``workspace --planar``): the thesis's robot with its servo horns
+#: remounted for the well-conditioned working mode (``udesc`` is the robot as built).
+DEFAULT_RRR3 = "udesc_symmetric"
+
+
 def preset_path(kind: str, name: str) -> Path:
     """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
     base = resources.files("motionbase") / "presets"

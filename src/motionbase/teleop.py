@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from motionbase.config import DEFAULT_RRR3
 from motionbase.errors import ConfigError
 from motionbase.pipeline import StopRequest, install_signal_stop
 from motionbase.platform.calibration import CursorCalibration
@@ -57,8 +58,9 @@ from motionbase.safety import RATE_LIMITED, UNSAFE_TARGET, ActuatorLimits, limit
 
 __all__ = ["DEFAULT_GEOMETRY", "TeleopStats", "run_teleop", "teleop_job"]
 
-#: The planar robot teleop and the planar pipeline drive unless told otherwise.
-DEFAULT_GEOMETRY = "udesc_symmetric"
+#: The planar robot teleop and the planar pipeline drive unless told otherwise
+#: (:data:`motionbase.config.DEFAULT_RRR3`, one default for every command).
+DEFAULT_GEOMETRY = DEFAULT_RRR3
 
 
 @dataclass
