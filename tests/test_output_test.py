@@ -113,15 +113,41 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
     park = np.full(6, GEOMETRY.park_angle)
     # the last frame on the wire is the park command (to the format's 1e-4 deg)
     np.testing.assert_allclose(q[-1], park, atol=math.radians(1e-4))
-    # stopped mid-sweep: motor 6 never moved on its own
-    alone = np.abs(q - neutral) > math.radians(0.01)
-    assert alone[:, 0].any() and not np.any(alone[:, 5] & (alone.sum(axis=1) == 1))
-    # Speeds and accelerations of the frames, from their values and arrival times: over
-    # windows of 0.2 s a frame's lag behind its command (up to one 10 ms sender period plus
-    # the scheduler's delay, a few tens of ms on a loaded machine) moves the estimates by less
-    # than 0.5 rad/s and 5 rad/s^2 at the 60 deg/s of this test; tolerance 10 % of the limits.
+    # stopped mid-sweep: motor 1 had moved on its own, motor 6 never did
+    away = np.abs(q - neutral) > math.radians(0.01)
+    alone = away.sum(axis=1) == 1
+    assert np.any(alone & away[:, 0]) and not np.any(alone & away[:, 5])
+    # Speeds and accelerations of the frames, from their values and arrival times, over
+    # windows of at least 0.2 s (the sender thread samples the commands on its own clock, so
+    # single frames repeat or skip one). A variation J in a frame's lag behind its command (one
+    # 10 ms sender period plus the scheduler's delay) moves a speed estimate by at most
+    # 2 v J / 0.2 s and an acceleration by twice that per 0.2 s: 0.5 rad/s and 5 rad/s^2 for
+    # J = 50 ms at this test's 60 deg/s (1.05 rad/s; the sweep accelerates at 15 rad/s^2 at
+    # most). Tolerance: 10 % of the geometry's limits (3 rad/s, 30 rad/s^2).
     v, a = windowed_rates(t, q, 0.2)
     assert np.all(np.abs(v) <= 1.1 * np.asarray(GEOMETRY.max_speed))
     assert np.all(np.abs(a) <= 1.1 * np.asarray(GEOMETRY.max_accel))
     # and it did move: the test is not vacuous
     assert np.abs(v).max() > 0.5
+
+
+def test_a_stop_before_the_sweep_starts_sends_only_park():
+    from motionbase.io.motor_output import output_test
+    from motionbase.pipeline import StopRequest
+
+    rx = Receiver()
+    stop = StopRequest()
+    stop.set("test")
+    try:
+        lines = output_test(
+            f"udp:127.0.0.1:{rx.port}?format={quote(FORMAT, safe='')}", GEOMETRY, stop=stop,
+            echo=lambda s: None,
+        )  # fmt: skip
+        time.sleep(0.1)  # the last datagrams
+    finally:
+        rx.close()
+    assert sum("stopped by test" in line for line in lines) == 1
+    assert not any(line.startswith("motor ") for line in lines)
+    q = np.array([f[1] for f in rx.frames])
+    assert len(q) >= 1
+    np.testing.assert_allclose(q, np.full_like(q, GEOMETRY.park_angle), atol=math.radians(1e-4))
