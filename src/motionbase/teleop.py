@@ -42,11 +42,11 @@ Rules
   run's first tick sends home: a robot left elsewhere would jump there. The cursor is ignored
   from the stop on. When home is not reached within ``max_park_s`` the robot brakes to rest
   where it is. A stop asked before the loop starts (``teleop_job`` routes the signals before
-  it opens anything) sends the first tick's home command and ends.
+  it opens anything) sends the first tick's home command and ends. The first tick of every
+  run sends home (keep the robot near home when powering up).
 * A failing source or log (a socket error, a full disk) stops the run the same way, through
   the serial sink, and is raised afterwards (a failing serial sink is the robot itself gone:
-  raised at once). The first tick of every
-  run sends home (keep the robot near home when powering up).
+  raised at once).
 
 Loop time is ``k / rate_hz`` for tick ``k``; a file source is looked up by that time and the
 serial sink rate-limits on it, so a replay produces the same commands however the loop is
