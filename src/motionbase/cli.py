@@ -408,7 +408,8 @@ def _args_output(p: argparse.ArgumentParser) -> None:
 
 @command(
     "output",
-    "check motor wiring and signs: sweep each motor slowly about neutral, one at a time",
+    "check motor wiring and signs: sweep each motor slowly about neutral, one at a time "
+    "(Ctrl-C ramps the motors back to park)",
     _args_output,
 )
 def run_output(args: argparse.Namespace) -> int:
