@@ -29,17 +29,21 @@ RATE = 120.0
 
 
 @pytest.fixture
-def run_cli(capsys, monkeypatch):
-    """``run_cli(*args) -> (exit status, stdout, stderr)``, warnings included in stderr."""
-    # cli.main installs its warning handler on the stderr of the moment: this test's
-    monkeypatch.setattr(logging.getLogger("motionbase"), "handlers", [])
+def run_cli(capfd, monkeypatch):
+    """``run_cli(*args) -> (exit status, stdout, stderr)``, warnings included in stderr, and
+    what C code wrote to the file descriptors too."""
+    # cli.main installs its warning handler (on the stderr of the moment: this test's) when
+    # the logger has none; pytest attaches its own to loggers that do not propagate
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
 
     def run(*args: str) -> tuple[int, str, str]:
         try:
             code = cli.main([str(a) for a in args])
         except SystemExit as exc:  # argparse errors exit through SystemExit
             code = exc.code
-        captured = capsys.readouterr()
+        captured = capfd.readouterr()
         return code, captured.out, captured.err
 
     return run
@@ -241,3 +245,216 @@ def test_replay_refuses_to_overwrite_its_own_input(tmp_path, run_cli):
     code, stdout, err = run_cli("replay", rec, "--out", tmp_path / "other.mcap")
     assert code == 0, err
     assert rec.read_bytes() == before
+
+
+# --------------------------------------------------------------------------- item 13
+
+
+def test_a_huge_format_width_is_one_line_not_a_memory_error(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    out = tmp_path / "out.mcap"
+    for spec, needle in (("%7B1:>99999999999%7D", "width"), ("%7B1:.999999999f%7D", "precision")):
+        url = f"udp:127.0.0.1:9?format=text:{spec}"
+        code, stdout, err = run_cli(
+            "replay", rec, "--platform", "ceart", "--output", url, "--out", out
+        )
+        assert code == 2
+        one_line(err, needle, "64 characters")
+        assert not out.exists()
+    # the widest allowed field still works
+    from motionbase.io.motor_output import MAX_FIELD_WIDTH, TextFormat
+
+    fmt = TextFormat("{1:>" + str(MAX_FIELD_WIDTH) + "}", 6)
+    assert len(fmt.encode([1.0] * 6)) == MAX_FIELD_WIDTH
+
+
+@pytest.mark.parametrize("suffix", [".bin", ".tlog"])
+def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
+    """pymavlink printed a 'bad header' line per byte (2,385 lines) before the error."""
+    garbage = tmp_path / f"garbage{suffix}"
+    garbage.write_bytes(np.random.default_rng(7).bytes(50_000))
+    code, stdout, err = run_cli(
+        "stream", "--mavlink", garbage, "--fast", "--out", tmp_path / "g.mcap"
+    )
+    assert code == 2
+    one_line(err, f"garbage{suffix}", "no ")
+    assert stdout == ""
+
+
+def _closed_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()  # nothing listens there now: a connection is refused
+    return port
+
+
+def test_a_refused_tcp_link_is_one_line_without_retry_chatter(tmp_path, run_cli):
+    port = _closed_port()
+    out = tmp_path / "t.mcap"
+    code, stdout, err = run_cli("stream", "--mavlink", f"tcp:127.0.0.1:{port}", "--out", out)
+    assert code == 2
+    one_line(err, f"tcp:127.0.0.1:{port}", "connection refused")
+    assert "sleeping" not in stdout + err and stdout == ""
+    assert not out.exists()
+
+
+def test_an_output_that_will_not_open_leaves_no_stub_log(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    out = tmp_path / "out.mcap"
+    url = f"serial:{tmp_path / 'nonexistent'}"
+    code, stdout, err = run_cli("replay", rec, "--platform", "ceart", "--output", url, "--out", out)
+    assert code == 2
+    one_line(err, "nonexistent")
+    assert not out.exists()
+
+
+def _shifted_recording(path: Path, shift_s: float, which: slice) -> Path:
+    """States whose times in ``which`` are moved by ``shift_s`` (log times stay positive)."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": RATE})})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        shifted = set(range(240)[which])
+        for k in range(1, 241):
+            msg = _state(k)
+            if k - 1 in shifted:
+                msg["t"] += shift_s
+            ns = round(k / RATE * 1e9)
+            writer.add_message(cid, ns, json.dumps(msg).encode(), ns)
+        writer.finish()
+    return path
+
+
+def test_negative_recording_times_name_the_input_not_the_output(tmp_path, run_cli):
+    out = tmp_path / "out.mcap"
+    # a clock that starts before 0 s: refused up front, naming the recording
+    rec = _shifted_recording(tmp_path / "neg.mcap", -1.0, slice(None))
+    code, stdout, err = run_cli("replay", rec, "--out", out)
+    assert code == 2
+    line = one_line(err, "neg.mcap", "0 s")
+    assert "out.mcap" not in line and not out.exists()
+    # one negative time in the middle: rejected, counted and held, a warning names the input
+    rec = _shifted_recording(tmp_path / "one.mcap", -5.0, slice(100, 101))
+    code, stdout, err = run_cli("replay", rec, "--out", out)
+    assert code == 0, err
+    line = one_line(err, "one.mcap", "negative")
+    assert "out.mcap" not in line
+    assert read_messages(out)["/health"][-1]["rejected_inputs"] == 1
+    accepted = [m["accepted"] for m in read_messages(out)["/aircraft/state"]]
+    assert accepted[100] is False and accepted.count(False) == 1
+
+
+def test_the_top_level_parser_and_unknown_options_name_the_right_command(run_cli):
+    code, stdout, err = run_cli("fly", "--speed", "2")
+    assert code == 2
+    line = one_line(err, "unrecognized arguments: --speed")
+    assert line.startswith("motionbase fly: error:") and "motionbase motionbase" not in line
+    code, stdout, err = run_cli("--bogus")
+    assert code == 2
+    assert one_line(err, "--bogus").startswith("motionbase: error:")
+    code, stdout, err = run_cli("flyy")
+    assert code == 2
+    assert one_line(err, "flyy").startswith("motionbase: error:")
+
+
+def test_a_file_of_the_wrong_kind_is_named_for_what_it_is(tmp_path, run_cli):
+    from motionbase.config import preset_path
+
+    washout = preset_path("washout", "default")
+    rus6 = preset_path("rus6", "ceart")
+    rrr3 = preset_path("rrr3", "udesc")
+    cases = [
+        (["--platform", washout], ("washout_default.toml", "washout parameter file", "--washout")),
+        (["--washout", rus6], ("rus6_ceart.toml", "6-RUS geometry file", "--platform")),
+        (["--platform", rrr3], ("rrr3_udesc.toml", "3-RRR geometry file", "--planar")),
+        (["--planar", "--platform", rus6], ("rus6_ceart.toml", "6-RUS geometry file")),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli("stream", *args, "--out", tmp_path / "x.mcap")
+        assert code == 2, args
+        line = one_line(err, *needles)
+        assert "unknown field" not in line
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_bad_host_or_port_says_which(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    bad_host = "notahost.invalid"  # RFC 6761: never resolves
+    out = ["--out", tmp_path / "x.mcap"]
+    replay = ["replay", rec, "--platform", "ceart"]
+    cases = [
+        (
+            [*replay, "--output", f"udp:{bad_host}:99999", *out],
+            ("out of range", "does not resolve"),
+        ),
+        ([*replay, "--output", "udp:127.0.0.1:99999", *out], ("port 99999 is out of range",)),
+        ([*replay, "--output", f"udp:{bad_host}:4000", *out], (f"{bad_host}' does not resolve",)),
+        (["stream", "--mavlink", f"udpout:{bad_host}:14550", *out], ("does not resolve",)),
+        (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (0..65535)",)),
+        (["stream", "--mavlink", "udpout:127.0.0.1:0", *out], ("port 0 is out of range",)),
+        (["stream", "--mavlink", f"udp:{bad_host}:99999", *out], ("out of range", "resolve")),
+        (["stream", "--mavlink", f"tcp:{bad_host}:5760", *out], ("does not resolve",)),
+        (["teleop", "--input", f"udp:{bad_host}:99999"], ("out of range", "does not resolve")),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli(*args)
+        assert code == 2, args
+        line = one_line(err, *needles)
+        assert "choose another port" not in line and "expected udp:HOST:PORT" not in line
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def _unsigned_vehicle(port: int, stop, key: bytes | None) -> None:
+    from mavlink_sender import send_good
+
+    from motionbase.io.mavlink_source import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1)
+    if key is not None:
+        conn.setup_signing(key, sign_outgoing=True, link_id=1)
+    i = 0
+    try:
+        while not stop.is_set():
+            send_good(conn.mav, i)
+            i += 1
+            stop.wait(0.02)
+    finally:
+        conn.close()
+
+
+@pytest.mark.parametrize("vehicle_key", [None, bytes(32 * [0xAA])], ids=["unsigned", "other key"])
+def test_signature_rejections_are_named_in_the_warning(tmp_path, caplog, vehicle_key):
+    """Messages that arrive but fail the signature check: the warning says so, it does not
+    ask whether the vehicle is sending at all."""
+    import threading
+
+    from motionbase.io.mavlink_source import MavlinkSource
+
+    key_file = tmp_path / "key.bin"
+    key_file.write_bytes(bytes(range(32)))
+    stop = threading.Event()
+    caplog.set_level(logging.WARNING, logger="motionbase")
+    with MavlinkSource(
+        "udpin:127.0.0.1:0",
+        rate_hz=50.0,
+        duration_s=2.5,
+        signing_key=key_file,
+        request_timeout_s=0.5,
+    ) as src:
+        port = src.local_address[1]
+        th = threading.Thread(target=_unsigned_vehicle, args=(port, stop, vehicle_key))
+        th.start()
+        try:
+            ticks = [src.fresh for _ in src]
+        finally:
+            stop.set()
+            th.join(timeout=5)
+        stats = src.stats
+    assert not any(ticks) and stats.accepted == 0 and stats.rejected_signature > 0
+    warned = [r.getMessage() for r in caplog.records if "signature" in r.getMessage()]
+    assert len(warned) == 1, [r.getMessage() for r in caplog.records]
+    assert "--signing-key" in warned[0]
+    assert not any("is the vehicle sending" in r.getMessage() for r in caplog.records)

@@ -316,8 +316,11 @@ def test_replay_and_check_of_a_malformed_recording_through_the_cli(
 ):
     from motionbase import cli
 
-    # cli.main sets up its warning handler on the stderr of the moment: this test's
-    monkeypatch.setattr(logging.getLogger("motionbase"), "handlers", [])
+    # cli.main installs its warning handler (on the stderr of the moment: this test's) when
+    # the logger has none; pytest attaches its own to loggers that do not propagate
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
 
     src = tmp_path / "bad.mcap"
     payloads = _recording_with(src, MALFORMED[kind])

@@ -346,9 +346,13 @@ class McapSource:
                     )
                 self._channel_ids.add(ch.id)
 
+        first: list[bytes] = []
+
         def on_message(msg: Message) -> None:
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
+                if not first:
+                    first.append(msg.data)
 
         if not _scan_messages:
             self.truncated = _scan_metadata_only(self.path, on_metadata)
@@ -359,12 +363,27 @@ class McapSource:
             raise LogFormatError(
                 f"{self.path}: no {topic} messages in the recording (topics present: {present})"
             )
+        self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
         if self.truncated:
             _warn_truncated(self.path, f"{self.count} aircraft states")
         self._open = False
+
+    def _check_clock(self, data: bytes) -> None:
+        """Refuse a recording whose clock starts before 0 s, naming the file: each of its
+        samples would be rejected (an isolated negative time later on is rejected and held)."""
+        try:
+            msg = decode_message(data)
+        except ValueError:
+            return  # a malformed first state: rejected and held like any other
+        t = msg.get("source_t", msg.get("t")) if isinstance(msg, dict) else None
+        if isinstance(t, int | float) and not isinstance(t, bool) and t < 0:
+            raise LogFormatError(
+                f"{self.path}: the first {self.topic} message is at {t:g} s; a recording's "
+                "times start at 0 s (shift its clock so the first sample is at 0 s or later)"
+            )
 
     def _find_rate(self, times_ns: np.ndarray) -> float:
         for table in (self.metadata, self.metadata.get("pipeline"), self.metadata.get("source")):
