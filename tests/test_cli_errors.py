@@ -458,3 +458,22 @@ def test_signature_rejections_are_named_in_the_warning(tmp_path, caplog, vehicle
     assert len(warned) == 1, [r.getMessage() for r in caplog.records]
     assert "--signing-key" in warned[0]
     assert not any("is the vehicle sending" in r.getMessage() for r in caplog.records)
+
+
+def test_a_format_file_with_wrong_types_is_one_line(tmp_path, run_cli):
+    """``rate_hz = true`` once became 1 frame per second; ``text = 5`` a template "5"."""
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    for body, needle in (
+        ('text = "A{1}B{2}\\\\n"\nrate_hz = true\n', "'rate_hz'"),
+        ('text = "A{1}B{2}\\\\n"\nrate_hz = "250"\n', "'rate_hz'"),
+        ("binary = 5\n", "'binary'"),
+    ):
+        fmt = tmp_path / "drive.toml"
+        fmt.write_text(body)
+        url = f"udp:127.0.0.1:9?format={fmt}"
+        code, stdout, err = run_cli(
+            "replay", rec, "--platform", "ceart", "--output", url, "--out", tmp_path / "x.mcap"
+        )
+        assert code == 2, body
+        one_line(err, "drive.toml", needle)
+    assert not (tmp_path / "x.mcap").exists()

@@ -74,7 +74,7 @@ from urllib.parse import parse_qsl, urlencode
 
 import numpy as np
 
-from motionbase.config import read_toml
+from motionbase.config import as_float, read_toml
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
@@ -540,9 +540,14 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
                 f"{path}: a format file needs exactly one of 'text' or 'binary' "
                 "(and optionally rate_hz)"
             )
-        if "text" in data:
-            return TextFormat(str(data["text"]), n_axes), extra
-        return BinaryFormat(str(data["binary"]), n_axes), extra
+        key = "text" if "text" in data else "binary"
+        if not isinstance(data[key], str):
+            raise ConfigError(f"{path}: field {key!r}: expected a string, got {data[key]!r}")
+        if "rate_hz" in extra:
+            as_float(path, "rate_hz", extra["rate_hz"], min_value=0.0, strict_min=True, unit="Hz")
+        if key == "text":
+            return TextFormat(data[key], n_axes), extra
+        return BinaryFormat(data[key], n_axes), extra
     return TextFormat(text, n_axes), {}
 
 
