@@ -114,6 +114,16 @@ def _base() -> dict:
         (lambda d: d.update(method="euler"), "method"),
         (lambda d: d["tilt"].update(zeta="one"), "expected a number"),
         (lambda d: d.update(translational=3), r"\[translational\] must be a table"),
+        # strict types (issue 13, item 12): never converted
+        (lambda d: d["scaling"].update(specific_force_gain="0.5"), "specific_force_gain.*'0.5'"),
+        (
+            lambda d: d["scaling"].update(specific_force_gain=["0.5", "0.5", "0.5"]),
+            "specific_force_gain.*'0.5'",
+        ),
+        (lambda d: d["translational"].update(wn=True), "translational.wn.*True"),
+        (lambda d: d["rotational"].update(zeta=[1.0, True, 1.0]), "rotational.zeta.*True"),
+        (lambda d: d["tilt"].update(angle_limit_deg=False), "tilt.angle_limit_deg.*False"),
+        (lambda d: d.update(g="9.8"), "'g'.*expected a number"),
     ],
 )
 def test_bad_values_give_a_clear_config_error(edit, match):
@@ -195,3 +205,11 @@ def test_any_valid_parameter_set_round_trips_exactly(gains, pos, angle, method, 
     )
     assert WashoutParams.from_dict(p.to_dict()) == p
     assert WashoutParams.from_dict(json.loads(json.dumps(p.to_dict()))) == p
+
+
+def test_a_geometry_file_given_as_washout_is_named_for_what_it_is():
+    from motionbase.config import preset_path, read_toml
+
+    for kind, name in (("rus6", "ceart"), ("rrr3", "udesc")):
+        with pytest.raises(ConfigError, match=r"^g.toml: this is a .* geometry file"):
+            WashoutParams.from_dict(read_toml(preset_path(kind, name)), source="g.toml")

@@ -224,23 +224,19 @@ def _drive(
 
     sinks: list[Any] = []
     try:
-        log = (
-            PipelineLog(
-                out,
-                run_metadata(config, source),
-                health=pipeline.health.as_dict,
-                planar=config.robot == "rrr3",
-            )
-            if out
-            else None
-        )
-        if log is not None:
-            log.__enter__()
-            sinks.append(log)
         try:
-            for sink in extra_sinks or []:
+            for sink in extra_sinks or []:  # first: a port that will not open leaves no log
                 sink.__enter__()
                 sinks.append(sink)
+            if out:
+                log = PipelineLog(
+                    out,
+                    run_metadata(config, source),
+                    health=pipeline.health.as_dict,
+                    planar=config.robot == "rrr3",
+                )
+                log.__enter__()
+                sinks.insert(0, log)  # the log stays the first sink, closed last
             summary = run(
                 pipeline,
                 source,
@@ -354,13 +350,33 @@ def replay(
     platform, washout, planar : optional
         Override the recorded configuration.
     outputs : list of str, optional
-        Motor-drive output URLs; they pace the replay to real time.
+        Motor-drive output URLs; they pace the replay to real time. They need ``platform``:
+        motors are driven only with the limits of the user's own geometry, never with the
+        geometry stored in a recording.
+
+    Raises
+    ------
+    ConfigError
+        ``out`` is the recording itself; ``outputs`` without ``platform``; a recorded
+        configuration with wrong, non-finite or inverted limits.
     """
     from motionbase.io.mcap_source import McapSource, read_messages
 
     src_path = Path(path)
+    if out is not None and _same_file(src_path, Path(out)):
+        raise ConfigError(
+            f"--out {out} is the recording being replayed ({src_path}): writing it would destroy "
+            "it; give another file"
+        )
+    if outputs and platform is None:
+        raise ConfigError(
+            "replay --output drives motors: give --platform with your own geometry (preset or "
+            "TOML); a recording's stored geometry and limits never drive motors"
+        )
     with McapSource(src_path) as source:
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
+        if recorded is not None and not isinstance(recorded, dict):
+            raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
         if recorded is not None and platform is None and washout is None and planar is None:
             config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
         else:
@@ -389,6 +405,11 @@ def replay(
                 outputs=outputs,
             )
             result.notes.extend(notes)
+            if source.malformed:
+                result.notes.append(
+                    f"warning: {src_path}: {source.malformed} malformed aircraft states rejected "
+                    f"and held (first: {source.first_malformed})"
+                )
             if check:
                 report = compare_recordings(read_messages(src_path), read_messages(out_path))
                 result.notes.extend(report.lines())
@@ -399,6 +420,14 @@ def replay(
             if tmp is not None:
                 tmp.cleanup()
     return result
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (through symlinks, hard links, ``..``)."""
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
 
 
 class StatusLine:

@@ -37,7 +37,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse that exits with status 2 and a one-line message (its default, kept explicit)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"motionbase {self.prog.split()[-1]}: error: {message} (see --help)\n")
+        # prog is "motionbase" for the top-level parser, "motionbase fly" for a subcommand
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, help_text, add_arguments, run in COMMANDS:
         p = sub.add_parser(name, help=help_text, description=help_text)
         add_arguments(p)
-        p.set_defaults(_run=run)
+        p.set_defaults(_run=run, _parser=p)
     return parser
 
 
@@ -70,7 +71,9 @@ def _setup_logging() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # name the subcommand that does not know them, not the top-level parser
+        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

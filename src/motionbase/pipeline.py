@@ -50,6 +50,7 @@ import numba
 import numpy as np
 
 from motionbase import __version__
+from motionbase.config import as_float
 from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.pacing import wait_until
 from motionbase.platform._rus6_kernels import _inverse_row, _within, clamp_inverse_one
@@ -116,8 +117,18 @@ class PipelineConfig:
             raise ConfigError(f"robot must be 'rus6' or 'rrr3', got {self.robot!r}")
         for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float, np.integer, np.floating))
+                and np.isfinite(value)
+                and value > 0
+            ):
                 raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
+        for name in ("planar_scale_m", "planar_yaw_scale"):
+            as_float("pipeline", name, getattr(self, name))
+        if not isinstance(self.input_limits, InputLimits):
+            raise ConfigError(
+                f"pipeline: input_limits must be InputLimits, got {self.input_limits!r}"
+            )
         if self.rate_hz > 10_000:
             raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
 
@@ -154,20 +165,37 @@ class PipelineConfig:
         from motionbase.platform import Rrr3Geometry, Rus6Geometry
         from motionbase.washout import WashoutParams
 
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: expected a table of settings, got {data!r:.60}")
+        robot = data.get("robot")
+        if robot not in ("rus6", "rrr3"):
+            raise ConfigError(f"{source}: field 'robot': expected 'rus6' or 'rrr3', got {robot!r}")
+        pipe = data.get("pipeline", {})
+        limits = pipe.get("input_limits", {}) if isinstance(pipe, dict) else None
+        if not isinstance(limits, dict):
+            raise ConfigError(f"{source}: 'pipeline' and its 'input_limits' must be tables")
+        pipe = {k: v for k, v in pipe.items() if k != "input_limits"}
+        known = {f.name for f in fields(cls)} - {"robot", "geometry", "washout", "input_limits"}
+        unknown = sorted(set(pipe) - known) or sorted(
+            set(limits) - {f.name for f in fields(InputLimits)}
+        )
+        if unknown:
+            raise ConfigError(f"{source}: unknown pipeline setting {unknown[0]!r}")
+        for key in ("geometry", "washout"):
+            if key not in data:
+                raise ConfigError(f"{source}: missing field {key!r}")
+        geometry_cls = Rus6Geometry if robot == "rus6" else Rrr3Geometry
         try:
-            robot = data["robot"]
-            geometry_cls = Rus6Geometry if robot == "rus6" else Rrr3Geometry
-            pipe = dict(data.get("pipeline", {}))
-            limits = InputLimits(**pipe.pop("input_limits", {}))
             return cls(
                 robot=robot,
                 geometry=geometry_cls.from_dict(data["geometry"], source=f"{source}: geometry"),
                 washout=WashoutParams.from_dict(data["washout"], source=f"{source}: washout"),
-                input_limits=limits,
+                input_limits=InputLimits(**limits),
                 **pipe,
             )
-        except (KeyError, TypeError) as exc:
-            raise ConfigError(f"{source}: incomplete or unknown field ({exc})") from None
+        except ConfigError as exc:  # settings and input limits: say where they came from
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 
 
 # --------------------------------------------------------------------------- robots

@@ -18,7 +18,8 @@ Python's format mini-language: ``{1:d}`` decimal (the default), ``{1:04x}`` four
 ``{1:X}``, ``{1:o}``, ``{1:b}``, ``{1:+06d}``, ``{1:.2f}`` two decimals (``f``/``e``/``g``
 keep the value as a float; every other type rounds it to an integer). A zero-padded width
 (``04x``) is an exact width: a value needing more digits is never sent. Negative values are
-never sent with ``x``/``X``/``o``/``b``. ``{{`` and ``}}`` are literal braces; ``\n``, ``\r``,
+never sent with ``x``/``X``/``o``/``b``. A field's width and precision are at most
+:data:`MAX_FIELD_WIDTH` (64) characters. ``{{`` and ``}}`` are literal braces; ``\n``, ``\r``,
 ``\t``, ``\\`` and ``\xHH`` are escapes; SimTools' ``<Axis1a>`` means ``{1}``. Example (FlyPT
 Mover style): ``text:A{1}B{2}C{3}D{4}E{5}F{6}\n``.
 
@@ -73,8 +74,9 @@ from urllib.parse import parse_qsl, urlencode
 
 import numpy as np
 
-from motionbase.config import read_toml
+from motionbase.config import as_float, read_toml
 from motionbase.errors import ConfigError, SinkError
+from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
 from motionbase.platform.output_map import OutputMapping, sweep_profile
 
@@ -96,6 +98,8 @@ log = logging.getLogger(__name__)
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
 DEFAULT_RATE_HZ = 100.0
 DEFAULT_BAUD = 115200
+#: Widest text field (width or precision), characters: a 64-bit number in binary fits.
+MAX_FIELD_WIDTH = 64
 
 
 # --------------------------------------------------------------------------- checksums
@@ -260,6 +264,12 @@ class TextFormat:
         if integer and m.group("prec"):
             raise ConfigError(f"{where}: an integer type takes no precision")
         width = int(m.group("width")) if m.group("width") else None
+        for what, digits_ in (("width", m.group("width")), ("precision", m.group("prec"))):
+            if digits_ and int(digits_) > MAX_FIELD_WIDTH:
+                raise ConfigError(
+                    f"{where}: {what} {int(digits_)} is more than {MAX_FIELD_WIDTH} characters "
+                    "(no drive reads a field that long; fix the format)"
+                )
         zero = bool(m.group("zero")) or (m.group("fill") == "0" and m.group("align") in "=>")
         exact = width if zero and width else None
         digits = {"d": r"\d", "x": r"[0-9a-f]", "X": r"[0-9A-F]", "o": r"[0-7]", "b": r"[01]"}
@@ -530,9 +540,14 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
                 f"{path}: a format file needs exactly one of 'text' or 'binary' "
                 "(and optionally rate_hz)"
             )
-        if "text" in data:
-            return TextFormat(str(data["text"]), n_axes), extra
-        return BinaryFormat(str(data["binary"]), n_axes), extra
+        key = "text" if "text" in data else "binary"
+        if not isinstance(data[key], str):
+            raise ConfigError(f"{path}: field {key!r}: expected a string, got {data[key]!r}")
+        if "rate_hz" in extra:
+            as_float(path, "rate_hz", extra["rate_hz"], min_value=0.0, strict_min=True, unit="Hz")
+        if key == "text":
+            return TextFormat(data[key], n_axes), extra
+        return BinaryFormat(data[key], n_axes), extra
     return TextFormat(text, n_axes), {}
 
 
@@ -910,11 +925,11 @@ def open_output(
     else:
         if other:
             raise ConfigError(f"output {url!r}: unknown key {other[0][0]!r} (format, rate)")
-        host, _, port = base.rpartition(":")
-        host = host.strip("[]")
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        host, colon, port = base.rpartition(":")
+        if not colon:
             raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")
-        transport = _UdpTransport(host, int(port))
+        host, port_no = check_host_port(f"output {url!r}", host.strip("[]"), port)
+        transport = _UdpTransport(host, port_no)
     return MotorOutput(transport, fmt, mapping, rate_hz=rate, realtime=realtime, url=url)
 
 

@@ -49,6 +49,7 @@ import numpy as np
 from motionbase.config import (
     as_array,
     as_float,
+    check_file_kind,
     check_keys,
     preset_path,
     read_toml,
@@ -203,6 +204,7 @@ class WashoutParams:
         """
         if not isinstance(d, dict):
             raise ConfigError(f"{source}: expected a table of washout parameters, got {d!r}")
+        check_file_kind(source, d, "washout")
         check_keys(source, d, (*_TOP, *_SECTIONS), required=tuple(_SECTIONS))
         flat: dict[str, Any] = {}
         for section, keys in _SECTIONS.items():
