@@ -339,3 +339,29 @@ def test_describe_is_plain_data():
     d = src.describe()
     assert d["kind"] == "fgnative" and d["listen"] == "0.0.0.0:5500" and d["rate_hz"] == 250
     assert d["versions"] == [24, 25]
+
+
+def test_real_flightgear_packets(sender):
+    """Datagrams recorded from fgfs 2020.3 (tests/data/README.md): parked on KSFO 28R."""
+    raw = (DATA / "fgfs_2020.3_c172p_ksfo28r.fgnetfdm").read_bytes()
+    packets = [raw[i : i + 408] for i in range(0, len(raw), 408)]
+    assert len(packets) == 10
+    with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=100) as src:
+        it = iter(src)
+        states = []
+        for p in packets:
+            sender.sendto(p, src.local_address)
+            states.append(next(it))
+            assert src.fresh and src.tick.new_sample
+        stats = src.stats
+    assert stats.accepted == 10 and stats.rejected == 0 and stats.extra["versions"] == "24"
+    for s in states:
+        roll, pitch, yaw = s.attitude
+        # runway 28R's true heading is 297.9 deg; yaw comes wrapped to [-180, 180) deg
+        assert math.degrees(yaw) == pytest.approx(297.9 - 360.0, abs=0.5)
+        # at rest, an accelerometer reads minus gravity in body axes (FRD)
+        g_body = G0 * np.array(
+            [-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)]
+        )
+        np.testing.assert_allclose(s.specific_force, -g_body, atol=0.1)
+        np.testing.assert_allclose(s.angular_velocity, 0.0, atol=1e-3)
