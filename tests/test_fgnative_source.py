@@ -14,6 +14,7 @@ import math
 import os
 import socket
 import struct
+import threading
 import time
 from pathlib import Path
 
@@ -21,9 +22,11 @@ import jsbsim
 import numpy as np
 import pytest
 
+from motionbase.cli import main
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.fgnative_source import FgNativeSource
 from motionbase.io.jsbsim_source import JsbsimSource
+from motionbase.io.mcap_source import McapSource, read_messages
 
 G0 = 9.80665
 EPS32 = 2.0**-24  # relative rounding error of a double stored as a float32
@@ -339,6 +342,55 @@ def test_describe_is_plain_data():
     d = src.describe()
     assert d["kind"] == "fgnative" and d["listen"] == "0.0.0.0:5500" and d["rate_hz"] == 250
     assert d["versions"] == [24, 25]
+
+
+def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
+    """``motionbase stream --source fgnative:...`` runs the pipeline on the packets, logs them."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    packet = fgnetfdm_packet(24, A_X_pilot=1.5, A_Z_pilot=-31.0, phi=0.1, theta=0.05, psi=1.0)
+    stop = threading.Event()
+
+    def send() -> None:
+        while not stop.is_set():
+            sender.sendto(packet, ("127.0.0.1", port))
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=send, daemon=True)
+    thread.start()
+    out = tmp_path / "fg.mcap"
+    try:
+        url = f"fgnative:udp:127.0.0.1:{port}"
+        code = main(["stream", "--source", url, "--duration", "1.5", "--out", str(out)])
+    finally:
+        stop.set()
+        thread.join()
+    assert code == 0
+    states = [m for m in read_messages(out)["/aircraft/state"] if m["fresh"]]
+    assert len(states) > 50
+    f32 = lambda x: float(np.float32(x))  # noqa: E731
+    for m in states:
+        assert m["specific_force"] == [f32(1.5) * FT, 0.0, f32(-31.0) * FT]
+        assert m["attitude"] == pytest.approx([0.1, 0.05, 1.0], abs=1e-7)
+    assert McapSource(out).metadata["source"]["kind"] == "fgnative"
+    assert "FlightGear:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--source", "fgnative:tcp:127.0.0.1:5500"], "only UDP"),
+        (["--source", "udpin:127.0.0.1:14550"], "--mavlink"),
+        (["--source", "xplane:127.0.0.1:49000", "--fast"], "--fast"),
+        (["--source", "fgnative:udp:127.0.0.1:0", "--signing-key", "k.bin"], "--signing-key"),
+    ],
+)
+def test_stream_command_bad_source_is_one_line_and_exit_2(tmp_path, capsys, args, words):
+    code = main(["stream", *args, "--duration", "1", "--out", str(tmp_path / "x.mcap")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert "\n" not in err and words in err and "Traceback" not in err
 
 
 def test_real_flightgear_packets(sender):

@@ -20,7 +20,9 @@ import time
 import numpy as np
 import pytest
 
+from motionbase.cli import main
 from motionbase.errors import ConfigError
+from motionbase.io.mcap_source import read_messages
 from motionbase.io.xplane_source import XPlaneSource
 
 G0 = 9.80665
@@ -360,3 +362,23 @@ def test_default_listen_address_follows_xplane_host():
     remote = XPlaneSource("xplane:192.168.1.20:49000?listen=49010")
     assert remote.describe()["listen"] == "0.0.0.0:49010"
     assert remote.describe()["rref_freq_hz"] == 100
+
+
+def test_stream_command_takes_an_xplane_url(xplane, tmp_path, capsys):
+    xp = xplane(TURN)
+    out = tmp_path / "xp.mcap"
+    url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:0"
+    code = main(["stream", "--source", url, "--duration", "1.5", "--out", str(out)])
+    assert code == 0
+    states = [m for m in read_messages(out)["/aircraft/state"] if m["fresh"]]
+    assert len(states) > 50
+    f, w, att = expected(TURN)
+    for m in states:
+        np.testing.assert_allclose(m["specific_force"], f, atol=1e-9)
+        np.testing.assert_allclose(m["angular_velocity"], w, atol=1e-9)
+        np.testing.assert_allclose(m["attitude"], att, atol=1e-9)
+    assert "X-Plane:" in capsys.readouterr().out
+    t0 = time.monotonic()
+    while xp.unsubscribed() != set(TURN) and time.monotonic() - t0 < 2.0:
+        time.sleep(0.01)
+    assert xp.unsubscribed() == set(TURN)  # the command unsubscribed on its way out
