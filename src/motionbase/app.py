@@ -506,6 +506,7 @@ def stream(
     busy_wait: bool = False,
     progress: bool = True,
     outputs: list[str] | None = None,
+    source_url: str | None = None,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
 
@@ -534,8 +535,11 @@ def stream(
         Wait for each tick by busy-waiting instead of sleeping (see :func:`fly`).
     outputs : list of str, optional
         Motor-drive output URLs (see :func:`fly`).
+    source_url : str, optional
+        A simulator instead of MAVLink: ``fgnative:udp:HOST:PORT`` (FlightGear) or
+        ``xplane:HOST:PORT`` (X-Plane), see :func:`motionbase.io.sources.open_live_source`.
     """
-    from motionbase.io.mavlink_source import MavlinkSource
+    from motionbase.io.sources import open_live_source, stats_line
 
     _check_duration(duration_s)
     if serial and not planar:
@@ -545,8 +549,9 @@ def stream(
     config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
     if out is None:
         out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
-    source = MavlinkSource(
-        mavlink,
+    source = open_live_source(
+        source_url,
+        mavlink=mavlink,
         rate_hz=rate_hz,
         sysid=sysid,
         compid=compid,
@@ -561,7 +566,7 @@ def stream(
         status = StatusLine(source) if progress else None
         try:
             result = _drive(
-                f"streamed {mavlink}",
+                f"streamed {source_url or mavlink}",
                 config,
                 source,
                 Path(out),
@@ -575,13 +580,7 @@ def stream(
         finally:
             if status is not None:
                 status.close()
-        st = source.stats
-        result.notes.append(
-            f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
-            f"{st.rejected} rejected (other system {st.rejected_sysid}, signature "
-            f"{st.rejected_signature}, invalid {st.rejected_invalid}), {st.bad_data} garbled; "
-            f"{st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps"
-        )
+        result.notes.append(stats_line(source))
     return result
 
 

@@ -290,6 +290,12 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
         help="pymavlink connection string or .tlog/.bin file "
         "(default udpin:127.0.0.1:14550, loopback only)",
     )
+    p.add_argument(
+        "--source",
+        metavar="URL",
+        help="a simulator instead of MAVLink: fgnative:udp:HOST:PORT (FlightGear) "
+        "or xplane:HOST:PORT (X-Plane)",
+    )
     p.add_argument("--sysid", type=int, default=1, help="accept this system id only (default 1)")
     p.add_argument("--compid", type=int, help="accept this component id only")
     p.add_argument(
@@ -318,7 +324,7 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
     _add_output_option(p)
 
 
-@command("stream", "drive the platform from live MAVLink telemetry until Ctrl-C", _args_stream)
+@command("stream", "drive the platform live from MAVLink, FlightGear or X-Plane", _args_stream)
 def run_stream(args: argparse.Namespace) -> int:
     from motionbase import app
 
@@ -338,6 +344,7 @@ def run_stream(args: argparse.Namespace) -> int:
             realtime=not args.fast,
             busy_wait=args.busy_wait,
             outputs=args.output,
+            source_url=args.source,
         )
     )
 
