@@ -1,0 +1,741 @@
+"""Tuning the cueing: the score of washout parameters over manoeuvres, and CMA-ES on it.
+
+``motionbase tune`` looks for classical-washout parameters that make the pilot on a
+given platform feel what the aircraft does, over a set of manoeuvres
+(:mod:`motionbase.io.manoeuvres`). This module holds the maths: running a manoeuvre
+through the whole chain, scoring it, and the optimiser. It does no I/O; the job
+(:func:`motionbase.app.tune`) loads the manoeuvres, chooses where the evaluations run
+(:mod:`motionbase.io.executors`) and writes the result.
+
+The chain
+---------
+Each manoeuvre runs through the real pipeline (:class:`~motionbase.pipeline.Pipeline`:
+validation, washout, fades and soft start, workspace clamp with anti-windup, inverse
+kinematics, safety limiter) at the manoeuvre's rate, from park; :func:`run_chain` is the
+one place that does it (one tick at a time today; the batch path of the pipeline
+redesign replaces that one call). What the pilot feels is computed from the pose the
+actuators realise, after clamping and safety, never from what the washout asked for.
+
+The score (lower is better)
+---------------------------
+Per manoeuvre, over the ``running`` phase (the soft start from park excluded, as in
+``motionbase report``), with the perception models and metrics of
+:mod:`motionbase.washout.perception` (:func:`~motionbase.washout.perception.cueing_metrics`:
+otolith, Young & Meiry; semicircular canals, Young & Oman; the same call ``report``
+makes)::
+
+    cost = e_f + W_ANGULAR e_w + W_FALSE_CUE c + W_LIMITS k + W_WORKSPACE u
+
+- ``e_f``, m/s^2: the perceived specific-force error, the sum over x, y, z of the RMS of
+  platform minus aircraft (1 g removed from both; otolith output normalised to read a
+  sustained force at its value). Summed per axis rather than taken as a vector norm, so
+  that an error no platform can remove on one axis (a 4 g pull-up in heave) does not
+  mute the improvements on the others.
+- ``e_w``, rad/s: the same for the perceived angular velocity (canal outputs), roll,
+  pitch and yaw. ``W_ANGULAR`` = :data:`WEIGHT_ANGULAR` = 20 (m/s^2)/(rad/s), 0.35
+  m/s^2 per deg/s: an error at the roll threshold (3.0 deg/s) costs about six times one
+  at the surge threshold (0.17 m/s^2). With the ratio of the thresholds alone (3.25)
+  the tuner gave rotation cues away for specific force (in a 200-evaluation trial on
+  the default manoeuvres: angular error +13 % for specific force -16 %); rotation cues
+  (the roll into a turn, the pitch of a rotation) are what pilots miss first.
+- ``c``: false cues, the mean over the six channels (x, y, z force; roll, pitch, yaw
+  rate) of the share of time in which the platform's perceived cue is above the
+  perception threshold and the aircraft's is below it or of the other sign (the
+  definition of ``report``). Thresholds: 0.17, 0.17, 0.28 m/s^2 (x, y, z) and 3.0, 3.6,
+  2.6 deg/s (roll, pitch, yaw). ``W_FALSE_CUE`` = :data:`WEIGHT_FALSE_CUE` = 10 m/s^2:
+  a false cue on one channel a tenth of the time costs 0.17 m/s^2.
+- ``k``: the platform's limits are a hard constraint: the pipeline's clamp and safety
+  stage never let a command past them, and what they did is counted, not hidden:
+  ``k`` is the share of running ticks in which the workspace clamp moved the pose or
+  the safety stage limited or held the command. ``W_LIMITS`` = :data:`WEIGHT_LIMITS`
+  = 20 m/s^2: clamping 1 % of the time costs 0.2 m/s^2 (on top of the perceived
+  error the clamp itself causes).
+- ``u``: workspace use beyond a margin, ``sum over the six axes of max(0, usage -
+  0.8)^2``, where usage is the largest excursion on that axis as a share of the
+  platform's single-axis reach that way (:func:`motionbase.report.rus6_reach`);
+  ``WORKSPACE_MARGIN`` = :data:`WORKSPACE_MARGIN` = 0.8, ``W_WORKSPACE`` =
+  :data:`WEIGHT_WORKSPACE` = 10 m/s^2 (a full reach on one axis costs 0.4 m/s^2). It
+  keeps a margin for motion the tuning set does not have.
+
+The score of a parameter set is the mean of the manoeuvres' costs (each manoeuvre
+counts once, whatever its length); the totals in the tables are the same means.
+
+The parameters tuned (:data:`KNOBS`)
+------------------------------------
+Eighteen numbers of :class:`~motionbase.washout.params.WashoutParams`, each searched
+between the bounds below on a log scale, normalised to [0, 1] (``(ln p - ln lo) /
+(ln hi - ln lo)``), so CMA-ES steps are relative changes alike for every one. The
+rest of the start set is kept as it is: the dampings (``zeta``), the input saturation
+limits, gravity and the discretisation. Values are rounded to four significant digits
+when decoded, so the file written holds exactly the parameters that were scored.
+
+=======================  ==========================================  =================
+parameter                field (axes)                                bounds
+=======================  ==========================================  =================
+specific-force gain      ``scaling.specific_force_gain`` x, y, z     0.05 .. 1
+angular-velocity gain    ``scaling.angular_velocity_gain`` r, p, y   0.05 .. 1
+translational wn         ``translational.wn`` x, y, z                0.3 .. 20 rad/s
+translational wb         ``translational.wb`` x and y (one), z       0.05 .. 3 rad/s
+tilt low-pass wn         ``tilt.wn``                                 0.3 .. 20 rad/s
+tilt rate limit          ``tilt.rate_limit_deg_s``                   1 .. 6 deg/s
+tilt angle limit         ``tilt.angle_limit_deg``                    1 .. 20 deg
+tilt acceleration limit  ``tilt.accel_limit_deg_s2``                 2 .. 40 deg/s^2
+rotational wn            ``rotational.wn`` roll, pitch, yaw          0.2 .. 5 rad/s
+=======================  ==========================================  =================
+
+The optimiser
+-------------
+CMA-ES (:mod:`cma`, Hansen's reference implementation) in the normalised space, with
+the bounds handled by ``cma`` (``bounds = [0, 1]``), starting at the start set with a
+step of :data:`SIGMA0` = 0.2 and ``cma``'s default population (12 for 18 parameters).
+The budget counts evaluations of one parameter set over the whole manoeuvre set; the
+start set is the first of them, so the result is never worse than the start on the
+tuning set. Whole generations are told to CMA-ES; when the budget ends inside a
+generation, its first candidates are still evaluated and may win. The seed ``S`` seeds
+``cma``'s sampler (with ``S + 1``: ``cma`` reads 0 as "from the clock"); the same seed,
+manoeuvres, platform and start give the same result, whatever runs the evaluations
+(they are collected in order).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+
+from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.washout.params import WashoutParams
+from motionbase.washout.perception import (
+    cueing_metrics,
+)
+
+if TYPE_CHECKING:
+    from motionbase.io.manoeuvres import Manoeuvre
+
+__all__ = [
+    "KNOBS",
+    "SIGMA0",
+    "WEIGHT_ANGULAR",
+    "WEIGHT_FALSE_CUE",
+    "WEIGHT_LIMITS",
+    "WEIGHT_WORKSPACE",
+    "WORKSPACE_MARGIN",
+    "ChainRun",
+    "Weights",
+    "Knob",
+    "ManoeuvreScore",
+    "SetScore",
+    "TuningProblem",
+    "TuningResult",
+    "decode",
+    "encode",
+    "evaluate_in_worker",
+    "evaluate_params",
+    "format_table",
+    "init_worker",
+    "run_chain",
+    "score_motion",
+    "tune",
+]
+
+#: (m/s^2) per (rad/s) of perceived angular-velocity error (0.35 m/s^2 per deg/s).
+WEIGHT_ANGULAR = 20.0
+#: m/s^2 per unit share of time with false cues (mean over the six channels).
+WEIGHT_FALSE_CUE = 10.0
+#: m/s^2 per unit share of running ticks with the clamp or the safety stage acting.
+WEIGHT_LIMITS = 20.0
+#: m/s^2 per unit squared of workspace use beyond the margin, summed over the axes.
+WEIGHT_WORKSPACE = 10.0
+#: Share of the single-axis reach that workspace use may take before it costs.
+WORKSPACE_MARGIN = 0.8
+
+
+@dataclass(frozen=True)
+class Weights:
+    """The weights of the score's terms (defaults: the module constants, documented above)."""
+
+    angular: float = WEIGHT_ANGULAR
+    false_cue: float = WEIGHT_FALSE_CUE
+    limits: float = WEIGHT_LIMITS
+    workspace: float = WEIGHT_WORKSPACE
+    margin: float = WORKSPACE_MARGIN
+
+
+#: CMA-ES initial step in the normalised [0, 1] space.
+SIGMA0 = 0.2
+#: Significant digits of the parameters decoded (and written).
+DIGITS = 4
+
+
+# --------------------------------------------------------------------------- parameters
+
+
+@dataclass(frozen=True)
+class Knob:
+    """One tuned number: a field of :class:`WashoutParams` (some axes of it), with bounds.
+
+    Attributes
+    ----------
+    label : str
+        Short name for tables.
+    param : str
+        The :class:`WashoutParams` attribute.
+    axes : tuple of int or None
+        The entries of a per-axis field set to this one value (None: a scalar field).
+    lo, hi : float
+        Bounds, in the field's unit (> 0; searched on a log scale).
+    """
+
+    label: str
+    param: str
+    axes: tuple[int, ...] | None
+    lo: float
+    hi: float
+
+    def get(self, params: WashoutParams) -> float:
+        """The value in ``params`` (the first of its axes)."""
+        value = getattr(params, self.param)
+        return float(value if self.axes is None else value[self.axes[0]])
+
+
+KNOBS: tuple[Knob, ...] = (
+    Knob("K_f x", "specific_force_gain", (0,), 0.05, 1.0),
+    Knob("K_f y", "specific_force_gain", (1,), 0.05, 1.0),
+    Knob("K_f z", "specific_force_gain", (2,), 0.05, 1.0),
+    Knob("K_w roll", "angular_velocity_gain", (0,), 0.05, 1.0),
+    Knob("K_w pitch", "angular_velocity_gain", (1,), 0.05, 1.0),
+    Knob("K_w yaw", "angular_velocity_gain", (2,), 0.05, 1.0),
+    Knob("trans wn x", "translational_wn", (0,), 0.3, 20.0),
+    Knob("trans wn y", "translational_wn", (1,), 0.3, 20.0),
+    Knob("trans wn z", "translational_wn", (2,), 0.3, 20.0),
+    Knob("trans wb x,y", "translational_wb", (0, 1), 0.05, 3.0),
+    Knob("trans wb z", "translational_wb", (2,), 0.05, 3.0),
+    Knob("tilt wn", "tilt_wn", None, 0.3, 20.0),
+    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", None, 1.0, 6.0),
+    Knob("tilt angle deg", "tilt_angle_limit_deg", None, 1.0, 20.0),
+    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", None, 2.0, 40.0),
+    Knob("rot wn roll", "rotational_wn", (0,), 0.2, 5.0),
+    Knob("rot wn pitch", "rotational_wn", (1,), 0.2, 5.0),
+    Knob("rot wn yaw", "rotational_wn", (2,), 0.2, 5.0),
+)
+
+
+def encode(params: WashoutParams, knobs: Sequence[Knob] = KNOBS) -> np.ndarray:
+    """Normalised log coordinates of ``params`` in [0, 1] (values outside the bounds clip).
+
+    Returns
+    -------
+    ndarray, shape (len(knobs),)
+    """
+    out = np.empty(len(knobs))
+    for i, k in enumerate(knobs):
+        v = min(max(k.get(params), k.lo), k.hi)
+        out[i] = (math.log(v) - math.log(k.lo)) / (math.log(k.hi) - math.log(k.lo))
+    return out
+
+
+def _round(v: float) -> float:
+    return float(f"{v:.{DIGITS}g}")
+
+
+def decode(x: Sequence[float], base: WashoutParams, knobs: Sequence[Knob] = KNOBS) -> WashoutParams:
+    """The parameters at normalised coordinates ``x`` (clipped to [0, 1]), the rest ``base``'s.
+
+    Each value is rounded to :data:`DIGITS` significant digits.
+    """
+    x = np.clip(np.asarray(x, dtype=float), 0.0, 1.0)
+    if x.shape != (len(knobs),):
+        raise ValueError(f"decode: expected {len(knobs)} coordinates, got shape {x.shape}")
+    values: dict[str, Any] = {}
+    for xi, k in zip(x, knobs, strict=True):
+        v = _round(math.exp(math.log(k.lo) + xi * (math.log(k.hi) - math.log(k.lo))))
+        if k.axes is None:
+            values[k.param] = v
+        else:
+            current = list(values.get(k.param, getattr(base, k.param)))
+            for a in k.axes:
+                current[a] = v
+            values[k.param] = tuple(current)
+    return replace(base, **values)
+
+
+# --------------------------------------------------------------------------- the chain
+
+
+class ChainRun(NamedTuple):
+    """What the chain did with one manoeuvre, per tick (N ticks, one per sample).
+
+    Attributes
+    ----------
+    pose : ndarray, shape (N, 6)
+        The realised platform pose (after clamping and safety), m and rad.
+    clamped : ndarray of bool, shape (N,)
+        The workspace clamp moved the pose.
+    limited : ndarray of bool, shape (N,)
+        The safety stage rate-limited or held the command.
+    running : ndarray of bool, shape (N,)
+        Ticks in the ``running`` phase (after the soft start).
+    accepted : ndarray of bool, shape (N,)
+        Samples the pipeline's validation accepted.
+    """
+
+    pose: np.ndarray
+    clamped: np.ndarray
+    limited: np.ndarray
+    running: np.ndarray
+    accepted: np.ndarray
+
+
+def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre) -> ChainRun:
+    """Run a manoeuvre through the whole pipeline from park, one tick per sample.
+
+    The one place the tuner runs the chain: the pipeline's batch path will replace
+    this loop.
+    """
+    pipeline = Pipeline(config)
+    step = pipeline.step
+    n = len(manoeuvre)
+    pose = np.empty((n, 6))
+    flags = np.zeros((n, 4), dtype=bool)  # clamped, limited, running, accepted
+    fresh = manoeuvre.fresh
+    for i, state in enumerate(manoeuvre.states()):
+        out = step(state, bool(fresh[i]))
+        pose[i] = out.platform_pose
+        flags[i] = (
+            out.clamped,
+            out.rate_limited or out.held,
+            out.phase == "running",
+            out.accepted,
+        )
+    return ChainRun(pose, flags[:, 0], flags[:, 1], flags[:, 2], flags[:, 3])
+
+
+# --------------------------------------------------------------------------- the score
+
+
+@dataclass(frozen=True)
+class ManoeuvreScore:
+    """The score of one parameter set on one manoeuvre (see the module docstring).
+
+    Attributes
+    ----------
+    name : str
+    duration : float
+        Scored (running) time, s.
+    rmse_specific_force : ndarray, shape (3,)
+        Perceived specific-force RMSE per axis, m/s^2.
+    rmse_angular_velocity : ndarray, shape (3,)
+        Perceived angular-velocity RMSE per axis, rad/s.
+    false_cues : ndarray, shape (6,)
+        Share of time with a false cue: x, y, z force; roll, pitch, yaw rate.
+    clamped : float
+        Share of running ticks the workspace clamp acted.
+    limited : float
+        Share of running ticks the clamp or the safety stage acted (``k``).
+    workspace_usage : ndarray, shape (6,)
+        Largest excursion per axis as a share of the reach that way.
+    weights : Weights
+        Of the cost.
+    """
+
+    name: str
+    duration: float
+    rmse_specific_force: np.ndarray
+    rmse_angular_velocity: np.ndarray
+    false_cues: np.ndarray
+    clamped: float
+    limited: float
+    workspace_usage: np.ndarray
+    weights: Weights = Weights()
+
+    @property
+    def error_specific_force(self) -> float:
+        """``e_f``: the sum of the per-axis perceived specific-force RMSEs, m/s^2."""
+        return float(np.sum(self.rmse_specific_force))
+
+    @property
+    def error_angular_velocity(self) -> float:
+        """``e_w``: the sum of the per-axis perceived angular-velocity RMSEs, rad/s."""
+        return float(np.sum(self.rmse_angular_velocity))
+
+    @property
+    def false_cue_share(self) -> float:
+        """``c``: mean share of time with a false cue over the six channels."""
+        return float(np.mean(self.false_cues))
+
+    @property
+    def workspace_excess(self) -> float:
+        """``u``: sum of squared workspace use beyond the margin (:data:`WORKSPACE_MARGIN`)."""
+        margin = self.weights.margin
+        return float(np.sum(np.maximum(0.0, self.workspace_usage - margin) ** 2))
+
+    @property
+    def workspace_max(self) -> float:
+        """Largest workspace use of any axis, share of the reach."""
+        return float(np.max(self.workspace_usage))
+
+    @property
+    def cost(self) -> float:
+        """The manoeuvre's cost, m/s^2."""
+        w = self.weights
+        return (
+            self.error_specific_force
+            + w.angular * self.error_angular_velocity
+            + w.false_cue * self.false_cue_share
+            + w.limits * self.limited
+            + w.workspace * self.workspace_excess
+        )
+
+
+def score_motion(
+    manoeuvre: Manoeuvre,
+    run: ChainRun,
+    reach: np.ndarray,
+    g: float,
+    weights: Weights = Weights(),
+) -> ManoeuvreScore:
+    """Score what the chain did with a manoeuvre (see the module docstring).
+
+    Parameters
+    ----------
+    manoeuvre : Manoeuvre
+        The aircraft's motion (samples the pipeline rejected are replaced by the last
+        accepted one, as the pipeline held them; level flight before any).
+    run : ChainRun
+        The chain's output for it (:func:`run_chain`, or any realised poses).
+    reach : ndarray, shape (2, 6)
+        Lower (< 0) and upper (> 0) single-axis reach of the platform, m and rad.
+    g : float
+        Gravity, m/s^2.
+    weights : Weights
+        Of the cost.
+
+    Raises
+    ------
+    ValueError
+        Fewer than three running ticks (a manoeuvre shorter than the soft start).
+    """
+    sel = np.flatnonzero(run.running)
+    if sel.size < 3:
+        raise ValueError(
+            f"manoeuvre {manoeuvre.name}: fewer than 3 ticks after the soft start; "
+            "give a longer window"
+        )
+    n = len(manoeuvre)
+    last = np.maximum.accumulate(np.where(run.accepted, np.arange(n), -1))
+    f = np.vstack([[0.0, 0.0, -g], manoeuvre.specific_force])[last + 1]
+    w = np.vstack([[0.0, 0.0, 0.0], manoeuvre.angular_velocity])[last + 1]
+    m = cueing_metrics(
+        manoeuvre.t[sel], f[sel], w[sel], run.pose[sel], manoeuvre.dt, reach=reach, g=g
+    )
+    return ManoeuvreScore(
+        name=manoeuvre.name,
+        duration=float(m.duration),
+        rmse_specific_force=m.rmse_specific_force,
+        rmse_angular_velocity=m.rmse_angular_velocity,
+        false_cues=np.concatenate([m.false_cue_specific_force, m.false_cue_angular_velocity]),
+        clamped=float(np.mean(run.clamped[sel])),
+        limited=float(np.mean(run.clamped[sel] | run.limited[sel])),
+        workspace_usage=m.workspace_usage,
+        weights=weights,
+    )
+
+
+@dataclass(frozen=True)
+class SetScore:
+    """The score of one parameter set over a manoeuvre set: per manoeuvre and the means."""
+
+    scores: tuple[ManoeuvreScore, ...]
+
+    def _mean(self, attr: str) -> float:
+        return float(np.mean([getattr(s, attr) for s in self.scores]))
+
+    @property
+    def cost(self) -> float:
+        """Mean cost over the manoeuvres, m/s^2 (what the optimiser minimises)."""
+        return self._mean("cost")
+
+    @property
+    def error_specific_force(self) -> float:
+        """Mean ``e_f``, m/s^2."""
+        return self._mean("error_specific_force")
+
+    @property
+    def error_angular_velocity(self) -> float:
+        """Mean ``e_w``, rad/s."""
+        return self._mean("error_angular_velocity")
+
+    @property
+    def false_cue_share(self) -> float:
+        return self._mean("false_cue_share")
+
+    @property
+    def clamped(self) -> float:
+        return self._mean("clamped")
+
+    @property
+    def limited(self) -> float:
+        return self._mean("limited")
+
+    @property
+    def workspace_max(self) -> float:
+        """Largest workspace use of any axis in any manoeuvre, share of the reach."""
+        return float(max(s.workspace_max for s in self.scores))
+
+
+@dataclass(frozen=True, eq=False)
+class TuningProblem:
+    """Everything an evaluation needs: platform, manoeuvres, reach (plain data, picklable).
+
+    Attributes
+    ----------
+    geometry : Rus6Geometry
+        The platform.
+    manoeuvres : tuple of Manoeuvre
+    reach : ndarray, shape (2, 6)
+        The platform's single-axis reach (:func:`motionbase.report.rus6_reach`).
+    weights : Weights
+        Of the cost.
+    """
+
+    geometry: Any
+    manoeuvres: tuple[Manoeuvre, ...]
+    reach: np.ndarray
+    weights: Weights = Weights()
+
+    def config(self, params: WashoutParams, manoeuvre: Manoeuvre) -> PipelineConfig:
+        """The pipeline configuration for one manoeuvre (its rate, default settings)."""
+        return PipelineConfig(
+            robot="rus6", geometry=self.geometry, washout=params, rate_hz=manoeuvre.rate_hz
+        )
+
+    def evaluate(self, params: WashoutParams) -> SetScore:
+        """Score ``params`` over every manoeuvre."""
+        return SetScore(
+            tuple(
+                score_motion(
+                    m,
+                    run_chain(self.config(params, m), m),
+                    self.reach,
+                    params.gravity,
+                    self.weights,
+                )
+                for m in self.manoeuvres
+            )
+        )
+
+
+def evaluate_params(problem: TuningProblem, params: WashoutParams) -> SetScore:
+    """``problem.evaluate(params)`` as a plain function (what executors are given)."""
+    return problem.evaluate(params)
+
+
+_WORKER_PROBLEM: TuningProblem | None = None
+
+
+def init_worker(problem: TuningProblem) -> None:
+    """Process-pool initializer: keep the problem (its manoeuvre arrays) in this worker."""
+    global _WORKER_PROBLEM
+    _WORKER_PROBLEM = problem
+
+
+def evaluate_in_worker(params: WashoutParams) -> SetScore:
+    """Score ``params`` on the problem :func:`init_worker` left in this worker process."""
+    if _WORKER_PROBLEM is None:
+        raise RuntimeError("evaluate_in_worker: init_worker was not called in this process")
+    return _WORKER_PROBLEM.evaluate(params)
+
+
+# --------------------------------------------------------------------------- the optimiser
+
+
+@dataclass(frozen=True)
+class TuningResult:
+    """What :func:`tune` found.
+
+    Attributes
+    ----------
+    start, best : WashoutParams
+        The start set and the best set evaluated (the start when nothing beat it).
+    start_score, best_score : SetScore
+        Their scores on the tuning set.
+    evaluations : int
+        Parameter sets evaluated (the start included).
+    generations : int
+        CMA-ES generations told.
+    history : tuple of float
+        Best cost so far after the start and after each generation.
+    seed : int
+    knobs : tuple of Knob
+    """
+
+    start: WashoutParams
+    best: WashoutParams
+    start_score: SetScore
+    best_score: SetScore
+    evaluations: int
+    generations: int
+    history: tuple[float, ...]
+    seed: int
+    knobs: tuple[Knob, ...] = KNOBS
+
+
+#: Evaluates parameter sets in order: ``evaluate_many([p1, p2, ...]) -> [score1, ...]``.
+EvaluateMany = Callable[[list[WashoutParams]], list[SetScore]]
+
+
+def tune(
+    start: WashoutParams,
+    evaluate_many: EvaluateMany,
+    *,
+    budget: int,
+    seed: int,
+    popsize: int | None = None,
+    sigma0: float = SIGMA0,
+    knobs: Sequence[Knob] = KNOBS,
+    on_progress: Callable[[int, int, float], None] | None = None,
+) -> TuningResult:
+    """CMA-ES over ``knobs`` from ``start``, within ``budget`` evaluations.
+
+    Parameters
+    ----------
+    start : WashoutParams
+        The start set (its untuned fields are kept in every candidate).
+    evaluate_many : callable
+        Scores a list of parameter sets, results in the same order (locally, in a
+        process pool or on a cluster: :mod:`motionbase.io.executors`).
+    budget : int
+        Evaluations of one parameter set over the whole manoeuvre set, >= 1 (the
+        start is the first).
+    seed : int
+        Seeds CMA-ES (>= 0).
+    popsize : int, optional
+        CMA-ES population; default ``cma``'s (4 + 3 ln n).
+    sigma0 : float
+        Initial step in the normalised space.
+    knobs : sequence of Knob
+        The parameters tuned.
+    on_progress : callable, optional
+        ``on_progress(evaluations, budget, best_cost)`` after each batch.
+    """
+    import cma
+
+    if budget < 1:
+        raise ValueError(f"tune: budget must be >= 1 evaluation, got {budget}")
+    if seed < 0:
+        raise ValueError(f"tune: seed must be >= 0, got {seed}")
+    knobs = tuple(knobs)
+    start_score = evaluate_many([start])[0]
+    best, best_score = start, start_score
+    evaluations, generations = 1, 0
+    history = [start_score.cost]
+    if on_progress is not None:
+        on_progress(evaluations, budget, best_score.cost)
+    options = {
+        "bounds": [0.0, 1.0],
+        "seed": seed + 1,
+        "verbose": -9,
+        "verb_disp": 0,
+        "verb_log": 0,
+    }
+    if popsize is not None:
+        options["popsize"] = int(popsize)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        es = cma.CMAEvolutionStrategy(encode(start, knobs).tolist(), sigma0, options)
+        while evaluations < budget and not es.stop():
+            xs = es.ask()
+            remaining = budget - evaluations
+            whole = len(xs) <= remaining
+            xs = xs if whole else xs[:remaining]
+            candidates = [decode(x, start, knobs) for x in xs]
+            scores = evaluate_many(candidates)
+            evaluations += len(candidates)
+            for cand, score in zip(candidates, scores, strict=True):
+                if score.cost < best_score.cost:
+                    best, best_score = cand, score
+            if whole:
+                es.tell(xs, [s.cost for s in scores])
+                generations += 1
+            history.append(best_score.cost)
+            if on_progress is not None:
+                on_progress(evaluations, budget, best_score.cost)
+    return TuningResult(
+        start=start,
+        best=best,
+        start_score=start_score,
+        best_score=best_score,
+        evaluations=evaluations,
+        generations=generations,
+        history=tuple(history),
+        seed=seed,
+        knobs=knobs,
+    )
+
+
+# --------------------------------------------------------------------------- tables
+
+#: Columns of :func:`format_table`: title, attribute, scale, format.
+_COLUMNS = (
+    ("sf RMSE m/s^2", "error_specific_force", 1.0, "{:.3f}"),
+    ("ang RMSE deg/s", "error_angular_velocity", 180.0 / math.pi, "{:.2f}"),
+    ("false cues %", "false_cue_share", 100.0, "{:.1f}"),
+    ("clamped %", "limited", 100.0, "{:.1f}"),
+    ("workspace %", "workspace_max", 100.0, "{:.0f}"),
+    ("cost", "cost", 1.0, "{:.3f}"),
+)
+
+
+def _pct_change(before: float, after: float) -> str:
+    if before == 0.0:
+        return "n/a" if after == 0.0 else "+inf"
+    return f"{100.0 * (after - before) / before:+.0f} %"
+
+
+def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
+    """Before/after table: the score terms per manoeuvre and their means, per section.
+
+    Parameters
+    ----------
+    sections : sequence of (title, before, after)
+        E.g. the tuning set and the held-out set.
+
+    Returns
+    -------
+    str
+        Columns: perceived specific-force error ``e_f`` (m/s^2), angular-velocity error
+        ``e_w`` (deg/s), false cues (mean share over the six channels, %), clamped
+        (share of running ticks the clamp or the safety stage acted, %), workspace
+        (largest use of any axis, %; the largest over the manoeuvres in the mean row),
+        cost; each before and after; then the relative change of the means.
+    """
+    names = [s.name for _, b, _ in sections for s in b.scores]
+    name_w = max([24, *(len(n) + 4 for n in names)])
+    cell = 16
+    lines = [
+        " " * name_w + "".join(f"{c[0]:>{cell}}" for c in _COLUMNS),
+        f"{'':<{name_w}}" + "".join(f"{'before   after':>{cell}}" for _ in _COLUMNS),
+    ]
+
+    def row(label: str, b: Any, a: Any) -> str:
+        cells = "".join(
+            f"{fmt.format(scale * getattr(b, attr)):>8}{fmt.format(scale * getattr(a, attr)):>8}"
+            for _, attr, scale, fmt in _COLUMNS
+        )
+        return f"{label:<{name_w}}{cells}"
+
+    for title, before, after in sections:
+        lines.append(title)
+        for sb, sa in zip(before.scores, after.scores, strict=True):
+            lines.append(row(f"  {sb.name}", sb, sa))
+        lines.append(row(f"  mean of {len(before.scores)}", before, after))
+        changes = ", ".join(
+            f"{title_} {_pct_change(getattr(before, attr), getattr(after, attr))}"
+            for title_, attr, _, _ in (_COLUMNS[0], _COLUMNS[1], _COLUMNS[5])
+        )
+        lines.append(f"  change of the means: {changes}")
+    return "\n".join(lines)
