@@ -1,0 +1,128 @@
+"""Where the tuner's evaluations run: this process, local worker processes, or a Dask cluster.
+
+:func:`open_evaluator` gives ``evaluate_many(candidates) -> scores`` (results in the
+order of the candidates, whatever finishes first), the function
+:func:`motionbase.tuning.tune` calls once per CMA-ES generation:
+
+- ``workers=1``: in this process, one after the other;
+- ``workers=K`` (default: the processors this process may use): a
+  :class:`concurrent.futures.ProcessPoolExecutor` of K processes (started with
+  ``spawn``), each given the problem (the manoeuvre arrays) once, by its initializer;
+- ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler, through the
+  ``concurrent.futures`` interface of its client (``Client.get_executor``); the problem
+  is scattered to every worker once and each evaluation refers to it. The workers need
+  motionbase (the same version) installed; ``pip install 'motionbase[cluster]'``
+  installs Dask on the machine running ``tune``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+from multiprocessing import get_context
+from typing import TYPE_CHECKING
+
+from motionbase.errors import ConfigError, SourceError
+
+if TYPE_CHECKING:
+    from motionbase.tuning import EvaluateMany, TuningProblem
+
+__all__ = ["default_workers", "open_evaluator"]
+
+#: Seconds to wait for a Dask scheduler to answer.
+CONNECT_TIMEOUT_S = 10.0
+
+
+def default_workers() -> int:
+    """The processors this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@contextmanager
+def open_evaluator(
+    problem: TuningProblem, *, workers: int | None = None, scheduler: str | None = None
+) -> Iterator[EvaluateMany]:
+    """Evaluate parameter sets on ``problem`` here, in local processes or on a cluster.
+
+    Parameters
+    ----------
+    problem : TuningProblem
+        Sent once to each worker.
+    workers : int, optional
+        Local processes (>= 1); default :func:`default_workers`. Ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of a Dask distributed scheduler, ``tcp://HOST:PORT``.
+
+    Yields
+    ------
+    callable
+        ``evaluate_many(list of WashoutParams) -> list of SetScore``, in order.
+
+    Raises
+    ------
+    ConfigError
+        ``workers`` < 1, a scheduler address that is not ``tcp://HOST:PORT``, or Dask
+        not installed.
+    SourceError
+        The scheduler does not answer.
+    """
+    from motionbase import tuning
+
+    if scheduler is not None:
+        with _dask(problem, scheduler) as evaluate_many:
+            yield evaluate_many
+        return
+    n = default_workers() if workers is None else workers
+    if not (isinstance(n, int) and n >= 1):
+        raise ConfigError(f"--workers must be a whole number >= 1, got {workers!r}")
+    if n == 1:
+        yield lambda candidates: [problem.evaluate(p) for p in candidates]
+        return
+    with ProcessPoolExecutor(
+        max_workers=n,
+        mp_context=get_context("spawn"),
+        initializer=tuning.init_worker,
+        initargs=(problem,),
+    ) as pool:
+        yield lambda candidates: list(pool.map(tuning.evaluate_in_worker, candidates))
+
+
+@contextmanager
+def _dask(problem: TuningProblem, address: str) -> Iterator[EvaluateMany]:
+    from motionbase import tuning
+
+    host, _, port = address.removeprefix("tcp://").rpartition(":")
+    if not address.startswith("tcp://") or not host or not port.isdigit():
+        raise ConfigError(
+            f"--scheduler {address!r}: expected the scheduler's address, tcp://HOST:PORT "
+            "(e.g. tcp://192.168.1.10:8786)"
+        )
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ConfigError(
+            "--scheduler needs Dask distributed: pip install 'motionbase[cluster]'"
+        ) from None
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+    except OSError as exc:
+        raise SourceError(
+            f"--scheduler {address}: no Dask scheduler answers there ({exc}); start one "
+            "(dask scheduler) or check the address and the firewall"
+        ) from None
+    try:
+        shared = client.scatter(problem, broadcast=True)
+        executor = client.get_executor(pure=False)
+
+        def evaluate_many(candidates):
+            futures = [executor.submit(tuning.evaluate_params, shared, p) for p in candidates]
+            return [f.result() for f in futures]
+
+        yield evaluate_many
+    finally:
+        client.close()
