@@ -13,10 +13,11 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from motionbase import __version__
 from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, resolve_preset_or_path
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
@@ -641,3 +642,198 @@ def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]])
         d = max((_max_diff(x, y, skip) for x, y in zip(ma, mb, strict=False)), default=0.0)
         per_topic[topic] = (len(ma), len(mb), d)
     return CheckReport(per_topic)
+
+
+# --------------------------------------------------------------------------- tune
+
+
+class EvaluationProgress:
+    """A one-line progress bar of a tuning run (evaluations / budget, best cost); terminal only."""
+
+    def __init__(self, stream=None) -> None:
+        self.stream = stream or sys.stderr
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._t0 = time.monotonic()
+        self._start: float | None = None
+
+    def __call__(self, done: int, budget: int, best: float) -> None:
+        if self._start is None:
+            self._start = best
+        if not self.enabled:
+            return
+        frac = min(1.0, done / budget)
+        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+        elapsed = time.monotonic() - self._t0
+        eta = elapsed * (budget - done) / done if done else 0.0
+        self.stream.write(
+            f"\r[{bar}] {done:5d} / {budget} evaluations  best {best:.4f} "
+            f"(start {self._start:.4f})  {elapsed:5.0f} s, about {eta:4.0f} s to go"
+        )
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+@dataclass
+class TuneResult:
+    """What :func:`tune` did: the optimiser's result, the held-out scores, the file written."""
+
+    result: Any  # motionbase.tuning.TuningResult
+    holdout: tuple[Any, Any] | None  # SetScore before, after
+    out: Path
+    wall_time_s: float
+    improved: bool
+
+    def summary_text(self) -> str:
+        from motionbase.tuning import format_table
+
+        r = self.result
+        sections = [("tuning set", r.start_score, r.best_score)]
+        if self.holdout is not None:
+            sections.append(("held out (not tuned on)", *self.holdout))
+        found = "tuned" if self.improved else "nothing beat the start set (written as it was)"
+        return "\n".join(
+            [
+                f"tune: {r.evaluations} evaluations ({r.generations} CMA-ES generations) in "
+                f"{self.wall_time_s:.0f} s, seed {r.seed}: {found}; score terms in "
+                "motionbase.tuning",
+                format_table(sections),
+                f"wrote {self.out} (motionbase fly --washout {self.out})",
+            ]
+        )
+
+
+def tune(
+    *,
+    out: str | Path,
+    platform: str | None = None,
+    washout: str | None = None,
+    cueing: str = "classical",
+    scripts: list[str] | None = None,
+    recordings: list[str] | None = None,
+    holdout: list[str] | None = None,
+    budget: int = 200,
+    seed: int = 0,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> TuneResult:
+    """Tune the washout for a platform over manoeuvres (:mod:`motionbase.tuning`); write it.
+
+    Parameters
+    ----------
+    out : path
+        The washout TOML file to write (``fly --washout FILE`` takes it).
+    platform : str, optional
+        6-RUS geometry preset or TOML path (default ``ceart``).
+    washout : str, optional
+        The start set: washout preset or TOML path (default ``default``).
+    cueing : str
+        The cueing algorithm; ``classical`` (the only one so far).
+    scripts : list of str, optional
+        JSBSim scripts, ``NAME`` or ``NAME@START:END``
+        (:func:`motionbase.io.manoeuvres.load_script`); default
+        :data:`~motionbase.io.manoeuvres.DEFAULT_MANOEUVRES` unless ``recordings`` are given.
+    recordings : list of str, optional
+        MCAP recordings and MAVLink ``.tlog``/``.bin`` logs, tuned on too.
+    holdout : list of str, optional
+        Scripts or recordings scored before and after but not tuned on; default
+        :data:`~motionbase.io.manoeuvres.DEFAULT_HOLDOUT` (an empty list: none).
+    budget : int
+        Evaluations of one parameter set over the whole manoeuvre set (>= 1).
+    seed : int
+        CMA-ES seed (>= 0); the same seed and inputs give the same result.
+    workers : int, optional
+        Local worker processes (default: the processors available; 1: this process).
+    scheduler : str, optional
+        A Dask distributed scheduler, ``tcp://HOST:PORT``, instead of local processes.
+    progress : bool
+        Progress bar on stderr (a terminal only).
+    """
+    from motionbase import tuning
+    from motionbase.io.executors import open_evaluator
+    from motionbase.io.manoeuvres import (
+        DEFAULT_HOLDOUT,
+        DEFAULT_MANOEUVRES,
+        load_recording,
+        load_spec,
+        write_washout,
+    )
+    from motionbase.platform import Rus6Geometry
+    from motionbase.report import rus6_reach
+    from motionbase.washout import WashoutParams
+
+    if cueing != "classical":
+        raise ConfigError(f"--cueing {cueing!r}: the cueing algorithms are: classical")
+    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        raise ConfigError(f"--budget must be a whole number of evaluations >= 1, got {budget!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"--seed must be a whole number >= 0, got {seed!r}")
+    out_path = Path(out)
+    if out_path.suffix.lower() != ".toml":
+        raise ConfigError(f"--out {out}: the result is a washout TOML file; name it *.toml")
+    if out_path.is_dir():
+        raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
+    platform_name = platform or DEFAULT_RUS6
+    geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform_name))
+    start_name = washout or "default"
+    start = WashoutParams.from_toml(resolve_preset_or_path("washout", start_name))
+    recordings = list(recordings or [])
+    scripts = list(DEFAULT_MANOEUVRES if scripts is None and not recordings else scripts or [])
+    holdout = list(DEFAULT_HOLDOUT if holdout is None else holdout)
+    if not scripts and not recordings:
+        raise ConfigError("tune: no manoeuvres; give --scripts NAME,... or --recordings FILE")
+    manoeuvres = [load_spec(s) for s in scripts] + [load_recording(r) for r in recordings]
+    held = [load_spec(s) for s in holdout]
+    names = [m.name for m in manoeuvres]
+    for m in held:
+        if m.name in names:
+            raise ConfigError(
+                f"--holdout {m.name} is also in the tuning set; a held-out manoeuvre must not "
+                "be tuned on (drop it from one of them)"
+            )
+    reach = rus6_reach(geometry)
+    problem = tuning.TuningProblem(geometry, tuple(manoeuvres), reach)
+    bar = EvaluationProgress() if progress else None
+    t0 = time.monotonic()
+    try:
+        with open_evaluator(problem, workers=workers, scheduler=scheduler) as evaluate_many:
+            result = tuning.tune(start, evaluate_many, budget=budget, seed=seed, on_progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    holdout_scores = None
+    if held:
+        held_problem = tuning.TuningProblem(geometry, tuple(held), reach)
+        holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
+    wall = time.monotonic() - t0
+    before, after = result.start_score.cost, result.best_score.cost
+    best = replace(
+        result.best,
+        description=(
+            f"Tuned by motionbase tune for the {platform_name} platform from the "
+            f"{start_name} set (CMA-ES, seed {seed}, {result.evaluations} evaluations): cost "
+            f"{before:.4g} -> {after:.4g} over {', '.join(names)}"
+        ),
+    )
+    header = [
+        f"Washout parameters made by `motionbase tune` (motionbase {__version__})",
+        f"for the platform {platform_name}, from the washout {start_name}: CMA-ES over "
+        f"{len(result.knobs)} parameters (motionbase.tuning.KNOBS; the others as in the start "
+        f"set), seed {seed}, {result.evaluations} evaluations.",
+        f"Tuning set: {', '.join(names)}: cost {before:.4g} -> {after:.4g} "
+        f"(perceived specific-force error {result.start_score.error_specific_force:.3f} -> "
+        f"{result.best_score.error_specific_force:.3f} m/s^2).",
+    ]
+    if holdout_scores is not None:
+        header.append(
+            f"Held out: {', '.join(m.name for m in held)}: cost "
+            f"{holdout_scores[0].cost:.4g} -> {holdout_scores[1].cost:.4g}."
+        )
+    header.append("The objective, its weights and thresholds: the docstring of motionbase.tuning.")
+    write_washout(out_path, best, header)
+    improved = result.best is not result.start
+    return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved)

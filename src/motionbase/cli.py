@@ -1,6 +1,7 @@
 """The ``motionbase`` command line: parsing only, every action is a library call.
 
-Subcommands: ``fly``, ``stream``, ``replay``, ``teleop``, ``workspace``, ``report``.
+Subcommands: ``fly``, ``stream``, ``replay``, ``teleop``, ``workspace``, ``report``,
+``output``, ``tune``.
 A user mistake (bad file, bad value) prints one line to stderr and exits with
 status 2; it is never a traceback.
 """
@@ -433,6 +434,109 @@ def run_output(args: argparse.Namespace) -> int:
         speed_deg_s=args.speed_deg_s,
         rate_hz=args.rate,
     )
+    return 0
+
+
+# --- tuning the cueing (issue 15) ---
+
+
+def _names(text: str) -> list[str]:
+    """``a,b,c`` -> ``["a", "b", "c"]`` (``none`` or nothing: no names)."""
+    if text.strip().lower() in ("", "none"):
+        return []
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def _whole(minimum: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def _args_tune(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--platform", help=f"6-RUS geometry preset or TOML path (default {DEFAULT_RUS6})"
+    )
+    p.add_argument("--cueing", default="classical", choices=["classical"], help="cueing algorithm")
+    p.add_argument(
+        "--washout",
+        metavar="START.toml",
+        help="the start set: washout preset or TOML path (default: default)",
+    )
+    p.add_argument(
+        "--scripts",
+        type=_names,
+        metavar="NAME,NAME,...",
+        help="JSBSim scripts to tune on, NAME or NAME@START:END seconds (default: c1723, "
+        "c172_elevator_doublet, rudder_kick, 737_cruise_steady_turn, c172_cross_wind, unless "
+        "--recordings are given)",
+    )
+    p.add_argument(
+        "--recordings",
+        nargs="+",
+        action="extend",
+        metavar="FILE",
+        help="MCAP recordings or MAVLink .tlog/.bin logs to tune on too",
+    )
+    p.add_argument(
+        "--holdout",
+        type=_names,
+        metavar="NAME,...|none",
+        help="scripts or recordings scored before and after but not tuned on "
+        "(default: b737_runway_new, c172_elevator_doublet@20.5:40)",
+    )
+    p.add_argument(
+        "--budget",
+        type=_whole(1),
+        default=200,
+        metavar="N",
+        help="evaluations of one parameter set over all the manoeuvres (default 200)",
+    )
+    p.add_argument("--seed", type=_whole(0), default=0, metavar="S", help="seed (default 0)")
+    p.add_argument("--out", required=True, metavar="FILE.toml", help="washout TOML to write")
+    p.add_argument(
+        "--workers",
+        type=_whole(1),
+        metavar="K",
+        help="local worker processes (default: one per processor; 1: no pool)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run the evaluations on a Dask distributed scheduler (pip install "
+        "'motionbase[cluster]')",
+    )
+
+
+@command(
+    "tune",
+    "tune the washout for a platform over manoeuvres (CMA-ES on perceived-motion error)",
+    _args_tune,
+)
+def run_tune(args: argparse.Namespace) -> int:
+    from motionbase import app
+
+    result = app.tune(
+        out=args.out,
+        platform=args.platform,
+        washout=args.washout,
+        cueing=args.cueing,
+        scripts=args.scripts,
+        recordings=args.recordings,
+        holdout=args.holdout,
+        budget=args.budget,
+        seed=args.seed,
+        workers=args.workers,
+        scheduler=args.scheduler,
+    )
+    print(result.summary_text())
     return 0
 
 
