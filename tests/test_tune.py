@@ -1,0 +1,342 @@
+"""The tuner (``motionbase tune``): its score, its optimiser, its file, where it runs.
+
+Manoeuvres are short windows of real JSBSim scripts (a few seconds each) and budgets a
+few evaluations, so that the whole file runs in well under a minute.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from motionbase import app, cli, tuning
+from motionbase.io.executors import open_evaluator
+from motionbase.io.manoeuvres import (
+    DEFAULT_HOLDOUT,
+    DEFAULT_MANOEUVRES,
+    Manoeuvre,
+    load_recording,
+    load_script,
+    parse_script_spec,
+)
+from motionbase.platform import Rus6Geometry
+from motionbase.report import rus6_reach
+from motionbase.washout import WashoutParams
+from motionbase.washout.perception import (
+    perceived_angular_velocity,
+    perceived_specific_force,
+    platform_angular_velocity,
+    platform_specific_force,
+)
+
+G = 9.80665
+
+
+@pytest.fixture(scope="module")
+def ceart():
+    geometry = Rus6Geometry.preset("ceart")
+    return geometry, rus6_reach(geometry)
+
+
+@pytest.fixture(scope="module")
+def kick() -> Manoeuvre:
+    """The 737's rudder kick, first 6 s (a yaw-roll onset into a sideslip)."""
+    return load_script("rudder_kick@0:6")
+
+
+@pytest.fixture(scope="module")
+def takeoff() -> Manoeuvre:
+    """The C172's take-off run, 4-10 s (full throttle, turning on the ground)."""
+    return load_script("c1723@4:10")
+
+
+def _zero_gains(p: WashoutParams) -> WashoutParams:
+    return dataclasses.replace(p, specific_force_gain=(0, 0, 0), angular_velocity_gain=(0, 0, 0))
+
+
+# --------------------------------------------------------------------------- manoeuvres
+
+
+def test_default_set_is_five_varied_scripts_and_a_disjoint_holdout():
+    assert len(DEFAULT_MANOEUVRES) >= 5
+    names = {parse_script_spec(s)[0] for s in DEFAULT_MANOEUVRES}
+    assert {"c172_elevator_doublet", "737_cruise_steady_turn", "rudder_kick"} <= names
+    assert not {s for s in DEFAULT_HOLDOUT} & set(DEFAULT_MANOEUVRES)
+
+
+def test_script_window_keeps_the_samples_between_start_and_end(kick):
+    assert kick.rate_hz == pytest.approx(120.0, rel=1e-4)  # the script's dt, 0.008333 s
+    assert kick.t[0] == pytest.approx(kick.dt, abs=1e-9)  # JSBSim's first sample is after dt
+    assert kick.t[-1] == pytest.approx(6.0, abs=kick.dt)
+    late = load_script("rudder_kick@3:6")
+    assert late.t[0] == pytest.approx(3.0, abs=kick.dt)
+    # the same flight: the window is a slice of it, not a new run from another start
+    i = int(np.searchsorted(kick.t, late.t[0] - 1e-9))
+    np.testing.assert_array_equal(late.specific_force, kick.specific_force[i:])
+
+
+def test_recording_reads_the_aircraft_states_of_the_flight_it_recorded():
+    # recordings/c1723_30s.mcap is `motionbase fly c1723 --duration 30`: its /aircraft/state
+    # is the same JSBSim flight, sample for sample
+    rec = load_recording("recordings/c1723_30s.mcap")
+    flown = load_script("c1723@0:30")
+    assert rec.rate_hz == pytest.approx(flown.rate_hz)
+    assert len(rec) == len(flown)
+    np.testing.assert_array_equal(rec.specific_force, flown.specific_force)
+    np.testing.assert_array_equal(rec.angular_velocity, flown.angular_velocity)
+
+
+def test_mavlink_log_is_resampled_at_100_hz(flight_data):
+    m = load_recording(flight_data / "vtol.tlog")
+    assert m.rate_hz == pytest.approx(100.0)
+    assert 150.0 < m.duration_s < 260.0  # the log covers about 208 s
+    # a real flight: gravity is there on average, and the vehicle moved
+    assert -11.0 < float(np.median(m.specific_force[:, 2])) < -8.5
+    assert float(np.ptp(m.attitude[:, 0])) > math.radians(5)
+
+
+# --------------------------------------------------------------------------- the score
+
+
+def test_zero_gains_leave_the_error_equal_to_the_aircrafts_perceived_motion(kick, ceart):
+    geometry, reach = ceart
+    params = _zero_gains(WashoutParams.preset("default"))
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    run = tuning.run_chain(problem.config(params, kick), kick)
+    sel = run.running
+    assert sel.sum() > 400  # the soft start (2 s) is excluded, the rest is scored
+    np.testing.assert_allclose(run.pose[sel], 0.0, atol=1e-12)  # no cue: the platform is still
+    score = problem.evaluate(params).scores[0]
+    # independent: what the pilot perceives of the aircraft alone (the platform adds nothing)
+    f = perceived_specific_force(kick.specific_force[sel], kick.dt, normalized=True, g=G)
+    w = perceived_angular_velocity(kick.angular_velocity[sel], kick.dt)
+    np.testing.assert_allclose(score.rmse_specific_force, np.sqrt(np.mean(f**2, axis=0)))
+    np.testing.assert_allclose(score.rmse_angular_velocity, np.sqrt(np.mean(w**2, axis=0)))
+    assert score.clamped == 0.0 and score.limited == 0.0
+
+
+def test_the_ideal_platform_scores_below_a_bad_set_and_the_default(ceart):
+    """A manoeuvre a platform can fly exactly: its own motion is the aircraft's."""
+    geometry, reach = ceart
+    dt = 1 / 120
+    t = np.arange(1, 1201) * dt
+    pose = np.zeros((t.size, 6))
+    pose[:, 0] = 0.05 * np.sin(1.5 * t) * np.minimum(1.0, t / 3)  # surge, m
+    pose[:, 3] = np.radians(4) * np.sin(0.7 * t) * np.minimum(1.0, t / 3)  # roll
+    pose[:, 4] = np.radians(3) * (1 - np.cos(0.5 * t))  # pitch
+    aircraft = Manoeuvre(
+        name="platform-flyable",
+        source="test",
+        dt=dt,
+        t=t,
+        specific_force=platform_specific_force(pose, dt, G),
+        angular_velocity=platform_angular_velocity(pose, dt),
+        attitude=pose[:, 3:],
+    )
+    running = np.ones(t.size, dtype=bool)
+    ideal = tuning.ChainRun(pose, ~running, ~running, running, running)
+    perfect = tuning.score_motion(aircraft, ideal, reach, G)
+    assert perfect.error_specific_force < 1e-9 and perfect.error_angular_velocity < 1e-9
+    assert perfect.false_cue_share == 0.0 and perfect.workspace_excess == 0.0
+    problem = tuning.TuningProblem(geometry, (aircraft,), reach)
+    default = WashoutParams.preset("default")
+    bad = dataclasses.replace(default, specific_force_gain=(1, 1, 1), translational_wn=(8, 8, 8))
+    scores = [problem.evaluate(p).cost for p in (default, bad, _zero_gains(default))]
+    assert perfect.cost < min(scores)
+
+
+def test_clamping_is_counted_and_costs(takeoff, ceart):
+    geometry, reach = ceart
+    default = WashoutParams.preset("default")
+    # a forward force at full gain with a slow washout drives surge past its reach
+    greedy = dataclasses.replace(
+        default,
+        specific_force_gain=(1, 1, 1),
+        specific_force_limit=(6, 6, 6),
+        translational_wn=(0.3, 0.3, 0.3),
+        translational_wb=(0.05, 0.05, 0.05),
+        tilt_angle_limit_deg=1.0,
+    )
+    problem = tuning.TuningProblem(geometry, (takeoff,), reach)
+    run = tuning.run_chain(problem.config(greedy, takeoff), takeoff)
+    score = problem.evaluate(greedy).scores[0]
+    expected = np.mean((run.clamped | run.limited)[run.running])
+    assert expected > 0.05  # it did clamp
+    assert score.limited == pytest.approx(expected)
+    assert score.workspace_max > 0.8  # the realised pose went to the edge of the reach
+    no_limits = dataclasses.replace(score, limited=0.0, workspace_usage=np.zeros(6))
+    assert score.cost - no_limits.cost == pytest.approx(
+        tuning.WEIGHT_LIMITS * expected + tuning.WEIGHT_WORKSPACE * score.workspace_excess
+    )
+
+
+def test_encode_decode_round_trip_and_bounds():
+    default = WashoutParams.preset("default")
+    x = tuning.encode(default)
+    assert x.shape == (len(tuning.KNOBS),) and ((x >= 0) & (x <= 1)).all()
+    assert tuning.decode(x, default) == default  # its values have 4 digits or fewer
+    low = tuning.decode(np.zeros(len(tuning.KNOBS)), default)
+    high = tuning.decode(np.ones(len(tuning.KNOBS)) * 2.0, default)  # clipped to 1
+    for k in tuning.KNOBS:
+        assert k.get(low) == pytest.approx(k.lo) and k.get(high) == pytest.approx(k.hi)
+    assert high.translational_wb[0] == high.translational_wb[1]  # one knob for x and y
+    assert low.translational_zeta == default.translational_zeta  # not tuned: kept
+
+
+# --------------------------------------------------------------------------- the optimiser
+
+
+def _bad_start() -> WashoutParams:
+    """A greedy washout: full gains and slow high-passes, so the platform drifts to its
+    limits (clamping) and cues rotations it never washes out."""
+    return dataclasses.replace(
+        WashoutParams.preset("default"),
+        specific_force_gain=(1, 1, 1),
+        angular_velocity_gain=(1, 1, 1),
+        translational_wn=(0.3, 0.3, 0.3),
+        translational_wb=(0.05, 0.05, 0.05),
+        rotational_wn=(0.2, 0.2, 0.2),
+    )
+
+
+def test_the_optimiser_improves_a_bad_start(kick, ceart):
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    seen = []
+    result = tuning.tune(
+        _bad_start(),
+        lambda ps: [problem.evaluate(p) for p in ps],
+        budget=25,
+        seed=4,
+        on_progress=lambda done, budget, best: seen.append((done, best)),
+    )
+    assert result.evaluations == 25
+    assert [d for d, _ in seen][-1] == 25 and seen[0][0] == 1
+    assert all(b2 <= b1 for (_, b1), (_, b2) in zip(seen, seen[1:], strict=False))
+    start, best = result.start_score, result.best_score
+    assert start.limited > 0.1  # the start clamps: it is bad
+    assert best.cost < 0.7 * start.cost
+    assert best.limited < start.limited
+    # what was reported is what the parameters score
+    assert problem.evaluate(result.best).cost == best.cost
+
+
+def test_same_seed_same_result_other_seed_other_path(kick, ceart):
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+
+    def run(seed):
+        return tuning.tune(
+            _bad_start(), lambda ps: [problem.evaluate(p) for p in ps], budget=9, seed=seed
+        )
+
+    a, b, c = run(7), run(7), run(8)
+    assert a.best == b.best and a.history == b.history
+    assert c.history != a.history
+
+
+# --------------------------------------------------------------------------- the job and its file
+
+
+def test_tune_writes_a_washout_file_that_loads_and_flies(tmp_path, capsys):
+    out = tmp_path / "tuned.toml"
+    code = cli.main(
+        [
+            "tune",
+            "--scripts",
+            "rudder_kick@0:5",
+            "--holdout",
+            "c172_cross_wind@0.5:5",
+            "--budget",
+            "4",
+            "--seed",
+            "1",
+            "--workers",
+            "1",
+            "--out",
+            str(out),
+        ]
+    )
+    text = capsys.readouterr().out
+    assert code == 0
+    assert "tuning set" in text and "held out" in text and "c172_cross_wind@0.5:5" in text
+    head = out.read_text().splitlines()[0]
+    assert head.startswith("# Washout parameters made by `motionbase tune`")
+    params = WashoutParams.from_toml(out)
+    assert params.description.startswith("Tuned by motionbase tune")
+    result = app.fly(
+        "c172_elevator_doublet", washout=str(out), duration_s=4.0, out=tmp_path / "f.mcap"
+    )
+    assert not result.failed and result.summary.samples > 400
+
+
+def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):
+    out = tmp_path / "t.toml"
+    res = app.tune(out=out, scripts=["rudder_kick@0:6"], holdout=[], budget=6, seed=2, workers=1)
+    assert res.holdout is None
+    loaded = WashoutParams.from_toml(out)
+    assert loaded == res.result.best
+    geometry, reach = ceart
+    again = tuning.TuningProblem(geometry, (kick,), reach).evaluate(loaded)
+    assert again.cost == res.result.best_score.cost
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--cueing", "fancy"], "invalid choice"),
+        (["--out", "x.txt"], "name it *.toml"),
+        (["--scripts", "no_such_script"], "unknown JSBSim script"),
+        (["--scripts", "c1721@20:30"], "the script is shorter"),
+        (["--scripts", "c1723@5:x"], "two numbers"),
+        (["--scripts", "c1723@0:5", "--holdout", "c1723@0:5"], "also in the tuning set"),
+        (["--scheduler", "localhost:8786"], "tcp://HOST:PORT"),
+        (["--budget", "0"], "expected a whole number >= 1"),
+        (["--recordings", "notes.txt"], "MCAP file"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):
+    args = ["tune", "--scripts", "c1723@0:5", "--holdout", "none", "--budget", "2"]
+    args += ["--workers", "1", "--out", str(tmp_path / "o.toml"), *argv]
+    try:
+        code = cli.main(args)
+    except SystemExit as exc:  # argparse's own errors exit through SystemExit
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2
+    assert needle in err and len(err.strip().splitlines()) == 1, err
+    if "name it" not in needle:
+        assert not (tmp_path / "o.toml").exists() or needle == "MCAP file"
+
+
+# --------------------------------------------------------------------------- where it runs
+
+
+def test_process_pool_and_dask_cluster_give_the_same_scores(kick, ceart):
+    distributed = pytest.importorskip("distributed", reason="the test extra installs it")
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    default = WashoutParams.preset("default")
+    candidates = [default, _bad_start(), tuning.decode(np.full(len(tuning.KNOBS), 0.3), default)]
+    here = [problem.evaluate(p) for p in candidates]
+    with open_evaluator(problem, workers=2) as evaluate_many:
+        pooled = evaluate_many(candidates)
+    with distributed.LocalCluster(
+        n_workers=1,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        with open_evaluator(problem, scheduler=cluster.scheduler_address) as evaluate_many:
+            remote = evaluate_many(candidates)
+    for a, b, c in zip(here, pooled, remote, strict=True):
+        assert a.cost == b.cost == c.cost
+        np.testing.assert_array_equal(
+            a.scores[0].rmse_specific_force, c.scores[0].rmse_specific_force
+        )
+    assert len({s.cost for s in here}) == 3  # three different sets, three different scores
