@@ -810,30 +810,11 @@ def tune(
         held_problem = tuning.TuningProblem(geometry, tuple(held), reach)
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
     wall = time.monotonic() - t0
-    before, after = result.start_score.cost, result.best_score.cost
-    best = replace(
-        result.best,
-        description=(
-            f"Tuned by motionbase tune for the {platform_name} platform from the "
-            f"{start_name} set (CMA-ES, seed {seed}, {result.evaluations} evaluations): cost "
-            f"{before:.4g} -> {after:.4g} over {', '.join(names)}"
-        ),
+    description, header = tuning.describe_result(
+        result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
-    header = [
-        f"Washout parameters made by `motionbase tune` (motionbase {__version__})",
-        f"for the platform {platform_name}, from the washout {start_name}: CMA-ES over "
-        f"{len(result.knobs)} parameters (motionbase.tuning.KNOBS; the others as in the start "
-        f"set), seed {seed}, {result.evaluations} evaluations.",
-        f"Tuning set: {', '.join(names)}: cost {before:.4g} -> {after:.4g} "
-        f"(perceived specific-force error {result.start_score.error_specific_force:.3f} -> "
-        f"{result.best_score.error_specific_force:.3f} m/s^2).",
-    ]
-    if holdout_scores is not None:
-        header.append(
-            f"Held out: {', '.join(m.name for m in held)}: cost "
-            f"{holdout_scores[0].cost:.4g} -> {holdout_scores[1].cost:.4g}."
-        )
-    header.append("The objective, its weights and thresholds: the docstring of motionbase.tuning.")
+    best = replace(result.best, description=description)
+    header.insert(0, f"Washout parameters made by `motionbase tune` (motionbase {__version__})")
     write_washout(out_path, best, header)
     improved = result.best is not result.start
     return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved)

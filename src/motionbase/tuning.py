@@ -132,6 +132,7 @@ __all__ = [
     "TuningProblem",
     "TuningResult",
     "decode",
+    "describe_result",
     "encode",
     "evaluate_in_worker",
     "evaluate_params",
@@ -739,3 +740,44 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         )
         lines.append(f"  change of the means: {changes}")
     return "\n".join(lines)
+
+
+def describe_result(
+    result: TuningResult,
+    *,
+    platform: str,
+    start: str,
+    holdout: tuple[SetScore, SetScore] | None = None,
+) -> tuple[str, list[str]]:
+    """The ``description`` and the comment lines of the file a tuning run writes.
+
+    Parameters
+    ----------
+    result : TuningResult
+    platform, start : str
+        Names of the platform and of the start set, as the user gave them.
+    holdout : (SetScore, SetScore), optional
+        Held-out scores of the start and the best set.
+    """
+    names = ", ".join(s.name for s in result.start_score.scores)
+    before, after = result.start_score, result.best_score
+    description = (
+        f"Tuned by motionbase tune for the {platform} platform from the {start} set "
+        f"(CMA-ES, seed {result.seed}, {result.evaluations} evaluations): cost "
+        f"{before.cost:.4g} -> {after.cost:.4g} over {names}"
+    )
+    lines = [
+        f"for the platform {platform}, from the washout {start}: CMA-ES over "
+        f"{len(result.knobs)} parameters (motionbase.tuning.KNOBS; the others as in the start "
+        f"set), seed {result.seed}, {result.evaluations} evaluations.",
+        f"Tuning set: {names}: cost {before.cost:.4g} -> {after.cost:.4g} (perceived "
+        f"specific-force error {before.error_specific_force:.3f} -> "
+        f"{after.error_specific_force:.3f} m/s^2, angular-velocity error "
+        f"{math.degrees(before.error_angular_velocity):.2f} -> "
+        f"{math.degrees(after.error_angular_velocity):.2f} deg/s).",
+    ]
+    if holdout is not None:
+        held = ", ".join(s.name for s in holdout[0].scores)
+        lines.append(f"Held out: {held}: cost {holdout[0].cost:.4g} -> {holdout[1].cost:.4g}.")
+    lines.append("The objective, its weights and thresholds: the docstring of motionbase.tuning.")
+    return description, lines
