@@ -42,7 +42,13 @@ Also printed: the share of ticks with a false cue, the report's perceived false-
 share (otolith model, :class:`~motionbase.washout.perception.CueingMetrics`), the
 time with any crank within 1 deg of its limit, the clamped and rate-limited tick
 counts, the largest crank angle reached during the running phase, the watchdog's
-faded share.
+faded share, and the workspace usage per axis (largest excursion as a share of the
+single-axis reach, the report's figure).
+
+``--fly SCRIPT ...`` measures JSBSim flights (``motionbase fly SCRIPT``, default
+platform and washout) the same way instead of the logs, e.g. ``--fly c1723
+c172_elevator_doublet`` (issue 13, item 16: the clamping and crank angles of the
+default flights on the ``ceart`` geometry).
 """
 
 from __future__ import annotations
@@ -59,6 +65,7 @@ import numpy as np
 
 LOGS = ("vtol.tlog", "erle_plane_329.BIN")
 NEAR_LIMIT_DEG = 1.0
+AXES = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
 
 def data_dir() -> Path:
@@ -86,6 +93,7 @@ class FalseCues:
     ticks: int
     peak_crank_deg: float
     faded_share: float
+    usage: np.ndarray
 
 
 def false_part(aircraft_dev: np.ndarray, platform_dev: np.ndarray) -> np.ndarray:
@@ -125,6 +133,7 @@ def measure(mcap_path: Path, name: str) -> FalseCues:
         ticks=int(r.tick_t.size),
         peak_crank_deg=float(np.degrees(np.abs(r.actuators[running_ticks]).max())),
         faded_share=float((r.fade < 1.0).mean()),
+        usage=r.metrics.workspace_usage,
     )
 
 
@@ -137,16 +146,26 @@ def run_log(path: Path, out: Path) -> float:
     return time.perf_counter() - t0
 
 
+def fly_script(script: str, out: Path) -> float:
+    """Fly a JSBSim script as ``motionbase fly SCRIPT --out OUT`` does; wall s."""
+    from motionbase.app import fly
+
+    t0 = time.perf_counter()
+    fly(script, out=out, progress=False)
+    return time.perf_counter() - t0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--keep", type=Path, help="keep the recordings in this folder")
+    parser.add_argument("--fly", nargs="+", metavar="SCRIPT", help="JSBSim scripts instead")
     args = parser.parse_args(argv)
     import logging
 
     logging.getLogger("motionbase").setLevel(logging.ERROR)  # no stale-link warnings
     data = data_dir()
     missing = [n for n in LOGS if not (data / n).is_file()]
-    if missing:
+    if missing and not args.fly:
         print(
             f"bench_false_cues: {', '.join(missing)} not found in {data}; set "
             "MOTIONBASE_TEST_DATA to the folder holding the real logs (e.g. ../shared/data)",
@@ -157,11 +176,11 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="motionbase-false-cues-") as tmp:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        for name in LOGS:
+        for name in args.fly or LOGS:
             out = folder / (Path(name).stem + ".mcap")
-            wall = run_log(data / name, out)
+            wall = fly_script(name, out) if args.fly else run_log(data / name, out)
             results.append(measure(out, name))
-            print(f"{name}: streamed in {wall:.1f} s wall", file=sys.stderr)
+            print(f"{name}: ran in {wall:.1f} s wall", file=sys.stderr)
     header = (
         f"{'log':<20}{'peak false cue':>26}{'false':>8}{'perceived false x/y/z':>24}"
         f"{'near limit':>12}{'clamped':>9}{'rate-lim':>10}{'peak crank':>12}{'faded':>7}"
@@ -175,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
             f"{r.near_limit_s:>10.2f} s{r.clamped:>9d}{r.rate_limited:>10d}"
             f"{r.peak_crank_deg:>10.1f} d{100 * r.faded_share:>6.1f}%"
         )
+    print(f"{'workspace usage %':<20}" + "".join(f"{a:>8}" for a in AXES))
+    for r in results:
+        print(f"{r.name:<20}" + "".join(f"{100 * u:>8.0f}" for u in r.usage))
     print(
         f"(false: share of running ticks with a false cue above threshold; near limit: time "
         f"with any crank within {NEAR_LIMIT_DEG:g} deg of its limit; counts over all ticks)"
