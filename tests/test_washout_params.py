@@ -18,7 +18,7 @@ G = 9.80665
 DT = 1.0 / 120.0
 
 
-@pytest.mark.parametrize("name", ["default", "gentle"])
+@pytest.mark.parametrize("name", ["default", "gentle", "telemetry"])
 def test_presets_load_and_round_trip_exactly(name, tmp_path):
     p = WashoutParams.preset(name)
     assert WashoutParams.from_dict(p.to_dict()) == p
@@ -52,17 +52,20 @@ def test_default_follows_the_simona_structure():
     assert gentle.tilt_angle_limit_deg < p.tilt_angle_limit_deg
 
 
-@pytest.mark.parametrize("name", ["default", "gentle"])
+@pytest.mark.parametrize("name", ["default", "gentle", "telemetry"])
 def test_worst_single_axis_inputs_stay_inside_the_ceart_reach(name):
     """Inputs at the saturation limits, one axis at a time, with margin to the reach."""
     p = WashoutParams.preset(name)
     n = int(40.0 / DT)
     margin = 0.9
+    # DESIGN.md, "Geometry defaults": surge 0.36 m forward and 0.30 m back, sway +-0.31 m,
+    # heave 0.12 m down (+z) and 0.20 m up, roll +-19.0 deg, pitch 30.3 deg nose up and
+    # 17.6 deg nose down, yaw +-48.9 deg
     reach_up = np.array(
-        [0.31, 0.31, 0.12, math.radians(17.6), math.radians(19.1), math.radians(48.9)]
+        [0.36, 0.31, 0.12, math.radians(19.0), math.radians(30.3), math.radians(48.9)]
     )
     reach_lo = -np.array(
-        [0.31, 0.31, 0.20, math.radians(17.6), math.radians(19.1), math.radians(48.9)]
+        [0.30, 0.31, 0.20, math.radians(19.0), math.radians(17.6), math.radians(48.9)]
     )
     for axis in range(6):
         for sign in (1.0, -1.0):
