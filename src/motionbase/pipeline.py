@@ -327,7 +327,8 @@ class PipelineOutput(NamedTuple):
     accepted : bool
         False when validation rejected the sample (the last valid one was held).
     washout_pose : ndarray, shape (6,)
-        Washout output ``[x, y, z, roll, pitch, yaw]`` (m, rad) before fades and clamping.
+        Washout output ``[x, y, z, roll, pitch, yaw]`` (m, rad), before the soft start and
+        clamping (a watchdog fade acts on its input).
     platform_pose : ndarray, shape (6,) or (3,)
         The pose the actuators realise: 6-RUS pose, or planar ``[x, y, phi]``.
     clamped : bool
