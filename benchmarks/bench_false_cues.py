@@ -38,7 +38,8 @@ Definitions (per tick ``k`` of the running phase, per axis ``i`` in x, y, z)
   small false parts by design (well below 1 m/s^2); the limiter braking a crank, a
   fade rescaling the pose or a clamp snapping it give large ones.
 
-Also printed: the share of ticks with a false cue, the report's perceived false-cue
+Also printed: the peak false cue on the ticks the watchdog was fading (``fade`` < 1), the
+share of ticks with a false cue, the report's perceived false-cue
 share (otolith model, :class:`~motionbase.washout.perception.CueingMetrics`), the
 time with any crank within 1 deg of its limit, the clamped and rate-limited tick
 counts, the largest crank angle reached during the running phase, the watchdog's
@@ -48,7 +49,8 @@ single-axis reach, the report's figure).
 ``--fly SCRIPT ...`` measures JSBSim flights (``motionbase fly SCRIPT``, default
 platform and washout) the same way instead of the logs, e.g. ``--fly c1723
 c172_elevator_doublet`` (issue 13, item 16: the clamping and crank angles of the
-default flights on the ``ceart`` geometry).
+default flights on the ``ceart`` geometry). ``--washout NAME`` runs either with another
+washout preset (or TOML path) instead of the default.
 """
 
 from __future__ import annotations
@@ -85,6 +87,7 @@ class FalseCues:
     peak_false: float
     peak_axis: str
     peak_t: float
+    peak_fading: float
     false_share: float
     perceived_false: np.ndarray
     near_limit_s: float
@@ -114,6 +117,8 @@ def measure(mcap_path: Path, name: str) -> FalseCues:
     run = r.running
     fp = false_part(r.aircraft_f[run] - level, r.cue_f[run] - level)
     k, axis = np.unravel_index(int(np.argmax(fp)), fp.shape)
+    fade = r.fade[np.searchsorted(r.tick_t, r.t[run])]
+    fading = fp[fade < 1.0]
     false = fp > THRESHOLD_SPECIFIC_FORCE
     lo, hi = r.actuator_limits
     margin = np.radians(NEAR_LIMIT_DEG)
@@ -125,6 +130,7 @@ def measure(mcap_path: Path, name: str) -> FalseCues:
         peak_false=float(fp[k, axis]),
         peak_axis="xyz"[axis],
         peak_t=float(r.t[run][k]),
+        peak_fading=float(fading.max()) if fading.size else 0.0,
         false_share=float(false.any(axis=1).mean()),
         perceived_false=r.metrics.false_cue_specific_force,
         near_limit_s=float(near.sum() * r.dt),
@@ -137,21 +143,21 @@ def measure(mcap_path: Path, name: str) -> FalseCues:
     )
 
 
-def run_log(path: Path, out: Path) -> float:
+def run_log(path: Path, out: Path, washout: str | None = None) -> float:
     """Stream ``path`` through the pipeline as ``motionbase stream --fast`` does; wall s."""
     from motionbase.app import stream
 
     t0 = time.perf_counter()
-    stream(str(path), realtime=False, out=out, progress=False)
+    stream(str(path), realtime=False, out=out, progress=False, washout=washout)
     return time.perf_counter() - t0
 
 
-def fly_script(script: str, out: Path) -> float:
+def fly_script(script: str, out: Path, washout: str | None = None) -> float:
     """Fly a JSBSim script as ``motionbase fly SCRIPT --out OUT`` does; wall s."""
     from motionbase.app import fly
 
     t0 = time.perf_counter()
-    fly(script, out=out, progress=False)
+    fly(script, out=out, progress=False, washout=washout)
     return time.perf_counter() - t0
 
 
@@ -159,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--keep", type=Path, help="keep the recordings in this folder")
     parser.add_argument("--fly", nargs="+", metavar="SCRIPT", help="JSBSim scripts instead")
+    parser.add_argument("--washout", help="washout preset or TOML path instead of the default")
     args = parser.parse_args(argv)
     import logging
 
@@ -178,11 +185,14 @@ def main(argv: list[str] | None = None) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         for name in args.fly or LOGS:
             out = folder / (Path(name).stem + ".mcap")
-            wall = fly_script(name, out) if args.fly else run_log(data / name, out)
+            if args.fly:
+                wall = fly_script(name, out, args.washout)
+            else:
+                wall = run_log(data / name, out, args.washout)
             results.append(measure(out, name))
             print(f"{name}: ran in {wall:.1f} s wall", file=sys.stderr)
     header = (
-        f"{'log':<20}{'peak false cue':>26}{'false':>8}{'perceived false x/y/z':>24}"
+        f"{'log':<20}{'peak false cue':>26}{'fading':>8}{'false':>8}{'perceived false x/y/z':>24}"
         f"{'near limit':>12}{'clamped':>9}{'rate-lim':>10}{'peak crank':>12}{'faded':>7}"
     )
     print(header)
@@ -190,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
         pf = "/".join(f"{100 * v:.1f}" for v in r.perceived_false)
         peak = f"{r.peak_false:.2f} m/s^2 {r.peak_axis} @{r.peak_t:.1f}s"
         print(
-            f"{r.name:<20}{peak:>26}{100 * r.false_share:>7.1f}%{pf + ' %':>24}"
+            f"{r.name:<20}{peak:>26}{r.peak_fading:>8.2f}{100 * r.false_share:>7.1f}%"
+            f"{pf + ' %':>24}"
             f"{r.near_limit_s:>10.2f} s{r.clamped:>9d}{r.rate_limited:>10d}"
             f"{r.peak_crank_deg:>10.1f} d{100 * r.faded_share:>6.1f}%"
         )
