@@ -460,9 +460,8 @@ def _make_rus6_tick(stamp: str):
         -> clamp + inverse (+ anti-windup track) -> safety limiter. Writes the washout
         pose, the clamped pose and the command into ``wpose``, ``pose``, ``q``; updates
         the washout state ``st`` and the pipeline state ``s``; returns the status bits
-        (``_F_*``). When
-        the limiter changed the command, ``s``'s pose is left at the previous tick's
-        (the caller solves the forward kinematics from it).
+        (``_F_*``). When the limiter changed the command, ``s``'s pose is left at the
+        previous tick's (the caller solves the forward kinematics from it).
         """
         if len(stamp) == 0:  # the stamp only keys the cache
             return -1
