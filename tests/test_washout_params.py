@@ -153,6 +153,26 @@ def test_tilt_accel_limit_is_optional_in_files_written_before_it():
     assert WashoutParams.from_dict(p.to_dict()) == p  # written back with the key
 
 
+def test_input_table_is_optional_and_checked():
+    """Files (and MCAP metadata) written before the input low-pass existed have no [input]:
+    no low-pass. A negative frequency is an error, one above Nyquist too (at the filter)."""
+    d = copy.deepcopy(_base())
+    d.pop("input", None)
+    p = WashoutParams.from_dict(d, source="old.toml")
+    assert p.input_lowpass_wn == 0.0
+    assert WashoutParams.from_dict(p.to_dict()) == p
+    d["input"] = {"lowpass_wn": -1.0}
+    with pytest.raises(ConfigError, match=r"^my\.toml: field 'input\.lowpass_wn'"):
+        WashoutParams.from_dict(d, source="my.toml")
+    d["input"] = {"lowpass_hz": 1.0}
+    with pytest.raises(ConfigError, match="unknown field 'lowpass_hz'"):
+        WashoutParams.from_dict(d, source="my.toml")
+    d["input"] = {"lowpass_wn": 500.0}
+    fast = WashoutParams.from_dict(d, source="my.toml")
+    with pytest.raises(ConfigError, match="Nyquist"):
+        ClassicalWashout(fast, DT)
+
+
 def test_direct_construction_is_validated_too():
     p = WashoutParams.preset("default")
     import dataclasses
