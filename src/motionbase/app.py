@@ -522,7 +522,9 @@ def stream(
     rate_hz : float
         Pipeline rate, Hz (the stream is resampled to it by holding the latest sample).
     platform, washout, planar :
-        As for :func:`fly`.
+        As for :func:`fly`, but the washout defaults to the ``telemetry`` preset (an input
+        low-pass for sparse telemetry and the gentle gains: real flights stay inside the
+        platform's reach).
     serial : str, optional
         Planar mode: a pyserial URL of the 3-RRR's Arduino.
     duration_s : float, optional
@@ -546,7 +548,9 @@ def stream(
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
-    config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
+    config = load_config(
+        planar=planar, platform=platform, washout=washout or "telemetry", rate_hz=rate_hz
+    )
     if out is None:
         out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
     source = open_live_source(
