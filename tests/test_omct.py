@@ -285,6 +285,7 @@ def test_params_is_the_washout_file_option():
         (["omct", "--out", "D", "--washout", "nonexistent"], "nonexistent"),
         (["omct", "--out", "D", "--rate", "15"], "too low"),
         (["omct", "--out", "D", "--scale", "-1"], "--scale"),
+        (["omct", "--out", "D", "--scale", "200"], "lower the amplitudes"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, words, capsys, tmp_path, monkeypatch):

@@ -144,6 +144,7 @@ __all__ = [
     "run_omct",
     "settle_time",
     "simulate",
+    "slowest_decay",
 ]
 
 #: The 12 test frequencies, rad/s: ``10^(-1 + 0.2 k)``, k = 0..11 (0.1 to 15.85).
