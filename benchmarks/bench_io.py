@@ -8,13 +8,14 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from importlib.metadata import version
 from pathlib import Path
 
 import jsbsim
 import numpy as np
 
 from motionbase.io.jsbsim_source import JsbsimSource, default_root
-from motionbase.io.mcap_log import JSON_BACKEND, McapLogger
+from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages
 
 
@@ -110,8 +111,8 @@ def bench_logger(path: Path, samples: int = 24000) -> dict[str, np.ndarray]:
 
 def main() -> None:
     print(
-        f"motionbase I/O benchmark (jsbsim {jsbsim.__version__}, JSON backend: {JSON_BACKEND},"
-        f" {os.cpu_count()} CPUs)"
+        f"motionbase I/O benchmark (jsbsim {jsbsim.__version__}, MCAP writer foxglove-sdk "
+        f"{version('foxglove-sdk')}, {os.cpu_count()} CPUs)"
     )
     raw, n_raw = bench_jsbsim_raw()
     total, run, n = bench_jsbsim_source()

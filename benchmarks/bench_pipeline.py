@@ -67,8 +67,9 @@ def per_sample_cost(script: str = "c1723") -> np.ndarray:
     """Time of Pipeline.step + the MCAP sink's write, per sample, in seconds.
 
     Measured inside the real loop (:func:`motionbase.pipeline.run`, JSBSim source,
-    MCAP log with its writer thread), so JSBSim's cache pollution and the writer
-    thread's GIL use count; park ticks after the source ends are left out.
+    MCAP log), so JSBSim's cache pollution counts, and so do the log's chunk
+    hand-overs (once a second of source time); park ticks after the source ends are
+    left out.
     """
     from motionbase import app
     from motionbase.io.jsbsim_source import JsbsimSource

@@ -347,6 +347,26 @@ def test_open_log_is_on_disk_up_to_the_last_second(tmp_path: Path) -> None:
     assert len(read_messages(path)["/washout/pose"]) == int(3.5 * rate)
 
 
+@pytest.mark.parametrize("compression", ["lz4", "none"])
+def test_unfinished_chunk_on_disk_reads_as_a_cut(tmp_path: Path, compression: str) -> None:
+    """The chunk in progress reaches the disk before it is finished (the writer streams
+    it, with a placeholder length): a reader of the live file stops before it."""
+    path = tmp_path / "unfinished.mcap"
+    rng = np.random.default_rng(5)
+    logger = McapLogger(path, {}, chunk_size=64 << 20, compression=compression).start()
+    for k in range(1, 201):
+        logger.add("/washout/pose", k / 1000, {"pose": rng.normal(size=6)})
+    logger.flush()
+    flushed = path.stat().st_size
+    for k in range(201, 1000):  # 0.8 s more: no flush due, the chunk only grows
+        logger.add("/washout/pose", k / 1000, {"pose": rng.normal(size=6)})
+    assert path.stat().st_size > flushed + 10_000, "the unfinished chunk is not on disk"
+    times = [m["t"] for m in read_messages(path)["/washout/pose"]]
+    assert times == [k / 1000 for k in range(1, 201)]
+    logger.finish()
+    assert len(read_messages(path)["/washout/pose"]) == 999
+
+
 _CHILD = """
 import sys, time
 from motionbase.io.mcap_log import McapLogger

@@ -10,16 +10,16 @@ several logs in one process never mix; the same ``Channel.log`` call can also
 feed a live Foxglove WebSocket server on that context.
 
 Crash safety
-    The writer compresses messages into the chunk in progress as they come
-    (zstd, streaming). The logger finishes the chunk and hands it to the
-    operating system as soon as it spans ``flush_interval_s`` of source time
-    (1 s by default); the writer also finishes one when it grows past
-    ``chunk_size`` bytes. A crash or ``kill -9`` therefore loses at most the
-    chunk in progress, about the last second. A file cut anywhere is read back
-    up to its last complete chunk by :class:`~motionbase.io.mcap_source.McapSource`
-    (an unfinished chunk still carries the writer's placeholder length, which
-    the reader rejects). ``fsync=True`` also survives a power cut, at the cost of
-    one ``fsync`` per chunk.
+    The writer compresses messages into the chunk in progress as they come. The
+    logger finishes the chunk and hands it to the operating system as soon as it
+    spans ``flush_interval_s`` of source time (1 s by default); the writer also
+    finishes one when it grows past ``chunk_size`` bytes. A crash or ``kill -9``
+    therefore loses at most the chunk in progress, about the last second. A file
+    cut anywhere is read back up to its last complete chunk by
+    :class:`~motionbase.io.mcap_source.McapSource` (an unfinished chunk on disk
+    still has the writer's placeholder length, which the reader rejects).
+    ``fsync=True`` also survives a power cut, at the cost of one ``fsync`` per
+    chunk.
 
 Exact numbers
     Messages are encoded here, with orjson: floats in their shortest round-trip
@@ -28,10 +28,16 @@ Exact numbers
     rejects) writes it as the string ``"NaN"``, ``"Infinity"`` or
     ``"-Infinity"`` (see :mod:`motionbase.io.schemas`).
 
-Where the work happens
-    On the caller's thread: encoding, the writer's ``log`` (which holds the
-    interpreter lock, so a writer thread would run no faster and only add thread
-    switches), and the chunk hand-over once a second.
+Where the time goes
+    Everything runs on the caller's thread: encoding, the writer's ``log``
+    (which holds the interpreter lock, so a writer thread would only add thread
+    switches) and its compression, which works a block at a time: the message
+    that fills a block (lz4: 64 KiB, zstd: 128 KiB) and the tick that finishes a
+    chunk pay for compressing it. lz4 is the default because those stalls are
+    about three times shorter than zstd's (about 80 us against 220 us per block
+    here), for files about 1.7 times larger. zstd suits runs where the file's
+    size matters more than a tick's worst case (``compression="zstd"``).
+    ``benchmarks/RESULTS.md`` (issue 14) has the figures.
 """
 
 from __future__ import annotations
@@ -62,7 +68,7 @@ METADATA_NAME = "motionbase"
 #: Version of the message layout written in the metadata (key ``log_format``).
 LOG_FORMAT = "1"
 
-_COMPRESSIONS = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None}
+_COMPRESSIONS = {"lz4": MCAPCompression.Lz4, "zstd": MCAPCompression.Zstd, "none": None}
 _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
 _SEC = 1_000_000_000
 _WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
@@ -236,9 +242,10 @@ class McapLogger:
         ``version`` (motionbase's) and ``log_format``.
     chunk_size : int
         Uncompressed size, bytes, past which the writer finishes a chunk.
-    compression : {"zstd", "lz4", "none"}
-        Chunk compression (zstd at level 1: as small as the default level on
-        these JSON chunks, and faster).
+    compression : {"lz4", "zstd", "none"}
+        Chunk compression: lz4 (the shortest stalls, see the module's notes), or
+        zstd at level 1 (files about 1.7 times smaller, as small as zstd's default
+        level on these JSON chunks, and faster).
     flush_interval_s : float
         Source time, s, after which a chunk is finished and handed to the
         operating system even if small: the most a crash can lose.
@@ -258,7 +265,7 @@ class McapLogger:
         metadata: Mapping[str, Any] | None = None,
         *,
         chunk_size: int = 512 * 1024,
-        compression: str = "zstd",
+        compression: str = "lz4",
         flush_interval_s: float = 1.0,
         fsync: bool = False,
     ) -> None:
@@ -312,7 +319,9 @@ class McapLogger:
             compression=_COMPRESSIONS[self.compression],
             chunk_size=self.chunk_size,
             compression_level=1 if self.compression == "zstd" else 0,
-            compression_threads=0,  # compress on the caller's thread: no hand-over stalls
+            # zstd's worker threads get a chunk's data only at its end (their jobs
+            # are larger than a chunk) and the tick waits for them: a longer stall
+            compression_threads=0,
         )
         self._writer = foxglove.open_mcap(self._file, context=context, writer_options=options)
         self._state = "open"
