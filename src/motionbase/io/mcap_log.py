@@ -311,6 +311,16 @@ class McapLogger:
                 f"{self.path}: cannot create the MCAP log: {exc.strerror or exc} "
                 "(check the folder exists and is writable)"
             ) from None
+        self._state = "open"
+        try:
+            self._open_writer(config_json)
+        except BaseException:
+            self._state = "failed"  # reported by this exception, not again by finish()
+            self.finish()
+            raise
+        return self
+
+    def _open_writer(self, config_json: str) -> None:
         from motionbase import __version__
 
         # the channels only hold a weak reference to their context: keep it alive
@@ -324,7 +334,6 @@ class McapLogger:
             compression_threads=0,
         )
         self._writer = foxglove.open_mcap(self._file, context=context, writer_options=options)
-        self._state = "open"
         self._writer.write_metadata(
             METADATA_NAME,
             {"config": config_json, "version": __version__, "log_format": LOG_FORMAT},
@@ -338,8 +347,7 @@ class McapLogger:
                 message_encoding="json",
                 context=context,
             )
-        self._flush()
-        return self
+        self._flush()  # the header and the configuration on disk now
 
     def finish(self) -> None:
         """Finish the last chunk, write the summary and the footer, and close the file.
@@ -352,20 +360,23 @@ class McapLogger:
             return
         failed = self._state == "failed"
         writer, self._writer = self._writer, None
+        file = self._file
+        assert file is not None
+        trouble = None
         try:
-            writer.close()
-            trouble = None
+            if writer is not None:
+                writer.close()
         except RuntimeError as exc:  # the SDK's FoxgloveError
             trouble = exc
         finally:
             for channel in self._channels.values():
                 channel.close()
-            self._file.close()  # type: ignore[union-attr]
+            file.close()
             self._state = "finished"
         if failed:
             return
-        if self._file.error is not None:  # type: ignore[union-attr]
-            raise SinkError(self._failure_message(self._file.error))  # type: ignore[union-attr]
+        if file.error is not None:
+            raise SinkError(self._failure_message(file.error))
         if trouble is not None:
             raise SinkError(f"{self.path}: cannot finish the MCAP log: {trouble}")
 
@@ -500,8 +511,8 @@ class McapLogger:
     def _logged(self, ns: int, count: int) -> None:
         """Account ``count`` messages at ``ns``; finish the chunk when it spans the interval."""
         self._message_count += count
-        if self._file.error is not None:  # type: ignore[union-attr]
-            self._fail(self._file.error)  # type: ignore[union-attr]
+        if self._file.error is not None:
+            self._fail(self._file.error)
         if self._chunk_start_ns < 0:
             self._chunk_start_ns = ns
         elif abs(ns - self._chunk_start_ns) >= self._flush_interval_ns:
@@ -511,12 +522,12 @@ class McapLogger:
         try:
             self._writer.flush()
         except RuntimeError as exc:  # the SDK's FoxgloveError, with no errno
-            if self._file.error is None:  # type: ignore[union-attr]
+            if self._file.error is None:
                 self._failure = f"{self.path}: cannot write the MCAP log: {exc}"
                 self._state = "failed"
                 raise SinkError(self._failure) from None
-        if self._file.error is not None:  # type: ignore[union-attr]
-            self._fail(self._file.error)  # type: ignore[union-attr]
+        if self._file.error is not None:
+            self._fail(self._file.error)
         self._chunk_start_ns = -1
 
     def _fail(self, exc: OSError) -> None:
