@@ -26,10 +26,11 @@ SETTINGS = settings(
 )
 
 # DESIGN.md "Geometry defaults": per leg, pivot angle on a 0.4064 m circle, joint angle on a
-# 0.400 m circle, crank direction at angle 0 (degrees from +x toward +y).
-DESIGN_PIVOT_DEG = [60, 0, -60, -120, 180, 120]
-DESIGN_JOINT_DEG = [40, 20, -80, -100, 160, 140]
-DESIGN_CRANK_DIR_DEG = [150, -90, 30, 150, -90, 30]
+# 0.400 m circle, crank direction at angle 0 (degrees from +x toward +y). Mirror-symmetric
+# about the x-z plane: one leg pair at the front, two at the rear corners.
+DESIGN_PIVOT_DEG = [150, 90, 30, -30, -90, -150]
+DESIGN_JOINT_DEG = [130, 110, 10, -10, -110, -130]
+DESIGN_CRANK_DIR_DEG = [-120, 0, 120, -120, 0, 120]
 CRANK, ROD = 0.184, 0.724
 
 

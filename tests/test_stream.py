@@ -80,12 +80,15 @@ def test_silent_sender_fades_to_neutral_and_resumes_without_a_jump(tmp_path):
     gap = stale_t[(stale_t > 2.0) & (stale_t < 7.0)]
     assert len(gap) > 100, "the silence was not seen"
     gap_start, gap_end = gap.min(), gap.max()
-    # faded to neutral within the fade time after the watchdog fired (limiter lag allowed)
-    settled = (t > gap_start + config.fade_s + 0.2) & (t < gap_end)
-    assert settled.sum() > 50
-    assert np.abs(pose[settled]).max() < 1e-6
-    # resumes smoothly: no tick after the gap needs the safety stage's speed limit
-    after = (t > gap_end) & (t < gap_end + 2.0)
+    # the washout's input faded to level flight within the fade time after the watchdog fired,
+    # and the platform went back toward neutral through the washout's own filters
+    fade = np.array([m["fade"] for m in msgs["/platform/pose"]])
+    settled = (t > gap_start + config.fade_s + 0.05) & (t < gap_end)
+    assert settled.sum() > 50 and (fade[settled] == 0.0).all()
+    late = (t > gap_end - 0.5) & (t < gap_end)
+    assert np.abs(pose[late, :3]).max() < 0.03 and np.degrees(np.abs(pose[late, 3:]).max()) < 1.0
+    # fades and resumes smoothly: no tick in or after the gap needs the safety stage's limits
+    after = (t > gap_start) & (t < gap_end + 2.0)
     limited = np.array([m["rate_limited"] for m in msgs["/platform/pose"]])
     assert not limited[after].any()
     speed = np.abs(np.diff(angles, axis=0)) / np.diff(t)[:, None]
