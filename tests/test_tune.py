@@ -8,6 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -340,3 +345,61 @@ def test_process_pool_and_dask_cluster_give_the_same_scores(kick, ceart):
             a.scores[0].rmse_specific_force, c.scores[0].rmse_specific_force
         )
     assert len({s.cost for s in here}) == 3  # three different sets, three different scores
+
+
+def _workers_of(pid: int) -> list[int]:
+    """Pool workers (``spawn_main`` processes) whose parent is ``pid``, from /proc."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmd = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        if ppid == pid and b"spawn_main" in cmd:
+            out.append(int(entry.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"  # a zombie has exited
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase.cli", "tune", "--scripts", "c1723@0:20",
+         "--holdout", "none", "--budget", "100000", "--workers", "2",
+         "--out", str(tmp_path / "o.toml")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        workers: list[int] = []
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            workers = _workers_of(proc.pid)
+        assert len(workers) == 2, "the pool did not start"
+        time.sleep(1.0)  # evaluations under way
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 15
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
+    if sig == signal.SIGINT:
+        assert proc.returncode == 130
+        assert err.decode().strip() == "motionbase tune: interrupted"
+    assert not (tmp_path / "o.toml").exists()

@@ -7,7 +7,10 @@ order of the candidates, whatever finishes first), the function
 - ``workers=1``: in this process, one after the other;
 - ``workers=K`` (default: the processors this process may use): a
   :class:`concurrent.futures.ProcessPoolExecutor` of K processes (started with
-  ``spawn``), each given the problem (the manoeuvre arrays) once, by its initializer;
+  ``spawn``), each given the problem (the manoeuvre arrays) once, by its initializer.
+  The workers leave Ctrl-C to the main process (which cancels what is queued and waits
+  for the evaluations under way, a fraction of a second) and exit on their own when the
+  main process dies (a SIGTERM, a kill), instead of waiting for work forever;
 - ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler, through the
   ``concurrent.futures`` interface of its client (``Client.get_executor``); the problem
   is scattered to every worker once and each evaluation refers to it. The workers need
@@ -18,10 +21,13 @@ order of the candidates, whatever finishes first), the function
 from __future__ import annotations
 
 import os
+import signal
+import threading
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
-from multiprocessing import get_context
+from multiprocessing import get_context, parent_process
+from multiprocessing.connection import wait
 from typing import TYPE_CHECKING
 
 from motionbase.errors import ConfigError, SourceError
@@ -83,13 +89,54 @@ def open_evaluator(
     if n == 1:
         yield lambda candidates: [problem.evaluate(p) for p in candidates]
         return
-    with ProcessPoolExecutor(
+    pool = ProcessPoolExecutor(
         max_workers=n,
         mp_context=get_context("spawn"),
-        initializer=tuning.init_worker,
+        initializer=_init_worker,
         initargs=(problem,),
-    ) as pool:
+    )
+    try:
+        _start_workers(pool, n)
         yield lambda candidates: list(pool.map(tuning.evaluate_in_worker, candidates))
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _start_workers(pool: ProcessPoolExecutor, n: int) -> None:
+    """Start all ``n`` workers now (n tasks at once: each finds no idle worker), with Ctrl-C
+    held back meanwhile: a Ctrl-C while a worker is being sent its start-up data cuts that
+    data, and the half-started worker prints a traceback."""
+    block = threading.current_thread() is threading.main_thread() and hasattr(
+        signal, "pthread_sigmask"
+    )
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if block else None
+    try:
+        list(pool.map(_worker_pid, range(n)))
+    finally:
+        if before is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def _worker_pid(_: int) -> int:
+    return os.getpid()
+
+
+def _init_worker(problem: TuningProblem) -> None:
+    """A pool worker: keep the problem, leave Ctrl-C to the main process, die with it."""
+    from motionbase import tuning
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = parent_process()
+    if parent is not None:
+
+        def watch() -> None:
+            wait([parent.sentinel])  # ready when the main process has exited
+            os._exit(1)
+
+        threading.Thread(target=watch, name="motionbase-parent-watch", daemon=True).start()
+    tuning.init_worker(problem)
 
 
 @contextmanager
