@@ -178,6 +178,29 @@ def test_clamping_is_counted_and_costs(takeoff, ceart):
     )
 
 
+def test_saturated_inputs_beyond_the_reach_cost(kick, ceart):
+    geometry, reach = ceart
+    default = WashoutParams.preset("default")
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    assert problem.evaluate(default).sizing_excess == 0.0  # the presets' rule holds
+    # a saturated -x force tilts the nose down to the tilt limit (asin(K L / g) is beyond
+    # it) and nothing else pitches: pitch uses 20 deg of the 17.6 deg nose-down reach
+    steep = dataclasses.replace(
+        default,
+        specific_force_gain=(1, 1, 1),
+        specific_force_limit=(5, 5, 5),
+        tilt_angle_limit_deg=20.0,
+        angular_velocity_gain=(0, 0, 0),
+    )
+    score = problem.evaluate(steep)
+    pitch = score.sizing_usage[4]
+    assert pitch == pytest.approx(math.radians(20.0) / -reach[0, 4], rel=1e-6)
+    assert pitch > 1.0
+    excess = np.maximum(0.0, score.sizing_usage - tuning.SIZING_MARGIN).sum()
+    manoeuvres = np.mean([s.cost for s in score.scores])
+    assert score.cost == pytest.approx(manoeuvres + tuning.WEIGHT_SIZING * excess)
+
+
 def test_encode_decode_round_trip_and_bounds():
     default = WashoutParams.preset("default")
     x = tuning.encode(default)

@@ -58,7 +58,20 @@ makes)::
   keeps a margin for motion the tuning set does not have.
 
 The score of a parameter set is the mean of the manoeuvres' costs (each manoeuvre
-counts once, whatever its length); the totals in the tables are the same means.
+counts once, whatever its length; the totals in the tables are the same means) plus a
+sizing term that does not depend on the manoeuvres::
+
+    score = mean(cost) + W_SIZING s
+
+- ``s``: the rule every shipped washout preset follows (``tests/test_washout_params.py``):
+  an input held at its saturation limit on one axis at a time, each way (a specific
+  force of 1000 m/s^2 clipped to ``specific_force_limit``, or a body rate clipped to
+  ``angular_velocity_limit``; :data:`SIZING_DURATION_S` = 40 s at 120 Hz through the
+  washout alone), must keep every pose axis within :data:`SIZING_MARGIN` = 90 % of the
+  platform's single-axis reach. ``s`` is the sum over the six pose axes of the largest
+  use beyond 90 %, ``W_SIZING`` = :data:`WEIGHT_SIZING` = 10 m/s^2 (10 % beyond costs
+  1 m/s^2). The manoeuvres alone cannot see motion they do not contain; this keeps the
+  result fit for any flight, as the default is.
 
 The parameters tuned (:data:`KNOBS`)
 ------------------------------------
@@ -102,7 +115,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -137,6 +150,7 @@ __all__ = [
     "evaluate_in_worker",
     "evaluate_params",
     "format_table",
+    "saturated_reach_use",
     "init_worker",
     "run_chain",
     "score_motion",
@@ -153,6 +167,12 @@ WEIGHT_LIMITS = 20.0
 WEIGHT_WORKSPACE = 10.0
 #: Share of the single-axis reach that workspace use may take before it costs.
 WORKSPACE_MARGIN = 0.8
+#: m/s^2 per unit share of the reach used beyond :data:`SIZING_MARGIN` by saturated inputs.
+WEIGHT_SIZING = 10.0
+#: Share of the single-axis reach a saturated input on one axis may use (the presets' rule).
+SIZING_MARGIN = 0.9
+#: Length of each saturated step of the sizing check, s.
+SIZING_DURATION_S = 40.0
 
 
 @dataclass(frozen=True)
@@ -164,6 +184,8 @@ class Weights:
     limits: float = WEIGHT_LIMITS
     workspace: float = WEIGHT_WORKSPACE
     margin: float = WORKSPACE_MARGIN
+    sizing: float = WEIGHT_SIZING
+    sizing_margin: float = SIZING_MARGIN
 
 
 #: CMA-ES initial step in the normalised [0, 1] space.
@@ -448,17 +470,34 @@ def score_motion(
 
 @dataclass(frozen=True)
 class SetScore:
-    """The score of one parameter set over a manoeuvre set: per manoeuvre and the means."""
+    """The score of one parameter set over a manoeuvre set: per manoeuvre and the means.
+
+    Attributes
+    ----------
+    scores : tuple of ManoeuvreScore
+    sizing_usage : ndarray, shape (6,)
+        Largest use of the single-axis reach per pose axis under saturated inputs
+        (:func:`saturated_reach_use`).
+    weights : Weights
+    """
 
     scores: tuple[ManoeuvreScore, ...]
+    sizing_usage: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    weights: Weights = Weights()
 
     def _mean(self, attr: str) -> float:
         return float(np.mean([getattr(s, attr) for s in self.scores]))
 
     @property
+    def sizing_excess(self) -> float:
+        """``s``: sum of the reach used beyond the sizing margin under saturated inputs."""
+        margin = self.weights.sizing_margin
+        return float(np.sum(np.maximum(0.0, self.sizing_usage - margin)))
+
+    @property
     def cost(self) -> float:
-        """Mean cost over the manoeuvres, m/s^2 (what the optimiser minimises)."""
-        return self._mean("cost")
+        """Mean cost over the manoeuvres plus the sizing term, m/s^2 (what is minimised)."""
+        return self._mean("cost") + self.weights.sizing * self.sizing_excess
 
     @property
     def error_specific_force(self) -> float:
@@ -515,7 +554,7 @@ class TuningProblem:
         )
 
     def evaluate(self, params: WashoutParams) -> SetScore:
-        """Score ``params`` over every manoeuvre."""
+        """Score ``params`` over every manoeuvre, and its sizing."""
         return SetScore(
             tuple(
                 score_motion(
@@ -526,8 +565,42 @@ class TuningProblem:
                     self.weights,
                 )
                 for m in self.manoeuvres
-            )
+            ),
+            saturated_reach_use(params, self.reach),
+            self.weights,
         )
+
+
+def saturated_reach_use(
+    params: WashoutParams, reach: np.ndarray, dt: float = 1.0 / 120.0
+) -> np.ndarray:
+    """Largest share of the single-axis reach each pose axis takes under saturated inputs.
+
+    Twelve runs of the washout alone (no clamp), each :data:`SIZING_DURATION_S` long: the
+    specific force (x, y, z) or the body rate (roll, pitch, yaw) held at far beyond its
+    saturation limit, each way, on one axis at a time.
+
+    Returns
+    -------
+    ndarray, shape (6,)
+        Per pose axis, the largest excursion over the reach that way (1 = the reach).
+    """
+    from motionbase.washout import ClassicalWashout
+
+    n = int(round(SIZING_DURATION_S / dt))
+    worst = np.zeros(6)
+    for axis in range(6):
+        for sign in (1.0, -1.0):
+            f = np.tile([0.0, 0.0, -params.gravity], (n, 1))
+            w = np.zeros((n, 3))
+            if axis < 3:
+                f[:, axis] += sign * 1e3
+            else:
+                w[:, axis - 3] = sign * 1e3
+            poses = ClassicalWashout(params, dt).run(f, w)
+            use = np.maximum(poses.max(axis=0) / reach[1], poses.min(axis=0) / reach[0])
+            worst = np.maximum(worst, use)
+    return worst
 
 
 def evaluate_params(problem: TuningProblem, params: WashoutParams) -> SetScore:
@@ -739,6 +812,12 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
             for title_, attr, _, _ in (_COLUMNS[0], _COLUMNS[1], _COLUMNS[5])
         )
         lines.append(f"  change of the means: {changes}")
+    _, before, after = sections[0]
+    lines.append(
+        "saturated single-axis inputs (washout alone): largest use of the reach "
+        f"{100 * before.sizing_usage.max():.0f} % -> {100 * after.sizing_usage.max():.0f} % "
+        f"(rule: at most {100 * before.weights.sizing_margin:.0f} %)"
+    )
     return "\n".join(lines)
 
 
