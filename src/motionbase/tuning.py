@@ -122,9 +122,7 @@ import numpy as np
 
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.washout.params import WashoutParams
-from motionbase.washout.perception import (
-    cueing_metrics,
-)
+from motionbase.washout.perception import cueing_metrics
 
 if TYPE_CHECKING:
     from motionbase.io.manoeuvres import Manoeuvre
@@ -132,9 +130,12 @@ if TYPE_CHECKING:
 __all__ = [
     "KNOBS",
     "SIGMA0",
+    "SIZING_DURATION_S",
+    "SIZING_MARGIN",
     "WEIGHT_ANGULAR",
     "WEIGHT_FALSE_CUE",
     "WEIGHT_LIMITS",
+    "WEIGHT_SIZING",
     "WEIGHT_WORKSPACE",
     "WORKSPACE_MARGIN",
     "ChainRun",
