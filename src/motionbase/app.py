@@ -874,7 +874,14 @@ def tune(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
     best = replace(result.best, description=description)
-    header.insert(0, f"Washout parameters made by `motionbase tune` (motionbase {__version__})")
+    command = [f"motionbase tune --platform {platform_name} --washout {start_name}"]
+    command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")
+    command += [f"--recordings {' '.join(recordings)}"] if recordings else []
+    command.append(f"--holdout {','.join(holdout) or 'none'} --budget {budget} --seed {seed}")
+    header[:0] = [
+        f"Washout parameters made by `motionbase tune` (motionbase {__version__}):",
+        f"{' '.join(command)} --out {out_path.name}",
+    ]
     write_washout(out_path, best, header)
     improved = result.best is not result.start
     return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved)
