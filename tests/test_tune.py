@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from motionbase import app, cli, tuning
+from motionbase.config import preset_path
 from motionbase.io.executors import open_evaluator
 from motionbase.io.manoeuvres import (
     DEFAULT_HOLDOUT,
@@ -172,7 +173,12 @@ def test_clamping_is_counted_and_costs(takeoff, ceart):
     assert expected > 0.05  # it did clamp
     assert score.limited == pytest.approx(expected)
     assert score.workspace_max > 0.8  # the realised pose went to the edge of the reach
-    no_limits = dataclasses.replace(score, limited=0.0, workspace_usage=np.zeros(6))
+    # cranks: neutral at 0 deg, limits +-60 deg on ceart
+    peak = np.max(np.abs(np.degrees(run.angles[run.running])), axis=0)
+    np.testing.assert_allclose(score.crank_usage, peak / 60.0, rtol=1e-9)
+    no_limits = dataclasses.replace(
+        score, limited=0.0, workspace_usage=np.zeros(6), crank_usage=np.zeros(6)
+    )
     assert score.cost - no_limits.cost == pytest.approx(
         tuning.WEIGHT_LIMITS * expected + tuning.WEIGHT_WORKSPACE * score.workspace_excess
     )
@@ -199,6 +205,24 @@ def test_saturated_inputs_beyond_the_reach_cost(kick, ceart):
     excess = np.maximum(0.0, score.sizing_usage - tuning.SIZING_MARGIN).sum()
     manoeuvres = np.mean([s.cost for s in score.scores])
     assert score.cost == pytest.approx(manoeuvres + tuning.WEIGHT_SIZING * excess)
+
+
+def test_shipped_tuned_ceart_preset(ceart):
+    """``--washout tuned_ceart``: made by the tuner, fits the presets' rule, and beats the
+    default on the default manoeuvres without clamping more (rerun the command in its header
+    when the geometry or the default changes and this fails)."""
+    geometry, reach = ceart
+    tuned = WashoutParams.preset("tuned_ceart")
+    text = preset_path("washout", "tuned_ceart").read_text()
+    assert "# motionbase tune --platform ceart --washout default" in text
+    assert (tuning.saturated_reach_use(tuned, reach) <= tuning.SIZING_MARGIN).all()
+    problem = tuning.TuningProblem(
+        geometry, tuple(load_script(s) for s in DEFAULT_MANOEUVRES), reach
+    )
+    default, after = problem.evaluate(WashoutParams.preset("default")), problem.evaluate(tuned)
+    assert after.cost < default.cost
+    assert after.error_specific_force < default.error_specific_force
+    assert after.limited <= default.limited
 
 
 def test_encode_decode_round_trip_and_bounds():

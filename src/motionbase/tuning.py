@@ -50,12 +50,15 @@ makes)::
   the safety stage limited or held the command. ``W_LIMITS`` = :data:`WEIGHT_LIMITS`
   = 20 m/s^2: clamping 1 % of the time costs 0.2 m/s^2 (on top of the perceived
   error the clamp itself causes).
-- ``u``: workspace use beyond a margin, ``sum over the six axes of max(0, usage -
-  0.8)^2``, where usage is the largest excursion on that axis as a share of the
-  platform's single-axis reach that way (:func:`motionbase.report.rus6_reach`);
+- ``u``: workspace use beyond a margin, ``sum of max(0, usage - 0.8)^2`` over the six
+  pose axes and the six cranks. A pose axis's usage is its largest excursion as a share
+  of the platform's single-axis reach that way (:func:`motionbase.report.rus6_reach`); a
+  crank's is its largest angle from its neutral angle as a share of the way to its limit
+  that side (combined motions reach the crank limits before any single-axis reach).
   ``WORKSPACE_MARGIN`` = :data:`WORKSPACE_MARGIN` = 0.8, ``W_WORKSPACE`` =
   :data:`WEIGHT_WORKSPACE` = 10 m/s^2 (a full reach on one axis costs 0.4 m/s^2). It
-  keeps a margin for motion the tuning set does not have.
+  keeps a margin for motion the tuning set does not have, and keeps the cranks off the
+  limits where the safety stage brakes them.
 
 The score of a parameter set is the mean of the manoeuvres' costs (each manoeuvre
 counts once, whatever its length; the totals in the tables are the same means) plus a
@@ -145,6 +148,7 @@ __all__ = [
     "SetScore",
     "TuningProblem",
     "TuningResult",
+    "crank_range",
     "decode",
     "describe_result",
     "encode",
@@ -305,6 +309,8 @@ class ChainRun(NamedTuple):
         Ticks in the ``running`` phase (after the soft start).
     accepted : ndarray of bool, shape (N,)
         Samples the pipeline's validation accepted.
+    angles : ndarray, shape (N, 6), optional
+        The crank angles commanded (after safety), rad.
     """
 
     pose: np.ndarray
@@ -312,6 +318,7 @@ class ChainRun(NamedTuple):
     limited: np.ndarray
     running: np.ndarray
     accepted: np.ndarray
+    angles: np.ndarray | None = None
 
 
 def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre) -> ChainRun:
@@ -324,18 +331,20 @@ def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre) -> ChainRun:
     step = pipeline.step
     n = len(manoeuvre)
     pose = np.empty((n, 6))
+    angles = np.empty((n, 6))
     flags = np.zeros((n, 4), dtype=bool)  # clamped, limited, running, accepted
     fresh = manoeuvre.fresh
     for i, state in enumerate(manoeuvre.states()):
         out = step(state, bool(fresh[i]))
         pose[i] = out.platform_pose
+        angles[i] = out.angles
         flags[i] = (
             out.clamped,
             out.rate_limited or out.held,
             out.phase == "running",
             out.accepted,
         )
-    return ChainRun(pose, flags[:, 0], flags[:, 1], flags[:, 2], flags[:, 3])
+    return ChainRun(pose, flags[:, 0], flags[:, 1], flags[:, 2], flags[:, 3], angles)
 
 
 # --------------------------------------------------------------------------- the score
@@ -362,6 +371,9 @@ class ManoeuvreScore:
         Share of running ticks the clamp or the safety stage acted (``k``).
     workspace_usage : ndarray, shape (6,)
         Largest excursion per axis as a share of the reach that way.
+    crank_usage : ndarray, shape (6,)
+        Largest crank angle from neutral as a share of the way to its limit that side
+        (zeros when the run has no angles).
     weights : Weights
         Of the cost.
     """
@@ -374,6 +386,7 @@ class ManoeuvreScore:
     clamped: float
     limited: float
     workspace_usage: np.ndarray
+    crank_usage: np.ndarray = field(default_factory=lambda: np.zeros(6))
     weights: Weights = Weights()
 
     @property
@@ -393,14 +406,15 @@ class ManoeuvreScore:
 
     @property
     def workspace_excess(self) -> float:
-        """``u``: sum of squared workspace use beyond the margin (:data:`WORKSPACE_MARGIN`)."""
-        margin = self.weights.margin
-        return float(np.sum(np.maximum(0.0, self.workspace_usage - margin) ** 2))
+        """``u``: sum of squared use beyond the margin (:data:`WORKSPACE_MARGIN`), pose axes
+        and cranks."""
+        use = np.concatenate([self.workspace_usage, self.crank_usage])
+        return float(np.sum(np.maximum(0.0, use - self.weights.margin) ** 2))
 
     @property
     def workspace_max(self) -> float:
-        """Largest workspace use of any axis, share of the reach."""
-        return float(np.max(self.workspace_usage))
+        """Largest use of any pose axis's reach or any crank's range, share."""
+        return float(max(np.max(self.workspace_usage), np.max(self.crank_usage)))
 
     @property
     def cost(self) -> float:
@@ -421,6 +435,7 @@ def score_motion(
     reach: np.ndarray,
     g: float,
     weights: Weights = Weights(),
+    crank_range: np.ndarray | None = None,
 ) -> ManoeuvreScore:
     """Score what the chain did with a manoeuvre (see the module docstring).
 
@@ -437,6 +452,9 @@ def score_motion(
         Gravity, m/s^2.
     weights : Weights
         Of the cost.
+    crank_range : ndarray, shape (3, 6), optional
+        Neutral, lower and upper crank angles, rad (:func:`crank_range`); with it and
+        ``run.angles`` the cranks' use of their range is scored too.
 
     Raises
     ------
@@ -456,6 +474,11 @@ def score_motion(
     m = cueing_metrics(
         manoeuvre.t[sel], f[sel], w[sel], run.pose[sel], manoeuvre.dt, reach=reach, g=g
     )
+    cranks = np.zeros(6)
+    if crank_range is not None and run.angles is not None:
+        d = run.angles[sel] - crank_range[0]
+        up, down = crank_range[2] - crank_range[0], crank_range[1] - crank_range[0]
+        cranks = np.maximum(0.0, np.maximum(d.max(axis=0) / up, d.min(axis=0) / down))
     return ManoeuvreScore(
         name=manoeuvre.name,
         duration=float(m.duration),
@@ -465,6 +488,7 @@ def score_motion(
         clamped=float(np.mean(run.clamped[sel])),
         limited=float(np.mean(run.clamped[sel] | run.limited[sel])),
         workspace_usage=m.workspace_usage,
+        crank_usage=cranks,
         weights=weights,
     )
 
@@ -541,12 +565,17 @@ class TuningProblem:
         The platform's single-axis reach (:func:`motionbase.report.rus6_reach`).
     weights : Weights
         Of the cost.
+    cranks : ndarray, shape (3, 6)
+        Set from ``geometry``: neutral, lower and upper crank angles (:func:`crank_range`).
     """
 
     geometry: Any
     manoeuvres: tuple[Manoeuvre, ...]
     reach: np.ndarray
     weights: Weights = Weights()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cranks", crank_range(self.geometry))
 
     def config(self, params: WashoutParams, manoeuvre: Manoeuvre) -> PipelineConfig:
         """The pipeline configuration for one manoeuvre (its rate, default settings)."""
@@ -564,12 +593,22 @@ class TuningProblem:
                     self.reach,
                     params.gravity,
                     self.weights,
+                    self.cranks,
                 )
                 for m in self.manoeuvres
             ),
             saturated_reach_use(params, self.reach),
             self.weights,
         )
+
+
+def crank_range(geometry: Any) -> np.ndarray:
+    """Neutral, lower-limit and upper-limit crank angles of a 6-RUS geometry, rad, (3, 6)."""
+    from motionbase.platform import Rus6
+
+    robot = Rus6(geometry)
+    lo, hi = robot.angle_limits
+    return np.array([np.broadcast_to(robot.neutral_angle, (6,)), lo, hi], dtype=float)
 
 
 def saturated_reach_use(
@@ -785,8 +824,9 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         Columns: perceived specific-force error ``e_f`` (m/s^2), angular-velocity error
         ``e_w`` (deg/s), false cues (mean share over the six channels, %), clamped
         (share of running ticks the clamp or the safety stage acted, %), workspace
-        (largest use of any axis, %; the largest over the manoeuvres in the mean row),
-        cost; each before and after; then the relative change of the means.
+        (largest use of any pose axis's single-axis reach or of any crank's range, %; the
+        largest over the manoeuvres in the mean row), cost; each before and after; then
+        the relative change of the means, and the sizing under saturated inputs.
     """
     names = [s.name for _, b, _ in sections for s in b.scores]
     name_w = max([24, *(len(n) + 4 for n in names)])
