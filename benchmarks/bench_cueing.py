@@ -10,7 +10,8 @@
     the default washout (the SIMONA set scaled to the platform), per manoeuvre and in
     total (the mean over the manoeuvres), on the tuning set and the held-out one:
     perceived specific-force RMSE (per axis and their sum), perceived angular-velocity
-    RMSE (sum of the three axes), false cues, clamping. Goals on the tuning set: total
+    RMSE (sum of the three axes), false cues, clamping, the largest crank angle as a share
+    of the way from neutral to its limit (``crank %``). Goals on the tuning set: total
     specific-force RMSE -25 %, angular no worse, no more clamping.
 
 Run: .venv/bin/python benchmarks/bench_cueing.py [--budget 200] [--seed 0] [--workers K]
@@ -72,11 +73,13 @@ def _rows(title: str, before: tuning.SetScore, after: tuning.SetScore) -> None:
     print(title)
     head = (
         f"  {'manoeuvre':<31}{'sf RMSE x, y, z (sum) m/s^2':>40}"
-        f"{'ang RMSE deg/s':>16}{'false cues %':>14}{'clamped %':>12}"
+        f"{'ang RMSE deg/s':>16}{'false cues %':>14}{'clamped %':>12}{'crank %':>10}"
     )
     print(head)
 
     def line(label: str, s, per_axis: bool) -> str:
+        scores = [s] if per_axis else s.scores
+        crank = 100 * max(float(np.max(x.crank_usage)) for x in scores)
         axes = (
             " ".join(f"{v:5.2f}" for v in s.rmse_specific_force)
             if per_axis
@@ -87,7 +90,7 @@ def _rows(title: str, before: tuning.SetScore, after: tuning.SetScore) -> None:
         return (
             f"    {label:<29}{axes:>26} ({s.error_specific_force:6.3f})"
             f"{math.degrees(s.error_angular_velocity):>14.2f}"
-            f"{100 * s.false_cue_share:>14.1f}{100 * s.limited:>12.2f}"
+            f"{100 * s.false_cue_share:>14.1f}{100 * s.limited:>12.2f}{crank:>10.0f}"
         )
 
     for b, a in zip(before.scores, after.scores, strict=True):
