@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -99,8 +100,31 @@ def _positive_float(text: str) -> float:
 
 
 def _print_result(result) -> int:
-    print(result.summary_text())
+    try:
+        print(result.summary_text(), flush=True)
+    except OSError:  # the terminal is gone (SIGHUP): the run itself ended properly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing more to say
     return 1 if result.failed else 0
+
+
+def _job(name: str, *args: object, **kwargs: object) -> int:
+    """Run a job that moves the platform, with the stop signals routed to it from now on.
+
+    Installed before the job's modules load (numba and the compiled kernels take a second
+    or more): a SIGINT, SIGTERM, SIGHUP or SIGQUIT that comes meanwhile stops the run
+    before anything moves, instead of being lost; during the run the first one parks the
+    platform at the soft-start pace, a second one E-stops it.
+    """
+    from motionbase.stopping import StopRequest, install_signal_stop
+
+    stop = StopRequest()
+    restore = install_signal_stop(stop)
+    try:
+        from motionbase import app
+
+        return _print_result(getattr(app, name)(*args, **kwargs, stop=stop))
+    finally:
+        restore()
 
 
 def _args_fly(p: argparse.ArgumentParser) -> None:
@@ -129,20 +153,17 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
     "fly", "fly a JSBSim script through the washout and the platform, logged to MCAP", _args_fly
 )
 def run_fly(args: argparse.Namespace) -> int:
-    from motionbase import app
-
-    return _print_result(
-        app.fly(
-            args.script,
-            platform=args.platform,
-            washout=args.washout,
-            planar=args.planar,
-            realtime=args.realtime,
-            busy_wait=args.busy_wait,
-            duration_s=args.duration,
-            out=args.out,
-            outputs=args.output,
-        )
+    return _job(
+        "fly",
+        args.script,
+        platform=args.platform,
+        washout=args.washout,
+        planar=args.planar,
+        realtime=args.realtime,
+        busy_wait=args.busy_wait,
+        duration_s=args.duration,
+        out=args.out,
+        outputs=args.output,
     )
 
 
@@ -162,18 +183,15 @@ def _args_replay(p: argparse.ArgumentParser) -> None:
 
 @command("replay", "re-run the pipeline on a recording's aircraft states", _args_replay)
 def run_replay(args: argparse.Namespace) -> int:
-    from motionbase import app
-
-    return _print_result(
-        app.replay(
-            args.recording,
-            out=args.out,
-            check=args.check,
-            platform=args.platform,
-            washout=args.washout,
-            planar=args.planar,
-            outputs=args.output,
-        )
+    return _job(
+        "replay",
+        args.recording,
+        out=args.out,
+        check=args.check,
+        platform=args.platform,
+        washout=args.washout,
+        planar=args.planar,
+        outputs=args.output,
     )
 
 
@@ -302,25 +320,22 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
 
 @command("stream", "drive the platform from live MAVLink telemetry until Ctrl-C", _args_stream)
 def run_stream(args: argparse.Namespace) -> int:
-    from motionbase import app
-
-    return _print_result(
-        app.stream(
-            args.mavlink,
-            sysid=args.sysid,
-            compid=args.compid,
-            signing_key=args.signing_key,
-            rate_hz=args.rate,
-            platform=args.platform,
-            washout=args.washout,
-            planar=args.planar,
-            serial=args.serial,
-            duration_s=args.duration,
-            out=args.out,
-            realtime=not args.fast,
-            busy_wait=args.busy_wait,
-            outputs=args.output,
-        )
+    return _job(
+        "stream",
+        args.mavlink,
+        sysid=args.sysid,
+        compid=args.compid,
+        signing_key=args.signing_key,
+        rate_hz=args.rate,
+        platform=args.platform,
+        washout=args.washout,
+        planar=args.planar,
+        serial=args.serial,
+        duration_s=args.duration,
+        out=args.out,
+        realtime=not args.fast,
+        busy_wait=args.busy_wait,
+        outputs=args.output,
     )
 
 
@@ -354,7 +369,7 @@ def _add_output_option(p: argparse.ArgumentParser) -> None:
         help="send the safe crank angles to motor drives (repeatable): "
         "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
         "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
-        "motionbase.io.motor_output); paces the run to real time",
+        "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",
     )
 
 
