@@ -14,17 +14,22 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive, check_wire_limits, read_complete_log
 from pty_board import Board
 
 from motionbase import app, cli
 from motionbase.errors import SinkError, SourceError
+from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages
 from motionbase.io.serial_link import ServoSerialSink
 from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.platform import Rus6Geometry
+from motionbase.safety import MAX_SAMPLE_TIME_S
 from motionbase.state import AircraftState
 
 G = 9.80665
@@ -305,3 +310,125 @@ def test_configuration_mistake_through_the_console_script(tmp_path):
     line = assert_one_line_error(proc, "bad.toml", "'rod'")
     assert "fix" in line
     assert proc.stdout == ""
+
+
+# --------------------------------------------------------------------------- crafted times
+
+
+RATE = 120.0
+N_CRAFTED = 360  # 3 s of samples
+
+
+def _strong(k: int) -> tuple[list[float], list[float]]:
+    """Strong manoeuvring (the cranks work at their speed limits), sample ``k`` at 120 Hz."""
+    s = math.sin(2 * math.pi * 0.7 * k / RATE)
+    return [25 * s, 20 * s, -G + 10 * s], [3 * s, 3 * s, 3 * s]
+
+
+def _times(kind: str) -> list[float]:
+    dt = 1 / RATE
+    t = [k * dt for k in range(N_CRAFTED)]
+    half = N_CRAFTED // 2
+    if kind == "jump 1e6 s":
+        t = t[:half] + [x + 1e6 for x in t[half:]]
+    elif kind == "gap 10 s":
+        t = t[:half] + [x + 10.0 for x in t[half:]]
+    elif kind == "squeezed to 1 ms":
+        t = [k * 1e-3 for k in range(N_CRAFTED)]  # while the recording says 120 Hz
+    elif kind == "10 samples back in time":
+        t = [x - 0.5 if half - 30 <= k < half - 20 else x for k, x in enumerate(t)]
+    elif kind == "one sample at 2e10 s":
+        t[half] = 2e10
+    return t
+
+
+CRAFTED = ["jump 1e6 s", "gap 10 s", "squeezed to 1 ms", "10 samples back in time",
+           "one sample at 2e10 s"]  # fmt: skip
+
+
+def write_crafted(path: Path, times: list[float]) -> None:
+    """A recording of strong manoeuvring whose samples carry ``times`` as the source's own
+    time (``source_t``, what a replay reads); the MCAP log time stays the sample's index at
+    120 Hz, as the recording's metadata says."""
+    with McapLogger(path, {"rate_hz": RATE, "source": {"kind": "crafted times"}}) as logger:
+        for k, t in enumerate(times):
+            f, w = _strong(k)
+            msg = {"t": k / RATE, "source_t": t, "specific_force": f, "angular_velocity": w,
+                   "attitude": [0.0, 0.0, 0.0]}  # fmt: skip
+            logger.add("/aircraft/state", k / RATE, msg)
+
+
+@dataclass
+class Replayed:
+    returncode: int | None
+    stdout: str
+    stderr: str
+    froze: bool
+    drive: UdpDrive
+    out: Path
+
+
+@pytest.fixture(scope="module")
+def crafted_replays(tmp_path_factory) -> dict[str, Replayed]:
+    """``motionbase replay REC --platform ceart --output udp:...`` of each crafted recording,
+    to a loopback drive, all at once (each takes the recording's length in real time)."""
+    root = tmp_path_factory.mktemp("crafted")
+    started = {}
+    for k, kind in enumerate(CRAFTED):
+        rec, out = root / f"rec{k}.mcap", root / f"replay{k}.mcap"
+        write_crafted(rec, _times(kind))
+        drive = UdpDrive()
+        cmd = [sys.executable, "-m", "motionbase.cli", "replay", str(rec), "--platform", "ceart"]
+        cmd += ["--out", str(out), "--output", drive.url()]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        started[kind] = (proc, drive, out)
+    results = {}
+    for kind, (proc, drive, out) in started.items():
+        froze = False
+        try:
+            stdout, stderr = proc.communicate(timeout=240)  # a watchdog, not a timing check
+        except subprocess.TimeoutExpired:
+            froze = True
+            proc.send_signal(signal.SIGKILL)
+            stdout, stderr = proc.communicate()
+        drive.drain()
+        drive.close()
+        results[kind] = Replayed(proc.returncode, stdout, stderr, froze, drive, out)
+    return results
+
+
+@pytest.mark.parametrize("kind", CRAFTED)
+def test_replay_to_drives_keeps_the_limits_on_the_wire_whatever_the_recorded_times(
+    crafted_replays, kind
+):
+    """The loop paces a replay with drives on its own clock at the recorded rate: a jump or a
+    gap in the recording's times is the validation stage's business (a time jump resets the
+    washout and fades back in; a sample back in time or beyond what a log time holds is
+    rejected and held), never a wait; the frames on the wire keep the speed and acceleration
+    limits in wall-clock time; the last frame is the park command; the log is complete."""
+    r = crafted_replays[kind]
+    assert not r.froze, f"{kind}: the replay froze (killed)"
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    geometry = Rus6Geometry.preset("ceart")
+    t, q = r.drive.angles()
+    assert len(t) > 100
+    np.testing.assert_allclose(q[-1], geometry.park_angle, atol=math.radians(1e-4))
+    check_wire_limits(t, q, geometry.max_speed, geometry.max_accel, kind)
+    log = read_complete_log(r.out)
+    assert len(log["/aircraft/state"]) == N_CRAFTED  # every sample went through
+    assert log["/platform/pose"][-1]["phase"] == "parked"
+    health = log["/health"][-1]
+    times = [m["t"] for m in log["/platform/actuators"]]
+    assert np.all(np.diff(times) > 0) and times[-1] <= MAX_SAMPLE_TIME_S
+    expected = {  # (time jumps, rejected samples)
+        "jump 1e6 s": (1, 0),
+        "gap 10 s": (1, 0),
+        "squeezed to 1 ms": (0, 0),
+        "10 samples back in time": (0, 10),
+        "one sample at 2e10 s": (0, 1),
+    }[kind]
+    assert (health["time_jumps"], health["rejected_inputs"]) == expected
+    if kind == "one sample at 2e10 s":
+        assert "outside" in health["last_rejection"]
+    assert "rejected inputs" in r.stdout and "stopped by end of source" in r.stdout

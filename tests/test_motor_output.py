@@ -249,7 +249,7 @@ def peer(request):
 def test_each_format_round_trips_within_one_unit(peer, case):
     fmt, table, split, decode, to_angle, tol = CASES[case]
     m = mapping(table)
-    with open_output(url_for(peer.kind, peer, fmt), m, realtime=False) as sink:
+    with open_output(url_for(peer.kind, peer, fmt), m) as sink:
         for q in commands():
             assert sink.write(q)
 
@@ -277,7 +277,7 @@ def test_mirrored_motor_goes_the_other_way_on_the_wire():
     fmt, table, split, decode, _, _ = CASES["bin-u16be-sum8"]
     peer = UdpPeer()
     try:
-        with open_output(url_for("udp", peer, fmt), mapping(table), realtime=False) as sink:
+        with open_output(url_for("udp", peer, fmt), mapping(table)) as sink:
             seen = []
             for deg in (0.0, 10.0):
                 sink.write(np.full(6, math.radians(deg)))
@@ -307,7 +307,7 @@ def test_out_of_range_commands_are_never_sent(caplog):
     good = np.radians([5.0, -5.0, 10.0, 0.0, 0.0, 0.0])
     try:
         with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
-            with open_output(url_for("pty", peer, fmt), mapping(table), realtime=False) as sink:
+            with open_output(url_for("pty", peer, fmt), mapping(table)) as sink:
                 assert sink.write(good)
                 assert wait_until(lambda: len(peer.frames(split)) >= 2)
                 beyond = good.copy()
@@ -335,9 +335,7 @@ def test_a_value_too_wide_for_the_field_is_never_sent():
     m = mapping({"unit": "counts", "counts_per_rev": 12000})
     peer = UdpPeer()
     try:
-        with open_output(
-            f"udp:127.0.0.1:{peer.port}?format=bin:0x55,6xu8", m, realtime=False
-        ) as sink:
+        with open_output(f"udp:127.0.0.1:{peer.port}?format=bin:0x55,6xu8", m) as sink:
             assert sink.write(np.radians([1.0, 2, 3, 4, 5, 6]))  # 33..200 counts: fits
             assert not sink.write(np.radians([1.0, 2, 3, 4, 5, 10]))  # 333 counts: does not
             assert not sink.write(np.radians([-1.0, 2, 3, 4, 5, 6]))  # negative: does not
@@ -354,7 +352,7 @@ def test_fixed_rate_sends_only_the_latest_command():
     fmt, table, split, decode, to_angle, tol = CASES["bin-i16le-centideg-ccitt"]
     peer = UdpPeer()
     try:
-        sink = open_output(url_for("udp", peer, fmt, rate=20), mapping(table), realtime=False)
+        sink = open_output(url_for("udp", peer, fmt, rate=20), mapping(table))
         with sink:
             sink.write(np.zeros(6))
             assert wait_until(lambda: len(peer.datagrams) >= 3)  # repeated without new writes
@@ -379,7 +377,7 @@ def test_the_last_frame_is_the_park_command_after_a_pipeline_run(peer):
         AircraftState(k / 120, np.array([2.0, 1.0, -9.80665]), np.array([0.1, 0.2, 0.0]))
         for k in range(120)
     ]
-    sink = open_output(url_for(peer.kind, peer, fmt), mapping(table), realtime=False)
+    sink = open_output(url_for(peer.kind, peer, fmt), mapping(table))
     with sink:
         summary = run(Pipeline(config), states, [sink])
     assert summary.samples > 120
@@ -459,13 +457,13 @@ def test_killing_the_peers_warns_once_and_the_flight_and_log_go_on(tmp_path, cap
 def test_bad_urls_say_what_is_wrong(url, err, match):
     m = mapping({"unit": "deg"})
     with pytest.raises(err, match=match):
-        open_output(url, m, realtime=False).open()
+        open_output(url, m).open()
 
 
 def test_format_from_a_toml_file_and_loop_url(tmp_path):
     path = tmp_path / "drive.toml"
     path.write_text('binary = "0xFFFE,6xu16be,sum8@2"\nrate_hz = 250\n')
-    sink = open_output(f"serial:loop://?format={path}", mapping({"unit": "deg"}), realtime=False)
+    sink = open_output(f"serial:loop://?format={path}", mapping({"unit": "deg"}))
     assert sink.rate_hz == 250 and sink.format.describe() == "bin:0xFFFE,6xu16be,sum8@2"
     with sink:
         sink.write(np.radians([1.0, 2, 3, 4, 5, 6]))
