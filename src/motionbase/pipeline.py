@@ -1318,7 +1318,7 @@ def _run(
                 summary.stopped_by = stop.reason
             pipeline.stop()
         for _ in range(int(max_park_s / dt)):
-            if pipeline.parked:
+            if pipeline.parked and summary.samples:  # (one park tick at least: drives, log)
                 break
             if stop.estop and not pipeline._estop:
                 pipeline.estop()

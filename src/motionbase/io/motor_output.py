@@ -825,9 +825,10 @@ class MotorOutput:
         if step is None:  # not sendable now: the drive stays where it is
             return False
         q, v, frame = step
-        if self._send(frame, now) and self.link_up:
+        sent = time.monotonic()  # (not before ``now``: the step was sized for less time)
+        if self._send(frame, sent) and self.link_up:
             # received (as far as the sender can know): the drive is there now
-            self._drive_q, self._drive_v, self._drive_t = q, v, now
+            self._drive_q, self._drive_v, self._drive_t = q, v, sent
             self._drive_target = target
             return frame is command[1] and not v.any()
         return False
