@@ -11,6 +11,7 @@ import math
 import re
 import resource
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -215,6 +216,82 @@ def test_a_full_disk_ends_with_one_line_and_a_log_readable_up_to_the_fault(tmp_p
         assert src.truncated
     assert len(states) > 120  # more than a second survived
     check_logged_commands(out)
+
+
+def test_a_log_that_fails_mid_flight_parks_the_drives_and_says_one_line(tmp_path):
+    """The disk fills while ``fly --output`` drives a loopback drive: the log fails, the drive
+    is parked through its output (the last frame on the wire is park, within the limits),
+    and the user gets one line and exit status 2."""
+    out = tmp_path / "full.mcap"
+    limit = 150_000  # bytes: a few seconds of flight, then the "disk" is full
+
+    def small_disk() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    Pipeline(app.load_config())  # the compiled kernels cached now, not under the small disk
+    drive = UdpDrive()
+    try:
+        proc = cli_run(
+            "fly", "c1723", "--out", str(out), "--output", drive.url(),
+            cwd=tmp_path, preexec_fn=small_disk,
+        )  # fmt: skip
+        drive.drain()
+    finally:
+        drive.close()
+    assert proc.returncode == 2, proc.stderr
+    line = assert_one_line_error(proc, str(out), "cannot write the MCAP log")
+    assert "parked" in line
+    geometry = Rus6Geometry.preset("ceart")
+    t, q = drive.angles()
+    assert np.any(np.abs(q - geometry.park_angle) > 0.5)  # it flew
+    np.testing.assert_allclose(q[-1], geometry.park_angle, atol=math.radians(1e-4))
+    check_wire_limits(t, q, geometry.max_speed, geometry.max_accel)
+
+
+class BrokenSink:
+    """A sink with a bug that is not ours: it raises a plain ``struct.error`` at tick ``n``."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.label = "broken-test-sink"
+
+    def __enter__(self) -> BrokenSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def write(self, out) -> None:
+        self.n -= 1
+        if self.n == 0:
+            struct.pack("<Q", 2**64)  # what an unrepresentable log time did to the log
+
+
+def test_any_failing_sink_parks_through_the_others_then_one_clear_error(tmp_path):
+    out = tmp_path / "broken.mcap"
+    config = app.load_config()
+    drive = UdpDrive()
+    try:
+        with pytest.raises(SinkError) as info:
+            app._drive(
+                "test", config, FailingSource(900, RuntimeError("unused")), out, paced=False,
+                progress=False, extra_sinks=[BrokenSink(360)], outputs=[drive.url()],
+            )  # fmt: skip
+        drive.drain()
+    finally:
+        drive.close()
+    message = str(info.value)
+    assert "\n" not in message
+    assert "broken-test-sink" in message and "parked" in message and "error" in message
+    assert isinstance(info.value.__cause__, struct.error)
+    t, q = drive.angles()
+    np.testing.assert_allclose(q[-1], park_angles(config), atol=math.radians(1e-4))
+    check_wire_limits(t, q, config.geometry.max_speed, config.geometry.max_accel)
+    msgs = read_complete_log(out)  # the log, a sink too, was closed properly
+    assert len(msgs["/aircraft/state"]) < 900  # it stopped at the failure, not at the end
+    config, q_log, _ = check_logged_commands(out)
+    assert np.array_equal(q_log[-1], park_angles(config))
 
 
 def test_dev_full_and_an_uncreatable_folder_are_one_line_errors(tmp_path):

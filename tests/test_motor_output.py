@@ -19,6 +19,7 @@ from urllib.parse import quote
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive, check_wire_limits
 from pty_board import Board
 
 from motionbase.app import fly, load_config
@@ -31,6 +32,7 @@ from motionbase.io.motor_output import (
     TextFormat,
     crc16_ccitt,
     crc16_modbus,
+    mapping_for,
     open_output,
 )
 from motionbase.pipeline import Pipeline, run
@@ -512,3 +514,89 @@ def test_output_test_sweeps_each_motor_in_turn_through_a_pty(tmp_path, capsys):
     # a mirrored motor's drive value falls as its crank rises
     seg2 = values[(dev.sum(axis=1) == 1) & dev[:, 1]]
     assert seg2[:, 1].min() < 2047 < seg2[:, 0].max() + 1
+
+
+# --------------------------------------------------------------------------- ramped at the drive
+
+
+def test_the_drive_is_ramped_within_its_limits_whatever_the_commands_do():
+    """Commands that jump (a burst of late ticks, a far target) reach the drive as a ramp that
+    keeps the speed and acceleration limits on the wire, in wall-clock time, and ends
+    exactly on the last command (the last frame: close() finishes the ramp)."""
+    config = load_config()
+    limits = Pipeline(config).robot.limits
+    drive = UdpDrive()
+    park = np.full(6, GEOMETRY.park_angle)
+    far = np.radians([40.0, -40.0, 30.0, -30.0, 20.0, -20.0])
+    try:
+        sink = open_output(drive.url(200), mapping_for(config), limits=limits)
+        with sink:
+            sink.write(park)  # where the drive starts: sent as it is
+            assert wait_until(lambda: drive.count() >= 5)
+            for a in np.linspace(0.0, 1.0, 50):  # 50 ticks' worth of motion in a burst
+                sink.write(park + a * (far - park))
+            assert wait_until(lambda: drive.count() >= 50)
+        drive.drain()
+    finally:
+        drive.close()
+    t, q = drive.angles()
+    check_wire_limits(t, q, limits.max_speed, limits.max_accel, "burst to a far target")
+    np.testing.assert_allclose(q[0], park, atol=math.radians(1e-4))
+    np.testing.assert_allclose(q[-1], far, atol=math.radians(1e-4))
+    assert sink.ramped > 0 and "frames ramped at the drive" in sink.stats_line()
+
+
+def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):
+    """The drive vanishes in full motion (its port refuses: send errors) and returns 1.5 s of
+    motion later: its first frame after the outage is within one frame's travel of the last
+    one it got (at most two frames at full speed, plus a first step from rest), and from there
+    the frames keep the speed and acceleration limits; the run ends parked."""
+    config = load_config()
+    pipeline = Pipeline(config)
+    limits = pipeline.robot.limits
+    dt = config.dt
+    states = []
+    for k in range(int(6.0 / dt)):  # strong manoeuvring: the cranks work at their limits
+        s = math.sin(2 * math.pi * 0.7 * k * dt)
+        states.append(AircraftState(k * dt, [25 * s, 20 * s, -9.80665 + 10 * s], [3 * s] * 3))
+    drive = UdpDrive()
+    rate = 100.0
+    sink = open_output(drive.url(rate), mapping_for(config), limits=limits)
+    ticks = [0]
+
+    def count(_out) -> None:
+        ticks[0] += 1
+
+    def flight() -> None:
+        with sink:
+            run(pipeline, states, [sink], paced=True, progress=count)
+
+    runner = threading.Thread(target=flight, daemon=True)
+    with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
+        runner.start()
+        try:
+            assert wait_until(lambda: ticks[0] >= int(2.5 / dt), timeout=60)  # full motion
+            n_before = drive.count()
+            drive.vanish()
+            gone_at = ticks[0]
+            assert wait_until(lambda: not sink.link_up, timeout=30)
+            assert wait_until(lambda: ticks[0] >= gone_at + int(1.5 / dt), timeout=60)
+            drive.come_back()
+            runner.join(120)
+            assert not runner.is_alive()
+            drive.drain()
+        finally:
+            drive.close()
+    t, q = drive.angles()
+    assert len(t) > n_before + 100
+    last_before, first_after = q[n_before - 1], q[n_before]
+    period = 1.0 / rate
+    reach = 2 * limits.max_speed * period + limits.max_accel * period**2
+    assert np.all(np.abs(first_after - last_before) <= reach), np.degrees(first_after - last_before)
+    after_t = np.r_[t[n_before - 1], t[n_before:]]
+    after_q = np.vstack([last_before, q[n_before:]])
+    check_wire_limits(after_t, after_q, limits.max_speed, limits.max_accel, "after the outage")
+    np.testing.assert_allclose(q[-1], pipeline.robot.park_angles, atol=math.radians(1e-4))
+    assert sink.send_errors > 0
+    said = [r.getMessage() for r in caplog.records]
+    assert any("link is down" in m for m in said) and any("link back" in m for m in said)

@@ -575,3 +575,99 @@ def test_paced_park_ticks_keep_the_period(busy_wait: bool):
     # no two ticks closer than half a period, and never ahead of the schedule overall
     assert np.diff(walls).min() > dt / 2 - 1e-3
     assert walls[-1] - walls[0] > (len(walls) - 1) * dt - dt / 2 - 1e-3
+
+
+# --------------------------------------------------------------------------- the loop's clock
+
+
+class WallClockSink:
+    """Records when each tick reached the sinks (monotonic s); can stall once."""
+
+    def __init__(self, stall_at: int = -1, stall_s: float = 0.0) -> None:
+        self.walls: list[float] = []
+        self.outputs = []
+        self.stall_at, self.stall_s = stall_at, stall_s
+
+    def write(self, out) -> None:
+        import time
+
+        self.walls.append(time.monotonic())
+        self.outputs.append(out)
+        if len(self.walls) == self.stall_at:
+            time.sleep(self.stall_s)
+
+
+def test_a_paced_run_keeps_time_on_the_loops_clock_never_on_the_samples():
+    """A source that does not pace itself (a replay): the loop paces it at the pipeline's rate
+    whatever the samples' times say (a jump of 1e6 s and a gap of 10 s are time jumps for the
+    validation stage, not waits); after a stall it never bursts to catch up; a command that
+    reached the sinks late is counted from its due time."""
+    import threading
+
+    config = CONFIGS[(False, 120.0)]
+    dt = config.dt
+    times = [k * dt for k in range(240)]
+    times = times[:80] + [t + 1e6 for t in times[80:160]] + [t + 1e6 + 10.0 for t in times[160:]]
+    states = [AircraftState(t, [2.0, 1.0, -G], [0.1, 0.1, 0.0]) for t in times]
+    pipeline = Pipeline(config)
+    stall = 0.3  # s, at tick 120: the sink stalls (a disk, the machine)
+    sink = WallClockSink(stall_at=120, stall_s=stall)
+    done = threading.Event()
+
+    def go() -> None:
+        run(pipeline, ListSource(states), [sink], paced=True)
+        done.set()
+
+    threading.Thread(target=go, daemon=True).start()
+    assert done.wait(120), "the run waited on the samples' times"  # a watchdog, not a bound
+    h = pipeline.health
+    assert h.time_jumps == 2 and h.rejected_inputs == 0
+    assert [o.state for o in sink.outputs[: len(states)]] == states  # every sample, in order
+    assert sink.outputs[-1].phase == "parked"
+    walls = np.array(sink.walls)
+    gaps = np.diff(walls)
+    # lower bounds only: paced (never ahead of the schedule), and no two ticks closer than
+    # half a period, before the stall or after it (no burst to catch up)
+    assert gaps.min() > dt / 2 - 1e-3
+    assert walls[-1] - walls[0] > (len(walls) - 1) * dt + stall - dt
+    assert h.late_commands >= 1 and h.worst_late_s >= stall - 2 * dt
+
+
+def test_a_stop_before_the_first_tick_moves_nothing_and_reads_no_sample():
+    from motionbase.pipeline import StopRequest
+
+    class Untouchable:
+        def __iter__(self):  # a generator: reading its first sample raises
+            raise AssertionError("the source was read after a stop")
+            yield
+
+    for planar in (False, True):
+        pipeline = Pipeline(CONFIGS[(planar, 120.0)])
+        stop = StopRequest()
+        stop.set("SIGINT")
+        sink = Recorder()
+        summary = run(pipeline, Untouchable(), [sink], stop=stop, paced=True)
+        assert len(sink.outputs) == 1 and sink.outputs[0].phase == "parked"
+        assert np.array_equal(sink.outputs[0].angles, pipeline.robot.park_angles)
+        assert summary.stopped_by == "SIGINT" and summary.running_samples == 0
+        assert pipeline.health.estops == 0
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+@pytest.mark.parametrize("fast", [True, False], ids=["fused", "reference"])
+def test_a_time_no_log_can_hold_is_rejected_and_held(planar, fast):
+    """A log time is 64-bit nanoseconds: a sample time outside 0..MAX_SAMPLE_TIME_S (finite but
+    huge, or negative) is rejected like any invalid sample and never becomes an output time."""
+    from motionbase.safety import MAX_SAMPLE_TIME_S
+
+    pipeline = Pipeline(CONFIGS[(planar, 120.0)], fast=fast)
+    assert 2**63 / 1e9 > MAX_SAMPLE_TIME_S + 1e6  # room for the ticks after the last sample
+    step = pipeline.step if fast else pipeline.step_reference
+    level = AircraftState(0.5, *LEVEL)
+    assert step(level).accepted
+    for t in (2e10, -1.0, MAX_SAMPLE_TIME_S * (1 + 1e-9), 1e300):
+        out = step(AircraftState(t, *LEVEL))
+        assert not out.accepted and 0.5 < out.t < 1.0
+        assert "outside" in pipeline.health.last_rejection
+    assert step(AircraftState(MAX_SAMPLE_TIME_S, *LEVEL)).accepted  # the bound itself is fine
+    assert pipeline.health.rejected_inputs == 4

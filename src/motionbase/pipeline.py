@@ -1341,7 +1341,7 @@ def _run(
         if failed_sink is not None:
             what = f"{type(failure).__name__}: {failure}".replace("\n", " ")
             raise SinkError(
-                f"output {_sink_name(failed_sink)} failed ({what}); the platform was parked"
+                f"sink {_sink_name(failed_sink)} failed ({what}); the platform was parked"
             ) from failure
         raise failure
     summary.wall_time_s = time.perf_counter() - wall0
