@@ -4,7 +4,10 @@ Run: ``python benchmarks/bench_load.py`` (about a minute or two; ``--minutes M``
 length, ``--planar`` for the 3-RRR robot, ``--paced`` to run on the wall clock and read the
 loop overruns from the log's ``/health`` record, which then takes the flight's length;
 ``--no-log`` leaves the MCAP writes out, to see their share; ``--busy-wait`` waits for
-each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --busy-wait``).
+each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --busy-wait``;
+``--paced --loop-paced`` lets the pipeline's loop pace a source that does not pace itself,
+as ``replay --output`` and ``fly --output`` do). With ``--paced`` it prints the commands
+late for the actuators that ``/health`` counts from each sample's due time.
 ``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
 50 us of computing per tick and nothing else, to tell what the machine does to any loop
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
@@ -67,7 +70,9 @@ class SyntheticFlight:
         self.rate_hz = rate_hz
         self.duration_s = duration_s
         self.paced = paced  # hand each sample over at its time on the wall clock
+        self.paces_itself = paced  # (then the pipeline's loop does not pace it again)
         self.busy_wait = busy_wait  # wait for it by busy-waiting (else sleeping)
+        self.due_time: float | None = None  # when the last sample was due (monotonic s)
         self.fresh = True
         rng = np.random.default_rng(seed)
         self.freq = np.array([0.05, 0.13, 0.31, 0.7, 1.6, 3.0])  # Hz
@@ -90,9 +95,11 @@ class SyntheticFlight:
         w = 2 * np.pi * self.freq
         noise = self.rng.normal(0.0, 0.02, (n, 6))
         start = time.perf_counter()
+        mono = time.monotonic() - start  # perf_counter -> monotonic (the same clock on Linux)
         for k in range(n):
             t = k * dt
             if self.paced:
+                self.due_time = start + t + mono
                 wait_until(start + t, busy=self.busy_wait)
             x = (self.amp * np.sin(w * t + self.phase)).sum(axis=1) + noise[k]
             att = (0.1 * math.sin(0.2 * t), 0.05 * math.sin(0.15 * t), 0.3 * t % (2 * math.pi))
@@ -100,7 +107,7 @@ class SyntheticFlight:
             state = AircraftState(t, (x[0], x[1], -G + x[2]), (x[3], x[4], x[5]), att)
             self.handed_cpu = time.thread_time()
             self.handed_at = time.perf_counter()
-            self.due = start + t  # when the sample was due on the wall clock
+            self.due = start + t  # when the sample was due on the wall clock (perf_counter)
             yield state
 
 
@@ -226,6 +233,12 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--planar", action="store_true")
     ap.add_argument("--paced", action="store_true")
+    ap.add_argument(
+        "--loop-paced",
+        action="store_true",
+        help="with --paced: the source hands samples over at once and the pipeline's loop "
+        "paces the ticks (as replay --output does)",
+    )
     ap.add_argument("--floor", action="store_true")
     ap.add_argument("--no-log", action="store_true", help="skip the MCAP writes (their share)")
     ap.add_argument(
@@ -244,7 +257,11 @@ def main() -> None:
 
     config = load_config(planar=args.planar, rate_hz=args.rate)
     duration = args.minutes * 60.0
-    source = SyntheticFlight(args.rate, duration, paced=args.paced, busy_wait=args.busy_wait)
+    if args.loop_paced and not args.paced:
+        ap.error("--loop-paced goes with --paced")
+    source = SyntheticFlight(
+        args.rate, duration, paced=args.paced and not args.loop_paced, busy_wait=args.busy_wait
+    )
     pipeline = Pipeline(config)
     budget = 1.0 / args.rate
     n_total = int(round(duration * args.rate))
@@ -296,6 +313,8 @@ def main() -> None:
     what = " (--no-log: no MCAP writes but the final /health)" if args.no_log else ""
     if args.paced:
         what += ", busy-waiting between ticks" if args.busy_wait else ", sleeping between ticks"
+        if args.loop_paced:
+            what += ", paced by the pipeline's loop (the times below include its wait)"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
@@ -320,7 +339,7 @@ def main() -> None:
             for k in computing[:10]
         )
     )
-    if args.paced:
+    if args.paced and not args.loop_paced:
         # what the actuator sees: the command is ready this long after the sample was due
         # (the sleep's wake-up, or a backlog after a stall, plus the tick itself)
         ready = log.since_due[10 : len(samples)] * 1e6
@@ -349,8 +368,16 @@ def main() -> None:
         "overruns",
         "overruns_off_cpu",
         "worst_overrun_s",
+        "late_commands",
+        "worst_late_s",
     )
     print("  /health: " + ", ".join(f"{k} {health.get(k)}" for k in keys))
+    if args.paced:
+        print(
+            f"  commands late for the actuators (/health, from each sample's due time): "
+            f"{health.get('late_commands')} more than one period late, worst by "
+            f"{1e3 * health.get('worst_late_s', 0.0):.2f} ms beyond it"
+        )
     if not args.paced:
         print("  (overruns are measured only with --paced, on the wall clock)")
     else:

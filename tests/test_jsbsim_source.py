@@ -143,7 +143,7 @@ def test_from_aircraft_applies_initial_conditions(capfd) -> None:
 def test_realtime_paces_to_the_wall_clock(busy_wait: bool) -> None:
     """~1 s of flight: each sample arrives at (never before) its due time, which follows the
     simulated time on the wall clock, sleeping or spinning between. (How late they arrive is
-    the machine's figure: ``benchmarks/bench_pipeline.py`` prints it.)"""
+    the machine's figure: ``python benchmarks/bench_load.py --paced`` prints it.)"""
     src = JsbsimSource("c1723", duration_s=1.0, realtime=True, busy_wait=busy_wait)
     assert src.paces_itself and not JsbsimSource("c1723", duration_s=1.0).paces_itself
     arrivals = []

@@ -190,7 +190,8 @@ def test_a_killed_run_leaves_a_readable_log(tmp_path):
 def test_realtime_keeps_wall_clock_time_without_busy_waiting(tmp_path):
     """Each sample comes at (never before) its due time on the wall clock, in order, the
     run takes at least its simulated length, and it sleeps rather than spins. (How late the
-    samples come is a figure of the machine: ``benchmarks/bench_pipeline.py`` prints it.)"""
+    samples come is a figure of the machine: ``python benchmarks/bench_load.py --paced``
+    prints it.)"""
     from motionbase.io.jsbsim_source import JsbsimSource
 
     source = JsbsimSource("c1723", duration_s=3.0, realtime=True)

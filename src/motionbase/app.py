@@ -674,7 +674,10 @@ def _stream(
             )
         finally:
             if status is not None:
-                status.close()
+                try:
+                    status.close()
+                except OSError:  # a closed terminal
+                    pass
         st = source.stats
         result.notes.append(
             f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
