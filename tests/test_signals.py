@@ -48,6 +48,7 @@ class Run:
     stderr: str = ""
     pty_master: int | None = None
     tty_text: bytearray = field(default_factory=bytearray)
+    vehicle: subprocess.Popen | None = None  # a MAVLink sender for ``stream``
 
     def finish(self, timeout: float = 240) -> None:
         """Wait for the exit (a watchdog against a run that never stops, not a timing check)."""
@@ -59,6 +60,9 @@ class Run:
         self.stdout, self.stderr = out or "", err or ""
         self.drive.drain()
         self.drive.close()
+        if self.vehicle is not None:
+            self.vehicle.kill()
+            self.vehicle.wait()
 
 
 def start_fly(tmp: Path, name: str, *, on_pty: bool = False) -> Run:
@@ -83,6 +87,25 @@ def start_fly(tmp: Path, name: str, *, on_pty: bool = False) -> Run:
     run = Run(out, drive, proc, pty_master=master)
     threading.Thread(target=_read_tty, args=(run,), daemon=True).start()
     return run
+
+
+def start_stream(tmp: Path, name: str) -> Run:
+    """``motionbase stream --output udp:...`` from a MAVLink vehicle sending at 100 Hz (its
+    own process, ``mavlink_sender.py``) on loopback."""
+    from test_stream import free_udp_port
+
+    port = free_udp_port()
+    drive = UdpDrive()
+    out = tmp / f"{name}.mcap"
+    cmd = [sys.executable, "-m", "motionbase.cli", "stream", "--mavlink"]
+    cmd += [f"udpin:127.0.0.1:{port}", "--out", str(out), "--output", drive.url()]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    script = Path(__file__).with_name("mavlink_sender.py")
+    vehicle = subprocess.Popen(
+        [sys.executable, str(script), str(port), "100", "[[0, 600]]"],
+        stdout=subprocess.DEVNULL,
+    )
+    return Run(out, drive, proc, vehicle=vehicle)
 
 
 def _read_tty(run: Run) -> None:
@@ -167,17 +190,18 @@ def test_a_stop_signal_while_the_program_loads_moves_nothing(tmp_path):
 @pytest.fixture(scope="module")
 def stopped_in_flight(tmp_path_factory) -> dict[str, Run]:
     """Runs stopped in full flight: by each stop signal, by SIGINT twice (the second while
-    parking), and by closing the run's terminal."""
+    parking), by closing the run's terminal, and a live MAVLink ``stream`` by Ctrl-C."""
     tmp = tmp_path_factory.mktemp("signals")
     runs = {name: start_fly(tmp, name) for name in [*STOP_SIGNALS, "SIGINT twice"]}
     runs["terminal closed"] = start_fly(tmp, "tty", on_pty=True)
+    runs["stream SIGINT"] = start_stream(tmp, "stream")
     for name, run in runs.items():
         wait_for(lambda r=run: flying(r.drive), run.proc, "full motion")
         if name == "terminal closed":
             master, run.pty_master = run.pty_master, None
             os.close(master)  # the kernel sends SIGHUP to the session
             continue
-        run.proc.send_signal(getattr(signal, name.split()[0]))
+        run.proc.send_signal(getattr(signal, name.split()[-1 if "stream" in name else 0]))
         if name == "SIGINT twice":
             n = run.drive.count()
             wait_for(lambda r=run, n=n: r.drive.count() > n + 20, run.proc, "parking")
@@ -187,12 +211,12 @@ def stopped_in_flight(tmp_path_factory) -> dict[str, Run]:
     return runs
 
 
-@pytest.mark.parametrize("name", [*STOP_SIGNALS, "terminal closed"])
+@pytest.mark.parametrize("name", [*STOP_SIGNALS, "terminal closed", "stream SIGINT"])
 def test_a_stop_signal_in_flight_parks_at_the_soft_start_pace(stopped_in_flight, name):
     run = stopped_in_flight[name]
     if name != "terminal closed":  # (a closed terminal hears nothing more)
         assert run.proc.returncode == 0, run.stderr
-        assert f"stopped by {name}" in run.stdout, run.stdout
+        assert f"stopped by {name.split()[-1]}" in run.stdout, run.stdout
         assert "Traceback" not in run.stderr
     msgs = check_parked_and_logged(run)
     check_logged_commands(run.out)  # every command safe, in the speed and accel limits
@@ -200,7 +224,7 @@ def test_a_stop_signal_in_flight_parks_at_the_soft_start_pace(stopped_in_flight,
     phases = [m["phase"] for m in poses]
     first_stop = phases.index("stopping")
     assert "running" in phases[:first_stop]  # it was flying when the signal came
-    config = app.load_config()
+    config = app.load_config(rate_hz=100.0 if "stream" in name else 120.0)
     ramp = poses[first_stop:]
     # a stop, not an E-stop: the soft ramp back to park, as long as the soft start and far
     # below the speed limit (the limiter never had to act)
