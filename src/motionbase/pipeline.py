@@ -1245,8 +1245,8 @@ def _run(
         else:
             ramp = "starting" if phase == "starting" else "stopping"
             ticks[ramp] += 1
-            _track_peaks(ramp_angle, start_speed if ramp == "starting" else stop_speed,
-                         out.angles, speeds)  # fmt: skip
+            ramp_speed = start_speed if ramp == "starting" else stop_speed
+            _track_peaks(ramp_angle, ramp_speed, out.angles, speeds)
         if t_first is None:
             t_first = out.t
         t_last = out.t

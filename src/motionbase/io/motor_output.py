@@ -844,6 +844,8 @@ class MotorOutput:
         q0 = self._drive_q
         if q0 is None:  # nothing received yet: the run starts where its first command is
             return target, np.zeros_like(target), frame
+        if q0 is target and not self._drive_v.any():  # there and at rest: the common case
+            return target, self._drive_v, frame
         period = 1.0 / self.rate_hz
         elapsed = now - self._drive_t
         if elapsed <= 1e-6:
@@ -854,7 +856,7 @@ class MotorOutput:
             dt, v0, previous = elapsed, self._drive_v, self._drive_target
         q, v, status = limit_command(q0, v0, previous, target, dt, self.limits)
         if np.array_equal(q, target):
-            return q, v, frame
+            return target, v, frame
         if status & RATE_LIMITED:
             self.ramped += 1
         ramp_frame = self._encode(self.mapping.to_drive(q))
