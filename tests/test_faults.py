@@ -218,37 +218,6 @@ def test_a_full_disk_ends_with_one_line_and_a_log_readable_up_to_the_fault(tmp_p
     check_logged_commands(out)
 
 
-def test_a_log_that_fails_mid_flight_parks_the_drives_and_says_one_line(tmp_path):
-    """The disk fills while ``fly --output`` drives a loopback drive: the log fails, the drive
-    is parked through its output (the last frame on the wire is park, within the limits),
-    and the user gets one line and exit status 2."""
-    out = tmp_path / "full.mcap"
-    limit = 150_000  # bytes: a few seconds of flight, then the "disk" is full
-
-    def small_disk() -> None:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-
-    Pipeline(app.load_config())  # the compiled kernels cached now, not under the small disk
-    drive = UdpDrive()
-    try:
-        proc = cli_run(
-            "fly", "c1723", "--out", str(out), "--output", drive.url(),
-            cwd=tmp_path, preexec_fn=small_disk,
-        )  # fmt: skip
-        drive.drain()
-    finally:
-        drive.close()
-    assert proc.returncode == 2, proc.stderr
-    line = assert_one_line_error(proc, str(out), "cannot write the MCAP log")
-    assert "parked" in line
-    geometry = Rus6Geometry.preset("ceart")
-    t, q = drive.angles()
-    assert np.any(np.abs(q - geometry.park_angle) > 0.5)  # it flew
-    np.testing.assert_allclose(q[-1], geometry.park_angle, atol=math.radians(1e-4))
-    check_wire_limits(t, q, geometry.max_speed, geometry.max_accel)
-
-
 class BrokenSink:
     """A sink with a bug that is not ours: it raises a plain ``struct.error`` at tick ``n``."""
 
