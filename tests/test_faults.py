@@ -478,3 +478,22 @@ def test_replay_to_drives_keeps_the_limits_on_the_wire_whatever_the_recorded_tim
     if kind == "one sample at 2e10 s":
         assert "outside" in health["last_rejection"]
     assert "rejected inputs" in r.stdout and "stopped by end of source" in r.stdout
+
+
+def test_a_recording_that_claims_an_absurdly_slow_rate_is_refused(tmp_path, capsys):
+    """A replay to drives is paced at the recording's rate: one of 0.001 Hz would make the
+    loop wait 1000 s between ticks, deaf to a stop meanwhile. Refused: one line, exit 2."""
+    rec = tmp_path / "slow.mcap"
+    with McapLogger(rec, {"rate_hz": 0.001}) as logger:
+        for k in range(5):
+            msg = {"specific_force": [0.0, 0.0, -G], "angular_velocity": [0.0, 0.0, 0.0],
+                   "attitude": [0.0, 0.0, 0.0]}  # fmt: skip
+            logger.add("/aircraft/state", 1000.0 * k, msg)
+    drive = UdpDrive()
+    try:
+        code = cli.main(["replay", str(rec), "--platform", "ceart", "--output", drive.url()])
+    finally:
+        drive.close()
+    assert code == 2
+    assert_one_line_error(capsys.readouterr().err, "rate_hz 0.001", "below 10 Hz")
+    assert drive.count() == 0

@@ -70,6 +70,10 @@ from motionbase.washout.classical import WashoutInputError, _step, _track
 
 # --------------------------------------------------------------------------- config
 
+#: Slowest pipeline rate, Hz: a real-time loop waits at most one period (0.1 s) before it
+#: sees a stop, and a recording that claims a slower rate is refused.
+MIN_RATE_HZ = 10.0
+
 
 @dataclass(frozen=True)
 class PipelineConfig:
@@ -85,7 +89,7 @@ class PipelineConfig:
     washout : WashoutParams
         Washout filter parameters.
     rate_hz : float
-        Pipeline rate, Hz.
+        Pipeline rate, Hz (``MIN_RATE_HZ``, 10 Hz, to 10 kHz).
     soft_start_s : float
         Time to blend from the park pose to the live command, s (and back on stop).
     stale_timeout_s : float
@@ -120,6 +124,11 @@ class PipelineConfig:
                 raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
         if self.rate_hz > 10_000:
             raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
+        if self.rate_hz < MIN_RATE_HZ:
+            raise ConfigError(
+                f"pipeline: rate_hz {self.rate_hz:g} is below {MIN_RATE_HZ:g} Hz, too slow to "
+                "drive a platform or to answer a stop in time (give a faster rate)"
+            )
 
     @property
     def dt(self) -> float:
