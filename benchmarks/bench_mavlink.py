@@ -11,13 +11,16 @@ Run: /work/venv/bin/python benchmarks/bench_mavlink.py [--seconds 10]
    covers washout, IK and logging, measured by the pipeline benchmark).
 2. Per-message parse cost, offline: pymavlink decode + mavutil bookkeeping +
    the source's filter and unit conversion, on pre-packed messages.
-3. Log replay as fast as possible: ticks per second from erle_plane_329.BIN.
+3. Log replay as fast as possible: ticks per second from erle_plane_329.BIN, a real log the
+   repository does not ship: ``MOTIONBASE_TEST_DATA`` names its folder (as for the tests;
+   ``MOTIONBASE_TEST_DATA=../shared/data``); skipped when unset.
 """
 
 from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import os
 import time
 from pathlib import Path
 
@@ -25,7 +28,8 @@ import numpy as np
 
 from motionbase.io.mavlink_source import MavlinkSource, mavutil
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+#: The folder of the real flight logs (not in the repository), as for the tests.
+DATA_ENV = "MOTIONBASE_TEST_DATA"
 
 
 def _send(port: int, msg_rate: float, seconds: float) -> None:
@@ -151,7 +155,11 @@ def bench_parse(n: int = 20000) -> None:
 
 
 def bench_log() -> None:
-    path = DATA / "erle_plane_329.BIN"
+    folder = os.environ.get(DATA_ENV, "")
+    if not folder:
+        print(f"log replay: {DATA_ENV} is unset (the folder of erle_plane_329.BIN), skipped")
+        return
+    path = Path(folder).expanduser().resolve() / "erle_plane_329.BIN"
     if not path.is_file():
         print(f"log replay: {path} not found, skipped")
         return

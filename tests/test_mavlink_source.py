@@ -35,9 +35,10 @@ from motionbase.io.mavlink_source import (
 )
 
 G = 9.80665
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-TLOG = DATA / "vtol.tlog"
-BIN = DATA / "erle_plane_329.BIN"
+# Real flight logs, not shipped with the repository: tests that read them take the
+# ``flight_data`` fixture (tests/conftest.py: the folder $MOTIONBASE_TEST_DATA, or a skip).
+TLOG = "vtol.tlog"
+BIN = "erle_plane_329.BIN"
 ML = mavutil.mavlink
 
 
@@ -525,9 +526,9 @@ def body_down(attitude: np.ndarray) -> np.ndarray:
     return r.inv().apply([0.0, 0.0, 1.0])
 
 
-@pytest.mark.parametrize("path", [TLOG, BIN], ids=["vtol.tlog", "erle_plane_329.BIN"])
-def test_real_logs_give_plausible_states(path: Path) -> None:
-    with MavlinkSource(str(path), rate_hz=50.0, realtime=False) as src:
+@pytest.mark.parametrize("name", [TLOG, BIN])
+def test_real_logs_give_plausible_states(name: str, flight_data: Path) -> None:
+    with MavlinkSource(str(flight_data / name), rate_hz=50.0, realtime=False) as src:
         rows = [(s, src.fresh) for s in src]
         stats = src.stats
     states = [s for s, fresh in rows if fresh]
@@ -555,8 +556,8 @@ def test_real_logs_give_plausible_states(path: Path) -> None:
     assert isinstance(stats, MavlinkStats)
 
 
-def test_log_duration_and_tick_clock() -> None:
-    with MavlinkSource(str(BIN), rate_hz=40.0, realtime=False, duration_s=5.0) as src:
+def test_log_duration_and_tick_clock(flight_data: Path) -> None:
+    with MavlinkSource(str(flight_data / BIN), rate_hz=40.0, realtime=False, duration_s=5.0) as src:
         ts = [s.t for s in src]
     assert len(ts) == 200
     np.testing.assert_allclose(ts, np.arange(200) / 40.0)

@@ -216,3 +216,158 @@ def test_wrong_topic_lists_the_topics_present(recording) -> None:
     path, _ = recording
     with pytest.raises(LogFormatError, match="/washout/pose"):
         McapSource(path, topic="/nothing")
+
+
+# --------------------------------------------------------------------------- malformed samples
+# Issue 13, item 10: a malformed aircraft state never aborts a replay; it is rejected,
+# counted in /health and held like any invalid sample.
+
+
+def _good_message(t: float) -> dict:
+    return {
+        "t": t,
+        "specific_force": [0.3 * math.sin(t), 0.2, -9.80665],
+        "angular_velocity": [0.0, 0.05 * math.cos(t), 0.0],
+        "attitude": [0.0, 0.02, 0.1],
+    }
+
+
+_GOOD = json.dumps(_good_message(0.5)).encode()
+MALFORMED = {
+    "missing field": json.dumps({k: v for k, v in _good_message(0.5).items() if k != "attitude"}),
+    "string for a number": _GOOD.decode().replace("0.2,", '"0.2",'),
+    "bool for a number": _GOOD.decode().replace("0.2,", "true,"),
+    "wrong length": json.dumps({**_good_message(0.5), "angular_velocity": [0.0, 0.1]}),
+    "null message": "null",
+    "null field": json.dumps({**_good_message(0.5), "specific_force": None}),
+    "list message": "[1, 2, 3]",
+    "not JSON": '{"t": 0.5, "specific_force": [0, 0',
+    "non-UTF-8 bytes": _GOOD.replace(b'"attitude"', b'"att\xff\xfeude"'),
+    "negative time": json.dumps(_good_message(-4.0)),
+    "huge integer": json.dumps({**_good_message(0.5), "attitude": [10**400, 0, 0]}),
+    "fresh not a bool": json.dumps({**_good_message(0.5), "fresh": "yes"}),
+}
+BAD_INDEX = 60  # 0-based position of the bad message among the states
+
+
+def _write_raw(path: Path, payloads: list[bytes], rate: float = 100.0) -> None:
+    """A recording made with the mcap library, the message data written as raw bytes."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": rate})})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        for k, data in enumerate(payloads):
+            ns = round((k + 1) / rate * 1e9)
+            writer.add_message(cid, ns, data, ns)
+        writer.finish()
+
+
+def _recording_with(path: Path, bad: bytes | str, n: int = 240) -> list[bytes]:
+    payloads = [json.dumps(_good_message((k + 1) / 100)).encode() for k in range(n)]
+    payloads[BAD_INDEX] = bad.encode() if isinstance(bad, str) else bad
+    _write_raw(path, payloads)
+    return payloads
+
+
+@pytest.mark.parametrize("kind", sorted(MALFORMED))
+def test_a_malformed_state_becomes_a_sample_the_validation_rejects(tmp_path, caplog, kind):
+    path = tmp_path / "bad.mcap"
+    _recording_with(path, MALFORMED[kind])
+    with caplog.at_level(logging.WARNING, logger="motionbase"), McapSource(path) as source:
+        states = list(source)
+    assert len(states) == 240
+    assert source.malformed == 1
+    bad = states[BAD_INDEX]
+    assert not bad.is_finite()  # the pipeline rejects it (tests below)
+    for k, s in enumerate(states):
+        if k != BAD_INDEX:
+            assert s.t == pytest.approx((k + 1) / 100, abs=1e-12) and s.is_finite()
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warnings) == 1 and str(path) in warnings[0]
+    assert f"message {BAD_INDEX + 1}" in warnings[0] and "\n" not in warnings[0]
+    # read_messages (replay --check, report) reads the rest of the file
+    got = read_messages(path)["/aircraft/state"]
+    assert len(got) in (239, 240)
+
+
+def test_python_json_nan_tokens_are_read_as_non_finite_numbers(tmp_path):
+    """``json.dumps(float("nan"))`` writes a bare NaN: a non-finite value, not a crash."""
+    path = tmp_path / "nan.mcap"
+    bad = json.dumps({**_good_message(0.5), "specific_force": [math.nan, 0.0, -math.inf]})
+    assert "NaN" in bad and "-Infinity" in bad
+    _recording_with(path, bad)
+    with McapSource(path) as source:
+        states = list(source)
+    assert source.malformed == 0  # well-formed, only not finite: the validation's business
+    assert math.isnan(states[BAD_INDEX].specific_force[0])
+    assert states[BAD_INDEX].specific_force[2] == -math.inf
+    assert read_messages(path)["/aircraft/state"][BAD_INDEX]["specific_force"][2] == -math.inf
+
+
+def _health(path: Path) -> dict:
+    return read_messages(path)["/health"][-1]
+
+
+@pytest.mark.parametrize("kind", ["string for a number", "non-UTF-8 bytes", "null message"])
+def test_replay_and_check_of_a_malformed_recording_through_the_cli(
+    tmp_path, capsys, monkeypatch, kind
+):
+    from motionbase import cli
+
+    # cli.main installs its warning handler (on the stderr of the moment: this test's) when
+    # the logger has none; pytest attaches its own to loggers that do not propagate
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+
+    src = tmp_path / "bad.mcap"
+    payloads = _recording_with(src, MALFORMED[kind])
+    out = tmp_path / "out.mcap"
+    code = cli.main(["replay", str(src), "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "Traceback" not in captured.err
+    assert "malformed" in captured.out and "rejected inputs 1;" in captured.out
+    assert _health(out)["rejected_inputs"] == 1  # counted in /health
+    states = read_messages(out)["/aircraft/state"]
+    assert [m["accepted"] for m in states].count(False) == 1
+    assert states[BAD_INDEX]["accepted"] is False
+    # held: the washout saw the previous sample again, so its pose moved on smoothly
+    poses = np.array([m["angles"] for m in read_messages(out)["/platform/actuators"]])
+    assert np.isfinite(poses).all()
+
+    # --check of the malformed recording itself runs and reports (it has no outputs: differs)
+    code = cli.main(["replay", str(src), "--check"])
+    captured = capsys.readouterr()
+    assert code == 1 and "Traceback" not in captured.err
+    assert "check: DIFFERS" in captured.out
+
+    # the replay's own log replays bit for bit, the rejection included
+    code = cli.main(["replay", str(out), "--check"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.out + captured.err
+    assert "check: identical to the recording" in captured.out
+
+    # the same recording with the good sample in its place: no rejection at all
+    payloads[BAD_INDEX] = json.dumps(_good_message((BAD_INDEX + 1) / 100)).encode()
+    _write_raw(src, payloads)
+    assert cli.main(["replay", str(src), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert _health(out)["rejected_inputs"] == 0
+
+
+def test_rate_from_metadata_must_be_finite(tmp_path):
+    path = tmp_path / "inf.mcap"
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": '{"rate_hz": Infinity}'})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        for k in range(1, 51):
+            ns = k * 20_000_000
+            writer.add_message(cid, ns, json.dumps(_good_message(k / 50)).encode(), ns)
+        writer.finish()
+    assert McapSource(path).rate_hz == pytest.approx(50.0)  # from the spacing, not inf

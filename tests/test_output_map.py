@@ -116,6 +116,12 @@ def test_values_beyond_the_crank_limits_or_nan_are_out_of_range():
         ({"unit": "deg", "sign": [1, 1, 1]}, r"'sign'.*6 numbers"),
         ({"unit": "deg", "drive_min": 5, "drive_max": 5}, r"drive_min.*min < max"),
         ({"unit": "deg", "zero_offset": 0.1, "zero_offset_deg": 5}, r"either"),
+        # strict types (issue 13, item 12)
+        ({"unit": "deg", "sign": ["1", "-1", "1", "-1", "1", "-1"]}, r"'sign'.*'1'"),
+        ({"unit": "deg", "gear_ratio": True}, r"'gear_ratio'.*True"),
+        ({"unit": "deg", "zero_offset_deg": "5"}, r"'zero_offset_deg'.*'5'"),
+        ({"unit": "counts", "counts_per_rev": "4096"}, r"'counts_per_rev'.*expected a number"),
+        ({"unit": "range", "range_lo": 0, "range_hi": True}, r"integer 'range_hi'"),
     ],
 )
 def test_validation_names_the_field(table, match):

@@ -154,12 +154,16 @@ def test_the_fuzzing_reaches_every_rare_path():
     events = []
     for k in range(3000):
         s = 3.0 if (k // 200) % 2 else 0.3
-        f = tuple(rng.uniform(-60, 60, 3) * s + (0, 0, -G))
-        w = tuple(rng.uniform(-6, 6, 3) * s)
+        if k % 100 == 0:  # forces held for 1 s: sustained enough to reach the clamp
+            f_held, w_held = rng.uniform(-60, 60, 3), rng.uniform(-6, 6, 3)
+        f = tuple(f_held * s + (0, 0, -G))
+        w = tuple(w_held * s)
         kind = "nasty" if k % 97 == 5 else ("back" if k % 89 == 3 else "good")
         if kind == "nasty":
             f = (math.nan, f[1], f[2])
-        gap = 30.0 if k % 331 == 7 else 1.0
+        # after a sample back in time the source catches up (else every later sample repeats
+        # the pipeline's time and is rejected, and a long rejected stretch fades the input out)
+        gap = 30.0 if k % 331 == 7 else (2.0 if k % 89 == 4 else 1.0)
         action = "estop" if k == 2500 else ("stop" if k == 1500 else "")
         events.append((kind, f, w, (0.0, 0.0, 0.0), gap, (k // 50) % 7 == 3, action))
     ticks = make_states(events, config.dt)

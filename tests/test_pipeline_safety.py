@@ -403,7 +403,7 @@ def test_run_counts_every_safety_event_in_health(planar):
     check_commands(pipeline, [o.angles for o in sink.outputs])
 
 
-def test_a_long_stall_resets_the_washout_and_fades_motion_back_in():
+def test_a_long_stall_restarts_the_input_from_level_flight_and_fades_it_back_in():
     config = with_overrides(CONFIGS[(False, 120.0)], stale_timeout_s=0.5)
     pipeline = Pipeline(config)
     out = _full_motion(pipeline, 4.0)

@@ -16,7 +16,7 @@ from motionbase.cli import main
 from motionbase.errors import LogFormatError
 from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import read_messages, read_metadata
-from motionbase.io.report_plots import default_report_dir, write_report
+from motionbase.io.report_plots import default_report_dir, report_figures, write_report
 from motionbase.report import build_report
 
 G = 9.80665
@@ -226,3 +226,90 @@ def test_recording_without_aircraft_state_is_a_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "/aircraft/state" in err
     assert not (tmp_path / "out2").exists()
+
+
+# --------------------------------------------------------------------------- what the plots draw
+
+
+def _axis(fig, ylabel_start: str):
+    """The subplot whose y label starts with ``ylabel_start``."""
+    found = [ax for ax in fig.axes if ax.get_ylabel().startswith(ylabel_start)]
+    assert len(found) == 1, [ax.get_ylabel() for ax in fig.axes]
+    return found[0]
+
+
+def _line(ax, label_start: str):
+    found = [ln for ln in ax.get_lines() if ln.get_label().startswith(label_start)]
+    assert len(found) == 1, [ln.get_label() for ln in ax.get_lines()]
+    return np.asarray(found[0].get_xdata(), float), np.asarray(found[0].get_ydata(), float)
+
+
+def _texts(fig) -> list[str]:
+    texts = [fig.get_suptitle()] if hasattr(fig, "get_suptitle") else []
+    texts += [t.get_text() for t in fig.texts]
+    for ax in fig.axes:
+        texts += [ax.get_title(), ax.get_xlabel(), ax.get_ylabel()]
+    return texts
+
+
+def test_rus6_pose_plot_shows_heave_up(rus6_flight):
+    msgs = read_messages(rus6_flight)
+    fig = report_figures(build_report(msgs, read_metadata(rus6_flight)))["pose.png"]
+    ax = _axis(fig, "heave up")
+    assert ax.get_ylabel() == "heave up [cm]"
+    t, up_cm = _line(ax, "realised")
+    poses = msgs["/platform/pose"]
+    np.testing.assert_array_equal(t, [p["t"] for p in poses])
+    # FRD: the logged z is down; the plot shows up, in cm
+    np.testing.assert_allclose(up_cm, [-100.0 * p["pose"][2] for p in poses], rtol=1e-12)
+    # the physics, independent of the sign convention: parked, every crank points down
+    # (negative angle: its tip below the pivot), so the seat is below neutral
+    parked = np.array([m["angles"] for m in msgs["/platform/actuators"]])[-1]
+    assert (parked < np.radians(-30)).all()
+    assert up_cm[-1] < -5.0 and up_cm[0] < -5.0
+    _, washout_cm = _line(ax, "washout")
+    np.testing.assert_allclose(washout_cm, [-100.0 * m["pose"][2] for m in msgs["/washout/pose"]])
+    # the reach lines are drawn the same way up: the larger reach (0.20 m) is upward
+    reach = sorted(ln.get_ydata()[0] for ln in ax.get_lines() if ln.get_linestyle() == ":")
+    assert reach[0] == pytest.approx(-12.0, abs=1.0) and reach[1] == pytest.approx(20.0, abs=1.0)
+    # other axes keep the logged sign and say which way is positive
+    assert _axis(fig, "pitch").get_ylabel() == "pitch (nose up) [deg]"
+    assert _axis(fig, "surge").get_ylabel() == "surge (forward) [cm]"
+
+
+def test_perceived_plot_is_labelled_in_the_units_it_draws(rus6_flight):
+    r = build_report(read_messages(rus6_flight), read_metadata(rus6_flight))
+    fig = report_figures(r)["perceived.png"]
+    texts = _texts(fig)
+    assert not any("normalis" in s.lower() or "normaliz" in s.lower() for s in texts), texts
+    for axis in ("x", "y", "z"):
+        ax = _axis(fig, f"otolith {axis}")
+        assert ax.get_ylabel() == f"otolith {axis} [m/s²]"
+        # the drawn data are the perceived specific forces in m/s^2
+        _, air = _line(ax, "aircraft")
+        col = "xyz".index(axis)
+        np.testing.assert_array_equal(air, r.perceived.aircraft_specific_force[:, col])
+    # c1723's sustained forward acceleration (> 1 m/s^2 from 6 s, see above) reads as such
+    _, air_x = _line(_axis(fig, "otolith x"), "aircraft")
+    assert air_x.max() > 1.0
+
+
+def test_planar_pose_plot_draws_the_realised_pose_through_the_stop(planar_flight):
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    msgs = read_messages(planar_flight)
+    meta = read_metadata(planar_flight)
+    fig = report_figures(build_report(msgs, meta))["pose.png"]
+    poses = msgs["/planar/pose"]
+    phases = [p["phase"] for p in poses]
+    assert "stopping" in phases and phases[-1] == "parked"
+    # the mapping back to a cab, computed here from the recorded configuration
+    config = meta["pipeline_config"]
+    home = Rrr3(Rrr3Geometry.from_dict(config["geometry"])).home
+    scale = config["pipeline"]["planar_scale_m"]
+    xy = (np.array([p["pose"][:2] for p in poses]) - home[:2]) / scale
+    t_all = np.array([p["t"] for p in poses])
+    for name, col in (("surge", 0), ("sway", 1)):
+        t, cm = _line(_axis(fig, name), "realised")
+        np.testing.assert_array_equal(t, t_all)  # every tick, the stop phase included
+        np.testing.assert_allclose(cm, 100.0 * xy[:, col], atol=1e-9)

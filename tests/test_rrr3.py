@@ -290,6 +290,38 @@ def test_geometry_round_trips_and_errors(tmp_path):
         Rrr3(Rrr3Geometry(modes=(1, 1, 1)))
 
 
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d["safety"].update(max_speed=True), r"'max_speed'.*True"),
+        (lambda d: d["safety"].update(max_accel="20"), r"'max_accel'.*'20'"),
+        (lambda d: d["safety"].pop("max_speed"), r"\[safety\]: missing field 'max_speed'"),
+        (lambda d: d["safety"].pop("max_accel"), r"\[safety\]: missing field 'max_accel'"),
+        (lambda d: d["servo"].pop("min_deg"), r"\[servo\]: missing field 'min_deg'"),
+        (lambda d: d["servo"].update(max_deg=[180, "180", 180]), r"'servo.max_deg'.*'180'"),
+        (lambda d: d["servo"].update(min_deg=[0, False, 0]), r"'servo.min_deg'.*False"),
+        (lambda d: d["servo"].update(zero_deg=["0", 0, 135]), r"'servo.zero_deg'.*'0'"),
+        (lambda d: d.update(crank="0.04445"), r"'crank'.*'0.04445'"),
+        (lambda d: d.update(modes=[1, -1]), r"'modes'.*3 values"),
+    ],
+)
+def test_geometry_types_are_strict_and_limits_never_default(edit, match):
+    """Issue 13, item 12: no bool or string is read as a number; a missing limit is an error."""
+    data = Rrr3Geometry.preset("udesc").to_dict()
+    edit(data)
+    with pytest.raises(ConfigError, match=r"^g.toml.*" + match):
+        Rrr3Geometry.from_dict(data, source="g.toml")
+
+
+def test_a_6rus_or_washout_file_given_as_planar_geometry_is_named_for_what_it_is():
+    from motionbase.config import preset_path, read_toml
+
+    with pytest.raises(ConfigError, match=r"^c.toml: this is a 6-RUS geometry file"):
+        Rrr3Geometry.from_dict(read_toml(preset_path("rus6", "ceart")), source="c.toml")
+    with pytest.raises(ConfigError, match=r"^w.toml: this is a washout parameter file"):
+        Rrr3Geometry.from_dict(read_toml(preset_path("washout", "gentle")), source="w.toml")
+
+
 def test_symmetric_mode_is_better_conditioned():
     def cond(r):
         Jx, Jq = r.jacobians(r.home)

@@ -26,10 +26,11 @@ SETTINGS = settings(
 )
 
 # DESIGN.md "Geometry defaults": per leg, pivot angle on a 0.4064 m circle, joint angle on a
-# 0.400 m circle, crank direction at angle 0 (degrees from +x toward +y).
-DESIGN_PIVOT_DEG = [60, 0, -60, -120, 180, 120]
-DESIGN_JOINT_DEG = [40, 20, -80, -100, 160, 140]
-DESIGN_CRANK_DIR_DEG = [150, -90, 30, 150, -90, 30]
+# 0.400 m circle, crank direction at angle 0 (degrees from +x toward +y). Mirror-symmetric
+# about the x-z plane: one leg pair at the front, two at the rear corners.
+DESIGN_PIVOT_DEG = [150, 90, 30, -30, -90, -150]
+DESIGN_JOINT_DEG = [130, 110, 10, -10, -110, -130]
+DESIGN_CRANK_DIR_DEG = [-120, 0, 120, -120, 0, 120]
 CRANK, ROD = 0.184, 0.724
 
 
@@ -436,13 +437,47 @@ def test_toml_errors(tmp_path):
         Rus6Geometry.from_toml(tmp_path / "missing.toml")
 
 
-def test_defaults_for_actuator_fields():
+def test_park_angle_defaults_but_speed_and_accel_limits_never_do():
     data = GEOMETRY.to_dict()
-    for k in ("max_speed", "max_accel", "park_angle"):
-        del data[k]
+    del data["park_angle"]
     g = Rus6Geometry.from_dict(data)
-    assert g.max_speed == (3.0,) * 6 and g.max_accel == (30.0,) * 6
     assert g.park_angle == pytest.approx(math.radians(-55.0), abs=1e-15)
+    # a limit that moves motors is never guessed (issue 13, item 12)
+    for k in ("max_speed", "max_accel"):
+        data = GEOMETRY.to_dict()
+        del data[k]
+        with pytest.raises(ConfigError, match=rf"g.toml: missing field '{k}'") as err:
+            Rus6Geometry.from_dict(data, source="g.toml")
+        assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("max_speed", True),  # once became 1.0 rad/s
+        ("max_speed", "3.0"),
+        ("max_accel", [30.0] * 5 + ["30"]),
+        ("angle_min_deg", ["-60"] * 6),
+        ("angle_max", [True] * 6),
+        ("crank", "0.184"),
+        ("max_speed_deg_s", False),
+    ],
+)
+def test_wrong_types_are_refused_not_converted(field, value):
+    data = _bad(**{field: value})
+    if field.endswith("_deg") or field.endswith("_deg_s"):
+        data.pop(field.rsplit("_deg", 1)[0])
+    with pytest.raises(ConfigError, match=rf"g.toml: field '{field}': expected"):
+        Rus6Geometry.from_dict(data, source="g.toml")
+
+
+def test_a_washout_or_planar_file_is_named_for_what_it_is():
+    from motionbase.config import preset_path, read_toml
+
+    with pytest.raises(ConfigError, match=r"w.toml: this is a washout parameter file.*--washout"):
+        Rus6Geometry.from_dict(read_toml(preset_path("washout", "default")), source="w.toml")
+    with pytest.raises(ConfigError, match=r"r.toml: this is a 3-RRR geometry file.*--planar"):
+        Rus6Geometry.from_dict(read_toml(preset_path("rrr3", "udesc")), source="r.toml")
 
 
 @settings(max_examples=40, deadline=None)

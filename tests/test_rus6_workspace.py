@@ -22,20 +22,63 @@ RUS6 = Rus6(Rus6Geometry.preset("ceart"))
 ENVELOPE = single_axis_envelope(RUS6)
 
 
-def test_envelope_reproduces_design_figures():
-    # DESIGN.md: surge +-0.31 m, heave 0.20 m up and 0.12 m down, roll 17.6 deg one way and
-    # 30.3 the other, pitch +-19.1 deg, yaw +-48.9 deg (crank limits only)
+# DESIGN.md "Geometry defaults": single-axis reach of ceart (crank limits only), lower (the
+# negative direction: back, left, up, left side down, nose down, nose left) and upper, m and deg
+DESIGN_REACH = {
+    "surge": (0.30, 0.36),
+    "sway": (0.31, 0.31),
+    "heave": (0.20, 0.12),
+    "roll": (19.0, 19.0),
+    "pitch": (17.6, 30.3),
+    "yaw": (48.9, 48.9),
+}
+
+
+def _reach_si(axis: str) -> tuple[float, float]:
+    lo, hi = DESIGN_REACH[axis]
+    if axis in ("roll", "pitch", "yaw"):
+        return math.radians(lo), math.radians(hi)
+    return lo, hi
+
+
+@pytest.mark.parametrize("axis", AXES)
+def test_envelope_reproduces_design_figures(axis):
+    # within 3 % of DESIGN.md's (rounded) figures, both directions
     reach = {a.axis: a for a in ENVELOPE}
     assert [a.axis for a in ENVELOPE] == list(AXES)
-    assert reach["surge"].negative == pytest.approx(0.31, abs=0.01)
-    assert reach["surge"].positive == pytest.approx(0.31, abs=0.01)
-    assert reach["heave"].negative == pytest.approx(0.20, abs=0.01)  # FRD: negative z is up
-    assert reach["heave"].positive == pytest.approx(0.12, abs=0.01)
-    roll = sorted(math.degrees(v) for v in (reach["roll"].negative, reach["roll"].positive))
-    assert roll == pytest.approx([17.6, 30.3], abs=0.3)
-    for axis, deg in (("pitch", 19.1), ("yaw", 48.9)):
-        assert math.degrees(reach[axis].negative) == pytest.approx(deg, abs=0.3)
-        assert math.degrees(reach[axis].positive) == pytest.approx(deg, abs=0.3)
+    lo, hi = _reach_si(axis)
+    assert reach[axis].negative == pytest.approx(lo, rel=0.03)
+    assert reach[axis].positive == pytest.approx(hi, rel=0.03)
+
+
+def test_envelope_is_mirror_symmetric_left_to_right():
+    # a seat simulator is symmetric about its x-z plane: sway, roll and yaw reach the same
+    # both ways (to the sweep's tolerance); pitch serves forward acceleration (nose up) more
+    reach = {a.axis: a for a in ENVELOPE}
+    for axis in ("sway", "roll", "yaw"):
+        assert reach[axis].negative == pytest.approx(reach[axis].positive, rel=1e-5), axis
+    assert reach["pitch"].positive > 1.5 * reach["pitch"].negative
+    assert reach["surge"].positive > reach["surge"].negative
+
+
+def test_geometry_mirrors_onto_itself():
+    # mirroring the neutral platform in y (y -> -y) maps the set of legs onto itself: pivots,
+    # crank tips and joints of leg i land on those of one other leg
+    jp = RUS6.joint_points(np.zeros(6))
+    mirror = np.array([1.0, -1.0, 1.0])
+    for points in (jp.pivots, jp.crank_tips, jp.platform_joints):
+        m = points * mirror
+        d = np.linalg.norm(m[:, None, :] - points[None, :, :], axis=-1)
+        partner = d.argmin(axis=1)
+        assert d.min(axis=1).max() < 1e-12
+        assert sorted(partner) == list(range(6))
+    # a mirrored pose (sway, roll, yaw negated) needs the mirrored legs' crank angles
+    pose = np.array([0.05, 0.08, -0.03, 0.1, -0.05, 0.2])
+    mirrored = pose * np.array([1, -1, 1, -1, 1, -1])
+    partner = np.linalg.norm(
+        (jp.pivots * mirror)[:, None, :] - jp.pivots[None, :, :], axis=-1
+    ).argmin(axis=1)
+    np.testing.assert_allclose(RUS6.inverse(mirrored)[partner], RUS6.inverse(pose), atol=1e-12)
 
 
 @pytest.mark.parametrize("j", range(6))
@@ -101,6 +144,11 @@ def test_cli_workspace(tmp_path, capsys):
     assert main(["workspace", "--platform", "ceart", "--plot", str(png)]) == 0
     out = capsys.readouterr().out
     assert "surge" in out and "yaw" in out and str(png) in out
+    # the printed table gives DESIGN.md's reach (m and deg), within 3 %
+    rows = {line.split()[0]: line.split()[1:3] for line in out.splitlines() if line.split()}
+    for axis, (lo, hi) in DESIGN_REACH.items():
+        assert float(rows[axis][0]) == pytest.approx(lo, rel=0.03), axis
+        assert float(rows[axis][1]) == pytest.approx(hi, rel=0.03), axis
     assert png.read_bytes()[:4] == b"\x89PNG"
     # a TOML path works too
     path = tmp_path / "g.toml"
@@ -110,3 +158,100 @@ def test_cli_workspace(tmp_path, capsys):
     assert main(["workspace", "--platform", "nope"]) == 2
     err = capsys.readouterr().err
     assert "unknown rus6 preset 'nope'" in err and len(err.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------- planar: one default
+
+
+def _planar_robot(capsys, *args: str) -> str:
+    """The 3-RRR geometry ``motionbase workspace`` swept, by the name it printed."""
+    assert main(["workspace", *args]) == 0
+    out = capsys.readouterr().out
+    first = out.splitlines()[0]
+    assert first.startswith("3-RRR robot "), out
+    return first.split("'")[1]
+
+
+def _one_line_error(capsys, *args: str) -> str:
+    assert main(["workspace", *args]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1, captured.err
+    return captured.err
+
+
+def test_workspace_planar_honours_platform_and_rrr3(capsys):
+    # --platform names the robot's geometry with --planar, as for `fly --planar`
+    assert _planar_robot(capsys, "--planar", "--platform", "udesc_symmetric") == "udesc_symmetric"
+    assert _planar_robot(capsys, "--planar", "--platform", "udesc") == "udesc"
+    assert _planar_robot(capsys, "--planar", "--rrr3", "udesc") == "udesc"
+    assert _planar_robot(capsys, "--planar", "--rrr3", "udesc_symmetric") == "udesc_symmetric"
+    # the same geometry named twice is fine; two different ones are refused
+    assert _planar_robot(capsys, "--planar", "--platform", "udesc", "--rrr3", "udesc") == "udesc"
+    err = _one_line_error(capsys, "--planar", "--platform", "udesc", "--rrr3", "udesc_symmetric")
+    assert "--platform" in err and "--rrr3" in err
+    # --rrr3 without --planar would be silently unused: refused, saying what to add
+    err = _one_line_error(capsys, "--rrr3", "udesc")
+    assert "--planar" in err
+    # a 6-RUS preset is not a 3-RRR geometry: one line naming it
+    assert "'ceart'" in _one_line_error(capsys, "--planar", "--platform", "ceart")
+
+
+def test_planar_default_geometry_is_the_same_for_every_command(capsys, tmp_path):
+    """`workspace --planar`, `fly --planar` and `teleop` use one default 3-RRR geometry."""
+    from motionbase.io.mcap_source import read_metadata
+
+    workspace = _planar_robot(capsys, "--planar")
+    fly_out = tmp_path / "fly.mcap"
+    assert main(["fly", "--planar", "--duration", "1", "--out", str(fly_out)]) == 0
+    fly = read_metadata(fly_out)["pipeline_config"]["geometry"]["name"]
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("t,x,y\n0.0,655,357\n0.5,655,357\n")
+    teleop_out = tmp_path / "teleop.mcap"
+    args = ["teleop", "--input", f"file:{csv}", "--duration", "0.5", "--out", str(teleop_out)]
+    assert main(args) == 0
+    teleop = read_metadata(teleop_out)["geometry"]["name"]
+    assert workspace == fly == teleop == "udesc_symmetric"
+
+
+# --------------------------------------------------------------------------- plot file formats
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "planar"])
+def test_workspace_plot_is_written_in_the_format_its_extension_names(planar, tmp_path, capsys):
+    flag = ["--planar"] if planar else []
+    formats = (("svg", b"<?xml"), ("pdf", b"%PDF-"), ("png", b"\x89PNG"), ("PNG", b"\x89PNG"))
+    for ext, magic in formats:
+        path = tmp_path / f"ws.{ext}"
+        assert main(["workspace", *flag, "--plot", str(path)]) == 0
+        assert str(path) in capsys.readouterr().out
+        data = path.read_bytes()
+        assert data.startswith(magic), (ext, data[:16])
+        if ext == "svg":
+            assert b"<svg" in data[:2000]
+    # an extension matplotlib would not honour, or none: refused before any work, one line
+    for name in ("ws.jpeg", "ws.txt", "ws"):
+        err = _one_line_error(capsys, "--plot", str(tmp_path / name), *flag)
+        assert ".png, .svg or .pdf" in err
+        assert not (tmp_path / name).exists()
+
+
+def test_planar_workspace_figure_has_a_legend_naming_what_it_draws():
+    from motionbase.io.planar_plots import planar_workspace_figure
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    ws = rrr3.workspace(30, 30, 13)
+    rect = (0.11, 0.15, 0.07, 0.10)
+    fig = planar_workspace_figure(rrr3, ws, rectangle=rect)
+    assert len(fig.legends) == 1
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    for what in ("valid pose", "base triangle", "motors", "home", "platform at home"):
+        assert any(what in label for label in labels), (what, labels)
+    assert any("rectangle" in label for label in labels)
+    # the legend's entries are the drawn data: the home marker sits at the robot's home pose
+    slice_ax = fig.axes[1]
+    home = next(ln for ln in slice_ax.get_lines() if ln.get_label() == "home")
+    np.testing.assert_allclose(np.r_[home.get_xdata(), home.get_ydata()], rrr3.home[:2])
+    box = next(ln for ln in slice_ax.get_lines() if "rectangle" in ln.get_label())
+    assert (min(box.get_xdata()), max(box.get_xdata())) == rect[:2]
+    assert (min(box.get_ydata()), max(box.get_ydata())) == rect[2:]

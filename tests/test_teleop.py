@@ -17,6 +17,7 @@ from motionbase.errors import SourceError
 from motionbase.io.cursor_input import FileCursor, UdpCursor
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.servo_protocol import decode
+from motionbase.pipeline import StopRequest
 from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
 from motionbase.teleop import run_teleop
 
@@ -86,8 +87,9 @@ def test_teleop_file_to_pty_sends_exactly_the_predicted_servo_commands(tmp_path)
             "--out", str(tmp_path / "run.mcap"),
         ])  # fmt: skip
         assert rc == 0
-        for _ in range(100):  # let the reader drain the last frame
-            if len(board.data) and board.data.endswith(b"r"):
+        home = "".join(f"{d}{c}" for d, c in zip(expected_servo(*HOME), "pqr", strict=True))
+        for _ in range(200):  # let the reader drain the last frame
+            if board.data.endswith(home.encode()):
                 break
             threading.Event().wait(0.01)
     finally:
@@ -99,10 +101,13 @@ def test_teleop_file_to_pty_sends_exactly_the_predicted_servo_commands(tmp_path)
     def dedupe(seq):
         return [s for n, s in enumerate(seq) if n == 0 or s != seq[n - 1]]
 
-    assert dedupe(frames) == dedupe(expected)
-    assert len(set(expected)) > 10  # the path really moves the servos
     log = read_messages(tmp_path / "run.mcap")
-    assert [tuple(m["servo_deg"]) for m in log["/planar/actuators"]] == expected
+    logged = [tuple(m["servo_deg"]) for m in log["/planar/actuators"]]
+    assert dedupe(frames) == dedupe(logged)
+    assert len(set(expected)) > 10  # the path really moves the servos
+    # while the input lasts, exactly the predicted commands; then it stops and goes home
+    assert logged[: len(expected)] == expected
+    assert logged[-1] == frames[-1] == expected_servo(*HOME)
     assert log["/health"][-1]["rate_limited"] == 0 and log["/health"][-1]["held"] == 0
     np.testing.assert_allclose([m["target"] for m in log["/cursor"]], targets, atol=1e-12)
 
@@ -140,7 +145,9 @@ def test_unreachable_targets_are_clamped_or_held(tmp_path):
     assert stats.clamps > 50 and stats.held == 0
     assert len(set(rec.frames)) > 1  # it moved, to the edge of the workspace
     edge, _ = rrr3.clamp(np.array([*cal_xy(*far), 0.0]))
-    assert rec.frames[-1] == tuple(rrr3.to_servo(rrr3.inverse(edge)))
+    end = 100  # the last tick of the file (2.0 s at 50 Hz)
+    assert rec.frames[end] == tuple(rrr3.to_servo(rrr3.inverse(edge)))
+    assert rec.frames[-1] == home_cmd  # then home
 
 
 def test_joint_speed_and_acceleration_are_limited(tmp_path):
@@ -161,9 +168,9 @@ def test_joint_speed_and_acceleration_are_limited(tmp_path):
     g = rrr3.geometry
     assert speed.max() <= g.max_speed * 1.1
     assert np.max(np.diff(speed)) <= g.max_accel * dt * 1.1
-    # and it arrives: the last pose is the (reachable) target
+    # and it arrives: the pose at the end of the file (2.0 s) is the (reachable) target
     assert np.allclose(
-        read_messages(out)["/planar/pose"][-1]["pose"][:2], cal_xy(U0 + 700, V0 - 700)
+        read_messages(out)["/planar/pose"][100]["pose"][:2], cal_xy(U0 + 700, V0 - 700)
     )
 
 
@@ -258,8 +265,8 @@ def test_stale_udp_input_holds_position_then_resumes():
     assert stats.watchdog_fades == 1 and 40 < stats.stale_ticks < 60
     # held: stopped short of the goal, at rest, before fresh input returned at tick 60
     assert np.array_equal(q[55], q[59]) and not np.allclose(poses[59], target, atol=1e-3)
-    # resumed and arrived
-    np.testing.assert_allclose(poses[-1], target, atol=1e-9)
+    # resumed and arrived (by the end of the run's 2 s, tick 100)
+    np.testing.assert_allclose(poses[100], target, atol=1e-9)
     v = np.diff(q, axis=0) * 50
     assert np.abs(v).max() <= rrr3.geometry.max_speed * (1 + 1e-9)
     assert np.abs(np.diff(v, axis=0)).max() * 50 <= rrr3.geometry.max_accel * (1 + 1e-6)
@@ -313,3 +320,216 @@ def test_sigint_parks_the_robot_at_home(tmp_path):
     assert np.abs(v).max() <= geometry.max_speed * (1 + 1e-9)
     assert np.abs(np.diff(v, axis=0)).max() * 50 <= geometry.max_accel * (1 + 1e-6)
     assert log["/health"][-1]["estops"] == 1
+
+
+# --------------------------------------------------------------------------- stopping
+
+
+DT = 1 / 50  # the loop period of these tests, s
+
+
+def assert_stops_within_limits(q, geometry):
+    """Speed and acceleration of the commanded joint angles ``q`` (one row per tick), by
+    plain finite differences; after the last command the servos hold it (one more row)."""
+    q = np.vstack([q, q[-1:]])
+    v = np.diff(q, axis=0) / DT
+    a = np.diff(v, axis=0) / DT
+    peak_v, peak_a = np.abs(v).max(axis=1), np.abs(a).max(axis=1)
+    i, j = int(peak_v.argmax()), int(peak_a.argmax())
+    assert peak_v[i] <= geometry.max_speed * (1 + 1e-9), f"{peak_v[i]:.3g} rad/s at tick {i + 1}"
+    assert peak_a[j] <= geometry.max_accel * (1 + 1e-6), (
+        f"{peak_a[j]:.3g} rad/s^2 at tick {j + 1} of {len(q) - 1}"
+    )
+
+
+def speed_at(q, i):
+    """The fastest joint's speed (rad/s) from tick i - 1 to tick i."""
+    return float(np.abs(q[i] - q[i - 1]).max()) / DT
+
+
+class DictLog:
+    def __init__(self):
+        self.m = {}
+
+    def add(self, topic, t, d):
+        self.m.setdefault(topic, []).append((t, d))
+
+
+def test_end_of_input_brakes_to_rest_within_the_limits_then_goes_home(tmp_path):
+    # the cursor circles fast right up to the last row of the file
+    write_csv(tmp_path / "fast.csv", duration=1.2, omega=8.0)
+    write_calibration(tmp_path / "cal.toml")
+    board = Board()
+    try:
+        rc = main([
+            "teleop", "--input", f"file:{tmp_path / 'fast.csv'}", "--serial", board.path,
+            "--calibration", str(tmp_path / "cal.toml"), "--rate", "50", "--rrr3", "udesc",
+            "--out", str(tmp_path / "run.mcap"),
+        ])  # fmt: skip
+        assert rc == 0
+        home = expected_servo(*HOME)
+        tail = "".join(f"{d}{c}" for d, c in zip(home, "pqr", strict=True)).encode()
+        for _ in range(200):  # let the reader drain the last frame
+            if board.data.endswith(tail):
+                break
+            threading.Event().wait(0.01)
+    finally:
+        board.close()
+    got = decode(bytes(board.data))
+    frames = [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)]
+    log = read_messages(tmp_path / "run.mcap")
+    geometry = Rrr3Geometry.preset("udesc")
+    q = np.array([m["angles"] for m in log["/planar/actuators"]])
+    servo = [tuple(m["servo_deg"]) for m in log["/planar/actuators"]]
+    t = [m["t"] for m in log["/planar/actuators"]]
+    end = t.index(log["/cursor"][-1]["t"])  # the last tick with input
+    assert end == 60
+    # fast at the end of the input: stopping dead there would break the acceleration limit
+    assert speed_at(q, end) > geometry.max_accel * DT
+    assert_stops_within_limits(q, geometry)
+    # then home, at rest: the last frame on the wire and in the log is home
+    assert frames[-1] == servo[-1] == servo[-2] == expected_servo(*HOME)
+    np.testing.assert_allclose(log["/planar/pose"][-1]["pose"], [*HOME, 0.0], atol=1e-9)
+    # every command logged is what the board received (the sink skips repeats)
+    assert [s for n, s in enumerate(servo) if n == 0 or s != servo[n - 1]] == [
+        f for n, f in enumerate(frames) if n == 0 or f != frames[n - 1]
+    ]
+    assert log["/health"][-1]["estops"] == 0
+
+
+@pytest.mark.parametrize("how", ["estop", "duration", "before start"])
+def test_a_stop_at_any_moment_parks_at_home_within_the_limits(tmp_path, how):
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    write_csv(tmp_path / "fast.csv", duration=5.0, omega=8.0)
+    stop = StopRequest()
+    if how == "before start":
+        stop.set("test", estop=True)
+
+    class Sink:
+        def __init__(self):
+            self.frames = []
+
+        def write(self, servo, t=None):
+            self.frames.append(tuple(servo))
+            if how == "estop" and t >= 1.0 - 1e-9:
+                stop.set("test", estop=True)
+            return True
+
+    log, sink = DictLog(), Sink()
+    stats = run_teleop(
+        FileCursor(tmp_path / "fast.csv"), rrr3, cal, sink=sink, logger=log, realtime=False,
+        stop=stop, duration_s=1.0 if how == "duration" else None,
+    )  # fmt: skip
+    q = np.array([d["angles"] for _, d in log.m["/planar/actuators"]])
+    home = tuple(rrr3.to_servo(rrr3.inverse(rrr3.home)))
+    if how == "before start":
+        assert sink.frames == [home]  # the first tick's home, nothing else
+        assert stats.stopped_by == "test"
+        return
+    assert speed_at(q, 50) > rrr3.geometry.max_accel * DT  # moving fast when stopped
+    assert_stops_within_limits(q, rrr3.geometry)
+    assert sink.frames[-1] == home and q.shape[0] > 55
+    np.testing.assert_allclose(log.m["/planar/pose"][-1][1]["pose"], rrr3.home, atol=1e-9)
+    assert stats.estops == (how == "estop")
+    assert stats.stopped_by == {"estop": "test", "duration": "duration"}[how]
+
+
+def test_no_time_left_to_go_home_still_comes_to_rest_within_the_limits(tmp_path):
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    write_csv(tmp_path / "fast.csv", duration=5.0, omega=8.0)
+    log = DictLog()
+    run_teleop(
+        FileCursor(tmp_path / "fast.csv"), rrr3, cal, logger=log, realtime=False,
+        duration_s=1.0, max_park_s=0.1,
+    )  # fmt: skip
+    q = np.array([d["angles"] for _, d in log.m["/planar/actuators"]])
+    assert_stops_within_limits(q, rrr3.geometry)
+    assert np.array_equal(q[-1], q[-2])  # at rest
+    assert not np.allclose(log.m["/planar/pose"][-1][1]["pose"], rrr3.home, atol=1e-3)
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
+def test_every_stop_signal_to_a_teleop_process_parks_within_the_limits(tmp_path, sig):
+    import signal
+    import subprocess
+    import sys
+
+    write_csv(tmp_path / "fast.csv", duration=60.0, omega=8.0)
+    write_calibration(tmp_path / "cal.toml")
+    out = tmp_path / "sig.mcap"
+    cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input"]
+    cmd += [f"file:{tmp_path / 'fast.csv'}", "--calibration", str(tmp_path / "cal.toml")]
+    cmd += ["--rrr3", "udesc", "--out", str(out)]
+    board = Board()
+    proc = None
+    try:
+        proc = subprocess.Popen(
+            cmd + ["--serial", board.path], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        for _ in range(3000):  # until about a second of motion reached the board
+            if len(board.data) > 50 * 12 or proc.poll() is not None:
+                break
+            threading.Event().wait(0.01)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(getattr(signal, sig))
+        stdout, stderr = proc.communicate(timeout=60)
+        threading.Event().wait(0.1)  # the last bytes
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        board.close()
+    assert proc.returncode == 0, (proc.returncode, stderr)
+    assert f"stopped by {sig}" in stdout
+    got = decode(bytes(board.data))
+    frames = [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)]
+    log = read_messages(out)
+    geometry = Rrr3Geometry.preset("udesc")
+    q = np.array([m["angles"] for m in log["/planar/actuators"]])
+    t = [m["t"] for m in log["/planar/actuators"]]
+    end = t.index(log["/cursor"][-1]["t"])  # the last tick before the stop
+    assert speed_at(q, end) > geometry.max_accel * DT  # moving fast when stopped
+    assert_stops_within_limits(q, geometry)
+    assert frames[-1] == tuple(log["/planar/actuators"][-1]["servo_deg"]) == expected_servo(*HOME)
+    np.testing.assert_allclose(log["/planar/pose"][-1]["pose"], [*HOME, 0.0], atol=1e-9)
+
+
+def test_a_full_disk_mid_run_parks_the_robot_then_says_so_in_one_line(tmp_path):
+    """The log's file may not grow beyond 40 kB (RLIMIT_FSIZE: writes past it fail with
+    EFBIG, as on a full disk): the robot, moving fast, brakes and goes home through the
+    serial link, then the error is one line and the exit status 2."""
+    import subprocess
+    import sys
+
+    write_csv(tmp_path / "fast.csv", duration=60.0, omega=8.0)
+    write_calibration(tmp_path / "cal.toml")
+    limited = (
+        "import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, (40000, 40000)); "
+        "from motionbase.cli import main; sys.exit(main(sys.argv[1:]))"
+    )
+    board = Board()
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", limited, "teleop", "--input", f"file:{tmp_path / 'fast.csv'}",
+             "--calibration", str(tmp_path / "cal.toml"), "--rrr3", "udesc", "--serial",
+             board.path, "--out", str(tmp_path / "full.mcap")],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        threading.Event().wait(0.1)  # the last bytes
+    finally:
+        board.close()
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "MCAP log" in lines[0] and "parked at home" in lines[0], lines
+    got = decode(bytes(board.data))
+    frames = np.array([[v for _, v in got[i : i + 3]] for i in range(0, len(got), 3)])
+    assert len(frames) > 100  # it ran, and moved
+    assert tuple(frames[-1]) == expected_servo(*HOME)
+    # integer degrees on the wire: a frame moves at most the speed limit (+1 deg of rounding)
+    step = math.degrees(Rrr3Geometry.preset("udesc").max_speed * DT) + 1
+    assert np.abs(np.diff(frames, axis=0)).max() <= step

@@ -1,14 +1,14 @@
 """The real mouse window under Xvfb: the pointer drives the robot through the calibration.
 
-Needs ``Xvfb`` and ``xdotool`` (``apt-get install -y xvfb xdotool``). Without them the test
-fails with that message; it is never skipped.
+Needs ``Xvfb``, ``xdotool`` and Tk (``apt-get install -y xvfb xdotool python3-tk``). Without
+them the test is skipped with that reason, or fails when ``MOTIONBASE_REQUIRE_DISPLAY=1``
+(``.ci/run`` installs them and sets it): the ``display_tools`` fixture of ``conftest.py``.
 """
 
 from __future__ import annotations
 
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -25,21 +25,10 @@ L = 0.26  # base side of the udesc presets, m (DESIGN.md)
 HOME = np.array([L / 2, L * math.sqrt(3) / 6])
 
 
-def _need(tool: str) -> str:
-    path = shutil.which(tool)
-    if path is None:
-        pytest.fail(
-            f"{tool} is not installed: the mouse-window test needs a virtual X server "
-            "(apt-get install -y xvfb xdotool)"
-        )
-    return path
-
-
 @pytest.fixture
-def display():
+def display(display_tools):
     """A private Xvfb on a free display number (Xvfb picks it: -displayfd)."""
-    xvfb = _need("Xvfb")
-    _need("xdotool")
+    xvfb = display_tools["Xvfb"]
     r, w = os.pipe()
     proc = subprocess.Popen(
         [xvfb, "-displayfd", str(w), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],

@@ -464,3 +464,79 @@ def test_bad_sample_period_is_a_config_error(params):
         ClassicalWashout(params, 0.0)
     with pytest.raises(ConfigError, match="Nyquist"):
         ClassicalWashout(params, 2.0)  # 2 rad/s tilt filter at 0.5 Hz sampling
+
+
+# --- input low-pass (telemetry) ------------------------------------------------------------
+
+
+def test_input_lowpass_is_off_in_the_default_and_on_in_the_telemetry_preset(params):
+    assert params.input_lowpass_wn == 0.0
+    assert WashoutParams.preset("gentle").input_lowpass_wn == 0.0
+    assert WashoutParams.preset("telemetry").input_lowpass_wn > 0.0
+
+
+def test_level_flight_stays_exactly_neutral_with_the_input_lowpass():
+    p = WashoutParams.preset("telemetry")
+    f, w = constant(int(30.0 / DT))
+    assert np.all(ClassicalWashout(p, DT).run(f, w) == 0.0)
+
+
+@pytest.mark.parametrize("method,dt", [("tustin", DT), ("zoh", 1.0 / 1000.0)])
+def test_heave_step_through_the_input_lowpass_matches_the_continuous_design(params, method, dt):
+    wn_in = 8.0
+    p = dataclasses.replace(params, method=method, input_lowpass_wn=wn_in)
+    amp = 1.0
+    n = int(20.0 / dt)
+    f, w = constant(n, f=(0.0, 0.0, -G - amp))
+    z = ClassicalWashout(p, dt).run(f, w)[:, 2]
+    wn, zeta, wb = p.translational_wn[2], p.translational_zeta[2], p.translational_wb[2]
+    k = p.specific_force_gain[2]
+    # z/a = wn_in^2/(s + wn_in)^2 * s/((s^2 + 2 zeta wn s + wn^2)(s + wb))
+    den = np.polymul(
+        np.polymul([1.0, 2.0 * zeta * wn, wn * wn], [1.0, wb]), [1.0, 2.0 * wn_in, wn_in**2]
+    )
+    t = np.arange(n) * dt
+    _, ref = scipy.signal.step(([k * -amp * wn_in**2, 0.0], den), T=t)
+    peak = np.max(np.abs(ref))
+    assert np.max(np.abs(z - ref)) < 0.01 * peak
+    # and the low-pass delays it: the plain washout's response leads
+    plain = ClassicalWashout(dataclasses.replace(p, input_lowpass_wn=0.0), dt).run(f, w)[:, 2]
+    assert np.argmin(plain) < np.argmin(z)
+
+
+def test_input_lowpass_keeps_the_sustained_tilt():
+    p = WashoutParams.preset("telemetry")
+    f, w = constant(int(40.0 / DT), f=(1.0, -0.8, -G))
+    pose = ClassicalWashout(p, DT).run(f, w)[-1]
+    k = p.specific_force_gain
+    pitch = np.arcsin(k[0] * 1.0 / G)
+    roll = -np.arcsin(k[1] * -0.8 / (G * np.cos(pitch)))
+    np.testing.assert_allclose(pose[3:5], [roll, pitch], atol=1e-9)
+
+
+def test_input_lowpass_turns_a_held_staircase_of_rates_into_ramps():
+    """Telemetry at 4 Hz held at 100 Hz: without the low-pass each step of the roll rate is a
+    step of the platform's roll rate (the rotational high-pass passes it; the trapezoidal
+    rule spreads it over two ticks: an angular acceleration spike); with it the rate changes
+    by at most what the low-pass's step response allows per tick, about
+    gain * step * wn * dt / e (its steepest slope)."""
+    dt = 0.01
+    rng = np.random.default_rng(3)
+    levels = np.radians(rng.uniform(-15.0, 15.0, 60))  # within the 20 deg/s saturation
+    w = np.zeros((levels.size * 25, 3))
+    w[:, 0] = np.repeat(levels, 25)
+    f = np.tile(LEVEL, (w.shape[0], 1))
+    p = WashoutParams.preset("telemetry")
+    k = p.angular_velocity_gain[0]
+    step = np.max(np.abs(np.diff(levels)))
+    jump = {}
+    for wn in (0.0, p.input_lowpass_wn):
+        roll = ClassicalWashout(dataclasses.replace(p, input_lowpass_wn=wn), dt).run(f, w)[:, 3]
+        rate = np.diff(roll) / dt
+        jump[wn] = np.max(np.abs(np.diff(rate)))
+    assert jump[0.0] > 0.45 * k * step  # the plain washout passes the step (in two ticks)
+    wn = p.input_lowpass_wn
+    # steepest slope of the low-pass step response, plus the high-pass's own decay per tick
+    bound = k * step * (wn * dt / np.e) * 1.1 + 2.0 * max(p.rotational_wn) * k * step * dt
+    assert jump[wn] <= bound
+    assert jump[wn] < 0.1 * jump[0.0]

@@ -18,7 +18,7 @@ G = 9.80665
 DT = 1.0 / 120.0
 
 
-@pytest.mark.parametrize("name", ["default", "gentle"])
+@pytest.mark.parametrize("name", ["default", "gentle", "telemetry"])
 def test_presets_load_and_round_trip_exactly(name, tmp_path):
     p = WashoutParams.preset(name)
     assert WashoutParams.from_dict(p.to_dict()) == p
@@ -52,17 +52,20 @@ def test_default_follows_the_simona_structure():
     assert gentle.tilt_angle_limit_deg < p.tilt_angle_limit_deg
 
 
-@pytest.mark.parametrize("name", ["default", "gentle"])
+@pytest.mark.parametrize("name", ["default", "gentle", "telemetry"])
 def test_worst_single_axis_inputs_stay_inside_the_ceart_reach(name):
     """Inputs at the saturation limits, one axis at a time, with margin to the reach."""
     p = WashoutParams.preset(name)
     n = int(40.0 / DT)
     margin = 0.9
+    # DESIGN.md, "Geometry defaults": surge 0.36 m forward and 0.30 m back, sway +-0.31 m,
+    # heave 0.12 m down (+z) and 0.20 m up, roll +-19.0 deg, pitch 30.3 deg nose up and
+    # 17.6 deg nose down, yaw +-48.9 deg
     reach_up = np.array(
-        [0.31, 0.31, 0.12, math.radians(17.6), math.radians(19.1), math.radians(48.9)]
+        [0.36, 0.31, 0.12, math.radians(19.0), math.radians(30.3), math.radians(48.9)]
     )
     reach_lo = -np.array(
-        [0.31, 0.31, 0.20, math.radians(17.6), math.radians(19.1), math.radians(48.9)]
+        [0.30, 0.31, 0.20, math.radians(19.0), math.radians(17.6), math.radians(48.9)]
     )
     for axis in range(6):
         for sign in (1.0, -1.0):
@@ -114,6 +117,16 @@ def _base() -> dict:
         (lambda d: d.update(method="euler"), "method"),
         (lambda d: d["tilt"].update(zeta="one"), "expected a number"),
         (lambda d: d.update(translational=3), r"\[translational\] must be a table"),
+        # strict types (issue 13, item 12): never converted
+        (lambda d: d["scaling"].update(specific_force_gain="0.5"), "specific_force_gain.*'0.5'"),
+        (
+            lambda d: d["scaling"].update(specific_force_gain=["0.5", "0.5", "0.5"]),
+            "specific_force_gain.*'0.5'",
+        ),
+        (lambda d: d["translational"].update(wn=True), "translational.wn.*True"),
+        (lambda d: d["rotational"].update(zeta=[1.0, True, 1.0]), "rotational.zeta.*True"),
+        (lambda d: d["tilt"].update(angle_limit_deg=False), "tilt.angle_limit_deg.*False"),
+        (lambda d: d.update(g="9.8"), "'g'.*expected a number"),
     ],
 )
 def test_bad_values_give_a_clear_config_error(edit, match):
@@ -148,6 +161,26 @@ def test_tilt_accel_limit_is_optional_in_files_written_before_it():
     assert p.tilt_accel_limit_deg_s2 == DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
     assert p.tilt_accel_limit == pytest.approx(math.radians(DEFAULT_TILT_ACCEL_LIMIT_DEG_S2))
     assert WashoutParams.from_dict(p.to_dict()) == p  # written back with the key
+
+
+def test_input_table_is_optional_and_checked():
+    """Files (and MCAP metadata) written before the input low-pass existed have no [input]:
+    no low-pass. A negative frequency is an error, one above Nyquist too (at the filter)."""
+    d = copy.deepcopy(_base())
+    d.pop("input", None)
+    p = WashoutParams.from_dict(d, source="old.toml")
+    assert p.input_lowpass_wn == 0.0
+    assert WashoutParams.from_dict(p.to_dict()) == p
+    d["input"] = {"lowpass_wn": -1.0}
+    with pytest.raises(ConfigError, match=r"^my\.toml: field 'input\.lowpass_wn'"):
+        WashoutParams.from_dict(d, source="my.toml")
+    d["input"] = {"lowpass_hz": 1.0}
+    with pytest.raises(ConfigError, match="unknown field 'lowpass_hz'"):
+        WashoutParams.from_dict(d, source="my.toml")
+    d["input"] = {"lowpass_wn": 500.0}
+    fast = WashoutParams.from_dict(d, source="my.toml")
+    with pytest.raises(ConfigError, match="Nyquist"):
+        ClassicalWashout(fast, DT)
 
 
 def test_direct_construction_is_validated_too():
@@ -195,3 +228,11 @@ def test_any_valid_parameter_set_round_trips_exactly(gains, pos, angle, method, 
     )
     assert WashoutParams.from_dict(p.to_dict()) == p
     assert WashoutParams.from_dict(json.loads(json.dumps(p.to_dict()))) == p
+
+
+def test_a_geometry_file_given_as_washout_is_named_for_what_it_is():
+    from motionbase.config import preset_path, read_toml
+
+    for kind, name in (("rus6", "ceart"), ("rrr3", "udesc")):
+        with pytest.raises(ConfigError, match=r"^g.toml: this is a .* geometry file"):
+            WashoutParams.from_dict(read_toml(preset_path(kind, name)), source="g.toml")

@@ -8,6 +8,7 @@ functions; tests call them directly too. Each returns a :class:`JobResult` whose
 from __future__ import annotations
 
 import math
+import os
 import sys
 import tempfile
 import time
@@ -19,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.config import resolve_preset_or_path
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, resolve_preset_or_path
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -32,6 +33,17 @@ from motionbase.pipeline import (
 )
 
 RECORDINGS = Path("recordings")
+
+
+def user_recordings_dir() -> Path:
+    """Where ``stream`` logs when not told: ``$XDG_DATA_HOME/motionbase/recordings``, by
+    default ``~/.local/share/motionbase/recordings`` (the log writer creates it on demand), so
+    a live session leaves nothing in the folder it ran from, a checkout say.
+    """
+    base = os.environ.get("XDG_DATA_HOME", "")
+    if not os.path.isabs(base):  # unset, empty or relative: the XDG default
+        base = os.path.join(os.path.expanduser("~"), ".local", "share")
+    return Path(base) / "motionbase" / "recordings"
 
 
 # --------------------------------------------------------------------------- configuration
@@ -63,11 +75,9 @@ def load_config(
     from motionbase.washout import WashoutParams
 
     if planar:
-        geometry = Rrr3Geometry.from_toml(
-            resolve_preset_or_path("rrr3", platform or "udesc_symmetric")
-        )
+        geometry = Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", platform or DEFAULT_RRR3))
     else:
-        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or "ceart"))
+        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or DEFAULT_RUS6))
     params = WashoutParams.from_toml(resolve_preset_or_path("washout", washout or "default"))
     return PipelineConfig(
         robot="rrr3" if planar else "rus6", geometry=geometry, washout=params, rate_hz=rate_hz
@@ -274,23 +284,19 @@ def _drive_stoppable(
 
     sinks: list[Any] = []
     try:
-        log = (
-            PipelineLog(
-                out,
-                run_metadata(config, source),
-                health=pipeline.health.as_dict,
-                planar=config.robot == "rrr3",
-            )
-            if out
-            else None
-        )
-        if log is not None:
-            log.__enter__()
-            sinks.append(log)
         try:
-            for sink in extra_sinks or []:
+            for sink in extra_sinks or []:  # first: a port that will not open leaves no log
                 sink.__enter__()
                 sinks.append(sink)
+            if out:
+                log = PipelineLog(
+                    out,
+                    run_metadata(config, source),
+                    health=pipeline.health.as_dict,
+                    planar=config.robot == "rrr3",
+                )
+                log.__enter__()
+                sinks.insert(0, log)  # the log stays the first sink, closed last
             summary = run(
                 pipeline,
                 source,
@@ -426,9 +432,17 @@ def replay(
     outputs : list of str, optional
         Motor-drive output URLs. With them the replay runs in real time, paced by the
         pipeline's loop at the configured rate; the recording's own times never pace it
-        (a jump or a gap in them is the validation stage's business).
+        (a jump or a gap in them is the validation stage's business). They need
+        ``platform``: motors are driven only with the limits of the user's own geometry,
+        never with the geometry stored in a recording.
     stop : StopRequest, optional
         As for :func:`fly`.
+
+    Raises
+    ------
+    ConfigError
+        ``out`` is the recording itself; ``outputs`` without ``platform``; a recorded
+        configuration with wrong, non-finite or inverted limits.
     """
     with _stopping(stop) as stop:
         return _replay(
@@ -452,8 +466,20 @@ def _replay(
     from motionbase.io.mcap_source import McapSource, read_messages
 
     src_path = Path(path)
+    if out is not None and _same_file(src_path, Path(out)):
+        raise ConfigError(
+            f"--out {out} is the recording being replayed ({src_path}): writing it would destroy "
+            "it; give another file"
+        )
+    if outputs and platform is None:
+        raise ConfigError(
+            "replay --output drives motors: give --platform with your own geometry (preset or "
+            "TOML); a recording's stored geometry and limits never drive motors"
+        )
     with McapSource(src_path) as source:
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
+        if recorded is not None and not isinstance(recorded, dict):
+            raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
         if recorded is not None and platform is None and washout is None and planar is None:
             config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
         else:
@@ -483,6 +509,11 @@ def _replay(
                 stop=stop,
             )
             result.notes.extend(notes)
+            if source.malformed:
+                result.notes.append(
+                    f"warning: {src_path}: {source.malformed} malformed aircraft states rejected "
+                    f"and held (first: {source.first_malformed})"
+                )
             if check:
                 report = compare_recordings(read_messages(src_path), read_messages(out_path))
                 result.notes.extend(report.lines())
@@ -493,6 +524,14 @@ def _replay(
             if tmp is not None:
                 tmp.cleanup()
     return result
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (through symlinks, hard links, ``..``)."""
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
 
 
 class StatusLine:
@@ -571,6 +610,7 @@ def stream(
     busy_wait: bool = False,
     progress: bool = True,
     outputs: list[str] | None = None,
+    source_url: str | None = None,
     stop: StopRequest | None = None,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
@@ -587,13 +627,15 @@ def stream(
     rate_hz : float
         Pipeline rate, Hz (the stream is resampled to it by holding the latest sample).
     platform, washout, planar :
-        As for :func:`fly`.
+        As for :func:`fly`, but the washout defaults to the ``telemetry`` preset (an input
+        low-pass for sparse telemetry and the gentle gains: real flights stay inside the
+        platform's reach).
     serial : str, optional
         Planar mode: a pyserial URL of the 3-RRR's Arduino.
     duration_s : float, optional
         Stop (and park) after this long, s.
     out : path, optional
-        MCAP log; default ``recordings/stream-<UTC time>.mcap``.
+        MCAP log; default ``stream-<UTC time>.mcap`` in :func:`user_recordings_dir`.
     realtime : bool
         For log files: replay at the recorded timing (True) or as fast as possible.
     busy_wait : bool
@@ -601,6 +643,9 @@ def stream(
     outputs : list of str, optional
         Motor-drive output URLs (see :func:`fly`). A log file then replays in real time,
         paced by the pipeline's loop (``realtime`` aside).
+    source_url : str, optional
+        A simulator instead of MAVLink: ``fgnative:udp:HOST:PORT`` (FlightGear) or
+        ``xplane:HOST:PORT`` (X-Plane), see :func:`motionbase.io.sources.open_live_source`.
     stop : StopRequest, optional
         As for :func:`fly`.
     """
@@ -609,7 +654,7 @@ def stream(
             mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
             platform=platform, washout=washout, planar=planar, serial=serial,
             duration_s=duration_s, out=out, realtime=realtime, busy_wait=busy_wait,
-            progress=progress, outputs=outputs, stop=stop,
+            progress=progress, outputs=outputs, source_url=source_url, stop=stop,
         )  # fmt: skip
 
 
@@ -630,20 +675,24 @@ def _stream(
     busy_wait: bool,
     progress: bool,
     outputs: list[str] | None,
+    source_url: str | None,
     stop: StopRequest,
 ) -> JobResult:
-    from motionbase.io.mavlink_source import MavlinkSource
+    from motionbase.io.sources import open_live_source, stats_line
 
     _check_duration(duration_s)
     if serial and not planar:
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
-    config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
+    config = load_config(
+        planar=planar, platform=platform, washout=washout or "telemetry", rate_hz=rate_hz
+    )
     if out is None:
-        out = RECORDINGS / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
-    source = MavlinkSource(
-        mavlink,
+        out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+    source = open_live_source(
+        source_url,
+        mavlink=mavlink,
         rate_hz=rate_hz,
         sysid=sysid,
         compid=compid,
@@ -660,7 +709,7 @@ def _stream(
         status = StatusLine(source) if progress else None
         try:
             result = _drive(
-                f"streamed {mavlink}",
+                f"streamed {source_url or mavlink}",
                 config,
                 source,
                 Path(out),
@@ -678,13 +727,7 @@ def _stream(
                     status.close()
                 except OSError:  # a closed terminal
                     pass
-        st = source.stats
-        result.notes.append(
-            f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
-            f"{st.rejected} rejected (other system {st.rejected_sysid}, signature "
-            f"{st.rejected_signature}, invalid {st.rejected_invalid}), {st.bad_data} garbled; "
-            f"{st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps"
-        )
+        result.notes.append(stats_line(source))
     return result
 
 

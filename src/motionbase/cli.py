@@ -14,7 +14,8 @@ import sys
 from collections.abc import Callable, Sequence
 
 from motionbase import __version__
-from motionbase.errors import MotionbaseError
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
+from motionbase.errors import ConfigError, MotionbaseError
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
 _Command = tuple[
@@ -37,7 +38,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse that exits with status 2 and a one-line message (its default, kept explicit)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"motionbase {self.prog.split()[-1]}: error: {message} (see --help)\n")
+        # prog is "motionbase" for the top-level parser, "motionbase fly" for a subcommand
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, help_text, add_arguments, run in COMMANDS:
         p = sub.add_parser(name, help=help_text, description=help_text)
         add_arguments(p)
-        p.set_defaults(_run=run)
+        p.set_defaults(_run=run, _parser=p)
     return parser
 
 
@@ -70,7 +72,9 @@ def _setup_logging() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # name the subcommand that does not know them, not the top-level parser
+        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
@@ -136,7 +140,7 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--platform",
-        help="geometry preset or TOML path (default ceart; udesc_symmetric with --planar)",
+        help=f"geometry preset or TOML path (default {DEFAULT_RUS6}; {DEFAULT_RRR3} with --planar)",
     )
     p.add_argument("--washout", help="washout preset (default, gentle) or TOML path")
     p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot instead")
@@ -198,10 +202,15 @@ def run_replay(args: argparse.Namespace) -> int:
 def _args_workspace(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--platform",
-        default="ceart",
-        help="6-RUS geometry preset name or TOML path (default ceart)",
+        metavar="PRESET|FILE.toml",
+        help=f"geometry preset name or TOML path: the 6-RUS (default {DEFAULT_RUS6}), or with "
+        f"--planar the 3-RRR (default {DEFAULT_RRR3})",
     )
-    p.add_argument("--plot", metavar="FILE.png", help="draw the workspace slices to this PNG")
+    p.add_argument(
+        "--plot",
+        metavar="FILE.png|.svg|.pdf",
+        help="draw the workspace to this file, in the format its extension names",
+    )
     p.add_argument(
         "--planar",
         action="store_true",
@@ -209,9 +218,8 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rrr3",
-        default="udesc",
         metavar="PRESET|FILE.toml",
-        help="3-RRR geometry for --planar (default udesc)",
+        help=f"with --planar, the same as --platform: the 3-RRR geometry (default {DEFAULT_RRR3})",
     )
 
 
@@ -224,10 +232,17 @@ def run_workspace(args: argparse.Namespace) -> int:
     if args.planar:
         from motionbase.io.planar_plots import planar_workspace_report
 
-        print(planar_workspace_report(args.rrr3, args.plot))
+        if args.platform and args.rrr3 and args.platform != args.rrr3:
+            raise ConfigError(
+                f"--platform {args.platform} and --rrr3 {args.rrr3} both name the 3-RRR "
+                "geometry with --planar: give one of them"
+            )
+        print(planar_workspace_report(args.platform or args.rrr3, args.plot))
     else:
         from motionbase.io.workspace_plots import rus6_workspace_report
 
+        if args.rrr3:
+            raise ConfigError(f"--rrr3 {args.rrr3} names a 3-RRR geometry: add --planar")
         print(rus6_workspace_report(args.platform, args.plot))
     return 0
 
@@ -257,9 +272,9 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
     p.add_argument(
         "--rrr3",
-        default="udesc_symmetric",
+        default=DEFAULT_RRR3,
         metavar="PRESET|FILE.toml",
-        help="3-RRR geometry (default udesc_symmetric; the thesis's robot as built: udesc)",
+        help=f"3-RRR geometry (default {DEFAULT_RRR3}; the thesis's robot as built: udesc)",
     )
     p.add_argument(
         "--no-clamp",
@@ -293,6 +308,12 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
         help="pymavlink connection string or .tlog/.bin file "
         "(default udpin:127.0.0.1:14550, loopback only)",
     )
+    p.add_argument(
+        "--source",
+        metavar="URL",
+        help="a simulator instead of MAVLink: fgnative:udp:HOST:PORT (FlightGear) "
+        "or xplane:HOST:PORT (X-Plane)",
+    )
     p.add_argument("--sysid", type=int, default=1, help="accept this system id only (default 1)")
     p.add_argument("--compid", type=int, help="accept this component id only")
     p.add_argument(
@@ -313,12 +334,15 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fast", action="store_true", help="log files: as fast as possible")
     _add_busy_wait_option(p)
     p.add_argument(
-        "--out", metavar="FILE.mcap", help="log file (default recordings/stream-<time>.mcap)"
+        "--out",
+        metavar="FILE.mcap",
+        help="log file (default ~/.local/share/motionbase/recordings/stream-<time>.mcap, "
+        "under $XDG_DATA_HOME when set)",
     )
     _add_output_option(p)
 
 
-@command("stream", "drive the platform from live MAVLink telemetry until Ctrl-C", _args_stream)
+@command("stream", "drive the platform live from MAVLink, FlightGear or X-Plane", _args_stream)
 def run_stream(args: argparse.Namespace) -> int:
     return _job(
         "stream",
@@ -336,6 +360,7 @@ def run_stream(args: argparse.Namespace) -> int:
         realtime=not args.fast,
         busy_wait=args.busy_wait,
         outputs=args.output,
+        source_url=args.source,
     )
 
 
@@ -408,7 +433,8 @@ def _args_output(p: argparse.ArgumentParser) -> None:
 
 @command(
     "output",
-    "check motor wiring and signs: sweep each motor slowly about neutral, one at a time",
+    "check motor wiring and signs: sweep each motor slowly about neutral, one at a time "
+    "(Ctrl-C ramps the motors back to park)",
     _args_output,
 )
 def run_output(args: argparse.Namespace) -> int:

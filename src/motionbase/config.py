@@ -47,6 +47,14 @@ def write_toml(path: str | Path, data: Mapping[str, Any]) -> None:
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
 
 
+#: The 6-RUS geometry every command uses when none is named.
+DEFAULT_RUS6 = "ceart"
+#: The 3-RRR geometry every command uses when none is named (``fly --planar``, ``stream
+#: --planar``, ``teleop``, ``workspace --planar``): the thesis's robot with its servo horns
+#: remounted for the well-conditioned working mode (``udesc`` is the robot as built).
+DEFAULT_RRR3 = "udesc_symmetric"
+
+
 def preset_path(kind: str, name: str) -> Path:
     """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
     base = resources.files("motionbase") / "presets"
@@ -84,6 +92,13 @@ def check_keys(
         raise ConfigError(f"{source}: missing field {missing[0]!r} (add it)")
 
 
+def is_number(value: Any) -> bool:
+    """True for an int or float (numpy's too); False for bool, strings and everything else."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
 def as_float(
     source: str,
     name: str,
@@ -93,8 +108,8 @@ def as_float(
     strict_min: bool = False,
     unit: str = "",
 ) -> float:
-    """Validate a finite scalar, optionally bounded below."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    """Validate a finite scalar (a number: never a bool or a string), optionally bounded below."""
+    if not is_number(value):
         raise ConfigError(f"{source}: field {name!r}: expected a number, got {value!r}")
     v = float(value)
     if not np.isfinite(v):
@@ -111,23 +126,93 @@ def as_float(
 
 
 def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
-    """Validate a list of exactly ``length`` finite numbers."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ConfigError(
-            f"{source}: field {name!r}: expected {length} numbers, got {value!r}"
-        ) from None
-    if arr.ndim == 0:
-        arr = np.full(length, float(arr))
+    """Validate a list of exactly ``length`` finite numbers (or one number for all of them).
+
+    Types are strict: a bool, a string or a list holding one is refused, never converted
+    (``true`` is not 1.0, ``"0.5"`` is not 0.5).
+    """
+    what = f"{source}: field {name!r}: expected {length} numbers"
+    if is_number(value):
+        arr = np.full(length, float(value))
+    elif isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
+        arr = value.astype(float)
+        if arr.ndim == 0:
+            arr = np.full(length, float(arr))
+    elif isinstance(value, (list, tuple, np.ndarray)):
+        items = list(value)
+        for item in items:
+            if not is_number(item):
+                raise ConfigError(f"{what}, got {item!r} in {_short(value)} (write a number)")
+        arr = np.array([float(v) for v in items], dtype=float)
+    else:
+        raise ConfigError(f"{what} (or one number for all), got {_short(value)}")
     if arr.shape != (length,):
-        raise ConfigError(
-            f"{source}: field {name!r}: expected {length} numbers, got {arr.size} "
-            "(fix the list length)"
-        )
+        raise ConfigError(f"{what}, got {arr.size} (fix the list length)")
     if not np.isfinite(arr).all():
         raise ConfigError(f"{source}: field {name!r}: every value must be finite")
     return arr
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+# Fields that only one kind of configuration file has, and what to do with such a file.
+_FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
+    "washout": (
+        frozenset({"scaling", "translational", "tilt", "rotational"}),
+        "a washout parameter file (give it with --washout)",
+    ),
+    "rus6": (
+        frozenset(
+            {"rb", "rp", "chi_a", "chi_a_deg", "chi_j", "chi_j_deg", "beta", "beta_deg"}
+            | {"neutral_height", "neutral_angle_deg", "angle_min", "angle_min_deg"}
+        ),
+        "a 6-RUS geometry file (give it with --platform, without --planar)",
+    ),
+    "rrr3": (
+        frozenset({"base_side", "platform_side", "modes", "servo", "safety"}),
+        "a 3-RRR geometry file (give it with --platform and --planar)",
+    ),
+}
+_KIND_NAMES = {
+    "washout": "washout parameters",
+    "rus6": "a 6-RUS geometry",
+    "rrr3": "a 3-RRR geometry",
+}
+
+
+def check_file_kind(source: str, table: Any, expected: str) -> None:
+    """Refuse a table that is plainly another kind of file (a washout file as a geometry...).
+
+    Parameters
+    ----------
+    source : str
+        Named in the message (the file).
+    table : mapping
+        The parsed file.
+    expected : {"washout", "rus6", "rrr3"}
+        What the caller reads.
+
+    Raises
+    ------
+    ConfigError
+        ``table`` has fields only another kind of file has and none of ``expected``'s.
+    """
+    if not isinstance(table, Mapping):
+        return
+    keys = set(table)
+    if keys & _FILE_KINDS[expected][0]:
+        return  # its own fields are there: the field checks say what is wrong
+    declared = table.get("kind")
+    found = [k for k, (marks, _) in _FILE_KINDS.items() if k != expected and keys & marks]
+    if isinstance(declared, str) and declared in _FILE_KINDS and declared != expected:
+        found.insert(0, declared)
+    if not found:
+        return
+    other = found[0]
+    raise ConfigError(f"{source}: this is {_FILE_KINDS[other][1]}, not {_KIND_NAMES[expected]}")
 
 
 def _plain(obj: Any) -> Any:

@@ -16,15 +16,26 @@ Stages of one tick
 ------------------
 1. *Validation*: a non-finite or absurd sample, or one whose time does not
    advance, is rejected, counted and replaced by the last valid sample (a hold).
-   A forward time jump longer than ``stale_timeout_s`` resets the washout (as on
-   aircraft load) and fades the motion back in.
-2. *Washout* (:class:`~motionbase.washout.ClassicalWashout`) -> pose.
-3. *Watchdog fade*: when the source marks its samples stale the washout pose is
-   faded toward neutral over ``fade_s``; when fresh samples return it fades back.
+2. *Watchdog fade*: the input is *stale* when the source marks its samples stale
+   or when no sample was accepted for longer than ``stale_timeout_s`` (a source
+   sending only garbage). While stale, the washout's input fades from the held
+   sample toward level flight (``f = (0, 0, -g)``, no rotation) over ``fade_s``;
+   when fresh samples return it fades back into them. A forward time jump longer
+   than ``stale_timeout_s`` (a replay's gap, a reloaded aircraft) restarts the
+   input from level flight and fades it into the new samples.
+   The fade acts on the washout's *input*, never on its output pose: the platform
+   goes back to neutral (and resumes) through the washout's own filters, the tilt
+   within its rate limit, so a fade gives no motion the washout would not give
+   for an aircraft easing back to level flight. Scaling the output pose instead
+   moved the platform faster than any cue (a tilt removed at 12 deg/s) and, when a
+   fade turned back, stepped its speed (a spike the limiter then had to brake);
+   the filters keep their state across a jump for the same reason: a reset would
+   step the pose.
+3. *Washout* (:class:`~motionbase.washout.ClassicalWashout`) -> pose.
 4. *Soft start / stop*: the commanded pose blends from the park pose to the live
    pose over ``soft_start_s`` (and back on stop).
 5. *Clamp*: the robot's workspace clamp scales the whole pose toward neutral;
-   when it acts during normal running the washout is told (anti-windup).
+   when it acts while running the washout is told (anti-windup).
 6. *Inverse kinematics* -> actuator angles.
 7. *Safety* (:mod:`motionbase.safety`): finite, inside the angle limits, within
    the speed and acceleration limits, else the last safe command is held.
@@ -49,6 +60,7 @@ import numba
 import numpy as np
 
 from motionbase import __version__
+from motionbase.config import as_float
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import wait_until
 from motionbase.platform._rus6_kernels import _inverse_row, _within, clamp_inverse_one
@@ -93,9 +105,11 @@ class PipelineConfig:
     soft_start_s : float
         Time to blend from the park pose to the live command, s (and back on stop).
     stale_timeout_s : float
-        A forward jump of the source time longer than this resets the washout, s.
+        No sample accepted for longer than this makes the input stale, and a forward
+        jump of the source time longer than this restarts the input from level flight, s.
     fade_s : float
-        Watchdog fade time to neutral (and back) when the source goes stale, s.
+        Watchdog fade time of the washout's input to level flight (and back) when the
+        input goes stale, s.
     planar_scale_m : float
         Planar mode: metres of robot x/y per metre of washout surge/sway.
     planar_yaw_scale : float
@@ -120,8 +134,18 @@ class PipelineConfig:
             raise ConfigError(f"robot must be 'rus6' or 'rrr3', got {self.robot!r}")
         for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float, np.integer, np.floating))
+                and np.isfinite(value)
+                and value > 0
+            ):
                 raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
+        for name in ("planar_scale_m", "planar_yaw_scale"):
+            as_float("pipeline", name, getattr(self, name))
+        if not isinstance(self.input_limits, InputLimits):
+            raise ConfigError(
+                f"pipeline: input_limits must be InputLimits, got {self.input_limits!r}"
+            )
         if self.rate_hz > 10_000:
             raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
         if self.rate_hz < MIN_RATE_HZ:
@@ -163,20 +187,37 @@ class PipelineConfig:
         from motionbase.platform import Rrr3Geometry, Rus6Geometry
         from motionbase.washout import WashoutParams
 
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: expected a table of settings, got {data!r:.60}")
+        robot = data.get("robot")
+        if robot not in ("rus6", "rrr3"):
+            raise ConfigError(f"{source}: field 'robot': expected 'rus6' or 'rrr3', got {robot!r}")
+        pipe = data.get("pipeline", {})
+        limits = pipe.get("input_limits", {}) if isinstance(pipe, dict) else None
+        if not isinstance(limits, dict):
+            raise ConfigError(f"{source}: 'pipeline' and its 'input_limits' must be tables")
+        pipe = {k: v for k, v in pipe.items() if k != "input_limits"}
+        known = {f.name for f in fields(cls)} - {"robot", "geometry", "washout", "input_limits"}
+        unknown = sorted(set(pipe) - known) or sorted(
+            set(limits) - {f.name for f in fields(InputLimits)}
+        )
+        if unknown:
+            raise ConfigError(f"{source}: unknown pipeline setting {unknown[0]!r}")
+        for key in ("geometry", "washout"):
+            if key not in data:
+                raise ConfigError(f"{source}: missing field {key!r}")
+        geometry_cls = Rus6Geometry if robot == "rus6" else Rrr3Geometry
         try:
-            robot = data["robot"]
-            geometry_cls = Rus6Geometry if robot == "rus6" else Rrr3Geometry
-            pipe = dict(data.get("pipeline", {}))
-            limits = InputLimits(**pipe.pop("input_limits", {}))
             return cls(
                 robot=robot,
                 geometry=geometry_cls.from_dict(data["geometry"], source=f"{source}: geometry"),
                 washout=WashoutParams.from_dict(data["washout"], source=f"{source}: washout"),
-                input_limits=limits,
+                input_limits=InputLimits(**limits),
                 **pipe,
             )
-        except (KeyError, TypeError) as exc:
-            raise ConfigError(f"{source}: incomplete or unknown field ({exc})") from None
+        except ConfigError as exc:  # settings and input limits: say where they came from
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 
 
 # --------------------------------------------------------------------------- robots
@@ -323,7 +364,8 @@ class PipelineOutput(NamedTuple):
     accepted : bool
         False when validation rejected the sample (the last valid one was held).
     washout_pose : ndarray, shape (6,)
-        Washout output ``[x, y, z, roll, pitch, yaw]`` (m, rad) before fades and clamping.
+        Washout output ``[x, y, z, roll, pitch, yaw]`` (m, rad), before the soft start and
+        clamping (a watchdog fade acts on its input).
     platform_pose : ndarray, shape (6,) or (3,)
         The pose the actuators realise: 6-RUS pose, or planar ``[x, y, phi]``.
     clamped : bool
@@ -339,7 +381,8 @@ class PipelineOutput(NamedTuple):
     phase : str
         ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
     fade : float
-        Watchdog fade factor in [0, 1] (1 = full motion).
+        Watchdog fade in [0, 1]: the share of the held sample's deviation from level
+        flight given to the washout (1 = the aircraft's motion, 0 = level flight).
     """
 
     t: float
@@ -402,8 +445,9 @@ class Health:
 _S_T, _S_TVALID, _S_PHASE, _S_BLEND, _S_FADE, _S_STALE, _S_ESTOP, _S_HAS_LAST = range(8)
 _S_LAST = 8  # held sample: specific force (3), angular velocity (3)
 _S_Q, _S_V, _S_WANTED, _S_POSE = 14, 20, 26, 32  # 6 each
-_S_VNEW = 38  # scratch: the limiter's new speeds
-_NS = 44
+_S_TACC = 38  # time of the last accepted sample
+_S_VNEW = 39  # scratch: the limiter's new speeds
+_NS = 45
 _PHASES = ("starting", "running", "stopping", "parked")
 _PHASE_CODES = {name: float(k) for k, name in enumerate(_PHASES[:3])}
 
@@ -457,12 +501,12 @@ def _make_rus6_tick(stamp: str):
     def rus6_tick(cf, st, G, c, s, t, f, w, att, fresh, wpose, pose, q):  # pragma: no cover
         """One 6-RUS tick, exactly :meth:`Pipeline.step_reference` but forward kinematics.
 
-        Validation -> washout -> watchdog fade -> soft start/stop -> clamp + inverse
-        (+ anti-windup track) -> safety limiter. Writes the washout pose, the clamped
-        pose and the command into ``wpose``, ``pose``, ``q``; updates the washout state
-        ``st`` and the pipeline state ``s``; returns the status bits (``_F_*``). When
-        the limiter changed the command, ``s``'s pose is left at the previous tick's
-        (the caller solves the forward kinematics from it).
+        Validation -> watchdog fade of the washout's input -> washout -> soft start/stop
+        -> clamp + inverse (+ anti-windup track) -> safety limiter. Writes the washout
+        pose, the clamped pose and the command into ``wpose``, ``pose``, ``q``; updates
+        the washout state ``st`` and the pipeline state ``s``; returns the status bits
+        (``_F_*``). When the limiter changed the command, ``s``'s pose is left at the
+        previous tick's (the caller solves the forward kinematics from it).
         """
         if len(stamp) == 0:  # the stamp only keys the cache
             return -1
@@ -477,25 +521,18 @@ def _make_rus6_tick(stamp: str):
         if accepted:
             if have_t and t - s[_S_T] > c[_C_STALE_TIMEOUT]:
                 flags |= _F_TIME_JUMP
-                st[:] = 0.0
-                s[_S_FADE] = 0.0
+                s[_S_FADE] = 0.0  # the input restarts from level flight (no filter reset)
             s[_S_HAS_LAST] = 1.0
             for i in range(3):
                 s[_S_LAST + i] = f[i]
                 s[_S_LAST + 3 + i] = w[i]
             s[_S_T] = t
+            s[_S_TACC] = t
         else:
             s[_S_T] = (s[_S_T] if have_t else 0.0) + dt
         s[_S_TVALID] = 1.0
-        # 2. washout on the held sample (level flight before any)
-        if s[_S_HAS_LAST] != 0.0:
-            u = s[_S_LAST : _S_LAST + 6]
-        else:
-            u = c[_C_LEVEL : _C_LEVEL + 6]
-        if not _step(cf, st, u, wpose):
-            return flags | _F_WASHOUT_ERROR
-        # 3. watchdog fade
-        if not fresh:
+        # 2. watchdog fade of the washout's input (stale: marked so, or nothing accepted)
+        if not fresh or s[_S_T] - s[_S_TACC] > c[_C_STALE_TIMEOUT]:
             if s[_S_STALE] == 0.0:
                 flags |= _F_FADE_START
             s[_S_STALE] = 1.0
@@ -506,7 +543,19 @@ def _make_rus6_tick(stamp: str):
             x = s[_S_FADE] + c[_C_FADE_STEP]
             fade = x if x < 1.0 else 1.0
         s[_S_FADE] = fade
-        sf = 1.0 if fade == 1.0 else _smooth(fade)
+        # 3. washout on the held sample (level flight before any), faded toward level flight
+        if s[_S_HAS_LAST] == 0.0:
+            u = c[_C_LEVEL : _C_LEVEL + 6]
+        elif fade == 1.0:
+            u = s[_S_LAST : _S_LAST + 6]
+        else:
+            sf = _smooth(fade)
+            u = np.empty(6)
+            for i in range(6):
+                lv = c[_C_LEVEL + i]
+                u[i] = lv + sf * (s[_S_LAST + i] - lv)
+        if not _step(cf, st, u, wpose):
+            return flags | _F_WASHOUT_ERROR
         # 4. soft start / stop
         phase = s[_S_PHASE]
         blend = s[_S_BLEND]
@@ -523,12 +572,11 @@ def _make_rus6_tick(stamp: str):
         b = _smooth(blend)
         target = np.empty(6)
         for i in range(6):
-            live = wpose[i] if fade == 1.0 else sf * wpose[i]
             if b < 1.0:
                 p0 = c[_C_PARK_POSE + i]
-                target[i] = p0 + b * (live - p0)
+                target[i] = p0 + b * (wpose[i] - p0)
             else:
-                target[i] = live
+                target[i] = wpose[i]
         # 5. clamp (+ anti-windup), 6. inverse kinematics; park by its angles exactly
         wanted = np.empty(6)
         clamped = False
@@ -544,7 +592,7 @@ def _make_rus6_tick(stamp: str):
             clamped = clamp_inverse_one(target, G, pose, wanted)
         if clamped:
             flags |= _F_CLAMPED
-            if phase == 1.0 and fade == 1.0 and accepted:
+            if phase == 1.0:  # the target is the washout's pose: tell it (anti-windup)
                 for i in range(6):
                     if not np.isfinite(pose[i]):
                         return flags | _F_WASHOUT_ERROR
@@ -749,6 +797,7 @@ class Pipeline:
         self._pose = self.robot.park_pose
         self._hold(None)
         self._t = None
+        self._s[_S_TACC] = 0.0
         self._phase = "starting"
         self._blend = 0.0  # 0 = park, 1 = live
         self._fade = 1.0
@@ -923,9 +972,9 @@ class Pipeline:
             )
             if problem is None:
                 if self._t is not None and state.t - self._t > cfg.stale_timeout_s:
-                    # the source stalled or jumped: filters restart, motion fades back in
+                    # the source stalled or jumped: the input restarts from level flight
+                    # and fades into the new samples (the filters keep the pose continuous)
                     h.time_jumps += 1
-                    self.washout.reset()
                     self._fade = 0.0
                 self._hold(state)
             else:
@@ -934,16 +983,13 @@ class Pipeline:
                 h.last_rejection = problem
         t = state.t if accepted else (self._t if self._t is not None else 0.0) + dt
         self._t = t
+        if accepted:
+            self._s[_S_TACC] = t
 
-        # 2. washout (a hold of the last valid sample, or level flight before any)
-        if not self._s[_S_HAS_LAST]:
-            f, w = self._level_f, self._zero3
-        else:
-            f, w = self._s[_S_LAST : _S_LAST + 3], self._s[_S_LAST + 3 : _S_LAST + 6]
-        washout_pose = self.washout.step(f, w)
-
-        # 3. watchdog fade
-        stale = not fresh
+        # 2. watchdog fade of the washout's input: stale when the source says so or when its
+        # samples were all rejected for longer than the stale timeout (a tick without a
+        # sample, after the source ended, holds the last one: the park ramp is in charge)
+        stale = not fresh or (state is not None and t - self._s[_S_TACC] > cfg.stale_timeout_s)
         if stale and not self._stale:
             h.watchdog_fades += 1
         self._stale = stale
@@ -951,7 +997,18 @@ class Pipeline:
         fade = self._fade
         fade = max(0.0, fade - step_fade) if stale else min(1.0, fade + step_fade)
         self._fade = fade
-        live6 = washout_pose if fade == 1.0 else smoothstep(fade) * washout_pose
+
+        # 3. washout on the held sample (level flight before any), faded toward level flight
+        if not self._s[_S_HAS_LAST]:
+            f, w = self._level_f, self._zero3
+        else:
+            f, w = self._s[_S_LAST : _S_LAST + 3], self._s[_S_LAST + 3 : _S_LAST + 6]
+            if fade != 1.0:
+                sf = smoothstep(fade)
+                f = self._level_f + sf * (f - self._level_f)
+                w = self._zero3 + sf * (w - self._zero3)
+        washout_pose = self.washout.step(f, w)
+        live6 = washout_pose
 
         # 4. soft start / stop blend
         step_blend = dt / cfg.soft_start_s
@@ -967,7 +1024,7 @@ class Pipeline:
         live = robot.pose_from_washout(live6)
         target = robot.park_pose + s * (live - robot.park_pose) if s < 1.0 else live
 
-        # 5. clamp (+ anti-windup while running at full motion), 6. inverse kinematics;
+        # 5. clamp (+ anti-windup while running), 6. inverse kinematics;
         # park is commanded by its angles exactly
         if phase == "stopping" and s == 0.0:
             pose, clamped, wanted = robot.park_pose, False, robot.park_angles
@@ -975,7 +1032,7 @@ class Pipeline:
             pose, clamped, wanted = robot.solve(target)
         if clamped:
             h.clamps += 1
-            if phase == "running" and fade == 1.0 and accepted:
+            if phase == "running":  # the target is the washout's pose (anti-windup)
                 self.washout.track(robot.washout_from_pose(pose, washout_pose))
 
         # 7. safety

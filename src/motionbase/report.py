@@ -97,6 +97,9 @@ class Report:
         Washout output before fades and clamping (m, rad).
     platform_pose : ndarray, shape (M, 6) or (M, 3)
         The realised pose as logged (6-RUS pose, or planar ``[x, y, phi]``).
+    tick_cab_pose : ndarray, shape (M, 6)
+        ``cab_pose`` on every tick (the stop phase included): the realised 6-RUS pose, or the
+        planar robot's motion mapped back to a full-size cab.
     actuators : ndarray, shape (M, n)
         6-RUS crank angles (rad), or planar servo commands (integer degrees, as float).
     actuator_unit : {"rad", "deg"}
@@ -133,6 +136,7 @@ class Report:
     tick_t: np.ndarray
     washout_pose: np.ndarray
     platform_pose: np.ndarray
+    tick_cab_pose: np.ndarray
     actuators: np.ndarray
     actuator_unit: str
     actuator_limits: np.ndarray
@@ -445,6 +449,7 @@ def build_report(
         tick_t=tick_t,
         washout_pose=washout_pose,
         platform_pose=platform_pose,
+        tick_cab_pose=cab_all,
         actuators=actuators,
         actuator_unit=unit,
         actuator_limits=limits,

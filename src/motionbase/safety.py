@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from motionbase.config import as_float
+
 # Command status bits returned by limit_command.
 OK = 0
 RATE_LIMITED = 1  # speed or acceleration limit changed the command
@@ -190,6 +192,14 @@ class InputLimits:
     max_specific_force: float = 150.0
     max_angular_velocity: float = 20.0
     max_attitude: float = 10.0
+
+    def __post_init__(self) -> None:
+        # a NaN bound would let every sample through (no comparison with NaN is true)
+        for name in ("max_specific_force", "max_angular_velocity", "max_attitude"):
+            value = as_float(
+                "input limits", name, getattr(self, name), min_value=0.0, strict_min=True
+            )
+            object.__setattr__(self, name, value)
 
 
 #: Sample times the pipeline accepts: 0 <= t <= MAX_SAMPLE_TIME_S (9.2e9 s, about 292 years).

@@ -10,7 +10,7 @@ Rules
 -----
 * A target that is still invalid after clamping (non-finite, unreachable, singular, out of
   servo range; or any target when clamping is off) is never sent: it is counted (``held``)
-  and the safety stage holds the last safe command (it brakes to a stop within the limits).
+  and the robot brakes to rest where it is (below).
 * Joint angles are expressed inside each servo's interval (:attr:`Rrr3.angle_limits`), the
   space in which the safety stage checks the limits; the servo degrees sent are always
   ``rrr3.to_servo(q)`` of the safety stage's output ``q``.
@@ -29,11 +29,24 @@ Rules
   the robot holds its position (brakes to a stop within the limits) until a new point
   arrives; counted in ``watchdog_fades`` (events) and ``stale_ticks``. A file source replays
   its own timing and has no watchdog.
-* E-stop (a :class:`~motionbase.pipeline.StopRequest`: SIGINT/SIGTERM via
-  :func:`~motionbase.pipeline.install_signal_stop`, or Escape/space in the mouse window):
-  the cursor is ignored and the robot goes home within the limits, then the loop ends.
-  The end of the input (file end, ``duration_s``, window closed) just stops the loop where the
-  robot is. The first tick sends home (keep the robot near home when powering up).
+* Braking: whenever the robot must stop where it is (a refused target, stale or no input, a
+  stop) every joint's speed is scaled down by one factor per tick, so the joints decelerate
+  within ``max_accel``, come to rest together and keep to the direction they were moving in;
+  the command still passes the safety stage.
+* Every stop ends the same way, at home and at rest: the end of the input (file end,
+  ``duration_s``, window closed) and an E-stop (a :class:`~motionbase.pipeline.StopRequest`:
+  SIGINT, SIGTERM, SIGHUP or SIGQUIT via :func:`motionbase.stop_signals.install_stop_signals`,
+  Escape/space in the mouse window, or a caller) first brake the robot to rest within the
+  speed and acceleration limits, then drive it home within them (the coordinated approach
+  above, from rest), then the loop ends. Home, not where the input left it, because the next
+  run's first tick sends home: a robot left elsewhere would jump there. The cursor is ignored
+  from the stop on. When home is not reached within ``max_park_s`` the robot brakes to rest
+  where it is. A stop asked before the loop starts (``teleop_job`` routes the signals before
+  it opens anything) sends the first tick's home command and ends. The first tick of every
+  run sends home (keep the robot near home when powering up).
+* A failing source or log (a socket error, a full disk) stops the run the same way, through
+  the serial sink, and is raised afterwards (a failing serial sink is the robot itself gone:
+  raised at once).
 
 Loop time is ``k / rate_hz`` for tick ``k``; a file source is looked up by that time and the
 serial sink rate-limits on it, so a replay produces the same commands however the loop is
@@ -49,16 +62,23 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.errors import ConfigError
-from motionbase.pipeline import StopRequest, install_signal_stop
+from motionbase.config import DEFAULT_RRR3
+from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.pipeline import StopRequest
 from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.rrr3 import OK, Rrr3
 from motionbase.safety import RATE_LIMITED, UNSAFE_TARGET, ActuatorLimits, limit_command
 
 __all__ = ["DEFAULT_GEOMETRY", "TeleopStats", "run_teleop", "teleop_job"]
 
-#: The planar robot teleop and the planar pipeline drive unless told otherwise.
-DEFAULT_GEOMETRY = "udesc_symmetric"
+#: The planar robot teleop and the planar pipeline drive unless told otherwise
+#: (:data:`motionbase.config.DEFAULT_RRR3`, one default for every command).
+DEFAULT_GEOMETRY = DEFAULT_RRR3
+
+# Phases of the loop: following the cursor; braking to rest after a stop or the end of the
+# input; going home from rest; braking to rest where it is when home was not reached within
+# ``max_park_s``; stopped at rest after that time ran out while braking.
+_RUN, _BRAKE, _HOME, _BRAKE_LAST, _DONE = range(5)
 
 
 @dataclass
@@ -72,6 +92,7 @@ class TeleopStats:
     clamps: int = 0  #: targets moved toward home into the workspace
     rate_limited: int = 0  #: ticks on which the target could not be reached in one tick
     safety_trims: int = 0  #: ticks on which the safety stage changed the command it was given
+    park_ticks: int = 0  #: ticks spent braking and going home after the stop (not counted above)
     stale_ticks: int = 0  #: ticks holding position because the input went stale
     watchdog_fades: int = 0  #: times the input went stale
     estops: int = 0
@@ -131,6 +152,19 @@ class _Limiter:
                 hi = f
         return best
 
+    def brake(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """The next command of a coordinated stop, through the safety stage.
+
+        Every joint's speed is scaled by one factor, so that all joints come to rest together
+        in the shortest time the slowest-braking joint allows (``max(|v| / max_accel)``): each
+        decelerates by at most its ``max_accel``, and the joints keep moving in the direction
+        they had (the mechanism stays on its path). Returns ``(q, v, status)`` as
+        :func:`~motionbase.safety.limit_command` does.
+        """
+        t_stop = float(np.max(np.abs(v) / self.limits.max_accel))  # s
+        scale = max(0.0, 1.0 - self.dt / t_stop) if t_stop > 0.0 else 0.0
+        return self(q, v, q, q + scale * v * self.dt)
+
     def __call__(self, q, v, q_target_prev, q_target):
         return limit_command(q, v, q_target_prev, q_target, self.dt, self.limits)
 
@@ -150,7 +184,8 @@ def run_teleop(
     stale_timeout_s: float = 0.5,
     max_park_s: float = 10.0,
 ) -> TeleopStats:
-    """Run the teleoperation loop until the source ends, ``duration_s`` passes or a stop.
+    """Run the teleoperation loop until the source ends, ``duration_s`` passes or a stop; then
+    brake to rest and go home, within the limits (see the module docstring).
 
     Parameters
     ----------
@@ -175,11 +210,11 @@ def run_teleop(
     clamp : bool
         Clamp unreachable targets toward home; when False they are held instead.
     stop : StopRequest, optional
-        Raised (by a signal, a key or a test) to E-stop: park at home, then return.
+        Raised (by a signal, a key or a test) to E-stop: brake to rest, go home, then return.
     stale_timeout_s : float
         Watchdog: hold position when a watched source gave no new point for this long, s.
     max_park_s : float
-        Longest time given to the E-stop park, s.
+        Longest time given to braking and going home after a stop, s.
 
     Returns
     -------
@@ -204,23 +239,39 @@ def run_teleop(
     q_target_prev = q.copy()  # the last goal's angles (the safety stage feeds its speed forward)
     watched = bool(getattr(source, "watchdog", False))
     stale = False
-    parking = False
+    phase = _RUN
     park_end = math.inf
     wants_show = hasattr(source, "view")
+    fault: Exception | None = None  # a failing source or log: park first, then raise it
+    source_ok = True
     start = time.monotonic()
     k = 0
     while True:
         t = k * dt
-        if not parking:
-            if stop:
-                parking = True
+        at_rest = not v.any()
+        if phase == _RUN:
+            why = ""
+            if fault is not None:
+                why = f"error: {fault}"
+            elif stop:
                 stats.estops += 1
-                stats.stopped_by = stop.reason or "stop"
+                why = stop.reason or "stop"
+            elif duration_s is not None and t > duration_s + 1e-9:
+                why = "duration"
+            elif source.finished(t):
+                why = "end of input"
+            if why:  # brake to rest, then home
+                stats.stopped_by = why
+                phase = _BRAKE
                 park_end = t + max_park_s
-            elif (duration_s is not None and t > duration_s + 1e-9) or source.finished(t):
-                stats.stopped_by = "duration" if not source.finished(t) else "end of input"
-                break
-        elif t > park_end or (np.array_equal(q, home_q) and not v.any()):
+        if phase == _BRAKE and at_rest:
+            phase = _HOME if t <= park_end else _DONE
+            q_target_prev = q  # from rest: no speed to feed forward
+        if phase == _HOME and t > park_end:
+            phase = _BRAKE_LAST  # home not reached in time: come to rest where it is
+        if (phase == _HOME and at_rest and np.array_equal(q, home_q) and k > 0) or (
+            phase in (_BRAKE_LAST, _DONE) and at_rest
+        ):
             break
         if realtime:
             lag = time.monotonic() - (start + t)
@@ -228,12 +279,21 @@ def run_teleop(
                 time.sleep(-lag)
             else:
                 stats.worst_overrun_s = max(stats.worst_overrun_s, lag)
-        pixel = source.read(t)
+        # read every tick (the mouse window handles its events in read), use only while running
+        pixel = None
+        if source_ok:
+            try:
+                if phase == _RUN or not source.finished(t):
+                    pixel = source.read(t)
+            except Exception as exc:  # parks first (the robot brakes at once), raised at the end
+                fault, source_ok = fault or exc, False
         target_xy: tuple[float, float] | None = None
         goal: tuple[float, float, float] | None = None  # valid target pose
         refused = False
-        if parking:
+        if phase == _HOME:
             goal = tuple(rrr3.home)
+        elif phase != _RUN:
+            pass  # braking to rest
         elif pixel is None:
             stats.no_input += 1
         else:
@@ -260,11 +320,10 @@ def run_teleop(
                     stats.stale_ticks += 1
                     goal = None
 
-        # the safety stage: the goal's angles, or a hold of the last safe command
+        # the safety stage: the goal's angles, or braking to rest (refused target, stale or no
+        # input, a stop)
         if goal is None:
-            # refused: an unsafe target makes the safety stage hold; stale/no input: brake here
-            wanted = np.full(3, np.nan) if refused else q
-            q_new, v_new, status = limiter(q, v, q, wanted)
+            q_new, v_new, status = limiter.brake(q, v)
             new_pose = pose if np.array_equal(q_new, q) else None
             q_target_prev = q_new
         else:
@@ -272,12 +331,13 @@ def run_teleop(
             goal_q = wanted
             q_new, v_new, status = limiter(q, v, q_target_prev, wanted)
             new_pose = goal
+            counted = phase == _RUN  # the counts describe following the cursor, not parking
             if status & UNSAFE_TARGET:  # valid by status, yet a hair outside a servo interval
-                stats.held += 1
+                stats.held += counted
                 wanted = q_new
             elif status & RATE_LIMITED:
                 # too far for one tick: approach along the pose segment, joints coordinated
-                stats.rate_limited += 1
+                stats.rate_limited += counted
                 dist = float(np.max(np.abs(wanted - q)))
                 step = limiter.path_step(dist, float(np.max(np.abs(v))))
                 if 0.0 < step < dist:  # else braking or overshooting: the safety stage's output
@@ -287,7 +347,7 @@ def run_teleop(
                         q_new, v_new, status = limiter(q, v, q, wanted)
                     # else the segment leaves the valid region: the safety stage's own approach
                 if status != 0:
-                    stats.safety_trims += 1
+                    stats.safety_trims += counted
             q_target_prev = goal_q if not status & UNSAFE_TARGET else q_new
             if not np.array_equal(q_new, wanted):
                 new_pose = None
@@ -302,23 +362,35 @@ def run_teleop(
             if sink.write(servo, t=t):
                 stats.frames_sent += 1
         if logger is not None:
-            if target_xy is not None:  # a cursor sample that was used (not while parking)
-                logger.add("/cursor", t, {"pixel": list(pixel), "target": list(target_xy)})
-            logger.add("/planar/pose", t, {"pose": pose.tolist()})
-            logger.add("/planar/actuators", t, {"angles": q.tolist(), "servo_deg": servo})
-            if k % max(1, int(round(rate_hz))) == 0:
-                logger.add("/health", t, stats.as_health())
-        if wants_show:
-            source.show(
-                points=rrr3.joint_points(pose, angles=q),
-                target=target_xy,
-                held=refused or stale,
-                parking=parking,
-            )
+            try:
+                if target_xy is not None:  # a cursor sample that was used (not while parking)
+                    logger.add("/cursor", t, {"pixel": list(pixel), "target": list(target_xy)})
+                logger.add("/planar/pose", t, {"pose": pose.tolist()})
+                logger.add("/planar/actuators", t, {"angles": q.tolist(), "servo_deg": servo})
+                if k % max(1, int(round(rate_hz))) == 0:
+                    logger.add("/health", t, stats.as_health())
+            except Exception as exc:  # a full disk: park without the log, then raise
+                fault, logger = fault or exc, None
+        if wants_show and source_ok:
+            try:
+                source.show(
+                    points=rrr3.joint_points(pose, angles=q),
+                    target=target_xy,
+                    held=refused or stale,
+                    parking=phase != _RUN and bool(stop),
+                )
+            except Exception as exc:
+                fault, source_ok = fault or exc, False
         stats.ticks += 1
+        stats.park_ticks += phase != _RUN
         k += 1
     if logger is not None:
         logger.add("/health", max(0.0, (k - 1) * dt), stats.as_health())
+    if fault is not None:
+        if isinstance(fault, MotionbaseError):  # one clear line, saying where the robot is
+            where = "parked at home" if np.array_equal(q, home_q) else "stopped at rest"
+            raise type(fault)(f"{fault} (the robot was {where})") from fault
+        raise fault
     return stats
 
 
@@ -341,28 +413,30 @@ def teleop_job(
     Without ``calibration_path`` the mouse window uses its own view (the target sits under
     the pointer) and file/UDP input maps their screen (1310 x 715 px unless the source says
     otherwise) onto the largest valid rectangle at phi = 0 (:meth:`CursorCalibration.default`).
-    SIGINT and SIGTERM E-stop the robot (park at home within the limits) while it runs.
+    SIGINT, SIGTERM, SIGHUP and SIGQUIT stop the robot (brake, then home, within the limits),
+    from the start of this call on: during start-up too.
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
     from motionbase.platform.rrr3 import Rrr3Geometry
+    from motionbase.stop_signals import install_stop_signals
 
-    rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
-    source = open_cursor_source(input_spec, rrr3)
+    stop = stop if stop is not None else StopRequest()
+    restore = install_stop_signals(stop)  # first: a stop during start-up parks too
     sink = None
     logger = None
-    stop = stop if stop is not None else StopRequest()
-    with source:
-        if calibration_path is not None:
-            cal = CursorCalibration.from_toml(calibration_path)
-        elif hasattr(source, "unview"):
-            w, h = source.size_px
-            px = np.array([[u, v] for u in (0, w / 2, w) for v in (0, h / 2, h)], dtype=float)
-            cal = CursorCalibration.fit(px, source.unview(px))
-        else:
-            cal = CursorCalibration.default(rrr3, *source.size_px)
-        restore = install_signal_stop(stop)
-        try:
+    try:
+        rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
+        source = open_cursor_source(input_spec, rrr3)
+        with source:
+            if calibration_path is not None:
+                cal = CursorCalibration.from_toml(calibration_path)
+            elif hasattr(source, "unview"):
+                w, h = source.size_px
+                px = np.array([[u, v] for u in (0, w / 2, w) for v in (0, h / 2, h)], dtype=float)
+                cal = CursorCalibration.fit(px, source.unview(px))
+            else:
+                cal = CursorCalibration.default(rrr3, *source.size_px)
             if serial_url not in (None, "none"):
                 from motionbase.io.serial_link import ServoSerialSink
 
@@ -388,9 +462,11 @@ def teleop_job(
                 duration_s=duration_s, realtime=realtime, clamp=clamp, stop=stop,
                 stale_timeout_s=stale_timeout_s,
             )  # fmt: skip
-        finally:
-            restore()
+    finally:
+        try:
             if logger is not None:
                 logger.finish()
+        finally:
             if sink is not None:
                 sink.close()
+            restore()

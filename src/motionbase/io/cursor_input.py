@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from motionbase.errors import SourceError
+from motionbase.io.net_address import check_host_port
 
 __all__ = ["FileCursor", "UdpCursor", "TkCursor", "open_cursor_source", "DEFAULT_SIZE_PX"]
 
@@ -402,14 +403,11 @@ def open_cursor_source(spec: str, rrr3: Any = None) -> Any:
         return TkCursor(rrr3)
     if spec.startswith("udp:"):
         parts = spec[4:].rsplit(":", 1)
-        try:
-            if len(parts) == 1:
-                return UdpCursor("127.0.0.1", int(parts[0]))
-            return UdpCursor(parts[0] or "127.0.0.1", int(parts[1]))
-        except ValueError:
-            raise SourceError(
-                f"--input {spec!r}: expected udp:HOST:PORT, e.g. udp:127.0.0.1:20320"
-            ) from None
+        if len(parts) == 1:
+            parts.insert(0, "127.0.0.1")
+        # a port out of range or a host that does not resolve, said as such
+        host, port = check_host_port(f"--input {spec!r}", parts[0] or "127.0.0.1", parts[1])
+        return UdpCursor(host, port)
     if spec.startswith("file:"):
         return FileCursor(spec[5:])
     raise SourceError(f"--input {spec!r}: expected mouse, udp:HOST:PORT or file:PATH.csv")

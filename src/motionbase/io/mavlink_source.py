@@ -61,10 +61,12 @@ still accepts MAVLink 1 packets.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
 import select
+import sys
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -77,6 +79,7 @@ os.environ["MAVLINK20"] = "1"  # must precede the first import of pymavlink.mavu
 from pymavlink import DFReader, mavutil  # noqa: E402
 
 from motionbase.errors import ConfigError, SourceError  # noqa: E402
+from motionbase.io.net_address import check_host_port  # noqa: E402
 from motionbase.pacing import wait_until  # noqa: E402
 from motionbase.state import AircraftState  # noqa: E402
 
@@ -275,6 +278,76 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
         f"signing key {p}: expected 32 raw bytes or 64 hex digits, got {len(data)} bytes "
         "(make one with: head -c 32 /dev/urandom > key.bin)"
     )
+
+
+# Network URL prefixes of pymavlink, and whether the address is one to listen on.
+_NET_PREFIXES = {
+    "udpin:": True,
+    "udp:": True,
+    "tcpin:": True,
+    "udpout:": False,
+    "udpbcast:": False,
+    "tcp:": False,
+}
+
+
+def _check_link_address(url: str) -> None:
+    """A port out of range or a host that does not resolve, in one line (ConfigError)."""
+    for prefix, bind in _NET_PREFIXES.items():
+        if url.startswith(prefix):
+            host, colon, port = url[len(prefix) :].rpartition(":")
+            if not colon:
+                raise ConfigError(
+                    f"mavlink {url}: expected {prefix}HOST:PORT, e.g. {prefix}127.0.0.1:14550"
+                )
+            check_host_port(f"mavlink {url}", host, port, bind=bind)
+            return
+
+
+class _Discard:
+    """A text stream that drops what is written (pymavlink's prints)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+@contextlib.contextmanager
+def _quiet(fds: bool = False) -> Iterator[None]:
+    """Silence pymavlink's prints: it reports every bad byte of a log (``bad header``, thousands
+    of lines for a file that is not a log) and each TCP retry on stdout/stderr. What matters
+    reaches the user as one error line or in the counters.
+
+    ``fds=True`` also points the process's file descriptors 1 and 2 at /dev/null, for the
+    compiled DataFlash indexer, which prints from C (only while a source opens: no other
+    thread of ours writes then).
+    """
+    saved = sys.stdout, sys.stderr
+    for stream in saved:
+        with contextlib.suppress(Exception):
+            stream.flush()
+    held: list[tuple[int, int]] = []
+    if fds:
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            try:
+                for fd in (1, 2):
+                    held.append((fd, os.dup(fd)))
+                    os.dup2(null, fd)
+            finally:
+                os.close(null)
+        except OSError:
+            pass  # no file descriptors to redirect (an embedded interpreter): prints stay
+    sys.stdout = sys.stderr = _Discard()
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = saved
+        for fd, copy in reversed(held):
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 def _is_log_url(url: str) -> bool:
@@ -531,21 +604,32 @@ class MavlinkSource:
         ------
         SourceError
             The log file does not exist, or the port cannot be opened.
+        ConfigError
+            A network URL's port is out of range or its host name does not resolve.
         """
         if self._conn is not None:
             return
         if self.is_log and not Path(self.url).is_file():
             raise SourceError(f"mavlink log {self.url}: no such file (check the path)")
+        if not self.is_log:
+            _check_link_address(self.url)
         self._reset_state()
         try:
-            if self.is_log:
-                conn = mavutil.mavlink_connection(self.url)
-            else:
-                conn = mavutil.mavlink_connection(
-                    self.url,
-                    source_system=_GCS_SYSID,
-                    source_component=_GCS_COMPID,
-                )
+            with _quiet(fds=self.is_log):
+                if self.is_log:
+                    conn = mavutil.mavlink_connection(self.url)
+                else:  # tcp: one attempt, no retry loop (a refused port is an answer)
+                    conn = mavutil.mavlink_connection(
+                        self.url,
+                        source_system=_GCS_SYSID,
+                        source_component=_GCS_COMPID,
+                        retries=0,
+                    )
+        except ConnectionRefusedError:
+            raise SourceError(
+                f"mavlink {self.url}: connection refused, nothing listens there (start the "
+                "vehicle or SITL first, or check the address)"
+            ) from None
         except Exception as exc:  # pymavlink raises many types (OSError, SerialException, ...)
             raise SourceError(
                 f"mavlink {self.url}: cannot open ({exc}); check the connection string "
@@ -763,7 +847,8 @@ class MavlinkSource:
             clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
 
         def next_msg() -> tuple[Any, float]:
-            msg = conn.recv_match(type=types)
+            with _quiet():  # pymavlink prints each bad byte range of a log
+                msg = conn.recv_match(type=types)
             if msg is None:
                 return None, math.inf
             return msg, (msg._timestamp if clock is None else clock(msg))
@@ -955,15 +1040,35 @@ class MavlinkSource:
         elif state in ("sent", "acknowledged", "ignored") and (
             now - self._req_time >= self.request_timeout_s
         ):
-            if not self._warned_ignored and self._c["accepted"] == 0:
+            c = self._c
+            if not self._warned_ignored and c["accepted"] == 0:
                 self._warned_ignored = True
-                _log.warning(
-                    "MAVLink: nothing heard from system %d on %s %.1f s after asking for "
-                    "streams; is the vehicle sending to this address (and with this sysid)?",
-                    self.sysid,
-                    self.url,
-                    self.request_timeout_s,
-                )
+                if c["rejected_unsigned"] + c["rejected_bad_signature"]:
+                    _log.warning(
+                        "MAVLink: messages arrive on %s but every one was rejected for its "
+                        "signature (%d unsigned, %d signed with another key): the vehicle signs "
+                        "with no key or another one; give --signing-key the vehicle's key",
+                        self.url,
+                        c["rejected_unsigned"],
+                        c["rejected_bad_signature"],
+                    )
+                elif c["rejected_sysid"] + c["rejected_compid"]:
+                    _log.warning(
+                        "MAVLink: %d messages arrive on %s, none from system %d%s; check "
+                        "--sysid (and --compid)",
+                        c["rejected_sysid"] + c["rejected_compid"],
+                        self.url,
+                        self.sysid,
+                        "" if self.compid is None else f" component {self.compid}",
+                    )
+                else:
+                    _log.warning(
+                        "MAVLink: nothing heard from system %d on %s %.1f s after asking for "
+                        "streams; is the vehicle sending to this address (and with this sysid)?",
+                        self.sysid,
+                        self.url,
+                        self.request_timeout_s,
+                    )
             elif not self._warned_ignored:
                 self._warned_ignored = True
                 _log.warning(

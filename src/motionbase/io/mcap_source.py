@@ -7,6 +7,14 @@ was killed leaves every complete chunk readable. Such a file yields the
 messages written before the cut, sets ``truncated`` and logs a warning on the
 ``motionbase`` logger. A file that is not MCAP raises
 :class:`~motionbase.errors.LogFormatError` with a one-line message naming it.
+
+A malformed aircraft state (not JSON, not UTF-8, a missing field, a string or a bool
+for a number, a list of the wrong length, ``null``, a negative time) never stops a
+replay: :class:`McapSource` yields a sample of NaNs in its place, which the pipeline's
+validation rejects, counts (``rejected_inputs`` in ``/health``) and replaces by a hold
+of the last valid sample. The source counts them (``malformed``) and logs the first
+one. Python's ``json`` writes non-finite numbers as bare ``NaN``/``Infinity`` tokens;
+those are read (as non-finite numbers, which the validation rejects too).
 """
 
 from __future__ import annotations
@@ -49,9 +57,27 @@ def _restore_nonfinite(obj: Any) -> Any:
     return obj
 
 
-def decode_message(data: bytes) -> dict[str, Any]:
-    """A JSON message as written by the logger, with ``"NaN"`` etc. back as floats."""
-    msg = _loads(data)
+def decode_message(data: bytes) -> Any:
+    """A JSON message as written by the logger, with ``"NaN"`` etc. back as floats.
+
+    Bare ``NaN``/``Infinity`` tokens (Python's ``json`` writes them) are read too.
+
+    Raises
+    ------
+    ValueError
+        The bytes are not UTF-8 JSON (the message says why).
+    """
+    try:
+        msg = _loads(data)
+    except ValueError:  # orjson refuses the bare NaN tokens that Python's json writes
+        try:
+            msg = json.loads(data)
+        except RecursionError:
+            raise ValueError("not JSON: nested too deeply") from None
+        except UnicodeDecodeError:
+            raise ValueError("not UTF-8 text") from None
+        except ValueError as exc:
+            raise ValueError(f"not JSON: {exc}") from None
     if any(m in data for m in _NONFINITE_MARKERS):
         msg = _restore_nonfinite(msg)
     return msg
@@ -149,15 +175,24 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
         topics[ch.id] = ch.topic
         out.setdefault(ch.topic, [])
 
+    skipped: list[str] = []
+
     def on_message(msg: Message) -> None:
         topic = topics.get(msg.channel_id)
         if topic is None:
             raise LogFormatError(f"{p}: message on unknown channel {msg.channel_id}")
-        out[topic].append(decode_message(msg.data))
+        try:
+            out[topic].append(decode_message(msg.data))
+        except ValueError as exc:
+            skipped.append(f"{topic}: {_short_reason(exc)}")
 
     truncated = _scan(p, lambda m: None, on_channel, on_message)
     if truncated:
         _warn_truncated(p, f"{sum(len(v) for v in out.values())} messages")
+    if skipped:
+        log.warning(
+            "%s: skipped %d messages that are not JSON (first: %s)", p, len(skipped), skipped[0]
+        )
     return out
 
 
@@ -166,16 +201,70 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     return McapSource(path, _scan_messages=False).metadata
 
 
-def _state_from_message(msg: dict[str, Any]) -> AircraftState:
-    acc = msg.get("angular_acceleration")
+class _Malformed(ValueError):
+    """An aircraft-state message that cannot be read as one (the reason is the message)."""
+
+
+def _short_reason(exc: BaseException, limit: int = 120) -> str:
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _show(value: Any, limit: int = 40) -> str:
+    """A value as JSON writes it, cut short (``null``, ``"0"``, ``[0, 1]``)."""
+    try:
+        text = json.dumps(value)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _number(key: str, value: Any) -> float:
+    # null stands for a non-finite number (the logger's own convention): NaN, rejected later
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise _Malformed(f"{key!r} holds {_show(value)}, not a number")
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond any float
+        raise _Malformed(f"{key!r} holds an integer too large for a number") from None
+
+
+def _vector(msg: dict[str, Any], key: str, *, optional: bool = False) -> list[float] | None:
+    if key not in msg:
+        if optional:
+            return None
+        raise _Malformed(f"no {key!r} field")
+    value = msg[key]
+    if value is None and optional:
+        return None
+    if not isinstance(value, list) or len(value) != 3:
+        raise _Malformed(f"{key!r} is {_show(value)}, not a list of 3 numbers")
+    return [_number(key, v) for v in value]
+
+
+_NAN3 = (math.nan, math.nan, math.nan)
+_MALFORMED_STATE = AircraftState(t=math.nan, specific_force=_NAN3, angular_velocity=_NAN3)
+
+
+def _state_from_message(msg: Any) -> AircraftState:
+    """The state in one decoded message; :class:`_Malformed` when it holds none."""
+    if not isinstance(msg, dict):
+        raise _Malformed(f"the message is {_show(msg)}, not a JSON object")
     # a pipeline log keeps the source's own time (even a bad one) in `source_t`
-    t = msg.get("source_t", msg["t"])
+    key = "source_t" if "source_t" in msg else "t"
+    if key not in msg:
+        raise _Malformed("no 't' field")
+    t = _number(key, msg[key])
+    if t < 0.0:
+        raise _Malformed(f"time {t:g} s is negative (a recording's times start at 0 s)")
     return AircraftState(
-        t=math.nan if t is None else t,
-        specific_force=msg["specific_force"],
-        angular_velocity=msg["angular_velocity"],
-        attitude=msg["attitude"],
-        angular_acceleration=acc,
+        t=t,
+        specific_force=_vector(msg, "specific_force"),
+        angular_velocity=_vector(msg, "angular_velocity"),
+        attitude=_vector(msg, "attitude"),
+        angular_acceleration=_vector(msg, "angular_acceleration", optional=True),
     )
 
 
@@ -207,6 +296,10 @@ class McapSource:
         The file was cut short; the states before the cut are read.
     count : int
         Number of states.
+    malformed : int
+        States read so far that were malformed (each yielded as a sample of NaNs, which
+        the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
+        first one.
 
     Raises
     ------
@@ -229,6 +322,8 @@ class McapSource:
         self.version: str | None = None
         self.truncated = False
         self.count = 0
+        self.malformed = 0
+        self.first_malformed = ""
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.duration_s: float | None = None
@@ -251,9 +346,13 @@ class McapSource:
                     )
                 self._channel_ids.add(ch.id)
 
+        first: list[bytes] = []
+
         def on_message(msg: Message) -> None:
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
+                if not first:
+                    first.append(msg.data)
 
         if not _scan_messages:
             self.truncated = _scan_metadata_only(self.path, on_metadata)
@@ -264,6 +363,7 @@ class McapSource:
             raise LogFormatError(
                 f"{self.path}: no {topic} messages in the recording (topics present: {present})"
             )
+        self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
@@ -271,11 +371,29 @@ class McapSource:
             _warn_truncated(self.path, f"{self.count} aircraft states")
         self._open = False
 
+    def _check_clock(self, data: bytes) -> None:
+        """Refuse a recording whose clock starts before 0 s, naming the file: each of its
+        samples would be rejected (an isolated negative time later on is rejected and held)."""
+        try:
+            msg = decode_message(data)
+        except ValueError:
+            return  # a malformed first state: rejected and held like any other
+        t = msg.get("source_t", msg.get("t")) if isinstance(msg, dict) else None
+        if isinstance(t, int | float) and not isinstance(t, bool) and t < 0:
+            raise LogFormatError(
+                f"{self.path}: the first {self.topic} message is at {t:g} s; a recording's "
+                "times start at 0 s (shift its clock so the first sample is at 0 s or later)"
+            )
+
     def _find_rate(self, times_ns: np.ndarray) -> float:
         for table in (self.metadata, self.metadata.get("pipeline"), self.metadata.get("source")):
             if isinstance(table, dict):
                 rate = table.get("rate_hz")
-                if isinstance(rate, int | float) and not isinstance(rate, bool) and rate > 0:
+                if (
+                    isinstance(rate, int | float)
+                    and not isinstance(rate, bool)
+                    and 0 < rate < math.inf
+                ):
                     return float(rate)
         steps = np.diff(times_ns)
         steps = steps[steps > 0]
@@ -306,6 +424,8 @@ class McapSource:
             fh.seek(len(MCAP_MAGIC))
             records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
             ids: set[int] = set()
+            index = 0
+            self.malformed = 0
             while True:
                 try:
                     rec = next(records)
@@ -315,10 +435,8 @@ class McapSource:
                     return
                 if isinstance(rec, Message):
                     if rec.channel_id in ids:
-                        msg = decode_message(rec.data)
-                        # whether the live source had a fresh sample (watchdog replays)
-                        self.fresh = bool(msg.get("fresh", True))
-                        yield _state_from_message(msg)
+                        index += 1
+                        yield self._read_state(rec.data, index)
                 elif isinstance(rec, Channel):
                     if rec.topic == self.topic:
                         ids.add(rec.id)
@@ -326,6 +444,31 @@ class McapSource:
                     return
         finally:
             fh.close()
+
+    def _read_state(self, data: bytes, index: int) -> AircraftState:
+        """The state in message ``index`` (1-based), or a sample of NaNs when malformed."""
+        try:
+            msg = decode_message(data)
+            state = _state_from_message(msg)
+            fresh = msg.get("fresh", True)
+            if not isinstance(fresh, bool):
+                raise _Malformed(f"'fresh' holds {_show(fresh)}, not true or false")
+        except ValueError as exc:  # _Malformed, or bytes that are not UTF-8 JSON
+            self.malformed += 1
+            if self.malformed == 1:
+                self.first_malformed = f"message {index}: {_short_reason(exc)}"
+                log.warning(
+                    "%s: message %d on %s is malformed (%s); rejected and held like any "
+                    "invalid sample",
+                    self.path,
+                    index,
+                    self.topic,
+                    _short_reason(exc),
+                )
+            return _MALFORMED_STATE  # its freshness stays that of the last valid one
+        # whether the live source had a fresh sample (watchdog replays)
+        self.fresh = fresh
+        return state
 
     def describe(self) -> dict[str, Any]:
         """Plain-data description of the source for the log's metadata."""

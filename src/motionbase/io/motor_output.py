@@ -18,7 +18,8 @@ Python's format mini-language: ``{1:d}`` decimal (the default), ``{1:04x}`` four
 ``{1:X}``, ``{1:o}``, ``{1:b}``, ``{1:+06d}``, ``{1:.2f}`` two decimals (``f``/``e``/``g``
 keep the value as a float; every other type rounds it to an integer). A zero-padded width
 (``04x``) is an exact width: a value needing more digits is never sent. Negative values are
-never sent with ``x``/``X``/``o``/``b``. ``{{`` and ``}}`` are literal braces; ``\n``, ``\r``,
+never sent with ``x``/``X``/``o``/``b``. A field's width and precision are at most
+:data:`MAX_FIELD_WIDTH` (64) characters. ``{{`` and ``}}`` are literal braces; ``\n``, ``\r``,
 ``\t``, ``\\`` and ``\xHH`` are escapes; SimTools' ``<Axis1a>`` means ``{1}``. Example (FlyPT
 Mover style): ``text:A{1}B{2}C{3}D{4}E{5}F{6}\n``.
 
@@ -87,8 +88,9 @@ from urllib.parse import parse_qsl, urlencode
 
 import numpy as np
 
-from motionbase.config import read_toml
+from motionbase.config import as_float, read_toml
 from motionbase.errors import ConfigError, SinkError
+from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
 from motionbase.pacing import wait_until
 from motionbase.platform.output_map import OutputMapping, sweep_profile
@@ -112,6 +114,8 @@ log = logging.getLogger(__name__)
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
 DEFAULT_RATE_HZ = 100.0
 DEFAULT_BAUD = 115200
+#: Widest text field (width or precision), characters: a 64-bit number in binary fits.
+MAX_FIELD_WIDTH = 64
 
 
 # --------------------------------------------------------------------------- checksums
@@ -276,6 +280,12 @@ class TextFormat:
         if integer and m.group("prec"):
             raise ConfigError(f"{where}: an integer type takes no precision")
         width = int(m.group("width")) if m.group("width") else None
+        for what, digits_ in (("width", m.group("width")), ("precision", m.group("prec"))):
+            if digits_ and int(digits_) > MAX_FIELD_WIDTH:
+                raise ConfigError(
+                    f"{where}: {what} {int(digits_)} is more than {MAX_FIELD_WIDTH} characters "
+                    "(no drive reads a field that long; fix the format)"
+                )
         zero = bool(m.group("zero")) or (m.group("fill") == "0" and m.group("align") in "=>")
         exact = width if zero and width else None
         digits = {"d": r"\d", "x": r"[0-9a-f]", "X": r"[0-9A-F]", "o": r"[0-7]", "b": r"[01]"}
@@ -546,9 +556,14 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
                 f"{path}: a format file needs exactly one of 'text' or 'binary' "
                 "(and optionally rate_hz)"
             )
-        if "text" in data:
-            return TextFormat(str(data["text"]), n_axes), extra
-        return BinaryFormat(str(data["binary"]), n_axes), extra
+        key = "text" if "text" in data else "binary"
+        if not isinstance(data[key], str):
+            raise ConfigError(f"{path}: field {key!r}: expected a string, got {data[key]!r}")
+        if "rate_hz" in extra:
+            as_float(path, "rate_hz", extra["rate_hz"], min_value=0.0, strict_min=True, unit="Hz")
+        if key == "text":
+            return TextFormat(data[key], n_axes), extra
+        return BinaryFormat(data[key], n_axes), extra
     return TextFormat(text, n_axes), {}
 
 
@@ -1015,11 +1030,11 @@ def open_output(
     else:
         if other:
             raise ConfigError(f"output {url!r}: unknown key {other[0][0]!r} (format, rate)")
-        host, _, port = base.rpartition(":")
-        host = host.strip("[]")
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        host, colon, port = base.rpartition(":")
+        if not colon:
             raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")
-        transport = _UdpTransport(host, int(port))
+        host, port_no = check_host_port(f"output {url!r}", host.strip("[]"), port)
+        transport = _UdpTransport(host, port_no)
     return MotorOutput(transport, fmt, mapping, rate_hz=rate, limits=limits, url=url)
 
 
@@ -1051,6 +1066,8 @@ def mapping_for(config: Any) -> OutputMapping:
 
 @dataclass(frozen=True)
 class _Command:
+    """One command of the wiring check: loop time ``t`` (s) and crank ``angles`` (rad)."""
+
     t: float
     angles: np.ndarray
 
@@ -1063,12 +1080,22 @@ def output_test(
     speed_deg_s: float = 10.0,
     rate_hz: float = 100.0,
     echo: Callable[[str], None] | None = None,
+    stop: Any = None,
 ) -> list[str]:
     """Sweep each motor in turn through ``+-range_deg`` about neutral, slowly, for a wiring and
     sign check: park -> neutral, motor 1 up, down, back, motor 2, ..., neutral -> park.
 
-    Every command passes the safety stage (speed and acceleration limits) and is sent in real
-    time through :func:`open_output`. Prints (``echo``) which motor moves and its drive values.
+    Every command passes the safety stage (:func:`motionbase.safety.limit_command`, the
+    geometry's speed and acceleration limits) and is sent through :func:`open_output`; this
+    loop keeps the time (one command every ``1 / rate_hz`` s of the wall clock). Prints
+    (``echo``) which motor moves and its drive values.
+
+    A stop (SIGINT, SIGTERM, SIGHUP or SIGQUIT, routed by
+    :func:`motionbase.stop_signals.install_stop_signals`, or ``stop`` raised by the caller) at
+    any moment, start-up included, ends the sweep: one line says so, the motors ramp from
+    where they are back to park at the sweep's own pace (``speed_deg_s`` and half the
+    acceleration limit, through the safety stage), the last frame is the park command, and
+    the function returns normally.
 
     Parameters
     ----------
@@ -1082,73 +1109,106 @@ def output_test(
         Peak crank speed, deg/s (capped by the geometry's speed limit).
     rate_hz : float
         Command rate, Hz.
+    echo : callable, optional
+        Prints a line (default: stdout).
+    stop : StopRequest, optional
+        Raised to stop the test (a new one when not given; signals raise it).
 
     Returns
     -------
     list of str
         The lines printed.
     """
+    from motionbase.pacing import wait_until
+    from motionbase.pipeline import StopRequest
     from motionbase.safety import ActuatorLimits, limit_command
+    from motionbase.stop_signals import install_stop_signals
 
-    echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
-    mapping = geometry.output or OutputMapping.default(geometry.angle_min, geometry.angle_max)
-    lower, upper = np.array(geometry.angle_min), np.array(geometry.angle_max)
-    vmax, amax = np.array(geometry.max_speed), np.array(geometry.max_accel)
-    speed = min(math.radians(speed_deg_s), float(vmax.min()))
-    dt = 1.0 / rate_hz
-    park = np.full(mapping.n, float(geometry.park_angle))
-    neutral = np.asarray(geometry.neutral_angle, dtype=float)
-    angles, motor = sweep_profile(
-        park,
-        neutral,
-        lower,
-        upper,
-        range_rad=math.radians(range_deg),
-        speed=speed,
-        accel=0.5 * float(amax.min()),
-        dt=dt,
-        dwell_s=0.2,
-    )
-    hold = max(1, int(0.2 * rate_hz))  # rest at park before and after the sweep
-    angles = np.concatenate(
-        [np.repeat(angles[:1], hold, 0), angles, np.repeat(angles[-1:], hold, 0)]
-    )
-    motor = np.concatenate([np.zeros(hold, int), motor, np.zeros(hold, int)])
-    limits = ActuatorLimits.broadcast(mapping.n, lower, upper, vmax, amax)
-    lines: list[str] = []
+    stop = stop if stop is not None else StopRequest()
+    restore = install_stop_signals(stop)  # first: a stop during start-up parks too
+    try:
+        echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
+        mapping = geometry.output or OutputMapping.default(geometry.angle_min, geometry.angle_max)
+        lower, upper = np.array(geometry.angle_min), np.array(geometry.angle_max)
+        vmax, amax = np.array(geometry.max_speed), np.array(geometry.max_accel)
+        speed = min(math.radians(speed_deg_s), float(vmax.min()))
+        accel = 0.5 * float(amax.min())
+        dt = 1.0 / rate_hz
+        park = np.full(mapping.n, float(geometry.park_angle))
+        neutral = np.asarray(geometry.neutral_angle, dtype=float)
+        angles, motor = sweep_profile(
+            park,
+            neutral,
+            lower,
+            upper,
+            range_rad=math.radians(range_deg),
+            speed=speed,
+            accel=accel,
+            dt=dt,
+            dwell_s=0.2,
+        )
+        hold = max(1, int(0.2 * rate_hz))  # rest at park before and after the sweep
+        angles = np.concatenate(
+            [np.repeat(angles[:1], hold, 0), angles, np.repeat(angles[-1:], hold, 0)]
+        )
+        motor = np.concatenate([np.zeros(hold, int), motor, np.zeros(hold, int)])
+        limits = ActuatorLimits.broadcast(mapping.n, lower, upper, vmax, amax)
+        # a stop ramps back to park at the sweep's pace, never faster
+        park_limits = ActuatorLimits.broadcast(mapping.n, lower, upper, speed, accel)
+        lines: list[str] = []
 
-    def say(s: str) -> None:
-        lines.append(s)
-        echo(s)
+        def say(s: str) -> None:
+            lines.append(s)
+            echo(s)
 
-    sink = open_output(url, mapping, rate_hz=rate_hz)
-    say(f"output test on {sink.label}: {mapping.describe()}")
-    say(f"moving from park to neutral at up to {math.degrees(speed):.1f} deg/s")
-    q, v, wanted = angles[0].copy(), np.zeros(mapping.n), angles[0]
-    current = 0
-    with sink:
-        start = time.monotonic()
-        for k in range(len(angles)):
-            if motor[k] != current:
-                current = int(motor[k])
-                if current:
-                    i = current - 1
-                    up = neutral.copy()
-                    up[i] += math.radians(range_deg)
-                    dn = neutral.copy()
-                    dn[i] -= math.radians(range_deg)
-                    d0, d1, d2 = (
-                        float(np.round(mapping.to_drive(a)[i], 6)) + 0.0 for a in (neutral, up, dn)
-                    )
+        sink = open_output(url, mapping, rate_hz=rate_hz)
+        say(f"output test on {sink.label}: {mapping.describe()}")
+        say(f"moving from park to neutral at up to {math.degrees(speed):.1f} deg/s")
+        q, v, wanted = angles[0].copy(), np.zeros(mapping.n), angles[0]
+        current = 0
+        stopping = False
+        with sink:
+            start = time.perf_counter()
+            k = 0
+            while True:
+                if stop and not stopping:
+                    stopping = True
                     say(
-                        f"motor {current}: crank +{range_deg:g} deg (tip up), -{range_deg:g} deg, "
-                        f"back to neutral; drive value {d0:g} -> {d1:g} -> {d2:g} -> {d0:g}"
+                        f"output test stopped by {stop.reason or 'a stop request'}: moving back "
+                        f"to park at up to {math.degrees(speed):.1f} deg/s"
                     )
+                if stopping:
+                    if k > 0 and np.array_equal(q, park) and not v.any():
+                        break
+                    q, v, _ = limit_command(q, v, park, park, dt, park_limits)
                 else:
-                    say("moving from neutral back to park")
-            q, v, _ = limit_command(q, v, wanted, angles[k], dt, limits)
-            wanted = angles[k]
-            wait_until(start + k * dt, clock=time.monotonic)  # sinks never wait: pace here
-            sink.write(_Command(k * dt, q))
-    say(sink.stats_line())
-    return lines
+                    if k >= len(angles):
+                        break
+                    if motor[k] != current:
+                        current = int(motor[k])
+                        if current:
+                            say(_sweep_line(mapping, neutral, current - 1, range_deg))
+                        else:
+                            say("moving from neutral back to park")
+                    q, v, _ = limit_command(q, v, wanted, angles[k], dt, limits)
+                    wanted = angles[k]
+                wait_until(start + k * dt)
+                sink.write(_Command(k * dt, q))
+                k += 1
+        say(sink.stats_line())
+        return lines
+    finally:
+        restore()
+
+
+def _sweep_line(mapping: OutputMapping, neutral: np.ndarray, i: int, range_deg: float) -> str:
+    """What the sweep of motor ``i`` (0-based) does, with its drive values."""
+    up = neutral.copy()
+    up[i] += math.radians(range_deg)
+    dn = neutral.copy()
+    dn[i] -= math.radians(range_deg)
+    d0, d1, d2 = (float(np.round(mapping.to_drive(a)[i], 6)) + 0.0 for a in (neutral, up, dn))
+    return (
+        f"motor {i + 1}: crank +{range_deg:g} deg (tip up), -{range_deg:g} deg, "
+        f"back to neutral; drive value {d0:g} -> {d1:g} -> {d2:g} -> {d0:g}"
+    )

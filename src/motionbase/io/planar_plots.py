@@ -1,4 +1,4 @@
-"""PNG plots and the text report of the planar 3-RRR workspace (matplotlib, Agg, no display).
+"""Plots and the text report of the planar 3-RRR workspace (matplotlib, Agg, no display).
 
 The sweep itself is pure math in :meth:`motionbase.platform.rrr3.Rrr3.workspace`; this module
 only draws it (the thesis's fig. 10, total workspace, and fig. 11, constant orientation) and
@@ -10,13 +10,15 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from motionbase.errors import SinkError
+from motionbase.config import DEFAULT_RRR3
+from motionbase.io.workspace_plots import plot_format, save_figure
 from motionbase.platform.rrr3 import PlanarWorkspace, Rrr3, Rrr3Geometry
 
-__all__ = ["plot_planar_workspace", "planar_workspace_report"]
+__all__ = ["planar_workspace_figure", "plot_planar_workspace", "planar_workspace_report"]
 
 
 def plot_planar_workspace(
@@ -28,7 +30,34 @@ def plot_planar_workspace(
     rectangle: tuple[float, float, float, float] | None = None,
     title: str = "3-RRR workspace",
 ) -> Path:
-    """Draw the total workspace and the constant-orientation slice to a PNG.
+    """Draw the total workspace and the constant-orientation slice to a file.
+
+    Parameters
+    ----------
+    rrr3, ws, phi, rectangle, title :
+        As for :func:`planar_workspace_figure`.
+    path : str or Path
+        Output file: ``.png``, ``.svg`` or ``.pdf`` (the format follows the extension).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    plot_format(path)
+    fig = planar_workspace_figure(rrr3, ws, phi=phi, rectangle=rectangle, title=title)
+    return save_figure(fig, path)
+
+
+def planar_workspace_figure(
+    rrr3: Rrr3,
+    ws: PlanarWorkspace,
+    *,
+    phi: float = 0.0,
+    rectangle: tuple[float, float, float, float] | None = None,
+    title: str = "3-RRR workspace",
+) -> Any:
+    """The figure of the total workspace and the constant-orientation slice, with a legend.
 
     Parameters
     ----------
@@ -36,8 +65,6 @@ def plot_planar_workspace(
         The robot (for the base triangle, home and a sample configuration).
     ws : PlanarWorkspace
         A sweep from :meth:`Rrr3.workspace`.
-    path : str or Path
-        Output PNG file.
     phi : float
         Orientation of the slice, rad (the grid's nearest value is used).
     rectangle : (x_min, x_max, y_min, y_max), m, optional
@@ -47,14 +74,15 @@ def plot_planar_workspace(
 
     Returns
     -------
-    Path
-        The file written.
+    matplotlib.figure.Figure
+        On an Agg canvas (no display).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import ListedColormap
     from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
-    fig = Figure(figsize=(12, 5.4), dpi=110)
+    fig = Figure(figsize=(12, 5.8), dpi=110)
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, 2)
     cmap = ListedColormap(["#f2f2f2", "#4c8bd6"])
@@ -76,12 +104,13 @@ def plot_planar_workspace(
     for n, (ax, (img, sub)) in enumerate(zip(axes, panels, strict=True)):
         if n == 0:
             mesh = ax.pcolormesh(ws.x, ws.y, img.T, cmap="Blues", vmin=0, vmax=1, shading="nearest")
-            fig.colorbar(mesh, ax=ax, fraction=0.046, pad=0.04)
+            bar = fig.colorbar(mesh, ax=ax, fraction=0.046, pad=0.04)
+            bar.set_label("share of orientations valid")
         else:
             ax.pcolormesh(ws.x, ws.y, img.T, cmap=cmap, vmin=0, vmax=1, shading="nearest")
-        ax.plot(tri[:, 0], tri[:, 1], "k-", lw=0.8)
-        ax.plot(A[:, 0], A[:, 1], "ks", ms=6)
-        ax.plot(rrr3.home[0], rrr3.home[1], "r+", ms=12)
+        ax.plot(tri[:, 0], tri[:, 1], "k-", lw=0.8, label="base triangle")
+        ax.plot(A[:, 0], A[:, 1], "ks", ms=6, ls="none", label="motors (crank pivots)")
+        ax.plot(rrr3.home[0], rrr3.home[1], "r+", ms=12, ls="none", label="home")
         ax.set_xlabel("x, m")
         ax.set_ylabel("y, m")
         ax.set_title(sub, fontsize=9)
@@ -90,23 +119,35 @@ def plot_planar_workspace(
     jp = rrr3.joint_points(rrr3.home)
     ax = axes[1]
     for i in range(3):
-        ax.plot(*np.array([jp.A[i], jp.B[i], jp.C[i]]).T, "-o", color="#444444", ms=3, lw=1.2)
-    ax.fill(*jp.C.T, facecolor="none", edgecolor="#e07b39", lw=1.5)
+        ax.plot(
+            *np.array([jp.A[i], jp.B[i], jp.C[i]]).T,
+            "-o",
+            color="#444444",
+            ms=3,
+            lw=1.2,
+            label="cranks and rods at home" if i == 0 else "_nolegend_",
+        )
+    ax.fill(*jp.C.T, facecolor="none", edgecolor="#e07b39", lw=1.5, label="platform at home")
     if rectangle is not None:
         x0, x1, y0, y1 = rectangle
-        ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], "g--", lw=1.2)
+        ax.plot(
+            [x0, x1, x1, x0, x0],
+            [y0, y0, y1, y1, y0],
+            "g--",
+            lw=1.2,
+            label="largest rectangle (cursor calibration target)",
+        )
+    handles, labels = ax.get_legend_handles_labels()
+    handles.insert(0, Patch(facecolor=cmap(1.0), label="valid pose"))
+    labels.insert(0, "valid pose")
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(f"{title}: valid poses (reachable, non-singular, servo range) in blue")
-    fig.tight_layout()
-    p = Path(path)
-    try:
-        fig.savefig(p, format="png")
-    except OSError as exc:
-        raise SinkError(f"{p}: cannot write the plot: {exc.strerror or exc}") from None
-    return p
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    return fig
 
 
 def planar_workspace_report(
-    geometry: str | Path = "udesc",
+    geometry: str | Path | None = None,
     plot: str | Path | None = None,
     *,
     nx: int = 100,
@@ -117,10 +158,12 @@ def planar_workspace_report(
 
     Parameters
     ----------
-    geometry : str or Path
-        A 3-RRR preset name (``udesc``) or a TOML path.
+    geometry : str or Path, optional
+        A 3-RRR preset name (``udesc``, ``udesc_symmetric``) or a TOML path; default
+        :data:`~motionbase.config.DEFAULT_RRR3`, as for every command.
     plot : str or Path, optional
-        PNG to draw the total workspace and the phi = 0 slice to.
+        File (``.png``, ``.svg`` or ``.pdf``) to draw the total workspace and the phi = 0
+        slice to; another extension is refused before the sweep.
     nx, ny, nphi : int
         Sweep grid (over the base triangle's bounding box and -180..180 deg).
 
@@ -129,7 +172,9 @@ def planar_workspace_report(
     str
         The summary, ready to print.
     """
-    g = Rrr3Geometry.preset(str(geometry))
+    if plot is not None:
+        plot_format(plot)
+    g = Rrr3Geometry.preset(str(geometry if geometry is not None else DEFAULT_RRR3))
     rrr3 = Rrr3(g)
     t0 = time.perf_counter()
     ws = rrr3.workspace(nx, ny, nphi)

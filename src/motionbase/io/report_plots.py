@@ -8,8 +8,10 @@ Files written:
 
 * ``specific_force.png``: aircraft specific force at the pilot against the platform's cue.
 * ``angular_velocity.png``: aircraft body rates against the platform's.
-* ``perceived.png``: otolith and semicircular-canal outputs, aircraft against platform.
-* ``pose.png``: washout pose (before clamping) against the realised pose.
+* ``perceived.png``: otolith (m/s^2, deviation from 1 g) and semicircular-canal (deg/s)
+  outputs, aircraft against platform.
+* ``pose.png``: washout pose (before clamping) against the realised pose, on every tick;
+  heave plotted up (the log's z is down).
 * ``actuators.png``: crank angles (6-RUS) or servo commands (planar) against their limits.
 * ``timeline.png``: pipeline phase, clamping, rate limiting, held commands, fade.
 * ``summary.txt``: the cueing metrics and run facts.
@@ -27,7 +29,7 @@ import numpy as np
 from motionbase.errors import SinkError
 from motionbase.report import AXES6, PHASES, Report, build_report
 
-__all__ = ["ReportFiles", "default_report_dir", "plot_report", "write_report"]
+__all__ = ["ReportFiles", "default_report_dir", "plot_report", "report_figures", "write_report"]
 
 _AIR = "#1f4e9c"  # aircraft
 _CUE = "#d9480f"  # platform
@@ -153,7 +155,7 @@ def _title(report: Report, what: str) -> str:
     return f"{report.name} ({robot}): {what}"
 
 
-def _plot_specific_force(r: Report, path: Path) -> Path:
+def _specific_force_figure(r: Report) -> Any:
     fig, axes = _figure(3, 1, 8.5)
     labels = ("x (forward)", "y (right)", "z (down)")
     for i, ax in enumerate(axes[:, 0]):
@@ -166,10 +168,10 @@ def _plot_specific_force(r: Report, path: Path) -> Path:
     axes[-1, 0].set_xlabel("time [s]")
     cue = "tilt + acceleration" if not r.planar else "planar motion mapped back (no tilt)"
     fig.suptitle(_title(r, f"specific force, aircraft vs platform cue ({cue}); shaded: start/stop"))
-    return _save(fig, path)
+    return fig
 
 
-def _plot_angular_velocity(r: Report, path: Path) -> Path:
+def _angular_velocity_figure(r: Report) -> Any:
     fig, axes = _figure(3, 1, 8.5)
     labels = ("roll rate p", "pitch rate q", "yaw rate r")
     for i, ax in enumerate(axes[:, 0]):
@@ -181,10 +183,10 @@ def _plot_angular_velocity(r: Report, path: Path) -> Path:
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(_title(r, "body angular velocity, aircraft vs platform; shaded: start/stop"))
-    return _save(fig, path)
+    return fig
 
 
-def _plot_perceived(r: Report, path: Path) -> Path:
+def _perceived_figure(r: Report) -> Any:
     pm = r.perceived
     m = r.metrics
     fig, axes = _figure(3, 2, 8.5, 14.0)
@@ -220,38 +222,46 @@ def _plot_perceived(r: Report, path: Path) -> Path:
     fig.suptitle(
         _title(
             r,
-            "perceived motion (otolith: deviation from 1 g, normalised; canals), running phase",
+            "perceived motion, running phase\notolith: sensed specific force minus level "
+            "flight's 1 g, in m/s² (a steady force reads its true value); canals: sensed "
+            "body rates",
         )
     )
-    return _save(fig, path)
+    return fig
 
 
 def _fmt(x: float) -> str:
     return "n/a" if not np.isfinite(x) else f"{x:.2f}"
 
 
-def _plot_pose(r: Report, path: Path) -> Path:
+#: Pose axes as plotted (in :data:`~motionbase.report.AXES6` order): which way is positive,
+#: the factor from the logged value (m or rad, FRD) to the plotted one, and the unit. Heave is
+#: plotted up: the log's z is down.
+_POSE_AXES = (
+    ("(forward)", 100.0, "cm"),
+    ("(right)", 100.0, "cm"),
+    ("up", -100.0, "cm"),
+    ("(right down)", float(np.degrees(1.0)), "deg"),
+    ("(nose up)", float(np.degrees(1.0)), "deg"),
+    ("(nose right)", float(np.degrees(1.0)), "deg"),
+)
+
+
+def _pose_figure(r: Report) -> Any:
     fig, axes = _figure(3, 2, 8.5, 14.0)
-    # planar: the realised pose mapped back is only known on the aircraft ticks
-    if r.planar:
-        t_real, real = r.t, r.cab_pose
-    else:
-        t_real, real = r.tick_t, r.platform_pose
-    for j, name in enumerate(AXES6):
+    label = "realised (mapped back)" if r.planar else "realised (after clamp, safety)"
+    for j, (name, (positive, k, unit)) in enumerate(zip(AXES6, _POSE_AXES, strict=True)):
         ax = axes[j % 3, j // 3]
         _shade_phases(ax, r.tick_t, r.phase, r.dt)
-        k = 100.0 if j < 3 else np.degrees(1.0)
-        unit = "cm" if j < 3 else "deg"
         ax.plot(
             r.tick_t, k * r.washout_pose[:, j], color=_REF, lw=1.0, ls="--", label="washout output"
         )
-        label = "realised (mapped back)" if r.planar else "realised (after clamp, safety)"
-        ax.plot(t_real, k * real[:, j], color=_CUE, lw=1.0, label=label)
+        ax.plot(r.tick_t, k * r.tick_cab_pose[:, j], color=_CUE, lw=1.0, label=label)
         lo, hi = r.reach[:, j]
         if np.isfinite(lo) and np.isfinite(hi):
             for v in (lo, hi):
                 ax.axhline(k * v, color="#b00020", lw=0.8, ls=":")
-        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_ylabel(f"{name} {positive} [{unit}]")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(loc="upper right", fontsize=8)
     for ax in axes[-1]:
@@ -260,10 +270,10 @@ def _plot_pose(r: Report, path: Path) -> Path:
     fig.suptitle(
         _title(r, f"platform pose{note}; dotted red: single-axis reach; shaded: start/stop")
     )
-    return _save(fig, path)
+    return fig
 
 
-def _plot_actuators(r: Report, path: Path) -> Path:
+def _actuators_figure(r: Report) -> Any:
     n = r.actuators.shape[1]
     rows = 3
     cols = (n + rows - 1) // rows
@@ -286,10 +296,10 @@ def _plot_actuators(r: Report, path: Path) -> Path:
         ax.set_xlabel("time [s]")
     what = "servo commands (integer degrees)" if r.planar else "crank angles"
     fig.suptitle(_title(r, f"{what} against their limits; shaded: start/stop"))
-    return _save(fig, path)
+    return fig
 
 
-def _plot_timeline(r: Report, path: Path) -> Path:
+def _timeline_figure(r: Report) -> Any:
     from matplotlib.patches import Patch
 
     fig, axes = _figure(2, 1, 4.8)
@@ -349,7 +359,7 @@ def _plot_timeline(r: Report, path: Path) -> Path:
     ax.set_xlabel("time [s]")
     ax.grid(alpha=0.3)
     fig.suptitle(_title(r, "pipeline timeline (share of ticks on the right)"))
-    return _save(fig, path)
+    return fig
 
 
 def _spans(t: np.ndarray, flags: np.ndarray, dt: float) -> list[tuple[float, float]]:
@@ -363,14 +373,19 @@ def _spans(t: np.ndarray, flags: np.ndarray, dt: float) -> list[tuple[float, flo
     return [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in zip(starts, ends, strict=True)]
 
 
+def report_figures(report: Report) -> dict[str, Any]:
+    """Every plot of a report as a matplotlib Figure (Agg canvas), by the file name it gets."""
+    return {
+        "specific_force.png": _specific_force_figure(report),
+        "angular_velocity.png": _angular_velocity_figure(report),
+        "perceived.png": _perceived_figure(report),
+        "pose.png": _pose_figure(report),
+        "actuators.png": _actuators_figure(report),
+        "timeline.png": _timeline_figure(report),
+    }
+
+
 def plot_report(report: Report, out_dir: str | os.PathLike[str]) -> list[Path]:
     """Draw every plot of a report into ``out_dir`` (must exist); return the PNG paths."""
     d = Path(out_dir)
-    return [
-        _plot_specific_force(report, d / "specific_force.png"),
-        _plot_angular_velocity(report, d / "angular_velocity.png"),
-        _plot_perceived(report, d / "perceived.png"),
-        _plot_pose(report, d / "pose.png"),
-        _plot_actuators(report, d / "actuators.png"),
-        _plot_timeline(report, d / "timeline.png"),
-    ]
+    return [_save(fig, d / name) for name, fig in report_figures(report).items()]

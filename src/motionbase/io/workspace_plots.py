@@ -1,18 +1,58 @@
-"""PNG plots of platform workspaces (matplotlib, Agg canvas; no display needed).
+"""Plots of platform workspaces (matplotlib, Agg canvas; no display needed).
 
 The sweeps themselves are pure math in :mod:`motionbase.platform.rus6_workspace`; this module
-only draws them and writes the file.
+only draws them and writes the file, in the format its extension names (``.png``, ``.svg``,
+``.pdf``: :func:`plot_format`).
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
-from motionbase.errors import SinkError
+from motionbase.config import DEFAULT_RUS6
+from motionbase.errors import ConfigError, SinkError
 from motionbase.platform.rus6_workspace import AxisReach, WorkspaceSlices
 
-__all__ = ["plot_rus6_workspace"]
+__all__ = [
+    "PLOT_FORMATS",
+    "plot_format",
+    "plot_rus6_workspace",
+    "rus6_workspace_report",
+    "save_figure",
+]
+
+#: The file formats a workspace plot is written in, by extension.
+PLOT_FORMATS = ("png", "svg", "pdf")
+
+
+def plot_format(path: str | Path) -> str:
+    """The format a plot file's extension asks for (``png``, ``svg`` or ``pdf``).
+
+    Raises
+    ------
+    ConfigError
+        Another extension, or none: the file would not be what its name says.
+    """
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in PLOT_FORMATS:
+        what = f"extension .{suffix}" if suffix else "no extension"
+        raise ConfigError(
+            f"{path}: {what}: name the plot file .png, .svg or .pdf (its format follows it)"
+        )
+    return suffix
+
+
+def save_figure(fig: Any, path: str | Path) -> Path:
+    """Write a figure in the format its extension names; a failing write is a SinkError."""
+    p = Path(path)
+    fmt = plot_format(p)
+    try:
+        fig.savefig(p, format=fmt)
+    except OSError as exc:
+        raise SinkError(f"{p}: cannot write the plot: {exc.strerror or exc}") from None
+    return p
 
 
 def plot_rus6_workspace(
@@ -22,14 +62,14 @@ def plot_rus6_workspace(
     envelope: list[AxisReach] | None = None,
     title: str = "6-RUS workspace",
 ) -> Path:
-    """Draw the three reachability slices (z = 0, y = 0, x = 0) to a PNG file.
+    """Draw the three reachability slices (z = 0, y = 0, x = 0) to a file.
 
     Parameters
     ----------
     slices : WorkspaceSlices
         From :func:`motionbase.platform.rus6_workspace.workspace_slices`.
     path : str or Path
-        Output PNG file.
+        Output file: ``.png``, ``.svg`` or ``.pdf``.
     envelope : list of AxisReach, optional
         Single-axis reach, drawn as markers on the slices.
     title : str
@@ -103,19 +143,18 @@ def plot_rus6_workspace(
         f"yaw {yaw:.1f} deg"
     )
     fig.tight_layout()
-    p = Path(path)
-    try:
-        fig.savefig(p, format="png")
-    except OSError as exc:
-        raise SinkError(f"{p}: cannot write the plot: {exc.strerror or exc}") from None
-    return p
+    return save_figure(fig, path)
 
 
-def rus6_workspace_report(platform: str | Path = "ceart", plot: str | Path | None = None) -> str:
+def rus6_workspace_report(
+    platform: str | Path | None = None, plot: str | Path | None = None
+) -> str:
     """The ``motionbase workspace`` job for a 6-RUS platform.
 
-    Loads the geometry (preset name or TOML path), computes the single-axis envelope and,
-    if ``plot`` is given, draws the workspace slices at neutral orientation to that PNG.
+    Loads the geometry (preset name or TOML path; default
+    :data:`~motionbase.config.DEFAULT_RUS6`), computes the single-axis envelope and, if
+    ``plot`` is given, draws the workspace slices at neutral orientation to that file
+    (``.png``, ``.svg`` or ``.pdf``; another extension is refused before any work).
 
     Returns
     -------
@@ -130,7 +169,9 @@ def rus6_workspace_report(platform: str | Path = "ceart", plot: str | Path | Non
         workspace_slices,
     )
 
-    geometry = Rus6Geometry.preset(str(platform))
+    if plot is not None:
+        plot_format(plot)
+    geometry = Rus6Geometry.preset(str(platform if platform is not None else DEFAULT_RUS6))
     rus6 = Rus6(geometry)
     envelope = single_axis_envelope(rus6)
     lo, hi = rus6.angle_limits

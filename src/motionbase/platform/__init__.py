@@ -1,4 +1,5 @@
-"""Kinematics of the motion platforms: the 6-RUS rotary platform and the planar 3-RRR robot."""
+"""Kinematics of the motion platforms: the 6-RUS rotary platform, the 6-UPS Stewart platform
+(linear actuators) and the planar 3-RRR robot."""
 
 from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.output_map import OutputMapping, sweep_profile
@@ -12,6 +13,8 @@ from motionbase.platform.rus6_workspace import (
     single_axis_envelope,
     workspace_slices,
 )
+from motionbase.platform.stewart6 import Stewart6
+from motionbase.platform.stewart6_geometry import Stewart6Geometry
 
 __all__ = [
     "AxisReach",
@@ -23,6 +26,8 @@ __all__ = [
     "Rrr3Geometry",
     "Rus6",
     "Rus6Geometry",
+    "Stewart6",
+    "Stewart6Geometry",
     "WorkspaceSlices",
     "reachability_grid",
     "rotation_matrix",

@@ -49,6 +49,7 @@ from numba import njit
 
 from motionbase.config import (
     as_float,
+    check_file_kind,
     check_keys,
     read_toml,
     resolve_preset_or_path,
@@ -257,6 +258,7 @@ class Rrr3Geometry:
         """Build from :meth:`to_dict`'s layout; unknown or missing fields are ConfigErrors."""
         if not isinstance(data, dict):
             raise ConfigError(f"{source}: expected a table, got {type(data).__name__}")
+        check_file_kind(source, data, "rrr3")
         check_keys(source, data, _TOP_KEYS, required=_TOP_KEYS[1:])
         servo, safety = data["servo"], data["safety"]
         if not isinstance(servo, dict) or not isinstance(safety, dict):

@@ -32,6 +32,7 @@ import numpy as np
 from motionbase.config import (
     as_array,
     as_float,
+    check_file_kind,
     check_keys,
     read_toml,
     resolve_preset_or_path,
@@ -93,9 +94,9 @@ class Rus6Geometry:
     angle_min, angle_max : tuple of 6 float
         Crank angle limits, rad.
     max_speed : tuple of 6 float
-        Crank speed limit, rad/s (default 3.0).
+        Crank speed limit, rad/s (required: a limit that moves motors is never guessed).
     max_accel : tuple of 6 float
-        Crank acceleration limit, rad/s^2 (default 30.0).
+        Crank acceleration limit, rad/s^2 (required).
     park_angle : float
         Crank angle of the parked platform (every crank), rad. Default: the lowest pure-heave
         pose within the crank limits with a 5-degree margin, ``max(angle_min) + 5 deg``. It
@@ -119,8 +120,8 @@ class Rus6Geometry:
     neutral_height: float
     angle_min: tuple[float, ...]
     angle_max: tuple[float, ...]
-    max_speed: tuple[float, ...] = (3.0,) * N_LEGS
-    max_accel: tuple[float, ...] = (30.0,) * N_LEGS
+    max_speed: tuple[float, ...]
+    max_accel: tuple[float, ...]
     park_angle: float | None = None
     name: str = "custom"
     output: OutputMapping | None = None
@@ -353,10 +354,13 @@ class Rus6Geometry:
         ``neutral_height`` (the height is then derived so the cranks sit at that angle at
         neutral); ``name``; ``kind`` (must be ``"rus6"`` if present); ``output``, a table of
         the motor-drive mapping (see :class:`~motionbase.platform.output_map.OutputMapping`).
-        Per-leg fields take 6 numbers or one number for all legs.
+        Per-leg fields take 6 numbers or one number for all legs. The angle limits,
+        ``max_speed`` and ``max_accel`` are required (limits that move motors are never
+        defaulted); numbers must be numbers (a bool or a string is an error).
         """
         if not isinstance(data, Mapping):
             raise ConfigError(f"{source}: expected a table of geometry fields, got {data!r}")
+        check_file_kind(source, data, "rus6")
         allowed = {"name", "kind", "neutral_angle_deg", "output"}
         allowed |= set(_SCALARS) | set(_LENGTH_ARRAYS)
         for f in _ANGLE_ARRAYS + ("park_angle",):
@@ -406,6 +410,14 @@ class Rus6Geometry:
         for f in required:
             if f not in kw:
                 raise ConfigError(f"{source}: missing field {f!r} (add it)")
+        for f, suffix in _RATE_ARRAYS.items():
+            if f not in kw:
+                unit = "rad/s" if f == "max_speed" else "rad/s^2"
+                raise ConfigError(
+                    f"{source}: missing field {f!r} (or '{f}_{suffix}'): the crank "
+                    f"{'speed' if f == 'max_speed' else 'acceleration'} limit in {unit}, which "
+                    "is never guessed (add your drives' limit)"
+                )
         for f in _LENGTH_ARRAYS + _ANGLE_ARRAYS + tuple(_RATE_ARRAYS):
             if f in kw:
                 kw[f] = as_array(source, f, kw[f], N_LEGS)

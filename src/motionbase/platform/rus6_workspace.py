@@ -1,25 +1,26 @@
-"""Workspace of the 6-RUS platform: reachability grids, slices and the single-axis envelope.
+"""Workspace of a platform: reachability grids, slices and the single-axis envelope.
 
 The thesis (ch. 8.3, fig. 25) sweeps positions at a fixed orientation and solves the inverse
 kinematics at each; :func:`reachability_grid` does that for any grid, :func:`workspace_slices`
 gives the three planes through neutral for a plot, and :func:`single_axis_envelope` finds how
-far each axis reaches alone (both directions). "Reachable" means every leg closes and every
-crank is within its limits (:meth:`Rus6.reachable`). Pure math: plotting lives in
-:mod:`motionbase.io.workspace_plots`.
+far each axis reaches alone (both directions). Any robot with a batch ``reachable(poses)``
+method works: the 6-RUS (every leg closes and every crank is within its limits,
+:meth:`Rus6.reachable`) and the Stewart platform (:meth:`Stewart6.reachable`). Pure math:
+plotting lives in :mod:`motionbase.io.workspace_plots`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from motionbase.platform.rus6 import Rus6
-
 __all__ = [
     "AXES",
+    "Reachable",
     "AxisReach",
     "WorkspaceSlices",
     "format_envelope",
@@ -30,6 +31,14 @@ __all__ = [
 
 #: Pose axis names, in pose order.
 AXES = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+
+
+class Reachable(Protocol):
+    """A robot whose workspace these functions sweep (e.g. :class:`Rus6`, :class:`Stewart6`)."""
+
+    def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
+        """Bool per pose of shape (..., 6) (one bool for a single pose of shape (6,))."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -56,7 +65,7 @@ class AxisReach:
 
 
 def reachability_grid(
-    rus6: Rus6,
+    robot: Reachable,
     x: ArrayLike,
     y: ArrayLike,
     z: ArrayLike,
@@ -66,7 +75,8 @@ def reachability_grid(
 
     Parameters
     ----------
-    rus6 : Rus6
+    robot : Reachable
+        Anything with ``reachable(poses)``: :class:`Rus6`, :class:`Stewart6`.
     x, y, z : array_like, 1-D
         Grid coordinates, m, base axes FRD (z down).
     orientation : array_like, shape (3,)
@@ -81,16 +91,16 @@ def reachability_grid(
     poses = np.empty(X.shape + (6,))
     poses[..., 0], poses[..., 1], poses[..., 2] = X, Y, Z
     poses[..., 3:] = np.asarray(orientation, dtype=float)
-    return np.asarray(rus6.reachable(poses))
+    return np.asarray(robot.reachable(poses))
 
 
-def _reach_along(rus6: Rus6, axis: int, sign: float, limit: float, tol: float) -> float:
+def _reach_along(robot: Reachable, axis: int, sign: float, limit: float, tol: float) -> float:
     """Largest t in [0, limit] such that every pose sign * s * e_axis, s <= t, is reachable."""
     n = 2001
     t = np.linspace(0.0, limit, n)
     poses = np.zeros((n, 6))
     poses[:, axis] = sign * t
-    ok = np.asarray(rus6.reachable(poses))
+    ok = np.asarray(robot.reachable(poses))
     if not ok[0]:
         return 0.0
     bad = np.flatnonzero(~ok)
@@ -101,7 +111,7 @@ def _reach_along(rus6: Rus6, axis: int, sign: float, limit: float, tol: float) -
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
         pose[axis] = sign * mid
-        if rus6.reachable(pose):
+        if robot.reachable(pose):
             lo = mid
         else:
             hi = mid
@@ -109,7 +119,7 @@ def _reach_along(rus6: Rus6, axis: int, sign: float, limit: float, tol: float) -
 
 
 def single_axis_envelope(
-    rus6: Rus6,
+    robot: Reachable,
     *,
     max_translation: float = 2.0,
     max_rotation: float = math.pi,
@@ -127,8 +137,8 @@ def single_axis_envelope(
     out = []
     for j, name in enumerate(AXES):
         limit = max_translation if j < 3 else max_rotation
-        neg = _reach_along(rus6, j, -1.0, limit, tol)
-        pos = _reach_along(rus6, j, +1.0, limit, tol)
+        neg = _reach_along(robot, j, -1.0, limit, tol)
+        pos = _reach_along(robot, j, +1.0, limit, tol)
         out.append(AxisReach(name, neg, pos))
     return out
 
@@ -186,7 +196,7 @@ class WorkspaceSlices:
 
 
 def workspace_slices(
-    rus6: Rus6,
+    robot: Reachable,
     orientation: ArrayLike = (0.0, 0.0, 0.0),
     *,
     n: int = 121,
@@ -196,7 +206,8 @@ def workspace_slices(
 
     Parameters
     ----------
-    rus6 : Rus6
+    robot : Reachable
+        Anything with ``reachable(poses)``: :class:`Rus6`, :class:`Stewart6`.
     orientation : array_like, shape (3,)
         ``(roll, pitch, yaw)``, rad.
     n : int
@@ -206,12 +217,12 @@ def workspace_slices(
         translation reach.
     """
     if extent is None:
-        env = single_axis_envelope(rus6, tol=1e-4)
+        env = single_axis_envelope(robot, tol=1e-4)
         extent = 1.25 * max(max(a.negative, a.positive) for a in env if not a.is_rotation)
     g = np.linspace(-extent, extent, int(n))
     o = tuple(float(v) for v in np.asarray(orientation, dtype=float))
     zero = np.array([0.0])
-    xy = reachability_grid(rus6, g, g, zero, o)[:, :, 0]
-    xz = reachability_grid(rus6, g, zero, g, o)[:, 0, :]
-    yz = reachability_grid(rus6, zero, g, g, o)[0, :, :]
+    xy = reachability_grid(robot, g, g, zero, o)[:, :, 0]
+    xz = reachability_grid(robot, g, zero, g, o)[:, 0, :]
+    yz = reachability_grid(robot, zero, g, g, o)[0, :, :]
     return WorkspaceSlices(g, g.copy(), g.copy(), xy, xz, yz, o)  # type: ignore[arg-type]

@@ -3,6 +3,14 @@
 Structure (DESIGN.md, "The pipeline", step 2; Reid, L. D. & Nahon, M. A., "Flight
 simulation motion-base drive algorithms: part 1", UTIAS Report 296, 1985):
 
+0. **Input low-pass** (optional, ``[input] lowpass_wn`` > 0): a critically damped
+   second-order low-pass ``wn^2/(s^2 + 2 wn s + wn^2)`` on each input channel (the
+   specific force's deviation from level flight, and the body rates), for sources that
+   hold a sample between sparse messages (MAVLink telemetry at a few Hz): it turns the
+   held staircase's steps, which the high-passes below would pass on as steps of the
+   platform's acceleration and, in the rotational channel, of its angular velocity
+   (an angular acceleration spike the crank limiter then cuts), into smooth ramps, at the
+   price of a lag of ``2/wn`` s. Level flight at rest passes unchanged.
 1. **Scale and limit**, per axis::
 
        f_s = f_0 + K_f sat(f - f_0),   f_0 = (0, 0, -g)      (level flight)
@@ -120,7 +128,8 @@ _RPHI, _RG0, _RG1 = 45, 57, 63  # rotational: 3 axes x (2x2), 3 x 2, 3 x 2
 _LPHI, _LG0, _LG1 = 69, 77, 81  # tilt low-pass: 2 axes x (2x2), 2 x 2, 2 x 2
 _KF, _FLIM, _KW, _WLIM = 85, 88, 91, 94
 _G, _TVMAX, _TLIM, _TU, _DT, _TK = 97, 98, 99, 100, 101, 102
-_NC = 103
+_PON, _PPHI, _PG0, _PG1 = 103, 104, 108, 110  # input low-pass: on flag, (2x2), 2, 2
+_NC = 112
 
 # state
 _QT, _UT = 0, 9  # translational states (axis*3 + [integral, position, velocity]), inputs
@@ -130,7 +139,8 @@ _QR, _UR = 20, 26  # rotational states (axis*2 + [integral, angle]), inputs
 _POSE = 29  # last pose sent (6)
 _TRATE = 35  # tilt rates (roll, pitch)
 _TTGT = 37  # last angle-limited tilt targets (roll, pitch)
-_NS = 39
+_QP, _UP = 39, 51  # input low-pass states (channel*2 + [output, rate]), inputs (6 channels)
+_NS = 57
 
 _GLIDE_END = 0.1  # the glide lands at a speed of this share of one tick's speed change
 _COS_MIN = 1e-3  # guard of 1/cos(pitch) in T_s (pitch within 0.06 deg of +-90 deg)
@@ -197,8 +207,30 @@ def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
+def _prefilter(cf, st, i, u):  # pragma: no cover - compiled
+    """Input low-pass of channel ``i`` (0-2: f - (0, 0, -g), 3-5: rates); returns its output."""
+    q0 = st[_QP + 2 * i]
+    q1 = st[_QP + 2 * i + 1]
+    up = st[_UP + i]
+    n0 = cf[_PPHI] * q0 + cf[_PPHI + 1] * q1 + cf[_PG0] * up + cf[_PG1] * u
+    n1 = cf[_PPHI + 2] * q0 + cf[_PPHI + 3] * q1 + cf[_PG0 + 1] * up + cf[_PG1 + 1] * u
+    st[_QP + 2 * i] = n0
+    st[_QP + 2 * i + 1] = n1
+    st[_UP + i] = u
+    return n0
+
+
+@numba.njit(cache=True, inline="always")
 def _step_kernel(cf, st, fx, fy, fz, wx, wy, wz, out):  # pragma: no cover - compiled
     g = cf[_G]
+    # 0. input low-pass (on the deviation from level flight, so rest stays rest)
+    if cf[_PON] != 0.0:
+        fx = _prefilter(cf, st, 0, fx)
+        fy = _prefilter(cf, st, 1, fy)
+        fz = _prefilter(cf, st, 2, fz + g) - g
+        wx = _prefilter(cf, st, 3, wx)
+        wy = _prefilter(cf, st, 4, wy)
+        wz = _prefilter(cf, st, 5, wz)
     # 1. scale and limit (deviation from level flight for f)
     fs0 = cf[_KF + 0] * _clip(fx, -cf[_FLIM + 0], cf[_FLIM + 0])
     fs1 = cf[_KF + 1] * _clip(fy, -cf[_FLIM + 1], cf[_FLIM + 1])
@@ -386,6 +418,11 @@ class WashoutState:
         Last scaled Euler rates, rad/s.
     pose : ndarray, shape (6,)
         Last pose sent: the washout's output, or the achieved pose given to ``track``.
+    input_lowpass : ndarray, shape (6, 2)
+        Per input channel (specific force deviation from level flight x, y, z [m/s^2], body
+        rates p, q, r [rad/s]): the input low-pass's (output, rate); zero when it is off.
+    input_lowpass_input : ndarray, shape (6,)
+        Its last inputs.
     """
 
     translational: np.ndarray
@@ -398,6 +435,8 @@ class WashoutState:
     rotational: np.ndarray
     rotational_input: np.ndarray
     pose: np.ndarray
+    input_lowpass: np.ndarray
+    input_lowpass_input: np.ndarray
 
     @classmethod
     def from_vector(cls, st: np.ndarray) -> WashoutState:
@@ -412,6 +451,8 @@ class WashoutState:
             "rotational": st[_QR:_UR].reshape(3, 2),
             "rotational_input": st[_UR : _UR + 3],
             "pose": st[_POSE : _POSE + 6],
+            "input_lowpass": st[_QP:_UP].reshape(6, 2),
+            "input_lowpass_input": st[_UP : _UP + 6],
         }
         frozen = {}
         for key, value in parts.items():
@@ -432,6 +473,8 @@ class WashoutState:
         st[_QR:_UR] = self.rotational.ravel()
         st[_UR : _UR + 3] = self.rotational_input
         st[_POSE : _POSE + 6] = self.pose
+        st[_QP:_UP] = self.input_lowpass.ravel()
+        st[_UP : _UP + 6] = self.input_lowpass_input
         return st
 
 
@@ -474,6 +517,13 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
     cf[_TU] = params.tilt_accel_limit * dt
     cf[_DT] = dt
     cf[_TK] = params.tilt_accel_limit / params.tilt_rate_limit  # 1/tau of the glide
+    wn = params.input_lowpass_wn
+    if wn > 0.0:
+        d = discretise(lowpass2(wn, 1.0), dt, m, prewarp=wn if m == "tustin" else None)
+        cf[_PON] = 1.0
+        cf[_PPHI : _PPHI + 4] = d.phi.ravel()
+        cf[_PG0 : _PG0 + 2] = d.gamma0
+        cf[_PG1 : _PG1 + 2] = d.gamma1
     return cf
 
 

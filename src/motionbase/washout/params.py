@@ -28,13 +28,17 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
     wn = [1.0, 0.8, 1.0]         # rad/s
     zeta = [1.0, 1.0, 1.0]
 
+    [input]                      # optional: wn^2/(s + wn)^2 on every input channel
+    lowpass_wn = 8.0             # rad/s; 0 (or no [input] table) turns it off
+
 The dataclass fields mirror the file one to one (angles stay in degrees where the
 name says ``_deg``), so ``from_dict(p.to_dict()) == p`` exactly; the SI values the
 filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit``,
 ``tilt_angle_limit`` and ``tilt_accel_limit`` (radians).
 
 ``tilt.accel_limit_deg_s2`` may be left out (files written before it existed): it then
-takes :data:`DEFAULT_TILT_ACCEL_LIMIT_DEG_S2`.
+takes :data:`DEFAULT_TILT_ACCEL_LIMIT_DEG_S2`. The ``[input]`` table may be left out too
+(no input low-pass, as before it existed).
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ import numpy as np
 from motionbase.config import (
     as_array,
     as_float,
+    check_file_kind,
     check_keys,
     preset_path,
     read_toml,
@@ -77,12 +82,16 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
     "translational": ("wn", "zeta", "wb"),
     "tilt": ("wn", "zeta", "rate_limit_deg_s", "angle_limit_deg", "accel_limit_deg_s2"),
     "rotational": ("wn", "zeta"),
+    "input": ("lowpass_wn",),
 }
 _TOP = ("description", "g", "method")
 #: Keys that may be left out of a file, per section, with their default.
 _OPTIONAL: dict[str, dict[str, float]] = {
     "tilt": {"accel_limit_deg_s2": DEFAULT_TILT_ACCEL_LIMIT_DEG_S2},
+    "input": {"lowpass_wn": 0.0},
 }
+#: Tables that may be left out of a file (all their keys then take their defaults).
+_OPTIONAL_SECTIONS = ("input",)
 
 
 @dataclass(frozen=True)
@@ -115,6 +124,10 @@ class WashoutParams:
         Largest change of the tilt rate, deg/s^2, > 0: the tilt rate builds up and
         dies down smoothly, and the tilt brakes before its angle limit instead of
         stopping dead on it.
+    input_lowpass_wn : float
+        Natural frequency of the critically damped second-order low-pass on every input
+        channel, rad/s, >= 0; 0 turns it off (for sources that hold sparse samples, such as
+        MAVLink telemetry at a few Hz).
     g : float
         Gravity, m/s^2, > 0.
     method : str
@@ -137,6 +150,7 @@ class WashoutParams:
     rotational_wn: Vec3
     rotational_zeta: Vec3
     tilt_accel_limit_deg_s2: float = DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
+    input_lowpass_wn: float = 0.0
     g: float = STANDARD_GRAVITY
     method: str = "tustin"
     description: str = ""
@@ -203,10 +217,12 @@ class WashoutParams:
         """
         if not isinstance(d, dict):
             raise ConfigError(f"{source}: expected a table of washout parameters, got {d!r}")
-        check_keys(source, d, (*_TOP, *_SECTIONS), required=tuple(_SECTIONS))
+        check_file_kind(source, d, "washout")
+        required = tuple(k for k in _SECTIONS if k not in _OPTIONAL_SECTIONS)
+        check_keys(source, d, (*_TOP, *_SECTIONS), required=required)
         flat: dict[str, Any] = {}
         for section, keys in _SECTIONS.items():
-            table = d[section]
+            table = d.get(section, {})
             if not isinstance(table, dict):
                 raise ConfigError(f"{source}: [{section}] must be a table, got {table!r}")
             optional = _OPTIONAL.get(section, {})
@@ -282,6 +298,7 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         "tilt_rate_limit_deg_s": num("tilt", "rate_limit_deg_s", strict=True, unit="deg/s"),
         "tilt_angle_limit_deg": num("tilt", "angle_limit_deg", strict=False, unit="deg"),
         "tilt_accel_limit_deg_s2": num("tilt", "accel_limit_deg_s2", strict=True, unit="deg/s^2"),
+        "input_lowpass_wn": num("input", "lowpass_wn", strict=False, unit="rad/s"),
         "rotational_wn": vec("rotational", "wn", strict=True, unit="rad/s"),
         "rotational_zeta": vec("rotational", "zeta", strict=True),
         "g": as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2"),

@@ -64,14 +64,13 @@ CANAL_TAU_A = 30.0  # s
 THRESHOLD_SPECIFIC_FORCE = np.array([0.17, 0.17, 0.28])  # m/s^2, x, y, z
 THRESHOLD_ANGULAR_VELOCITY = np.deg2rad([3.0, 3.6, 2.6])  # rad/s, roll, pitch, yaw
 
-# Single-axis reach of the ceart platform (DESIGN.md), base axes FRD: lower and upper
-# bounds of [x, y, z, roll, pitch, yaw]. Sway is taken equal to surge (the platform is
-# 3-fold symmetric; DESIGN.md gives no sway figure) and roll symmetric at its smaller
-# side (17.6 deg).
+# Single-axis reach of the ceart platform (DESIGN.md, "Geometry defaults"), base axes FRD:
+# lower and upper bounds of [x, y, z, roll, pitch, yaw] (surge 0.30 m back, 0.36 m forward;
+# heave 0.20 m up, 0.12 m down; pitch 17.6 deg nose down, 30.3 deg nose up).
 CEART_REACH = np.array(
     [
-        [-0.31, -0.31, -0.20, -np.radians(17.6), -np.radians(19.1), -np.radians(48.9)],
-        [0.31, 0.31, 0.12, np.radians(17.6), np.radians(19.1), np.radians(48.9)],
+        [-0.30, -0.31, -0.20, -np.radians(19.0), -np.radians(17.6), -np.radians(48.9)],
+        [0.36, 0.31, 0.12, np.radians(19.0), np.radians(30.3), np.radians(48.9)],
     ]
 )
 

@@ -1,0 +1,587 @@
+"""The shared loop of the live UDP sources: fixed-rate ticks holding the latest sample.
+
+:class:`UdpLiveSource` is the part that the FlightGear native-FDM source
+(:mod:`motionbase.io.fgnative_source`) and the X-Plane source
+(:mod:`motionbase.io.xplane_source`) have in common; a subclass only binds its
+address and decodes its packets.
+
+* One UDP socket, non-blocking, bound at :meth:`UdpLiveSource.open`.
+* Ticks at ``rate_hz`` on the wall clock (:func:`time.monotonic`), tick ``k``
+  due at ``start + k / rate_hz``. Between ticks every datagram that arrives is
+  read and handed to the subclass, which stores the values it accepts in nine
+  slots (specific force, body rates, attitude) with their arrival time. Each
+  tick yields the latest value of every slot, never extrapolated (a hold), with
+  ``t = k / rate_hz``.
+* Stale watchdog: a tick is *fresh* when the oldest slot is at most
+  ``stale_timeout_s`` old. Before any sample the held state is the neutral one,
+  ``f = (0, 0, -g)``. Stale ticks keep coming at the pipeline rate, marked
+  ``fresh`` False, so the pipeline fades the platform to neutral.
+* A tick that starts more than one period late is counted (``late_ticks``); after
+  a stall of more than 0.25 s the schedule is re-anchored (no burst of catch-up
+  ticks).
+* Pacing: :func:`motionbase.pacing.wait_until` polls the socket every 0.1 ms when
+  busy-waiting, otherwise the loop sleeps in :func:`select.select` until a
+  datagram or the tick is due.
+
+The same loop is in :class:`~motionbase.io.mavlink_source.MavlinkSource`
+(``_iter_live``, ``_pump_until``, ``_make_state``); MAVLink reads through
+pymavlink rather than a socket of its own, so it would adopt this class by
+supplying its own ``_pump`` (``conn.recv_msg`` instead of ``recvfrom``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import select
+import socket
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+from motionbase.errors import ConfigError, SourceError
+from motionbase.pacing import wait_until
+from motionbase.state import AircraftState
+
+__all__ = [
+    "G0",
+    "MAX_ANGULAR_RATE",
+    "MAX_SPECIFIC_FORCE",
+    "LiveStats",
+    "LiveTick",
+    "UdpLiveSource",
+    "attitude_ok",
+    "body_rates_from_euler_rates",
+    "finite_within",
+    "split_host_port",
+    "wrap_pi",
+]
+
+_log = logging.getLogger("motionbase")
+
+G0 = 9.80665
+"""Standard gravity, m/s^2."""
+MAX_SPECIFIC_FORCE = 20.0 * G0
+"""Largest plausible specific-force component, m/s^2."""
+MAX_ANGULAR_RATE = 50.0
+"""Largest plausible body rate, rad/s (beyond a +-2000 deg/s gyro)."""
+_ANGLE_TOL = 1e-3  # rad, on the limits of roll, pitch and yaw
+
+_POLL_S = 1e-4  # busy-wait: how often the socket is polled between ticks, s
+_MAX_DRAIN = 10000  # datagrams read per pass, so a flood cannot starve the ticks
+_RECV_BYTES = 65536
+
+#: slot order of the held sample: specific force (3), body rates (3), attitude (3)
+N_SLOTS = 9
+F_SLOTS = slice(0, 3)
+W_SLOTS = slice(3, 6)
+ATT_SLOTS = slice(6, 9)
+
+
+@dataclass(frozen=True)
+class LiveTick:
+    """What the pipeline needs to know about the state just yielded.
+
+    Attributes
+    ----------
+    fresh : bool
+        True when every part of the state (specific force, body rates,
+        attitude) is at most ``stale_timeout_s`` old.
+    sample_age_s : float
+        Age of the oldest part of the state, s (inf before any sample).
+    new_sample : bool
+        True when a value entered the state since the previous tick.
+    arrival_s : float
+        ``time.monotonic()`` when the newest value in the state arrived, s;
+        nan before any sample.
+    """
+
+    fresh: bool
+    sample_age_s: float
+    new_sample: bool
+    arrival_s: float
+
+
+_NOT_STARTED = LiveTick(fresh=False, sample_age_s=math.inf, new_sample=False, arrival_s=math.nan)
+
+
+@dataclass(frozen=True)
+class LiveStats:
+    """A snapshot of a live source's counters (see :attr:`UdpLiveSource.stats`).
+
+    Attributes
+    ----------
+    received : int
+        Datagrams read from the socket.
+    accepted : int
+        Datagrams whose values entered the state (in whole or in part).
+    rejected_invalid : int
+        Datagrams (FlightGear) or values (X-Plane) that were NaN, infinite or
+        physically absurd; none of them reached the state.
+    bad_data : int
+        Datagrams that are not the protocol (wrong header, size or version).
+    bad_bytes : int
+        Bytes in those datagrams.
+    ticks, stale_ticks : int
+        Ticks yielded, and how many of them were stale.
+    gaps : int
+        Fresh-to-stale transitions (each logged as a warning).
+    late_ticks : int
+        Ticks that started more than one period late.
+    last_sample_age_s : float
+        Age of the oldest part of the last yielded state, s; inf before any.
+    message_rate_hz : float
+        Accepted datagrams per second over the last complete second.
+    extra : Mapping[str, Any]
+        Source-specific figures (protocol version, subscription state, ...).
+    """
+
+    received: int = 0
+    accepted: int = 0
+    rejected_invalid: int = 0
+    bad_data: int = 0
+    bad_bytes: int = 0
+    ticks: int = 0
+    stale_ticks: int = 0
+    gaps: int = 0
+    late_ticks: int = 0
+    last_sample_age_s: float = math.inf
+    message_rate_hz: float = 0.0
+    extra: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def rejected(self) -> int:
+        """Everything refused: invalid values and datagrams that are not the protocol."""
+        return self.rejected_invalid + self.bad_data
+
+
+def split_host_port(text: str, what: str, example: str) -> tuple[str, int]:
+    """``HOST:PORT`` (or ``[IPv6]:PORT``) as (host, port), or a one-line ConfigError.
+
+    Parameters
+    ----------
+    text : str
+        The address, e.g. ``0.0.0.0:5500``.
+    what : str
+        Name of the thing in the error message, e.g. ``"fgnative URL"``.
+    example : str
+        A correct example for the error message.
+    """
+    host, sep, port_s = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not sep or not host or not port_s.isdigit() or not 0 <= int(port_s) <= 65535:
+        raise ConfigError(
+            f"{what}: expected HOST:PORT with a port 0..65535, got {text!r} ({example})"
+        )
+    return host, int(port_s)
+
+
+def body_rates_from_euler_rates(
+    phi: float, theta: float, phidot: float, thetadot: float, psidot: float
+) -> tuple[float, float, float]:
+    """Body rates (p, q, r) from Z-Y-X Euler angle rates, rad/s.
+
+    The inverse of ``phidot = p + (q sin phi + r cos phi) tan theta``,
+    ``thetadot = q cos phi - r sin phi``, ``psidot = (q sin phi + r cos phi) / cos theta``.
+
+    Parameters
+    ----------
+    phi, theta : float
+        Roll and pitch, rad.
+    phidot, thetadot, psidot : float
+        Euler angle rates, rad/s.
+    """
+    sphi, cphi = math.sin(phi), math.cos(phi)
+    sth, cth = math.sin(theta), math.cos(theta)
+    p = phidot - psidot * sth
+    q = thetadot * cphi + psidot * sphi * cth
+    r = -thetadot * sphi + psidot * cphi * cth
+    return p, q, r
+
+
+def finite_within(values: Any, limit: float) -> bool:
+    """True when every value is a finite number in [-limit, limit] (False for NaN)."""
+    for v in values:
+        if not (-limit <= v <= limit):
+            return False
+    return True
+
+
+def attitude_ok(roll: float, pitch: float, yaw: float) -> bool:
+    """True for Euler angles inside roll [-pi, pi], pitch [-pi/2, pi/2], yaw [-2 pi, 2 pi], rad."""
+    return (
+        -math.pi - _ANGLE_TOL <= roll <= math.pi + _ANGLE_TOL
+        and -0.5 * math.pi - _ANGLE_TOL <= pitch <= 0.5 * math.pi + _ANGLE_TOL
+        and -2.0 * math.pi - _ANGLE_TOL <= yaw <= 2.0 * math.pi + _ANGLE_TOL
+    )
+
+
+def wrap_pi(a: float) -> float:
+    """An angle wrapped to [-pi, pi), rad."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _is_loopback(host: str) -> bool:
+    return host in ("localhost", "::1") or host.startswith("127.")
+
+
+class UdpLiveSource:
+    """Base of the live UDP sources: one socket, fixed-rate ticks holding the latest sample.
+
+    Parameters
+    ----------
+    url : str
+        The source URL (kept for messages and :meth:`describe`).
+    rate_hz : float
+        Tick rate, Hz (> 0): the pipeline rate.
+    duration_s : float, optional
+        Stop after this long, s; None runs until the consumer stops.
+    busy_wait : bool
+        Wait for the next tick by polling the socket (one processor at 100 %)
+        instead of sleeping in ``select`` (see :mod:`motionbase.pacing`).
+    stale_timeout_s : float
+        A tick is stale when its oldest part is older than this, s (> 0).
+
+    Notes
+    -----
+    Subclasses set :attr:`kind` and :attr:`label`, and implement
+    :meth:`_bind_address` and :meth:`_on_packet`; they may override
+    :meth:`_on_open`, :meth:`_on_close`, :meth:`_service` and
+    :meth:`_extra_stats`.
+    """
+
+    kind = "live"
+    label = "live source"
+    paces_itself = True  # ticks come on the wall clock: the pipeline's loop does not pace them
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        rate_hz: float = 100.0,
+        duration_s: float | None = None,
+        busy_wait: bool = False,
+        stale_timeout_s: float = 0.5,
+    ) -> None:
+        k = self.kind
+        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
+            raise ConfigError(f"{k} rate_hz: must be a finite number > 0 Hz, got {rate_hz!r}")
+        if not (
+            isinstance(stale_timeout_s, int | float)
+            and math.isfinite(stale_timeout_s)
+            and stale_timeout_s > 0
+        ):
+            raise ConfigError(
+                f"{k} stale_timeout_s: must be a finite number > 0 s, got {stale_timeout_s!r}"
+            )
+        if duration_s is not None and not (
+            isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0
+        ):
+            raise ConfigError(f"{k} duration_s: must be > 0 s or None, got {duration_s!r}")
+        self.url = url
+        self.rate_hz = float(rate_hz)
+        self.duration_s: float | None = None if duration_s is None else float(duration_s)
+        self.busy_wait = bool(busy_wait)
+        self.stale_timeout_s = float(stale_timeout_s)
+        self._sock: socket.socket | None = None
+        self._iterating = False
+        self.due_time: float | None = None  # when the last tick was due, monotonic s
+        self._reset_state()
+
+    # ------------------------------------------------------------------ subclass hooks
+
+    def _bind_address(self) -> tuple[str, int]:
+        """(host, port) to listen on."""
+        raise NotImplementedError
+
+    def _on_packet(self, data: bytes, addr: Any, arrival: float) -> None:
+        """Decode one datagram; store accepted values with :meth:`_store`."""
+        raise NotImplementedError
+
+    def _on_open(self) -> None:
+        """Called once the socket is bound (X-Plane: subscribe)."""
+
+    def _on_close(self) -> None:
+        """Called before the socket closes (X-Plane: unsubscribe)."""
+
+    def _service(self, now: float) -> None:
+        """Called once per tick before the state is built (X-Plane: resubscribe)."""
+
+    def _extra_stats(self) -> dict[str, Any]:
+        """Source-specific figures for :attr:`stats`."""
+        return {}
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def _reset_state(self) -> None:
+        self._c: dict[str, int] = dict.fromkeys(
+            (
+                "received",
+                "accepted",
+                "rejected_invalid",
+                "bad_data",
+                "bad_bytes",
+                "ticks",
+                "stale_ticks",
+                "gaps",
+                "late_ticks",
+            ),
+            0,
+        )
+        self._values = [0.0, 0.0, -G0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        self._times = [-math.inf] * N_SLOTS  # arrival of each slot's value, monotonic s
+        self._new = False
+        self._tick = _NOT_STARTED
+        self._was_fresh = False
+        self._rate_window_start = math.nan
+        self._rate_window_count = 0
+        self._rate_hz = 0.0
+
+    def __enter__(self) -> UdpLiveSource:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Bind the socket (called by ``with``).
+
+        Raises
+        ------
+        SourceError
+            The address does not resolve or the port cannot be bound.
+        """
+        if self._sock is not None:
+            return
+        host, port = self._bind_address()
+        try:
+            infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        except OSError as exc:
+            raise SourceError(
+                f"{self.kind} {self.url}: cannot resolve {host!r} ({exc}); give an IP address "
+                "of this machine, 127.0.0.1 or 0.0.0.0"
+            ) from None
+        family, _, _, _, sockaddr = infos[0]
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            sock.bind(sockaddr)
+        except OSError as exc:
+            sock.close()
+            raise SourceError(
+                f"{self.kind} {self.url}: cannot listen on {host}:{port} ({exc.strerror}); is "
+                "another program using the port, or is the address not on this machine?"
+            ) from None
+        sock.setblocking(False)
+        self._reset_state()
+        self._sock = sock
+        if not _is_loopback(host):
+            _log.warning("%s: listening on %s (not loopback), as requested", self.label, host)
+        try:
+            self._on_open()
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Close the socket (after :meth:`_on_close`). Idempotent."""
+        sock = self._sock
+        if sock is None:
+            return
+        try:
+            self._on_close()
+        finally:
+            self._sock = None
+            sock.close()
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """(host, port) the socket is bound to, or None when closed."""
+        if self._sock is None:
+            return None
+        host, port = self._sock.getsockname()[:2]
+        return str(host), int(port)
+
+    # ------------------------------------------------------------------ public state
+
+    @property
+    def tick(self) -> LiveTick:
+        """Freshness of the state most recently yielded."""
+        return self._tick
+
+    @property
+    def fresh(self) -> bool:
+        """True when the state most recently yielded is fresh (see :class:`LiveTick`)."""
+        return self._tick.fresh
+
+    @property
+    def sample_age_s(self) -> float:
+        """Age of the state most recently yielded, s (inf before any sample)."""
+        return self._tick.sample_age_s
+
+    @property
+    def stats(self) -> LiveStats:
+        """A frozen snapshot of the counters."""
+        return LiveStats(
+            **self._c,
+            last_sample_age_s=self._tick.sample_age_s,
+            message_rate_hz=self._rate_hz,
+            extra=MappingProxyType(self._extra_stats()),
+        )
+
+    def stats_line(self) -> str:
+        """One line for the end of a run: datagrams, rejects, stale ticks."""
+        st = self.stats
+        extra = "".join(f", {k} {v}" for k, v in st.extra.items())
+        return (
+            f"{self.label}: {st.received} datagrams received, {st.accepted} used, "
+            f"{st.rejected_invalid} rejected as invalid, {st.bad_data} not {self.label} "
+            f"data; {st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps{extra}"
+        )
+
+    def describe(self) -> dict[str, Any]:
+        """Plain-data description for the log's metadata."""
+        return {
+            "kind": self.kind,
+            "url": self.url,
+            "rate_hz": self.rate_hz,
+            "duration_s": self.duration_s,
+            "busy_wait": self.busy_wait,
+            "stale_timeout_s": self.stale_timeout_s,
+        }
+
+    # ------------------------------------------------------------------ helpers for subclasses
+
+    def _store(self, first: int, values: Any, arrival: float) -> None:
+        """Put ``values`` in slots ``first, first + 1, ...``, arrived at ``arrival``."""
+        v, t = self._values, self._times
+        for i, x in enumerate(values, first):
+            v[i] = float(x)
+            t[i] = arrival
+        self._new = True
+
+    def _send(self, data: bytes, addr: Any) -> None:
+        """Send one datagram from the listening socket; a failure is logged, not raised."""
+        if self._sock is None:
+            return
+        try:
+            self._sock.sendto(data, addr)
+        except OSError as exc:
+            _log.debug("%s: send to %s failed: %s", self.label, addr, exc)
+
+    # ------------------------------------------------------------------ iteration
+
+    def __iter__(self) -> Iterator[AircraftState]:
+        if self._sock is None:
+            raise SourceError(
+                f"{self.kind} source is not open; use 'with source: for state in source'"
+            )
+        if self._iterating:
+            raise SourceError(f"{self.kind} source: already being iterated; make one iterator")
+        return self._iter_live()
+
+    def _iter_live(self) -> Iterator[AircraftState]:
+        period = 1.0 / self.rate_hz
+        n_max = None if self.duration_s is None else max(1, round(self.duration_s * self.rate_hz))
+        self._iterating = True
+        try:
+            start = time.monotonic()
+            k = 0
+            while n_max is None or k < n_max:
+                deadline = start + k * period
+                self._pump_until(deadline)
+                now = time.monotonic()
+                if now - deadline > period:
+                    self._c["late_ticks"] += 1
+                    if now - deadline > 0.25:  # stalled: re-anchor the clock, keep k contiguous
+                        start = now - k * period
+                self._update_rate(now)
+                self._service(now)
+                self.due_time = deadline  # (the pipeline counts a late command from it)
+                yield self._make_state(k, now)
+                k += 1
+        finally:
+            self._iterating = False
+
+    def _pump_until(self, deadline: float) -> None:
+        """Read and decode every datagram that arrives until ``deadline`` (monotonic s)."""
+        sock = self._sock
+        if sock is None:
+            raise SourceError(f"{self.kind} {self.url}: the source was closed while running")
+        recvfrom = sock.recvfrom
+        on_packet = self._on_packet
+        c = self._c
+        busy = self.busy_wait
+        clock = time.monotonic
+        while True:
+            for _ in range(_MAX_DRAIN):
+                try:
+                    data, addr = recvfrom(_RECV_BYTES)
+                except BlockingIOError:
+                    break
+                except (ConnectionRefusedError, ConnectionResetError):
+                    continue  # an ICMP error for an earlier send (Windows reports these)
+                except OSError as exc:
+                    raise SourceError(f"{self.kind} {self.url}: socket failed ({exc})") from None
+                c["received"] += 1
+                on_packet(data, addr, clock())
+            now = clock()
+            remaining = deadline - now
+            if remaining <= 0.0:
+                return
+            if busy:  # keep the processor: poll the socket again in a moment
+                wait_until(min(deadline, now + _POLL_S), busy=True, clock=clock)
+                continue
+            try:
+                select.select([sock], [], [], remaining)
+            except (OSError, ValueError):
+                time.sleep(min(remaining, 0.001))
+
+    def _update_rate(self, now: float) -> None:
+        if math.isnan(self._rate_window_start):
+            self._rate_window_start = now
+            self._rate_window_count = self._c["accepted"]
+            return
+        span = now - self._rate_window_start
+        if span >= 1.0:
+            self._rate_hz = (self._c["accepted"] - self._rate_window_count) / span
+            self._rate_window_start = now
+            self._rate_window_count = self._c["accepted"]
+
+    def _make_state(self, k: int, now: float) -> AircraftState:
+        """Tick k's state (a hold of the latest values) and its freshness at ``now``."""
+        oldest = min(self._times)
+        newest = max(self._times)
+        age = now - oldest
+        fresh = age <= self.stale_timeout_s
+        self._tick = LiveTick(
+            fresh=fresh,
+            sample_age_s=age,
+            new_sample=self._new,
+            arrival_s=newest if math.isfinite(newest) else math.nan,
+        )
+        self._new = False
+        c = self._c
+        c["ticks"] += 1
+        if not fresh:
+            c["stale_ticks"] += 1
+            if self._was_fresh:
+                c["gaps"] += 1
+                _log.warning(
+                    "%s: no fresh sample for %.2f s; holding the last state, marked stale",
+                    self.label,
+                    age,
+                )
+        elif not self._was_fresh and c["gaps"] > 0:
+            _log.info("%s: fresh samples again", self.label)
+        self._was_fresh = fresh
+        v = self._values
+        return AircraftState(
+            t=k / self.rate_hz,
+            specific_force=v[F_SLOTS],
+            angular_velocity=v[W_SLOTS],
+            attitude=v[ATT_SLOTS],
+        )

@@ -1,0 +1,119 @@
+"""Choosing the live source of ``motionbase stream`` by its URL.
+
+* ``fgnative:udp:HOST:PORT``: FlightGear (or JSBSim) native-FDM packets,
+  :class:`~motionbase.io.fgnative_source.FgNativeSource`;
+* ``xplane:HOST:PORT[?listen=...&version=...]``: X-Plane 11 or 12,
+  :class:`~motionbase.io.xplane_source.XPlaneSource`;
+* no URL: MAVLink, :class:`~motionbase.io.mavlink_source.MavlinkSource`, on the
+  pymavlink connection string (or log file) given as ``mavlink``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from motionbase.errors import ConfigError
+
+__all__ = ["LIVE_SCHEMES", "open_live_source", "stats_line"]
+
+LIVE_SCHEMES = ("fgnative", "xplane")
+"""URL schemes of the simulator sources (MAVLink has its own option)."""
+
+_EXAMPLES = "fgnative:udp:0.0.0.0:5500 or xplane:127.0.0.1:49000"
+
+
+def open_live_source(
+    url: str | None,
+    *,
+    mavlink: str = "udpin:127.0.0.1:14550",
+    rate_hz: float = 100.0,
+    duration_s: float | None = None,
+    realtime: bool = True,
+    busy_wait: bool = False,
+    stale_timeout_s: float = 0.5,
+    **mavlink_options: Any,
+) -> Any:
+    """The source for a URL, not yet entered (use it in a ``with`` block).
+
+    Parameters
+    ----------
+    url : str or None
+        ``fgnative:udp:HOST:PORT`` or ``xplane:HOST:PORT[?...]``; None for MAVLink.
+    mavlink : str
+        The pymavlink connection string or log file, used when ``url`` is None.
+    rate_hz : float
+        Pipeline rate, Hz: every source ticks at it, holding its latest sample.
+    duration_s : float, optional
+        Stop after this long, s.
+    realtime : bool
+        MAVLink logs only: replay at the recorded timing (False: as fast as
+        possible). A simulator is always live.
+    busy_wait : bool
+        Wait for each tick by busy-waiting (see :mod:`motionbase.pacing`).
+    stale_timeout_s : float
+        The watchdog's timeout, s.
+    **mavlink_options
+        ``sysid``, ``compid``, ``signing_key``: MAVLink only.
+
+    Raises
+    ------
+    ConfigError
+        An unknown URL scheme, a malformed URL, or a MAVLink-only option with a
+        simulator URL (one line saying what to write instead).
+    """
+    if url is None:
+        from motionbase.io.mavlink_source import MavlinkSource
+
+        return MavlinkSource(
+            mavlink,
+            rate_hz=rate_hz,
+            duration_s=duration_s,
+            realtime=realtime,
+            busy_wait=busy_wait,
+            stale_timeout_s=stale_timeout_s,
+            **mavlink_options,
+        )
+    if not isinstance(url, str) or not url.strip():
+        raise ConfigError(f"--source: empty URL; give e.g. {_EXAMPLES}")
+    scheme = url.strip().partition(":")[0].lower()
+    if scheme not in LIVE_SCHEMES:
+        hint = (
+            "; MAVLink connections go in --mavlink"
+            if scheme in ("udpin", "udpout", "udp", "tcp", "tcpin", "serial", "com")
+            or url.startswith("/dev/")
+            else ""
+        )
+        raise ConfigError(f"--source {url!r}: unknown kind {scheme!r}; give {_EXAMPLES}{hint}")
+    used = sorted(k for k, v in mavlink_options.items() if v is not None and k != "sysid")
+    if used:
+        names = ", ".join("--" + k.replace("_", "-") for k in used)
+        raise ConfigError(f"{names}: MAVLink options, not for --source {url}; drop them")
+    if not realtime:
+        raise ConfigError(f"--fast replays MAVLink log files; {url} is live: drop --fast")
+    options = dict(
+        rate_hz=rate_hz,
+        duration_s=duration_s,
+        busy_wait=busy_wait,
+        stale_timeout_s=stale_timeout_s,
+    )
+    if scheme == "fgnative":
+        from motionbase.io.fgnative_source import FgNativeSource
+
+        return FgNativeSource(url, **options)
+    from motionbase.io.xplane_source import XPlaneSource
+
+    return XPlaneSource(url, **options)
+
+
+def stats_line(source: Any) -> str:
+    """One line of counters for the end of a ``stream`` run, whatever the source."""
+    own = getattr(source, "stats_line", None)
+    if callable(own):
+        return own()
+    st = source.stats  # MAVLink
+    return (
+        f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
+        f"{st.rejected} rejected (other system {st.rejected_sysid}, signature "
+        f"{st.rejected_signature}, invalid {st.rejected_invalid}), {st.bad_data} garbled; "
+        f"{st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps"
+    )

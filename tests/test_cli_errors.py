@@ -1,0 +1,479 @@
+"""Bad input through the command line (issue 13): one line naming the problem, exit 2, nothing
+lost, and motors driven only with the limits of the user's own geometry.
+
+Each test runs ``motionbase.cli.main`` in-process (the console script's code path) and checks
+the exit status and stderr; recordings are crafted with the ``mcap`` writer.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+
+from motionbase import cli
+from motionbase.app import load_config
+from motionbase.io.mcap_source import McapSource, read_messages
+from motionbase.io.motor_output import DEFAULT_TEXT, parse_format
+from motionbase.platform import Rus6Geometry
+
+G = 9.80665
+RATE = 120.0
+
+
+@pytest.fixture
+def run_cli(capfd, monkeypatch):
+    """``run_cli(*args) -> (exit status, stdout, stderr)``, warnings included in stderr, and
+    what C code wrote to the file descriptors too."""
+    # cli.main installs its warning handler (on the stderr of the moment: this test's) when
+    # the logger has none; pytest attaches its own to loggers that do not propagate
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+
+    def run(*args: str) -> tuple[int, str, str]:
+        try:
+            code = cli.main([str(a) for a in args])
+        except SystemExit as exc:  # argparse errors exit through SystemExit
+            code = exc.code
+        captured = capfd.readouterr()
+        return code, captured.out, captured.err
+
+    return run
+
+
+def one_line(err: str, *needles: str) -> str:
+    """The single line of ``err``, which must contain every needle (case-insensitive)."""
+    assert "Traceback" not in err, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    for n in needles:
+        assert n.lower() in lines[0].lower(), (n, lines[0])
+    return lines[0]
+
+
+# --------------------------------------------------------------------------- recordings
+
+
+def _state(k: int) -> dict:
+    t = k / RATE
+    return {
+        "t": t,
+        "specific_force": [1.5 * math.sin(2.0 * t), 1.0 * math.cos(1.5 * t), -G],
+        "angular_velocity": [0.2 * math.sin(3.0 * t), 0.0, 0.1],
+        "attitude": [0.0, 0.0, 0.0],
+    }
+
+
+def write_recording(path: Path, pipeline_config: dict | None, n: int = 240) -> Path:
+    """A recording of ``n`` aircraft states with ``pipeline_config`` as its stored settings."""
+    config = {"source": {"kind": "test"}}
+    if pipeline_config is not None:
+        config["pipeline_config"] = pipeline_config
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": json.dumps(config)})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        for k in range(1, n + 1):
+            ns = round(k / RATE * 1e9)
+            writer.add_message(cid, ns, json.dumps(_state(k)).encode(), ns)
+        writer.finish()
+    return path
+
+
+def ceart_config() -> dict:
+    return load_config(rate_hz=RATE).to_dict()
+
+
+def loosened_config() -> dict:
+    """The ceart settings with 3x the speed and acceleration limits and wider angle limits."""
+    cfg = ceart_config()
+    geo = cfg["geometry"]
+    geo["max_speed"] = [3 * v for v in geo["max_speed"]]
+    geo["max_accel"] = [3 * v for v in geo["max_accel"]]
+    geo["angle_min"] = [math.radians(-80.0)] * 6
+    geo["angle_max"] = [math.radians(80.0)] * 6
+    return cfg
+
+
+def udp_listener() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.setblocking(False)
+    return sock
+
+
+def received(sock: socket.socket) -> list[bytes]:
+    frames = []
+    while True:
+        try:
+            frames.append(sock.recv(65536))
+        except BlockingIOError:
+            return frames
+
+
+# --------------------------------------------------------------------------- item 7
+
+
+def test_replay_output_without_platform_is_refused_and_sends_nothing(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "loose.mcap", loosened_config())
+    sock = udp_listener()
+    port = sock.getsockname()[1]
+    out = tmp_path / "out.mcap"
+    code, stdout, err = run_cli("replay", rec, "--output", f"udp:127.0.0.1:{port}", "--out", out)
+    assert code == 2
+    one_line(err, "replay", "--output", "--platform")
+    assert received(sock) == [] and not out.exists()
+    sock.close()
+
+
+def test_replay_output_drives_with_the_users_geometry_not_the_recordings(tmp_path, run_cli):
+    """The recording loosens every limit; the wire and the log keep ceart's."""
+    rec = write_recording(tmp_path / "loose.mcap", loosened_config())
+    sock = udp_listener()
+    port = sock.getsockname()[1]
+    out = tmp_path / "out.mcap"
+    code, stdout, err = run_cli(
+        "replay", rec, "--platform", "ceart", "--output", f"udp:127.0.0.1:{port}", "--out", out
+    )
+    assert code == 0, err
+    ceart = Rus6Geometry.preset("ceart")
+    with McapSource(out) as src:
+        used = src.metadata["pipeline_config"]["geometry"]
+    assert Rus6Geometry.from_dict(used) == ceart
+    # the logged commands respect ceart's limits (the recording allowed 3x)
+    q = np.array([m["angles"] for m in read_messages(out)["/platform/actuators"]])
+    dt = 1 / RATE
+    park = np.full(6, ceart.park_angle)
+    q0 = np.vstack([park, park, q])
+    v = np.diff(q0, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    assert np.abs(v).max() <= max(ceart.max_speed) + 1e-9
+    assert np.abs(a).max() <= max(ceart.max_accel) + 1e-6
+    # and every frame on the wire (degrees, the default text format) is within ceart's range
+    frames = received(sock)
+    sock.close()
+    assert frames
+    fmt, _ = parse_format(DEFAULT_TEXT)
+    lo, hi = np.degrees(ceart.angle_min), np.degrees(ceart.angle_max)
+    for frame in frames:
+        values = np.array(fmt.decode(frame), dtype=float)
+        assert (values >= lo - 1e-9).all() and (values <= hi + 1e-9).all(), frame
+
+
+def _tampered(edit) -> dict:
+    cfg = ceart_config()
+    edit(cfg)
+    return cfg
+
+
+@pytest.mark.parametrize(
+    ("edit", "needles"),
+    [
+        (lambda c: c["pipeline"]["input_limits"].update(max_attitude=math.nan), "max_attitude"),
+        (
+            lambda c: c["pipeline"]["input_limits"].update(max_specific_force=-150.0),
+            "max_specific_force",
+        ),
+        (lambda c: c["pipeline"]["input_limits"].update(max_angular_velocity="20"), "max_ang"),
+        (lambda c: c["geometry"].update(max_speed=[math.nan] * 6), "max_speed"),
+        (lambda c: c["geometry"].update(max_accel=[-30.0] * 6), "max_accel"),
+        (lambda c: c["geometry"].update(max_accel=[math.inf] * 6), "max_accel"),
+        (
+            lambda c: c["geometry"].update(angle_min=[1.0] * 6, angle_max=[-1.0] * 6),
+            "angle_min",
+        ),
+        (lambda c: c["geometry"].update(angle_max=[math.nan] * 6), "angle_max"),
+        (lambda c: c["geometry"].pop("max_accel"), "max_accel"),
+        (lambda c: c["pipeline"].update(rate_hz=True), "rate_hz"),
+        (lambda c: c["pipeline"].update(planar_scale_m=math.nan), "planar_scale_m"),
+        (lambda c: c["pipeline"].update(surprise=1), "surprise"),
+        (lambda c: c.update(pipeline=[1, 2]), "pipeline"),
+        (lambda c: c.update(robot="hexapod"), "robot"),
+    ],
+)
+def test_recorded_settings_with_bad_limits_are_refused(tmp_path, run_cli, edit, needles):
+    rec = write_recording(tmp_path / "bad.mcap", _tampered(edit))
+    code, stdout, err = run_cli("replay", rec, "--out", tmp_path / "out.mcap")
+    assert code == 2
+    one_line(err, "bad.mcap", needles)
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_recorded_settings_that_are_not_a_table_are_refused(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "bad.mcap", [1, 2, 3])  # type: ignore[arg-type]
+    code, stdout, err = run_cli("replay", rec, "--check")
+    assert code == 2
+    one_line(err, "bad.mcap", "pipeline_config")
+
+
+# --------------------------------------------------------------------------- item 11
+
+
+def test_replay_refuses_to_overwrite_its_own_input(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    before = rec.read_bytes()
+    (tmp_path / "sub").mkdir()
+    link = tmp_path / "link.mcap"
+    link.symlink_to(rec)
+    hard = tmp_path / "hard.mcap"
+    os.link(rec, hard)
+    spellings = [
+        rec,
+        tmp_path / "sub" / ".." / "rec.mcap",
+        link,  # a symlink to the input
+        hard,  # another name of the same file
+    ]
+    for out in spellings:
+        code, stdout, err = run_cli("replay", rec, "--out", out)
+        assert code == 2, (out, err)
+        one_line(err, "--out", "recording being replayed")
+        assert rec.read_bytes() == before
+    # and the other way round: the input given through the link
+    code, stdout, err = run_cli("replay", link, "--out", rec)
+    assert code == 2 and rec.read_bytes() == before
+    # a different file is fine
+    code, stdout, err = run_cli("replay", rec, "--out", tmp_path / "other.mcap")
+    assert code == 0, err
+    assert rec.read_bytes() == before
+
+
+# --------------------------------------------------------------------------- item 13
+
+
+def test_a_huge_format_width_is_one_line_not_a_memory_error(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    out = tmp_path / "out.mcap"
+    for spec, needle in (("%7B1:>99999999999%7D", "width"), ("%7B1:.999999999f%7D", "precision")):
+        url = f"udp:127.0.0.1:9?format=text:{spec}"
+        code, stdout, err = run_cli(
+            "replay", rec, "--platform", "ceart", "--output", url, "--out", out
+        )
+        assert code == 2
+        one_line(err, needle, "64 characters")
+        assert not out.exists()
+    # the widest allowed field still works
+    from motionbase.io.motor_output import MAX_FIELD_WIDTH, TextFormat
+
+    fmt = TextFormat("{1:>" + str(MAX_FIELD_WIDTH) + "}", 6)
+    assert len(fmt.encode([1.0] * 6)) == MAX_FIELD_WIDTH
+
+
+@pytest.mark.parametrize("suffix", [".bin", ".tlog"])
+def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
+    """pymavlink printed a 'bad header' line per byte (2,385 lines) before the error."""
+    garbage = tmp_path / f"garbage{suffix}"
+    garbage.write_bytes(np.random.default_rng(7).bytes(50_000))
+    code, stdout, err = run_cli(
+        "stream", "--mavlink", garbage, "--fast", "--out", tmp_path / "g.mcap"
+    )
+    assert code == 2
+    one_line(err, f"garbage{suffix}", "no ")
+    assert stdout == ""
+
+
+def _closed_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()  # nothing listens there now: a connection is refused
+    return port
+
+
+def test_a_refused_tcp_link_is_one_line_without_retry_chatter(tmp_path, run_cli):
+    port = _closed_port()
+    out = tmp_path / "t.mcap"
+    code, stdout, err = run_cli("stream", "--mavlink", f"tcp:127.0.0.1:{port}", "--out", out)
+    assert code == 2
+    one_line(err, f"tcp:127.0.0.1:{port}", "connection refused")
+    assert "sleeping" not in stdout + err and stdout == ""
+    assert not out.exists()
+
+
+def test_an_output_that_will_not_open_leaves_no_stub_log(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    out = tmp_path / "out.mcap"
+    url = f"serial:{tmp_path / 'nonexistent'}"
+    code, stdout, err = run_cli("replay", rec, "--platform", "ceart", "--output", url, "--out", out)
+    assert code == 2
+    one_line(err, "nonexistent")
+    assert not out.exists()
+
+
+def _shifted_recording(path: Path, shift_s: float, which: slice) -> Path:
+    """States whose times in ``which`` are moved by ``shift_s`` (log times stay positive)."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": RATE})})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        shifted = set(range(240)[which])
+        for k in range(1, 241):
+            msg = _state(k)
+            if k - 1 in shifted:
+                msg["t"] += shift_s
+            ns = round(k / RATE * 1e9)
+            writer.add_message(cid, ns, json.dumps(msg).encode(), ns)
+        writer.finish()
+    return path
+
+
+def test_negative_recording_times_name_the_input_not_the_output(tmp_path, run_cli):
+    out = tmp_path / "out.mcap"
+    # a clock that starts before 0 s: refused up front, naming the recording
+    rec = _shifted_recording(tmp_path / "neg.mcap", -1.0, slice(None))
+    code, stdout, err = run_cli("replay", rec, "--out", out)
+    assert code == 2
+    line = one_line(err, "neg.mcap", "0 s")
+    assert "out.mcap" not in line and not out.exists()
+    # one negative time in the middle: rejected, counted and held, a warning names the input
+    rec = _shifted_recording(tmp_path / "one.mcap", -5.0, slice(100, 101))
+    code, stdout, err = run_cli("replay", rec, "--out", out)
+    assert code == 0, err
+    line = one_line(err, "one.mcap", "negative")
+    assert "out.mcap" not in line
+    assert read_messages(out)["/health"][-1]["rejected_inputs"] == 1
+    accepted = [m["accepted"] for m in read_messages(out)["/aircraft/state"]]
+    assert accepted[100] is False and accepted.count(False) == 1
+
+
+def test_the_top_level_parser_and_unknown_options_name_the_right_command(run_cli):
+    code, stdout, err = run_cli("fly", "--speed", "2")
+    assert code == 2
+    line = one_line(err, "unrecognized arguments: --speed")
+    assert line.startswith("motionbase fly: error:") and "motionbase motionbase" not in line
+    code, stdout, err = run_cli("--bogus")
+    assert code == 2
+    assert one_line(err, "--bogus").startswith("motionbase: error:")
+    code, stdout, err = run_cli("flyy")
+    assert code == 2
+    assert one_line(err, "flyy").startswith("motionbase: error:")
+
+
+def test_a_file_of_the_wrong_kind_is_named_for_what_it_is(tmp_path, run_cli):
+    from motionbase.config import preset_path
+
+    washout = preset_path("washout", "default")
+    rus6 = preset_path("rus6", "ceart")
+    rrr3 = preset_path("rrr3", "udesc")
+    cases = [
+        (["--platform", washout], ("washout_default.toml", "washout parameter file", "--washout")),
+        (["--washout", rus6], ("rus6_ceart.toml", "6-RUS geometry file", "--platform")),
+        (["--platform", rrr3], ("rrr3_udesc.toml", "3-RRR geometry file", "--planar")),
+        (["--planar", "--platform", rus6], ("rus6_ceart.toml", "6-RUS geometry file")),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli("stream", *args, "--out", tmp_path / "x.mcap")
+        assert code == 2, args
+        line = one_line(err, *needles)
+        assert "unknown field" not in line
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_bad_host_or_port_says_which(tmp_path, run_cli):
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    bad_host = "notahost.invalid"  # RFC 6761: never resolves
+    out = ["--out", tmp_path / "x.mcap"]
+    replay = ["replay", rec, "--platform", "ceart"]
+    cases = [
+        (
+            [*replay, "--output", f"udp:{bad_host}:99999", *out],
+            ("out of range", "does not resolve"),
+        ),
+        ([*replay, "--output", "udp:127.0.0.1:99999", *out], ("port 99999 is out of range",)),
+        ([*replay, "--output", f"udp:{bad_host}:4000", *out], (f"{bad_host}' does not resolve",)),
+        (["stream", "--mavlink", f"udpout:{bad_host}:14550", *out], ("does not resolve",)),
+        (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (0..65535)",)),
+        (["stream", "--mavlink", "udpout:127.0.0.1:0", *out], ("port 0 is out of range",)),
+        (["stream", "--mavlink", f"udp:{bad_host}:99999", *out], ("out of range", "resolve")),
+        (["stream", "--mavlink", f"tcp:{bad_host}:5760", *out], ("does not resolve",)),
+        (["teleop", "--input", f"udp:{bad_host}:99999"], ("out of range", "does not resolve")),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli(*args)
+        assert code == 2, args
+        line = one_line(err, *needles)
+        assert "choose another port" not in line and "expected udp:HOST:PORT" not in line
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def _unsigned_vehicle(port: int, stop, key: bytes | None) -> None:
+    from mavlink_sender import send_good
+
+    from motionbase.io.mavlink_source import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1)
+    if key is not None:
+        conn.setup_signing(key, sign_outgoing=True, link_id=1)
+    i = 0
+    try:
+        while not stop.is_set():
+            send_good(conn.mav, i)
+            i += 1
+            stop.wait(0.02)
+    finally:
+        conn.close()
+
+
+@pytest.mark.parametrize("vehicle_key", [None, bytes(32 * [0xAA])], ids=["unsigned", "other key"])
+def test_signature_rejections_are_named_in_the_warning(tmp_path, caplog, vehicle_key):
+    """Messages that arrive but fail the signature check: the warning says so, it does not
+    ask whether the vehicle is sending at all."""
+    import threading
+
+    from motionbase.io.mavlink_source import MavlinkSource
+
+    key_file = tmp_path / "key.bin"
+    key_file.write_bytes(bytes(range(32)))
+    stop = threading.Event()
+    caplog.set_level(logging.WARNING, logger="motionbase")
+    with MavlinkSource(
+        "udpin:127.0.0.1:0",
+        rate_hz=50.0,
+        duration_s=2.5,
+        signing_key=key_file,
+        request_timeout_s=0.5,
+    ) as src:
+        port = src.local_address[1]
+        th = threading.Thread(target=_unsigned_vehicle, args=(port, stop, vehicle_key))
+        th.start()
+        try:
+            ticks = [src.fresh for _ in src]
+        finally:
+            stop.set()
+            th.join(timeout=5)
+        stats = src.stats
+    assert not any(ticks) and stats.accepted == 0 and stats.rejected_signature > 0
+    warned = [r.getMessage() for r in caplog.records if "signature" in r.getMessage()]
+    assert len(warned) == 1, [r.getMessage() for r in caplog.records]
+    assert "--signing-key" in warned[0]
+    assert not any("is the vehicle sending" in r.getMessage() for r in caplog.records)
+
+
+def test_a_format_file_with_wrong_types_is_one_line(tmp_path, run_cli):
+    """``rate_hz = true`` once became 1 frame per second; ``text = 5`` a template "5"."""
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    for body, needle in (
+        ('text = "A{1}B{2}\\\\n"\nrate_hz = true\n', "'rate_hz'"),
+        ('text = "A{1}B{2}\\\\n"\nrate_hz = "250"\n', "'rate_hz'"),
+        ("binary = 5\n", "'binary'"),
+    ):
+        fmt = tmp_path / "drive.toml"
+        fmt.write_text(body)
+        url = f"udp:127.0.0.1:9?format={fmt}"
+        code, stdout, err = run_cli(
+            "replay", rec, "--platform", "ceart", "--output", url, "--out", tmp_path / "x.mcap"
+        )
+        assert code == 2, body
+        one_line(err, "drive.toml", needle)
+    assert not (tmp_path / "x.mcap").exists()
