@@ -92,7 +92,6 @@ from motionbase.config import as_float, read_toml
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
-from motionbase.pacing import wait_until
 from motionbase.platform.output_map import OutputMapping, sweep_profile
 from motionbase.safety import RATE_LIMITED, ActuatorLimits, limit_command
 
