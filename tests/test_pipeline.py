@@ -235,8 +235,8 @@ def test_the_summary_reports_the_flight_and_the_parking_apart(flight):
     assert s.start_s == pytest.approx(starting.sum() * dt) and s.stop_s == pytest.approx(
         stopping.sum() * dt
     )
-    # a gentle flight near neutral: nowhere near the park angle (55 deg from horizontal)
-    assert np.all(s.peak_angle < 0.5 * abs(config.geometry.park_angle))
+    # not the park angle (55 deg below horizontal), which every run's ramps reach
+    assert np.all(s.peak_angle < abs(config.geometry.park_angle) - np.radians(5))
     text = result.summary_text()
     assert f"flight ({s.running_samples} samples at full motion)" in text
     assert f"{np.degrees(s.peak_angle[0]):7.1f} (" in text
