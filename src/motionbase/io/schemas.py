@@ -150,6 +150,16 @@ HEALTH = _topic(
             "minimum": 0,
             "description": "largest lateness of a loop tick behind its deadline, s",
         },
+        "late_commands": dict(
+            _COUNT,
+            description="commands that reached the sinks more than one period after their "
+            "sample was due",
+        ),
+        "worst_late_s": {
+            "type": "number",
+            "minimum": 0,
+            "description": "largest lateness of a command beyond one period after its due time, s",
+        },
     },
     ["rejected_inputs", "clamps", "rate_limited", "watchdog_fades", "estops", "worst_overrun_s"],
 )
