@@ -8,13 +8,14 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from importlib.metadata import version
 from pathlib import Path
 
 import jsbsim
 import numpy as np
 
 from motionbase.io.jsbsim_source import JsbsimSource, default_root
-from motionbase.io.mcap_log import JSON_BACKEND, McapLogger
+from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages
 
 
@@ -57,7 +58,7 @@ def bench_jsbsim_source() -> tuple[float, float, int]:
     return t2 - t0, t2 - t1, n
 
 
-def bench_logger(path: Path, samples: int = 24000) -> dict[str, np.ndarray]:
+def bench_logger(path: Path, samples: int = 24000) -> tuple[dict[str, np.ndarray], str]:
     rng = np.random.default_rng(1)
     sf, av, att, acc = (rng.normal(size=3) for _ in range(4))
     pose = rng.normal(size=6) * 0.05
@@ -105,13 +106,13 @@ def bench_logger(path: Path, samples: int = 24000) -> dict[str, np.ndarray]:
             per_topic["/platform/actuators"].append(c4 - c3)
             per_topic["/tf"].append(c5 - c4)
             per_topic["sample (5 messages)"].append(c5 - c0)
-    return {k: np.asarray(v) / 1e3 for k, v in per_topic.items()}
+    return {k: np.asarray(v) / 1e3 for k, v in per_topic.items()}, logger.compression
 
 
 def main() -> None:
     print(
-        f"motionbase I/O benchmark (jsbsim {jsbsim.__version__}, JSON backend: {JSON_BACKEND},"
-        f" {os.cpu_count()} CPUs)"
+        f"motionbase I/O benchmark (jsbsim {jsbsim.__version__}, MCAP writer foxglove-sdk "
+        f"{version('foxglove-sdk')}, {os.cpu_count()} CPUs)"
     )
     raw, n_raw = bench_jsbsim_raw()
     total, run, n = bench_jsbsim_source()
@@ -127,9 +128,9 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"
-        stats = bench_logger(path)
+        stats, compression = bench_logger(path)
         size = path.stat().st_size
-        print("\nMcapLogger.add cost (24,000 samples, zstd, 1 s chunks):")
+        print(f"\nMcapLogger.add cost (24,000 samples, {compression}, 1 s chunks):")
         for name, us in stats.items():
             print(
                 f"  {name:22s} p50 {np.percentile(us, 50):6.1f} us   "

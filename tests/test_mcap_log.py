@@ -169,18 +169,17 @@ def test_floats_round_trip_bit_for_bit(tmp_path_factory, values: list[float], t:
     )
 
 
-def test_every_json_backend_round_trips_and_handles_non_finite() -> None:
-    encoders = [mcap_log.encode_message_stdlib]
-    if mcap_log.encode_message_orjson is not None:
-        encoders.append(mcap_log.encode_message_orjson)
+def test_encoding_round_trips_and_handles_non_finite() -> None:
+    encode = mcap_log.encode_message
     values = RNG.normal(size=50) * 10.0 ** RNG.integers(-300, 300, size=50)
-    for encode in encoders:
-        plain = json.loads(encode({"t": 1.5, "x": values}))
-        assert plain["x"] == values.tolist()
-        odd = json.loads(encode({"t": 0.0, "x": [math.nan, math.inf, -math.inf, 1.0]}))
-        assert odd["x"] == ["NaN", "Infinity", "-Infinity", 1.0]
-        strided = json.loads(encode({"x": np.arange(10.0)[::3]}))
-        assert strided["x"] == [0.0, 3.0, 6.0, 9.0]
+    plain = json.loads(encode({"t": 1.5, "x": values}))
+    assert plain["x"] == values.tolist()
+    odd = json.loads(encode({"t": 0.0, "x": [math.nan, math.inf, -math.inf, 1.0]}))
+    assert odd["x"] == ["NaN", "Infinity", "-Infinity", 1.0]
+    odd32 = json.loads(encode({"x": np.array([np.nan, 2.5], dtype=np.float32)}))
+    assert odd32["x"] == ["NaN", 2.5]
+    strided = json.loads(encode({"x": np.arange(10.0)[::3]}))
+    assert strided["x"] == [0.0, 3.0, 6.0, 9.0]
 
 
 def test_non_finite_aircraft_state_is_valid_json_and_reads_back(tmp_path: Path) -> None:
@@ -261,6 +260,28 @@ def test_bad_times_and_lifecycle_errors(tmp_path: Path) -> None:
         McapLogger(tmp_path / "x.mcap", {}, compression="gzip")
 
 
+def test_time_beyond_mcaps_u64_nanoseconds_is_a_sink_error(tmp_path: Path) -> None:
+    """MCAP log times are u64 ns: 2**64 ns is about 1.8e10 s; later times cannot be logged."""
+    path = tmp_path / "far.mcap"
+    last_ok = (2**64 - 2**12) / 1e9  # a double just below 2**64 ns
+    with McapLogger(path, {}) as logger:
+        logger.add("/washout/pose", 1.0, {"pose": [0.0] * 6})
+        for bad in (2**64 / 1e9, 1e12, 1e300):
+            for call, args in (
+                (logger.add, ("/washout/pose", bad, {"pose": [0.0] * 6})),
+                (logger.add_many, (bad, [("/washout/pose", {"pose": [0.0] * 6})])),
+                (logger.add_transform, (bad, [0.0] * 6)),
+            ):
+                with pytest.raises(SinkError) as err:
+                    call(*args)
+                msg = str(err.value)
+                assert "\n" not in msg and str(path) in msg and "u64" in msg, msg
+        logger.add("/washout/pose", last_ok, {"pose": [0.0] * 6})  # the log goes on
+    with open(path, "rb") as fh:
+        times = [m.log_time for _, _, m in make_reader(fh).iter_messages()]
+    assert times == [10**9, round(last_ok * 1e9)] and times[-1] < 2**64
+
+
 def test_lz4_and_uncompressed_files_read_back(tmp_path: Path) -> None:
     for compression in ("lz4", "none"):
         path = tmp_path / f"{compression}.mcap"
@@ -324,6 +345,26 @@ def test_open_log_is_on_disk_up_to_the_last_second(tmp_path: Path) -> None:
     assert times[-1] >= 3.5 - 1.0 - 1 / rate
     logger.finish()
     assert len(read_messages(path)["/washout/pose"]) == int(3.5 * rate)
+
+
+@pytest.mark.parametrize("compression", ["lz4", "none"])
+def test_unfinished_chunk_on_disk_reads_as_a_cut(tmp_path: Path, compression: str) -> None:
+    """The chunk in progress reaches the disk before it is finished (the writer streams
+    it, with a placeholder length): a reader of the live file stops before it."""
+    path = tmp_path / "unfinished.mcap"
+    rng = np.random.default_rng(5)
+    logger = McapLogger(path, {}, chunk_size=64 << 20, compression=compression).start()
+    for k in range(1, 201):
+        logger.add("/washout/pose", k / 1000, {"pose": rng.normal(size=6)})
+    logger.flush()
+    flushed = path.stat().st_size
+    for k in range(201, 1000):  # 0.8 s more: no flush due, the chunk only grows
+        logger.add("/washout/pose", k / 1000, {"pose": rng.normal(size=6)})
+    assert path.stat().st_size > flushed + 10_000, "the unfinished chunk is not on disk"
+    times = [m["t"] for m in read_messages(path)["/washout/pose"]]
+    assert times == [k / 1000 for k in range(1, 201)]
+    logger.finish()
+    assert len(read_messages(path)["/washout/pose"]) == 999
 
 
 _CHILD = """

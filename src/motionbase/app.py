@@ -790,3 +790,59 @@ def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]])
         d = max((_max_diff(x, y, skip) for x, y in zip(ma, mb, strict=False)), default=0.0)
         per_topic[topic] = (len(ma), len(mb), d)
     return CheckReport(per_topic)
+
+
+# --------------------------------------------------------------------------- omct
+
+
+def omct(
+    out: str | Path,
+    *,
+    platform: str | None = None,
+    washout: str | None = None,
+    planar: bool = False,
+    rate_hz: float = 120.0,
+    scale: float = 1.0,
+    progress: bool = True,
+) -> Any:
+    """The objective motion cueing test (``motionbase omct``) into the folder ``out``.
+
+    Parameters
+    ----------
+    out : path
+        Folder for ``omct.json``, ``table.md``, ``table.txt`` and the Bode plots (created).
+    platform, washout, planar :
+        As for :func:`fly` (``washout`` is the classical washout's preset or TOML file).
+    rate_hz : float
+        Pipeline rate, Hz.
+    scale : float
+        Every input amplitude times this (1: amplitudes that keep the default cueing on
+        ``ceart`` linear, :class:`motionbase.omct.Amplitudes`).
+
+    Returns
+    -------
+    motionbase.io.omct_plots.OmctFiles
+        Its ``summary_text()`` is what the command prints.
+    """
+    from motionbase.io.omct_plots import write_omct
+    from motionbase.omct import Amplitudes, run_omct
+
+    config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
+    amplitudes = Amplitudes().scaled(scale)
+    options = [("--planar", planar), (f"--platform {platform}", platform),
+               (f"--washout {washout}", washout), (f"--rate {rate_hz:g}", rate_hz != 120.0),
+               (f"--scale {scale:g}", scale != 1.0)]  # fmt: skip
+    command = " ".join(["motionbase omct", *(o for o, on in options if on), f"--out {out}"])
+    show = progress and sys.stderr.isatty()
+
+    def tick(done: int, total: int, axis: str, w: float) -> None:
+        if show:
+            sys.stderr.write(f"\romct: {done}/{total} runs ({axis} at {w:.3g} rad/s)   ")
+            sys.stderr.flush()
+
+    try:
+        result = run_omct(config, amplitudes=amplitudes, progress=tick, command=command)
+    finally:
+        if show:
+            sys.stderr.write("\r" + " " * 60 + "\r")
+    return write_omct(result, out)

@@ -383,6 +383,56 @@ def run_report(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- objective motion cueing test (issue 15) ---
+
+
+def _args_omct(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--platform",
+        metavar="PRESET|FILE.toml",
+        help=f"geometry preset or TOML path (default {DEFAULT_RUS6}; {DEFAULT_RRR3} with --planar)",
+    )
+    p.add_argument(
+        "--washout",
+        "--params",
+        dest="washout",
+        metavar="PRESET|FILE.toml",
+        help="classical washout preset (default, gentle) or TOML path; --params FILE is the same",
+    )
+    p.add_argument(
+        "--planar", action="store_true", help="the planar 3-RRR robot (surge, sway, yaw tests)"
+    )
+    p.add_argument(
+        "--rate", type=_positive_float, default=120.0, metavar="HZ", help="pipeline rate (120)"
+    )
+    p.add_argument(
+        "--scale",
+        type=_positive_float,
+        default=1.0,
+        metavar="K",
+        help="multiply every input amplitude by K (default 1: small enough for the default "
+        "cueing on ceart to stay linear; larger shows where the limits act)",
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the JSON, tables, PNGs")
+
+
+@command(
+    "omct",
+    "objective motion cueing test: gain and phase of the whole chain at 12 frequencies, "
+    "against the classical washout's linear response (table, JSON, Bode plots)",
+    _args_omct,
+)
+def run_omct(args: argparse.Namespace) -> int:
+    from motionbase import app
+
+    files = app.omct(
+        args.out, platform=args.platform, washout=args.washout, planar=args.planar,
+        rate_hz=args.rate, scale=args.scale,
+    )  # fmt: skip
+    print(files.summary_text())
+    return 0
+
+
 # --- motor-drive output (issue 8) ---
 
 

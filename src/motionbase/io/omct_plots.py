@@ -1,0 +1,157 @@
+"""``motionbase omct``: write the objective motion cueing test's files (JSON, tables, Bode plots).
+
+The numbers come from :func:`motionbase.omct.run_omct` (pure math); this module draws with
+matplotlib's Agg canvas (no display, no global pyplot state) and writes, in the output folder:
+
+* ``omct.json``: every number (gain, phase, the linear response, clamped and rate-limited
+  shares per frequency and test) with the settings and the pipeline configuration;
+* ``table.md``: the compact table (measured gain and phase per frequency and test) that the
+  README shows, with the command that produced it;
+* ``table.txt``: the full table the command prints;
+* ``bode_<test>.png``: one Bode plot per test (``pitch->surge`` is ``bode_pitch-surge.png``):
+  the measured points, the classical washout's linear response as the chain realises it
+  (line) and its continuous design (dotted); points where the clamp or an actuator limit
+  acted are crossed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from motionbase.errors import SinkError
+
+if TYPE_CHECKING:  # the result carries its numbers: no import of the pipeline here
+    from motionbase.omct import OmctResult, TestResult
+
+__all__ = ["OmctFiles", "bode_figure", "write_omct"]
+
+_MEASURED = "#d9480f"
+_LINEAR = "#1f4e9c"
+_LIMIT = "#c92a2a"
+
+
+@dataclass(frozen=True)
+class OmctFiles:
+    """What :func:`write_omct` produced.
+
+    Attributes
+    ----------
+    result : OmctResult
+    out_dir : Path
+    files : tuple of Path
+        Every file written.
+    """
+
+    result: OmctResult
+    out_dir: Path
+    files: tuple[Path, ...]
+
+    def summary_text(self) -> str:
+        """What the command prints: the full table and where the files went."""
+        plots = sum(1 for f in self.files if f.suffix == ".png")
+        return (
+            self.result.table_text()
+            + f"\n\nomct: {plots} Bode plots, omct.json, table.md and table.txt in {self.out_dir}"
+        )
+
+
+def _file_stem(name: str) -> str:
+    return "bode_" + name.replace("->", "-")
+
+
+def write_omct(result: OmctResult, out: str | os.PathLike[str]) -> OmctFiles:
+    """Write the test's JSON file, tables and Bode plots into the folder ``out`` (created).
+
+    Raises
+    ------
+    SinkError
+        The folder or a file cannot be written.
+    """
+    out_dir = Path(out)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SinkError(f"{out_dir}: cannot create the output folder: {exc.strerror}") from None
+    files = [
+        _write_text(out_dir / "omct.json", json.dumps(result.to_dict(), indent=1) + "\n"),
+        _write_text(out_dir / "table.md", result.markdown()),
+        _write_text(out_dir / "table.txt", result.table_text() + "\n"),
+    ]
+    for r in result.results:
+        fig = bode_figure(result, r)
+        path = out_dir / f"{_file_stem(r.test.name)}.png"
+        try:
+            fig.savefig(path)
+        except OSError as exc:
+            raise SinkError(f"{path}: cannot write: {exc.strerror}") from None
+        files.append(path)
+    return OmctFiles(result, out_dir, tuple(files))
+
+
+def _write_text(path: Path, text: str) -> Path:
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise SinkError(f"{path}: cannot write: {exc.strerror}") from None
+    return path
+
+
+def _wrapped_line(z: np.ndarray) -> np.ndarray:
+    """Phase in degrees in (-180, 180], with NaN where it wraps (no vertical line drawn)."""
+    p = np.degrees(np.angle(z))
+    jump = np.abs(np.diff(p)) > 180.0
+    out = p.astype(float).copy()
+    out[1:][jump] = np.nan
+    return out
+
+
+def bode_figure(result: OmctResult, r: TestResult) -> Any:
+    """The Bode plot of one test: gain (log-log) and phase, measured against linear.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        On an Agg canvas (no display).
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.5, 6.5), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_g, ax_p = fig.subplots(2, 1, sharex=True)
+    w = r.frequencies
+    phase = r.phase_deg  # in (-180, 180], as in the tables
+    curves = result.linear_curves(r)
+    if curves is not None:
+        dense, lin, design = curves
+        lin_phase = _wrapped_line(lin)
+        design_phase = _wrapped_line(design)
+        ax_g.loglog(dense, np.abs(lin), color=_LINEAR, lw=1.5, label="classical washout, linear")
+        ax_g.loglog(dense, np.abs(design), color=_LINEAR, lw=1.0, ls=":", label="continuous design")
+        ax_p.semilogx(dense, lin_phase, color=_LINEAR, lw=1.5)
+        ax_p.semilogx(dense, design_phase, color=_LINEAR, lw=1.0, ls=":")
+    gain = np.where(r.gain > 0, r.gain, np.nan)
+    ax_g.loglog(w, gain, "o", color=_MEASURED, ms=6, label="measured (whole chain)")
+    ax_p.semilogx(w, phase, "o", color=_MEASURED, ms=6)
+    hit = (r.clamped > 0) | (r.limited > 0)
+    if hit.any():
+        label = "clamp or actuator limit acted"
+        ax_g.loglog(w[hit], gain[hit], "x", color=_LIMIT, ms=10, mew=2, label=label)
+        ax_p.semilogx(w[hit], phase[hit], "x", color=_LIMIT, ms=10, mew=2)
+    unit = "" if r.test.gain_unit == "-" else f" [{r.test.gain_unit}]"
+    ax_g.set_ylabel(f"gain{unit}")
+    ax_p.set_ylabel("phase [deg]")
+    ax_p.set_ylim(-185.0, 185.0)
+    ax_p.set_yticks(np.arange(-180.0, 181.0, 45.0))
+    ax_p.set_xlabel("frequency [rad/s]")
+    for ax in (ax_g, ax_p):
+        ax.grid(True, which="both", alpha=0.3)
+    ax_g.legend(loc="best", fontsize="small")
+    ax_g.set_title(f"OMCT {r.test.name}: {r.test.title}\n{result.robot_label}", fontsize="medium")
+    return fig

@@ -1,0 +1,169 @@
+"""The pipeline log writes every output exactly: topics, fields, log times, exact floats.
+
+:class:`PipelineLog` turns each :class:`~motionbase.pipeline.PipelineOutput` into the
+topics of the README's log table. Real pipeline outputs (strong and calm stretches,
+rejected NaN and infinite samples, samples without angular acceleration, stale marks,
+the park ramp) are logged, read back with the ``mcap`` library, and compared with the
+outputs themselves, value by value (finite floats bit for bit). Also
+``AircraftState.from_vector`` against the constructor.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from scipy.spatial.transform import Rotation
+
+from motionbase.app import load_config
+from motionbase.io.mcap_source import decode_message
+from motionbase.io.pipeline_log import PipelineLog
+from motionbase.pipeline import Pipeline
+from motionbase.state import AircraftState
+
+G = 9.80665
+
+
+def _outputs(planar: bool, n: int = 900) -> list:
+    """Real pipeline outputs: strong and calm stretches, NaN samples, no angular
+    acceleration on some, stale marks, then the park ramp (state None)."""
+    rng = np.random.default_rng(3)
+    pipeline = Pipeline(load_config(planar=planar, rate_hz=120.0))
+    outs = []
+    for k in range(1, n):
+        s = 2.0 if (k // 150) % 2 else 0.2
+        f = rng.normal(size=3) * 20 * s + (0.0, 0.0, -G)
+        w = rng.normal(size=3) * 2 * s
+        att = rng.uniform(-3, 3, 3)
+        if k % 101 == 7:
+            f[1] = math.nan  # rejected, logged as text
+        if k % 131 == 9:
+            w[2] = math.inf
+        acc = None if k % 3 == 0 else rng.normal(size=3)
+        state = AircraftState(k / 120.0, f, w, att, angular_acceleration=acc)
+        outs.append(pipeline.step(state, fresh=(k // 40) % 9 != 4))
+    pipeline.stop()
+    while not pipeline.parked and len(outs) < n + 600:
+        outs.append(pipeline.step(None))
+    return outs
+
+
+def _write(path: Path, outs: list, planar: bool) -> int:
+    """Log ``outs``; returns how many /health messages the counter callback gave."""
+    calls = []
+
+    def health() -> dict:
+        calls.append(len(calls))
+        return {"samples": len(calls)}
+
+    with PipelineLog(path, {"kind": "test"}, health=health, planar=planar) as log:
+        for out in outs:
+            log.write(out)
+    return len(calls)
+
+
+def _read(path: Path) -> list[tuple[str, int, bytes]]:
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        return [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages()]
+
+
+def _same(got, expected) -> None:
+    """Equal values; floats bit for bit (NaN equal to NaN)."""
+    a, b = np.asarray(got), np.asarray(expected)
+    assert a.shape == b.shape and a.dtype.kind == b.dtype.kind, (got, expected)
+    np.testing.assert_array_equal(a, b, strict=True)
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+def test_every_output_is_logged_exactly(tmp_path, planar):
+    outs = _outputs(planar)
+    assert any(o.state is not None and not o.accepted for o in outs)
+    assert any(o.state is None for o in outs)
+    path = tmp_path / "log.mcap"
+    health_calls = _write(path, outs, planar)
+    records = _read(path)
+
+    by_time: dict[int, dict[str, list]] = {}
+    for topic, ns, data in records:
+        by_time.setdefault(ns, {}).setdefault(topic, []).append(decode_message(data))
+    assert sorted(by_time) == [round(o.t * 1e9) for o in outs]  # one log time per tick
+
+    pose_topic, act_topic = (
+        ("/planar/pose", "/planar/actuators")
+        if planar
+        else (
+            "/platform/pose",
+            "/platform/actuators",
+        )
+    )
+    worlds = 0
+    for out in outs:
+        got = by_time[round(out.t * 1e9)]
+        expected_topics = {"/washout/pose", pose_topic, act_topic}
+        if out.state is not None:
+            expected_topics.add("/aircraft/state")
+        if not planar:
+            expected_topics.add("/tf")
+        assert set(got) - {"/health"} == expected_topics
+
+        if out.state is not None:
+            (st,) = got["/aircraft/state"]
+            assert st["t"] == out.t and st["source_t"] == out.state.t
+            assert st["fresh"] is out.fresh and st["accepted"] is out.accepted
+            _same(st["specific_force"], out.state.specific_force)
+            _same(st["angular_velocity"], out.state.angular_velocity)
+            _same(st["attitude"], out.state.attitude)
+            if out.state.angular_acceleration is None:
+                assert "angular_acceleration" not in st
+            else:
+                _same(st["angular_acceleration"], out.state.angular_acceleration)
+        (wp,) = got["/washout/pose"]
+        assert wp["t"] == out.t
+        _same(wp["pose"], out.washout_pose)
+        (pp,) = got[pose_topic]
+        _same(pp["pose"], out.platform_pose)
+        for key in ("t", "clamped", "rate_limited", "held", "phase", "fade"):
+            assert pp[key] == getattr(out, key) and type(pp[key]) is type(getattr(out, key))
+        (act,) = got[act_topic]
+        _same(act["angles"], out.angles)
+        if planar:
+            _same(act["servo_deg"], out.servo_deg.tolist())
+        else:
+            tfs = got["/tf"]
+            plat = [m for m in tfs if m["child_frame_id"] == "platform"]
+            (tf,) = plat
+            assert tf["parent_frame_id"] == "base"
+            assert [tf["translation"][k] for k in "xyz"] == out.platform_pose[:3].tolist()
+            roll, pitch, yaw = out.platform_pose[3:]
+            ref = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
+            r = Rotation.from_quat([tf["rotation"][k] for k in "xyzw"]).as_matrix()
+            assert np.allclose(r, ref, atol=1e-12)
+            worlds += len(tfs) - 1
+
+    # /health: the first tick, then once per second of source time, then at the end
+    assert sum(topic == "/health" for topic, _, _ in records) == health_calls
+    duration = outs[-1].t - outs[0].t
+    assert health_calls in (math.floor(duration) + 2, math.floor(duration) + 3)
+    if not planar:  # the world -> base transform: at the first tick, then once per second
+        assert worlds in (math.floor(duration) + 1, math.floor(duration) + 2)
+
+    # the rejected samples' non-finite values are kept, as JSON strings
+    raw = [d for topic, _, d in records if topic == "/aircraft/state"]
+    assert any(b'"NaN"' in d for d in raw) and any(b'"Infinity"' in d for d in raw)
+
+
+def test_state_from_vector_equals_the_constructor():
+    v = np.array([1.5, -2.25, -9.8, 0.1, 0.2, 0.3, 0.4, -0.5, 3.0, 7.0, 8.0, 9.0])
+    a = AircraftState.from_vector(2.5, v.copy())
+    b = AircraftState(2.5, v[0:3], v[3:6], v[6:9], angular_acceleration=v[9:12])
+    for name in ("specific_force", "angular_velocity", "attitude", "angular_acceleration"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.shape == (3,) and np.array_equal(x, y)
+        assert not x.flags.writeable
+    assert a.t == b.t and type(a.t) is float
+    c = AircraftState.from_vector(1.0, v[:9].copy())
+    assert c.angular_acceleration is None and c.is_finite()
