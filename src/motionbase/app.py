@@ -197,11 +197,13 @@ def _drive(
     extra_sinks: list[Any] | None = None,
     outputs: list[str] | None = None,
     on_output: Callable[[PipelineOutput], None] | None = None,
+    live: Any = None,
 ) -> JobResult:
     """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks.
 
     ``outputs`` are motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`);
-    their statistics end up in the result's notes.
+    their statistics end up in the result's notes. ``live`` (a
+    :class:`~motionbase.io.mcap_log.LiveAddress`) also serves the log's topics to Foxglove.
     """
     from motionbase.io.motor_output import open_outputs
     from motionbase.io.pipeline_log import PipelineLog
@@ -234,9 +236,14 @@ def _drive(
                     run_metadata(config, source),
                     health=pipeline.health.as_dict,
                     planar=config.robot == "rrr3",
+                    kinematics=pipeline.robot.kin,
+                    live=live,
                 )
                 log.__enter__()
                 sinks.insert(0, log)  # the log stays the first sink, closed last
+                if live is not None:
+                    print(f"live view: {live.url(log.live_port)} (Foxglove: Open connection > "
+                          "Foxglove WebSocket)", file=sys.stderr, flush=True)  # fmt: skip
             summary = run(
                 pipeline,
                 source,
@@ -257,6 +264,33 @@ def _drive(
     return JobResult(title, summary, out, notes=[d.stats_line() for d in drives])
 
 
+def _live_address(live: str | None) -> Any:
+    """``--live [HOST:]PORT`` checked before anything opens (None when not asked)."""
+    from motionbase.io.mcap_log import LiveAddress
+
+    return None if live is None else LiveAddress.parse(live)
+
+
+class _PacedSource:
+    """A recording's samples handed over at their recorded pace (``replay --live``)."""
+
+    def __init__(self, source: Any) -> None:
+        self._source = source
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._source, name)
+
+    def __iter__(self):
+        from motionbase.pacing import wait_until
+
+        start = t0 = None
+        for state in self._source:
+            if start is None:
+                start, t0 = time.perf_counter(), state.t
+            wait_until(start + (state.t - t0))
+            yield state
+
+
 def _check_duration(duration_s: float | None) -> None:
     if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
@@ -274,6 +308,7 @@ def fly(
     out: str | Path | None = None,
     progress: bool = True,
     outputs: list[str] | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Fly a JSBSim script through the pipeline and log it to MCAP.
 
@@ -297,12 +332,17 @@ def fly(
     outputs : list of str, optional
         Motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`); they pace
         the run to real time.
+    live : str, optional
+        ``[HOST:]PORT``: serve the log's topics to Foxglove while flying (needs ``realtime``).
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
     _check_duration(duration_s)
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
+    if live is not None and not realtime:
+        raise ConfigError("--live shows the flight as it happens: add --realtime")
+    live_at = _live_address(live)
     name = Path(script).stem
     out_path = (
         Path(out) if out is not None else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
@@ -322,6 +362,7 @@ def fly(
             busy_wait=busy_wait,
             progress=progress,
             outputs=outputs,
+            live=live_at,
         )
 
 
@@ -335,6 +376,7 @@ def replay(
     planar: bool | None = None,
     progress: bool = True,
     outputs: list[str] | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Re-run the pipeline on a recording's aircraft states, with its recorded configuration.
 
@@ -353,6 +395,9 @@ def replay(
         Motor-drive output URLs; they pace the replay to real time. They need ``platform``:
         motors are driven only with the limits of the user's own geometry, never with the
         geometry stored in a recording.
+    live : str, optional
+        ``[HOST:]PORT``: serve the replay's topics to Foxglove; the replay then runs at the
+        recording's own pace (real time), so that it can be watched.
 
     Raises
     ------
@@ -373,6 +418,7 @@ def replay(
             "replay --output drives motors: give --platform with your own geometry (preset or "
             "TOML); a recording's stored geometry and limits never drive motors"
         )
+    live_at = _live_address(live)
     with McapSource(src_path) as source:
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
@@ -398,11 +444,12 @@ def replay(
             result = _drive(
                 f"replayed {src_path.name}",
                 config,
-                source,
+                source if live_at is None else _PacedSource(source),
                 out_path,
-                paced=False,
+                paced=live_at is not None,
                 progress=progress,
                 outputs=outputs,
+                live=live_at,
             )
             result.notes.extend(notes)
             if source.malformed:
@@ -507,6 +554,7 @@ def stream(
     progress: bool = True,
     outputs: list[str] | None = None,
     source_url: str | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
 
@@ -540,6 +588,8 @@ def stream(
     source_url : str, optional
         A simulator instead of MAVLink: ``fgnative:udp:HOST:PORT`` (FlightGear) or
         ``xplane:HOST:PORT`` (X-Plane), see :func:`motionbase.io.sources.open_live_source`.
+    live : str, optional
+        ``[HOST:]PORT``: serve the log's topics to Foxglove while streaming.
     """
     from motionbase.io.sources import open_live_source, stats_line
 
@@ -548,6 +598,7 @@ def stream(
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
+    live_at = _live_address(live)
     config = load_config(
         planar=planar, platform=platform, washout=washout or "telemetry", rate_hz=rate_hz
     )
@@ -580,6 +631,7 @@ def stream(
                 extra_sinks=extra,
                 outputs=outputs,
                 on_output=status,
+                live=live_at,
             )
         finally:
             if status is not None:
@@ -593,6 +645,8 @@ def stream(
 
 # Fields that depend on the wall clock or the machine, never compared.
 _UNCOMPARED = {"/health": {"overruns", "overruns_off_cpu", "worst_overrun_s"}}
+# Topics drawn from others, compared only when both recordings have them.
+_DRAWN = {"/platform/scene"}
 
 
 @dataclass
@@ -636,7 +690,10 @@ def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
 def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]]) -> CheckReport:
     """Compare the messages of two recordings topic by topic (``/health`` timing excluded)."""
     per_topic = {}
-    for topic in sorted(set(a) | set(b)):
+    # the scene is drawn from /platform/pose and /platform/actuators (compared): a recording
+    # made before /platform/scene existed has none, which is no difference
+    drawn = {t for t in _DRAWN if t not in a or t not in b}
+    for topic in sorted((set(a) | set(b)) - drawn):
         ma, mb = a.get(topic, []), b.get(topic, [])
         skip = _UNCOMPARED.get(topic, set())
         if topic == "/health":
