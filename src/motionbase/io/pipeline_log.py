@@ -167,7 +167,7 @@ class PipelineLog:
             logger.add_transform(t, out.platform_pose)
         if self._scene is not None:
             self._last_out = out
-            if t >= self._next_scene_t:
+            if t >= self._next_scene_t - 1e-6:  # on a 30 Hz grid of source time (1 us slack)
                 self._write_scene(logger, out)
         if self._health is not None and t >= self._next_health_t:
             logger.add("/health", t, {"t": t, **self._health()})
@@ -179,4 +179,5 @@ class PipelineLog:
         msg = self._scene.message(t, out.platform_pose, out.angles, out.clamped)
         logger.add("/platform/scene", t, msg)
         self._scene_t = t
-        self._next_scene_t = t + self._scene_period
+        nxt = self._next_scene_t + self._scene_period
+        self._next_scene_t = nxt if t < nxt else t + self._scene_period  # none owed after a gap
