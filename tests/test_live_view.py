@@ -222,6 +222,40 @@ def test_live_replay_of_the_planar_recording(tmp_path):
     assert _check_scenes(out, planar=True) >= 1
 
 
+def test_live_teleop_serves_the_logged_planar_actuators(tmp_path):
+    rows = [
+        (k / 100, 655 + 200 * math.sin(k / 50), 357 + 100 * math.cos(k / 50)) for k in range(3000)
+    ]
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("t,x,y\n" + "".join(f"{t!r},{u!r},{v!r}\n" for t, u, v in rows))
+    out = tmp_path / "teleop.mcap"
+    proc, url = _start(["teleop", "--input", f"file:{csv}", "--out", str(out)], tmp_path)
+    topics = {"/planar/actuators", "/platform/scene"}
+    try:
+        got = _watch(url, topics, lambda g: len(g["/planar/actuators"]) >= 30, proc)
+    except BaseException:
+        proc.kill()
+        raise
+    _finish(proc)
+    logged = _logged(out, topics)
+    for topic in topics:
+        _assert_same_as_logged(got[topic], logged[topic], topic)
+    # the scene is the robot of the log's geometry at the logged pose
+    geometry = read_metadata(out)["geometry"]
+    from motionbase.platform import Rrr3Geometry
+
+    robot = Rrr3(Rrr3Geometry.from_dict(geometry))
+    msgs = read_messages(out)
+    poses = {m["t"]: m["pose"] for m in msgs["/planar/pose"]}
+    for scene in msgs["/platform/scene"]:
+        _, tips, joints = robot.joint_points(np.array(poses[scene["t"]]))
+        legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
+        for i, leg in enumerate(legs):
+            _, q, r = _scene_points(leg)
+            np.testing.assert_allclose(q[:2], tips[i], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(r[:2], joints[i], rtol=0, atol=1e-12)
+
+
 # --------------------------------------------------------------------------- scene and checks
 
 

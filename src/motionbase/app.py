@@ -242,8 +242,7 @@ def _drive(
                 log.__enter__()
                 sinks.insert(0, log)  # the log stays the first sink, closed last
                 if live is not None:
-                    print(f"live view: {live.url(log.live_port)} (Foxglove: Open connection > "
-                          "Foxglove WebSocket)", file=sys.stderr, flush=True)  # fmt: skip
+                    print(live.banner(log.live_port), file=sys.stderr, flush=True)
             summary = run(
                 pipeline,
                 source,

@@ -267,6 +267,7 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold unreachable targets instead of clamping them toward home",
     )
+    _add_live_option(p)
 
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
@@ -276,7 +277,7 @@ def run_teleop(args: argparse.Namespace) -> int:
     stats = teleop_job(
         args.input, serial_url=args.serial, calibration_path=args.calibration,
         rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
-        clamp=not args.no_clamp,
+        clamp=not args.no_clamp, live=args.live,
     )  # fmt: skip
     print(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "

@@ -208,6 +208,10 @@ class LiveAddress:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.port if port is None else port}"
 
+    def banner(self, port: int | None = None) -> str:
+        """The line a job prints when its server is up: where to point Foxglove."""
+        return f"live view: {self.url(port)} (Foxglove: Open connection > Foxglove WebSocket)"
+
 
 class _LogFile:
     """The log's file as the writer sees it; keeps the first write error for the logger.
