@@ -297,6 +297,31 @@ def test_replay_check_compares_scenes_when_both_have_them():
     assert app.compare_recordings(a, {}).identical  # a recording from before the scene
 
 
+def test_layout_names_fields_the_log_has(tmp_path):
+    """Every topic and message path of the shipped Foxglove layout exists in a real log."""
+    layout = json.loads((ROOT / "foxglove" / "motionbase_layout.json").read_text())
+    out = tmp_path / "f.mcap"
+    app.fly("c1723", duration_s=1.0, out=out, progress=False)
+    msgs = read_messages(out)
+    paths = []
+    for panel_id, config in layout["configById"].items():
+        assert panel_id.split("!")[0] in {"3D", "Plot", "RawMessages"}
+        paths += [p["value"] for p in config.get("paths", [])]
+        paths += [config["topicPath"]] if "topicPath" in config else []
+        paths += list(config.get("topics", {}))
+    assert "/platform/scene" in paths and "/health" in paths
+    for path in paths:
+        found = re.fullmatch(r"(/[\w/]+)(?:\.(\w+)\[(\d+)\])?", path)
+        assert found, path
+        topic, field, index = found.groups()
+        assert msgs.get(topic), f"{topic} is not in the log"
+        if field is not None:
+            assert len(msgs[topic][-1][field]) > int(index), path
+    # the panels the layout's tree shows are the ones it configures
+    tree = json.dumps(layout["layout"])
+    assert sorted(re.findall(r'"(\w+![\w]+)"', tree)) == sorted(layout["configById"])
+
+
 # --------------------------------------------------------------------------- user mistakes
 
 
