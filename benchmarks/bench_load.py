@@ -10,6 +10,9 @@ each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
 ``--hiccups`` measures the stalls themselves: a loop that only reads the clock, counting
 the gaps in which it did not run (as jHiccup does).
+``--live`` also serves the log to Foxglove over WebSocket (``motionbase ... --live``) with one
+client connected, in another process, subscribed to every topic and reading all it gets
+(the ``websockets`` package of the test extra); ``--no-scene`` leaves ``/platform/scene`` out.
 
 The source is synthetic but physically plausible: a sum of sines in specific force
 (about +-2 m/s^2 surge and sway around 1 g, +-1.5 m/s^2 heave) and body rates (about
@@ -30,6 +33,8 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -37,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from motionbase.app import load_config, run_metadata
+from motionbase.io.mcap_log import LiveAddress
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.pipeline_log import PipelineLog
 from motionbase.pacing import wait_until
@@ -220,6 +226,37 @@ def _steal_s() -> float | None:
         return None
 
 
+# One Foxglove client in its own process: subscribes to every channel, reads until the end.
+CLIENT = """
+import json, sys
+from websockets.sync.client import connect
+from websockets.exceptions import ConnectionClosed
+n = 0
+with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+    ids = []
+    while not ids:
+        m = json.loads(ws.recv())
+        if m["op"] == "advertise":
+            ids = [c["id"] for c in m["channels"]]
+    subs = [{"id": i + 1, "channelId": c} for i, c in enumerate(ids)]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    print("subscribed", flush=True)
+    try:
+        while True:
+            n += isinstance(ws.recv(), bytes)
+    except ConnectionClosed:
+        pass
+print(n, flush=True)
+"""
+
+
+def start_client(url: str) -> subprocess.Popen:
+    """The client process, once it has subscribed."""
+    proc = subprocess.Popen([sys.executable, "-c", CLIENT, url], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "subscribed"
+    return proc
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0)
@@ -234,6 +271,8 @@ def main() -> None:
     ap.add_argument(
         "--hiccups", action="store_true", help="measure the machine's stalls (a clock-reading loop)"
     )
+    ap.add_argument("--live", action="store_true", help="serve Foxglove, one client connected")
+    ap.add_argument("--no-scene", action="store_true", help="leave /platform/scene out")
     args = ap.parse_args()
     if args.hiccups:
         hiccups(args.minutes, args.rate)
@@ -260,6 +299,8 @@ def main() -> None:
             source=source,
             capacity=n_total,
             log=not args.no_log,
+            kinematics=None if args.no_scene else pipeline.robot.kin,
+            live=LiveAddress("127.0.0.1", 0) if args.live else None,
         )
         every = max(1, n_total // 10)
 
@@ -268,6 +309,7 @@ def main() -> None:
                 rss[f"{100 * log.n // n_total}%"] = rss_mb()
 
         with log:
+            client = start_client(f"ws://127.0.0.1:{log.live_port}") if args.live else None
             steal0 = _steal_s()
             wall0 = time.perf_counter()
             summary = run(
@@ -284,6 +326,7 @@ def main() -> None:
             rss["end"] = rss_mb()
         size = path.stat().st_size
         health = read_messages(path)["/health"][-1]
+        received = int(client.communicate(timeout=60)[0].strip() or 0) if client else None
 
     # the first ticks include numba dispatch warm-up: report them separately
     samples = log.times[: min(log.n, len(log.times))]
@@ -296,6 +339,9 @@ def main() -> None:
     what = " (--no-log: no MCAP writes but the final /health)" if args.no_log else ""
     if args.paced:
         what += ", busy-waiting between ticks" if args.busy_wait else ", sleeping between ticks"
+    what += ", no /platform/scene" if args.no_scene else ", /platform/scene at 30 Hz"
+    if args.live:
+        what += f", live: one Foxglove client received {received} messages"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
