@@ -436,7 +436,7 @@ def replay(
             notes.append(f"warning: {src_path} is truncated; replayed the messages before the cut")
         tmp = None
         out_path = Path(out) if out is not None else None
-        if check and out_path is None:
+        if (check or live_at is not None) and out_path is None:  # a live view needs a log
             tmp = tempfile.TemporaryDirectory(prefix="motionbase-replay-")
             out_path = Path(tmp.name) / "replay.mcap"
         try:
