@@ -256,6 +256,18 @@ def test_live_teleop_serves_the_logged_planar_actuators(tmp_path):
             np.testing.assert_allclose(r[:2], joints[i], rtol=0, atol=1e-12)
 
 
+def test_live_replay_without_out_serves_from_a_temporary_log(tmp_path):
+    proc, url = _start(["replay", str(PLANAR_RECORDING)], tmp_path)
+    try:
+        got = _watch(url, {"/planar/pose"}, lambda g: len(g["/planar/pose"]) >= 10, proc)
+    except BaseException:
+        proc.kill()
+        raise
+    _finish(proc)
+    assert len(got["/planar/pose"]) >= 10
+    assert list(tmp_path.iterdir()) == []  # nothing left behind
+
+
 # --------------------------------------------------------------------------- scene and checks
 
 
