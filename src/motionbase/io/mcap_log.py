@@ -6,8 +6,10 @@ MCAP file that Foxglove and the ``mcap`` library read. It holds the Header, the
 metadata record ``"motionbase"`` (``config``, ``version``, ``log_format``), then
 chunks (each channel's Schema and Channel records in the chunk of its first
 message), and the summary. Each logger has its own :class:`foxglove.Context`, so
-several logs in one process never mix; the same ``Channel.log`` call can also
-feed a live Foxglove WebSocket server on that context.
+several logs in one process never mix; the same ``Channel.log`` call also feeds
+the live Foxglove WebSocket server started on that context with ``live=``
+(``--live [HOST:]PORT``): each message is encoded once, for the file and for
+every client subscribed to its topic.
 
 Crash safety
     The writer compresses messages into the chunk in progress as they come. The
