@@ -237,7 +237,8 @@ with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"], max_size=None) as ws
     while not ids:
         m = json.loads(ws.recv())
         if m["op"] == "advertise":
-            ids = [c["id"] for c in m["channels"]]
+            want = sys.argv[2].split(",") if len(sys.argv) > 2 else None
+            ids = [c["id"] for c in m["channels"] if want is None or c["topic"] in want]
     subs = [{"id": i + 1, "channelId": c} for i, c in enumerate(ids)]
     ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
     print("subscribed", flush=True)
@@ -250,9 +251,10 @@ print(n, flush=True)
 """
 
 
-def start_client(url: str) -> subprocess.Popen:
-    """The client process, once it has subscribed."""
-    proc = subprocess.Popen([sys.executable, "-c", CLIENT, url], stdout=subprocess.PIPE, text=True)
+def start_client(url: str, topics: str | None = None) -> subprocess.Popen:
+    """The client process, once it has subscribed (to ``topics``, comma-separated, or all)."""
+    argv = [sys.executable, "-c", CLIENT, url, *([topics] if topics else [])]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stdout.readline().strip() == "subscribed"
     return proc
 
@@ -273,6 +275,7 @@ def main() -> None:
     )
     ap.add_argument("--live", action="store_true", help="serve Foxglove, one client connected")
     ap.add_argument("--no-scene", action="store_true", help="leave /platform/scene out")
+    ap.add_argument("--live-topics", metavar="T1,T2", help="--live: the client subscribes to these")
     args = ap.parse_args()
     if args.hiccups:
         hiccups(args.minutes, args.rate)
@@ -309,7 +312,8 @@ def main() -> None:
                 rss[f"{100 * log.n // n_total}%"] = rss_mb()
 
         with log:
-            client = start_client(f"ws://127.0.0.1:{log.live_port}") if args.live else None
+            url = f"ws://127.0.0.1:{log.live_port}" if args.live else ""
+            client = start_client(url, args.live_topics) if args.live else None
             steal0 = _steal_s()
             wall0 = time.perf_counter()
             summary = run(
@@ -342,6 +346,7 @@ def main() -> None:
     what += ", no /platform/scene" if args.no_scene else ", /platform/scene at 30 Hz"
     if args.live:
         what += f", live: one Foxglove client received {received} messages"
+        what += f" of {args.live_topics}" if args.live_topics else " (every topic)"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
