@@ -311,7 +311,7 @@ def test_replay_check_compares_scenes_when_both_have_them():
 
 def test_layout_names_fields_the_log_has(tmp_path):
     """Every topic and message path of the shipped Foxglove layout exists in a real log."""
-    layout = json.loads((ROOT / "foxglove" / "motionbase_layout.json").read_text())
+    layout = json.loads((ROOT / "layouts" / "motionbase_layout.json").read_text())
     out = tmp_path / "f.mcap"
     app.fly("c1723", duration_s=1.0, out=out, progress=False)
     msgs = read_messages(out)
