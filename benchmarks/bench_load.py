@@ -13,6 +13,9 @@ late for the actuators that ``/health`` counts from each sample's due time.
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
 ``--hiccups`` measures the stalls themselves: a loop that only reads the clock, counting
 the gaps in which it did not run (as jHiccup does).
+``--live`` also serves the log to Foxglove over WebSocket (``motionbase ... --live``) with one
+client connected, in another process, subscribed to every topic and reading all it gets
+(the ``websockets`` package of the test extra); ``--no-scene`` leaves ``/platform/scene`` out.
 
 The source is synthetic but physically plausible: a sum of sines in specific force
 (about +-2 m/s^2 surge and sway around 1 g, +-1.5 m/s^2 heave) and body rates (about
@@ -33,6 +36,8 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -40,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from motionbase.app import load_config, run_metadata
+from motionbase.io.mcap_log import LiveAddress
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.pipeline_log import PipelineLog
 from motionbase.pacing import wait_until
@@ -227,6 +233,39 @@ def _steal_s() -> float | None:
         return None
 
 
+# One Foxglove client in its own process: subscribes to every channel, reads until the end.
+CLIENT = """
+import json, sys
+from websockets.sync.client import connect
+from websockets.exceptions import ConnectionClosed
+n = 0
+with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+    ids = []
+    while not ids:
+        m = json.loads(ws.recv())
+        if m["op"] == "advertise":
+            want = sys.argv[2].split(",") if len(sys.argv) > 2 else None
+            ids = [c["id"] for c in m["channels"] if want is None or c["topic"] in want]
+    subs = [{"id": i + 1, "channelId": c} for i, c in enumerate(ids)]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    print("subscribed", flush=True)
+    try:
+        while True:
+            n += isinstance(ws.recv(), bytes)
+    except ConnectionClosed:
+        pass
+print(n, flush=True)
+"""
+
+
+def start_client(url: str, topics: str | None = None) -> subprocess.Popen:
+    """The client process, once it has subscribed (to ``topics``, comma-separated, or all)."""
+    argv = [sys.executable, "-c", CLIENT, url, *([topics] if topics else [])]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "subscribed"
+    return proc
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0)
@@ -247,6 +286,9 @@ def main() -> None:
     ap.add_argument(
         "--hiccups", action="store_true", help="measure the machine's stalls (a clock-reading loop)"
     )
+    ap.add_argument("--live", action="store_true", help="serve Foxglove, one client connected")
+    ap.add_argument("--no-scene", action="store_true", help="leave /platform/scene out")
+    ap.add_argument("--live-topics", metavar="T1,T2", help="--live: the client subscribes to these")
     args = ap.parse_args()
     if args.hiccups:
         hiccups(args.minutes, args.rate)
@@ -277,6 +319,8 @@ def main() -> None:
             source=source,
             capacity=n_total,
             log=not args.no_log,
+            kinematics=None if args.no_scene else pipeline.robot.kin,
+            live=LiveAddress("127.0.0.1", 0) if args.live else None,
         )
         every = max(1, n_total // 10)
 
@@ -285,6 +329,8 @@ def main() -> None:
                 rss[f"{100 * log.n // n_total}%"] = rss_mb()
 
         with log:
+            url = f"ws://127.0.0.1:{log.live_port}" if args.live else ""
+            client = start_client(url, args.live_topics) if args.live else None
             steal0 = _steal_s()
             wall0 = time.perf_counter()
             summary = run(
@@ -301,6 +347,7 @@ def main() -> None:
             rss["end"] = rss_mb()
         size = path.stat().st_size
         health = read_messages(path)["/health"][-1]
+        received = int(client.communicate(timeout=60)[0].strip() or 0) if client else None
 
     # the first ticks include numba dispatch warm-up: report them separately
     samples = log.times[: min(log.n, len(log.times))]
@@ -315,6 +362,10 @@ def main() -> None:
         what += ", busy-waiting between ticks" if args.busy_wait else ", sleeping between ticks"
         if args.loop_paced:
             what += ", paced by the pipeline's loop (the times below include its wait)"
+    what += ", no /platform/scene" if args.no_scene else ", /platform/scene at 30 Hz"
+    if args.live:
+        what += f", live: one Foxglove client received {received} messages"
+        what += f" of {args.live_topics}" if args.live_topics else " (every topic)"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "

@@ -235,6 +235,7 @@ def _drive(
     outputs: list[str] | None = None,
     on_output: Callable[[PipelineOutput], None] | None = None,
     stop: StopRequest | None = None,
+    live: Any = None,
 ) -> JobResult:
     """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks.
 
@@ -242,11 +243,13 @@ def _drive(
     their statistics end up in the result's notes. A run with outputs, or with a source that
     paces itself, is a real-time run (``paced``): the pipeline's loop paces every source
     that does not pace itself at the pipeline's rate (:func:`motionbase.pipeline.run`).
+    ``live`` (a :class:`~motionbase.io.mcap_log.LiveAddress`) also serves the log's topics to
+    Foxglove.
     """
     with _stopping(stop) as stop:
         return _drive_stoppable(
             title, config, source, out, paced=paced, busy_wait=busy_wait, progress=progress,
-            extra_sinks=extra_sinks, outputs=outputs, on_output=on_output, stop=stop,
+            extra_sinks=extra_sinks, outputs=outputs, on_output=on_output, stop=stop, live=live,
         )  # fmt: skip
 
 
@@ -263,6 +266,7 @@ def _drive_stoppable(
     outputs: list[str] | None,
     on_output: Callable[[PipelineOutput], None] | None,
     stop: StopRequest,
+    live: Any,
 ) -> JobResult:
     from motionbase.io.motor_output import open_outputs
     from motionbase.io.pipeline_log import PipelineLog
@@ -294,9 +298,13 @@ def _drive_stoppable(
                     run_metadata(config, source),
                     health=pipeline.health.as_dict,
                     planar=config.robot == "rrr3",
+                    kinematics=pipeline.robot.kin,
+                    live=live,
                 )
                 log.__enter__()
                 sinks.insert(0, log)  # the log stays the first sink, closed last
+                if live is not None:
+                    print(live.banner(log.live_port), file=sys.stderr, flush=True)
             summary = run(
                 pipeline,
                 source,
@@ -319,6 +327,13 @@ def _drive_stoppable(
     return JobResult(title, summary, out, notes=[d.stats_line() for d in drives])
 
 
+def _live_address(live: str | None) -> Any:
+    """``--live [HOST:]PORT`` checked before anything opens (None when not asked)."""
+    from motionbase.io.mcap_log import LiveAddress
+
+    return None if live is None else LiveAddress.parse(live)
+
+
 def _check_duration(duration_s: float | None) -> None:
     if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration_s}")
@@ -337,6 +352,7 @@ def fly(
     progress: bool = True,
     outputs: list[str] | None = None,
     stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Fly a JSBSim script through the pipeline and log it to MCAP.
 
@@ -364,6 +380,8 @@ def fly(
     stop : StopRequest, optional
         The run's stop request, when the caller routes the stop signals to it itself (the
         command line); by default the job does so from its start.
+    live : str, optional
+        ``[HOST:]PORT``: serve the log's topics to Foxglove while flying (needs ``realtime``).
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
@@ -371,6 +389,9 @@ def fly(
         _check_duration(duration_s)
         if busy_wait and not (realtime or outputs):
             raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
+        if live is not None and not realtime:
+            raise ConfigError("--live shows the flight as it happens: add --realtime")
+        live_at = _live_address(live)
         name = Path(script).stem
         out_path = (
             Path(out)
@@ -401,6 +422,7 @@ def fly(
                 progress=progress,
                 outputs=outputs,
                 stop=stop,
+                live=live_at,
             )
 
 
@@ -415,6 +437,7 @@ def replay(
     progress: bool = True,
     outputs: list[str] | None = None,
     stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Re-run the pipeline on a recording's aircraft states, with its recorded configuration.
 
@@ -437,6 +460,9 @@ def replay(
         never with the geometry stored in a recording.
     stop : StopRequest, optional
         As for :func:`fly`.
+    live : str, optional
+        ``[HOST:]PORT``: serve the replay's topics to Foxglove; the replay then runs in real
+        time, paced by the pipeline's loop like a replay to drives.
 
     Raises
     ------
@@ -447,7 +473,7 @@ def replay(
     with _stopping(stop) as stop:
         return _replay(
             path, out=out, check=check, platform=platform, washout=washout, planar=planar,
-            progress=progress, outputs=outputs, stop=stop,
+            progress=progress, outputs=outputs, stop=stop, live=live,
         )  # fmt: skip
 
 
@@ -462,6 +488,7 @@ def _replay(
     progress: bool,
     outputs: list[str] | None,
     stop: StopRequest,
+    live: str | None,
 ) -> JobResult:
     from motionbase.io.mcap_source import McapSource, read_messages
 
@@ -476,6 +503,7 @@ def _replay(
             "replay --output drives motors: give --platform with your own geometry (preset or "
             "TOML); a recording's stored geometry and limits never drive motors"
         )
+    live_at = _live_address(live)
     with McapSource(src_path) as source:
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
@@ -494,7 +522,7 @@ def _replay(
             notes.append(f"warning: {src_path} is truncated; replayed the messages before the cut")
         tmp = None
         out_path = Path(out) if out is not None else None
-        if check and out_path is None:
+        if (check or live_at is not None) and out_path is None:  # a live view needs a log
             tmp = tempfile.TemporaryDirectory(prefix="motionbase-replay-")
             out_path = Path(tmp.name) / "replay.mcap"
         try:
@@ -503,10 +531,11 @@ def _replay(
                 config,
                 source,
                 out_path,
-                paced=bool(outputs),
+                paced=bool(outputs) or live_at is not None,
                 progress=progress,
                 outputs=outputs,
                 stop=stop,
+                live=live_at,
             )
             result.notes.extend(notes)
             if source.malformed:
@@ -612,6 +641,7 @@ def stream(
     outputs: list[str] | None = None,
     source_url: str | None = None,
     stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
 
@@ -648,13 +678,15 @@ def stream(
         ``xplane:HOST:PORT`` (X-Plane), see :func:`motionbase.io.sources.open_live_source`.
     stop : StopRequest, optional
         As for :func:`fly`.
+    live : str, optional
+        ``[HOST:]PORT``: serve the log's topics to Foxglove while streaming.
     """
     with _stopping(stop) as stop:
         return _stream(
             mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
             platform=platform, washout=washout, planar=planar, serial=serial,
             duration_s=duration_s, out=out, realtime=realtime, busy_wait=busy_wait,
-            progress=progress, outputs=outputs, source_url=source_url, stop=stop,
+            progress=progress, outputs=outputs, source_url=source_url, stop=stop, live=live,
         )  # fmt: skip
 
 
@@ -677,6 +709,7 @@ def _stream(
     outputs: list[str] | None,
     source_url: str | None,
     stop: StopRequest,
+    live: str | None,
 ) -> JobResult:
     from motionbase.io.sources import open_live_source, stats_line
 
@@ -685,6 +718,7 @@ def _stream(
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
+    live_at = _live_address(live)
     config = load_config(
         planar=planar, platform=platform, washout=washout or "telemetry", rate_hz=rate_hz
     )
@@ -720,6 +754,7 @@ def _stream(
                 outputs=outputs,
                 on_output=status,
                 stop=stop,
+                live=live_at,
             )
         finally:
             if status is not None:
@@ -738,6 +773,8 @@ def _stream(
 _UNCOMPARED = {
     "/health": {"overruns", "overruns_off_cpu", "worst_overrun_s", "late_commands", "worst_late_s"}
 }
+# Topics drawn from others, compared only when both recordings have them.
+_DRAWN = {"/platform/scene"}
 
 
 @dataclass
@@ -781,7 +818,10 @@ def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
 def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]]) -> CheckReport:
     """Compare the messages of two recordings topic by topic (``/health`` timing excluded)."""
     per_topic = {}
-    for topic in sorted(set(a) | set(b)):
+    # the scene is drawn from /platform/pose and /platform/actuators (compared): a recording
+    # made before /platform/scene existed has none, which is no difference
+    drawn = {t for t in _DRAWN if t not in a or t not in b}
+    for topic in sorted((set(a) | set(b)) - drawn):
         ma, mb = a.get(topic, []), b.get(topic, [])
         skip = _UNCOMPARED.get(topic, set())
         if topic == "/health":

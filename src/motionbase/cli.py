@@ -151,6 +151,7 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default recordings/<script>.mcap)")
     _add_output_option(p)
+    _add_live_option(p)
 
 
 @command(
@@ -168,6 +169,7 @@ def run_fly(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         out=args.out,
         outputs=args.output,
+        live=args.live,
     )
 
 
@@ -183,6 +185,7 @@ def _args_replay(p: argparse.ArgumentParser) -> None:
     p.add_argument("--washout", help="override the recorded washout parameters")
     p.add_argument("--planar", action="store_true", default=None, help="override: drive the 3-RRR")
     _add_output_option(p)
+    _add_live_option(p)
 
 
 @command("replay", "re-run the pipeline on a recording's aircraft states", _args_replay)
@@ -196,6 +199,7 @@ def run_replay(args: argparse.Namespace) -> int:
         washout=args.washout,
         planar=args.planar,
         outputs=args.output,
+        live=args.live,
     )
 
 
@@ -281,6 +285,7 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold unreachable targets instead of clamping them toward home",
     )
+    _add_live_option(p)
 
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
@@ -290,7 +295,7 @@ def run_teleop(args: argparse.Namespace) -> int:
     stats = teleop_job(
         args.input, serial_url=args.serial, calibration_path=args.calibration,
         rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
-        clamp=not args.no_clamp,
+        clamp=not args.no_clamp, live=args.live,
     )  # fmt: skip
     print(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
@@ -340,6 +345,7 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
         "under $XDG_DATA_HOME when set)",
     )
     _add_output_option(p)
+    _add_live_option(p)
 
 
 @command("stream", "drive the platform live from MAVLink, FlightGear or X-Plane", _args_stream)
@@ -361,6 +367,7 @@ def run_stream(args: argparse.Namespace) -> int:
         busy_wait=args.busy_wait,
         outputs=args.output,
         source_url=args.source,
+        live=args.live,
     )
 
 
@@ -445,6 +452,15 @@ def _add_output_option(p: argparse.ArgumentParser) -> None:
         "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
         "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
         "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",
+    )
+
+
+def _add_live_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--live",
+        metavar="[HOST:]PORT",
+        help="also serve every logged topic to Foxglove over WebSocket while running "
+        "(host 127.0.0.1 unless given; 0.0.0.0 to watch from another PC; e.g. --live 8765)",
     )
 
 
