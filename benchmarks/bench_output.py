@@ -1,6 +1,6 @@
 """Motor-drive output: cost of formatting and sending one frame, and 1 kHz sustained output.
 
-Run: /work/venv/bin/python benchmarks/bench_output.py
+Run: python benchmarks/bench_output.py
 
 Targets (issue 8): formatting + sending one frame <= 20 us; 1 kHz output with < 10 % of a core.
 Issue 13: the sender ramps each frame at the drive within the speed and acceleration limits
