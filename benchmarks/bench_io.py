@@ -1,6 +1,6 @@
 """I/O figures: JSBSim c1723 alone (the `fly` baseline), McapLogger.add cost, replay read speed.
 
-Run: /work/venv/bin/python benchmarks/bench_io.py
+Run: python benchmarks/bench_io.py
 """
 
 from __future__ import annotations

@@ -4,12 +4,18 @@ Run: ``python benchmarks/bench_load.py`` (about a minute or two; ``--minutes M``
 length, ``--planar`` for the 3-RRR robot, ``--paced`` to run on the wall clock and read the
 loop overruns from the log's ``/health`` record, which then takes the flight's length;
 ``--no-log`` leaves the MCAP writes out, to see their share; ``--busy-wait`` waits for
-each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --busy-wait``).
+each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --busy-wait``;
+``--paced --loop-paced`` lets the pipeline's loop pace a source that does not pace itself,
+as ``replay --output`` and ``fly --output`` do). With ``--paced`` it prints the commands
+late for the actuators that ``/health`` counts from each sample's due time.
 ``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
 50 us of computing per tick and nothing else, to tell what the machine does to any loop
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
 ``--hiccups`` measures the stalls themselves: a loop that only reads the clock, counting
 the gaps in which it did not run (as jHiccup does).
+``--live`` also serves the log to Foxglove over WebSocket (``motionbase ... --live``) with one
+client connected, in another process, subscribed to every topic and reading all it gets
+(the ``websockets`` package of the test extra); ``--no-scene`` leaves ``/platform/scene`` out.
 
 The source is synthetic but physically plausible: a sum of sines in specific force
 (about +-2 m/s^2 surge and sway around 1 g, +-1.5 m/s^2 heave) and body rates (about
@@ -30,6 +36,8 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -37,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from motionbase.app import load_config, run_metadata
+from motionbase.io.mcap_log import LiveAddress
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.pipeline_log import PipelineLog
 from motionbase.pacing import wait_until
@@ -67,7 +76,9 @@ class SyntheticFlight:
         self.rate_hz = rate_hz
         self.duration_s = duration_s
         self.paced = paced  # hand each sample over at its time on the wall clock
+        self.paces_itself = paced  # (then the pipeline's loop does not pace it again)
         self.busy_wait = busy_wait  # wait for it by busy-waiting (else sleeping)
+        self.due_time: float | None = None  # when the last sample was due (monotonic s)
         self.fresh = True
         rng = np.random.default_rng(seed)
         self.freq = np.array([0.05, 0.13, 0.31, 0.7, 1.6, 3.0])  # Hz
@@ -90,9 +101,11 @@ class SyntheticFlight:
         w = 2 * np.pi * self.freq
         noise = self.rng.normal(0.0, 0.02, (n, 6))
         start = time.perf_counter()
+        mono = time.monotonic() - start  # perf_counter -> monotonic (the same clock on Linux)
         for k in range(n):
             t = k * dt
             if self.paced:
+                self.due_time = start + t + mono
                 wait_until(start + t, busy=self.busy_wait)
             x = (self.amp * np.sin(w * t + self.phase)).sum(axis=1) + noise[k]
             att = (0.1 * math.sin(0.2 * t), 0.05 * math.sin(0.15 * t), 0.3 * t % (2 * math.pi))
@@ -100,7 +113,7 @@ class SyntheticFlight:
             state = AircraftState(t, (x[0], x[1], -G + x[2]), (x[3], x[4], x[5]), att)
             self.handed_cpu = time.thread_time()
             self.handed_at = time.perf_counter()
-            self.due = start + t  # when the sample was due on the wall clock
+            self.due = start + t  # when the sample was due on the wall clock (perf_counter)
             yield state
 
 
@@ -220,12 +233,51 @@ def _steal_s() -> float | None:
         return None
 
 
+# One Foxglove client in its own process: subscribes to every channel, reads until the end.
+CLIENT = """
+import json, sys
+from websockets.sync.client import connect
+from websockets.exceptions import ConnectionClosed
+n = 0
+with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+    ids = []
+    while not ids:
+        m = json.loads(ws.recv())
+        if m["op"] == "advertise":
+            want = sys.argv[2].split(",") if len(sys.argv) > 2 else None
+            ids = [c["id"] for c in m["channels"] if want is None or c["topic"] in want]
+    subs = [{"id": i + 1, "channelId": c} for i, c in enumerate(ids)]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    print("subscribed", flush=True)
+    try:
+        while True:
+            n += isinstance(ws.recv(), bytes)
+    except ConnectionClosed:
+        pass
+print(n, flush=True)
+"""
+
+
+def start_client(url: str, topics: str | None = None) -> subprocess.Popen:
+    """The client process, once it has subscribed (to ``topics``, comma-separated, or all)."""
+    argv = [sys.executable, "-c", CLIENT, url, *([topics] if topics else [])]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "subscribed"
+    return proc
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--planar", action="store_true")
     ap.add_argument("--paced", action="store_true")
+    ap.add_argument(
+        "--loop-paced",
+        action="store_true",
+        help="with --paced: the source hands samples over at once and the pipeline's loop "
+        "paces the ticks (as replay --output does)",
+    )
     ap.add_argument("--floor", action="store_true")
     ap.add_argument("--no-log", action="store_true", help="skip the MCAP writes (their share)")
     ap.add_argument(
@@ -234,6 +286,9 @@ def main() -> None:
     ap.add_argument(
         "--hiccups", action="store_true", help="measure the machine's stalls (a clock-reading loop)"
     )
+    ap.add_argument("--live", action="store_true", help="serve Foxglove, one client connected")
+    ap.add_argument("--no-scene", action="store_true", help="leave /platform/scene out")
+    ap.add_argument("--live-topics", metavar="T1,T2", help="--live: the client subscribes to these")
     args = ap.parse_args()
     if args.hiccups:
         hiccups(args.minutes, args.rate)
@@ -244,7 +299,11 @@ def main() -> None:
 
     config = load_config(planar=args.planar, rate_hz=args.rate)
     duration = args.minutes * 60.0
-    source = SyntheticFlight(args.rate, duration, paced=args.paced, busy_wait=args.busy_wait)
+    if args.loop_paced and not args.paced:
+        ap.error("--loop-paced goes with --paced")
+    source = SyntheticFlight(
+        args.rate, duration, paced=args.paced and not args.loop_paced, busy_wait=args.busy_wait
+    )
     pipeline = Pipeline(config)
     budget = 1.0 / args.rate
     n_total = int(round(duration * args.rate))
@@ -260,6 +319,8 @@ def main() -> None:
             source=source,
             capacity=n_total,
             log=not args.no_log,
+            kinematics=None if args.no_scene else pipeline.robot.kin,
+            live=LiveAddress("127.0.0.1", 0) if args.live else None,
         )
         every = max(1, n_total // 10)
 
@@ -268,6 +329,8 @@ def main() -> None:
                 rss[f"{100 * log.n // n_total}%"] = rss_mb()
 
         with log:
+            url = f"ws://127.0.0.1:{log.live_port}" if args.live else ""
+            client = start_client(url, args.live_topics) if args.live else None
             steal0 = _steal_s()
             wall0 = time.perf_counter()
             summary = run(
@@ -284,6 +347,7 @@ def main() -> None:
             rss["end"] = rss_mb()
         size = path.stat().st_size
         health = read_messages(path)["/health"][-1]
+        received = int(client.communicate(timeout=60)[0].strip() or 0) if client else None
 
     # the first ticks include numba dispatch warm-up: report them separately
     samples = log.times[: min(log.n, len(log.times))]
@@ -296,6 +360,12 @@ def main() -> None:
     what = " (--no-log: no MCAP writes but the final /health)" if args.no_log else ""
     if args.paced:
         what += ", busy-waiting between ticks" if args.busy_wait else ", sleeping between ticks"
+        if args.loop_paced:
+            what += ", paced by the pipeline's loop (the times below include its wait)"
+    what += ", no /platform/scene" if args.no_scene else ", /platform/scene at 30 Hz"
+    if args.live:
+        what += f", live: one Foxglove client received {received} messages"
+        what += f" of {args.live_topics}" if args.live_topics else " (every topic)"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
@@ -320,7 +390,7 @@ def main() -> None:
             for k in computing[:10]
         )
     )
-    if args.paced:
+    if args.paced and not args.loop_paced:
         # what the actuator sees: the command is ready this long after the sample was due
         # (the sleep's wake-up, or a backlog after a stall, plus the tick itself)
         ready = log.since_due[10 : len(samples)] * 1e6
@@ -349,8 +419,16 @@ def main() -> None:
         "overruns",
         "overruns_off_cpu",
         "worst_overrun_s",
+        "late_commands",
+        "worst_late_s",
     )
     print("  /health: " + ", ".join(f"{k} {health.get(k)}" for k in keys))
+    if args.paced:
+        print(
+            f"  commands late for the actuators (/health, from each sample's due time): "
+            f"{health.get('late_commands')} more than one period late, worst by "
+            f"{1e3 * health.get('worst_late_s', 0.0):.2f} ms beyond it"
+        )
     if not args.paced:
         print("  (overruns are measured only with --paced, on the wall clock)")
     else:

@@ -1,6 +1,6 @@
 """MAVLink source speed: sustained input, CPU share, per-message cost, latency.
 
-Run: /work/venv/bin/python benchmarks/bench_mavlink.py [--seconds 10]
+Run: python benchmarks/bench_mavlink.py [--seconds 10]
 
 1. Live: a pymavlink sender in another *process* sends HIGHRES_IMU and
    ATTITUDE alternately at 1,000 messages/s over loopback UDP; the source ticks

@@ -1,8 +1,10 @@
 """Motor-drive output: cost of formatting and sending one frame, and 1 kHz sustained output.
 
-Run: /work/venv/bin/python benchmarks/bench_output.py
+Run: python benchmarks/bench_output.py
 
 Targets (issue 8): formatting + sending one frame <= 20 us; 1 kHz output with < 10 % of a core.
+Issue 13: the sender ramps each frame at the drive within the speed and acceleration limits
+(``limits``, as ``--output`` always does): its cost per frame, and 1 kHz with and without it.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 
 from motionbase.io.motor_output import open_output
 from motionbase.platform import OutputMapping
+from motionbase.safety import ActuatorLimits
 
 LO, HI = np.radians(np.full(6, -60.0)), np.radians(np.full(6, 60.0))
 MAPPINGS = {
@@ -100,10 +103,7 @@ def per_frame(n: int = 20000) -> None:
         row = []
         drains = {k: Drain(k) for k in ("udp", "pty")}
         try:
-            sinks = {
-                k: open_output(f"{d.where}?rate=1&format={fmt}", m, realtime=False)
-                for k, d in drains.items()
-            }
+            sinks = {k: open_output(f"{d.where}?rate=1&format={fmt}", m) for k, d in drains.items()}
             for s in sinks.values():
                 s.open()
             sink = sinks["udp"]
@@ -113,7 +113,7 @@ def per_frame(n: int = 20000) -> None:
                 sink.write(qs[i])
                 t[i] = time.perf_counter_ns() - t0
             enc = t / 1e3
-            frame = sink._latest
+            frame = sink._command[1]
             sends = {}
             for k, s in sinks.items():
                 tr = s.transport
@@ -147,11 +147,41 @@ def _thread_cpu_s(tid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def sustained(rate_hz: float = 1000.0, seconds: float = 5.0) -> None:
+LIMITS = ActuatorLimits.broadcast(6, LO, HI, 3.0, 30.0)  # the ceart preset's crank limits
+
+
+def ramp_step(n: int = 20000) -> None:
+    """The sender's work per frame when it ramps the drive within its limits."""
+    fmt, mkey = FORMATS["bin 6xu16be sum8"]
+    sink = open_output(f"udp:127.0.0.1:9?rate=1000&format={fmt}", MAPPINGS[mkey], limits=LIMITS)
+    sink.write(np.zeros(6))
+    target, frame = sink._command
+    sink._drive_q, sink._drive_t = np.zeros(6), time.monotonic()
+    sink._drive_target = target
+    t = np.empty(n)
+    far = np.full(6, 1.0)  # a far command: every frame is limited, mapped and encoded anew
+    for i in range(n):
+        now = sink._drive_t + 1e-3
+        t0 = time.perf_counter_ns()
+        q, v, _ = sink._ramp(far, frame, now)
+        t[i] = time.perf_counter_ns() - t0
+        sink._drive_q, sink._drive_v, sink._drive_t, sink._drive_target = q, v, now, far
+        if np.array_equal(q, far):
+            sink._drive_q, sink._drive_v = np.zeros(6), np.zeros(6)
+    us = t / 1e3
+    print(
+        f"ramp at the drive (limit_command + map + encode of a limited frame), us per frame: "
+        f"median {np.median(us):.1f}, p99 {np.percentile(us, 99):.1f}"
+    )
+
+
+def sustained(rate_hz: float = 1000.0, seconds: float = 5.0, ramped: bool = True) -> None:
     fmt, mkey = FORMATS["bin 6xu16be sum8"]
     drain = Drain("udp")
     sink = open_output(
-        f"{drain.where}?rate={rate_hz:g}&format={fmt}", MAPPINGS[mkey], realtime=False
+        f"{drain.where}?rate={rate_hz:g}&format={fmt}",
+        MAPPINGS[mkey],
+        limits=LIMITS if ramped else None,
     )
     pipeline_rate = 120.0
     stop = threading.Event()
@@ -180,7 +210,8 @@ def sustained(rate_hz: float = 1000.0, seconds: float = 5.0) -> None:
     stamps = np.array([s for s in drain.stamps if w0 <= s <= w1])
     gaps = np.diff(stamps) * 1e3
     print(
-        f"sustained {rate_hz:g} Hz over UDP for {wall:.1f} s (pipeline writing at 120 Hz): "
+        f"sustained {rate_hz:g} Hz over UDP for {wall:.1f} s (pipeline writing at 120 Hz), "
+        f"{'ramped at the drive' if ramped else 'latest command as it is'}: "
         f"{(n1 - n0) / wall:.1f} frames/s sent, {len(stamps) / wall:.1f} received"
     )
     print(
@@ -195,4 +226,6 @@ def sustained(rate_hz: float = 1000.0, seconds: float = 5.0) -> None:
 
 if __name__ == "__main__":
     per_frame()
-    sustained()
+    ramp_step()
+    sustained(ramped=False)
+    sustained(ramped=True)

@@ -1,6 +1,6 @@
 """3-RRR speed: one teleop cycle and the full-workspace sweep.
 
-Run: /work/venv/bin/python benchmarks/bench_rrr3.py
+Run: python benchmarks/bench_rrr3.py
 
 Teleop cycle = calibration (pixel -> m) + clamp (validity check; a full clamp when the target
 is outside) + inverse kinematics + servo mapping + protocol encoding, for one cursor sample.

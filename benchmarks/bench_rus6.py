@@ -3,7 +3,7 @@
 Targets (issue 2): batch inverse of 1,000,000 poses at >= 2,000,000 poses/s on one core;
 one pose through ``inverse`` from Python <= 5 us; ``clamp`` of one pose <= 50 us.
 
-Run: /work/venv/bin/python benchmarks/bench_rus6.py
+Run: python benchmarks/bench_rus6.py
 """
 
 from __future__ import annotations

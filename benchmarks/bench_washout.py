@@ -1,6 +1,6 @@
 """Washout speed: step latency from Python (p50/p99) and batch run throughput.
 
-Run: /work/venv/bin/python benchmarks/bench_washout.py
+Run: python benchmarks/bench_washout.py
 """
 
 from __future__ import annotations

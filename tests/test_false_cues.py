@@ -18,8 +18,6 @@ folder given by ``MOTIONBASE_TEST_DATA`` and are skipped, with that reason, with
 from __future__ import annotations
 
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -149,18 +147,8 @@ def test_rejected_samples_do_not_hold_the_platform_in_the_manoeuvre():
 # --------------------------------------------------------------------------- real logs
 
 
-def _real_log(name: str) -> Path:
-    folder = os.environ.get("MOTIONBASE_TEST_DATA")
-    if not folder:
-        pytest.skip("MOTIONBASE_TEST_DATA is not set (the folder holding the real flight logs)")
-    path = Path(folder) / name
-    if not path.is_file():
-        pytest.fail(f"MOTIONBASE_TEST_DATA={folder} has no {name}")
-    return path
-
-
 @pytest.mark.parametrize("name", ["vtol.tlog", "erle_plane_329.BIN"])
-def test_real_logs_keep_the_cranks_off_their_limits(name, tmp_path):
+def test_real_logs_keep_the_cranks_off_their_limits(name, tmp_path, flight_data):
     """``motionbase stream --mavlink LOG --fast`` with its defaults: no crank comes within
     5 deg of its limit, nothing is clamped, and the limiter never has to act while running
     (so it cannot add a cue)."""
@@ -169,7 +157,7 @@ def test_real_logs_keep_the_cranks_off_their_limits(name, tmp_path):
     from motionbase.pipeline import PipelineConfig
 
     out = tmp_path / "log.mcap"
-    app.stream(str(_real_log(name)), realtime=False, out=out, progress=False)
+    app.stream(str(flight_data / name), realtime=False, out=out, progress=False)
     msgs = read_messages(out)
     config = PipelineConfig.from_dict(McapSource(out).metadata["pipeline_config"])
     poses = msgs["/platform/pose"]

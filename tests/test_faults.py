@@ -11,20 +11,26 @@ import math
 import re
 import resource
 import signal
+import struct
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive, check_wire_limits, read_complete_log
 from pty_board import Board
 
 from motionbase import app, cli
 from motionbase.errors import SinkError, SourceError
+from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages
 from motionbase.io.serial_link import ServoSerialSink
 from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.platform import Rus6Geometry
+from motionbase.safety import MAX_SAMPLE_TIME_S
 from motionbase.state import AircraftState
 
 G = 9.80665
@@ -212,6 +218,51 @@ def test_a_full_disk_ends_with_one_line_and_a_log_readable_up_to_the_fault(tmp_p
     check_logged_commands(out)
 
 
+class BrokenSink:
+    """A sink with a bug that is not ours: it raises a plain ``struct.error`` at tick ``n``."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.label = "broken-test-sink"
+
+    def __enter__(self) -> BrokenSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def write(self, out) -> None:
+        self.n -= 1
+        if self.n == 0:
+            struct.pack("<Q", 2**64)  # what an unrepresentable log time did to the log
+
+
+def test_any_failing_sink_parks_through_the_others_then_one_clear_error(tmp_path):
+    out = tmp_path / "broken.mcap"
+    config = app.load_config()
+    drive = UdpDrive()
+    try:
+        with pytest.raises(SinkError) as info:
+            app._drive(
+                "test", config, FailingSource(900, RuntimeError("unused")), out, paced=False,
+                progress=False, extra_sinks=[BrokenSink(360)], outputs=[drive.url()],
+            )  # fmt: skip
+        drive.drain()
+    finally:
+        drive.close()
+    message = str(info.value)
+    assert "\n" not in message
+    assert "broken-test-sink" in message and "parked" in message and "error" in message
+    assert isinstance(info.value.__cause__, struct.error)
+    t, q = drive.angles()
+    np.testing.assert_allclose(q[-1], park_angles(config), atol=math.radians(1e-4))
+    check_wire_limits(t, q, config.geometry.max_speed, config.geometry.max_accel)
+    msgs = read_complete_log(out)  # the log, a sink too, was closed properly
+    assert len(msgs["/aircraft/state"]) < 900  # it stopped at the failure, not at the end
+    config, q_log, _ = check_logged_commands(out)
+    assert np.array_equal(q_log[-1], park_angles(config))
+
+
 def test_dev_full_and_an_uncreatable_folder_are_one_line_errors(tmp_path):
     proc = cli_run("fly", "--duration", "1", "--out", "/dev/full", cwd=tmp_path)
     assert proc.returncode == 2
@@ -305,3 +356,144 @@ def test_configuration_mistake_through_the_console_script(tmp_path):
     line = assert_one_line_error(proc, "bad.toml", "'rod'")
     assert "fix" in line
     assert proc.stdout == ""
+
+
+# --------------------------------------------------------------------------- crafted times
+
+
+RATE = 120.0
+N_CRAFTED = 360  # 3 s of samples
+
+
+def _strong(k: int) -> tuple[list[float], list[float]]:
+    """Strong manoeuvring (the cranks work at their speed limits), sample ``k`` at 120 Hz."""
+    s = math.sin(2 * math.pi * 0.7 * k / RATE)
+    return [25 * s, 20 * s, -G + 10 * s], [3 * s, 3 * s, 3 * s]
+
+
+def _times(kind: str) -> list[float]:
+    dt = 1 / RATE
+    t = [k * dt for k in range(N_CRAFTED)]
+    half = N_CRAFTED // 2
+    if kind == "jump 1e6 s":
+        t = t[:half] + [x + 1e6 for x in t[half:]]
+    elif kind == "gap 10 s":
+        t = t[:half] + [x + 10.0 for x in t[half:]]
+    elif kind == "squeezed to 1 ms":
+        t = [k * 1e-3 for k in range(N_CRAFTED)]  # while the recording says 120 Hz
+    elif kind == "10 samples back in time":
+        t = [x - 0.5 if half - 30 <= k < half - 20 else x for k, x in enumerate(t)]
+    elif kind == "one sample at 2e10 s":
+        t[half] = 2e10
+    return t
+
+
+CRAFTED = ["jump 1e6 s", "gap 10 s", "squeezed to 1 ms", "10 samples back in time",
+           "one sample at 2e10 s"]  # fmt: skip
+
+
+def write_crafted(path: Path, times: list[float]) -> None:
+    """A recording of strong manoeuvring whose samples carry ``times`` as the source's own
+    time (``source_t``, what a replay reads); the MCAP log time stays the sample's index at
+    120 Hz, as the recording's metadata says."""
+    with McapLogger(path, {"rate_hz": RATE, "source": {"kind": "crafted times"}}) as logger:
+        for k, t in enumerate(times):
+            f, w = _strong(k)
+            msg = {"t": k / RATE, "source_t": t, "specific_force": f, "angular_velocity": w,
+                   "attitude": [0.0, 0.0, 0.0]}  # fmt: skip
+            logger.add("/aircraft/state", k / RATE, msg)
+
+
+@dataclass
+class Replayed:
+    returncode: int | None
+    stdout: str
+    stderr: str
+    froze: bool
+    drive: UdpDrive
+    out: Path
+
+
+@pytest.fixture(scope="module")
+def crafted_replays(tmp_path_factory) -> dict[str, Replayed]:
+    """``motionbase replay REC --platform ceart --output udp:...`` of each crafted recording,
+    to a loopback drive, all at once (each takes the recording's length in real time)."""
+    root = tmp_path_factory.mktemp("crafted")
+    started = {}
+    for k, kind in enumerate(CRAFTED):
+        rec, out = root / f"rec{k}.mcap", root / f"replay{k}.mcap"
+        write_crafted(rec, _times(kind))
+        drive = UdpDrive()
+        cmd = [sys.executable, "-m", "motionbase.cli", "replay", str(rec), "--platform", "ceart"]
+        cmd += ["--out", str(out), "--output", drive.url()]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        started[kind] = (proc, drive, out)
+    results = {}
+    for kind, (proc, drive, out) in started.items():
+        froze = False
+        try:
+            stdout, stderr = proc.communicate(timeout=240)  # a watchdog, not a timing check
+        except subprocess.TimeoutExpired:
+            froze = True
+            proc.send_signal(signal.SIGKILL)
+            stdout, stderr = proc.communicate()
+        drive.drain()
+        drive.close()
+        results[kind] = Replayed(proc.returncode, stdout, stderr, froze, drive, out)
+    return results
+
+
+@pytest.mark.parametrize("kind", CRAFTED)
+def test_replay_to_drives_keeps_the_limits_on_the_wire_whatever_the_recorded_times(
+    crafted_replays, kind
+):
+    """The loop paces a replay with drives on its own clock at the recorded rate: a jump or a
+    gap in the recording's times is the validation stage's business (a time jump resets the
+    washout and fades back in; a sample back in time or beyond what a log time holds is
+    rejected and held), never a wait; the frames on the wire keep the speed and acceleration
+    limits in wall-clock time; the last frame is the park command; the log is complete."""
+    r = crafted_replays[kind]
+    assert not r.froze, f"{kind}: the replay froze (killed)"
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    geometry = Rus6Geometry.preset("ceart")
+    t, q = r.drive.angles()
+    assert len(t) > 100
+    np.testing.assert_allclose(q[-1], geometry.park_angle, atol=math.radians(1e-4))
+    check_wire_limits(t, q, geometry.max_speed, geometry.max_accel, kind)
+    log = read_complete_log(r.out)
+    assert len(log["/aircraft/state"]) == N_CRAFTED  # every sample went through
+    assert log["/platform/pose"][-1]["phase"] == "parked"
+    health = log["/health"][-1]
+    times = [m["t"] for m in log["/platform/actuators"]]
+    assert np.all(np.diff(times) > 0) and times[-1] <= MAX_SAMPLE_TIME_S
+    expected = {  # (time jumps, rejected samples)
+        "jump 1e6 s": (1, 0),
+        "gap 10 s": (1, 0),
+        "squeezed to 1 ms": (0, 0),
+        "10 samples back in time": (0, 10),
+        "one sample at 2e10 s": (0, 1),
+    }[kind]
+    assert (health["time_jumps"], health["rejected_inputs"]) == expected
+    if kind == "one sample at 2e10 s":
+        assert "outside" in health["last_rejection"]
+    assert "rejected inputs" in r.stdout and "stopped by end of source" in r.stdout
+
+
+def test_a_recording_that_claims_an_absurdly_slow_rate_is_refused(tmp_path, capsys):
+    """A replay to drives is paced at the recording's rate: one of 0.001 Hz would make the
+    loop wait 1000 s between ticks, deaf to a stop meanwhile. Refused: one line, exit 2."""
+    rec = tmp_path / "slow.mcap"
+    with McapLogger(rec, {"rate_hz": 0.001}) as logger:
+        for k in range(5):
+            msg = {"specific_force": [0.0, 0.0, -G], "angular_velocity": [0.0, 0.0, 0.0],
+                   "attitude": [0.0, 0.0, 0.0]}  # fmt: skip
+            logger.add("/aircraft/state", 1000.0 * k, msg)
+    drive = UdpDrive()
+    try:
+        code = cli.main(["replay", str(rec), "--platform", "ceart", "--output", drive.url()])
+    finally:
+        drive.close()
+    assert code == 2
+    assert_one_line_error(capsys.readouterr().err, "rate_hz 0.001", "below 10 Hz")
+    assert drive.count() == 0

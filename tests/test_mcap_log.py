@@ -25,9 +25,12 @@ from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.io import mcap_log
 from motionbase.io.mcap_log import McapLogger, quaternion_from_euler_zyx
 from motionbase.io.mcap_source import read_messages
+from motionbase.io.scene import SceneBuilder
 from motionbase.io.schemas import TOPIC_SCHEMAS
+from motionbase.platform import Rus6, Rus6Geometry
 
 RNG = np.random.default_rng(7)
+_SCENE = SceneBuilder(Rus6(Rus6Geometry.preset("ceart")))
 CONFIG = {
     "source": {"kind": "jsbsim", "script": "c1723", "rate_hz": 120.0},
     "geometry": {"crank": 0.184, "rod": 0.724, "pivots": np.linspace(0, 1, 6)},
@@ -63,6 +66,7 @@ def _sample_messages(t: float) -> dict[str, dict]:
             "extra_counter": 5,
         },
         "/cursor": {"pixel": [320.0, 240.0], "target": RNG.normal(size=2) * 0.01},
+        "/platform/scene": _SCENE.message(t, np.zeros(6), RNG.normal(size=6) * 0.5),
     }
 
 

@@ -19,6 +19,7 @@ from urllib.parse import quote
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive, check_wire_limits
 from pty_board import Board
 
 from motionbase.app import fly, load_config
@@ -31,6 +32,7 @@ from motionbase.io.motor_output import (
     TextFormat,
     crc16_ccitt,
     crc16_modbus,
+    mapping_for,
     open_output,
 )
 from motionbase.pipeline import Pipeline, run
@@ -249,7 +251,7 @@ def peer(request):
 def test_each_format_round_trips_within_one_unit(peer, case):
     fmt, table, split, decode, to_angle, tol = CASES[case]
     m = mapping(table)
-    with open_output(url_for(peer.kind, peer, fmt), m, realtime=False) as sink:
+    with open_output(url_for(peer.kind, peer, fmt), m) as sink:
         for q in commands():
             assert sink.write(q)
 
@@ -277,7 +279,7 @@ def test_mirrored_motor_goes_the_other_way_on_the_wire():
     fmt, table, split, decode, _, _ = CASES["bin-u16be-sum8"]
     peer = UdpPeer()
     try:
-        with open_output(url_for("udp", peer, fmt), mapping(table), realtime=False) as sink:
+        with open_output(url_for("udp", peer, fmt), mapping(table)) as sink:
             seen = []
             for deg in (0.0, 10.0):
                 sink.write(np.full(6, math.radians(deg)))
@@ -307,7 +309,7 @@ def test_out_of_range_commands_are_never_sent(caplog):
     good = np.radians([5.0, -5.0, 10.0, 0.0, 0.0, 0.0])
     try:
         with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
-            with open_output(url_for("pty", peer, fmt), mapping(table), realtime=False) as sink:
+            with open_output(url_for("pty", peer, fmt), mapping(table)) as sink:
                 assert sink.write(good)
                 assert wait_until(lambda: len(peer.frames(split)) >= 2)
                 beyond = good.copy()
@@ -335,9 +337,7 @@ def test_a_value_too_wide_for_the_field_is_never_sent():
     m = mapping({"unit": "counts", "counts_per_rev": 12000})
     peer = UdpPeer()
     try:
-        with open_output(
-            f"udp:127.0.0.1:{peer.port}?format=bin:0x55,6xu8", m, realtime=False
-        ) as sink:
+        with open_output(f"udp:127.0.0.1:{peer.port}?format=bin:0x55,6xu8", m) as sink:
             assert sink.write(np.radians([1.0, 2, 3, 4, 5, 6]))  # 33..200 counts: fits
             assert not sink.write(np.radians([1.0, 2, 3, 4, 5, 10]))  # 333 counts: does not
             assert not sink.write(np.radians([-1.0, 2, 3, 4, 5, 6]))  # negative: does not
@@ -354,7 +354,7 @@ def test_fixed_rate_sends_only_the_latest_command():
     fmt, table, split, decode, to_angle, tol = CASES["bin-i16le-centideg-ccitt"]
     peer = UdpPeer()
     try:
-        sink = open_output(url_for("udp", peer, fmt, rate=20), mapping(table), realtime=False)
+        sink = open_output(url_for("udp", peer, fmt, rate=20), mapping(table))
         with sink:
             sink.write(np.zeros(6))
             assert wait_until(lambda: len(peer.datagrams) >= 3)  # repeated without new writes
@@ -379,7 +379,7 @@ def test_the_last_frame_is_the_park_command_after_a_pipeline_run(peer):
         AircraftState(k / 120, np.array([2.0, 1.0, -9.80665]), np.array([0.1, 0.2, 0.0]))
         for k in range(120)
     ]
-    sink = open_output(url_for(peer.kind, peer, fmt), mapping(table), realtime=False)
+    sink = open_output(url_for(peer.kind, peer, fmt), mapping(table))
     with sink:
         summary = run(Pipeline(config), states, [sink])
     assert summary.samples > 120
@@ -459,13 +459,13 @@ def test_killing_the_peers_warns_once_and_the_flight_and_log_go_on(tmp_path, cap
 def test_bad_urls_say_what_is_wrong(url, err, match):
     m = mapping({"unit": "deg"})
     with pytest.raises(err, match=match):
-        open_output(url, m, realtime=False).open()
+        open_output(url, m).open()
 
 
 def test_format_from_a_toml_file_and_loop_url(tmp_path):
     path = tmp_path / "drive.toml"
     path.write_text('binary = "0xFFFE,6xu16be,sum8@2"\nrate_hz = 250\n')
-    sink = open_output(f"serial:loop://?format={path}", mapping({"unit": "deg"}), realtime=False)
+    sink = open_output(f"serial:loop://?format={path}", mapping({"unit": "deg"}))
     assert sink.rate_hz == 250 and sink.format.describe() == "bin:0xFFFE,6xu16be,sum8@2"
     with sink:
         sink.write(np.radians([1.0, 2, 3, 4, 5, 6]))
@@ -514,3 +514,89 @@ def test_output_test_sweeps_each_motor_in_turn_through_a_pty(tmp_path, capsys):
     # a mirrored motor's drive value falls as its crank rises
     seg2 = values[(dev.sum(axis=1) == 1) & dev[:, 1]]
     assert seg2[:, 1].min() < 2047 < seg2[:, 0].max() + 1
+
+
+# --------------------------------------------------------------------------- ramped at the drive
+
+
+def test_the_drive_is_ramped_within_its_limits_whatever_the_commands_do():
+    """Commands that jump (a burst of late ticks, a far target) reach the drive as a ramp that
+    keeps the speed and acceleration limits on the wire, in wall-clock time, and ends
+    exactly on the last command (the last frame: close() finishes the ramp)."""
+    config = load_config()
+    limits = Pipeline(config).robot.limits
+    drive = UdpDrive()
+    park = np.full(6, GEOMETRY.park_angle)
+    far = np.radians([40.0, -40.0, 30.0, -30.0, 20.0, -20.0])
+    try:
+        sink = open_output(drive.url(200), mapping_for(config), limits=limits)
+        with sink:
+            sink.write(park)  # where the drive starts: sent as it is
+            assert wait_until(lambda: drive.count() >= 5)
+            for a in np.linspace(0.0, 1.0, 50):  # 50 ticks' worth of motion in a burst
+                sink.write(park + a * (far - park))
+            assert wait_until(lambda: drive.count() >= 50)
+        drive.drain()
+    finally:
+        drive.close()
+    t, q = drive.angles()
+    check_wire_limits(t, q, limits.max_speed, limits.max_accel, "burst to a far target")
+    np.testing.assert_allclose(q[0], park, atol=math.radians(1e-4))
+    np.testing.assert_allclose(q[-1], far, atol=math.radians(1e-4))
+    assert sink.ramped > 0 and "frames ramped at the drive" in sink.stats_line()
+
+
+def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):
+    """The drive vanishes in full motion (its port refuses: send errors) and returns 1.5 s of
+    motion later: its first frame after the outage is within one frame's travel of the last
+    one it got (at most two frames at full speed, plus a first step from rest), and from there
+    the frames keep the speed and acceleration limits; the run ends parked."""
+    config = load_config()
+    pipeline = Pipeline(config)
+    limits = pipeline.robot.limits
+    dt = config.dt
+    states = []
+    for k in range(int(6.0 / dt)):  # strong manoeuvring: the cranks work at their limits
+        s = math.sin(2 * math.pi * 0.7 * k * dt)
+        states.append(AircraftState(k * dt, [25 * s, 20 * s, -9.80665 + 10 * s], [3 * s] * 3))
+    drive = UdpDrive()
+    rate = 100.0
+    sink = open_output(drive.url(rate), mapping_for(config), limits=limits)
+    ticks = [0]
+
+    def count(_out) -> None:
+        ticks[0] += 1
+
+    def flight() -> None:
+        with sink:
+            run(pipeline, states, [sink], paced=True, progress=count)
+
+    runner = threading.Thread(target=flight, daemon=True)
+    with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
+        runner.start()
+        try:
+            assert wait_until(lambda: ticks[0] >= int(2.5 / dt), timeout=60)  # full motion
+            n_before = drive.count()
+            drive.vanish()
+            gone_at = ticks[0]
+            assert wait_until(lambda: not sink.link_up, timeout=30)
+            assert wait_until(lambda: ticks[0] >= gone_at + int(1.5 / dt), timeout=60)
+            drive.come_back()
+            runner.join(120)
+            assert not runner.is_alive()
+            drive.drain()
+        finally:
+            drive.close()
+    t, q = drive.angles()
+    assert len(t) > n_before + 100
+    last_before, first_after = q[n_before - 1], q[n_before]
+    period = 1.0 / rate
+    reach = 2 * limits.max_speed * period + limits.max_accel * period**2
+    assert np.all(np.abs(first_after - last_before) <= reach), np.degrees(first_after - last_before)
+    after_t = np.r_[t[n_before - 1], t[n_before:]]
+    after_q = np.vstack([last_before, q[n_before:]])
+    check_wire_limits(after_t, after_q, limits.max_speed, limits.max_accel, "after the outage")
+    np.testing.assert_allclose(q[-1], pipeline.robot.park_angles, atol=math.radians(1e-4))
+    assert sink.send_errors > 0
+    said = [r.getMessage() for r in caplog.records]
+    assert any("link is down" in m for m in said) and any("link back" in m for m in said)

@@ -414,10 +414,13 @@ def test_a_long_stall_restarts_the_input_from_level_flight_and_fades_it_back_in(
 
 
 class PacedListSource(ListSource):
-    """Delivers each sample at its own time on the wall clock (like a --realtime source)."""
+    """Delivers each sample at its own time on the wall clock (like a --realtime source), and
+    says so (``paces_itself``, ``due_time``): the loop does not pace it again."""
 
     rate_hz = 120.0
     duration_s = None
+    paces_itself = True
+    due_time = None
 
     def describe(self) -> dict:
         return {"kind": "paced test source"}
@@ -425,10 +428,12 @@ class PacedListSource(ListSource):
     def __iter__(self):
         import time
 
-        start = time.perf_counter()
+        start = time.monotonic()
         t0 = self.states[0].t
         for s, f in zip(self.states, self.flags, strict=True):
-            wait = start + (s.t - t0) - time.perf_counter() if math.isfinite(s.t) else 0.0
+            if math.isfinite(s.t):
+                self.due_time = start + (s.t - t0)
+            wait = self.due_time - time.monotonic() if self.due_time is not None else 0.0
             if wait > 0:
                 time.sleep(wait)
             self.fresh = f
@@ -465,7 +470,7 @@ def test_health_record_in_the_log_counts_every_event_and_the_worst_overrun(tmp_p
         if on_output.n == slow_tick:
             time.sleep(3 * dt)  # a loop overrun of at least 2 dt
         if on_output.n == int(2.0 / dt):
-            os.kill(os.getpid(), signal.SIGTERM)  # app._drive turns it into an E-stop
+            os.kill(os.getpid(), signal.SIGTERM)  # app._drive turns it into a stop
 
     on_output.n = 0
     out = tmp_path / "health.mcap"
@@ -489,14 +494,17 @@ def test_health_record_in_the_log_counts_every_event_and_the_worst_overrun(tmp_p
     assert health["rate_limited"] == sum(m["rate_limited"] for m in poses) > 0
     fades = sum(a and not b for a, b in zip([True, *flags], flags, strict=False))
     assert health["watchdog_fades"] == fades == 2
-    assert health["estops"] == 1
+    assert health["estops"] == 0  # SIGTERM parks at the soft-start pace: a stop, not an E-stop
     assert health["worst_overrun_s"] >= 2 * dt - 1e-4
     assert health["overruns"] >= 1 and health["overruns_off_cpu"] >= 1  # the sleeping tick
+    # the same tick's command came at least 2 dt after its sample was due
+    assert health["late_commands"] >= 1 and health["worst_late_s"] >= 2 * dt - 1e-4
     assert health["samples"] == len(poses)
     assert poses[-1]["phase"] == "parked"
-    # health records come at least once per second of source time
+    # health records come at the first tick of every second of source time (park ticks'
+    # times are sums of dt: a record may come one tick after the whole second)
     t_health = [m["t"] for m in msgs["/health"]]
-    assert np.diff(t_health).max() <= 1.0 + 1e-9 and t_health[-1] == poses[-1]["t"]
+    assert np.diff(t_health).max() <= 1.0 + dt + 1e-9 and t_health[-1] == poses[-1]["t"]
 
 
 def test_overruns_tell_a_waiting_loop_from_a_computing_one():
@@ -531,8 +539,10 @@ def test_overruns_tell_a_waiting_loop_from_a_computing_one():
 
 @pytest.mark.parametrize("busy_wait", [False, True], ids=["sleeping", "busy-waiting"])
 def test_paced_park_ticks_keep_the_period(busy_wait: bool):
-    """After the source ends, the park ramp ticks one period apart on the wall clock, never
-    sooner, whether the loop sleeps or busy-waits between them; the platform ends parked."""
+    """After the source ends, the park ramp ticks on the loop's schedule, one period apart on
+    the wall clock, whether the loop sleeps or busy-waits between them: never ahead of it,
+    and after a late tick never closer than half a period (no burst to catch up); the
+    platform ends parked."""
     import time
 
     config = CONFIGS[(False, 120.0)]
@@ -561,7 +571,103 @@ def test_paced_park_ticks_keep_the_period(busy_wait: bool):
     assert sink.last is not None and sink.last.phase == "parked"
     assert len(sink.park_walls) > 10
     walls = np.array(sink.park_walls)
-    # never ahead of the clock: each tick is due one period after the one before it
-    # started (read here after its step, hence the 1 ms for a step's own variation)
-    assert np.diff(walls).min() > dt - 1e-3
-    assert walls[-1] - walls[0] > (len(walls) - 1) * dt - 1e-3
+    # lower bounds only (read here after each step, hence 1 ms for a step's own variation):
+    # no two ticks closer than half a period, and never ahead of the schedule overall
+    assert np.diff(walls).min() > dt / 2 - 1e-3
+    assert walls[-1] - walls[0] > (len(walls) - 1) * dt - dt / 2 - 1e-3
+
+
+# --------------------------------------------------------------------------- the loop's clock
+
+
+class WallClockSink:
+    """Records when each tick reached the sinks (monotonic s); can stall once."""
+
+    def __init__(self, stall_at: int = -1, stall_s: float = 0.0) -> None:
+        self.walls: list[float] = []
+        self.outputs = []
+        self.stall_at, self.stall_s = stall_at, stall_s
+
+    def write(self, out) -> None:
+        import time
+
+        self.walls.append(time.monotonic())
+        self.outputs.append(out)
+        if len(self.walls) == self.stall_at:
+            time.sleep(self.stall_s)
+
+
+def test_a_paced_run_keeps_time_on_the_loops_clock_never_on_the_samples():
+    """A source that does not pace itself (a replay): the loop paces it at the pipeline's rate
+    whatever the samples' times say (a jump of 1e6 s and a gap of 10 s are time jumps for the
+    validation stage, not waits); after a stall it never bursts to catch up; a command that
+    reached the sinks late is counted from its due time."""
+    import threading
+
+    config = CONFIGS[(False, 120.0)]
+    dt = config.dt
+    times = [k * dt for k in range(240)]
+    times = times[:80] + [t + 1e6 for t in times[80:160]] + [t + 1e6 + 10.0 for t in times[160:]]
+    states = [AircraftState(t, [2.0, 1.0, -G], [0.1, 0.1, 0.0]) for t in times]
+    pipeline = Pipeline(config)
+    stall = 0.3  # s, at tick 120: the sink stalls (a disk, the machine)
+    sink = WallClockSink(stall_at=120, stall_s=stall)
+    done = threading.Event()
+
+    def go() -> None:
+        run(pipeline, ListSource(states), [sink], paced=True)
+        done.set()
+
+    threading.Thread(target=go, daemon=True).start()
+    assert done.wait(120), "the run waited on the samples' times"  # a watchdog, not a bound
+    h = pipeline.health
+    assert h.time_jumps == 2 and h.rejected_inputs == 0
+    assert [o.state for o in sink.outputs[: len(states)]] == states  # every sample, in order
+    assert sink.outputs[-1].phase == "parked"
+    walls = np.array(sink.walls)
+    gaps = np.diff(walls)
+    # lower bounds only: paced (never ahead of the schedule), and no two ticks closer than
+    # half a period, before the stall or after it (no burst to catch up)
+    assert gaps.min() > dt / 2 - 1e-3
+    assert walls[-1] - walls[0] > (len(walls) - 1) * dt + stall - dt
+    assert h.late_commands >= 1 and h.worst_late_s >= stall - 2 * dt
+
+
+def test_a_stop_before_the_first_tick_moves_nothing_and_reads_no_sample():
+    from motionbase.pipeline import StopRequest
+
+    class Untouchable:
+        def __iter__(self):  # a generator: reading its first sample raises
+            raise AssertionError("the source was read after a stop")
+            yield
+
+    for planar in (False, True):
+        pipeline = Pipeline(CONFIGS[(planar, 120.0)])
+        stop = StopRequest()
+        stop.set("SIGINT")
+        sink = Recorder()
+        summary = run(pipeline, Untouchable(), [sink], stop=stop, paced=True)
+        assert len(sink.outputs) == 1 and sink.outputs[0].phase == "parked"
+        assert np.array_equal(sink.outputs[0].angles, pipeline.robot.park_angles)
+        assert summary.stopped_by == "SIGINT" and summary.running_samples == 0
+        assert pipeline.health.estops == 0
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
+@pytest.mark.parametrize("fast", [True, False], ids=["fused", "reference"])
+def test_a_time_no_log_can_hold_is_rejected_and_held(planar, fast):
+    """A log time is 64-bit nanoseconds: a sample time outside 0..MAX_SAMPLE_TIME_S (finite but
+    huge, or negative) is rejected like any invalid sample and never becomes an output time."""
+    from motionbase.safety import MAX_SAMPLE_TIME_S
+
+    pipeline = Pipeline(CONFIGS[(planar, 120.0)], fast=fast)
+    assert 2**63 / 1e9 > MAX_SAMPLE_TIME_S + 1e6  # room for the ticks after the last sample
+    step = pipeline.step if fast else pipeline.step_reference
+    level = AircraftState(0.5, *LEVEL)
+    assert step(level).accepted
+    for t in (2e10, -1.0, MAX_SAMPLE_TIME_S * (1 + 1e-9), 1e300):
+        out = step(AircraftState(t, *LEVEL))
+        assert not out.accepted and 0.5 < out.t < 1.0
+        assert "outside" in pipeline.health.last_rejection
+    assert step(AircraftState(MAX_SAMPLE_TIME_S, *LEVEL)).accepted  # the bound itself is fine
+    assert pipeline.health.rejected_inputs == 4

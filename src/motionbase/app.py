@@ -12,10 +12,13 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from motionbase import __version__
 from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, resolve_preset_or_path
@@ -119,15 +122,33 @@ class JobResult:
                 "was waiting for the CPU, the interpreter lock or I/O; --busy-wait and a core "
                 "of its own help, see the README's Safety section)"
             )
+        if h.late_commands:
+            lines.append(
+                f"commands late for the actuators: {h.late_commands} reached them more than one "
+                f"period after their sample was due (worst by {1e3 * h.worst_late_s:.1f} ms)"
+            )
         if s.peak_angle is not None:
             lo, hi = s.angle_limits
-            lines.append("actuator  peak |angle| deg (limits)     peak speed deg/s (limit)")
-            for i in range(len(s.peak_angle)):
+            deg = math.degrees
+            if s.running_samples:
                 lines.append(
-                    f"{i + 1:>8}  {math.degrees(s.peak_angle[i]):7.1f} "
-                    f"({math.degrees(lo[i]):6.1f}..{math.degrees(hi[i]):5.1f})   "
-                    f"{math.degrees(s.peak_speed[i]):10.1f} ({math.degrees(s.max_speed[i]):.1f})"
+                    f"flight ({s.running_samples} samples at full motion), per actuator: "
+                    "peak |angle| deg (limits), peak speed deg/s (limit)"
                 )
+                for i in range(len(s.peak_angle)):
+                    lines.append(
+                        f"{i + 1:>8}  {deg(s.peak_angle[i]):7.1f} "
+                        f"({deg(lo[i]):6.1f}..{deg(hi[i]):5.1f})   "
+                        f"{deg(s.peak_speed[i]):10.1f} ({deg(s.max_speed[i]):.1f})"
+                    )
+            else:
+                lines.append("flight: none (stopped before the soft start reached full motion)")
+            lines.append(
+                f"parking: start ramp {s.start_s:.1f} s (peak speed "
+                f"{deg(float(np.max(s.start_peak_speed))):.1f} deg/s), way back to park "
+                f"{s.stop_s:.1f} s (peak speed {deg(float(np.max(s.stop_peak_speed))):.1f} "
+                f"deg/s); speed limit {deg(float(np.min(s.max_speed))):.1f} deg/s"
+            )
         if self.out is not None:
             size = self.out.stat().st_size if self.out.exists() else 0
             lines.append(f"log: {self.out} ({size / 1e6:.2f} MB)")
@@ -186,6 +207,22 @@ def _close_sinks(sinks: list[Any], *, quiet: bool) -> None:
         raise first
 
 
+@contextmanager
+def _stopping(stop: StopRequest | None) -> Iterator[StopRequest]:
+    """The job's stop request. Unless the caller gives one (the command line does, before it
+    loads anything), the stop signals are routed to a new one for the job's length, from
+    its very start: before the source opens and the pipeline's kernels load."""
+    if stop is not None:
+        yield stop
+        return
+    stop = StopRequest()
+    restore = install_signal_stop(stop)
+    try:
+        yield stop
+    finally:
+        restore()
+
+
 def _drive(
     title: str,
     config: PipelineConfig,
@@ -198,21 +235,48 @@ def _drive(
     extra_sinks: list[Any] | None = None,
     outputs: list[str] | None = None,
     on_output: Callable[[PipelineOutput], None] | None = None,
+    stop: StopRequest | None = None,
+    live: Any = None,
 ) -> JobResult:
     """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks.
 
     ``outputs`` are motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`);
-    their statistics end up in the result's notes.
+    their statistics end up in the result's notes. A run with outputs, or with a source that
+    paces itself, is a real-time run (``paced``): the pipeline's loop paces every source
+    that does not pace itself at the pipeline's rate (:func:`motionbase.pipeline.run`).
+    ``live`` (a :class:`~motionbase.io.mcap_log.LiveAddress`) also serves the log's topics to
+    Foxglove.
     """
+    with _stopping(stop) as stop:
+        return _drive_stoppable(
+            title, config, source, out, paced=paced, busy_wait=busy_wait, progress=progress,
+            extra_sinks=extra_sinks, outputs=outputs, on_output=on_output, stop=stop, live=live,
+        )  # fmt: skip
+
+
+def _drive_stoppable(
+    title: str,
+    config: PipelineConfig,
+    source: Any,
+    out: Path | None,
+    *,
+    paced: bool,
+    busy_wait: bool,
+    progress: bool,
+    extra_sinks: list[Any] | None,
+    outputs: list[str] | None,
+    on_output: Callable[[PipelineOutput], None] | None,
+    stop: StopRequest,
+    live: Any,
+) -> JobResult:
     from motionbase.io.motor_output import open_outputs
     from motionbase.io.pipeline_log import PipelineLog
 
     drives = open_outputs(outputs, config)
     extra_sinks = [*(extra_sinks or []), *drives]
+    paced = bool(paced or drives or getattr(source, "paces_itself", False))
 
     pipeline = Pipeline(config)
-    stop = StopRequest()
-    restore = install_signal_stop(stop)
     bar = ProgressBar(getattr(source, "duration_s", None)) if progress else None
 
     def on_tick(o: PipelineOutput) -> None:
@@ -235,9 +299,13 @@ def _drive(
                     run_metadata(config, source),
                     health=pipeline.health.as_dict,
                     planar=config.robot == "rrr3",
+                    kinematics=pipeline.robot.kin,
+                    live=live,
                 )
                 log.__enter__()
                 sinks.insert(0, log)  # the log stays the first sink, closed last
+                if live is not None:
+                    print(live.banner(log.live_port), file=sys.stderr, flush=True)
             summary = run(
                 pipeline,
                 source,
@@ -252,10 +320,19 @@ def _drive(
             raise
         _close_sinks(sinks, quiet=False)
     finally:
-        restore()
         if bar is not None:
-            bar.close()
+            try:
+                bar.close()
+            except OSError:  # a closed terminal
+                pass
     return JobResult(title, summary, out, notes=[d.stats_line() for d in drives])
+
+
+def _live_address(live: str | None) -> Any:
+    """``--live [HOST:]PORT`` checked before anything opens (None when not asked)."""
+    from motionbase.io.mcap_log import LiveAddress
+
+    return None if live is None else LiveAddress.parse(live)
 
 
 def _check_duration(duration_s: float | None) -> None:
@@ -275,6 +352,8 @@ def fly(
     out: str | Path | None = None,
     progress: bool = True,
     outputs: list[str] | None = None,
+    stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Fly a JSBSim script through the pipeline and log it to MCAP.
 
@@ -289,41 +368,63 @@ def fly(
     realtime : bool
         Pace the simulation to wall-clock time.
     busy_wait : bool
-        With ``realtime``: wait for each tick by busy-waiting instead of sleeping
-        (one processor at 100 %, fewer late ticks; :mod:`motionbase.pacing`).
+        With ``realtime`` or ``outputs``: wait for each tick by busy-waiting instead of
+        sleeping (one processor at 100 %, fewer late ticks; :mod:`motionbase.pacing`).
     duration_s : float, optional
         Stop after this much simulated time, s.
     out : path, optional
         Output file; default ``recordings/<script>.mcap`` (``<script>_planar`` in planar mode).
     outputs : list of str, optional
-        Motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`); they pace
-        the run to real time.
+        Motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`). With them
+        the flight runs in real time, paced by the pipeline's loop at the script's rate
+        (never by the simulation's times, never bursting to catch up).
+    stop : StopRequest, optional
+        The run's stop request, when the caller routes the stop signals to it itself (the
+        command line); by default the job does so from its start.
+    live : str, optional
+        ``[HOST:]PORT``: serve the log's topics to Foxglove while flying (needs ``realtime``).
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
-    _check_duration(duration_s)
-    if busy_wait and not realtime:
-        raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
-    name = Path(script).stem
-    out_path = (
-        Path(out) if out is not None else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
-    )
-    source = JsbsimSource(script, duration_s=duration_s, realtime=realtime, busy_wait=busy_wait)
-    with source:
-        config = load_config(
-            planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
+    with _stopping(stop) as stop:
+        _check_duration(duration_s)
+        if busy_wait and not (realtime or outputs):
+            raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
+        if live is not None and not realtime:
+            raise ConfigError("--live shows the flight as it happens: add --realtime")
+        live_at = _live_address(live)
+        name = Path(script).stem
+        out_path = (
+            Path(out)
+            if out is not None
+            else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
         )
-        robot = "3-RRR" if planar else "6-RUS"
-        return _drive(
-            f"flew {name} on the {robot}",
-            config,
-            source,
-            out_path,
-            paced=realtime,
-            busy_wait=busy_wait,
-            progress=progress,
-            outputs=outputs,
+        # with drives the loop paces the flight (the simulation's own pacing catches up
+        # after a stall in a burst); the flight alone may pace itself
+        self_paced = realtime and not outputs
+        source = JsbsimSource(
+            script,
+            duration_s=duration_s,
+            realtime=self_paced,
+            busy_wait=busy_wait and self_paced,
         )
+        with source:
+            config = load_config(
+                planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
+            )
+            robot = "3-RRR" if planar else "6-RUS"
+            return _drive(
+                f"flew {name} on the {robot}",
+                config,
+                source,
+                out_path,
+                paced=realtime,
+                busy_wait=busy_wait,
+                progress=progress,
+                outputs=outputs,
+                stop=stop,
+                live=live_at,
+            )
 
 
 def replay(
@@ -336,6 +437,8 @@ def replay(
     planar: bool | None = None,
     progress: bool = True,
     outputs: list[str] | None = None,
+    stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Re-run the pipeline on a recording's aircraft states, with its recorded configuration.
 
@@ -351,9 +454,16 @@ def replay(
     platform, washout, planar : optional
         Override the recorded configuration.
     outputs : list of str, optional
-        Motor-drive output URLs; they pace the replay to real time. They need ``platform``:
-        motors are driven only with the limits of the user's own geometry, never with the
-        geometry stored in a recording.
+        Motor-drive output URLs. With them the replay runs in real time, paced by the
+        pipeline's loop at the configured rate; the recording's own times never pace it
+        (a jump or a gap in them is the validation stage's business). They need
+        ``platform``: motors are driven only with the limits of the user's own geometry,
+        never with the geometry stored in a recording.
+    stop : StopRequest, optional
+        As for :func:`fly`.
+    live : str, optional
+        ``[HOST:]PORT``: serve the replay's topics to Foxglove; the replay then runs in real
+        time, paced by the pipeline's loop like a replay to drives.
 
     Raises
     ------
@@ -361,6 +471,26 @@ def replay(
         ``out`` is the recording itself; ``outputs`` without ``platform``; a recorded
         configuration with wrong, non-finite or inverted limits.
     """
+    with _stopping(stop) as stop:
+        return _replay(
+            path, out=out, check=check, platform=platform, washout=washout, planar=planar,
+            progress=progress, outputs=outputs, stop=stop, live=live,
+        )  # fmt: skip
+
+
+def _replay(
+    path: str | Path,
+    *,
+    out: str | Path | None,
+    check: bool,
+    platform: str | None,
+    washout: str | None,
+    planar: bool | None,
+    progress: bool,
+    outputs: list[str] | None,
+    stop: StopRequest,
+    live: str | None,
+) -> JobResult:
     from motionbase.io.mcap_source import McapSource, read_messages
 
     src_path = Path(path)
@@ -374,6 +504,7 @@ def replay(
             "replay --output drives motors: give --platform with your own geometry (preset or "
             "TOML); a recording's stored geometry and limits never drive motors"
         )
+    live_at = _live_address(live)
     with McapSource(src_path) as source:
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
@@ -392,7 +523,7 @@ def replay(
             notes.append(f"warning: {src_path} is truncated; replayed the messages before the cut")
         tmp = None
         out_path = Path(out) if out is not None else None
-        if check and out_path is None:
+        if (check or live_at is not None) and out_path is None:  # a live view needs a log
             tmp = tempfile.TemporaryDirectory(prefix="motionbase-replay-")
             out_path = Path(tmp.name) / "replay.mcap"
         try:
@@ -401,9 +532,11 @@ def replay(
                 config,
                 source,
                 out_path,
-                paced=False,
+                paced=bool(outputs) or live_at is not None,
                 progress=progress,
                 outputs=outputs,
+                stop=stop,
+                live=live_at,
             )
             result.notes.extend(notes)
             if source.malformed:
@@ -508,6 +641,8 @@ def stream(
     progress: bool = True,
     outputs: list[str] | None = None,
     source_url: str | None = None,
+    stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
 
@@ -537,11 +672,46 @@ def stream(
     busy_wait : bool
         Wait for each tick by busy-waiting instead of sleeping (see :func:`fly`).
     outputs : list of str, optional
-        Motor-drive output URLs (see :func:`fly`).
+        Motor-drive output URLs (see :func:`fly`). A log file then replays in real time,
+        paced by the pipeline's loop (``realtime`` aside).
     source_url : str, optional
         A simulator instead of MAVLink: ``fgnative:udp:HOST:PORT`` (FlightGear) or
         ``xplane:HOST:PORT`` (X-Plane), see :func:`motionbase.io.sources.open_live_source`.
+    stop : StopRequest, optional
+        As for :func:`fly`.
+    live : str, optional
+        ``[HOST:]PORT``: serve the log's topics to Foxglove while streaming.
     """
+    with _stopping(stop) as stop:
+        return _stream(
+            mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
+            platform=platform, washout=washout, planar=planar, serial=serial,
+            duration_s=duration_s, out=out, realtime=realtime, busy_wait=busy_wait,
+            progress=progress, outputs=outputs, source_url=source_url, stop=stop, live=live,
+        )  # fmt: skip
+
+
+def _stream(
+    mavlink: str,
+    *,
+    sysid: int,
+    compid: int | None,
+    signing_key: str | Path | None,
+    rate_hz: float,
+    platform: str | None,
+    washout: str | None,
+    planar: bool,
+    serial: str | None,
+    duration_s: float | None,
+    out: str | Path | None,
+    realtime: bool,
+    busy_wait: bool,
+    progress: bool,
+    outputs: list[str] | None,
+    source_url: str | None,
+    stop: StopRequest,
+    live: str | None,
+) -> JobResult:
     from motionbase.io.sources import open_live_source, stats_line
 
     _check_duration(duration_s)
@@ -549,6 +719,7 @@ def stream(
         raise ConfigError("--serial drives the planar 3-RRR's Arduino: add --planar")
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
+    live_at = _live_address(live)
     config = load_config(
         planar=planar, platform=platform, washout=washout or "telemetry", rate_hz=rate_hz
     )
@@ -562,7 +733,9 @@ def stream(
         compid=compid,
         signing_key=signing_key,
         duration_s=duration_s,
-        realtime=realtime,
+        # a log with drives is paced by the loop (the log's own pacing catches up in bursts);
+        # a live link always paces itself
+        realtime=realtime and not outputs,
         busy_wait=busy_wait,
         stale_timeout_s=config.stale_timeout_s,
     )
@@ -581,10 +754,15 @@ def stream(
                 extra_sinks=extra,
                 outputs=outputs,
                 on_output=status,
+                stop=stop,
+                live=live_at,
             )
         finally:
             if status is not None:
-                status.close()
+                try:
+                    status.close()
+                except OSError:  # a closed terminal
+                    pass
         result.notes.append(stats_line(source))
     return result
 
@@ -593,7 +771,11 @@ def stream(
 
 
 # Fields that depend on the wall clock or the machine, never compared.
-_UNCOMPARED = {"/health": {"overruns", "overruns_off_cpu", "worst_overrun_s"}}
+_UNCOMPARED = {
+    "/health": {"overruns", "overruns_off_cpu", "worst_overrun_s", "late_commands", "worst_late_s"}
+}
+# Topics drawn from others, compared only when both recordings have them.
+_DRAWN = {"/platform/scene"}
 
 
 @dataclass
@@ -637,7 +819,10 @@ def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
 def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]]) -> CheckReport:
     """Compare the messages of two recordings topic by topic (``/health`` timing excluded)."""
     per_topic = {}
-    for topic in sorted(set(a) | set(b)):
+    # the scene is drawn from /platform/pose and /platform/actuators (compared): a recording
+    # made before /platform/scene existed has none, which is no difference
+    drawn = {t for t in _DRAWN if t not in a or t not in b}
+    for topic in sorted((set(a) | set(b)) - drawn):
         ma, mb = a.get(topic, []), b.get(topic, [])
         skip = _UNCOMPARED.get(topic, set())
         if topic == "/health":

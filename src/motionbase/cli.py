@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -104,8 +105,31 @@ def _positive_float(text: str) -> float:
 
 
 def _print_result(result) -> int:
-    print(result.summary_text())
+    try:
+        print(result.summary_text(), flush=True)
+    except OSError:  # the terminal is gone (SIGHUP): the run itself ended properly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing more to say
     return 1 if result.failed else 0
+
+
+def _job(name: str, *args: object, **kwargs: object) -> int:
+    """Run a job that moves the platform, with the stop signals routed to it from now on.
+
+    Installed before the job's modules load (numba and the compiled kernels take a second
+    or more): a SIGINT, SIGTERM, SIGHUP or SIGQUIT that comes meanwhile stops the run
+    before anything moves, instead of being lost; during the run the first one parks the
+    platform at the soft-start pace, a second one E-stops it.
+    """
+    from motionbase.stopping import StopRequest, install_signal_stop
+
+    stop = StopRequest()
+    restore = install_signal_stop(stop)
+    try:
+        from motionbase import app
+
+        return _print_result(getattr(app, name)(*args, **kwargs, stop=stop))
+    finally:
+        restore()
 
 
 def _args_fly(p: argparse.ArgumentParser) -> None:
@@ -128,26 +152,25 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default recordings/<script>.mcap)")
     _add_output_option(p)
+    _add_live_option(p)
 
 
 @command(
     "fly", "fly a JSBSim script through the washout and the platform, logged to MCAP", _args_fly
 )
 def run_fly(args: argparse.Namespace) -> int:
-    from motionbase import app
-
-    return _print_result(
-        app.fly(
-            args.script,
-            platform=args.platform,
-            washout=args.washout,
-            planar=args.planar,
-            realtime=args.realtime,
-            busy_wait=args.busy_wait,
-            duration_s=args.duration,
-            out=args.out,
-            outputs=args.output,
-        )
+    return _job(
+        "fly",
+        args.script,
+        platform=args.platform,
+        washout=args.washout,
+        planar=args.planar,
+        realtime=args.realtime,
+        busy_wait=args.busy_wait,
+        duration_s=args.duration,
+        out=args.out,
+        outputs=args.output,
+        live=args.live,
     )
 
 
@@ -163,22 +186,21 @@ def _args_replay(p: argparse.ArgumentParser) -> None:
     p.add_argument("--washout", help="override the recorded washout parameters")
     p.add_argument("--planar", action="store_true", default=None, help="override: drive the 3-RRR")
     _add_output_option(p)
+    _add_live_option(p)
 
 
 @command("replay", "re-run the pipeline on a recording's aircraft states", _args_replay)
 def run_replay(args: argparse.Namespace) -> int:
-    from motionbase import app
-
-    return _print_result(
-        app.replay(
-            args.recording,
-            out=args.out,
-            check=args.check,
-            platform=args.platform,
-            washout=args.washout,
-            planar=args.planar,
-            outputs=args.output,
-        )
+    return _job(
+        "replay",
+        args.recording,
+        out=args.out,
+        check=args.check,
+        platform=args.platform,
+        washout=args.washout,
+        planar=args.planar,
+        outputs=args.output,
+        live=args.live,
     )
 
 
@@ -264,6 +286,7 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold unreachable targets instead of clamping them toward home",
     )
+    _add_live_option(p)
 
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
@@ -273,7 +296,7 @@ def run_teleop(args: argparse.Namespace) -> int:
     stats = teleop_job(
         args.input, serial_url=args.serial, calibration_path=args.calibration,
         rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
-        clamp=not args.no_clamp,
+        clamp=not args.no_clamp, live=args.live,
     )  # fmt: skip
     print(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
@@ -323,30 +346,29 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
         "under $XDG_DATA_HOME when set)",
     )
     _add_output_option(p)
+    _add_live_option(p)
 
 
 @command("stream", "drive the platform live from MAVLink, FlightGear or X-Plane", _args_stream)
 def run_stream(args: argparse.Namespace) -> int:
-    from motionbase import app
-
-    return _print_result(
-        app.stream(
-            args.mavlink,
-            sysid=args.sysid,
-            compid=args.compid,
-            signing_key=args.signing_key,
-            rate_hz=args.rate,
-            platform=args.platform,
-            washout=args.washout,
-            planar=args.planar,
-            serial=args.serial,
-            duration_s=args.duration,
-            out=args.out,
-            realtime=not args.fast,
-            busy_wait=args.busy_wait,
-            outputs=args.output,
-            source_url=args.source,
-        )
+    return _job(
+        "stream",
+        args.mavlink,
+        sysid=args.sysid,
+        compid=args.compid,
+        signing_key=args.signing_key,
+        rate_hz=args.rate,
+        platform=args.platform,
+        washout=args.washout,
+        planar=args.planar,
+        serial=args.serial,
+        duration_s=args.duration,
+        out=args.out,
+        realtime=not args.fast,
+        busy_wait=args.busy_wait,
+        outputs=args.output,
+        source_url=args.source,
+        live=args.live,
     )
 
 
@@ -430,7 +452,16 @@ def _add_output_option(p: argparse.ArgumentParser) -> None:
         help="send the safe crank angles to motor drives (repeatable): "
         "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
         "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
-        "motionbase.io.motor_output); paces the run to real time",
+        "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",
+    )
+
+
+def _add_live_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--live",
+        metavar="[HOST:]PORT",
+        help="also serve every logged topic to Foxglove over WebSocket while running "
+        "(host 127.0.0.1 unless given; 0.0.0.0 to watch from another PC; e.g. --live 8765)",
     )
 
 

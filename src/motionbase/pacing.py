@@ -1,7 +1,8 @@
 """Waiting for the wall clock in the real-time loops: by sleeping, or by busy-waiting.
 
 The paced pipeline loops (a ``--realtime`` JSBSim flight, a live or replayed MAVLink
-stream, the park ramp after a run) wait for their next tick with :func:`wait_until`.
+stream, the pipeline's own loop pacing a replay or a flight with motor drives, the park
+ramp after a run) wait for their next tick with :func:`wait_until`.
 Two ways:
 
 * sleep (the default): the thread sleeps until the tick is due. The processor is free
@@ -15,8 +16,8 @@ Two ways:
   command sooner after its due time (see ``benchmarks/RESULTS.md``, issue 7). The usual
   choice for a 1 kHz loop on a core of its own.
 
-(The teleoperation loop and the motor-drive outputs' own pacing of unpaced runs still
-sleep.)
+(The teleoperation loop still sleeps. Sinks never wait: the motor-drive outputs send from
+a thread of their own at a fixed rate.)
 
 Times are seconds on :func:`time.perf_counter` unless a ``clock`` is given
 (:func:`time.monotonic` is the same clock on Linux).

@@ -9,7 +9,8 @@ parked.
 
 :class:`Pipeline` is the functional core: ``step(state) -> PipelineOutput`` does
 no I/O. :func:`run` is the loop that reads a source, writes sinks, paces
-real-time sources and reports progress.
+real-time runs on the wall clock (never on the samples' own times) and reports
+progress.
 
 Stages of one tick
 ------------------
@@ -49,9 +50,7 @@ stage by stage (the planar robot's path) and gives bit-identical outputs
 from __future__ import annotations
 
 import hashlib
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -62,7 +61,7 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.config import as_float
-from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import wait_until
 from motionbase.platform._rus6_kernels import _inverse_row, _within, clamp_inverse_one
 from motionbase.safety import (
@@ -78,9 +77,14 @@ from motionbase.safety import (
     smoothstep,
 )
 from motionbase.state import AircraftState
+from motionbase.stopping import StopRequest, install_signal_stop  # noqa: F401 - re-exported
 from motionbase.washout.classical import WashoutInputError, _step, _track
 
 # --------------------------------------------------------------------------- config
+
+#: Slowest pipeline rate, Hz: a real-time loop waits at most one period (0.1 s) before it
+#: sees a stop, and a recording that claims a slower rate is refused.
+MIN_RATE_HZ = 10.0
 
 
 @dataclass(frozen=True)
@@ -97,7 +101,7 @@ class PipelineConfig:
     washout : WashoutParams
         Washout filter parameters.
     rate_hz : float
-        Pipeline rate, Hz.
+        Pipeline rate, Hz (``MIN_RATE_HZ``, 10 Hz, to 10 kHz).
     soft_start_s : float
         Time to blend from the park pose to the live command, s (and back on stop).
     stale_timeout_s : float
@@ -144,6 +148,11 @@ class PipelineConfig:
             )
         if self.rate_hz > 10_000:
             raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
+        if self.rate_hz < MIN_RATE_HZ:
+            raise ConfigError(
+                f"pipeline: rate_hz {self.rate_hz:g} is below {MIN_RATE_HZ:g} Hz, too slow to "
+                "drive a platform or to answer a stop in time (give a faster rate)"
+            )
 
     @property
     def dt(self) -> float:
@@ -403,6 +412,12 @@ class Health:
     machine's host; for the interpreter lock, held by another thread such as the
     log's writer; or for blocking I/O). The others were late computing: the work
     of the tick itself was too much for the period.
+
+    ``late_commands`` counts the commands that reached the sinks more than one period
+    after their sample was due (what an actuator sees: a late wake-up counts too, not
+    only a slow tick), and ``worst_late_s`` is the largest excess over that period
+    (s). The due time is the loop's own schedule when the loop paces the ticks, the
+    source's ``due_time`` when the source paces itself, else the hand-over.
     """
 
     samples: int = 0
@@ -416,6 +431,8 @@ class Health:
     overruns: int = 0
     overruns_off_cpu: int = 0
     worst_overrun_s: float = 0.0
+    late_commands: int = 0
+    worst_late_s: float = 0.0
     last_rejection: str = ""
 
     def as_dict(self) -> dict[str, Any]:
@@ -799,12 +816,16 @@ class Pipeline:
             setattr(self.health, name, value)
 
     def stop(self) -> None:
-        """Ramp back to park over ``soft_start_s`` (end of run, Ctrl-C)."""
+        """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
+        back over ``soft_start_s`` (the end of the input, a stop signal: SIGINT, SIGTERM,
+        SIGHUP, SIGQUIT; a failing source or sink)."""
         if self._phase in ("starting", "running"):
             self._phase = "stopping"
 
     def estop(self) -> None:
-        """Emergency stop: head for park at once, within the speed and acceleration limits."""
+        """Emergency stop: head for park at once, as fast as the actuators' speed and
+        acceleration limits allow (the geometry's ``max_speed`` and ``max_accel``, never
+        faster): a second stop signal while stopping, teleop's E-stop key, this call."""
         self.health.estops += 1
         self._estop = True
         self._phase = "stopping"
@@ -1068,31 +1089,49 @@ def _track_peaks(peak_angle, peak_speed, angles, speeds):  # pragma: no cover - 
 class RunSummary:
     """What a run did, for the end-of-run report.
 
+    The peaks describe the flight (the ``running`` phase: full motion after the soft
+    start); the ramps from park and back to park are reported apart (``start_*``,
+    ``stop_*``), so that the park angle and the ramps' speed do not hide the flight's.
+
     Attributes
     ----------
     samples : int
-        Ticks processed (including the park ramp).
+        Ticks processed (including the start and park ramps).
+    running_samples : int
+        Ticks in the ``running`` phase.
     sim_time_s, wall_time_s : float
         Simulated (source) and wall-clock duration, s.
     clamped_share : float
         Share of ticks whose pose the workspace clamp moved.
     peak_angle, peak_speed : ndarray, shape (n,)
-        Largest |angle| (rad) and |speed| (rad/s) per actuator.
+        Largest |angle| (rad) and |speed| (rad/s) per actuator in the ``running`` phase
+        (zeros when the run never got there).
+    start_s, stop_s : float
+        Length of the soft start (``starting`` ticks) and of the way back to park
+        (``stopping`` and ``parked`` ticks), s of pipeline time.
+    start_peak_speed, stop_peak_speed : ndarray, shape (n,)
+        Largest |speed| per actuator during the soft start and during the way back to
+        park, rad/s.
     angle_limits : tuple of ndarray
         (lower, upper), rad.
     max_speed : ndarray, shape (n,)
         Speed limits, rad/s.
     health : Health
-    pipeline_time_s : list of float
-        Per-tick pipeline time, s (when measured).
+    stopped_by : str
+        What ended the run (``"end of source"``, ``"SIGINT"``, ``"sink failure"``, ...).
     """
 
     samples: int = 0
+    running_samples: int = 0
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     clamped: int = 0
     peak_angle: np.ndarray | None = None
     peak_speed: np.ndarray | None = None
+    start_s: float = 0.0
+    stop_s: float = 0.0
+    start_peak_speed: np.ndarray | None = None
+    stop_peak_speed: np.ndarray | None = None
     angle_limits: tuple[np.ndarray, np.ndarray] | None = None
     max_speed: np.ndarray | None = None
     health: Health | None = None
@@ -1103,40 +1142,13 @@ class RunSummary:
         return self.clamped / self.samples if self.samples else 0.0
 
 
-class StopRequest:
-    """A thread-safe flag that SIGINT/SIGTERM, a key or a test can raise."""
-
-    def __init__(self) -> None:
-        self._event = threading.Event()
-        self.estop = False
-        self.reason = ""
-
-    def set(self, reason: str = "stop", estop: bool = False) -> None:
-        self.reason = reason
-        self.estop = self.estop or estop
-        self._event.set()
-
-    def __bool__(self) -> bool:
-        return self._event.is_set()
-
-
-def install_signal_stop(stop: StopRequest) -> Callable[[], None]:
-    """Route SIGINT and SIGTERM to ``stop`` (E-stop); returns a function restoring the handlers."""
-    if threading.current_thread() is not threading.main_thread():
-        return lambda: None
-    old = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-
-    def handler(signum, _frame):
-        stop.set(signal.Signals(signum).name, estop=True)
-
-    for sig in old:
-        signal.signal(sig, handler)
-
-    def restore() -> None:
-        for sig, h in old.items():
-            signal.signal(sig, h)
-
-    return restore
+def _sink_name(sink: Any) -> str:
+    """How a sink is named in a message: its URL or file, else its type."""
+    for attr in ("label", "path"):
+        name = getattr(sink, attr, None)
+        if name:
+            return str(name)
+    return type(sink).__name__
 
 
 def run(
@@ -1153,38 +1165,53 @@ def run(
     """Drive ``pipeline`` from ``source`` into ``sinks`` until the source ends or a stop.
 
     After the source ends (or a stop is requested) the pipeline keeps ticking on
-    the last sample until the platform is parked (at most ``max_park_s``).
+    the last sample until the platform is parked (at most ``max_park_s``). A stop
+    raised before the first tick moves nothing: the run is one park tick.
 
     Faults: when the source raises, or a sink's ``write`` raises, the run stops
     (the failed sink is dropped), ramps to park on held samples through the
-    remaining sinks, and then re-raises the failure (a
-    :class:`~motionbase.errors.MotionbaseError` with "the platform was parked"
-    added to its message; any other exception unchanged).
+    remaining sinks, and then reports the failure: a
+    :class:`~motionbase.errors.MotionbaseError` with "the platform was parked" added
+    to its message; a sink's other exception as a
+    :class:`~motionbase.errors.SinkError` naming the sink (one line; the original
+    is its ``__cause__``); a source's other exception unchanged (a bug).
 
     Parameters
     ----------
     pipeline : Pipeline
     source : iterable of AircraftState
-        Already entered (``with source:``). A source may expose ``fresh``
-        (bool) to mark stale holds.
+        Already entered (``with source:``). A source may expose ``fresh`` (bool) to
+        mark stale holds; ``paces_itself`` (bool), true when it hands its samples over
+        in real time itself (a live link, a ``--realtime`` flight); and ``due_time``,
+        when its last sample was due (s on :func:`time.monotonic`).
     sinks : sequence
-        Objects with ``write(output)``, already entered.
+        Objects with ``write(output)``, already entered. Sinks never wait: in a paced
+        run only this loop keeps time.
     paced : bool
-        Real-time run (live and ``--realtime`` sources pace the source ticks; the
-        park ticks are paced here). A tick is due when the source hands it over and
-        must be processed (pipeline step and every sink) within one ``dt``: late ticks
-        are counted in ``pipeline.health`` (``overruns``, ``overruns_off_cpu``) with
-        the worst excess in ``worst_overrun_s`` (s, 0 when never late); see
-        :class:`Health`. A source that stalls is the watchdog's business, not an
-        overrun.
+        Real-time run. Time comes from the wall clock, never from the samples' own
+        times (a jump or a gap in them is the validation stage's business): unless the
+        source paces itself, this loop paces the ticks at the pipeline's rate, tick
+        ``k`` due at ``t0 + k * dt`` on :func:`time.monotonic`; when a tick starts
+        more than half a period late the schedule restarts from it, so the loop never
+        bursts to catch up (no two ticks closer than half a period). The park ticks
+        after the source ends are paced the same way. Timing is counted in
+        ``pipeline.health`` (see :class:`Health`): a tick must be processed (pipeline
+        step and every sink) within one ``dt`` of its hand-over (``overruns``,
+        ``overruns_off_cpu``, ``worst_overrun_s``), and its command must reach the
+        sinks within one ``dt`` of its sample's due time (``late_commands``,
+        ``worst_late_s``; the due time is this loop's schedule, the source's
+        ``due_time``, or else the hand-over). A source that stalls is the watchdog's
+        business, not an overrun.
     busy_wait : bool
-        Paced runs: the park ticks wait by busy-waiting instead of sleeping
-        (:func:`motionbase.pacing.wait_until`); the source paces its own ticks
-        (``busy_wait`` of the paced sources).
+        Paced runs: this loop waits for its ticks by busy-waiting instead of sleeping
+        (:func:`motionbase.pacing.wait_until`); a source that paces itself has its own
+        ``busy_wait``.
     stop : StopRequest, optional
-        Raised to stop (ramp to park) or E-stop.
+        Raised to stop (ramp to park at the soft-start pace) or E-stop (``stop.estop``:
+        park at once within the speed and acceleration limits).
     progress : callable, optional
-        Called with every output.
+        Called with every output; if it raises (a closed terminal), it is dropped and
+        the run goes on.
 
     Notes
     -----
@@ -1228,48 +1255,83 @@ def _run(
     robot = pipeline.robot
     health = pipeline.health
     dt = pipeline.dt
-    peak_angle = np.zeros(robot.n)
-    peak_speed = np.zeros(robot.n)
+    n = robot.n
+    run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
+    ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
+    start_speed, stop_speed = np.zeros(n), np.zeros(n)
+    ticks = {"starting": 0, "stopping": 0}
     wall0 = time.perf_counter()
     t_first: float | None = None
     t_last = 0.0
     active = list(sinks)
     failure: BaseException | None = None  # the first source or sink failure
-    last_started: float | None = None  # paced runs: when the last tick was handed over
+    failed_sink: Any = None
+    clock = time.monotonic  # the loop's clock (due times are on it)
+    cpu_clock = time.thread_time  # the loop thread's CPU time (tells waiting from computing)
+    loop_paces = paced and not getattr(source, "paces_itself", False)
+    next_due: float | None = None  # paced by this loop: when the next tick is due
 
-    def fail(exc: BaseException, what: str) -> None:
-        nonlocal failure
+    def fail(exc: BaseException, what: str, sink: Any = None) -> None:
+        nonlocal failure, failed_sink
         if failure is None:
             failure = exc
+            failed_sink = sink
             summary.stopped_by = f"{what} failure"
             stop.set(f"{what} failure")
 
-    def emit(out: PipelineOutput, started: float) -> None:
-        nonlocal t_first, t_last, last_started
+    def pace() -> float:
+        """Wait for the next tick's due time on this loop's schedule; return it."""
+        nonlocal next_due
+        due = clock() if next_due is None else next_due
+        wait_until(due, busy=busy_wait, clock=clock)
+        now = clock()
+        # more than half a period late: the schedule restarts here (never burst to catch up)
+        next_due = (now if now - due > 0.5 * dt else due) + dt
+        return due
+
+    def emit(out: PipelineOutput, started: float, due: float) -> None:
+        nonlocal t_first, t_last, progress
         for sink in tuple(active):
             try:
                 sink.write(out)
             except Exception as exc:  # noqa: BLE001 - drop the sink, park on the others
                 active.remove(sink)
-                fail(exc, "sink")
+                fail(exc, "sink", sink)
         if progress is not None:
-            progress(out)
+            try:
+                progress(out)
+            except Exception:  # noqa: BLE001 - a display (a closed terminal): drop it
+                progress = None
         summary.samples += 1
         summary.clamped += out.clamped
-        _track_peaks(peak_angle, peak_speed, out.angles, speeds)
+        phase = out.phase
+        if phase == "running":
+            summary.running_samples += 1
+            _track_peaks(run_angle, run_speed, out.angles, speeds)
+        else:
+            ramp = "starting" if phase == "starting" else "stopping"
+            ticks[ramp] += 1
+            ramp_speed = start_speed if ramp == "starting" else stop_speed
+            _track_peaks(ramp_angle, ramp_speed, out.angles, speeds)
         if t_first is None:
             t_first = out.t
         t_last = out.t
         if paced:
+            now = clock()
             # a tick is due when the source hands it over and must be done within one period
-            late = clock() - started - dt
+            late = now - started - dt
             if late > 0.0:
                 health.overruns += 1
                 if cpu_clock() - cpu_started < dt:
                     health.overruns_off_cpu += 1  # the thread was waiting, not computing
                 if late > health.worst_overrun_s:
                     health.worst_overrun_s = late
-            last_started = started
+            # what the actuators see: the command within one period of its sample's due time
+            late = now - due - dt
+            if late > 0.0:
+                health.late_commands += 1
+                if late > health.worst_late_s:
+                    health.worst_late_s = late
 
     def apply_stop() -> None:
         if pipeline._phase in ("starting", "running"):
@@ -1283,13 +1345,13 @@ def _run(
     speeds = pipeline._v
     stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
     has_fresh = hasattr(source, "fresh")
-    clock = time.perf_counter
-    cpu_clock = time.thread_time  # the loop thread's CPU time (tells waiting from computing)
-    started = cpu_started = 0.0
+    started = cpu_started = due = 0.0
     step = pipeline.step
-    scratch = np.zeros(robot.n)
+    scratch = np.zeros(n)
     _track_peaks(scratch, scratch.copy(), scratch, scratch)  # loaded now, not in the first tick
-    while True:
+    # a stop asked before the first tick (while the program loaded): nothing moves, the
+    # source is not read; the run is one park tick
+    while not (summary.samples == 0 and stop_raised()):
         try:
             state = next(iterator)
         except StopIteration:
@@ -1298,14 +1360,21 @@ def _run(
             fail(exc, "source")
             break
         if paced:
+            if loop_paces:
+                due = pace()
             started, cpu_started = clock(), cpu_clock()
+            if not loop_paces:
+                due = getattr(source, "due_time", None)
+                if due is None:
+                    due = started
+                next_due = started + dt  # the park ticks follow on this loop's schedule
         if stop_raised() and (not stopping_requested or (stop.estop and not pipeline._estop)):
             if not stopping_requested:
                 summary.stopped_by = stop.reason
             stopping_requested = True
             apply_stop()
         out = step(state, bool(source.fresh) if has_fresh else True)
-        emit(out, started)
+        emit(out, started, due)
         if out.phase == "parked":
             break
     # park ramp on held samples
@@ -1315,27 +1384,40 @@ def _run(
                 summary.stopped_by = stop.reason
             pipeline.stop()
         for _ in range(int(max_park_s / dt)):
-            if pipeline.parked:
+            if pipeline.parked and summary.samples:  # (one park tick at least: drives, log)
                 break
             if stop.estop and not pipeline._estop:
                 pipeline.estop()
-            if paced and last_started is not None:
-                wait_until(last_started + dt, busy=busy_wait)
+            if paced:
+                due = pace()
             started, cpu_started = clock(), cpu_clock()
-            emit(pipeline.step(None), started)
+            if not paced:
+                due = started
+            emit(pipeline.step(None), started, due)
+    if stop.estop and stop.estop_reason and stop.estop_reason != summary.stopped_by:
+        summary.stopped_by += f", then an E-stop ({stop.estop_reason})"
     if failure is not None:
-        # parked first; then the failure, as one clear line when it is ours, else as is (a bug)
+        # parked first; then the failure in one line (a source's bug propagates as is)
         if isinstance(failure, MotionbaseError):
             try:
                 again = type(failure)(f"{failure} (the platform was parked)")
             except TypeError:
                 again = MotionbaseError(f"{failure} (the platform was parked)")
             raise again from failure
+        if failed_sink is not None:
+            what = f"{type(failure).__name__}: {failure}".replace("\n", " ")
+            raise SinkError(
+                f"sink {_sink_name(failed_sink)} failed ({what}); the platform was parked"
+            ) from failure
         raise failure
     summary.wall_time_s = time.perf_counter() - wall0
     summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
-    summary.peak_angle = peak_angle
-    summary.peak_speed = peak_speed
+    summary.peak_angle = run_angle
+    summary.peak_speed = run_speed
+    summary.start_s = ticks["starting"] * dt
+    summary.stop_s = ticks["stopping"] * dt
+    summary.start_peak_speed = start_speed
+    summary.stop_peak_speed = stop_speed
     summary.angle_limits = (robot.limits.lower, robot.limits.upper)
     summary.max_speed = robot.limits.max_speed
     return summary

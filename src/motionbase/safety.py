@@ -202,6 +202,12 @@ class InputLimits:
             object.__setattr__(self, name, value)
 
 
+#: Sample times the pipeline accepts: 0 <= t <= MAX_SAMPLE_TIME_S (9.2e9 s, about 292 years).
+#: A log time is a count of nanoseconds that must fit 64 bits (signed in the log's writer,
+#: unsigned in MCAP): 2**63 ns is 9.22e9 s, and the margin covers the ticks after the last
+#: sample. A time outside is rejected like any invalid sample and never reaches the log.
+MAX_SAMPLE_TIME_S = 9.2e9
+
 _INPUT_PROBLEMS = (
     None,
     "time is not finite",
@@ -212,6 +218,7 @@ _INPUT_PROBLEMS = (
     "angular velocity beyond its bound",
     "attitude is not finite",
     "attitude beyond its bound",
+    f"time is outside 0..{MAX_SAMPLE_TIME_S:.3g} s (a log time must fit 64-bit nanoseconds)",
 )
 
 
@@ -219,6 +226,8 @@ _INPUT_PROBLEMS = (
 def _input_code(t, last_t, f, w, att, max_f, max_w, max_att):
     if not np.isfinite(t):
         return 1
+    if not (0.0 <= t <= MAX_SAMPLE_TIME_S):
+        return 9
     if t <= last_t:
         return 2
     code = 3
@@ -246,7 +255,8 @@ def input_problem(
     Parameters
     ----------
     t : float
-        Sample time, s; must be finite and later than ``last_t``.
+        Sample time, s; must be finite, within ``0..MAX_SAMPLE_TIME_S`` (what a log time
+        holds) and later than ``last_t``.
     specific_force, angular_velocity, attitude : ndarray, shape (3,)
         m/s^2, rad/s, rad; each finite and within its bound in ``limits``.
     last_t : float or None

@@ -56,6 +56,7 @@ paced (``realtime=True`` sleeps to wall-clock time, never busy-waits).
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -64,6 +65,7 @@ import numpy as np
 
 from motionbase.config import DEFAULT_RRR3
 from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
 from motionbase.pipeline import StopRequest
 from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.rrr3 import OK, Rrr3
@@ -229,6 +231,8 @@ def run_teleop(
     if hasattr(source, "bind_stop"):
         source.bind_stop(stop)
     limiter = _Limiter(rrr3, dt)
+    scene = SceneBuilder(rrr3)
+    scene_every = max(1, round(rate_hz / SCENE_RATE_HZ))
     stats = TeleopStats()
     pose = rrr3.home.copy()
     home_q = limiter.angles(tuple(pose))
@@ -367,6 +371,8 @@ def run_teleop(
                     logger.add("/cursor", t, {"pixel": list(pixel), "target": list(target_xy)})
                 logger.add("/planar/pose", t, {"pose": pose.tolist()})
                 logger.add("/planar/actuators", t, {"angles": q.tolist(), "servo_deg": servo})
+                if k % scene_every == 0:  # the robot drawn for Foxglove, about 30 Hz
+                    logger.add("/platform/scene", t, scene.message(t, pose, q))
                 if k % max(1, int(round(rate_hz))) == 0:
                     logger.add("/health", t, stats.as_health())
             except Exception as exc:  # a full disk: park without the log, then raise
@@ -407,6 +413,7 @@ def teleop_job(
     clamp: bool = True,
     stale_timeout_s: float = 0.5,
     stop: StopRequest | None = None,
+    live: str | None = None,
 ) -> TeleopStats:
     """The ``motionbase teleop`` command: build source, calibration, sink and log; run.
 
@@ -414,13 +421,18 @@ def teleop_job(
     the pointer) and file/UDP input maps their screen (1310 x 715 px unless the source says
     otherwise) onto the largest valid rectangle at phi = 0 (:meth:`CursorCalibration.default`).
     SIGINT, SIGTERM, SIGHUP and SIGQUIT stop the robot (brake, then home, within the limits),
-    from the start of this call on: during start-up too.
+    from the start of this call on: during start-up too. ``live`` (``[HOST:]PORT``) also
+    serves the log's topics to Foxglove while running (needs ``out``).
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
+    from motionbase.io.mcap_log import LiveAddress
     from motionbase.platform.rrr3 import Rrr3Geometry
     from motionbase.stop_signals import install_stop_signals
 
+    if live is not None and out is None:
+        raise ConfigError("--live serves the run's log: add --out FILE.mcap")
+    live_at = None if live is None else LiveAddress.parse(live)
     stop = stop if stop is not None else StopRequest()
     restore = install_stop_signals(stop)  # first: a stop during start-up parks too
     sink = None
@@ -456,7 +468,10 @@ def teleop_job(
                         "clamp": clamp,
                         "stale_timeout_s": stale_timeout_s,
                     },
+                    live=live_at,
                 ).start()
+                if live_at is not None:
+                    print(live_at.banner(logger.live_port), file=sys.stderr, flush=True)
             return run_teleop(
                 source, rrr3, cal, sink=sink, logger=logger, rate_hz=rate_hz,
                 duration_s=duration_s, realtime=realtime, clamp=clamp, stop=stop,

@@ -143,6 +143,12 @@ class JsbsimSource:
         Output sample rate, Hz.
     duration_s : float
         Simulated time the source will cover, s.
+    paces_itself : bool
+        True with ``realtime``: the samples are handed over at their time on the wall clock
+        (the pipeline's loop does not pace them again).
+    due_time : float or None
+        With ``realtime``: when the last sample was due, s on :func:`time.monotonic` (the
+        pipeline counts a command late from it).
 
     Raises
     ------
@@ -170,6 +176,7 @@ class JsbsimSource:
     ) -> None:
         self.root = Path(root) if root is not None else default_root()
         self.realtime = bool(realtime)
+        self.due_time: float | None = None
         self.busy_wait = bool(busy_wait)
         self.aircraft: str | None = None
         self.init: str | dict[str, float] | None = None
@@ -218,6 +225,7 @@ class JsbsimSource:
         self = cls.__new__(cls)
         self.root = Path(root) if root is not None else default_root()
         self.realtime = bool(realtime)
+        self.due_time: float | None = None
         self.busy_wait = bool(busy_wait)
         self.script_path = None
         self.script = None
@@ -460,12 +468,16 @@ class JsbsimSource:
                 ),
             )
             if realtime:
-                now = time.perf_counter()
                 if k == 0:
-                    wall0, t0 = now, state.t
-                else:
-                    wait_until(wall0 + (state.t - t0), busy=busy)
+                    wall0, t0 = time.monotonic(), state.t
+                self.due_time = due = wall0 + (state.t - t0)
+                wait_until(due, busy=busy, clock=time.monotonic)
             yield state
+
+    @property
+    def paces_itself(self) -> bool:
+        """True when the samples come in real time (``realtime``)."""
+        return self.realtime
 
     def describe(self) -> dict[str, Any]:
         """Plain-data description of the source for the log's metadata."""

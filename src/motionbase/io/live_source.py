@@ -255,6 +255,7 @@ class UdpLiveSource:
 
     kind = "live"
     label = "live source"
+    paces_itself = True  # ticks come on the wall clock: the pipeline's loop does not pace them
 
     def __init__(
         self,
@@ -287,6 +288,7 @@ class UdpLiveSource:
         self.stale_timeout_s = float(stale_timeout_s)
         self._sock: socket.socket | None = None
         self._iterating = False
+        self.due_time: float | None = None  # when the last tick was due, monotonic s
         self._reset_state()
 
     # ------------------------------------------------------------------ subclass hooks
@@ -498,6 +500,7 @@ class UdpLiveSource:
                         start = now - k * period
                 self._update_rate(now)
                 self._service(now)
+                self.due_time = deadline  # (the pipeline counts a late command from it)
                 yield self._make_state(k, now)
                 k += 1
         finally:

@@ -464,6 +464,15 @@ class MavlinkSource:
         by the ground station's receive time stamped in the log (bursty when
         the radio link was). DataFlash logs always use the vehicle clock.
 
+    Attributes
+    ----------
+    paces_itself : bool
+        True on a live link and for a log replayed with ``realtime``: ticks come on the
+        wall clock (the pipeline's loop does not pace them again).
+    due_time : float or None
+        When the last tick was due, s on :func:`time.monotonic` (paced ticks only; the
+        pipeline counts a command late from it).
+
     Examples
     --------
     >>> with MavlinkSource("vtol.tlog", realtime=False) as src:  # doctest: +SKIP
@@ -532,6 +541,7 @@ class MavlinkSource:
 
         self._conn: Any = None
         self._iterating = False
+        self.due_time: float | None = None
         self._reset_state()
 
     # ------------------------------------------------------------------ lifecycle
@@ -717,6 +727,11 @@ class MavlinkSource:
 
     # ------------------------------------------------------------------ iteration
 
+    @property
+    def paces_itself(self) -> bool:
+        """True when ticks come on the wall clock (a live link, or a log with ``realtime``)."""
+        return not self.is_log or self.realtime
+
     def __iter__(self) -> Iterator[AircraftState]:
         if self._conn is None:
             raise SourceError(
@@ -782,6 +797,7 @@ class MavlinkSource:
                 self._update_rate(now)
                 if self._req_state != "off":
                     self._service_requests(conn, now)
+                self.due_time = deadline
                 yield self._make_state(k, now)
                 k += 1
         finally:
@@ -854,7 +870,8 @@ class MavlinkSource:
                     handle(pending, t_pending)
                     pending, t_pending = next_msg()
                 if self.realtime:
-                    wait_until(wall0 + k * period, busy=self.busy_wait, clock=time.monotonic)
+                    self.due_time = wall0 + k * period
+                    wait_until(self.due_time, busy=self.busy_wait, clock=time.monotonic)
                 self._update_rate(t_tick)
                 yield self._make_state(k, t_tick)
                 k += 1

@@ -6,8 +6,10 @@ MCAP file that Foxglove and the ``mcap`` library read. It holds the Header, the
 metadata record ``"motionbase"`` (``config``, ``version``, ``log_format``), then
 chunks (each channel's Schema and Channel records in the chunk of its first
 message), and the summary. Each logger has its own :class:`foxglove.Context`, so
-several logs in one process never mix; the same ``Channel.log`` call can also
-feed a live Foxglove WebSocket server on that context.
+several logs in one process never mix; the same ``Channel.log`` call also feeds
+the live Foxglove WebSocket server started on that context with ``live=``
+(``--live [HOST:]PORT``): each message is encoded once, for the file and for
+every client subscribed to its topic.
 
 Crash safety
     The writer compresses messages into the chunk in progress as they come. The
@@ -48,6 +50,7 @@ import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -58,6 +61,7 @@ import orjson
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from motionbase.errors import ConfigError, SinkError
+from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
 
 log = logging.getLogger("motionbase")
@@ -173,6 +177,44 @@ def transform_message(
     }
 
 
+#: Where ``--live`` listens when given a port only: this machine only.
+LIVE_DEFAULT_HOST = "127.0.0.1"
+
+
+@dataclass(frozen=True)
+class LiveAddress:
+    """Where the live Foxglove WebSocket server listens (``--live [HOST:]PORT``)."""
+
+    host: str
+    port: int
+
+    @classmethod
+    def parse(cls, text: str) -> LiveAddress:
+        """``PORT`` or ``HOST:PORT`` (``[::1]:PORT`` for an IPv6 literal); host 127.0.0.1 by
+        default, ``0.0.0.0`` to be watched from another PC; port 0 picks a free one.
+
+        Raises
+        ------
+        ConfigError
+            One line naming what is wrong (port not a number or out of range, a host
+            that does not resolve).
+        """
+        host, sep, port = str(text).rpartition(":")
+        if not sep:
+            host = LIVE_DEFAULT_HOST
+        host = host.removeprefix("[").removesuffix("]")
+        return cls(*check_host_port(f"--live {text!r}", host, port, bind=True))
+
+    def url(self, port: int | None = None) -> str:
+        """``ws://host:port`` for Foxglove's "Open connection" dialog."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port if port is None else port}"
+
+    def banner(self, port: int | None = None) -> str:
+        """The line a job prints when its server is up: where to point Foxglove."""
+        return f"live view: {self.url(port)} (Foxglove: Open connection > Foxglove WebSocket)"
+
+
 class _LogFile:
     """The log's file as the writer sees it; keeps the first write error for the logger.
 
@@ -251,6 +293,11 @@ class McapLogger:
         operating system even if small: the most a crash can lose.
     fsync : bool
         Also ``os.fsync`` after every chunk (survives power loss, costs time).
+    live : LiveAddress, optional
+        Also serve every topic live to Foxglove: a WebSocket server (the Foxglove SDK's)
+        on this logger's own context, started by ``start()`` before the file is created
+        and stopped by ``finish()`` after the file is finished. A message is encoded once
+        and goes to the file and to every client subscribed to its topic.
 
     Raises
     ------
@@ -268,8 +315,11 @@ class McapLogger:
         compression: str = "lz4",
         flush_interval_s: float = 1.0,
         fsync: bool = False,
+        live: LiveAddress | None = None,
     ) -> None:
         self.path = Path(path)
+        self.live = live
+        self._server: Any = None
         self.metadata: dict[str, Any] = dict(metadata or {})
         if compression not in _COMPRESSIONS:
             raise ConfigError(
@@ -304,9 +354,14 @@ class McapLogger:
             config_json = json.dumps(json_safe(self.metadata), allow_nan=False)
         except TypeError as exc:
             raise SinkError(f"{self.path}: configuration cannot be logged: {exc}") from None
+        # the channels only hold a weak reference to their context: keep it alive
+        self._context = foxglove.Context()
+        if self.live is not None:
+            self._start_server(self.live)  # first: a port in use leaves no file behind
         try:
             self._file = _LogFile(self.path, self.fsync)
         except OSError as exc:
+            self._stop_server()
             raise SinkError(
                 f"{self.path}: cannot create the MCAP log: {exc.strerror or exc} "
                 "(check the folder exists and is writable)"
@@ -323,8 +378,7 @@ class McapLogger:
     def _open_writer(self, config_json: str) -> None:
         from motionbase import __version__
 
-        # the channels only hold a weak reference to their context: keep it alive
-        self._context = context = foxglove.Context()
+        context = self._context
         options = MCAPWriteOptions(
             compression=_COMPRESSIONS[self.compression],
             chunk_size=self.chunk_size,
@@ -373,6 +427,7 @@ class McapLogger:
                 channel.close()
             file.close()
             self._state = "finished"
+            self._stop_server()
         if failed:
             return
         if file.error is not None:
@@ -396,6 +451,32 @@ class McapLogger:
             self.finish()
         except SinkError as err:  # do not hide the exception that is propagating
             log.warning("%s", err)
+
+    def _start_server(self, live: LiveAddress) -> None:
+        try:
+            self._server = foxglove.start_server(
+                name="motionbase", host=live.host, port=live.port, context=self._context
+            )
+        except RuntimeError as exc:  # the SDK's FoxgloveError: "Failed to bind port: ..."
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            hint = (
+                "another program uses that port: choose another"
+                if "in use" in reason
+                else "check the address"
+            )
+            raise ConfigError(
+                f"--live {live.host}:{live.port}: cannot serve Foxglove there: {reason} ({hint})"
+            ) from None
+
+    def _stop_server(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            server.stop()
+
+    @property
+    def live_port(self) -> int | None:
+        """The port the live server listens on (None without ``live``, or once finished)."""
+        return None if self._server is None else int(self._server.port)
 
     @property
     def message_count(self) -> int:
@@ -544,7 +625,9 @@ class McapLogger:
 
 
 __all__ = [
+    "LIVE_DEFAULT_HOST",
     "LOG_FORMAT",
+    "LiveAddress",
     "MCAP_MAGIC",
     "METADATA_NAME",
     "McapLogger",

@@ -1,6 +1,6 @@
 r"""Motor-drive output: safe crank angles streamed to servo drives over serial or UDP.
 
-A drive output is chosen by a URL (``--output URL`` on ``fly`` and ``replay``)::
+A drive output is chosen by a URL (``--output URL`` on ``fly``, ``replay`` and ``stream``)::
 
     serial:/dev/ttyUSB0?baud=250000&rate=500&format=...   any pyserial URL or device path
     serial:loop://?format=...                             (``loop://``, a pty path, ...)
@@ -47,15 +47,29 @@ Behaviour
   safety stage) through the :class:`~motionbase.platform.output_map.OutputMapping`, checks
   every value against the drive range and the wire format, and encodes the frame. A command
   that does not fit is never sent: the last good frame is held and ``held`` counts it.
-* A sender thread sends the latest frame at a fixed rate, independent of the pipeline's rate
-  (no queue: a frame not sent before the next command is replaced).
-* ``realtime=True`` (default): ``write`` sleeps when the pipeline's time runs ahead of the wall
-  clock, so a fast replay or an unpaced flight moves the motors at real speed.
-* ``close()`` stops the sender and sends the latest command once more: the pipeline ramps to
-  park before the sinks close, so the last frame on the wire is the park command.
+* A sender thread sends at a fixed rate, independent of the pipeline's rate (no queue: a
+  command not sent before the next one is replaced).
+* Sinks never wait: ``write`` returns at once. In a real-time run only the pipeline's loop keeps
+  time (:func:`motionbase.pipeline.run`), on the wall clock, never on the samples' own times.
+* Ramped at the drive (``limits``, which ``motionbase fly/replay/stream --output`` always
+  give: the geometry's): the sender keeps what the drive last received, its speed and when,
+  and each frame moves the drive toward the latest command no faster than the speed and
+  acceleration limits allow over the wall-clock time since that frame
+  (:func:`motionbase.safety.limit_command`, the pipeline's own safety stage). So the limits
+  hold at the drive whatever the ticks did (late ticks, a burst after a stall, timestamps
+  squeezed in a recording): a frame the limiter changed is counted in ``ramped``. A drive
+  whose last frame is more than two periods old (a link that was down, a sender stall) is
+  taken to stand at that frame and is ramped from there, from rest.
+* ``close()`` stops the sender, ramps the drive the rest of the way to the latest command and
+  sends it once more: the pipeline ramps to park before the sinks close, so the last frame on
+  the wire is the park command.
 * A peer that goes away (a closed pty, a USB port unplugged, nobody listening on UDP) gives one
   warning line; the pipeline and its log go on; a serial port is reopened once a second and
-  sending resumes (``link back`` line) when it returns.
+  sending resumes (``link back`` line) when it returns. Frames sent while the link is
+  reported down (from the first failed send until a second without errors) count as not
+  received: when it returns, the drive is ramped from the last frame sent before, within
+  the limits. (UDP cannot tell whether a datagram arrived: on a network that drops frames
+  without an error, the drive-side limiter still bounds each step by the time elapsed.)
 """
 
 from __future__ import annotations
@@ -79,6 +93,7 @@ from motionbase.errors import ConfigError, SinkError
 from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
 from motionbase.platform.output_map import OutputMapping, sweep_profile
+from motionbase.safety import RATE_LIMITED, ActuatorLimits, limit_command
 
 __all__ = [
     "BinaryFormat",
@@ -636,8 +651,14 @@ class MotorOutput:
     mapping : OutputMapping
     rate_hz : float
         Frames per second (fixed, independent of the pipeline's rate).
-    realtime : bool
-        Sleep in ``write`` when the pipeline's time runs ahead of the wall clock.
+    limits : ActuatorLimits, optional
+        The actuators' angle, speed and acceleration limits (rad, rad/s, rad/s^2; the
+        geometry's). When given, every frame is ramped at the drive: the sender knows what
+        the drive last received and when, and moves it toward the latest command no faster
+        than these limits allow over the wall-clock time elapsed
+        (:func:`motionbase.safety.limit_command`), whatever the pipeline's ticks did (see
+        the module docstring). None: frames carry the latest command as it is (a wiring
+        check that does its own limiting).
     url : str
         The URL it was opened from (messages and metadata).
 
@@ -646,6 +667,8 @@ class MotorOutput:
     frames_sent, commands, held, send_errors : int
         Frames on the wire; commands accepted; commands never sent because a value was
         outside the drive's range or the wire format; failed sends.
+    ramped : int
+        Frames the drive-side limiter moved short of the latest command.
     last_values : ndarray or None
         Drive values of the latest accepted command.
     link_up : bool
@@ -658,7 +681,7 @@ class MotorOutput:
         mapping: OutputMapping,
         *,
         rate_hz: float = DEFAULT_RATE_HZ,
-        realtime: bool = True,
+        limits: ActuatorLimits | None = None,
         url: str = "",
     ) -> None:
         if not (rate_hz > 0 and math.isfinite(rate_hz)) or rate_hz > 10_000:
@@ -668,26 +691,38 @@ class MotorOutput:
             raise ConfigError(
                 f"output {url}: the format uses motor {missing[0]} but the mapping has {mapping.n}"
             )
+        if limits is not None and len(limits.max_speed) != mapping.n:
+            raise ConfigError(
+                f"output {url}: limits for {len(limits.max_speed)} motors, the mapping has "
+                f"{mapping.n}"
+            )
         self.transport = transport
         self.format = frame_format
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
-        self.realtime = realtime
+        self.limits = limits
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
         self.frames_sent = 0
         self.commands = 0
         self.held = 0
         self.send_errors = 0
+        self.ramped = 0
         self.last_values: np.ndarray | None = None
         self.link_up = True
-        self._latest: bytes | None = None
+        # the latest accepted command: (angles rad, its frame), replaced as one object
+        self._command: tuple[np.ndarray, bytes] | None = None
+        # what the drive last received (limits only): angles, speed, wall time (monotonic),
+        # the command it was heading for, the frame
+        self._drive_q: np.ndarray | None = None
+        self._drive_v = np.zeros(mapping.n)
+        self._drive_t = -math.inf
+        self._drive_target: np.ndarray | None = None
         self._last_sent: bytes | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._opened = False
         self._holding = False
-        self._anchor: tuple[float, float] | None = None
         self._next_retry = 0.0
         self._last_error = -math.inf
         self._dmin, self._dmax = mapping.drive_min, mapping.drive_max
@@ -705,15 +740,25 @@ class MotorOutput:
         return self
 
     def close(self) -> None:
-        """Stop the sender, send the latest command once more (the park command at the end of
-        a run), close the link. Idempotent."""
+        """Stop the sender, bring the drive to the latest command (the park command at the end
+        of a run: the pipeline ramps to park before the sinks close) and send it once more,
+        close the link. Idempotent.
+
+        With ``limits``, the drive is ramped the rest of the way within them, for at most the
+        time the limits need to cross the whole range (it gives up at once on a link that
+        is down: nothing would arrive).
+        """
         if not self._opened:
             return
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5.0)
-        if self._latest is not None:
-            self._send(self._latest, final=True)
+        command = self._command
+        if command is not None:
+            if self.limits is None:
+                self._send(command[1], time.monotonic(), final=True)
+            else:
+                self._finish_ramp()
         self.transport.close()
         self._opened = False
 
@@ -727,20 +772,16 @@ class MotorOutput:
     def write(self, output: Any) -> bool:
         """Offer the latest safe command; returns False when it was held (never sent).
 
+        Never waits: the pipeline's loop keeps time, the sender thread sends.
+
         Parameters
         ----------
-        output : PipelineOutput, or an object with ``angles`` (rad, shape (n,)) and optionally
-            ``t`` (s), or an array of crank angles (rad).
+        output : PipelineOutput, or an object with ``angles`` (rad, shape (n,)), or an array
+            of crank angles (rad).
         """
-        angles = getattr(output, "angles", output)
+        angles = np.array(getattr(output, "angles", output), dtype=float)
         values = self.mapping.to_drive(angles)
-        vals = values.tolist()  # plain floats: much faster to format than numpy scalars
-        frame = None
-        for x, lo, hi in zip(vals, self._dmin, self._dmax, strict=True):
-            if not lo <= x <= hi:  # False for NaN
-                break
-        else:
-            frame = self.format.encode(vals)
+        frame = self._encode(values)
         if frame is None:
             self.held += 1
             if not self._holding:
@@ -748,13 +789,18 @@ class MotorOutput:
                 log.warning("output %s: %s; holding the last frame", self.label, self._why(values))
         else:
             self._holding = False
-            self._latest = frame
+            self._command = (angles, frame)
             self.last_values = values
             self.commands += 1
-        t = getattr(output, "t", None)
-        if self.realtime and t is not None:
-            self._pace(float(t))
         return frame is not None
+
+    def _encode(self, values: np.ndarray) -> bytes | None:
+        """The frame for drive values, or None when one is outside the range or the format."""
+        vals = values.tolist()  # plain floats: much faster to format than numpy scalars
+        for x, lo, hi in zip(vals, self._dmin, self._dmax, strict=True):
+            if not lo <= x <= hi:  # False for NaN
+                return None
+        return self.format.encode(vals)
 
     def _why(self, values: np.ndarray) -> str:
         ok = self.mapping.in_range(values)
@@ -766,27 +812,13 @@ class MotorOutput:
                 )
         return f"values {np.round(values, 3).tolist()} do not fit {self.format.describe()!r}"
 
-    def _pace(self, t: float) -> None:
-        now = time.monotonic()
-        if self._anchor is None:
-            self._anchor = (now, t)
-            return
-        wall0, t0 = self._anchor
-        ahead = (t - t0) - (now - wall0)
-        if ahead > 0:
-            time.sleep(ahead)
-        elif ahead < -0.05:  # fell behind (a stall): never rush to catch up
-            self._anchor = (now, t)
-
     # -- the sender thread ------------------------------------------------------------------
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
         nxt = time.monotonic()
         wait = self._stop.wait
         while not self._stop.is_set():
-            frame = self._latest
-            if frame is not None:
-                self._send(frame)
+            self._tick(time.monotonic())
             nxt += period
             delay = nxt - time.monotonic()
             if delay > 0:
@@ -794,14 +826,82 @@ class MotorOutput:
             elif delay < -period:
                 nxt = time.monotonic()  # overrun: skip, never burst
 
-    def _send(self, frame: bytes, final: bool = False) -> None:
+    def _tick(self, now: float) -> bool:
+        """Send one frame toward the latest command; True once the drive is there, at rest."""
+        command = self._command
+        if command is None:
+            return True
+        target, frame = command
+        if self.limits is None:
+            self._send(frame, now)
+            return True
+        step = self._ramp(target, frame, now)
+        if step is None:  # not sendable now: the drive stays where it is
+            return False
+        q, v, frame = step
+        sent = time.monotonic()  # (not before ``now``: the step was sized for less time)
+        if self._send(frame, sent) and self.link_up:
+            # received (as far as the sender can know): the drive is there now
+            self._drive_q, self._drive_v, self._drive_t = q, v, sent
+            self._drive_target = target
+            return frame is command[1] and not v.any()
+        return False
+
+    def _ramp(
+        self, target: np.ndarray, frame: bytes, now: float
+    ) -> tuple[np.ndarray, np.ndarray, bytes] | None:
+        """The next frame toward ``target``, within the limits since the drive's last frame.
+
+        A drive that got its last frame more than two periods ago stood still at it (a
+        sender stall, a link that was down): the ramp starts again from there, at rest.
+        """
+        q0 = self._drive_q
+        if q0 is None:  # nothing received yet: the run starts where its first command is
+            return target, np.zeros_like(target), frame
+        if q0 is target and not self._drive_v.any():  # there and at rest: the common case
+            return target, self._drive_v, frame
+        period = 1.0 / self.rate_hz
+        elapsed = now - self._drive_t
+        if elapsed <= 1e-6:
+            return None
+        if elapsed > 2.0 * period:
+            dt, v0, previous = period, np.zeros_like(q0), target  # from rest, no feed-forward
+        else:
+            dt, v0, previous = elapsed, self._drive_v, self._drive_target
+        q, v, status = limit_command(q0, v0, previous, target, dt, self.limits)
+        if np.array_equal(q, target):
+            return target, v, frame
+        if status & RATE_LIMITED:
+            self.ramped += 1
+        ramp_frame = self._encode(self.mapping.to_drive(q))
+        return None if ramp_frame is None else (q, v, ramp_frame)
+
+    def _finish_ramp(self) -> None:
+        """After the sender stopped: ramp the drive to the latest command, then send it again."""
+        lim = self.limits
+        period = 1.0 / self.rate_hz
+        span = lim.upper - lim.lower
+        bound = float(np.max(span / lim.max_speed + 2.0 * lim.max_speed / lim.max_accel)) + 0.5
         now = time.monotonic()
+        end = now + bound
+        nxt = now
+        while self.link_up and now < end and not self._tick(now):
+            nxt += period
+            time.sleep(max(0.0, nxt - time.monotonic()))
+            now = time.monotonic()
+        if not self.link_up:
+            self._tick(time.monotonic())  # one last try from where the drive last was
+        elif self._last_sent is not None:
+            self._send(self._last_sent, time.monotonic(), final=True)
+
+    def _send(self, frame: bytes, now: float, final: bool = False) -> bool:
+        """Put ``frame`` on the wire; False when it could not be sent."""
         if self._broken:  # a serial port that failed: reopen it once a second
             if now < self._next_retry and not final:
-                return
+                return False
             self._next_retry = now + 1.0
             if not self.transport.reopen():
-                return
+                return False
             self._broken = False
         try:
             self.transport.send(frame)
@@ -815,11 +915,12 @@ class MotorOutput:
                 reason = exc.strerror or str(exc) or type(exc).__name__
                 log.warning(
                     "output %s: the drive link is down (%s); the pipeline and its log go on, "
-                    "frames are dropped until it returns",
+                    "frames are dropped until it returns, then the drive is ramped from the "
+                    "last frame it was sent before",
                     self.label,
                     reason,
                 )
-            return
+            return False
         self.frames_sent += 1
         self._last_sent = frame
         # UDP reports a refused datagram on a later send: call the link back only after a
@@ -827,6 +928,7 @@ class MotorOutput:
         if not self.link_up and now - self._last_error >= 1.0:
             self.link_up = True
             log.warning("output %s: link back, sending again", self.label)
+        return True
 
     @property
     def last_frame(self) -> bytes | None:
@@ -841,6 +943,7 @@ class MotorOutput:
             "format": self.format.describe(),
             "rate_hz": self.rate_hz,
             "mapping": self.mapping.to_dict(),
+            "ramped_at_the_drive": self.limits is not None,
         }
 
     def stats_line(self) -> str:
@@ -848,6 +951,7 @@ class MotorOutput:
             f"output {self.label}: {self.frames_sent} frames sent at {self.rate_hz:g} Hz, "
             f"{self.commands} commands, {self.held} held out of range, "
             f"{self.send_errors} send errors"
+            + (f", {self.ramped} frames ramped at the drive" if self.limits is not None else "")
         )
 
 
@@ -872,7 +976,7 @@ def open_output(
     mapping: OutputMapping,
     *,
     rate_hz: float | None = None,
-    realtime: bool = True,
+    limits: ActuatorLimits | None = None,
 ) -> MotorOutput:
     """A motor-drive sink for ``url`` (not yet open: use ``with`` or ``open()``).
 
@@ -885,8 +989,8 @@ def open_output(
         Crank angle to drive value, per motor.
     rate_hz : float, optional
         Overrides the URL's ``rate``.
-    realtime : bool
-        Pace ``write`` to the wall clock (see :class:`MotorOutput`).
+    limits : ActuatorLimits, optional
+        Ramp every frame at the drive within these limits (see :class:`MotorOutput`).
     """
     scheme, colon, rest = url.partition(":")
     if not colon or scheme not in ("serial", "udp"):
@@ -930,15 +1034,19 @@ def open_output(
             raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")
         host, port_no = check_host_port(f"output {url!r}", host.strip("[]"), port)
         transport = _UdpTransport(host, port_no)
-    return MotorOutput(transport, fmt, mapping, rate_hz=rate, realtime=realtime, url=url)
+    return MotorOutput(transport, fmt, mapping, rate_hz=rate, limits=limits, url=url)
 
 
 def open_outputs(urls: Sequence[str] | None, config: Any) -> list[MotorOutput]:
-    """Motor-drive sinks for a job's ``--output`` URLs, mapped by :func:`mapping_for`."""
+    """Motor-drive sinks for a job's ``--output`` URLs, mapped by :func:`mapping_for` and
+    ramped at the drive within the geometry's actuator limits."""
     if not urls:
         return []
+    from motionbase.pipeline import make_robot
+
     mapping = mapping_for(config)
-    return [open_output(u, mapping) for u in urls]
+    limits = make_robot(config).limits
+    return [open_output(u, mapping, limits=limits) for u in urls]
 
 
 def mapping_for(config: Any) -> OutputMapping:
@@ -1052,7 +1160,7 @@ def output_test(
             lines.append(s)
             echo(s)
 
-        sink = open_output(url, mapping, rate_hz=rate_hz, realtime=False)
+        sink = open_output(url, mapping, rate_hz=rate_hz)
         say(f"output test on {sink.label}: {mapping.describe()}")
         say(f"moving from park to neutral at up to {math.degrees(speed):.1f} deg/s")
         q, v, wanted = angles[0].copy(), np.zeros(mapping.n), angles[0]

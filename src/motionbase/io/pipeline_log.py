@@ -11,6 +11,14 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
   (crank angles, rad) and a ``foxglove.FrameTransform`` on ``/tf``.
 * planar mode: ``/planar/pose`` and ``/planar/actuators`` (with ``servo_deg``).
 * ``/health``: the safety counters, once per second of source time and at the end.
+* ``/platform/scene``: the robot drawn at its logged pose (``foxglove.SceneUpdate``, see
+  :mod:`motionbase.io.scene`), when the log is given the robot's kinematics: at
+  :data:`~motionbase.io.scene.SCENE_RATE_HZ` (30 Hz) of source time, not every tick (a
+  scene is about 14 kB and 0.1 ms to build), and at the last tick.
+
+With ``live``, the log's own :class:`foxglove.Context` also feeds a Foxglove WebSocket
+server (:class:`~motionbase.io.mcap_log.McapLogger`): every topic above goes to the file
+and to the connected Foxglove apps from the same ``log`` call.
 """
 
 from __future__ import annotations
@@ -21,7 +29,8 @@ from pathlib import Path
 from typing import Any
 
 from motionbase.errors import SinkError
-from motionbase.io.mcap_log import McapLogger
+from motionbase.io.mcap_log import LiveAddress, McapLogger
+from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
 
 
 def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any]:
@@ -85,6 +94,10 @@ class PipelineLog:
         The robot the outputs come from (True: the 3-RRR in planar mode). Not
         needed any more (the log prepared per-robot encodings when it had its own
         writer); accepted so that callers need no change.
+    kinematics : Rus6 or Rrr3, optional
+        The robot the outputs come from: ``/platform/scene`` is written when given.
+    live : LiveAddress, optional
+        Also serve every topic to Foxglove over WebSocket while the log is written.
     """
 
     def __init__(
@@ -94,9 +107,16 @@ class PipelineLog:
         health: Callable[[], dict[str, Any]] | None = None,
         *,
         planar: bool | None = None,
+        kinematics: Any = None,
+        live: LiveAddress | None = None,
     ) -> None:
         self.path = Path(path)
-        self._logger: McapLogger | None = McapLogger(self.path, metadata)
+        self._logger: McapLogger | None = McapLogger(self.path, metadata, live=live)
+        self._scene = SceneBuilder(kinematics) if kinematics is not None else None
+        self._scene_period = 1.0 / SCENE_RATE_HZ
+        self._next_scene_t = -math.inf  # the first tick draws the scene
+        self._scene_t: float | None = None  # time of the last scene drawn
+        self._last_out: Any = None
         self._health = health
         self._next_health_t = -math.inf  # the first tick writes /health
         self._last_t = 0.0
@@ -116,12 +136,20 @@ class PipelineLog:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @property
+    def live_port(self) -> int | None:
+        """The live Foxglove server's port (None without ``live`` or once closed)."""
+        return None if self._logger is None else self._logger.live_port
+
     def close(self) -> None:
         """Write the final health record and finish the file (idempotent)."""
         if self._logger is None:
             return
         logger, self._logger = self._logger, None
         try:
+            out = self._last_out
+            if out is not None and out.t != self._scene_t:
+                self._write_scene(logger, out)  # the last pose (parked), unless just drawn
             if self._health is not None:
                 logger.add("/health", self._last_t, {"t": self._last_t, **self._health()})
         finally:
@@ -137,6 +165,19 @@ class PipelineLog:
         logger.add_many(t, tick_messages(out))
         if out.servo_deg is None:
             logger.add_transform(t, out.platform_pose)
+        if self._scene is not None:
+            self._last_out = out
+            if t >= self._next_scene_t - 1e-6:  # on a 30 Hz grid of source time (1 us slack)
+                self._write_scene(logger, out)
         if self._health is not None and t >= self._next_health_t:
             logger.add("/health", t, {"t": t, **self._health()})
             self._next_health_t = t + 1.0
+
+    def _write_scene(self, logger: McapLogger, out) -> None:
+        assert self._scene is not None
+        t = out.t
+        msg = self._scene.message(t, out.platform_pose, out.angles, out.clamped)
+        logger.add("/platform/scene", t, msg)
+        self._scene_t = t
+        nxt = self._next_scene_t + self._scene_period
+        self._next_scene_t = nxt if t < nxt else t + self._scene_period  # none owed after a gap

@@ -16,7 +16,8 @@ Non-finite numbers
 
 ``/tf`` carries ``foxglove.FrameTransform`` messages with Foxglove's own schema,
 so Foxglove's 3D panel can show the platform move (see
-:meth:`motionbase.io.mcap_log.McapLogger.add_transform`).
+:meth:`motionbase.io.mcap_log.McapLogger.add_transform`); ``/platform/scene`` carries
+``foxglove.SceneUpdate`` messages drawing the legs (:mod:`motionbase.io.scene`).
 """
 
 from __future__ import annotations
@@ -150,6 +151,16 @@ HEALTH = _topic(
             "minimum": 0,
             "description": "largest lateness of a loop tick behind its deadline, s",
         },
+        "late_commands": dict(
+            _COUNT,
+            description="commands that reached the sinks more than one period after their "
+            "sample was due",
+        ),
+        "worst_late_s": {
+            "type": "number",
+            "minimum": 0,
+            "description": "largest lateness of a command beyond one period after its due time, s",
+        },
     },
     ["rejected_inputs", "clamps", "rate_limited", "watchdog_fades", "estops", "worst_overrun_s"],
 )
@@ -212,6 +223,103 @@ FRAME_TRANSFORM = {
     "required": ["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"],
 }
 
+
+def _object(title: str, properties: dict[str, Any], description: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {"title": title, "type": "object", "properties": properties}
+    if description:
+        out["description"] = description
+    out["required"] = list(properties)
+    return out
+
+
+def _array(item: dict[str, Any], description: str) -> dict[str, Any]:
+    return {"type": "array", "items": item, "description": description}
+
+
+_VEC3 = _xyz("foxglove.Vector3", "xyz", "Vector in 3D space")
+_POINT3 = _xyz("foxglove.Point3", "xyz", "Point in 3D space")
+_QUAT = _xyz("foxglove.Quaternion", "xyzw", "Quaternion denoting orientation in 3D space")
+_POSE = _object("foxglove.Pose", {"position": _VEC3, "orientation": _QUAT})
+_COLOR = _object(
+    "foxglove.Color",
+    {c: {"type": "number", "description": f"{c} value between 0 and 1"} for c in "rgba"},
+)
+_DURATION = {
+    "type": "object",
+    "title": "duration",
+    "properties": {"sec": {"type": "integer"}, "nsec": dict(_TIME["properties"]["nsec"])},
+}
+_LINE = _object(
+    "foxglove.LinePrimitive",
+    {
+        "type": {
+            "title": "foxglove.LinePrimitiveLineType",
+            "description": "0: LINE_STRIP, 1: LINE_LOOP, 2: LINE_LIST",
+            "enum": [0, 1, 2],
+        },
+        "pose": _POSE,
+        "thickness": {"type": "number", "minimum": 0},
+        "scale_invariant": {"type": "boolean"},
+        "points": _array(_POINT3, "Points along the line"),
+        "color": _COLOR,
+        "colors": _array(_COLOR, "Per-point colors (empty: color)"),
+        "indices": _array({"type": "integer", "minimum": 0}, "Indices into points"),
+    },
+    "A primitive representing a series of points connected by lines",
+)
+_SPHERE = _object(
+    "foxglove.SpherePrimitive",
+    {"pose": _POSE, "size": _VEC3, "color": _COLOR},
+    "A primitive representing a sphere or ellipsoid",
+)
+_TRIANGLES = _object(
+    "foxglove.TriangleListPrimitive",
+    {
+        "pose": _POSE,
+        "points": _array(_POINT3, "Vertices, three per triangle"),
+        "color": _COLOR,
+        "colors": _array(_COLOR, "Per-vertex colors (empty: color)"),
+        "indices": _array({"type": "integer", "minimum": 0}, "Indices into points"),
+    },
+    "A primitive representing a set of triangles or a surface tiled by triangles",
+)
+_ANY_PRIMITIVE = {"type": "object"}  # arrows, cubes, ... : never written, always empty
+_ENTITY = _object(
+    "foxglove.SceneEntity",
+    {
+        "timestamp": _TIME,
+        "frame_id": {"type": "string"},
+        "id": {"type": "string"},
+        "lifetime": _DURATION,
+        "frame_locked": {"type": "boolean"},
+        "metadata": _array({"type": "object"}, "Key-value pairs"),
+        "arrows": _array(_ANY_PRIMITIVE, "Arrow primitives"),
+        "cubes": _array(_ANY_PRIMITIVE, "Cube primitives"),
+        "spheres": _array(_SPHERE, "Sphere primitives"),
+        "cylinders": _array(_ANY_PRIMITIVE, "Cylinder primitives"),
+        "lines": _array(_LINE, "Line primitives"),
+        "triangles": _array(_TRIANGLES, "Triangle list primitives"),
+        "texts": _array(_ANY_PRIMITIVE, "Text primitives"),
+        "models": _array(_ANY_PRIMITIVE, "Model primitives"),
+    },
+    "A visual element in a 3D scene",
+)
+
+#: Foxglove's ``foxglove.SceneUpdate`` JSON Schema, the part motionbase writes (lines,
+#: spheres, triangles; the other primitive arrays are always empty), plus ``t``.
+SCENE_UPDATE = {
+    "title": "foxglove.SceneUpdate",
+    "description": "An update to the entities displayed in a 3D scene (motionbase: the "
+    "platform's legs and plates, see motionbase.io.scene)",
+    "type": "object",
+    "properties": {
+        "t": dict(_T),
+        "deletions": _array({"type": "object"}, "Scene entities to delete (none written)"),
+        "entities": _array(_ENTITY, "Scene entities to add or replace"),
+    },
+    "required": ["deletions", "entities"],
+}
+
 #: topic -> (schema name, JSON Schema). The MCAP logger accepts exactly these topics.
 TOPIC_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/aircraft/state": ("motionbase.AircraftState", AIRCRAFT_STATE),
@@ -223,6 +331,13 @@ TOPIC_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/health": ("motionbase.Health", HEALTH),
     "/cursor": ("motionbase.Cursor", CURSOR),
     "/tf": ("foxglove.FrameTransform", FRAME_TRANSFORM),
+    "/platform/scene": ("foxglove.SceneUpdate", SCENE_UPDATE),
 }
 
-__all__ = ["FRAME_TRANSFORM", "NONFINITE_STRINGS", "SCHEMA_DIALECT", "TOPIC_SCHEMAS"]
+__all__ = [
+    "FRAME_TRANSFORM",
+    "NONFINITE_STRINGS",
+    "SCENE_UPDATE",
+    "SCHEMA_DIALECT",
+    "TOPIC_SCHEMAS",
+]

@@ -1,0 +1,112 @@
+"""Stop requests: the flag that signals, a key or a test raise to end a run.
+
+Kept apart from :mod:`motionbase.pipeline` (which loads numba and the compiled kernels, a
+second or more) so that the command line can route the stop signals to a run's
+:class:`StopRequest` before anything else happens: a signal that comes while the program is
+still loading then stops the run before it moves anything, instead of being lost.
+
+Two kinds of stop (see the README's Safety section):
+
+* a *stop* (the first SIGINT, SIGTERM, SIGHUP or SIGQUIT; the end of the input; a failing
+  source or sink): the platform ramps back to park at the soft-start pace, over
+  ``soft_start_s`` (2 s by default), as gently as it started;
+* an *E-stop* (:meth:`motionbase.pipeline.Pipeline.estop`, a second stop signal while the
+  run is stopping, teleop's E-stop key): the command heads for park at once, as fast as
+  the actuators' speed and acceleration limits of the geometry allow (``max_speed``,
+  ``max_accel``), never faster.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable, Iterable
+
+__all__ = ["STOP_SIGNALS", "StopRequest", "install_signal_stop"]
+
+#: The signals that stop a run: Ctrl-C, ``kill``, a closed terminal, Ctrl-\.
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name)
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
+    if hasattr(signal, name)
+)
+
+
+class StopRequest:
+    """A thread-safe flag that signals, a key or a test raise to end a run.
+
+    Attributes
+    ----------
+    reason : str
+        Why the run was first asked to stop (``"SIGINT"``, ``"key Escape"``, ...); later
+        requests keep it.
+    estop : bool
+        An E-stop was asked (by this request or a later one).
+    estop_reason : str
+        Why the E-stop was asked (empty when none was).
+    """
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self.estop = False
+        self.reason = ""
+        self.estop_reason = ""
+
+    def set(self, reason: str = "stop", estop: bool = False) -> None:
+        """Ask the run to stop (ramp to park at the soft-start pace), or to E-stop.
+
+        Parameters
+        ----------
+        reason : str
+            Said in the run's summary ("stopped by ...").
+        estop : bool
+            Head for park at once, at the actuators' speed and acceleration limits.
+        """
+        if not self._event.is_set():
+            self.reason = reason
+        if estop and not self.estop:
+            self.estop_reason = reason
+            self.estop = True
+        self._event.set()
+
+    def __bool__(self) -> bool:
+        return self._event.is_set()
+
+
+def install_signal_stop(
+    stop: StopRequest, signals: Iterable[int] | None = None
+) -> Callable[[], None]:
+    """Route the stop signals to ``stop``; returns a function restoring the previous handlers.
+
+    The first signal asks for a stop (``stop.set(name)``: the platform parks at the
+    soft-start pace); any signal after it, while the run is stopping, asks for an E-stop
+    (``stop.set(name, estop=True)``: park at once, within the speed and acceleration
+    limits). A no-op outside the main thread (Python delivers signals to it only).
+
+    Parameters
+    ----------
+    stop : StopRequest
+    signals : iterable of int, optional
+        Default :data:`STOP_SIGNALS` (SIGINT, SIGTERM, SIGHUP, SIGQUIT where the platform
+        has them).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    sigs = tuple(STOP_SIGNALS if signals is None else signals)
+    old = {sig: signal.getsignal(sig) for sig in sigs}
+
+    def handler(signum: int, _frame: object) -> None:
+        name = signal.Signals(signum).name
+        if stop:
+            stop.set(f"{name} while stopping", estop=True)
+        else:
+            stop.set(name)
+
+    for sig in sigs:
+        signal.signal(sig, handler)
+
+    def restore() -> None:
+        for sig, h in old.items():
+            signal.signal(sig, h if h is not None else signal.SIG_DFL)
+
+    return restore

@@ -1,0 +1,176 @@
+"""A motor drive on loopback UDP for the tests: every frame on the wire with its arrival time.
+
+The drive reads a text frame of six crank angles in degrees with four decimals (the default
+``[output]`` mapping is degrees), decodes it with its own parser, and stamps each datagram
+with the kernel's arrival time (``SO_TIMESTAMPNS``), so the thread reading the socket adds
+no jitter of its own. It can vanish (its port then refuses datagrams, as a drive that was
+switched off) and come back on the same port.
+
+The limits are measured on the frames as they arrived, with
+
+* the speed over sliding windows of ``W`` seconds: ``|q(t + W) - q(t)| / W``;
+* the acceleration over the same windows: ``|q(t + 2W) - 2 q(t + W) + q(t)| / W^2``;
+
+with ``q`` interpolated linearly between arrivals: a drive that moves within its speed and
+acceleration limits satisfies both, whatever the frames' spacing. Arrival times may be off
+by up to ``JITTER_S`` (a loaded machine's scheduling of the sender), which the tolerances
+allow for: ``vmax (W + 2 J) / W`` and ``amax + 4 vmax J / W^2``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import socket
+import struct
+import threading
+from urllib.parse import quote
+
+import numpy as np
+
+#: Six crank angles in degrees, four decimals: quantisation 1e-4 deg, far below the limits.
+FORMAT = "text:" + ",".join(f"{{{i}:.4f}}" for i in range(1, 7)) + "\\n"
+_FRAME = re.compile(rb"(-?\d+\.\d{4}),(-?\d+\.\d{4}),(-?\d+\.\d{4}),"
+                    rb"(-?\d+\.\d{4}),(-?\d+\.\d{4}),(-?\d+\.\d{4})\n")  # fmt: skip
+WINDOW_S = 0.1
+JITTER_S = 0.005
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+
+
+def decode(frame: bytes) -> np.ndarray:
+    """Crank angles of one frame, rad."""
+    m = _FRAME.fullmatch(frame)
+    assert m is not None, f"not a drive frame: {frame!r}"
+    return np.radians([float(x) for x in m.groups()])
+
+
+class UdpDrive:
+    """A drive listening on a loopback UDP port (0: a free one)."""
+
+    def __init__(self, port: int = 0) -> None:
+        self.frames: list[tuple[float, bytes]] = []  # (arrival s, datagram)
+        self._lock = threading.Lock()
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self.port = self._listen(port)
+
+    def url(self, rate_hz: float = 100.0) -> str:
+        return f"udp:127.0.0.1:{self.port}?rate={rate_hz:g}&format={quote(FORMAT, safe='')}"
+
+    def _listen(self, port: int) -> int:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        sock.bind(("127.0.0.1", port))
+        sock.settimeout(0.05)
+        self._sock = sock
+        self._thread = threading.Thread(target=self._read, args=(sock,), daemon=True)
+        self._thread.start()
+        return sock.getsockname()[1]
+
+    def _read(self, sock: socket.socket) -> None:
+        while True:
+            try:
+                data, anc, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(16))
+            except TimeoutError:
+                continue
+            except OSError:  # closed: vanished
+                return
+            stamp = math.nan
+            for level, kind, raw in anc:
+                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
+                    sec, nsec = struct.unpack("qq", raw[:16])
+                    stamp = sec + nsec * 1e-9
+            with self._lock:
+                self.frames.append((stamp, data))
+
+    def vanish(self) -> None:
+        """Stop listening: datagrams to the port are refused (the sender sees send errors)."""
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            sock.close()
+        if self._thread is not None:
+            self._thread.join(2)
+
+    def come_back(self) -> None:
+        """Listen on the same port again."""
+        self._listen(self.port)
+
+    def close(self) -> None:
+        self.vanish()
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.frames)
+
+    def drain(self) -> None:
+        """Wait until the datagrams already sent have all been read (none for 0.2 s)."""
+        n = -1
+        while n != self.count():
+            n = self.count()
+            threading.Event().wait(0.2)
+
+    def angles(self, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(arrival times s, crank angles rad (n, 6)) of the frames from index ``start``."""
+        with self._lock:
+            frames = self.frames[start:]
+        t = np.array([a for a, _ in frames], dtype=float)
+        q = np.array([decode(f) for _, f in frames], dtype=float).reshape(-1, 6)
+        return t, q
+
+
+def _at(t: np.ndarray, q: np.ndarray, times: np.ndarray) -> np.ndarray:
+    return np.stack([np.interp(times, t, q[:, i]) for i in range(q.shape[1])], axis=1)
+
+
+def window_speed(t: np.ndarray, q: np.ndarray, w: float = WINDOW_S) -> np.ndarray:
+    """Largest ``|q(t + w) - q(t)| / w`` per motor over the frames (rad/s)."""
+    starts = t[t + w <= t[-1]]
+    if starts.size == 0:
+        return np.zeros(q.shape[1])
+    return (np.abs(_at(t, q, starts + w) - _at(t, q, starts)) / w).max(axis=0)
+
+
+def window_accel(t: np.ndarray, q: np.ndarray, w: float = WINDOW_S) -> np.ndarray:
+    """Largest ``|q(t + 2w) - 2 q(t + w) + q(t)| / w^2`` per motor over the frames (rad/s^2)."""
+    starts = t[t + 2 * w <= t[-1]]
+    if starts.size == 0:
+        return np.zeros(q.shape[1])
+    second = _at(t, q, starts + 2 * w) - 2 * _at(t, q, starts + w) + _at(t, q, starts)
+    return (np.abs(second) / w**2).max(axis=0)
+
+
+def check_wire_limits(t: np.ndarray, q: np.ndarray, vmax, amax, what: str = "") -> tuple:
+    """Assert the frames keep the speed and acceleration limits (per motor, or one for all;
+    tolerances: module docstring); returns the worst speed and acceleration per motor."""
+    assert np.isfinite(t).all(), "a frame without its arrival time"
+    assert np.all(np.diff(t) >= 0)
+    vmax = np.broadcast_to(np.asarray(vmax, dtype=float), (q.shape[1],))
+    amax = np.broadcast_to(np.asarray(amax, dtype=float), (q.shape[1],))
+    w, j = WINDOW_S, JITTER_S
+    speed, accel = window_speed(t, q), window_accel(t, q)
+    assert np.all(speed <= vmax * (w + 2 * j) / w), (
+        f"{what}: {np.round(speed, 3)} rad/s on the wire, limits {vmax}"
+    )
+    assert np.all(accel <= amax + 4 * vmax * j / w**2), (
+        f"{what}: {np.round(accel, 2)} rad/s^2 on the wire, limits {amax}"
+    )
+    return speed, accel
+
+
+def read_complete_log(path) -> dict[str, list[dict]]:
+    """Every message of a finished MCAP log by topic, read by the ``mcap`` library's indexed
+    reader, which needs the summary and footer that only a properly closed log has."""
+    import json
+
+    from mcap.reader import make_reader
+
+    out: dict[str, list[dict]] = {}
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None, f"{path}: not finished"
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append(json.loads(message.data))
+    assert sum(len(v) for v in out.values()) == summary.statistics.message_count
+    return out

@@ -1,0 +1,367 @@
+"""The live view: a Foxglove WebSocket client watches a run and gets what the log holds.
+
+The client here is written from Foxglove's WebSocket protocol (``websockets`` package,
+subprotocol ``foxglove.sdk.v1`` or the older ``foxglove.websocket.v1``): it reads the server's
+``serverInfo`` and ``advertise`` JSON messages, sends ``subscribe`` with a subscription id per
+channel, and decodes binary message frames (opcode 0x01, subscription id u32 LE, log time
+u64 LE, payload). The runs are real ``motionbase`` processes on loopback (port 0: the process
+prints the port it got), stopped with SIGINT once the client has what it needs; the MCAP file
+of the same run is read back with the ``mcap`` reader. The scene's points are checked against
+the robot's own ``joint_points`` of the logged pose, computed here from the logged messages.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import signal
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+from motionbase import app
+from motionbase.cli import main
+from motionbase.errors import ConfigError
+from motionbase.io.mcap_log import LiveAddress
+from motionbase.io.mcap_source import read_messages, read_metadata
+from motionbase.io.scene import NEAR_LIMIT_DEG, SceneBuilder
+from motionbase.pipeline import PipelineConfig
+from motionbase.platform import Rrr3, Rus6, Rus6Geometry
+
+ROOT = Path(__file__).resolve().parents[1]
+PLANAR_RECORDING = ROOT / "recordings" / "c1723_planar_15s.mcap"
+RUS6_RECORDING = ROOT / "recordings" / "c1723_30s.mcap"
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+MESSAGE_DATA = 0x01
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _start(args: list[str], tmp_path: Path) -> tuple[subprocess.Popen, str]:
+    """Start ``motionbase ARGS --live 127.0.0.1:0``; return it and the URL it prints."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase.cli", *args, "--live", "127.0.0.1:0"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    lines = []
+    for line in proc.stderr:  # the run says where it serves before its loop starts
+        lines.append(line)
+        found = re.search(r"live view: (ws://\S+)", line)
+        if found:
+            return proc, found.group(1)
+    proc.wait()
+    pytest.fail(f"no live view line; exit {proc.returncode}: {''.join(lines)}")
+
+
+def _watch(url: str, topics: set[str], enough, proc: subprocess.Popen) -> dict[str, list]:
+    """Subscribe to ``topics``; collect (log_time, payload) per topic until ``enough(got)``,
+    then SIGINT the run and keep reading until the server closes the connection."""
+    got: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics}
+    with connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        assert ws.subprotocol in SUBPROTOCOLS
+        info = json.loads(ws.recv(timeout=30))
+        assert info["op"] == "serverInfo"
+        channels: dict[str, int] = {}
+        while set(channels) != topics:
+            msg = ws.recv(timeout=30)
+            assert isinstance(msg, str), "binary data before any subscription"
+            msg = json.loads(msg)
+            if msg["op"] == "advertise":
+                channels.update(
+                    {c["topic"]: c["id"] for c in msg["channels"] if c["topic"] in topics}
+                )
+        by_sub = dict(enumerate(sorted(channels), start=1))  # subscription id -> topic
+        subs = [{"id": i, "channelId": channels[t]} for i, t in by_sub.items()]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        interrupted = False
+        while True:
+            try:
+                msg = ws.recv(timeout=60)
+            except ConnectionClosed:  # the server stopped: the run ended
+                break
+            if isinstance(msg, str):
+                continue  # advertise/status messages
+            assert msg[0] == MESSAGE_DATA
+            sub, log_time = struct.unpack_from("<IQ", msg, 1)
+            got[by_sub[sub]].append((log_time, bytes(msg[13:])))
+            if not interrupted and enough(got):
+                proc.send_signal(signal.SIGINT)
+                interrupted = True
+    return got
+
+
+def _logged(path: Path, topics: set[str]) -> dict[str, dict[int, bytes]]:
+    """Log time -> payload per topic, read back with the ``mcap`` reader."""
+    out: dict[str, dict[int, bytes]] = {t: {} for t in topics}
+    with open(path, "rb") as fh:
+        for _, channel, message in make_reader(fh).iter_messages(topics=sorted(topics)):
+            out[channel.topic][message.log_time] = message.data
+    return out
+
+
+def _assert_same_as_logged(got: list, logged: dict[int, bytes], topic: str) -> None:
+    times = [t for t, _ in got]
+    assert times, f"no {topic} message received"
+    assert times == sorted(times)
+    for t, payload in got:
+        assert payload == logged[t], f"{topic} at {t} ns differs from the log"
+    # nothing missing in between: the client got every logged message of its span
+    span = [t for t in sorted(logged) if times[0] <= t <= times[-1]]
+    assert span == times
+
+
+def _finish(proc: subprocess.Popen) -> str:
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    return out
+
+
+def _scene_points(entity: dict) -> tuple[list, list, list]:
+    crank, rod = entity["lines"]
+    (p, q), (q2, r) = ([(v["x"], v["y"], v["z"]) for v in line["points"]] for line in (crank, rod))
+    assert q == q2
+    return p, q, r
+
+
+def _check_scenes(path: Path, planar: bool) -> int:
+    """Every logged scene's leg endpoints are the robot's joint points of the logged pose."""
+    config = PipelineConfig.from_dict(read_metadata(path)["pipeline_config"])
+    msgs = read_messages(path)
+    poses = {m["t"]: m["pose"] for m in msgs["/planar/pose" if planar else "/platform/pose"]}
+    angles = {
+        m["t"]: m["angles"] for m in msgs["/planar/actuators" if planar else "/platform/actuators"]
+    }
+    robot = Rrr3(config.geometry) if planar else Rus6(config.geometry)
+    if planar:
+        lo, hi = np.asarray(robot.angle_limits).T
+    else:
+        lo, hi = robot.angle_limits
+    scenes = msgs["/platform/scene"]
+    assert scenes
+    for scene in scenes:
+        t = scene["t"]
+        pivots, tips, joints = robot.joint_points(np.array(poses[t]))
+        if planar:  # the thesis's plane, z = 0
+            pivots, tips, joints = (
+                np.column_stack([v, np.zeros(3)]) for v in (pivots, tips, joints)
+            )
+        legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
+        assert [e["id"] for e in legs] == [f"leg{i + 1}" for i in range(len(pivots))]
+        for i, leg in enumerate(legs):
+            assert leg["frame_id"] == ("world" if planar else "base")
+            p, q, r = _scene_points(leg)
+            np.testing.assert_allclose(p, pivots[i], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(q, tips[i], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(r, joints[i], rtol=0, atol=1e-12)
+            # the rod keeps its length: the drawing is a closed mechanism
+            rod = robot.geometry.rod if planar else np.broadcast_to(robot.geometry.rod, 6)[i]
+            assert math.dist(q, r) == pytest.approx(rod, abs=1e-9)
+            a = angles[t][i]
+            near = min(a - lo[i], hi[i] - a) < math.radians(NEAR_LIMIT_DEG)
+            assert (
+                leg["lines"][0]["color"]["r"] > 0.8 and leg["lines"][0]["color"]["g"] < 0.2
+            ) == near
+    return len(scenes)
+
+
+# --------------------------------------------------------------------------- live runs
+
+
+def test_live_fly_serves_the_logged_actuators_and_scene(tmp_path):
+    out = tmp_path / "live.mcap"
+    proc, url = _start(
+        ["fly", "c1723", "--realtime", "--duration", "60", "--out", str(out)], tmp_path
+    )
+    topics = {"/platform/actuators", "/platform/scene"}
+    try:
+        got = _watch(
+            url,
+            topics,
+            lambda g: len(g["/platform/actuators"]) >= 60 and len(g["/platform/scene"]) >= 5,
+            proc,
+        )
+    except BaseException:
+        proc.kill()
+        raise
+    summary = _finish(proc)
+    assert "stopped by SIGINT" in summary
+    logged = _logged(out, topics)
+    for topic in topics:
+        _assert_same_as_logged(got[topic], logged[topic], topic)
+    # received scenes are what the robot's joint points say (checked on the whole log)
+    assert _check_scenes(out, planar=False) >= 5
+
+
+def test_live_replay_of_the_planar_recording(tmp_path):
+    out = tmp_path / "replay.mcap"
+    proc, url = _start(["replay", str(PLANAR_RECORDING), "--out", str(out)], tmp_path)
+    topics = {"/planar/actuators", "/platform/scene"}
+    try:
+        got = _watch(url, topics, lambda g: len(g["/planar/actuators"]) >= 30, proc)
+    except BaseException:
+        proc.kill()
+        raise
+    _finish(proc)
+    logged = _logged(out, topics)
+    for topic in topics:
+        _assert_same_as_logged(got[topic], logged[topic], topic)
+    assert _check_scenes(out, planar=True) >= 1
+
+
+def test_live_teleop_serves_the_logged_planar_actuators(tmp_path):
+    rows = [
+        (k / 100, 655 + 200 * math.sin(k / 50), 357 + 100 * math.cos(k / 50)) for k in range(3000)
+    ]
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("t,x,y\n" + "".join(f"{t!r},{u!r},{v!r}\n" for t, u, v in rows))
+    out = tmp_path / "teleop.mcap"
+    proc, url = _start(["teleop", "--input", f"file:{csv}", "--out", str(out)], tmp_path)
+    topics = {"/planar/actuators", "/platform/scene"}
+    try:
+        got = _watch(url, topics, lambda g: len(g["/planar/actuators"]) >= 30, proc)
+    except BaseException:
+        proc.kill()
+        raise
+    _finish(proc)
+    logged = _logged(out, topics)
+    for topic in topics:
+        _assert_same_as_logged(got[topic], logged[topic], topic)
+    # the scene is the robot of the log's geometry at the logged pose
+    geometry = read_metadata(out)["geometry"]
+    from motionbase.platform import Rrr3Geometry
+
+    robot = Rrr3(Rrr3Geometry.from_dict(geometry))
+    msgs = read_messages(out)
+    poses = {m["t"]: m["pose"] for m in msgs["/planar/pose"]}
+    for scene in msgs["/platform/scene"]:
+        _, tips, joints = robot.joint_points(np.array(poses[scene["t"]]))
+        legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
+        for i, leg in enumerate(legs):
+            _, q, r = _scene_points(leg)
+            np.testing.assert_allclose(q[:2], tips[i], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(r[:2], joints[i], rtol=0, atol=1e-12)
+
+
+def test_live_replay_without_out_serves_from_a_temporary_log(tmp_path):
+    proc, url = _start(["replay", str(PLANAR_RECORDING)], tmp_path)
+    try:
+        got = _watch(url, {"/planar/pose"}, lambda g: len(g["/planar/pose"]) >= 10, proc)
+    except BaseException:
+        proc.kill()
+        raise
+    _finish(proc)
+    assert len(got["/planar/pose"]) >= 10
+    assert list(tmp_path.iterdir()) == []  # nothing left behind
+
+
+# --------------------------------------------------------------------------- scene and checks
+
+
+def test_scene_of_a_flight_is_the_robot_drawn_at_the_logged_pose(tmp_path):
+    out = tmp_path / "f.mcap"
+    app.fly("c1723", duration_s=3.0, out=out, progress=False)
+    n = _check_scenes(out, planar=False)
+    # 30 scenes per second of source time (+ the last pose), not one per tick
+    msgs = read_messages(out)
+    ticks = len(msgs["/platform/pose"])
+    span = msgs["/platform/pose"][-1]["t"] - msgs["/platform/pose"][0]["t"]
+    assert n < ticks / 2
+    assert abs(n - (30 * span + 1)) <= 2
+
+
+def test_scene_colours_a_leg_near_its_limit_red():
+    robot = Rus6(Rus6Geometry.preset("ceart"))
+    lo, hi = robot.angle_limits
+    angles = robot.inverse(np.zeros(6)).copy()
+    angles[1] = lo[1] + math.radians(NEAR_LIMIT_DEG - 1)  # 4 deg from the lower limit
+    angles[4] = hi[4] - math.radians(NEAR_LIMIT_DEG + 1)  # 6 deg from the upper limit
+    scene = SceneBuilder(robot).message(0.0, np.zeros(6), angles, clamped=True)
+    legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
+    red = [i for i, e in enumerate(legs) if e["lines"][0]["color"] == e["lines"][1]["color"]]
+    assert red == [1]
+    plate = next(e for e in scene["entities"] if e["id"] == "platform")
+    assert plate["triangles"][0]["color"]["r"] == 1.0  # clamped: orange
+
+
+def test_replay_check_of_a_recording_without_scene_still_passes():
+    result = app.replay(RUS6_RECORDING, check=True, progress=False)
+    assert not result.failed, "\n".join(result.notes)
+
+
+def test_replay_check_compares_scenes_when_both_have_them():
+    a = {"/platform/scene": [{"t": 0.0, "entities": [{"id": "leg1", "x": 1.0}]}]}
+    b = {"/platform/scene": [{"t": 0.0, "entities": [{"id": "leg1", "x": 1.5}]}]}
+    assert not app.compare_recordings(a, b).identical
+    assert app.compare_recordings(a, {}).identical  # a recording from before the scene
+
+
+def test_layout_names_fields_the_log_has(tmp_path):
+    """Every topic and message path of the shipped Foxglove layout exists in a real log."""
+    layout = json.loads((ROOT / "layouts" / "motionbase_layout.json").read_text())
+    out = tmp_path / "f.mcap"
+    app.fly("c1723", duration_s=1.0, out=out, progress=False)
+    msgs = read_messages(out)
+    paths = []
+    for panel_id, config in layout["configById"].items():
+        assert panel_id.split("!")[0] in {"3D", "Plot", "RawMessages"}
+        paths += [p["value"] for p in config.get("paths", [])]
+        paths += [config["topicPath"]] if "topicPath" in config else []
+        paths += list(config.get("topics", {}))
+    assert "/platform/scene" in paths and "/health" in paths
+    for path in paths:
+        found = re.fullmatch(r"(/[\w/]+)(?:\.(\w+)\[(\d+)\])?", path)
+        assert found, path
+        topic, field, index = found.groups()
+        assert msgs.get(topic), f"{topic} is not in the log"
+        if field is not None:
+            assert len(msgs[topic][-1][field]) > int(index), path
+    # the panels the layout's tree shows are the ones it configures
+    tree = json.dumps(layout["layout"])
+    assert sorted(re.findall(r'"(\w+![\w]+)"', tree)) == sorted(layout["configById"])
+
+
+# --------------------------------------------------------------------------- user mistakes
+
+
+def test_live_address():
+    assert LiveAddress.parse("8765") == LiveAddress("127.0.0.1", 8765)
+    assert LiveAddress.parse("0.0.0.0:9000") == LiveAddress("0.0.0.0", 9000)
+    assert LiveAddress.parse("[::1]:9000").url() == "ws://[::1]:9000"
+    for bad in ("http", "70000", "127.0.0.1:x"):
+        with pytest.raises(ConfigError, match="--live"):
+            LiveAddress.parse(bad)
+
+
+def test_port_in_use_is_one_line_and_exit_2(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        out = tmp_path / "x.mcap"
+        code = main(["replay", str(PLANAR_RECORDING), "--out", str(out), "--live", str(port)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1 and "in use" in err and str(port) in err
+    assert not out.exists()
+
+
+def test_fly_live_needs_realtime(capsys):
+    assert main(["fly", "c1723", "--live", "8765"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--realtime" in err
