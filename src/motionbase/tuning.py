@@ -5,7 +5,8 @@ given platform feel what the aircraft does, over a set of manoeuvres
 (:mod:`motionbase.io.manoeuvres`). This module holds the maths: running a manoeuvre
 through the whole chain, scoring it, and the optimiser. It does no I/O; the job
 (:func:`motionbase.app.tune`) loads the manoeuvres, chooses where the evaluations run
-(:mod:`motionbase.io.executors`) and writes the result.
+(:mod:`motionbase.io.executors`, which calls :meth:`TuningProblem.evaluate`) and
+writes the result.
 
 The chain
 ---------
@@ -152,11 +153,8 @@ __all__ = [
     "decode",
     "describe_result",
     "encode",
-    "evaluate_in_worker",
-    "evaluate_params",
     "format_table",
     "saturated_reach_use",
-    "init_worker",
     "run_chain",
     "score_motion",
     "tune",
@@ -641,27 +639,6 @@ def saturated_reach_use(
             use = np.maximum(poses.max(axis=0) / reach[1], poses.min(axis=0) / reach[0])
             worst = np.maximum(worst, use)
     return worst
-
-
-def evaluate_params(problem: TuningProblem, params: WashoutParams) -> SetScore:
-    """``problem.evaluate(params)`` as a plain function (what executors are given)."""
-    return problem.evaluate(params)
-
-
-_WORKER_PROBLEM: TuningProblem | None = None
-
-
-def init_worker(problem: TuningProblem) -> None:
-    """Process-pool initializer: keep the problem (its manoeuvre arrays) in this worker."""
-    global _WORKER_PROBLEM
-    _WORKER_PROBLEM = problem
-
-
-def evaluate_in_worker(params: WashoutParams) -> SetScore:
-    """Score ``params`` on the problem :func:`init_worker` left in this worker process."""
-    if _WORKER_PROBLEM is None:
-        raise RuntimeError("evaluate_in_worker: init_worker was not called in this process")
-    return _WORKER_PROBLEM.evaluate(params)
 
 
 # --------------------------------------------------------------------------- the optimiser

@@ -1,5 +1,9 @@
 """Where the tuner's evaluations run: this process, local worker processes, or a Dask cluster.
 
+This module never imports the tuner (nor, through it, the pipeline): it runs
+``problem.evaluate(params)`` for whatever problem it is given, and the workers unpickle
+the problem's classes themselves.
+
 :func:`open_evaluator` gives ``evaluate_many(candidates) -> scores`` (results in the
 order of the candidates, whatever finishes first), the function
 :func:`motionbase.tuning.tune` calls once per CMA-ES generation:
@@ -33,7 +37,8 @@ from typing import TYPE_CHECKING
 from motionbase.errors import ConfigError, SourceError
 
 if TYPE_CHECKING:
-    from motionbase.tuning import EvaluateMany, TuningProblem
+    from motionbase.tuning import EvaluateMany, SetScore, TuningProblem
+    from motionbase.washout.params import WashoutParams
 
 __all__ = ["default_workers", "open_evaluator"]
 
@@ -77,8 +82,6 @@ def open_evaluator(
     SourceError
         The scheduler does not answer.
     """
-    from motionbase import tuning
-
     if scheduler is not None:
         with _dask(problem, scheduler) as evaluate_many:
             yield evaluate_many
@@ -97,7 +100,7 @@ def open_evaluator(
     )
     try:
         _start_workers(pool, n)
-        yield lambda candidates: list(pool.map(tuning.evaluate_in_worker, candidates))
+        yield lambda candidates: list(pool.map(_evaluate_here, candidates))
     except BaseException:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
@@ -125,8 +128,6 @@ def _worker_pid(_: int) -> int:
 
 def _init_worker(problem: TuningProblem) -> None:
     """A pool worker: keep the problem, leave Ctrl-C to the main process, die with it."""
-    from motionbase import tuning
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = parent_process()
     if parent is not None:
@@ -136,13 +137,28 @@ def _init_worker(problem: TuningProblem) -> None:
             os._exit(1)
 
         threading.Thread(target=watch, name="motionbase-parent-watch", daemon=True).start()
-    tuning.init_worker(problem)
+    global _PROBLEM
+    _PROBLEM = problem
+
+
+#: The problem of this pool worker (set by :func:`_init_worker`).
+_PROBLEM: TuningProblem | None = None
+
+
+def _evaluate_here(params: WashoutParams) -> SetScore:
+    """Score ``params`` on this pool worker's problem."""
+    if _PROBLEM is None:
+        raise RuntimeError("a tuning worker without its problem (the initializer did not run)")
+    return _PROBLEM.evaluate(params)
+
+
+def _evaluate(problem: TuningProblem, params: WashoutParams) -> SetScore:
+    """Score ``params`` on ``problem`` (a Dask task; the problem is the scattered one)."""
+    return problem.evaluate(params)
 
 
 @contextmanager
 def _dask(problem: TuningProblem, address: str) -> Iterator[EvaluateMany]:
-    from motionbase import tuning
-
     host, _, port = address.removeprefix("tcp://").rpartition(":")
     if not address.startswith("tcp://") or not host or not port.isdigit():
         raise ConfigError(
@@ -167,7 +183,7 @@ def _dask(problem: TuningProblem, address: str) -> Iterator[EvaluateMany]:
         executor = client.get_executor(pure=False)
 
         def evaluate_many(candidates):
-            futures = [executor.submit(tuning.evaluate_params, shared, p) for p in candidates]
+            futures = [executor.submit(_evaluate, shared, p) for p in candidates]
             return [f.result() for f in futures]
 
         yield evaluate_many
