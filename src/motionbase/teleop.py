@@ -35,7 +35,7 @@ Rules
   the command still passes the safety stage.
 * Every stop ends the same way, at home and at rest: the end of the input (file end,
   ``duration_s``, window closed) and an E-stop (a :class:`~motionbase.pipeline.StopRequest`:
-  SIGINT, SIGTERM, SIGHUP or SIGQUIT via :func:`motionbase.stop_signals.install_stop_signals`,
+  SIGINT, SIGTERM, SIGHUP or SIGQUIT via :func:`motionbase.stopping.install_signal_stop`,
   Escape/space in the mouse window, or a caller) first brake the robot to rest within the
   speed and acceleration limits, then drive it home within them (the coordinated approach
   above, from rest), then the loop ends. Home, not where the input left it, because the next
@@ -428,13 +428,13 @@ def teleop_job(
     from motionbase.io.cursor_input import open_cursor_source
     from motionbase.io.mcap_log import LiveAddress
     from motionbase.platform.rrr3 import Rrr3Geometry
-    from motionbase.stop_signals import install_stop_signals
+    from motionbase.stopping import install_signal_stop
 
     if live is not None and out is None:
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
     live_at = None if live is None else LiveAddress.parse(live)
     stop = stop if stop is not None else StopRequest()
-    restore = install_stop_signals(stop)  # first: a stop during start-up parks too
+    restore = install_signal_stop(stop)  # first: a stop during start-up parks too
     sink = None
     logger = None
     try:

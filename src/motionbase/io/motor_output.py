@@ -1090,7 +1090,7 @@ def output_test(
     (``echo``) which motor moves and its drive values.
 
     A stop (SIGINT, SIGTERM, SIGHUP or SIGQUIT, routed by
-    :func:`motionbase.stop_signals.install_stop_signals`, or ``stop`` raised by the caller) at
+    :func:`motionbase.stopping.install_signal_stop`, or ``stop`` raised by the caller) at
     any moment, start-up included, ends the sweep: one line says so, the motors ramp from
     where they are back to park at the sweep's own pace (``speed_deg_s`` and half the
     acceleration limit, through the safety stage), the last frame is the park command, and
@@ -1121,10 +1121,10 @@ def output_test(
     from motionbase.pacing import wait_until
     from motionbase.pipeline import StopRequest
     from motionbase.safety import ActuatorLimits, limit_command
-    from motionbase.stop_signals import install_stop_signals
+    from motionbase.stopping import install_signal_stop
 
     stop = stop if stop is not None else StopRequest()
-    restore = install_stop_signals(stop)  # first: a stop during start-up parks too
+    restore = install_signal_stop(stop)  # first: a stop during start-up parks too
     try:
         echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
         mapping = geometry.output or OutputMapping.default(geometry.angle_min, geometry.angle_max)
