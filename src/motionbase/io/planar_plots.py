@@ -16,7 +16,9 @@ import numpy as np
 
 from motionbase.config import DEFAULT_RRR3
 from motionbase.io.workspace_plots import plot_format, save_figure
-from motionbase.platform.rrr3 import PlanarWorkspace, Rrr3, Rrr3Geometry
+from motionbase.platform.rrr3 import Rrr3
+from motionbase.platform.rrr3_geometry import Rrr3Geometry
+from motionbase.platform.rrr3_workspace import PlanarWorkspace
 
 __all__ = ["planar_workspace_figure", "plot_planar_workspace", "planar_workspace_report"]
 

@@ -33,36 +33,29 @@ Servo mapping (per motor ``i``): ``servo_deg = round((direction_i (theta_deg - z
 is refused, never wrapped or clipped. Rounding is half-up (``floor(x + 0.5)``).
 
 The hot path (validity check, inverse kinematics, servo mapping, clamping) is one compiled
-kernel (numba) used for single poses and for batches alike; Jacobians, joint points and the
-forward kinematics are plain numpy.
+kernel (numba, ``_rrr3_kernels``) used for single poses and for batches alike; Jacobians, joint
+points and the forward kinematics are plain numpy. The geometry and its TOML files are in
+:mod:`motionbase.platform.rrr3_geometry`, the workspace sweep in
+:mod:`motionbase.platform.rrr3_workspace`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
-from motionbase.config import (
-    as_float,
-    check_file_kind,
-    check_keys,
-    read_toml,
-    resolve_preset_or_path,
-    write_toml,
-)
 from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.platform import _rrr3_kernels as _k
+from motionbase.platform import rrr3_workspace as _ws
+from motionbase.platform._rrr3_kernels import OK, SERVO_RANGE, TYPE1, TYPE2, UNREACHABLE
+from motionbase.platform.rrr3_geometry import Rrr3Geometry
 
 __all__ = [
-    "Rrr3Geometry",
     "Rrr3",
     "JointPoints",
     "Singularity",
-    "PlanarWorkspace",
     "UnreachablePoseError",
     "OK",
     "UNREACHABLE",
@@ -71,13 +64,6 @@ __all__ = [
     "SERVO_RANGE",
     "describe_status",
 ]
-
-#: Status bits returned by :meth:`Rrr3.status` (0 means the pose is valid).
-OK = 0
-UNREACHABLE = 1  #: no real inverse kinematics solution for some chain (or a NaN input)
-TYPE1 = 2  #: within the type I (inverse) singularity margin
-TYPE2 = 4  #: within the type II (direct) singularity margin
-SERVO_RANGE = 8  #: some servo's degrees fall outside its range
 
 _SQRT3 = math.sqrt(3.0)
 
@@ -100,429 +86,6 @@ def describe_status(status: int) -> str:
 
 class UnreachablePoseError(MotionbaseError, ValueError):
     """A pose or joint angle the robot cannot take (unreachable, singular, out of servo range)."""
-
-
-# --------------------------------------------------------------------------------------------
-# Geometry
-# --------------------------------------------------------------------------------------------
-
-_TOP_KEYS = ("name", "base_side", "crank", "rod", "platform_side", "modes", "servo", "safety")
-_SERVO_KEYS = ("zero_deg", "direction", "min_deg", "max_deg")
-_SAFETY_KEYS = ("max_speed", "max_accel", "type1_margin", "type2_margin")
-
-
-def _triple(source: str, name: str, value: Any, *, kind: type) -> tuple:
-    if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise ConfigError(f"{source}: field {name!r}: expected a list of 3 values, got {value!r}")
-    out = []
-    for v in value:
-        if kind is int:
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                raise ConfigError(f"{source}: field {name!r}: expected integers, got {v!r}")
-            out.append(int(v))
-        else:
-            out.append(as_float(source, name, v))
-    return tuple(out)
-
-
-@dataclass(frozen=True)
-class Rrr3Geometry:
-    """Dimensions, servo mapping, working modes and safety limits of a planar 3-RRR robot.
-
-    Parameters
-    ----------
-    base_side : float
-        ``L``, side of the equilateral base triangle of motor axes, m.
-    crank : float
-        ``a``, crank length ``A_i B_i`` (servo horn), m.
-    rod : float
-        ``b``, rod length ``B_i C_i``, m.
-    platform_side : float
-        ``h``, side of the equilateral platform triangle ``C_1 C_2 C_3``, m.
-    modes : tuple of 3 int
-        Working mode per chain, +1 or -1: the sign of the root in the tangent half-angle
-        solution (``theta_i = atan2(yc, xc) + mode_i * delta_i``).
-    servo_zero_deg : tuple of 3 float
-        Joint angle ``theta_i`` (deg, base frame) at which servo ``i`` reads 0.
-    servo_direction : tuple of 3 int
-        +1 when servo degrees grow with ``theta_i`` (counter-clockwise), -1 otherwise.
-    servo_min_deg, servo_max_deg : tuple of 3 int
-        Allowed command range per servo, integer degrees within 0..180.
-    max_speed : float
-        Joint speed limit, rad/s (Futaba S3003: 0.23 s/60 deg at 4.8 V, about 4.5 rad/s).
-    max_accel : float
-        Joint acceleration limit, rad/s^2 (a conservative 20 by default).
-    type1_margin : float
-        Minimum of ``|u_i x n_i| / (a b)`` (sine of the crank-rod angle), dimensionless.
-    type2_margin : float
-        Minimum of ``|det(Jx)| / (b^3 h / sqrt(3))``, dimensionless.
-    name : str
-        A label stored with the geometry (the preset's name).
-    """
-
-    base_side: float = 0.26
-    crank: float = 0.04445
-    rod: float = 0.0889
-    platform_side: float = 0.08573
-    modes: tuple[int, int, int] = (1, -1, -1)
-    servo_zero_deg: tuple[float, float, float] = (0.0, 0.0, 135.0)
-    servo_direction: tuple[int, int, int] = (1, 1, 1)
-    servo_min_deg: tuple[int, int, int] = (0, 0, 0)
-    servo_max_deg: tuple[int, int, int] = (180, 180, 180)
-    max_speed: float = 4.5
-    max_accel: float = 20.0
-    type1_margin: float = 0.1
-    type2_margin: float = 0.05
-    name: str = field(default="custom")
-
-    def __post_init__(self) -> None:
-        src = f"rrr3 geometry {self.name!r}"
-        for nm in ("base_side", "crank", "rod", "platform_side", "max_speed", "max_accel"):
-            object.__setattr__(
-                self, nm, as_float(src, nm, getattr(self, nm), min_value=0.0, strict_min=True)
-            )
-        for nm in ("type1_margin", "type2_margin"):
-            v = as_float(src, nm, getattr(self, nm), min_value=0.0)
-            if v >= 1.0:
-                raise ConfigError(f"{src}: field {nm!r}: must be < 1 (dimensionless), got {v:g}")
-            object.__setattr__(self, nm, v)
-        modes = _triple(src, "modes", self.modes, kind=int)
-        if any(m not in (1, -1) for m in modes):
-            raise ConfigError(f"{src}: field 'modes': each mode must be +1 or -1, got {modes}")
-        object.__setattr__(self, "modes", modes)
-        direction = _triple(src, "servo.direction", self.servo_direction, kind=int)
-        if any(d not in (1, -1) for d in direction):
-            raise ConfigError(
-                f"{src}: field 'servo.direction': each must be +1 or -1, got {direction}"
-            )
-        object.__setattr__(self, "servo_direction", direction)
-        object.__setattr__(
-            self, "servo_zero_deg", _triple(src, "servo.zero_deg", self.servo_zero_deg, kind=float)
-        )
-        lo = _triple(src, "servo.min_deg", self.servo_min_deg, kind=int)
-        hi = _triple(src, "servo.max_deg", self.servo_max_deg, kind=int)
-        for i in range(3):
-            if not 0 <= lo[i] < hi[i] <= 180:
-                raise ConfigError(
-                    f"{src}: servo {i + 1}: need 0 <= min_deg < max_deg <= 180, "
-                    f"got {lo[i]}..{hi[i]} (fix servo.min_deg / servo.max_deg)"
-                )
-        object.__setattr__(self, "servo_min_deg", lo)
-        object.__setattr__(self, "servo_max_deg", hi)
-        if self.crank + self.rod <= self.platform_side / _SQRT3:
-            raise ConfigError(f"{src}: crank + rod too short to reach the platform joints")
-        if not isinstance(self.name, str):
-            raise ConfigError(f"{src}: field 'name': expected a string")
-
-    # -- presets and files --------------------------------------------------------------
-    @classmethod
-    def preset(cls, name: str = "udesc") -> Rrr3Geometry:
-        """A shipped preset (``udesc``: the thesis's robot) or a path to a TOML file."""
-        return cls.from_toml(resolve_preset_or_path("rrr3", name))
-
-    @classmethod
-    def from_toml(cls, path: str | Path) -> Rrr3Geometry:
-        """Read a geometry from TOML (layout of ``presets/rrr3_udesc.toml``)."""
-        return cls.from_dict(read_toml(path), source=str(path))
-
-    def to_toml(self, path: str | Path) -> None:
-        """Write the geometry to TOML; :meth:`from_toml` reads it back equal."""
-        write_toml(path, self.to_dict())
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain nested data (TOML/JSON friendly); :meth:`from_dict` inverts it exactly."""
-        d = asdict(self)
-        return {
-            "name": d["name"],
-            "base_side": d["base_side"],
-            "crank": d["crank"],
-            "rod": d["rod"],
-            "platform_side": d["platform_side"],
-            "modes": list(d["modes"]),
-            "servo": {
-                "zero_deg": list(d["servo_zero_deg"]),
-                "direction": list(d["servo_direction"]),
-                "min_deg": list(d["servo_min_deg"]),
-                "max_deg": list(d["servo_max_deg"]),
-            },
-            "safety": {
-                "max_speed": d["max_speed"],
-                "max_accel": d["max_accel"],
-                "type1_margin": d["type1_margin"],
-                "type2_margin": d["type2_margin"],
-            },
-        }
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any], *, source: str = "rrr3 geometry") -> Rrr3Geometry:
-        """Build from :meth:`to_dict`'s layout; unknown or missing fields are ConfigErrors."""
-        if not isinstance(data, dict):
-            raise ConfigError(f"{source}: expected a table, got {type(data).__name__}")
-        check_file_kind(source, data, "rrr3")
-        check_keys(source, data, _TOP_KEYS, required=_TOP_KEYS[1:])
-        servo, safety = data["servo"], data["safety"]
-        if not isinstance(servo, dict) or not isinstance(safety, dict):
-            raise ConfigError(f"{source}: 'servo' and 'safety' must be tables")
-        check_keys(f"{source} [servo]", servo, _SERVO_KEYS, required=_SERVO_KEYS)
-        check_keys(f"{source} [safety]", safety, _SAFETY_KEYS, required=_SAFETY_KEYS)
-        try:
-            return cls._from_tables(data, servo, safety)
-        except ConfigError as exc:  # name the file rather than the geometry's inner name
-            msg, prefix = str(exc), f"rrr3 geometry {data.get('name', 'custom')!r}"
-            if source != "rrr3 geometry" and msg.startswith(prefix):
-                raise ConfigError(source + msg[len(prefix) :]) from None
-            raise
-
-    @classmethod
-    def _from_tables(cls, data: dict, servo: dict, safety: dict) -> Rrr3Geometry:
-        return cls(
-            name=data.get("name", "custom"),
-            base_side=data["base_side"],
-            crank=data["crank"],
-            rod=data["rod"],
-            platform_side=data["platform_side"],
-            modes=data["modes"],
-            servo_zero_deg=servo["zero_deg"],
-            servo_direction=servo["direction"],
-            servo_min_deg=servo["min_deg"],
-            servo_max_deg=servo["max_deg"],
-            max_speed=safety["max_speed"],
-            max_accel=safety["max_accel"],
-            type1_margin=safety["type1_margin"],
-            type2_margin=safety["type2_margin"],
-        )
-
-    # -- derived quantities ---------------------------------------------------------------
-    @property
-    def base_points(self) -> np.ndarray:
-        """Motor axes ``A_i`` in the base frame, shape (3, 2), m."""
-        L = self.base_side
-        return np.array([[0.0, 0.0], [L, 0.0], [L / 2, L * _SQRT3 / 2]])
-
-    @property
-    def platform_points(self) -> np.ndarray:
-        """Platform joints ``C_i`` in the platform frame (origin at the centroid), (3, 2), m."""
-        h = self.platform_side
-        return np.array(
-            [[-h / 2, -h / (2 * _SQRT3)], [h / 2, -h / (2 * _SQRT3)], [0.0, h / _SQRT3]]
-        )
-
-    @property
-    def home(self) -> np.ndarray:
-        """Home pose ``[L/2, L sqrt(3)/6, 0]``: the base triangle's centre, zero orientation."""
-        L = self.base_side
-        return np.array([L / 2, L * _SQRT3 / 6, 0.0])
-
-    def packed(self) -> np.ndarray:
-        """Parameters packed for the compiled kernels (internal layout, see ``_P_*``)."""
-        p = np.zeros(_P_SIZE)
-        p[_P_A : _P_A + 6] = self.base_points.ravel()
-        p[_P_C : _P_C + 6] = self.platform_points.ravel()
-        p[_P_CRANK] = self.crank
-        p[_P_ROD] = self.rod
-        p[_P_MODE : _P_MODE + 3] = self.modes
-        p[_P_ZERO : _P_ZERO + 3] = self.servo_zero_deg
-        p[_P_DIR : _P_DIR + 3] = self.servo_direction
-        p[_P_MIN : _P_MIN + 3] = self.servo_min_deg
-        p[_P_MAX : _P_MAX + 3] = self.servo_max_deg
-        p[_P_M1] = self.type1_margin
-        p[_P_M2] = self.type2_margin
-        p[_P_RC] = self.platform_side / _SQRT3
-        return p
-
-
-# Packed parameter layout for the kernels.
-_P_A, _P_C, _P_CRANK, _P_ROD = 0, 6, 12, 13
-_P_MODE, _P_ZERO, _P_DIR, _P_MIN, _P_MAX = 14, 17, 20, 23, 26
-_P_M1, _P_M2, _P_RC = 29, 30, 31
-_P_SIZE = 32
-
-
-# --------------------------------------------------------------------------------------------
-# Compiled kernels (one pose at a time; loops for batches)
-# --------------------------------------------------------------------------------------------
-
-
-@njit(cache=True, fastmath=False)
-def _solve_one(x, y, phi, p, theta, servo):  # pragma: no cover - compiled
-    """Inverse kinematics + validity of one pose; writes theta (rad) and servo (deg).
-
-    Returns the status word (0 = valid). Unreachable chains get theta = NaN, servo = -1.
-    """
-    status = 0
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(phi)):
-        for i in range(3):
-            theta[i] = math.nan
-            servo[i] = -1
-        return UNREACHABLE
-    a = p[_P_CRANK]
-    b = p[_P_ROD]
-    c = math.cos(phi)
-    s = math.sin(phi)
-    # Jx rows for the type II test.
-    j00 = j01 = j02 = j10 = j11 = j12 = j20 = j21 = j22 = 0.0
-    for i in range(3):
-        lx = p[_P_C + 2 * i]
-        ly = p[_P_C + 2 * i + 1]
-        ex = c * lx - s * ly
-        ey = s * lx + c * ly
-        cx = x + ex
-        cy = y + ey
-        ax = p[_P_A + 2 * i]
-        ay = p[_P_A + 2 * i + 1]
-        xc = cx - ax
-        yc = cy - ay
-        e1 = -2.0 * a * yc
-        e2 = -2.0 * a * xc
-        e3 = xc * xc + yc * yc + a * a - b * b
-        disc = e1 * e1 + e2 * e2 - e3 * e3
-        if disc < 0.0:
-            theta[i] = math.nan
-            servo[i] = -1
-            status |= UNREACHABLE
-            continue
-        sq = math.sqrt(disc)
-        m = p[_P_MODE + i]
-        n1 = -e1 + m * sq
-        d1 = e3 - e2
-        n2 = e3 + e2
-        d2 = -e1 - m * sq
-        # t = n1/d1 = n2/d2 (product of the roots): take the better-conditioned quotient.
-        if abs(n1) + abs(d1) >= abs(n2) + abs(d2):
-            th = 2.0 * math.atan2(n1, d1)
-        else:
-            th = 2.0 * math.atan2(n2, d2)
-        if th > math.pi:
-            th -= 2.0 * math.pi
-        elif th <= -math.pi:
-            th += 2.0 * math.pi
-        theta[i] = th
-        ux = a * math.cos(th)
-        uy = a * math.sin(th)
-        nx = xc - ux
-        ny = yc - uy
-        jq = ux * ny - uy * nx
-        if abs(jq) < p[_P_M1] * a * b:
-            status |= TYPE1
-        jr = ex * ny - ey * nx
-        if i == 0:
-            j00, j01, j02 = nx, ny, jr
-        elif i == 1:
-            j10, j11, j12 = nx, ny, jr
-        else:
-            j20, j21, j22 = nx, ny, jr
-        # servo mapping
-        deg = th * (180.0 / math.pi)
-        sd = (p[_P_DIR + i] * (deg - p[_P_ZERO + i])) % 360.0
-        r = math.floor(sd + 0.5)
-        if r >= 360.0:
-            r -= 360.0
-        if r < p[_P_MIN + i] or r > p[_P_MAX + i]:
-            status |= SERVO_RANGE
-        servo[i] = int(r)
-    if status & UNREACHABLE:
-        return status
-    det = (
-        j00 * (j11 * j22 - j12 * j21)
-        - j01 * (j10 * j22 - j12 * j20)
-        + j02 * (j10 * j21 - j11 * j20)
-    )
-    if abs(det) < p[_P_M2] * b * b * b * p[_P_RC]:
-        status |= TYPE2
-    return status
-
-
-@njit(cache=True)
-def _solve_batch(poses, p):  # pragma: no cover - compiled
-    n = poses.shape[0]
-    theta = np.empty((n, 3))
-    servo = np.empty((n, 3), dtype=np.int64)
-    status = np.empty(n, dtype=np.int64)
-    for k in range(n):
-        status[k] = _solve_one(poses[k, 0], poses[k, 1], poses[k, 2], p, theta[k], servo[k])
-    return theta, servo, status
-
-
-@njit(cache=True)
-def _status_grid(xs, ys, phis, p):  # pragma: no cover - compiled
-    """Status of every (x, y, phi) of a grid, shape (len(xs), len(ys), len(phis))."""
-    out = np.empty((xs.size, ys.size, phis.size), dtype=np.int8)
-    theta = np.empty(3)
-    servo = np.empty(3, dtype=np.int64)
-    for i in range(xs.size):
-        for j in range(ys.size):
-            for k in range(phis.size):
-                out[i, j, k] = _solve_one(xs[i], ys[j], phis[k], p, theta, servo)
-    return out
-
-
-@njit(cache=True)
-def _clamp_one(x, y, phi, hx, hy, hphi, p, n_samples, n_bisect, theta, servo):  # pragma: no cover
-    """Move (x, y, phi) toward home along the segment until valid.
-
-    Returns (x, y, phi, clamped, status). The result is the farthest point from home such that
-    every sample of the segment from home to it is valid (n_samples uniform samples, then
-    n_bisect bisection steps on the first invalid interval). status != 0 only when home itself
-    is invalid or the input is not finite.
-    """
-    st = _solve_one(x, y, phi, p, theta, servo)
-    if st == 0:
-        return x, y, phi, False, 0
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(phi)):
-        st = _solve_one(hx, hy, hphi, p, theta, servo)
-        return hx, hy, hphi, True, st | UNREACHABLE
-    dx = x - hx
-    dy = y - hy
-    dp = phi - hphi
-    lo = 0.0
-    hi = 1.0
-    for k in range(1, n_samples + 1):
-        f = k / n_samples
-        if _solve_one(hx + f * dx, hy + f * dy, hphi + f * dp, p, theta, servo) != 0:
-            hi = f
-            break
-        lo = f
-    for _ in range(n_bisect):
-        mid = 0.5 * (lo + hi)
-        if _solve_one(hx + mid * dx, hy + mid * dy, hphi + mid * dp, p, theta, servo) == 0:
-            lo = mid
-        else:
-            hi = mid
-    cx = hx + lo * dx
-    cy = hy + lo * dy
-    cp = hphi + lo * dp
-    st = _solve_one(cx, cy, cp, p, theta, servo)
-    return cx, cy, cp, True, st
-
-
-@njit(cache=True)
-def _clamp_batch(poses, home, p, n_samples, n_bisect):  # pragma: no cover - compiled
-    n = poses.shape[0]
-    out = np.empty((n, 3))
-    clamped = np.empty(n, dtype=np.bool_)
-    status = np.empty(n, dtype=np.int64)
-    theta = np.empty(3)
-    servo = np.empty(3, dtype=np.int64)
-    for k in range(n):
-        cx, cy, cp, cl, st = _clamp_one(
-            poses[k, 0],
-            poses[k, 1],
-            poses[k, 2],
-            home[0],
-            home[1],
-            home[2],
-            p,
-            n_samples,
-            n_bisect,
-            theta,
-            servo,
-        )
-        out[k, 0] = cx
-        out[k, 1] = cy
-        out[k, 2] = cp
-        clamped[k] = cl
-        status[k] = st
-    return out, clamped, status
 
 
 # --------------------------------------------------------------------------------------------
@@ -561,33 +124,6 @@ class Singularity(NamedTuple):
     type2: np.ndarray
     type1_raw: np.ndarray
     det_jx: np.ndarray
-
-
-class PlanarWorkspace(NamedTuple):
-    """A workspace sweep over a grid (the thesis's triple loop), see :meth:`Rrr3.workspace`.
-
-    ``x`` (nx,), ``y`` (ny,) in m and ``phi`` (nphi,) in rad are the grid axes; ``status``
-    (nx, ny, nphi) int8 holds the status word of every pose (0 = valid).
-    """
-
-    x: np.ndarray
-    y: np.ndarray
-    phi: np.ndarray
-    status: np.ndarray
-
-    @property
-    def valid(self) -> np.ndarray:
-        """Boolean (nx, ny, nphi): the pose is reachable, non-singular and servo-valid."""
-        return self.status == 0
-
-    @property
-    def total(self) -> np.ndarray:
-        """Boolean (nx, ny): reachable with at least one orientation (thesis fig. 10)."""
-        return self.valid.any(axis=2)
-
-    def slice_at(self, phi: float) -> np.ndarray:
-        """Boolean (nx, ny) at the grid orientation nearest ``phi`` rad (thesis fig. 11)."""
-        return self.valid[:, :, int(np.argmin(np.abs(self.phi - phi)))]
 
 
 def _as_poses(pose: Any, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...]]:
@@ -650,7 +186,7 @@ class Rrr3:
             Status word, 0 when valid (bits UNREACHABLE, TYPE1, TYPE2, SERVO_RANGE).
         """
         flat, batch = _as_poses(pose)
-        theta, servo, status = _solve_batch(flat, self._p)
+        theta, servo, status = _k.solve_batch(flat, self._p)
         return theta.reshape(batch + (3,)), servo.reshape(batch + (3,)), status.reshape(batch)
 
     def inverse(self, pose: Any) -> np.ndarray:
@@ -755,12 +291,12 @@ class Rrr3:
             True where the target was moved.
         """
         flat, batch = _as_poses(pose)
-        out, clamped, _ = _clamp_batch(flat, self.home, self._p, int(n_samples), int(n_bisect))
+        out, clamped, _ = _k.clamp_batch(flat, self.home, self._p, int(n_samples), int(n_bisect))
         return out.reshape(batch + (3,)), clamped.reshape(batch)
 
     def clamp_one(self, x: float, y: float, phi: float) -> tuple[float, float, float, bool]:
         """Scalar fast path of :meth:`clamp` (no array allocation): ``(x, y, phi, clamped)``."""
-        cx, cy, cp, cl, _ = _clamp_one(
+        cx, cy, cp, cl, _ = _k.clamp_one(
             x,
             y,
             phi,
@@ -782,7 +318,7 @@ class Rrr3:
         """
         theta = np.empty(3)
         servo = np.empty(3, dtype=np.int64)
-        st = _solve_one(float(x), float(y), float(phi), self._p, theta, servo)
+        st = _k.solve_one(float(x), float(y), float(phi), self._p, theta, servo)
         return int(st), theta, servo
 
     # -- geometry of a pose -------------------------------------------------------------------
@@ -954,55 +490,21 @@ class Rrr3:
         x_range: tuple[float, float] | None = None,
         y_range: tuple[float, float] | None = None,
         phi_range: tuple[float, float] = (-math.pi, math.pi),
-    ) -> PlanarWorkspace:
+    ) -> _ws.PlanarWorkspace:
         """The thesis's triple sweep over x, y and phi (chapter 7), compiled.
 
-        Parameters
-        ----------
-        nx, ny, nphi : int
-            Grid sizes (phi includes both ends of ``phi_range``: 73 gives 5 deg steps on
-            -180..180 deg).
-        x_range, y_range : (float, float), m, optional
-            Default: the bounding box of the base triangle.
-        phi_range : (float, float), rad
+        See :func:`motionbase.platform.rrr3_workspace.workspace_sweep` for the parameters.
         """
-        L = self.geometry.base_side
-        xr = x_range if x_range is not None else (0.0, L)
-        yr = y_range if y_range is not None else (0.0, L * _SQRT3 / 2)
-        xs = np.linspace(xr[0], xr[1], int(nx))
-        ys = np.linspace(yr[0], yr[1], int(ny))
-        ps = np.linspace(phi_range[0], phi_range[1], int(nphi))
-        return PlanarWorkspace(xs, ys, ps, _status_grid(xs, ys, ps, self._p))
+        return _ws.workspace_sweep(
+            self.geometry, nx, ny, nphi, x_range=x_range, y_range=y_range, phi_range=phi_range
+        )
 
     def inscribed_rectangle(
         self, phi: float = 0.0, *, n: int = 241
     ) -> tuple[float, float, float, float]:
-        """Largest axis-aligned rectangle of valid positions at orientation ``phi``.
+        """Largest axis-aligned rectangle of valid positions at orientation ``phi`` (rad).
 
-        Returns ``(x_min, x_max, y_min, y_max)`` in m. Found on an ``n x n`` grid over the base
-        triangle's bounding box (largest rectangle of ones in a binary matrix), then shrunk by
-        one grid step on every side so that its edges lie inside the valid region.
+        ``(x_min, x_max, y_min, y_max)`` in m; see
+        :func:`motionbase.platform.rrr3_workspace.inscribed_rectangle`.
         """
-        L = self.geometry.base_side
-        xs = np.linspace(0.0, L, n)
-        ys = np.linspace(0.0, L * _SQRT3 / 2, n)
-        ok = _status_grid(xs, ys, np.array([float(phi)]), self._p)[:, :, 0] == 0  # (nx, ny)
-        best = (0, 0, 0, 0, 0)  # area, i0, i1, j0, j1 (inclusive grid indices)
-        heights = [0] * n  # along x: run length of valid cells in y ending at row j
-        okl = ok.tolist()
-        for j in range(n):
-            heights = [h + 1 if okl[i][j] else 0 for i, h in enumerate(heights)]
-            stack: list[int] = []
-            for i in range(n + 1):
-                hcur = heights[i] if i < n else 0
-                while stack and heights[stack[-1]] >= hcur:
-                    top = stack.pop()
-                    left = stack[-1] + 1 if stack else 0
-                    area = (i - left) * heights[top]
-                    if area > best[0]:
-                        best = (area, left, i - 1, j - heights[top] + 1, j)
-                stack.append(i)
-        _, i0, i1, j0, j1 = best
-        if i1 - i0 < 3 or j1 - j0 < 3:
-            raise ConfigError(f"no usable workspace rectangle at phi = {phi:g} rad")
-        return (xs[i0 + 1], xs[i1 - 1], ys[j0 + 1], ys[j1 - 1])
+        return _ws.inscribed_rectangle(self.geometry, phi, n=n)
