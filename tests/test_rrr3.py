@@ -15,9 +15,9 @@ from motionbase.platform.rrr3 import (
     TYPE1,
     TYPE2,
     Rrr3,
-    Rrr3Geometry,
     UnreachablePoseError,
 )
+from motionbase.platform.rrr3_geometry import Rrr3Geometry
 
 GEOM = Rrr3Geometry.preset("udesc")
 R = Rrr3(GEOM)

@@ -427,7 +427,7 @@ def teleop_job(
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
     from motionbase.io.mcap_log import LiveAddress
-    from motionbase.platform.rrr3 import Rrr3Geometry
+    from motionbase.platform.rrr3_geometry import Rrr3Geometry
     from motionbase.stopping import install_signal_stop
 
     if live is not None and out is None:
