@@ -98,7 +98,7 @@ def test_a_source_going_stale_mid_manoeuvre_adds_no_cue():
     assert pipeline.health.watchdog_fades == 2
     assert min(o.fade for o in outputs) == 0.0  # the long stretch faded out completely
     aircraft = np.array([f for _, f, _, _ in ticks])
-    check_no_false_cue(outputs, aircraft, config.washout.tilt_rate_limit)
+    check_no_false_cue(outputs, aircraft, config.cueing_params.tilt_rate_limit)
     # faded out, the tilt (about 5 deg both ways, which a hold would keep) goes back to level
     # within its rate limit; the translation washes out with the washout's own high-pass
     before = next(o for o in outputs if o.t >= 14.0)
@@ -118,7 +118,7 @@ def test_a_time_jump_mid_manoeuvre_adds_no_cue():
     outputs = fly(pipeline, ticks)
     assert pipeline.health.time_jumps == 1
     aircraft = np.array([f for _, f, _, _ in ticks])
-    check_no_false_cue(outputs, aircraft, config.washout.tilt_rate_limit)
+    check_no_false_cue(outputs, aircraft, config.cueing_params.tilt_rate_limit)
 
 
 def test_rejected_samples_do_not_hold_the_platform_in_the_manoeuvre():
@@ -141,7 +141,7 @@ def test_rejected_samples_do_not_hold_the_platform_in_the_manoeuvre():
     assert np.degrees(np.abs(outputs[-1].platform_pose[3:]).max()) < 0.01
     held = np.array([o.state.specific_force for o in outputs])
     aircraft = np.where(np.isfinite(held), held, manoeuvre(12.0 - DT))  # what was held
-    check_no_false_cue(outputs, aircraft, config.washout.tilt_rate_limit)
+    check_no_false_cue(outputs, aircraft, config.cueing_params.tilt_rate_limit)
 
 
 # --------------------------------------------------------------------------- real logs

@@ -529,7 +529,7 @@ def test_the_drive_is_ramped_within_its_limits_whatever_the_commands_do():
     park = np.full(6, GEOMETRY.park_angle)
     far = np.radians([40.0, -40.0, 30.0, -30.0, 20.0, -20.0])
     try:
-        sink = open_output(drive.url(200), mapping_for(config), limits=limits)
+        sink = open_output(drive.url(200), mapping_for(Pipeline(config).robot), limits=limits)
         with sink:
             sink.write(park)  # where the drive starts: sent as it is
             assert wait_until(lambda: drive.count() >= 5)
@@ -561,7 +561,7 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
         states.append(AircraftState(k * dt, [25 * s, 20 * s, -9.80665 + 10 * s], [3 * s] * 3))
     drive = UdpDrive()
     rate = 100.0
-    sink = open_output(drive.url(rate), mapping_for(config), limits=limits)
+    sink = open_output(drive.url(rate), mapping_for(Pipeline(config).robot), limits=limits)
     ticks = [0]
 
     def count(_out) -> None:

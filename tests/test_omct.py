@@ -24,17 +24,18 @@ from motionbase.pipeline import PipelineConfig
 from motionbase.platform import Rus6, Rus6Geometry
 from motionbase.platform.rus6_workspace import single_axis_envelope
 from motionbase.washout import WashoutParams
+from motionbase.washout.cueing import Cueing
 
 G = 9.80665
 
 
-class PureGain:
-    """A test cueing: the platform follows the aircraft one to one.
+class PureGain(Cueing):
+    """A test cueing plug-in: the platform follows the aircraft one to one.
 
     The specific force deviation from level flight is the platform's acceleration and the
     body rates are its Euler rates, each integrated by the trapezoidal rule from rest; no
-    washout, no tilt. It has the cueing interface the pipeline calls (``reset``, ``step``,
-    ``track``) and is substituted for the classical washout inside one pipeline
+    washout, no tilt. It implements the cueing plug-in interface in Python (no compiled
+    kernels) and is given to the pipeline in place of the classical washout
     (``omct.simulate(..., cueing=...)``), since the classical washout cannot be made a pure
     gain (its translational channel always washes out).
 
@@ -43,7 +44,10 @@ class PureGain:
     ``1 - (w dt)^2/4`` to second order (0.4 % at 15.85 rad/s and 120 Hz).
     """
 
+    name = "pure_gain"
+
     def __init__(self, dt: float) -> None:
+        self.params = None
         self.dt = dt
         self.tracked = 0
         self.reset()
@@ -55,16 +59,18 @@ class PureGain:
         self.angle = np.zeros(3)
         self.rate = np.zeros(3)
 
-    def step(self, specific_force, angular_velocity) -> np.ndarray:
+    def advance(self, u, out) -> bool:
         h = self.dt / 2.0
-        a = np.asarray(specific_force, dtype=float) - (0.0, 0.0, -G)
-        w = np.array(angular_velocity, dtype=float)  # a copy: the pipeline reuses its array
+        a = u[:3] - (0.0, 0.0, -G)
+        w = np.array(u[3:], dtype=float)  # a copy: the pipeline reuses its array
         v = self.v + h * (a + self.a)
         self.x = self.x + h * (v + self.v)
         self.v, self.a = v, a
         self.angle = self.angle + h * (w + self.rate)
         self.rate = w
-        return np.concatenate([self.x, self.angle])
+        out[:3] = self.x
+        out[3:] = self.angle
+        return True
 
     def track(self, achieved_pose) -> None:
         self.tracked += 1
@@ -230,7 +236,7 @@ def test_planar_robot_runs_the_tests_it_renders():
     # no tilt on the planar robot: what it renders is the washout's translation alone
     np.testing.assert_allclose(
         r.linear,
-        omct.classical_response(config.washout, "surge", freqs, tilt=False, dt=config.dt),
+        omct.classical_response(config.cueing_params, "surge", freqs, tilt=False, dt=config.dt),
     )
     assert (r.clamped == 0).all() and (r.limited == 0).all()
     assert _complex_error(r.response, r.linear).max() < 2e-4

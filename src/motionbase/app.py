@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from motionbase import __version__
-from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, resolve_preset_or_path
+from motionbase.config import DEFAULT_RUS6, resolve_preset_or_path
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -55,6 +55,7 @@ def load_config(
     planar: bool = False,
     platform: str | None = None,
     washout: str | None = None,
+    cueing: str = "classical",
     rate_hz: float = 120.0,
 ) -> PipelineConfig:
     """Build a pipeline configuration from preset names or TOML paths.
@@ -62,26 +63,27 @@ def load_config(
     Parameters
     ----------
     planar : bool
-        Drive the 3-RRR robot (preset ``udesc_symmetric``) instead of the 6-RUS (``ceart``).
+        Drive the 3-RRR robot (preset ``udesc_symmetric``) instead of a 6-DOF platform.
         The thesis's robot as built (``udesc``) has a type II singular curve 4 mm below home,
         so planar washout motion there clamps most sway; pass ``platform="udesc"`` for it.
     platform : str, optional
-        Geometry preset name or path to a TOML file of the chosen robot.
+        A robot's name (``rus6``, ``stewart6``: its default geometry), or a geometry preset
+        name or TOML path of the chosen robot (the 6-RUS unless ``planar``).
     washout : str, optional
-        Washout preset name (``default``, ``gentle``) or TOML path.
+        The cueing's parameters: a preset name (classical: ``default``, ``gentle``,
+        ``telemetry``, ``tuned_ceart``) or a TOML path (``--params``, ``--washout``).
+    cueing : str
+        The cueing plug-in (``--cueing``), ``classical`` by default.
     rate_hz : float
         Pipeline rate, Hz.
     """
-    from motionbase.platform import Rrr3Geometry, Rus6Geometry
-    from motionbase.washout import WashoutParams
+    from motionbase.platform.robot import load_geometry
+    from motionbase.washout.cueing import cueing_spec
 
-    if planar:
-        geometry = Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", platform or DEFAULT_RRR3))
-    else:
-        geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform or DEFAULT_RUS6))
-    params = WashoutParams.from_toml(resolve_preset_or_path("washout", washout or "default"))
+    robot, geometry = load_geometry(platform, planar=planar)
+    params = cueing_spec(cueing).load_params(washout)
     return PipelineConfig(
-        robot="rrr3" if planar else "rus6", geometry=geometry, washout=params, rate_hz=rate_hz
+        robot=robot, geometry=geometry, cueing=cueing, cueing_params=params, rate_hz=rate_hz
     )
 
 
@@ -272,11 +274,10 @@ def _drive_stoppable(
     from motionbase.io.motor_output import open_outputs
     from motionbase.io.pipeline_log import PipelineLog
 
-    drives = open_outputs(outputs, config)
+    pipeline = Pipeline(config)
+    drives = open_outputs(outputs, pipeline.robot)
     extra_sinks = [*(extra_sinks or []), *drives]
     paced = bool(paced or drives or getattr(source, "paces_itself", False))
-
-    pipeline = Pipeline(config)
     bar = ProgressBar(getattr(source, "duration_s", None)) if progress else None
 
     def on_tick(o: PipelineOutput) -> None:

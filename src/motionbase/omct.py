@@ -116,8 +116,8 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.errors import ConfigError, MotionbaseError
-from motionbase.pipeline import Pipeline, PipelineConfig, make_robot
-from motionbase.state import AircraftState
+from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.platform.robot import ROBOTS
 from motionbase.washout.filters import (
     discretise,
     lowpass2,
@@ -374,8 +374,7 @@ def simulate(
 ) -> Simulated:
     """Run aircraft samples through a new pipeline; the one place the OMCT runs the chain.
 
-    Today a loop of :meth:`Pipeline.step`; the batch evaluation path of the pipeline
-    redesign (issue 14) replaces this body.
+    The pipeline's batch path (:meth:`Pipeline.run_batch`): every stage, compiled.
 
     Parameters
     ----------
@@ -384,40 +383,25 @@ def simulate(
         Sample times, s, one per tick (``1 / config.rate_hz`` apart).
     f, w, att : ndarray, shape (N, 3)
         Specific force (m/s^2), body rates (rad/s), attitude (rad).
-    cueing : object, optional
-        Replaces the classical washout inside the pipeline (``reset()``, ``step(f, w) ->
-        pose``, ``track(pose)``), for testing the measurement chain with another cueing;
-        the pipeline then runs its stage-by-stage path. Until the cueing plug-in
-        interface exists this is the only way in.
+    cueing : Cueing, optional
+        A cueing plug-in object to run instead of the one ``config`` names (a test
+        cueing that is not registered).
 
     Raises
     ------
     MotionbaseError
         The pipeline rejected a sample (an amplitude beyond its input bounds).
     """
-    pipeline = Pipeline(config, fast=cueing is None)
-    if cueing is not None:
-        pipeline.washout = cueing
-        pipeline.reset()
-    n = len(t)
-    rows = np.ascontiguousarray(np.column_stack([f, w, att]), dtype=float)
-    m = len(pipeline.robot.park_pose)
-    angles = np.empty((n, pipeline.robot.n))
-    poses = np.empty((n, m))
-    clamped = np.zeros(n, dtype=bool)
-    limited = np.zeros(n, dtype=bool)
-    step = pipeline.step
-    for k in range(n):
-        out = step(AircraftState.from_vector(float(t[k]), rows[k]))
-        if not out.accepted:
-            raise MotionbaseError(
-                f"OMCT: the pipeline rejected the test signal at t = {t[k]:.3f} s "
-                f"({pipeline.health.last_rejection}); lower the amplitudes"
-            )
-        angles[k] = out.angles
-        poses[k] = out.platform_pose
-        clamped[k] = out.clamped
-        limited[k] = out.rate_limited or out.held
+    pipeline = Pipeline(config, cueing=cueing)
+    result = pipeline.run_batch(t, f, w, att)
+    if not result.accepted.all():
+        k = int(np.flatnonzero(~result.accepted)[0])
+        raise MotionbaseError(
+            f"OMCT: the pipeline rejected the test signal at t = {t[k]:.3f} s "
+            f"({pipeline.health.last_rejection}); lower the amplitudes"
+        )
+    angles, poses = result.commands, result.poses
+    clamped, limited = result.clamped, result.limited
     return Simulated(angles, poses, clamped, limited)
 
 
@@ -456,14 +440,13 @@ def achieved_motion(config: PipelineConfig, angles: np.ndarray, guess: np.ndarra
     MotionbaseError
         The forward kinematics did not converge.
     """
-    robot = make_robot(config)
+    robot = config.make_robot()
     pose = np.asarray(robot.forward(angles, guess), dtype=float)
     if not np.isfinite(pose).all():
         k = int(np.flatnonzero(~np.isfinite(pose).all(axis=1))[0])
         raise MotionbaseError(f"OMCT: forward kinematics did not converge at tick {k}")
-    zero = np.zeros(6)
-    pose6 = np.array([robot.washout_from_pose(p, zero) for p in pose])
-    g = config.washout.gravity
+    pose6 = robot.cue_from_pose(pose, np.zeros((len(pose), 6)))
+    g = config.cueing_params.gravity
     return Motion(
         pose6,
         platform_specific_force(pose6, config.dt, g),
@@ -731,7 +714,7 @@ class OmctResult:
     @property
     def robot_label(self) -> str:
         name = getattr(self.config.geometry, "name", "")
-        kind = "3-RRR, planar mode" if self.config.robot == "rrr3" else "6-RUS"
+        kind = ROBOTS[self.config.robot].description
         return f"{name} ({kind})" if name else kind
 
     def linear_curves(
@@ -749,7 +732,7 @@ class OmctResult:
             np.log10(r.frequencies.min()) - 0.15, np.log10(r.frequencies.max()) + 0.15, n
         )
         tilt = self.config.robot != "rrr3"
-        params = self.config.washout
+        params = self.config.cueing_params
         return (
             w,
             classical_response(params, r.test, w, tilt=tilt, dt=self.config.dt),
@@ -912,14 +895,14 @@ def run_omct(
     if freqs.size == 0 or not (np.isfinite(freqs).all() and (freqs > 0).all()):
         raise ConfigError("OMCT: frequencies must be positive numbers (rad/s)")
     amps = amplitudes if amplitudes is not None else Amplitudes()
-    planar = config.robot == "rrr3"
+    planar = config.planar
     rendered = PLANAR_AXES if planar else AXES
     wanted = [_test(n) for n in tests] if tests is not None else list(TESTS)
     chosen = [t for t in wanted if t.excite in rendered and t.output in rendered]
     skipped = tuple(t.name for t in wanted if t not in chosen)
     if not chosen:
         raise ConfigError("OMCT: none of the tests asked for applies to this robot")
-    params = config.washout
+    params = config.cueing_params
     settle = float(settle_s) if settle_s is not None else settle_time(params)
     if not (math.isfinite(settle) and settle >= 0.0):
         raise ConfigError(f"OMCT: settle time must be >= 0 s, got {settle_s!r}")

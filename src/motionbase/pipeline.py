@@ -31,7 +31,8 @@ Stages of one tick
    fade turned back, stepped its speed (a spike the limiter then had to brake);
    the filters keep their state across a jump for the same reason: a reset would
    step the pose.
-3. *Washout* (:class:`~motionbase.washout.ClassicalWashout`) -> pose.
+3. *Cueing*: the cueing plug-in (default: the classical washout,
+   :class:`~motionbase.washout.ClassicalWashout`) -> cue pose.
 4. *Soft start / stop*: the commanded pose blends from the park pose to the live
    pose over ``soft_start_s`` (and back on stop).
 5. *Clamp*: the robot's workspace clamp scales the whole pose toward neutral;
@@ -40,16 +41,15 @@ Stages of one tick
 7. *Safety* (:mod:`motionbase.safety`): finite, inside the angle limits, within
    the speed and acceleration limits, else the last safe command is held.
 
-Speed: for the 6-RUS, stages 1-7 run in one compiled kernel per tick (the
-Python side keeps the health counters, rejections' messages and forward
-kinematics after the limiter acted); :meth:`Pipeline.step_reference` runs them
-stage by stage (the planar robot's path) and gives bit-identical outputs
-(``tests/test_pipeline_fastpath.py``).
+Each stage is defined once, in :mod:`motionbase.stages` (validation and fade, soft
+start/stop, the limiter and their named state), in the cueing plug-in
+(:mod:`motionbase.washout.cueing`) and in the robot plug-in
+(:mod:`motionbase.platform.robot`); the tick and the batch path
+(:meth:`Pipeline.run_batch`) call the same compiled functions.
 """
 
 from __future__ import annotations
 
-import hashlib
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -59,26 +59,17 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
-from motionbase import __version__
+from motionbase import __version__, stages
 from motionbase.config import as_float
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import wait_until
-from motionbase.platform._rus6_kernels import _inverse_row, _within, clamp_inverse_one
-from motionbase.safety import (
-    _INPUT_PROBLEMS,
-    RATE_LIMITED,
-    UNSAFE_TARGET,
-    ActuatorLimits,
-    InputLimits,
-    _input_code,
-    _limit_kernel,
-    input_problem,
-    limit_command,
-    smoothstep,
-)
+from motionbase.platform.robot import ROBOTS, Robot, robot_spec
+from motionbase.safety import INPUT_PROBLEMS, InputLimits
 from motionbase.state import AircraftState
 from motionbase.stopping import StopRequest, install_signal_stop  # noqa: F401 - re-exported
-from motionbase.washout.classical import WashoutInputError, _step, _track
+from motionbase.washout.classical import WashoutInputError
+from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
+from motionbase.washout.params import STANDARD_GRAVITY
 
 # --------------------------------------------------------------------------- config
 
@@ -93,13 +84,15 @@ class PipelineConfig:
 
     Parameters
     ----------
-    robot : {"rus6", "rrr3"}
-        Which robot the pipeline drives: the 6-RUS platform or, in planar mode,
-        the 3-RRR robot.
-    geometry : Rus6Geometry or Rrr3Geometry
-        The robot's geometry and actuator limits.
-    washout : WashoutParams
-        Washout filter parameters.
+    robot : str
+        The robot plug-in's name (:data:`motionbase.platform.robot.ROBOTS`: ``"rus6"``,
+        ``"stewart6"``, or ``"rrr3"`` for planar mode).
+    geometry : object
+        The robot's geometry and actuator limits (its geometry class).
+    cueing_params : object
+        The cueing's parameters (for ``"classical"``: :class:`WashoutParams`).
+    cueing : str
+        The cueing plug-in's name (:data:`motionbase.washout.cueing.CUEINGS`).
     rate_hz : float
         Pipeline rate, Hz (``MIN_RATE_HZ``, 10 Hz, to 10 kHz).
     soft_start_s : float
@@ -108,19 +101,20 @@ class PipelineConfig:
         No sample accepted for longer than this makes the input stale, and a forward
         jump of the source time longer than this restarts the input from level flight, s.
     fade_s : float
-        Watchdog fade time of the washout's input to level flight (and back) when the
+        Watchdog fade time of the cueing's input to level flight (and back) when the
         input goes stale, s.
     planar_scale_m : float
-        Planar mode: metres of robot x/y per metre of washout surge/sway.
+        Planar robots: metres of robot x/y per metre of cue surge/sway.
     planar_yaw_scale : float
-        Planar mode: robot phi per radian of washout yaw.
+        Planar robots: robot phi per radian of cue yaw.
     input_limits : InputLimits
         Absurd-input bounds for validation.
     """
 
     robot: str
     geometry: Any
-    washout: Any
+    cueing_params: Any
+    cueing: str = "classical"
     rate_hz: float = 120.0
     soft_start_s: float = 2.0
     stale_timeout_s: float = 0.5
@@ -130,8 +124,8 @@ class PipelineConfig:
     input_limits: InputLimits = field(default_factory=InputLimits)
 
     def __post_init__(self) -> None:
-        if self.robot not in ("rus6", "rrr3"):
-            raise ConfigError(f"robot must be 'rus6' or 'rrr3', got {self.robot!r}")
+        robot_spec(self.robot)
+        cueing_spec(self.cueing)
         for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (
@@ -159,12 +153,31 @@ class PipelineConfig:
         """Pipeline time step, s."""
         return 1.0 / self.rate_hz
 
+    @property
+    def planar(self) -> bool:
+        """The robot renders surge, sway and yaw only."""
+        return robot_spec(self.robot).planar
+
+    def make_robot(self) -> Robot:
+        """The robot plug-in this configuration drives."""
+        options = (
+            {"scale_m": self.planar_scale_m, "yaw_scale": self.planar_yaw_scale}
+            if self.planar
+            else {}
+        )
+        return robot_spec(self.robot).make(self.geometry, **options)
+
+    def make_cueing(self) -> Cueing:
+        """The cueing plug-in this configuration runs, at the pipeline's rate."""
+        return cueing_spec(self.cueing).make(self.cueing_params, self.dt)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain data (for the log's metadata); :meth:`from_dict` rebuilds it exactly."""
         return {
             "robot": self.robot,
             "geometry": self.geometry.to_dict(),
-            "washout": self.washout.to_dict(),
+            "cueing": self.cueing,
+            "cueing_params": self.cueing_params.to_dict(),
             "pipeline": {
                 "rate_hz": self.rate_hz,
                 "soft_start_s": self.soft_start_s,
@@ -183,167 +196,61 @@ class PipelineConfig:
     def from_dict(
         cls, data: dict[str, Any], source: str = "recorded configuration"
     ) -> PipelineConfig:
-        """Rebuild a configuration written by :meth:`to_dict`."""
-        from motionbase.platform import Rrr3Geometry, Rus6Geometry
-        from motionbase.washout import WashoutParams
-
+        """Rebuild a configuration written by :meth:`to_dict` (logs before the cueing
+        plug-ins stored the classical washout's parameters as ``washout``)."""
         if not isinstance(data, dict):
             raise ConfigError(f"{source}: expected a table of settings, got {data!r:.60}")
         robot = data.get("robot")
-        if robot not in ("rus6", "rrr3"):
-            raise ConfigError(f"{source}: field 'robot': expected 'rus6' or 'rrr3', got {robot!r}")
+        if robot not in ROBOTS:
+            raise ConfigError(
+                f"{source}: field 'robot': expected one of {', '.join(sorted(ROBOTS))}, "
+                f"got {robot!r}"
+            )
+        cueing = data.get("cueing", "classical")
+        if cueing not in CUEINGS:
+            raise ConfigError(
+                f"{source}: field 'cueing': {cueing!r} is not a known cueing "
+                f"({', '.join(sorted(CUEINGS))}); register its plug-in first"
+            )
+        params_key = (
+            "cueing_params" if "cueing_params" in data or "washout" not in data else "washout"
+        )
         pipe = data.get("pipeline", {})
         limits = pipe.get("input_limits", {}) if isinstance(pipe, dict) else None
         if not isinstance(limits, dict):
             raise ConfigError(f"{source}: 'pipeline' and its 'input_limits' must be tables")
         pipe = {k: v for k, v in pipe.items() if k != "input_limits"}
-        known = {f.name for f in fields(cls)} - {"robot", "geometry", "washout", "input_limits"}
+        known = {f.name for f in fields(cls)} - {
+            "robot",
+            "geometry",
+            "cueing",
+            "cueing_params",
+            "input_limits",
+        }
         unknown = sorted(set(pipe) - known) or sorted(
             set(limits) - {f.name for f in fields(InputLimits)}
         )
         if unknown:
             raise ConfigError(f"{source}: unknown pipeline setting {unknown[0]!r}")
-        for key in ("geometry", "washout"):
+        for key in ("geometry", params_key):
             if key not in data:
                 raise ConfigError(f"{source}: missing field {key!r}")
-        geometry_cls = Rus6Geometry if robot == "rus6" else Rrr3Geometry
         try:
             return cls(
                 robot=robot,
-                geometry=geometry_cls.from_dict(data["geometry"], source=f"{source}: geometry"),
-                washout=WashoutParams.from_dict(data["washout"], source=f"{source}: washout"),
+                geometry=robot_spec(robot).geometry_type.from_dict(
+                    data["geometry"], source=f"{source}: geometry"
+                ),
+                cueing=cueing,
+                cueing_params=cueing_spec(cueing).params_type.from_dict(
+                    data[params_key], source=f"{source}: {params_key}"
+                ),
                 input_limits=InputLimits(**limits),
                 **pipe,
             )
         except ConfigError as exc:  # settings and input limits: say where they came from
             msg = str(exc)
             raise ConfigError(msg if msg.startswith(source) else f"{source}: {msg}") from None
-
-
-# --------------------------------------------------------------------------- robots
-
-
-class _Robot:
-    """What the pipeline needs from a robot, whichever it is."""
-
-    n: int
-    limits: ActuatorLimits
-    park_angles: np.ndarray
-    park_pose: np.ndarray
-    neutral_pose: np.ndarray
-
-    def pose_from_washout(self, pose6: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def washout_from_pose(self, pose: np.ndarray, washout_pose: np.ndarray) -> np.ndarray:
-        """The washout pose that ``pose`` realises (axes the robot lacks keep ``washout_pose``)."""
-        raise NotImplementedError
-
-    def solve(self, pose: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
-        """Workspace clamp then inverse kinematics: (reachable pose, clamped, angles)."""
-        clamped_pose, clamped = self.clamp(pose)
-        return clamped_pose, clamped, self.inverse(clamped_pose)
-
-    def clamp(self, pose: np.ndarray) -> tuple[np.ndarray, bool]:
-        raise NotImplementedError
-
-    def inverse(self, pose: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def forward(self, angles: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def servo(self, angles: np.ndarray) -> np.ndarray | None:
-        return None
-
-
-class _Rus6Robot(_Robot):
-    def __init__(self, geometry) -> None:
-        from motionbase.platform import Rus6
-
-        self.kin = Rus6(geometry)
-        self.n = 6
-        lo, hi = self.kin.angle_limits
-        self.limits = ActuatorLimits.broadcast(6, lo, hi, geometry.max_speed, geometry.max_accel)
-        self.park_angles = np.full(6, float(geometry.park_angle))
-        self.neutral_pose = np.zeros(6)
-        park = self.kin.forward(self.park_angles, guess=self.neutral_pose)
-        if not np.isfinite(park).all():
-            raise ConfigError("geometry: park_angle gives no assembled platform (choose another)")
-        self.park_pose = np.asarray(park, dtype=float)
-
-    def pose_from_washout(self, pose6):
-        return pose6
-
-    def washout_from_pose(self, pose, washout_pose):
-        return pose
-
-    def solve(self, pose):
-        return self.kin.clamp_inverse(pose)
-
-    def clamp(self, pose):
-        p, clamped = self.kin.clamp(pose)
-        return np.asarray(p, dtype=float), bool(clamped)
-
-    def inverse(self, pose):
-        return np.asarray(self.kin.inverse(pose), dtype=float)
-
-    def forward(self, angles, guess):
-        return np.asarray(self.kin.forward(angles, guess=guess), dtype=float)
-
-
-class _Rrr3Robot(_Robot):
-    """Planar mode: surge -> x, sway -> y, yaw -> phi about the home pose."""
-
-    def __init__(self, geometry, scale_m: float, yaw_scale: float) -> None:
-        from motionbase.platform import Rrr3
-
-        self.kin = Rrr3(geometry)
-        self.n = 3
-        # servo ranges as joint-angle intervals (3, 2); angles are expressed inside them
-        lo, hi = np.asarray(self.kin.angle_limits, dtype=float).T
-        self.limits = ActuatorLimits.broadcast(3, lo, hi, geometry.max_speed, geometry.max_accel)
-        self.neutral_pose = np.asarray(self.kin.home, dtype=float)
-        self.park_pose = self.neutral_pose
-        self.park_angles = self.inverse(self.park_pose)
-        if not np.isfinite(self.park_angles).all():
-            raise ConfigError(
-                "planar geometry: the home pose is not reachable (check the geometry)"
-            )
-        self.scale = np.array([scale_m, scale_m, yaw_scale])
-
-    def pose_from_washout(self, pose6):
-        # planar base frame: x along motor 1 -> motor 2, y toward motor 3 (see DESIGN.md)
-        return self.neutral_pose + self.scale * np.array([pose6[0], pose6[1], pose6[5]])
-
-    def washout_from_pose(self, pose, washout_pose):
-        # only surge, sway and yaw were clamped: heave, roll and pitch keep their state
-        d = (np.asarray(pose) - self.neutral_pose) / self.scale
-        out = np.array(washout_pose, dtype=float)
-        out[[0, 1, 5]] = d
-        return out
-
-    def clamp(self, pose):
-        p, clamped = self.kin.clamp(pose)
-        return np.asarray(p, dtype=float), bool(clamped)
-
-    def inverse(self, pose):
-        # the same angle modulo 2 pi, written inside the servo's interval when it is in it
-        angles = np.asarray(self.kin.inverse(pose), dtype=float)
-        lo = self.limits.lower
-        return lo + np.mod(angles - lo, 2 * np.pi)
-
-    def forward(self, angles, guess):
-        return np.asarray(self.kin.forward(angles, guess=guess), dtype=float)
-
-    def servo(self, angles):
-        return np.asarray(self.kin.to_servo(angles))
-
-
-def make_robot(config: PipelineConfig) -> _Robot:
-    if config.robot == "rus6":
-        return _Rus6Robot(config.geometry)
-    return _Rrr3Robot(config.geometry, config.planar_scale_m, config.planar_yaw_scale)
 
 
 # --------------------------------------------------------------------------- outputs
@@ -364,16 +271,18 @@ class PipelineOutput(NamedTuple):
     accepted : bool
         False when validation rejected the sample (the last valid one was held).
     washout_pose : ndarray, shape (6,)
-        Washout output ``[x, y, z, roll, pitch, yaw]`` (m, rad), before the soft start and
-        clamping (a watchdog fade acts on its input).
-    platform_pose : ndarray, shape (6,) or (3,)
-        The pose the actuators realise: 6-RUS pose, or planar ``[x, y, phi]``.
+        The cueing's pose ``[x, y, z, roll, pitch, yaw]`` (m, rad), before the soft start
+        and clamping (a watchdog fade acts on its input).
+    platform_pose : ndarray, shape (m,)
+        The pose the actuators realise, in robot coordinates (6-DOF pose, or planar
+        ``[x, y, phi]``).
     clamped : bool
         The workspace clamp moved the pose.
-    angles : ndarray, shape (6,) or (3,)
-        Actuator command, rad (always finite and within limits).
-    servo_deg : ndarray of int, shape (3,), or None
-        Planar mode: servo command in integer degrees.
+    angles : ndarray, shape (n,)
+        Actuator command in the robot's unit (rad for cranks and servos, m for linear
+        actuators); always finite and within limits.
+    servo_deg : ndarray of int, shape (n,), or None
+        Robots driven as hobby servos: the command in integer degrees.
     rate_limited : bool
         The safety stage's speed or acceleration limit changed the command.
     held : bool
@@ -382,7 +291,7 @@ class PipelineOutput(NamedTuple):
         ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
     fade : float
         Watchdog fade in [0, 1]: the share of the held sample's deviation from level
-        flight given to the washout (1 = the aircraft's motion, 0 = level flight).
+        flight given to the cueing (1 = the aircraft's motion, 0 = level flight).
     """
 
     t: float
@@ -438,226 +347,85 @@ class Health:
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
-
-# --------------------------------------------------------------------------- fused tick
-
-# Pipeline state, one float vector shared by the fused kernel and the Python path.
-_S_T, _S_TVALID, _S_PHASE, _S_BLEND, _S_FADE, _S_STALE, _S_ESTOP, _S_HAS_LAST = range(8)
-_S_LAST = 8  # held sample: specific force (3), angular velocity (3)
-_S_Q, _S_V, _S_WANTED, _S_POSE = 14, 20, 26, 32  # 6 each
-_S_TACC = 38  # time of the last accepted sample
-_S_VNEW = 39  # scratch: the limiter's new speeds
-_NS = 45
-_PHASES = ("starting", "running", "stopping", "parked")
-_PHASE_CODES = {name: float(k) for k, name in enumerate(_PHASES[:3])}
-
-# Pipeline constants of the fused kernel.
-_C_DT, _C_STALE_TIMEOUT, _C_FADE_STEP, _C_BLEND_STEP = 0, 1, 2, 3
-_C_MAX_F, _C_MAX_W, _C_MAX_ATT = 4, 5, 6
-_C_LEVEL = 7  # level flight: (0, 0, -g, 0, 0, 0)
-_C_PARK_POSE, _C_PARK_ANGLES, _C_LO, _C_HI, _C_VMAX, _C_AMAX = 13, 19, 25, 31, 37, 43
-_NC = 49
-
-# Status bits the fused kernel returns.
-_F_PROBLEM = 0xF  # input problem code (safety._INPUT_PROBLEMS), 0 = accepted
-_F_TIME_JUMP = 1 << 4
-_F_FADE_START = 1 << 5
-_F_CLAMPED = 1 << 6
-_F_RATE_LIMITED = 1 << 7
-_F_HELD = 1 << 8
-_F_WASHOUT_ERROR = 1 << 9
-_F_PHASE_SHIFT = 10  # two bits: index into _PHASES
+    def count(self, flags: int) -> None:
+        """Add one tick's status bits (:mod:`motionbase.stages`)."""
+        code = flags & stages.PROBLEM
+        if code:
+            self.rejected_inputs += 1
+            self.last_rejection = INPUT_PROBLEMS[code]
+        self.time_jumps += bool(flags & stages.TIME_JUMP)
+        self.watchdog_fades += bool(flags & stages.FADE_START)
+        self.clamps += bool(flags & stages.CLAMPED)
+        self.unsafe_commands += bool(flags & stages.HELD)
+        self.rate_limited += bool(flags & stages.RATE_LIMITED)
 
 
-def _dependency_stamp() -> str:
-    """Hash of the sources of the kernels the fused tick compiles in.
+class BatchResult(NamedTuple):
+    """What :meth:`Pipeline.run_batch` computed, one row per tick.
 
-    numba's on-disk cache keys a function on its own file only; the stamp, a closure
-    variable of the fused kernel, is part of its cache key (numba hashes closure
-    contents), so a change in the washout, kinematics or safety kernels recompiles it.
+    Attributes
+    ----------
+    cue_poses : ndarray, shape (N, 6)
+        The cueing's poses (m, rad).
+    poses : ndarray, shape (N, m)
+        Robot poses the commands realise (where ``limited`` is set, by forward
+        kinematics).
+    commands : ndarray, shape (N, n)
+        Actuator commands sent, in the robot's unit.
+    flags : ndarray of int64, shape (N,)
+        Status bits (:mod:`motionbase.stages`).
     """
-    from motionbase import safety
-    from motionbase.platform import _rus6_kernels
-    from motionbase.washout import classical
 
-    h = hashlib.sha256()
-    for module in (classical, _rus6_kernels, safety):
-        h.update(open(module.__file__, "rb").read())  # noqa: SIM115 - small files, read once
-    return h.hexdigest()
+    cue_poses: np.ndarray
+    poses: np.ndarray
+    commands: np.ndarray
+    flags: np.ndarray
 
+    @property
+    def accepted(self) -> np.ndarray:
+        return (self.flags & stages.PROBLEM) == 0
 
-@numba.njit(cache=True, error_model="numpy")
-def _smooth(x):  # pragma: no cover - compiled; safety.smoothstep, compiled
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    return x * x * (3.0 - 2.0 * x)
+    @property
+    def clamped(self) -> np.ndarray:
+        return (self.flags & stages.CLAMPED) != 0
 
+    @property
+    def limited(self) -> np.ndarray:
+        """The limiter changed the command (rate limited or held)."""
+        return (self.flags & (stages.RATE_LIMITED | stages.HELD)) != 0
 
-def _make_rus6_tick(stamp: str):
-    # the kernels called are module globals: only the stamp is a closure variable
-    @numba.njit(cache=True, error_model="numpy")
-    def rus6_tick(cf, st, G, c, s, t, f, w, att, fresh, wpose, pose, q):  # pragma: no cover
-        """One 6-RUS tick, exactly :meth:`Pipeline.step_reference` but forward kinematics.
-
-        Validation -> watchdog fade of the washout's input -> washout -> soft start/stop
-        -> clamp + inverse (+ anti-windup track) -> safety limiter. Writes the washout
-        pose, the clamped pose and the command into ``wpose``, ``pose``, ``q``; updates
-        the washout state ``st`` and the pipeline state ``s``; returns the status bits
-        (``_F_*``). When the limiter changed the command, ``s``'s pose is left at the
-        previous tick's (the caller solves the forward kinematics from it).
-        """
-        if len(stamp) == 0:  # the stamp only keys the cache
-            return -1
-        dt = c[_C_DT]
-        have_t = s[_S_TVALID] != 0.0
-        # 1. validation
-        code = _input_code(
-            t, s[_S_T] if have_t else -np.inf, f, w, att, c[_C_MAX_F], c[_C_MAX_W], c[_C_MAX_ATT]
-        )
-        flags = code
-        accepted = code == 0
-        if accepted:
-            if have_t and t - s[_S_T] > c[_C_STALE_TIMEOUT]:
-                flags |= _F_TIME_JUMP
-                s[_S_FADE] = 0.0  # the input restarts from level flight (no filter reset)
-            s[_S_HAS_LAST] = 1.0
-            for i in range(3):
-                s[_S_LAST + i] = f[i]
-                s[_S_LAST + 3 + i] = w[i]
-            s[_S_T] = t
-            s[_S_TACC] = t
-        else:
-            s[_S_T] = (s[_S_T] if have_t else 0.0) + dt
-        s[_S_TVALID] = 1.0
-        # 2. watchdog fade of the washout's input (stale: marked so, or nothing accepted)
-        if not fresh or s[_S_T] - s[_S_TACC] > c[_C_STALE_TIMEOUT]:
-            if s[_S_STALE] == 0.0:
-                flags |= _F_FADE_START
-            s[_S_STALE] = 1.0
-            x = s[_S_FADE] - c[_C_FADE_STEP]
-            fade = x if x > 0.0 else 0.0
-        else:
-            s[_S_STALE] = 0.0
-            x = s[_S_FADE] + c[_C_FADE_STEP]
-            fade = x if x < 1.0 else 1.0
-        s[_S_FADE] = fade
-        # 3. washout on the held sample (level flight before any), faded toward level flight
-        if s[_S_HAS_LAST] == 0.0:
-            u = c[_C_LEVEL : _C_LEVEL + 6]
-        elif fade == 1.0:
-            u = s[_S_LAST : _S_LAST + 6]
-        else:
-            sf = _smooth(fade)
-            u = np.empty(6)
-            for i in range(6):
-                lv = c[_C_LEVEL + i]
-                u[i] = lv + sf * (s[_S_LAST + i] - lv)
-        if not _step(cf, st, u, wpose):
-            return flags | _F_WASHOUT_ERROR
-        # 4. soft start / stop
-        phase = s[_S_PHASE]
-        blend = s[_S_BLEND]
-        if phase == 0.0:
-            x = blend + c[_C_BLEND_STEP]
-            blend = x if x < 1.0 else 1.0
-            if blend >= 1.0:
-                phase = 1.0
-        elif phase == 2.0 and s[_S_ESTOP] == 0.0:
-            x = blend - c[_C_BLEND_STEP]
-            blend = x if x > 0.0 else 0.0
-        s[_S_PHASE] = phase
-        s[_S_BLEND] = blend
-        b = _smooth(blend)
-        target = np.empty(6)
-        for i in range(6):
-            if b < 1.0:
-                p0 = c[_C_PARK_POSE + i]
-                target[i] = p0 + b * (wpose[i] - p0)
-            else:
-                target[i] = wpose[i]
-        # 5. clamp (+ anti-windup), 6. inverse kinematics; park by its angles exactly
-        wanted = np.empty(6)
-        clamped = False
-        if phase == 2.0 and b == 0.0:
-            for i in range(6):
-                pose[i] = c[_C_PARK_POSE + i]
-                wanted[i] = c[_C_PARK_ANGLES + i]
-        elif _inverse_row(target, G, wanted) == 0 and _within(wanted, G):
-            # reachable as it is (what clamp_inverse_one finds first): its angles are solved
-            for i in range(6):
-                pose[i] = target[i]
-        else:
-            clamped = clamp_inverse_one(target, G, pose, wanted)
-        if clamped:
-            flags |= _F_CLAMPED
-            if phase == 1.0:  # the target is the washout's pose: tell it (anti-windup)
-                for i in range(6):
-                    if not np.isfinite(pose[i]):
-                        return flags | _F_WASHOUT_ERROR
-                _track(st, pose)
-        # 7. safety
-        status = _limit_kernel(
-            s[_S_Q : _S_Q + 6],
-            s[_S_V : _S_V + 6],
-            s[_S_WANTED : _S_WANTED + 6],
-            wanted,
-            dt,
-            c[_C_LO : _C_LO + 6],
-            c[_C_HI : _C_HI + 6],
-            c[_C_VMAX : _C_VMAX + 6],
-            c[_C_AMAX : _C_AMAX + 6],
-            q,
-            s[_S_VNEW : _S_VNEW + 6],
-        )
-        held = (status & 2) != 0
-        limited = (status & 1) != 0
-        at_park = True
-        for i in range(6):
-            s[_S_WANTED + i] = q[i] if held else wanted[i]
-            s[_S_Q + i] = q[i]
-            v = s[_S_VNEW + i]
-            s[_S_V + i] = v
-            if not (q[i] == c[_C_PARK_ANGLES + i] and v == 0.0):
-                at_park = False
-            if not (held or limited):
-                s[_S_POSE + i] = pose[i]
-        if held:
-            flags |= _F_HELD
-        if limited:
-            flags |= _F_RATE_LIMITED
-        out_phase = 3 if (phase == 2.0 and blend == 0.0 and at_park) else int(phase)
-        return flags | (out_phase << _F_PHASE_SHIFT)
-
-    return rus6_tick
-
-
-_rus6_tick = _make_rus6_tick(_dependency_stamp())
-
-
-def _pipeline_constants(config: PipelineConfig, robot: _Robot) -> np.ndarray:
-    c = np.zeros(_NC)
-    c[_C_DT] = config.dt
-    c[_C_STALE_TIMEOUT] = config.stale_timeout_s
-    c[_C_FADE_STEP] = config.dt / config.fade_s
-    c[_C_BLEND_STEP] = config.dt / config.soft_start_s
-    lim = config.input_limits
-    c[_C_MAX_F] = lim.max_specific_force
-    c[_C_MAX_W] = lim.max_angular_velocity
-    c[_C_MAX_ATT] = lim.max_attitude
-    c[_C_LEVEL + 2] = -config.washout.gravity
-    if robot.n == 6:
-        c[_C_PARK_POSE : _C_PARK_POSE + 6] = robot.park_pose
-        c[_C_PARK_ANGLES : _C_PARK_ANGLES + 6] = robot.park_angles
-        c[_C_LO : _C_LO + 6] = robot.limits.lower
-        c[_C_HI : _C_HI + 6] = robot.limits.upper
-        c[_C_VMAX : _C_VMAX + 6] = robot.limits.max_speed
-        c[_C_AMAX : _C_AMAX + 6] = robot.limits.max_accel
-    return c
+    @property
+    def phases(self) -> np.ndarray:
+        return self.flags >> stages.PHASE_SHIFT
 
 
 # --------------------------------------------------------------------------- core
+
+
+def _pipeline_params(config: PipelineConfig, robot: Robot) -> np.ndarray:
+    """The :data:`~motionbase.stages.PARAMS` record of a configuration and its robot."""
+    P = np.zeros(1, dtype=stages.PARAMS)
+    p = P[0]
+    p["dt"] = config.dt
+    p["stale_timeout"] = config.stale_timeout_s
+    p["fade_step"] = config.dt / config.fade_s
+    p["blend_step"] = config.dt / config.soft_start_s
+    lim = config.input_limits
+    p["max_f"] = lim.max_specific_force
+    p["max_w"] = lim.max_angular_velocity
+    p["max_att"] = lim.max_attitude
+    p["level"][2] = -STANDARD_GRAVITY
+    p["park_cue"] = robot.park_cue
+    n, m = robot.n, len(robot.park_pose)
+    p["park_pose"][:m] = robot.park_pose
+    p["park_q"][:n] = robot.park_angles
+    p["lower"][:n] = robot.limits.lower
+    p["upper"][:n] = robot.limits.upper
+    p["max_speed"][:n] = robot.limits.max_speed
+    p["max_accel"][:n] = robot.limits.max_accel
+    p["n"] = n
+    p["m"] = m
+    return P
 
 
 class Pipeline:
@@ -666,149 +434,51 @@ class Pipeline:
     Parameters
     ----------
     config : PipelineConfig
-    fast : bool
-        6-RUS: run each tick in one compiled kernel (the default). ``False`` runs
-        the reference path, stage by stage in Python (:meth:`step_reference`); both
-        give bit-identical outputs and share one state, so they can be mixed.
+    cueing : Cueing, optional
+        A cueing object to run instead of the one ``config`` names (tests of a plug-in
+        not in the registry).
+
+    Notes
+    -----
+    The stages are the functions of :mod:`motionbase.stages`, the cueing plug-in
+    (:attr:`cueing`) and the robot plug-in (:attr:`robot`); the state is the record
+    :attr:`state` (:data:`~motionbase.stages.STATE`) plus the cueing's own.
     """
 
-    def __init__(self, config: PipelineConfig, *, fast: bool = True) -> None:
-        from motionbase.washout import ClassicalWashout
-
+    def __init__(self, config: PipelineConfig, *, cueing: Cueing | None = None) -> None:
         self.config = config
         self.dt = config.dt
-        self.robot = make_robot(config)
-        self.washout = ClassicalWashout(config.washout, self.dt)
+        self.robot = config.make_robot()
+        self.cueing = cueing if cueing is not None else config.make_cueing()
         self.health = Health()
-        self._level_f = np.array([0.0, 0.0, -config.washout.gravity])
+        self.params = _pipeline_params(config, self.robot)
+        self.state = stages.new_state()
+        n, m = self.robot.n, len(self.robot.park_pose)
+        self._solve = stages.kernel_list(self.robot.solve_kernel, stages.SOLVE_LIST)
+        self._G = self.robot.kernel_params
+        self._u = np.empty(6)
+        self._target = np.empty(6)
+        self._cue_out = np.empty(6)
+        self._wanted = np.empty(n)
         self._zero3 = np.zeros(3)
-        # the whole mutable state in one vector (see _S_*), shared by both paths
-        self._s = np.zeros(_NS)
-        n = self.robot.n
-        self._qs = self._s[_S_Q : _S_Q + n]
-        self._vs = self._s[_S_V : _S_V + n]
-        self._wanted_s = self._s[_S_WANTED : _S_WANTED + n]
-        self._pose_s = self._s[_S_POSE : _S_POSE + len(self.robot.park_pose)]
-        self._c = _pipeline_constants(config, self.robot)
-        self._fast = bool(fast) and config.robot == "rus6"
-        self._G = self.robot.kin._G if config.robot == "rus6" else None
+        self._m = m
+        #: The last tick's status bits (:mod:`motionbase.stages`).
+        self.flags = 0
         self.reset()
         self.warm_up()
-
-    # -- state (views of the state vector) ---------------------------------------
-    @property
-    def _q(self) -> np.ndarray:
-        """Last command, rad (the live state: copy it to keep it)."""
-        return self._qs
-
-    @_q.setter
-    def _q(self, value: np.ndarray) -> None:
-        self._qs[:] = value
-
-    @property
-    def _v(self) -> np.ndarray:
-        """Speed of the last command, rad/s (the live state)."""
-        return self._vs
-
-    @_v.setter
-    def _v(self, value: np.ndarray) -> None:
-        self._vs[:] = value
-
-    @property
-    def _wanted(self) -> np.ndarray:
-        return self._wanted_s
-
-    @_wanted.setter
-    def _wanted(self, value: np.ndarray) -> None:
-        self._wanted_s[:] = value
-
-    @property
-    def _pose(self) -> np.ndarray:
-        return self._pose_s
-
-    @_pose.setter
-    def _pose(self, value: np.ndarray) -> None:
-        self._pose_s[:] = value
-
-    @property
-    def _t(self) -> float | None:
-        return float(self._s[_S_T]) if self._s[_S_TVALID] else None
-
-    @_t.setter
-    def _t(self, value: float | None) -> None:
-        self._s[_S_TVALID] = value is not None
-        self._s[_S_T] = 0.0 if value is None else value
-
-    @property
-    def _phase(self) -> str:
-        return _PHASES[int(self._s[_S_PHASE])]
-
-    @_phase.setter
-    def _phase(self, value: str) -> None:
-        self._s[_S_PHASE] = _PHASE_CODES[value]
-
-    @property
-    def _blend(self) -> float:
-        return float(self._s[_S_BLEND])
-
-    @_blend.setter
-    def _blend(self, value: float) -> None:
-        self._s[_S_BLEND] = value
-
-    @property
-    def _fade(self) -> float:
-        return float(self._s[_S_FADE])
-
-    @_fade.setter
-    def _fade(self, value: float) -> None:
-        self._s[_S_FADE] = value
-
-    @property
-    def _stale(self) -> bool:
-        return bool(self._s[_S_STALE])
-
-    @_stale.setter
-    def _stale(self, value: bool) -> None:
-        self._s[_S_STALE] = bool(value)
-
-    @property
-    def _estop(self) -> bool:
-        return bool(self._s[_S_ESTOP])
-
-    @_estop.setter
-    def _estop(self, value: bool) -> None:
-        self._s[_S_ESTOP] = bool(value)
-
-    def _hold(self, state: AircraftState | None) -> None:
-        """Keep ``state``'s specific force and rates as the held sample (None: no sample)."""
-        s = self._s
-        s[_S_HAS_LAST] = state is not None
-        if state is not None:
-            s[_S_LAST : _S_LAST + 3] = state.specific_force
-            s[_S_LAST + 3 : _S_LAST + 6] = state.angular_velocity
 
     # -- lifecycle -------------------------------------------------------------
     def reset(self) -> None:
         """Back to parked, filters at rest, counters kept."""
-        self.washout.reset()
-        self._q = self.robot.park_angles
-        self._v = 0.0
-        self._wanted = self.robot.park_angles
-        self._pose = self.robot.park_pose
-        self._hold(None)
-        self._t = None
-        self._s[_S_TACC] = 0.0
-        self._phase = "starting"
-        self._blend = 0.0  # 0 = park, 1 = live
-        self._fade = 1.0
-        self._stale = False
-        self._estop = False
+        self.cueing.reset()
+        stages.reset_state(self.state, self.params, self.robot.park_pose)
 
     def warm_up(self) -> None:
         """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
         time; the pipeline is left reset, its counters untouched."""
         counts = self.health.as_dict()
-        self.step(AircraftState(0.0, self._level_f, self._zero3))
+        level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
+        self.step(AircraftState(0.0, level, self._zero3))
         self.step(None)
         self.robot.forward(self.robot.park_angles, guess=self.robot.park_pose)
         self.reset()
@@ -819,32 +489,44 @@ class Pipeline:
         """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
         back over ``soft_start_s`` (the end of the input, a stop signal: SIGINT, SIGTERM,
         SIGHUP, SIGQUIT; a failing source or sink)."""
-        if self._phase in ("starting", "running"):
-            self._phase = "stopping"
+        s = self.state[0]
+        if s["phase"] in (stages.STARTING, stages.RUNNING):
+            s["phase"] = stages.STOPPING
 
     def estop(self) -> None:
         """Emergency stop: head for park at once, as fast as the actuators' speed and
         acceleration limits allow (the geometry's ``max_speed`` and ``max_accel``, never
         faster): a second stop signal while stopping, teleop's E-stop key, this call."""
         self.health.estops += 1
-        self._estop = True
-        self._phase = "stopping"
-        self._blend = 0.0
+        s = self.state[0]
+        s["estop"] = True
+        s["phase"] = stages.STOPPING
+        s["blend"] = 0.0
+
+    @property
+    def estopped(self) -> bool:
+        """An E-stop was asked since the last reset."""
+        return bool(self.state[0]["estop"])
 
     @property
     def parked(self) -> bool:
         """True once stopped with the actuators at park and at rest."""
-        s = self._s
-        return (
-            s[_S_PHASE] == 2.0
-            and s[_S_BLEND] == 0.0
-            and bool(np.all(self._qs == self.robot.park_angles))
-            and bool(np.all(self._vs == 0.0))
-        )
+        return bool(stages.at_park(self.params, self.state))
 
     @property
     def phase(self) -> str:
-        return "parked" if self.parked else self._phase
+        """``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``."""
+        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
+
+    @property
+    def command(self) -> np.ndarray:
+        """The last actuator command (a copy), in the robot's unit."""
+        return self.state[0]["q"][: self.robot.n].copy()
+
+    @property
+    def speed(self) -> np.ndarray:
+        """The last command's speed (a live view: read it, do not keep it)."""
+        return self.state[0]["v"][: self.robot.n]
 
     # -- one tick --------------------------------------------------------------
     def step(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
@@ -857,215 +539,161 @@ class Pipeline:
         fresh : bool
             False when the source says the sample is a stale hold.
         """
-        if state is None or not self._fast:
-            return self.step_reference(state, fresh)
-        h = self.health
-        h.samples += 1
-        wpose = np.empty(6)
-        pose = np.empty(6)
-        q = np.empty(6)
-        flags = _rus6_tick(
-            self.washout._cf,
-            self.washout._st,
-            self._G,
-            self._c,
-            self._s,
-            state.t,
-            state.specific_force,
-            state.angular_velocity,
-            state.attitude,
-            bool(fresh),
-            wpose,
-            pose,
-            q,
-        )
-        if flags & 0x3FF:  # anything but the phase: the rare paths
-            return self._after_rare_tick(state, fresh, flags, wpose, pose, q)
-        return PipelineOutput(
-            state.t,
-            state,
-            fresh,
-            True,
-            wpose,
-            pose,
-            False,
-            q,
-            None,
-            False,
-            False,
-            _PHASES[flags >> _F_PHASE_SHIFT],
-            float(self._s[_S_FADE]),
-        )
-
-    def _after_rare_tick(
-        self,
-        state: AircraftState,
-        fresh: bool,
-        flags: int,
-        wpose: np.ndarray,
-        pose: np.ndarray,
-        q: np.ndarray,
-    ) -> PipelineOutput:
-        """The fused tick's bookkeeping when it did more than the plain path."""
-        h = self.health
-        if flags & _F_WASHOUT_ERROR:
-            raise WashoutInputError(
-                "washout input or tracked pose is not finite (reject the sample before the washout)"
+        self.health.samples += 1
+        P, S, u = self.params, self.state, self._u
+        if state is None:
+            flags = stages.input_stage(
+                P, S, False, 0.0, self._zero3, self._zero3, self._zero3, bool(fresh), u
             )
-        code = flags & _F_PROBLEM
-        if code:
-            h.rejected_inputs += 1
-            h.last_rejection = _INPUT_PROBLEMS[code]
-        if flags & _F_TIME_JUMP:
-            h.time_jumps += 1
-        if flags & _F_FADE_START:
-            h.watchdog_fades += 1
-        clamped = bool(flags & _F_CLAMPED)
-        if clamped:
-            h.clamps += 1
-        held = bool(flags & _F_HELD)
-        rate_limited = bool(flags & _F_RATE_LIMITED)
-        if held:
-            h.unsafe_commands += 1
-        if rate_limited:
-            h.rate_limited += 1
-        if held or rate_limited:
-            # the actuators realise another pose than the one asked: say which
-            achieved = self.robot.forward(q, guess=self._pose)
-            if np.isfinite(achieved).all():
-                pose = achieved
-            self._pose = pose
-        return PipelineOutput(
-            state.t if code == 0 else float(self._s[_S_T]),
-            state,
-            fresh,
-            code == 0,
-            wpose,
-            pose,
-            clamped,
-            q,
-            None,
-            rate_limited,
-            held,
-            _PHASES[flags >> _F_PHASE_SHIFT],
-            float(self._s[_S_FADE]),
-        )
-
-    def step_reference(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
-        """:meth:`step`, stage by stage in Python (the planar robot's path, and the
-        reference the fused 6-RUS kernel is tested against)."""
-        cfg = self.config
-        dt = self.dt
-        h = self.health
-        h.samples += 1
-
-        # 1. validation (against the last output time, so ticks stay strictly increasing)
-        accepted = state is not None
-        if state is not None:
-            problem = input_problem(
+        else:
+            flags = stages.input_stage(
+                P,
+                S,
+                True,
                 state.t,
                 state.specific_force,
                 state.angular_velocity,
                 state.attitude,
-                self._t,
-                cfg.input_limits,
+                bool(fresh),
+                u,
             )
-            if problem is None:
-                if self._t is not None and state.t - self._t > cfg.stale_timeout_s:
-                    # the source stalled or jumped: the input restarts from level flight
-                    # and fades into the new samples (the filters keep the pose continuous)
-                    h.time_jumps += 1
-                    self._fade = 0.0
-                self._hold(state)
-            else:
-                accepted = False
-                h.rejected_inputs += 1
-                h.last_rejection = problem
-        t = state.t if accepted else (self._t if self._t is not None else 0.0) + dt
-        self._t = t
-        if accepted:
-            self._s[_S_TACC] = t
-
-        # 2. watchdog fade of the washout's input: stale when the source says so or when its
-        # samples were all rejected for longer than the stale timeout (a tick without a
-        # sample, after the source ended, holds the last one: the park ramp is in charge)
-        stale = not fresh or (state is not None and t - self._s[_S_TACC] > cfg.stale_timeout_s)
-        if stale and not self._stale:
-            h.watchdog_fades += 1
-        self._stale = stale
-        step_fade = dt / cfg.fade_s
-        fade = self._fade
-        fade = max(0.0, fade - step_fade) if stale else min(1.0, fade + step_fade)
-        self._fade = fade
-
-        # 3. washout on the held sample (level flight before any), faded toward level flight
-        if not self._s[_S_HAS_LAST]:
-            f, w = self._level_f, self._zero3
-        else:
-            f, w = self._s[_S_LAST : _S_LAST + 3], self._s[_S_LAST + 3 : _S_LAST + 6]
-            if fade != 1.0:
-                sf = smoothstep(fade)
-                f = self._level_f + sf * (f - self._level_f)
-                w = self._zero3 + sf * (w - self._zero3)
-        washout_pose = self.washout.step(f, w)
-        live6 = washout_pose
-
-        # 4. soft start / stop blend
-        step_blend = dt / cfg.soft_start_s
-        phase = self._phase
-        if phase == "starting":
-            self._blend = min(1.0, self._blend + step_blend)
-            if self._blend >= 1.0:
-                phase = self._phase = "running"
-        elif phase == "stopping" and not self._estop:
-            self._blend = max(0.0, self._blend - step_blend)
-        s = smoothstep(self._blend)
-        robot = self.robot
-        live = robot.pose_from_washout(live6)
-        target = robot.park_pose + s * (live - robot.park_pose) if s < 1.0 else live
-
-        # 5. clamp (+ anti-windup while running), 6. inverse kinematics;
-        # park is commanded by its angles exactly
-        if phase == "stopping" and s == 0.0:
-            pose, clamped, wanted = robot.park_pose, False, robot.park_angles
-        else:
-            pose, clamped, wanted = robot.solve(target)
-        if clamped:
-            h.clamps += 1
-            if phase == "running":  # the target is the washout's pose (anti-windup)
-                self.washout.track(robot.washout_from_pose(pose, washout_pose))
-
-        # 7. safety
-        q, v, status = limit_command(self._q, self._v, self._wanted, wanted, dt, robot.limits)
-        held = bool(status & UNSAFE_TARGET)
-        self._wanted = q if held else wanted
-        rate_limited = bool(status & RATE_LIMITED)
-        if held:
-            h.unsafe_commands += 1
-        if rate_limited:
-            h.rate_limited += 1
-        if held or rate_limited:
-            # the actuators realise another pose than the one asked: say which
-            achieved = robot.forward(q, guess=self._pose)
-            if np.isfinite(achieved).all():
-                pose = achieved
-        self._q, self._v, self._pose = q, v, pose
-
-        return PipelineOutput(
-            t=t,
-            state=state,
-            fresh=fresh,
-            accepted=accepted,
-            washout_pose=washout_pose,
-            platform_pose=pose,
-            clamped=clamped,
-            angles=q,
-            servo_deg=robot.servo(q),
-            rate_limited=rate_limited,
-            held=held,
-            phase="parked" if phase == "stopping" and self.parked else phase,
-            fade=fade,
+        cue = np.empty(6)
+        if not self.cueing.advance(u, cue):
+            raise WashoutInputError(
+                f"{self.cueing.name} cueing: non-finite input {u} (reject the sample first)"
+            )
+        pose = np.empty(self._m)
+        q = np.empty(self.robot.n)
+        cue_out = self._cue_out
+        flags |= stages.after_cueing(
+            P, S, self._solve, self._G, cue, self._target, cue_out, pose, self._wanted, q
         )
+        self.flags = flags
+        if flags & stages.RUNNING_CLAMP:
+            self.cueing.track(cue_out)  # anti-windup: the pose the platform got
+        if flags & _RARE:
+            self.health.count(flags)
+            if flags & (stages.HELD | stages.RATE_LIMITED):
+                # the actuators realise another pose than the one asked: say which
+                s_pose = S[0]["pose"][: self._m]
+                achieved = self.robot.forward(q, guess=s_pose.copy())
+                if np.isfinite(achieved).all():
+                    pose = achieved
+                s_pose[:] = pose
+        s = S[0]
+        return PipelineOutput(
+            float(s["t"]),
+            state,
+            fresh,
+            state is not None and not flags & stages.PROBLEM,
+            cue,
+            pose,
+            bool(flags & stages.CLAMPED),
+            q,
+            self.robot.servo(q),
+            bool(flags & stages.RATE_LIMITED),
+            bool(flags & stages.HELD),
+            stages.PHASES[flags >> stages.PHASE_SHIFT],
+            float(s["fade"]),
+        )
+
+    # -- a whole flight ----------------------------------------------------------
+    def run_batch(
+        self,
+        t: np.ndarray,
+        f: np.ndarray,
+        w: np.ndarray,
+        att: np.ndarray | None = None,
+        fresh: np.ndarray | None = None,
+    ) -> BatchResult:
+        """Run a whole flight's samples through every stage at once (no log, no loop).
+
+        The same stages as :meth:`step`, from the pipeline's current state (which it
+        leaves where the flight ends), ticks counted in :attr:`health`: ``run_batch``
+        over a flight equals :meth:`step` over its samples, bit for bit, but for the
+        achieved pose after the limiter acted (solved by forward kinematics from the
+        pose asked, not the last tick's: equal to the solver's tolerance). With a cueing
+        that has compiled kernels the loop is compiled; otherwise it calls :meth:`step`.
+
+        Parameters
+        ----------
+        t : ndarray, shape (N,)
+            Sample times, s (one per tick).
+        f, w, att : ndarray, shape (N, 3)
+            Specific force (m/s^2), body rates (rad/s), attitude (rad; zeros if None).
+        fresh : ndarray of bool, shape (N,), optional
+            False where the source marked the sample a stale hold (all fresh if None).
+
+        Raises
+        ------
+        WashoutInputError
+            The cueing met a non-finite input (validation rejects those first, so only a
+            cueing's own failure).
+        """
+        t = np.ascontiguousarray(t, dtype=float)
+        N = len(t)
+        f = np.ascontiguousarray(f, dtype=float).reshape(N, 3)
+        w = np.ascontiguousarray(w, dtype=float).reshape(N, 3)
+        att = np.zeros((N, 3)) if att is None else np.ascontiguousarray(att, dtype=float)
+        fresh = np.ones(N, dtype=bool) if fresh is None else np.ascontiguousarray(fresh, bool)
+        out = BatchResult(
+            np.empty((N, 6)),
+            np.empty((N, self._m)),
+            np.empty((N, self.robot.n)),
+            np.zeros(N, dtype=np.int64),
+        )
+        cueing = self.cueing
+        if cueing.step_kernel is None:
+            for k in range(N):
+                o = self.step(AircraftState(t[k], f[k], w[k], att[k]), bool(fresh[k]))
+                out.cue_poses[k], out.poses[k], out.commands[k] = (
+                    o.washout_pose,
+                    o.platform_pose,
+                    o.angles,
+                )
+                out.flags[k] = self.flags
+            return out
+        done = stages.run_batch(
+            self.params,
+            self.state,
+            stages.kernel_list(cueing.step_kernel, stages.STEP_LIST),
+            stages.kernel_list(cueing.track_kernel, stages.TRACK_LIST),
+            cueing.kernel_params,
+            cueing.kernel_state,
+            self._solve,
+            self._G,
+            t,
+            f,
+            w,
+            att,
+            fresh,
+            *out,
+        )
+        self.health.samples += done
+        ran = out.flags[: done + (done < N)]
+        for bits in ran[(ran & _RARE) != 0]:
+            self.health.count(int(bits))
+        limited = np.flatnonzero(out.limited[:done])
+        if len(limited):  # the pose the limited commands realise, as the tick reports it
+            achieved = self.robot.forward(out.commands[limited], guess=out.poses[limited])
+            ok = np.isfinite(achieved).all(axis=1)
+            out.poses[limited[ok]] = achieved[ok]
+        if done < N:
+            raise WashoutInputError(
+                f"{cueing.name} cueing: non-finite input at sample {done} (t = {t[done]:.6g} s)"
+            )
+        return out
+
+
+#: Status bits that need the health counters or the forward kinematics.
+_RARE = (
+    stages.PROBLEM
+    | stages.TIME_JUMP
+    | stages.FADE_START
+    | stages.CLAMPED
+    | stages.HELD
+    | stages.RATE_LIMITED
+)
 
 
 # --------------------------------------------------------------------------- loop
@@ -1334,15 +962,15 @@ def _run(
                     health.worst_late_s = late
 
     def apply_stop() -> None:
-        if pipeline._phase in ("starting", "running"):
+        if pipeline.phase in ("starting", "running"):
             pipeline.estop() if stop.estop else pipeline.stop()
-        elif stop.estop and not pipeline._estop:
+        elif stop.estop and not pipeline.estopped:
             pipeline.estop()
 
     stopping_requested = False
     iterator = iter(source)
     # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
-    speeds = pipeline._v
+    speeds = pipeline.speed
     stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
     has_fresh = hasattr(source, "fresh")
     started = cpu_started = due = 0.0
@@ -1368,7 +996,7 @@ def _run(
                 if due is None:
                     due = started
                 next_due = started + dt  # the park ticks follow on this loop's schedule
-        if stop_raised() and (not stopping_requested or (stop.estop and not pipeline._estop)):
+        if stop_raised() and (not stopping_requested or (stop.estop and not pipeline.estopped)):
             if not stopping_requested:
                 summary.stopped_by = stop.reason
             stopping_requested = True
@@ -1386,7 +1014,7 @@ def _run(
         for _ in range(int(max_park_s / dt)):
             if pipeline.parked and summary.samples:  # (one park tick at least: drives, log)
                 break
-            if stop.estop and not pipeline._estop:
+            if stop.estop and not pipeline.estopped:
                 pipeline.estop()
             if paced:
                 due = pace()

@@ -369,7 +369,7 @@ def build_report(
     w_raw = _array(air_msgs, "angular_velocity", 3, "/aircraft/state")
     accepted = _flags(air_msgs, "accepted", True)
     good = accepted & np.isfinite(f_raw).all(axis=1) & np.isfinite(w_raw).all(axis=1)
-    gravity = float(config.washout.gravity)
+    gravity = float(config.cueing_params.gravity)
     aircraft_f = _hold_last(f_raw, good, np.array([0.0, 0.0, -gravity]))
     aircraft_w = _hold_last(w_raw, good, np.zeros(3))
     dt = _dt(metadata, t_air)

@@ -208,7 +208,7 @@ class InputLimits:
 #: sample. A time outside is rejected like any invalid sample and never reaches the log.
 MAX_SAMPLE_TIME_S = 9.2e9
 
-_INPUT_PROBLEMS = (
+INPUT_PROBLEMS = (
     None,
     "time is not finite",
     "time did not advance",
@@ -273,7 +273,7 @@ def input_problem(
         limits.max_angular_velocity,
         limits.max_attitude,
     )
-    return _INPUT_PROBLEMS[code]
+    return INPUT_PROBLEMS[code]
 
 
 def smoothstep(x: float) -> float:

@@ -124,6 +124,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from motionbase import stages
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.washout.params import WashoutParams
 from motionbase.washout.perception import cueing_metrics
@@ -320,29 +321,20 @@ class ChainRun(NamedTuple):
 
 
 def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre) -> ChainRun:
-    """Run a manoeuvre through the whole pipeline from park, one tick per sample.
-
-    The one place the tuner runs the chain: the pipeline's batch path will replace
-    this loop.
-    """
-    pipeline = Pipeline(config)
-    step = pipeline.step
-    n = len(manoeuvre)
-    pose = np.empty((n, 6))
-    angles = np.empty((n, 6))
-    flags = np.zeros((n, 4), dtype=bool)  # clamped, limited, running, accepted
-    fresh = manoeuvre.fresh
-    for i, state in enumerate(manoeuvre.states()):
-        out = step(state, bool(fresh[i]))
-        pose[i] = out.platform_pose
-        angles[i] = out.angles
-        flags[i] = (
-            out.clamped,
-            out.rate_limited or out.held,
-            out.phase == "running",
-            out.accepted,
-        )
-    return ChainRun(pose, flags[:, 0], flags[:, 1], flags[:, 2], flags[:, 3], angles)
+    """Run a manoeuvre through the whole pipeline from park, one tick per sample (the
+    pipeline's batch path); the one place the tuner runs the chain."""
+    m = manoeuvre
+    result = Pipeline(config).run_batch(
+        m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh
+    )
+    return ChainRun(
+        result.poses,
+        result.clamped,
+        result.limited,
+        result.phases == stages.RUNNING,
+        result.accepted,
+        result.commands,
+    )
 
 
 # --------------------------------------------------------------------------- the score
@@ -578,7 +570,7 @@ class TuningProblem:
     def config(self, params: WashoutParams, manoeuvre: Manoeuvre) -> PipelineConfig:
         """The pipeline configuration for one manoeuvre (its rate, default settings)."""
         return PipelineConfig(
-            robot="rus6", geometry=self.geometry, washout=params, rate_hz=manoeuvre.rate_hz
+            robot="rus6", geometry=self.geometry, cueing_params=params, rate_hz=manoeuvre.rate_hz
         )
 
     def evaluate(self, params: WashoutParams) -> SetScore:

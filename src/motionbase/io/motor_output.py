@@ -93,6 +93,7 @@ from motionbase.errors import ConfigError, SinkError
 from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
 from motionbase.platform.output_map import OutputMapping, sweep_profile
+from motionbase.platform.robot import Robot
 from motionbase.safety import RATE_LIMITED, ActuatorLimits, limit_command
 
 __all__ = [
@@ -1037,26 +1038,21 @@ def open_output(
     return MotorOutput(transport, fmt, mapping, rate_hz=rate, limits=limits, url=url)
 
 
-def open_outputs(urls: Sequence[str] | None, config: Any) -> list[MotorOutput]:
+def open_outputs(urls: Sequence[str] | None, robot: Robot) -> list[MotorOutput]:
     """Motor-drive sinks for a job's ``--output`` URLs, mapped by :func:`mapping_for` and
-    ramped at the drive within the geometry's actuator limits."""
+    ramped at the drive within the robot's actuator limits."""
     if not urls:
         return []
-    from motionbase.pipeline import make_robot
-
-    mapping = mapping_for(config)
-    limits = make_robot(config).limits
-    return [open_output(u, mapping, limits=limits) for u in urls]
+    mapping = mapping_for(robot)
+    return [open_output(u, mapping, limits=robot.limits) for u in urls]
 
 
-def mapping_for(config: Any) -> OutputMapping:
+def mapping_for(robot: Robot) -> OutputMapping:
     """The geometry's ``[output]`` mapping, or degrees for every motor when it has none."""
-    out = getattr(config.geometry, "output", None)
+    out = getattr(robot.geometry, "output", None)
     if out is not None:
         return out
-    from motionbase.pipeline import make_robot
-
-    lim = make_robot(config).limits
+    lim = robot.limits
     return OutputMapping.default(lim.lower, lim.upper)
 
 

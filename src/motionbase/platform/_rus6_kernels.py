@@ -437,3 +437,18 @@ def forward_batch(angles, guesses, G, tol, max_iter, out, iters):
             for j in range(6):
                 out[k, j] = np.nan
             iters[k] = -1
+
+
+@njit(
+    "boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1])",
+    cache=True,
+    nogil=True,
+    error_model="numpy",
+)
+def solve(params, target, cue_out, pose_out, q_out):
+    """The robot plug-in's kernel (:data:`motionbase.platform.robot.SOLVE_SIGNATURE`):
+    clamp the cue pose, solve the cranks; the 6-RUS renders the cue pose as it is."""
+    clamped = clamp_inverse_one(target, params.reshape((6, NG)), pose_out, q_out)
+    for j in range(6):
+        cue_out[j] = pose_out[j]
+    return clamped

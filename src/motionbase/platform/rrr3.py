@@ -44,15 +44,19 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 
 from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.platform import _rrr3_kernels as _k
 from motionbase.platform import rrr3_workspace as _ws
 from motionbase.platform._rrr3_kernels import OK, SERVO_RANGE, TYPE1, TYPE2, UNREACHABLE
+from motionbase.platform.robot import Robot
 from motionbase.platform.rrr3_geometry import Rrr3Geometry
+from motionbase.safety import ActuatorLimits
 
 __all__ = [
+    "Rrr3Robot",
     "Rrr3",
     "JointPoints",
     "Singularity",
@@ -508,3 +512,125 @@ class Rrr3:
         :func:`motionbase.platform.rrr3_workspace.inscribed_rectangle`.
         """
         return _ws.inscribed_rectangle(self.geometry, phi, n=n)
+
+
+# --------------------------------------------------------------------------------------------
+# The robot plug-in
+# --------------------------------------------------------------------------------------------
+
+_TWO_PI = 2.0 * math.pi
+
+
+@numba.njit(
+    "boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1])",
+    cache=True,
+)
+def solve(params, target, cue_out, pose_out, q_out):  # pragma: no cover - compiled
+    """Robot kernel (:data:`~motionbase.platform.robot.SOLVE_SIGNATURE`): map the cue pose
+    to ``[x, y, phi]``, clamp toward home, solve the joint angles.
+
+    ``params``: the geometry's packed kernel parameters (``Rrr3Geometry.packed``), then
+    home (3), the mapping's scales (x, y, phi) (3) and the servo intervals' lower ends (3).
+    """
+    k = params.shape[0] - 9
+    p = params[:k]
+    hx, hy, hphi = params[k], params[k + 1], params[k + 2]
+    sx, sy, sphi = params[k + 3], params[k + 4], params[k + 5]
+    theta = np.empty(3)
+    servo = np.empty(3, dtype=np.int64)
+    cx, cy, cp, clamped, _ = _k.clamp_one(
+        hx + sx * target[0],
+        hy + sy * target[1],
+        hphi + sphi * target[5],
+        hx,
+        hy,
+        hphi,
+        p,
+        32,
+        20,
+        theta,
+        servo,
+    )
+    pose_out[0] = cx
+    pose_out[1] = cy
+    pose_out[2] = cp
+    for i in range(3):
+        lo = params[k + 6 + i]
+        q_out[i] = lo + np.mod(theta[i] - lo, _TWO_PI)  # inside the servo's interval
+    for i in range(6):
+        cue_out[i] = target[i]
+    cue_out[0] = (cx - hx) / sx
+    cue_out[1] = (cy - hy) / sy
+    cue_out[5] = (cp - hphi) / sphi
+    return clamped
+
+
+class Rrr3Robot(Robot):
+    """The 3-RRR robot in planar mode.
+
+    Parameters
+    ----------
+    geometry : Rrr3Geometry
+    scale_m : float
+        Metres of robot x and y per metre of cue surge and sway.
+    yaw_scale : float
+        Robot phi per radian of cue yaw.
+    """
+
+    name = "rrr3"
+    actuator_unit = "rad"
+    solve_kernel = staticmethod(solve)
+
+    def __init__(
+        self, geometry: Rrr3Geometry, scale_m: float = 0.1, yaw_scale: float = 0.5
+    ) -> None:
+        self.kin = Rrr3(geometry)
+        self.geometry = geometry
+        self.n = 3
+        lo, hi = np.asarray(self.kin.angle_limits, dtype=float).T
+        self.limits = ActuatorLimits.broadcast(3, lo, hi, geometry.max_speed, geometry.max_accel)
+        if scale_m == 0 or yaw_scale == 0:
+            raise ConfigError("planar mapping: planar_scale_m and planar_yaw_scale must not be 0")
+        self.scale = np.array([scale_m, scale_m, yaw_scale], dtype=float)
+        self.neutral_pose = np.asarray(self.kin.home, dtype=float)
+        self.park_pose = self.neutral_pose
+        self.park_cue = np.zeros(6)
+        self.park_angles = self.inverse(self.park_pose)
+        self.kernel_params = np.concatenate(
+            [geometry.packed(), self.neutral_pose, self.scale, self.limits.lower]
+        )
+        if not np.isfinite(self.park_angles).all():
+            raise ConfigError(
+                "planar geometry: the home pose is not reachable (check the geometry)"
+            )
+        self._finish()
+
+    def pose_from_cue(self, cue: np.ndarray) -> np.ndarray:
+        cue = np.asarray(cue, dtype=float)
+        return self.neutral_pose + self.scale * cue[..., [0, 1, 5]]
+
+    def cue_from_pose(self, pose: np.ndarray, cue: np.ndarray) -> np.ndarray:
+        out = np.array(cue, dtype=float)
+        out[..., [0, 1, 5]] = (np.asarray(pose) - self.neutral_pose) / self.scale
+        return out
+
+    def inverse(self, pose: Any) -> np.ndarray:
+        # the same angle modulo 2 pi, written inside the servo's interval when it is in it
+        angles = np.asarray(self.kin.inverse(pose), dtype=float)
+        lo = self.limits.lower
+        return lo + np.mod(angles - lo, _TWO_PI)
+
+    def reachable(self, pose: Any) -> np.ndarray | bool:
+        return self.kin.reachable(pose)
+
+    def clamp(self, pose: Any) -> tuple[np.ndarray, np.ndarray | bool]:
+        return self.kin.clamp(pose)
+
+    def forward(self, q: Any, guess: Any) -> np.ndarray:
+        return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
+
+    def joint_points(self, pose: Any) -> Any:
+        return self.kin.joint_points(pose)
+
+    def servo(self, q: np.ndarray) -> np.ndarray:
+        return np.asarray(self.kin.to_servo(q))

@@ -27,9 +27,11 @@ from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
 from motionbase.platform import _rus6_kernels as _k
+from motionbase.platform.robot import Robot
 from motionbase.platform.rus6_geometry import Rus6Geometry
+from motionbase.safety import ActuatorLimits
 
-__all__ = ["Rus6", "JointPoints", "JacobianResult"]
+__all__ = ["Rus6", "Rus6Robot", "JointPoints", "JacobianResult"]
 
 _UP = np.array([0.0, 0.0, -1.0])
 
@@ -397,3 +399,48 @@ def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
     R[..., 2, 1] = cp * sr
     R[..., 2, 2] = cp * cr
     return R
+
+
+class Rus6Robot(Robot):
+    """The 6-RUS platform as a pipeline robot (:class:`~motionbase.platform.robot.Robot`):
+    the cue pose is the platform pose; actuators are cranks (rad); park is every crank at
+    the geometry's ``park_angle``.
+
+    Parameters
+    ----------
+    geometry : Rus6Geometry
+    """
+
+    name = "rus6"
+    actuator_unit = "rad"
+    solve_kernel = staticmethod(_k.solve)
+
+    def __init__(self, geometry: Rus6Geometry) -> None:
+        self.kin = Rus6(geometry)
+        self.geometry = geometry
+        self.n = 6
+        lo, hi = self.kin.angle_limits
+        self.limits = ActuatorLimits.broadcast(6, lo, hi, geometry.max_speed, geometry.max_accel)
+        self.park_angles = np.full(6, float(geometry.park_angle))
+        self.neutral_pose = np.zeros(6)
+        self.park_pose = self.kin.forward(self.park_angles, guess=self.neutral_pose)
+        self.park_cue = self.park_pose
+        self.kernel_params = self.kin._G.ravel()
+        if not np.isfinite(self.park_pose).all():
+            raise ConfigError("geometry: park_angle gives no assembled platform (choose another)")
+        self._finish()
+
+    def inverse(self, pose: ArrayLike) -> np.ndarray:
+        return self.kin.inverse(pose)
+
+    def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
+        return self.kin.reachable(pose)
+
+    def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
+        return self.kin.clamp(pose)
+
+    def forward(self, q: ArrayLike, guess: ArrayLike) -> np.ndarray:
+        return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
+
+    def joint_points(self, pose: ArrayLike) -> JointPoints:
+        return self.kin.joint_points(pose)

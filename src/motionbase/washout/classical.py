@@ -105,6 +105,7 @@ import numpy as np
 
 from motionbase.errors import MotionbaseError
 from motionbase.safety import _brake_speed
+from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE, Cueing
 from motionbase.washout.filters import (
     discretise,
     lowpass2,
@@ -335,7 +336,7 @@ def _step_kernel(cf, st, fx, fy, fz, wx, wy, wz, out):  # pragma: no cover - com
         st[_POSE + i] = out[i]
 
 
-@numba.njit(cache=True)
+@numba.njit(STEP_SIGNATURE, cache=True)
 def _step(cf, st, u, out):  # pragma: no cover - compiled
     """One sample; returns False (and touches nothing) on a non-finite input."""
     for i in range(6):
@@ -361,8 +362,8 @@ def _run(cf, st, f, w, out):  # pragma: no cover - compiled
     return -1
 
 
-@numba.njit(cache=True)
-def _track(st, ach):  # pragma: no cover - compiled
+@numba.njit(TRACK_SIGNATURE, cache=True)
+def _track(cf, st, ach):  # pragma: no cover - compiled
     # translation: position := achieved; zero a velocity that points into the cut
     for i in range(3):
         d = ach[i] - st[_POSE + i]
@@ -527,8 +528,10 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
     return cf
 
 
-class ClassicalWashout:
+class ClassicalWashout(Cueing):
     """Classical washout filter: aircraft specific force and rates to a platform pose.
+
+    The first :class:`~motionbase.washout.cueing.Cueing` plug-in (``--cueing classical``).
 
     Parameters
     ----------
@@ -554,6 +557,16 @@ class ClassicalWashout:
         self._u = np.zeros(6)
         self._out = np.zeros(6)
         self._ach = np.zeros(6)
+        self.kernel_params = self._cf
+        self.kernel_state = self._st
+
+    name = "classical"
+    step_kernel = staticmethod(_step)
+    track_kernel = staticmethod(_track)
+
+    def advance(self, u: np.ndarray, out: np.ndarray) -> bool:
+        """One sample into ``out`` (the pipeline's tick): see :class:`Cueing`."""
+        return _step(self._cf, self._st, u, out)
 
     @property
     def params(self) -> WashoutParams:
@@ -700,7 +713,7 @@ class ClassicalWashout:
             ) from None
         if not np.isfinite(ach).all():
             raise WashoutInputError(f"washout track: achieved pose must be finite, got {ach}")
-        _track(self._st, ach)
+        _track(self._cf, self._st, ach)
 
     def __repr__(self) -> str:
         return f"ClassicalWashout(dt={self._dt:g}, method={self._params.method!r})"

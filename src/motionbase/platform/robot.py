@@ -1,0 +1,263 @@
+"""The robot plug-in interface: what the pipeline needs from any motion platform.
+
+A robot turns the cueing's pose (``[x, y, z, roll, pitch, yaw]``, m and rad, base axes
+FRD, the *cue pose*) into actuator commands. The pipeline knows nothing else about it:
+the 6-RUS rotary platform, the 6-UPS Stewart platform and the planar 3-RRR robot each
+implement :class:`Robot` in their own module and are listed in :data:`ROBOTS`.
+
+Actuator coordinates are the robot's own: crank or servo angles in rad for rotary
+actuators, leg lengths in m for linear ones (``Robot.actuator_unit``). Speeds and
+accelerations follow (rad/s or m/s, rad/s^2 or m/s^2).
+
+The compiled real-time kernel
+-----------------------------
+Every robot provides :attr:`Robot.solve_kernel`, a numba function compiled with the
+signature :data:`SOLVE_SIGNATURE`::
+
+    clamped = solve_kernel(G, target, cue_out, pose_out, q_out)
+
+``G`` is the robot's packed parameters (:attr:`Robot.kernel_params`), ``target`` the cue
+pose (6,) to render; it writes the pose actually commanded in robot coordinates
+(``pose_out``, shape (m,)), the cue pose it realises (``cue_out``, (6,): equal to
+``target`` unless clamped; what the cueing is told for anti-windup) and the actuator
+command (``q_out``, (n,)), and returns True when the workspace clamp moved the pose. The
+pipeline's tick calls it through :meth:`Robot.solve`, and its batch path calls the same
+kernel from compiled code (:mod:`motionbase.stages`).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numba
+import numpy as np
+
+from motionbase.errors import ConfigError
+from motionbase.safety import ActuatorLimits
+
+_vec = numba.float64[::1]
+#: Signature of every robot's compiled clamp + inverse kinematics (see the module notes).
+SOLVE_SIGNATURE = numba.boolean(_vec, _vec, _vec, _vec, _vec)
+
+
+class Robot(ABC):
+    """A motion platform as the pipeline drives it.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (``"rus6"``, ``"rrr3"``, ``"stewart6"``), written in the log.
+    geometry : object
+        The robot's geometry (a frozen dataclass with ``to_dict``/``from_dict``).
+    n : int
+        Number of actuators.
+    actuator_unit : {"rad", "m"}
+        Unit of the actuator coordinates.
+    limits : ActuatorLimits
+        Actuator position, speed and acceleration limits, shape (n,) each.
+    park_angles : ndarray, shape (n,)
+        Actuator command of the parked platform (rad or m, despite the name: it is the
+        command sent to the drives at park).
+    park_pose : ndarray, shape (m,)
+        The parked pose in robot coordinates.
+    park_cue : ndarray, shape (6,)
+        The cue pose of :attr:`park_pose` (the soft start blends from it).
+    neutral_pose : ndarray, shape (m,)
+        Robot pose of the zero cue pose.
+    kernel_params : ndarray, shape (k,)
+        Packed parameters of :attr:`solve_kernel` (do not change them).
+    solve_kernel : numba dispatcher
+        Clamp + inverse kinematics, compiled with :data:`SOLVE_SIGNATURE`.
+    """
+
+    name: ClassVar[str]
+    actuator_unit: ClassVar[str] = "rad"
+    geometry: Any
+    n: int
+    limits: ActuatorLimits
+    park_angles: np.ndarray
+    park_pose: np.ndarray
+    park_cue: np.ndarray
+    neutral_pose: np.ndarray
+    kernel_params: np.ndarray
+    solve_kernel: Any
+
+    # -- the real-time path ------------------------------------------------------------
+    def solve(
+        self, target: np.ndarray, cue_out: np.ndarray, pose_out: np.ndarray, q_out: np.ndarray
+    ) -> bool:
+        """Clamp the cue pose ``target`` into the workspace and solve the actuators.
+
+        Writes ``cue_out`` (6,), ``pose_out`` (m,) and ``q_out`` (n,) (see the module
+        notes); returns True when the clamp moved the pose. Arrays are float64,
+        C-contiguous.
+        """
+        return self.solve_kernel(self.kernel_params, target, cue_out, pose_out, q_out)
+
+    # -- kinematics (robot coordinates) -----------------------------------------------
+    @abstractmethod
+    def inverse(self, pose: np.ndarray) -> np.ndarray:
+        """Actuator positions of robot poses ``(..., m) -> (..., n)`` (NaN: no solution)."""
+
+    @abstractmethod
+    def reachable(self, pose: np.ndarray) -> np.ndarray | bool:
+        """Whether each robot pose ``(..., m)`` is reachable within the actuator limits."""
+
+    @abstractmethod
+    def clamp(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray | bool]:
+        """The nearest reachable pose toward neutral, and whether it moved."""
+
+    @abstractmethod
+    def forward(self, q: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """Robot poses ``(..., m)`` of actuator positions ``(..., n)``, by Newton from
+        ``guess`` (rows of NaN where it does not converge)."""
+
+    @abstractmethod
+    def joint_points(self, pose: np.ndarray) -> Any:
+        """The joints' positions at a robot pose, for drawing (a named tuple of arrays)."""
+
+    # -- cue pose <-> robot pose -------------------------------------------------------
+    def pose_from_cue(self, cue: np.ndarray) -> np.ndarray:
+        """Robot pose of a cue pose (identity for the 6-DOF platforms)."""
+        return np.array(cue, dtype=float)
+
+    def cue_from_pose(self, pose: np.ndarray, cue: np.ndarray) -> np.ndarray:
+        """The cue pose a robot pose realises; axes the robot lacks keep ``cue``'s."""
+        return np.array(pose, dtype=float)
+
+    def servo(self, q: np.ndarray) -> np.ndarray | None:
+        """Hobby-servo command in integer degrees, for robots driven that way (else None)."""
+        return None
+
+    def _finish(self) -> None:
+        """Check and freeze the attributes a subclass's constructor set."""
+        for name in ("park_angles", "park_pose", "park_cue", "neutral_pose"):
+            a = np.ascontiguousarray(getattr(self, name), dtype=float)
+            a.setflags(write=False)
+            setattr(self, name, a)
+        # (writable: numba types a read-only array apart from the kernels' signature)
+        self.kernel_params = np.ascontiguousarray(self.kernel_params, dtype=float)
+        if not np.isfinite(self.park_angles).all() or not np.isfinite(self.park_pose).all():
+            raise ConfigError(f"{self.name} geometry: the park position is not reachable")
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({getattr(self.geometry, 'name', '')!r})"
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """One entry of :data:`ROBOTS`: how to build a robot from its name.
+
+    Attributes
+    ----------
+    name : str
+        Also the preset prefix: geometry presets ship as
+        ``motionbase/presets/<name>_<preset>.toml``.
+    robot_class, geometry_class : str
+        ``"module:Class"`` of the :class:`Robot` subclass and of its geometry (with
+        ``preset``, ``from_toml``, ``from_dict`` and ``to_dict``), imported on use.
+    default_preset : str
+        Geometry preset used when none is given.
+    planar : bool
+        True for robots that render surge, sway and yaw only (``--planar``).
+    description : str
+    """
+
+    name: str
+    robot_class: str
+    geometry_class: str
+    default_preset: str
+    planar: bool = False
+    description: str = ""
+
+    @staticmethod
+    def _load(path: str) -> Any:
+        import importlib
+
+        module, attr = path.split(":")
+        return getattr(importlib.import_module(module), attr)
+
+    @property
+    def geometry_type(self) -> Any:
+        """The geometry class."""
+        return self._load(self.geometry_class)
+
+    @property
+    def robot_type(self) -> type[Robot]:
+        """The :class:`Robot` subclass."""
+        return self._load(self.robot_class)
+
+    def make(self, geometry: Any, **options: Any) -> Robot:
+        """The robot for ``geometry`` (options: the planar mapping's scales)."""
+        return self.robot_type(geometry, **options)
+
+
+#: Every robot motionbase drives, by name. A new robot: one module with a :class:`Robot`
+#: subclass and its geometry, a preset TOML, and one entry here.
+ROBOTS: dict[str, RobotSpec] = {
+    spec.name: spec
+    for spec in (
+        RobotSpec(
+            "rus6",
+            "motionbase.platform.rus6:Rus6Robot",
+            "motionbase.platform.rus6_geometry:Rus6Geometry",
+            "ceart",
+            description="6-RUS rotary platform (cranks)",
+        ),
+        RobotSpec(
+            "stewart6",
+            "motionbase.platform.stewart6:Stewart6Robot",
+            "motionbase.platform.stewart6_geometry:Stewart6Geometry",
+            "seat",
+            description="6-UPS Stewart platform (linear actuators)",
+        ),
+        RobotSpec(
+            "rrr3",
+            "motionbase.platform.rrr3:Rrr3Robot",
+            "motionbase.platform.rrr3:Rrr3Geometry",
+            "udesc_symmetric",
+            planar=True,
+            description="planar 3-RRR robot (servos)",
+        ),
+    )
+}
+
+
+def robot_spec(name: str) -> RobotSpec:
+    """The registry entry of ``name``, or a ConfigError listing the known robots."""
+    try:
+        return ROBOTS[name]
+    except (KeyError, TypeError):
+        raise ConfigError(
+            f"unknown robot {name!r} (choose one of: {', '.join(sorted(ROBOTS))})"
+        ) from None
+
+
+def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[str, Any]:
+    """The robot and geometry a ``--platform`` value names.
+
+    Parameters
+    ----------
+    name_or_path : str or None
+        A robot's name (its default preset), a geometry preset name or a TOML path;
+        None: the default robot's default preset.
+    planar : bool
+        The robot is the planar 3-RRR (``--planar``).
+
+    Returns
+    -------
+    (robot name, geometry)
+    """
+    from motionbase.config import resolve_preset_or_path
+
+    if planar:
+        robot = "rrr3"
+    elif name_or_path in ROBOTS and not ROBOTS[name_or_path].planar:
+        robot, name_or_path = name_or_path, None
+    else:
+        robot = "rus6"
+    spec = ROBOTS[robot]
+    path = resolve_preset_or_path(robot, name_or_path or spec.default_preset)
+    return robot, spec.geometry_type.from_toml(path)

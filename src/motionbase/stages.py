@@ -1,0 +1,380 @@
+"""The pipeline's own stages, each one compiled function with named state in and out.
+
+The tick (:meth:`motionbase.pipeline.Pipeline.step`) is::
+
+    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve -> limit_stage)
+                -> cueing.track (when the clamp acted while running)
+
+The cueing and the robot are plug-ins (:mod:`motionbase.washout.cueing`,
+:mod:`motionbase.platform.robot`); everything else is here. Every function works like
+``scipy.signal.sosfilt``'s ``zi -> zf``: the state goes in and comes out changed, nothing
+is hidden. The state and the constants are numpy *records* (structured arrays of one
+element, :data:`STATE` and :data:`PARAMS`) whose fields have names, units and meanings
+(below); numba reads and writes them by name.
+
+The same functions run the real-time tick and the batch path (:func:`run_batch`, a whole
+flight in compiled code), so batch equals streaming bit for bit
+(``tests/test_pipeline_batch.py``).
+
+Units: s, m/s^2, rad/s, rad; actuator positions in the robot's unit (rad or m). Arrays
+of actuator values have room for 6; the first ``n`` (the robot's) are used.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import types
+
+from motionbase.platform.robot import SOLVE_SIGNATURE
+from motionbase.safety import _input_code, _limit_kernel
+from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
+
+#: Phases of the soft start and stop (``STATE.phase``), by code.
+PHASES = ("starting", "running", "stopping", "parked")
+STARTING, RUNNING, STOPPING, PARKED = range(4)
+
+#: The pipeline's state, one record (units in the comments).
+STATE = np.dtype(
+    [
+        # input stage: validation and the watchdog fade
+        ("t", "f8"),  # time of the last tick, s (source clock)
+        ("has_t", "?"),  # False before the first tick
+        ("t_accepted", "f8"),  # time of the last accepted sample, s
+        ("has_sample", "?"),  # a sample was accepted (else the input is level flight)
+        ("sample", "f8", (6,)),  # held sample: specific force (m/s^2), body rates (rad/s)
+        ("fade", "f8"),  # watchdog fade in [0, 1]: share of the held sample given on
+        ("stale", "?"),  # the input is stale (marked so, or nothing accepted lately)
+        # soft start / stop
+        ("phase", "i8"),  # STARTING, RUNNING or STOPPING
+        ("blend", "f8"),  # 0 = park, 1 = the live pose
+        ("estop", "?"),  # an E-stop: park at the actuators' limits, no blend
+        # safety limiter (actuator units)
+        ("q", "f8", (6,)),  # last command
+        ("v", "f8", (6,)),  # its speed, per s
+        ("wanted", "f8", (6,)),  # last target the limiter accepted
+        ("pose", "f8", (6,)),  # robot pose the last command realises (first m used)
+    ],
+    align=True,
+)
+
+#: The pipeline's constants, one record.
+PARAMS = np.dtype(
+    [
+        ("dt", "f8"),  # tick period, s
+        ("stale_timeout", "f8"),  # s
+        ("fade_step", "f8"),  # fade change per tick, dt / fade_s
+        ("blend_step", "f8"),  # blend change per tick, dt / soft_start_s
+        ("max_f", "f8"),  # input plausibility bounds: m/s^2, rad/s, rad
+        ("max_w", "f8"),
+        ("max_att", "f8"),
+        ("level", "f8", (6,)),  # level flight input: (0, 0, -g, 0, 0, 0)
+        ("park_cue", "f8", (6,)),  # cue pose of the park pose
+        ("park_pose", "f8", (6,)),  # robot pose at park (first m used)
+        ("park_q", "f8", (6,)),  # actuator command at park
+        ("lower", "f8", (6,)),  # actuator limits
+        ("upper", "f8", (6,)),
+        ("max_speed", "f8", (6,)),
+        ("max_accel", "f8", (6,)),
+        ("n", "i8"),  # number of actuators
+        ("m", "i8"),  # size of the robot pose
+    ],
+    align=True,
+)
+
+# Status bits of a tick.
+PROBLEM = 0xF  # input problem code (safety.INPUT_PROBLEMS), 0 = accepted
+TIME_JUMP = 1 << 4
+FADE_START = 1 << 5
+CLAMPED = 1 << 6
+RATE_LIMITED = 1 << 7
+HELD = 1 << 8
+CUEING_ERROR = 1 << 9
+RUNNING_CLAMP = 1 << 10  # clamped while running: the cueing is to be told (anti-windup)
+PHASE_SHIFT = 12  # two bits: the output phase (PHASES)
+
+_STATE_T = numba.from_dtype(STATE)[::1]
+_PARAMS_T = numba.from_dtype(PARAMS)[::1]
+_vec = numba.float64[::1]
+#: Typed lists holding one compiled plug-in function each (:func:`kernel_list`).
+SOLVE_LIST = types.ListType(types.FunctionType(SOLVE_SIGNATURE))
+STEP_LIST = types.ListType(types.FunctionType(STEP_SIGNATURE))
+TRACK_LIST = types.ListType(types.FunctionType(TRACK_SIGNATURE))
+
+
+def kernel_list(kernel, list_type) -> numba.typed.List:
+    """A typed list holding ``kernel`` as a first-class function, what compiled stages call.
+
+    Passing a numba dispatcher itself costs a type lookup every call (tens of us); the
+    list's type is known at once, so a call through it costs about a microsecond.
+    """
+    out = numba.typed.List.empty_list(list_type.item_type)
+    out.append(kernel)
+    return out
+
+
+def new_state() -> np.ndarray:
+    """A zeroed :data:`STATE` record (call :func:`reset_state` before use)."""
+    return np.zeros(1, dtype=STATE)
+
+
+def reset_state(S: np.ndarray, P: np.ndarray, park_pose: np.ndarray) -> None:
+    """Parked, at rest, no sample seen; the fade full (nothing stale yet)."""
+    S[0] = np.zeros((), dtype=STATE)
+    s = S[0]
+    s["q"] = P[0]["park_q"]
+    s["wanted"] = P[0]["park_q"]
+    s["pose"][: len(park_pose)] = park_pose
+    s["phase"] = STARTING
+    s["fade"] = 1.0
+
+
+@numba.njit(cache=True, inline="always")
+def smooth(x):  # pragma: no cover - compiled
+    """C1 ramp 3x^2 - 2x^3 from 0 (x <= 0) to 1 (x >= 1) (as safety.smoothstep)."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    return x * x * (3.0 - 2.0 * x)
+
+
+@numba.njit(cache=True)
+def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - compiled
+    """Validation and the watchdog fade: this tick's sample to the cueing's input ``u``.
+
+    Parameters
+    ----------
+    P, S : PARAMS and STATE records (arrays of one)
+    present : bool
+        A sample came this tick (False on the park ticks after the source ended: the
+        last one is held and its time advances by ``dt``).
+    t : float
+        Sample time, s.
+    f, w, att : ndarray, shape (3,)
+        Specific force (m/s^2), body rates (rad/s), attitude (rad), body axes FRD.
+    fresh : bool
+        False when the source marked the sample a stale hold.
+    u : ndarray, shape (6,)
+        Out: ``[f, w]`` for the cueing: the held sample (level flight before any),
+        faded toward level flight while the input is stale.
+
+    Returns
+    -------
+    int
+        Status bits: ``PROBLEM`` (why the sample was rejected: it is then replaced by
+        the held one), ``TIME_JUMP``, ``FADE_START``.
+
+    Notes
+    -----
+    A rejected sample's time is the last tick's plus ``dt``, so output times always
+    increase. A forward jump longer than ``stale_timeout`` restarts the input from level
+    flight (the fade to 0) and fades it into the new samples; the cueing's filters keep
+    their state, so its pose stays continuous.
+    """
+    p = P[0]
+    s = S[0]
+    flags = 0
+    accepted = False
+    if present:
+        flags = _input_code(t, s.t if s.has_t else -np.inf, f, w, att, p.max_f, p.max_w, p.max_att)
+        accepted = flags == 0
+    if accepted:
+        if s.has_t and t - s.t > p.stale_timeout:
+            flags |= TIME_JUMP
+            s.fade = 0.0
+        s.has_sample = True
+        for i in range(3):
+            s.sample[i] = f[i]
+            s.sample[3 + i] = w[i]
+        s.t = t
+        s.t_accepted = t
+    else:
+        s.t = (s.t if s.has_t else 0.0) + p.dt
+    s.has_t = True
+    # stale: marked so, or no sample accepted for longer than the timeout (on the park
+    # ticks after the end only a mark counts: the park ramp is in charge)
+    stale = not fresh or (present and s.t - s.t_accepted > p.stale_timeout)
+    if stale:
+        if not s.stale:
+            flags |= FADE_START
+        s.fade = max(0.0, s.fade - p.fade_step)
+    else:
+        s.fade = min(1.0, s.fade + p.fade_step)
+    s.stale = stale
+    if not s.has_sample:
+        for i in range(6):
+            u[i] = p.level[i]
+    elif s.fade == 1.0:
+        for i in range(6):
+            u[i] = s.sample[i]
+    else:
+        sf = smooth(s.fade)
+        for i in range(6):
+            u[i] = p.level[i] + sf * (s.sample[i] - p.level[i])
+    return flags
+
+
+@numba.njit(cache=True)
+def blend_stage(P, S, cue, target):  # pragma: no cover - compiled
+    """Soft start and stop: the cue pose blended from park (``target``, shape (6,)).
+
+    Starting, the blend rises from 0 to 1 over ``soft_start_s`` and the phase becomes
+    running; stopping, it falls back (at once on an E-stop: the limiter then paces the
+    way to park). Returns True when the target is park itself (stopping, blend 0): the
+    park command is then sent by its actuator positions exactly.
+    """
+    p = P[0]
+    s = S[0]
+    if s.phase == STARTING:
+        s.blend = min(1.0, s.blend + p.blend_step)
+        if s.blend >= 1.0:
+            s.phase = RUNNING
+    elif s.phase == STOPPING and not s.estop:
+        s.blend = max(0.0, s.blend - p.blend_step)
+    b = smooth(s.blend)
+    for i in range(6):
+        target[i] = cue[i] if b >= 1.0 else p.park_cue[i] + b * (cue[i] - p.park_cue[i])
+    return s.phase == STOPPING and b == 0.0
+
+
+@numba.njit(cache=True)
+def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
+    """The safety limiter (:func:`motionbase.safety.limit_command`) on the state's command.
+
+    ``wanted`` (n,) is the inverse kinematics' command; ``q`` (n,) receives the one sent.
+    Returns ``RATE_LIMITED`` and ``HELD`` bits; updates the state's ``q``, ``v`` and
+    ``wanted`` (an unsafe target is not remembered: the held command is).
+    """
+    p = P[0]
+    s = S[0]
+    n = p.n
+    v_new = np.empty(n)
+    status = _limit_kernel(
+        s.q[:n],
+        s.v[:n],
+        s.wanted[:n],
+        wanted,
+        p.dt,
+        p.lower[:n],
+        p.upper[:n],
+        p.max_speed[:n],
+        p.max_accel[:n],
+        q,
+        v_new,
+    )
+    held = (status & 2) != 0
+    for i in range(n):
+        s.wanted[i] = q[i] if held else wanted[i]
+        s.q[i] = q[i]
+        s.v[i] = v_new[i]
+    return (HELD if held else 0) | (RATE_LIMITED if status & 1 else 0)
+
+
+@numba.njit(cache=True)
+def at_park(P, S):  # pragma: no cover - compiled
+    """Stopped, with every actuator at park and at rest."""
+    p = P[0]
+    s = S[0]
+    if not (s.phase == STOPPING and s.blend == 0.0):
+        return False
+    for i in range(p.n):
+        if not (s.q[i] == p.park_q[i] and s.v[i] == 0.0):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def after_cueing(P, S, solve, G, cue, target, cue_out, pose, wanted, q):  # pragma: no cover
+    """The robot's side of a tick: soft start/stop, clamp + inverse kinematics, limiter.
+
+    Parameters
+    ----------
+    P, S : records
+    solve : typed list of one robot kernel (:data:`SOLVE_LIST`)
+    G : ndarray
+        The robot's kernel parameters.
+    cue : ndarray, shape (6,)
+        The cueing's pose.
+    target, cue_out : ndarray, shape (6,)
+        Out: the blended target, and the cue pose the robot realises (anti-windup).
+    pose : ndarray, shape (m,)
+        Out: the robot pose commanded.
+    wanted, q : ndarray, shape (n,)
+        Out: the inverse kinematics' command and the limiter's (sent).
+
+    Returns
+    -------
+    int
+        ``CLAMPED``, ``RUNNING_CLAMP``, ``RATE_LIMITED``, ``HELD`` and the output phase
+        (``<< PHASE_SHIFT``). When the limiter changed the command, the state's ``pose``
+        keeps the last tick's (the caller finds the achieved one by forward kinematics).
+    """
+    p = P[0]
+    s = S[0]
+    flags = 0
+    if blend_stage(P, S, cue, target):
+        for i in range(p.m):
+            pose[i] = p.park_pose[i]
+        for i in range(p.n):
+            wanted[i] = p.park_q[i]
+        for i in range(6):
+            cue_out[i] = p.park_cue[i]
+    elif solve[0](G, target, cue_out, pose, wanted):
+        flags |= CLAMPED
+        if s.phase == RUNNING:
+            flags |= RUNNING_CLAMP
+    flags |= limit_stage(P, S, wanted, q)
+    if not (flags & (HELD | RATE_LIMITED)):
+        for i in range(p.m):
+            s.pose[i] = pose[i]
+    phase = PARKED if at_park(P, S) else s.phase
+    return flags | (phase << PHASE_SHIFT)
+
+
+_BATCH_SIGNATURE = numba.int64(
+    _PARAMS_T,
+    _STATE_T,
+    STEP_LIST,
+    TRACK_LIST,
+    _vec,
+    _vec,
+    SOLVE_LIST,
+    _vec,
+    _vec,  # t
+    numba.float64[:, ::1],  # f, w, att
+    numba.float64[:, ::1],
+    numba.float64[:, ::1],
+    numba.boolean[::1],  # fresh
+    numba.float64[:, ::1],  # out: cue poses (N, 6)
+    numba.float64[:, ::1],  # out: robot poses (N, m)
+    numba.float64[:, ::1],  # out: commands (N, n)
+    numba.int64[::1],  # out: status bits (N,)
+)
+
+
+@numba.njit(_BATCH_SIGNATURE, cache=True)
+def run_batch(P, S, step, track, cp, cs, solve, G, t, f, w, att, fresh, cues, poses, qs, flags):
+    """Every stage over a whole flight, in compiled code: the same
+    functions, in the same order, as :meth:`motionbase.pipeline.Pipeline.step`.
+
+    Returns the number of ticks run: ``len(t)``, or fewer when the cueing met a
+    non-finite input (the tick that failed has ``CUEING_ERROR`` set and is not counted).
+    Rows of the outputs are the ticks. Rejected samples are held and their ``PROBLEM``
+    code set, as in the tick; the achieved pose after the limiter acted is not solved
+    (``RATE_LIMITED`` or ``HELD`` say where it differs).
+    """  # pragma: no cover - compiled
+    u = np.empty(6)
+    target = np.empty(6)
+    cue_out = np.empty(6)
+    wanted = np.empty(P[0].n)
+    for k in range(t.shape[0]):
+        bits = input_stage(P, S, True, t[k], f[k], w[k], att[k], fresh[k], u)
+        if not step[0](cp, cs, u, cues[k]):
+            flags[k] = bits | CUEING_ERROR
+            return k
+        bits |= after_cueing(P, S, solve, G, cues[k], target, cue_out, poses[k], wanted, qs[k])
+        if bits & RUNNING_CLAMP:
+            track[0](cp, cs, cue_out)
+        flags[k] = bits
+    return t.shape[0]

@@ -1,0 +1,187 @@
+"""The cueing plug-in interface: aircraft motion in, platform pose out.
+
+A motion cueing algorithm turns the aircraft's specific force and body rates at the
+pilot into a *cue pose* ``[x, y, z, roll, pitch, yaw]`` (m and rad, base axes FRD) that
+the robot then renders. The pipeline knows nothing else about cueing: it calls
+:meth:`Cueing.advance` once a tick, :meth:`Cueing.track` when the robot's clamp moved
+the pose (anti-windup) and :meth:`Cueing.reset` on a restart. The classical washout
+(:class:`~motionbase.washout.ClassicalWashout`) is the first implementation; others are
+listed in :data:`CUEINGS` (or added with :func:`register_cueing`) and chosen with
+``--cueing NAME`` and ``--params FILE.toml``.
+
+Time convention: one call of :meth:`Cueing.advance` is one sample period ``dt`` (s), the
+pipeline's.
+
+Compiled kernels (optional)
+---------------------------
+A cueing whose step is a numba function may expose it, so that the pipeline's batch path
+(:meth:`motionbase.pipeline.Pipeline.run_batch`) runs a whole flight in compiled code:
+``step_kernel(params, state, u, out) -> bool`` (:data:`STEP_SIGNATURE`: ``u`` is
+``[f, w]``, shape (6,); ``out`` the pose, (6,); False on a non-finite input, with the
+state untouched) and ``track_kernel(params, state, achieved)``
+(:data:`TRACK_SIGNATURE`), working on the arrays :attr:`Cueing.kernel_params` and
+:attr:`Cueing.kernel_state` (the live state: the kernels change it in place). Without
+them the batch path steps the cueing from Python, with the same results.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numba
+import numpy as np
+
+from motionbase.errors import ConfigError
+
+_vec = numba.float64[::1]
+#: Signature of a cueing's compiled step (see the module notes).
+STEP_SIGNATURE = numba.boolean(_vec, _vec, _vec, _vec)
+#: Signature of a cueing's compiled anti-windup feedback.
+TRACK_SIGNATURE = numba.void(_vec, _vec, _vec)
+
+
+class Cueing(ABC):
+    """A motion cueing algorithm as the pipeline runs it.
+
+    Subclasses set :attr:`name` and implement :meth:`reset`, :meth:`advance` and
+    :meth:`track`; they are built as ``Cls(params, dt)``.
+
+    Attributes
+    ----------
+    name : str
+        Registry name, written in the log (``"classical"``).
+    params : object
+        The parameters (a frozen value object with ``to_dict``).
+    dt : float
+        Sample period, s.
+    step_kernel, track_kernel : numba dispatcher or None
+        Optional compiled step and feedback (module notes).
+    kernel_params, kernel_state : ndarray or None
+        Their parameter and (live) state vectors.
+    """
+
+    name: ClassVar[str]
+    params: Any
+    dt: float
+    step_kernel: Any = None
+    track_kernel: Any = None
+    kernel_params: np.ndarray | None = None
+    kernel_state: np.ndarray | None = None
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Back to rest at the neutral pose."""
+
+    @abstractmethod
+    def advance(self, u: np.ndarray, out: np.ndarray) -> bool:
+        """One sample: ``u = [f (m/s^2), w (rad/s)]``, shape (6,), body axes FRD, to the cue
+        pose written into ``out`` (6,). Returns False, changing nothing, when ``u`` is not
+        finite."""
+
+    @abstractmethod
+    def track(self, achieved: np.ndarray) -> None:
+        """Anti-windup: the cue pose (6,) the platform actually got after the clamp."""
+
+    def step(self, specific_force: Any, angular_velocity: Any) -> np.ndarray:
+        """One sample from ``f`` (3,) and ``w`` (3,); the cue pose (6,), a new array."""
+        from motionbase.washout.classical import WashoutInputError
+
+        u = np.empty(6)
+        try:
+            u[:3] = specific_force
+            u[3:] = angular_velocity
+        except (ValueError, TypeError):
+            raise WashoutInputError(
+                f"{self.name} cueing input: specific_force and angular_velocity must be 3 "
+                f"numbers each, got {specific_force!r} and {angular_velocity!r}"
+            ) from None
+        out = np.empty(6)
+        if not self.advance(u, out):
+            raise WashoutInputError(
+                f"{self.name} cueing input: non-finite value in {u} (reject the sample "
+                "before the cueing)"
+            )
+        return out
+
+
+@dataclass(frozen=True)
+class CueingSpec:
+    """One entry of :data:`CUEINGS`.
+
+    Attributes
+    ----------
+    name : str
+    cueing_class, params_class : str or type
+        ``"module:Class"`` (imported on use) or the class itself. The parameters class
+        has ``from_toml(path)``, ``from_dict(data, source=...)`` and ``to_dict()``.
+    preset_kind : str
+        Shipped parameter files are ``motionbase/presets/<preset_kind>_<name>.toml``.
+    default_preset : str
+    description : str
+    """
+
+    name: str
+    cueing_class: Any
+    params_class: Any
+    preset_kind: str
+    default_preset: str = "default"
+    description: str = ""
+
+    @staticmethod
+    def _load(path: Any) -> Any:
+        if not isinstance(path, str):
+            return path
+        import importlib
+
+        module, attr = path.split(":")
+        return getattr(importlib.import_module(module), attr)
+
+    @property
+    def cueing_type(self) -> type[Cueing]:
+        return self._load(self.cueing_class)
+
+    @property
+    def params_type(self) -> Any:
+        return self._load(self.params_class)
+
+    def load_params(self, preset_or_path: str | Path | None = None) -> Any:
+        """Parameters from a preset name or a TOML path (the default preset for None)."""
+        from motionbase.config import resolve_preset_or_path
+
+        path = resolve_preset_or_path(self.preset_kind, preset_or_path or self.default_preset)
+        return self.params_type.from_toml(path)
+
+    def make(self, params: Any, dt: float) -> Cueing:
+        return self.cueing_type(params, dt)
+
+
+#: Every cueing algorithm by name; :func:`register_cueing` adds one.
+CUEINGS: dict[str, CueingSpec] = {
+    "classical": CueingSpec(
+        "classical",
+        "motionbase.washout.classical:ClassicalWashout",
+        "motionbase.washout.params:WashoutParams",
+        preset_kind="washout",
+        description="classical washout (Reid & Nahon), tilt coordination",
+    ),
+}
+
+
+def register_cueing(spec: CueingSpec, *, replace: bool = False) -> None:
+    """Add a cueing algorithm, selectable by ``spec.name`` (``--cueing NAME``)."""
+    if spec.name in CUEINGS and not replace:
+        raise ConfigError(f"a cueing named {spec.name!r} is already registered")
+    CUEINGS[spec.name] = spec
+
+
+def cueing_spec(name: str) -> CueingSpec:
+    """The registry entry of ``name``, or a ConfigError listing the known cueings."""
+    try:
+        return CUEINGS[name]
+    except (KeyError, TypeError):
+        raise ConfigError(
+            f"unknown cueing {name!r} (choose one of: {', '.join(sorted(CUEINGS))})"
+        ) from None
