@@ -158,7 +158,7 @@ def test_tilt_coordination_cue_follows_the_sustained_forward_force(rus6_flight):
     assert (cue > 0).all()
     # sustained: the translation has washed out, the force is gravity's share through the tilt
     assert np.abs(cue - G * np.sin(pitch)).max() < 0.1
-    gain = meta["pipeline_config"]["washout"]["scaling"]["specific_force_gain"][0]
+    gain = meta["pipeline_config"]["cueing_params"]["scaling"]["specific_force_gain"][0]
     ratio = cue.mean() / f_air.mean()
     assert abs(ratio - gain) < 0.25 * gain, (ratio, gain)
 

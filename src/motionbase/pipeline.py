@@ -630,12 +630,13 @@ class Pipeline:
             The cueing met a non-finite input (validation rejects those first, so only a
             cueing's own failure).
         """
-        t = np.ascontiguousarray(t, dtype=float)
+        # (writable, C-ordered copies where needed: the compiled loop's signature)
+        t = np.require(t, float, ["C", "W"])
         N = len(t)
-        f = np.ascontiguousarray(f, dtype=float).reshape(N, 3)
-        w = np.ascontiguousarray(w, dtype=float).reshape(N, 3)
-        att = np.zeros((N, 3)) if att is None else np.ascontiguousarray(att, dtype=float)
-        fresh = np.ones(N, dtype=bool) if fresh is None else np.ascontiguousarray(fresh, bool)
+        f = np.require(f, float, ["C", "W"]).reshape(N, 3)
+        w = np.require(w, float, ["C", "W"]).reshape(N, 3)
+        att = np.zeros((N, 3)) if att is None else np.require(att, float, ["C", "W"])
+        fresh = np.ones(N, dtype=bool) if fresh is None else np.require(fresh, bool, ["C", "W"])
         out = BatchResult(
             np.empty((N, 6)),
             np.empty((N, self._m)),
