@@ -87,6 +87,13 @@ def load_config(
     )
 
 
+def robot_title(config: PipelineConfig) -> str:
+    """How a job's message names the robot (``6-RUS``)."""
+    from motionbase.platform.robot import robot_spec
+
+    return robot_spec(config.robot).description
+
+
 def run_metadata(config: PipelineConfig, source: Any) -> dict[str, Any]:
     """The metadata record of a log: everything a replay needs."""
     return {"pipeline_config": config.to_dict(), "source": source.describe()}
@@ -346,6 +353,7 @@ def fly(
     *,
     platform: str | None = None,
     washout: str | None = None,
+    cueing: str = "classical",
     planar: bool = False,
     realtime: bool = False,
     busy_wait: bool = False,
@@ -363,7 +371,10 @@ def fly(
     script : str
         A script shipped with jsbsim (``c1723``) or a path to a script file.
     platform, washout : str, optional
-        Presets or TOML paths (see :func:`load_config`).
+        Presets or TOML paths (see :func:`load_config`; ``washout`` is the cueing's
+        parameters, ``--params``).
+    cueing : str
+        The cueing plug-in (``--cueing``).
     planar : bool
         Drive the 3-RRR robot.
     realtime : bool
@@ -411,11 +422,14 @@ def fly(
         )
         with source:
             config = load_config(
-                planar=planar, platform=platform, washout=washout, rate_hz=source.rate_hz
+                planar=planar,
+                platform=platform,
+                washout=washout,
+                cueing=cueing,
+                rate_hz=source.rate_hz,
             )
-            robot = "3-RRR" if planar else "6-RUS"
             return _drive(
-                f"flew {name} on the {robot}",
+                f"flew {name} on the {robot_title(config)}",
                 config,
                 source,
                 out_path,
@@ -435,6 +449,7 @@ def replay(
     check: bool = False,
     platform: str | None = None,
     washout: str | None = None,
+    cueing: str | None = None,
     planar: bool | None = None,
     progress: bool = True,
     outputs: list[str] | None = None,
@@ -452,8 +467,8 @@ def replay(
     check : bool
         Compare every output with the recording; the result is ``failed`` with a
         report of the largest difference per topic when they differ.
-    platform, washout, planar : optional
-        Override the recorded configuration.
+    platform, washout, cueing, planar : optional
+        Override the recorded configuration (the cueing then defaults to ``classical``).
     outputs : list of str, optional
         Motor-drive output URLs. With them the replay runs in real time, paced by the
         pipeline's loop at the configured rate; the recording's own times never pace it
@@ -474,8 +489,8 @@ def replay(
     """
     with _stopping(stop) as stop:
         return _replay(
-            path, out=out, check=check, platform=platform, washout=washout, planar=planar,
-            progress=progress, outputs=outputs, stop=stop, live=live,
+            path, out=out, check=check, platform=platform, washout=washout, cueing=cueing,
+            planar=planar, progress=progress, outputs=outputs, stop=stop, live=live,
         )  # fmt: skip
 
 
@@ -486,6 +501,7 @@ def _replay(
     check: bool,
     platform: str | None,
     washout: str | None,
+    cueing: str | None,
     planar: bool | None,
     progress: bool,
     outputs: list[str] | None,
@@ -510,12 +526,17 @@ def _replay(
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
             raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
-        if recorded is not None and platform is None and washout is None and planar is None:
+        asked = (platform, washout, planar, cueing)
+        if recorded is not None and all(x is None for x in asked):
             config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
         else:
             base_planar = (recorded or {}).get("robot") == "rrr3" if planar is None else planar
             config = load_config(
-                planar=base_planar, platform=platform, washout=washout, rate_hz=source.rate_hz
+                planar=base_planar,
+                platform=platform,
+                washout=washout,
+                cueing=cueing or "classical",
+                rate_hz=source.rate_hz,
             )
         notes = []
         if recorded is None:
@@ -633,6 +654,7 @@ def stream(
     rate_hz: float = 100.0,
     platform: str | None = None,
     washout: str | None = None,
+    cueing: str = "classical",
     planar: bool = False,
     serial: str | None = None,
     duration_s: float | None = None,
@@ -658,10 +680,10 @@ def stream(
         MAVLink 2 signing key file; unsigned or badly signed messages are rejected.
     rate_hz : float
         Pipeline rate, Hz (the stream is resampled to it by holding the latest sample).
-    platform, washout, planar :
-        As for :func:`fly`, but the washout defaults to the ``telemetry`` preset (an input
-        low-pass for sparse telemetry and the gentle gains: real flights stay inside the
-        platform's reach).
+    platform, washout, cueing, planar :
+        As for :func:`fly`, but the classical washout's parameters default to the
+        ``telemetry`` preset (an input low-pass for sparse telemetry and the gentle gains:
+        real flights stay inside the platform's reach).
     serial : str, optional
         Planar mode: a pyserial URL of the 3-RRR's Arduino.
     duration_s : float, optional
@@ -686,7 +708,7 @@ def stream(
     with _stopping(stop) as stop:
         return _stream(
             mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
-            platform=platform, washout=washout, planar=planar, serial=serial,
+            platform=platform, washout=washout, cueing=cueing, planar=planar, serial=serial,
             duration_s=duration_s, out=out, realtime=realtime, busy_wait=busy_wait,
             progress=progress, outputs=outputs, source_url=source_url, stop=stop, live=live,
         )  # fmt: skip
@@ -701,6 +723,7 @@ def _stream(
     rate_hz: float,
     platform: str | None,
     washout: str | None,
+    cueing: str,
     planar: bool,
     serial: str | None,
     duration_s: float | None,
@@ -721,8 +744,10 @@ def _stream(
     if busy_wait and not realtime:
         raise ConfigError("--busy-wait paces the stream in real time: drop --fast")
     live_at = _live_address(live)
+    if washout is None and cueing == "classical":
+        washout = "telemetry"
     config = load_config(
-        planar=planar, platform=platform, washout=washout or "telemetry", rate_hz=rate_hz
+        planar=planar, platform=platform, washout=washout, cueing=cueing, rate_hz=rate_hz
     )
     if out is None:
         out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
@@ -842,6 +867,7 @@ def omct(
     *,
     platform: str | None = None,
     washout: str | None = None,
+    cueing: str = "classical",
     planar: bool = False,
     rate_hz: float = 120.0,
     scale: float = 1.0,
@@ -853,8 +879,8 @@ def omct(
     ----------
     out : path
         Folder for ``omct.json``, ``table.md``, ``table.txt`` and the Bode plots (created).
-    platform, washout, planar :
-        As for :func:`fly` (``washout`` is the classical washout's preset or TOML file).
+    platform, washout, cueing, planar :
+        As for :func:`fly` (``washout``: the cueing's parameters, preset or TOML file).
     rate_hz : float
         Pipeline rate, Hz.
     scale : float
@@ -869,11 +895,18 @@ def omct(
     from motionbase.io.omct_plots import write_omct
     from motionbase.omct import Amplitudes, run_omct
 
-    config = load_config(planar=planar, platform=platform, washout=washout, rate_hz=rate_hz)
+    config = load_config(
+        planar=planar, platform=platform, washout=washout, cueing=cueing, rate_hz=rate_hz
+    )
     amplitudes = Amplitudes().scaled(scale)
-    options = [("--planar", planar), (f"--platform {platform}", platform),
-               (f"--washout {washout}", washout), (f"--rate {rate_hz:g}", rate_hz != 120.0),
-               (f"--scale {scale:g}", scale != 1.0)]  # fmt: skip
+    options = [
+        ("--planar", planar),
+        (f"--platform {platform}", platform),
+        (f"--cueing {cueing}", cueing != "classical"),
+        (f"--params {washout}", washout),
+        (f"--rate {rate_hz:g}", rate_hz != 120.0),
+        (f"--scale {scale:g}", scale != 1.0),
+    ]
     command = " ".join(["motionbase omct", *(o for o, on in options if on), f"--out {out}"])
     show = progress and sys.stderr.isatty()
 

@@ -124,7 +124,7 @@ from motionbase.washout.filters import (
     rotational_highpass,
     translational_highpass,
 )
-from motionbase.washout.params import WashoutParams
+from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams
 from motionbase.washout.perception import platform_angular_velocity, platform_specific_force
 
 __all__ = [
@@ -446,7 +446,7 @@ def achieved_motion(config: PipelineConfig, angles: np.ndarray, guess: np.ndarra
         k = int(np.flatnonzero(~np.isfinite(pose).all(axis=1))[0])
         raise MotionbaseError(f"OMCT: forward kinematics did not converge at tick {k}")
     pose6 = robot.cue_from_pose(pose, np.zeros((len(pose), 6)))
-    g = config.cueing_params.gravity
+    g = STANDARD_GRAVITY
     return Motion(
         pose6,
         platform_specific_force(pose6, config.dt, g),
@@ -575,6 +575,11 @@ def slowest_decay(params: WashoutParams) -> float:
     ]
     blocks.append(lowpass2(params.tilt_wn, params.tilt_zeta))
     return float(min(-np.linalg.eigvals(b.a).real.max() for b in blocks))
+
+
+#: Transient discarded for a cueing other than the classical washout, s (its own settling
+#: is not known here; give ``settle_s`` for a slower one).
+DEFAULT_SETTLE_S = 10.0
 
 
 def settle_time(params: WashoutParams) -> float:
@@ -731,7 +736,7 @@ class OmctResult:
         w = np.logspace(
             np.log10(r.frequencies.min()) - 0.15, np.log10(r.frequencies.max()) + 0.15, n
         )
-        tilt = self.config.robot != "rrr3"
+        tilt = not self.config.planar
         params = self.config.cueing_params
         return (
             w,
@@ -903,7 +908,12 @@ def run_omct(
     if not chosen:
         raise ConfigError("OMCT: none of the tests asked for applies to this robot")
     params = config.cueing_params
-    settle = float(settle_s) if settle_s is not None else settle_time(params)
+    # the classical washout's linear response is drawn beside the measured one
+    analytic = cueing is None and config.cueing == "classical"
+    if settle_s is not None:
+        settle = float(settle_s)
+    else:
+        settle = settle_time(params) if analytic else DEFAULT_SETTLE_S
     if not (math.isfinite(settle) and settle >= 0.0):
         raise ConfigError(f"OMCT: settle time must be >= 0 s, got {settle_s!r}")
     dt = config.dt
@@ -914,7 +924,7 @@ def run_omct(
             f"{freqs.max():.4g} rad/s (at least {need:.0f} Hz: {2 * MIN_SAMPLES_PER_HALF_PERIOD}"
             " samples per period; raise --rate)"
         )
-    g = params.gravity
+    g = STANDARD_GRAVITY
     t0 = config.soft_start_s + PRE_ROLL_S
     periods = 2.0 * np.pi / freqs
     discard = np.maximum(1, np.ceil(settle / periods - 1e-9)).astype(int)
@@ -963,7 +973,7 @@ def run_omct(
     results = []
     for tst in chosen:
         lin = design = None
-        if cueing is None:
+        if analytic:
             lin = classical_response(params, tst, freqs, tilt=not planar, dt=dt)
             design = classical_response(params, tst, freqs, tilt=not planar)
         results.append(
@@ -986,6 +996,6 @@ def run_omct(
         settle_s=settle,
         discard_periods=discard,
         measure_periods=measure,
-        cueing=cueing_name if cueing is not None else "classical",
+        cueing=cueing_name if cueing is not None else config.cueing,
         command=command,
     )

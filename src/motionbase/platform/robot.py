@@ -204,14 +204,14 @@ ROBOTS: dict[str, RobotSpec] = {
             "motionbase.platform.rus6:Rus6Robot",
             "motionbase.platform.rus6_geometry:Rus6Geometry",
             "ceart",
-            description="6-RUS rotary platform (cranks)",
+            description="6-RUS",
         ),
         RobotSpec(
             "stewart6",
             "motionbase.platform.stewart6:Stewart6Robot",
             "motionbase.platform.stewart6_geometry:Stewart6Geometry",
             "seat",
-            description="6-UPS Stewart platform (linear actuators)",
+            description="6-UPS Stewart platform",
         ),
         RobotSpec(
             "rrr3",
@@ -219,7 +219,7 @@ ROBOTS: dict[str, RobotSpec] = {
             "motionbase.platform.rrr3:Rrr3Geometry",
             "udesc_symmetric",
             planar=True,
-            description="planar 3-RRR robot (servos)",
+            description="3-RRR, planar mode",
         ),
     )
 }
