@@ -130,6 +130,25 @@ def _finish(proc: subprocess.Popen) -> str:
     return out
 
 
+def _serve(args: list[str], tmp_path: Path, topics: set[str], enough) -> tuple[dict, str]:
+    """Run ``motionbase ARGS --live``, watch ``topics`` until ``enough(got)``, stop it with
+    SIGINT; return what was received per topic and the run's stdout."""
+    proc, url = _start(args, tmp_path)
+    try:
+        got = _watch(url, topics, enough, proc)
+    except BaseException:
+        proc.kill()
+        raise
+    return got, _finish(proc)
+
+
+def _assert_served_as_logged(got: dict, path: Path) -> None:
+    """Every topic received is the log's, message for message, over the span received."""
+    logged = _logged(path, set(got))
+    for topic in got:
+        _assert_same_as_logged(got[topic], logged[topic], topic)
+
+
 def _scene_points(entity: dict) -> tuple[list, list, list]:
     crank, rod = entity["lines"]
     (p, q), (q2, r) = ([(v["x"], v["y"], v["z"]) for v in line["points"]] for line in (crank, rod))
@@ -183,42 +202,27 @@ def _check_scenes(path: Path, planar: bool) -> int:
 
 def test_live_fly_serves_the_logged_actuators_and_scene(tmp_path):
     out = tmp_path / "live.mcap"
-    proc, url = _start(
-        ["fly", "c1723", "--realtime", "--duration", "60", "--out", str(out)], tmp_path
+    got, summary = _serve(
+        ["fly", "c1723", "--realtime", "--duration", "60", "--out", str(out)],
+        tmp_path,
+        {"/platform/actuators", "/platform/scene"},
+        lambda g: len(g["/platform/actuators"]) >= 60 and len(g["/platform/scene"]) >= 5,
     )
-    topics = {"/platform/actuators", "/platform/scene"}
-    try:
-        got = _watch(
-            url,
-            topics,
-            lambda g: len(g["/platform/actuators"]) >= 60 and len(g["/platform/scene"]) >= 5,
-            proc,
-        )
-    except BaseException:
-        proc.kill()
-        raise
-    summary = _finish(proc)
     assert "stopped by SIGINT" in summary
-    logged = _logged(out, topics)
-    for topic in topics:
-        _assert_same_as_logged(got[topic], logged[topic], topic)
+    _assert_served_as_logged(got, out)
     # received scenes are what the robot's joint points say (checked on the whole log)
     assert _check_scenes(out, planar=False) >= 5
 
 
 def test_live_replay_of_the_planar_recording(tmp_path):
     out = tmp_path / "replay.mcap"
-    proc, url = _start(["replay", str(PLANAR_RECORDING), "--out", str(out)], tmp_path)
-    topics = {"/planar/actuators", "/platform/scene"}
-    try:
-        got = _watch(url, topics, lambda g: len(g["/planar/actuators"]) >= 30, proc)
-    except BaseException:
-        proc.kill()
-        raise
-    _finish(proc)
-    logged = _logged(out, topics)
-    for topic in topics:
-        _assert_same_as_logged(got[topic], logged[topic], topic)
+    got, _ = _serve(
+        ["replay", str(PLANAR_RECORDING), "--out", str(out)],
+        tmp_path,
+        {"/planar/actuators", "/platform/scene"},
+        lambda g: len(g["/planar/actuators"]) >= 30,
+    )
+    _assert_served_as_logged(got, out)
     assert _check_scenes(out, planar=True) >= 1
 
 
@@ -229,17 +233,13 @@ def test_live_teleop_serves_the_logged_planar_actuators(tmp_path):
     csv = tmp_path / "cursor.csv"
     csv.write_text("t,x,y\n" + "".join(f"{t!r},{u!r},{v!r}\n" for t, u, v in rows))
     out = tmp_path / "teleop.mcap"
-    proc, url = _start(["teleop", "--input", f"file:{csv}", "--out", str(out)], tmp_path)
-    topics = {"/planar/actuators", "/platform/scene"}
-    try:
-        got = _watch(url, topics, lambda g: len(g["/planar/actuators"]) >= 30, proc)
-    except BaseException:
-        proc.kill()
-        raise
-    _finish(proc)
-    logged = _logged(out, topics)
-    for topic in topics:
-        _assert_same_as_logged(got[topic], logged[topic], topic)
+    got, _ = _serve(
+        ["teleop", "--input", f"file:{csv}", "--out", str(out)],
+        tmp_path,
+        {"/planar/actuators", "/platform/scene"},
+        lambda g: len(g["/planar/actuators"]) >= 30,
+    )
+    _assert_served_as_logged(got, out)
     # the scene is the robot of the log's geometry at the logged pose
     geometry = read_metadata(out)["geometry"]
     from motionbase.platform import Rrr3Geometry
@@ -257,13 +257,12 @@ def test_live_teleop_serves_the_logged_planar_actuators(tmp_path):
 
 
 def test_live_replay_without_out_serves_from_a_temporary_log(tmp_path):
-    proc, url = _start(["replay", str(PLANAR_RECORDING)], tmp_path)
-    try:
-        got = _watch(url, {"/planar/pose"}, lambda g: len(g["/planar/pose"]) >= 10, proc)
-    except BaseException:
-        proc.kill()
-        raise
-    _finish(proc)
+    got, _ = _serve(
+        ["replay", str(PLANAR_RECORDING)],
+        tmp_path,
+        {"/planar/pose"},
+        lambda g: len(g["/planar/pose"]) >= 10,
+    )
     assert len(got["/planar/pose"]) >= 10
     assert list(tmp_path.iterdir()) == []  # nothing left behind
 

@@ -1,64 +1,25 @@
 """``motionbase output --test`` asked to stop mid-sweep, in a real subprocess of the CLI.
 
-The drive is a UDP listener on loopback that records each datagram with its arrival time; the
-frames are decoded with this file's own regex, in degrees (the mapping of a geometry without an
-``[output]`` table), and turned into radians here.
+The drive is :class:`drive_wire.UdpDrive`, a UDP listener on loopback that records each
+datagram with its arrival time and decodes the frames with its own parser, in degrees (the
+mapping of a geometry without an ``[output]`` table) turned into radians.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
-from urllib.parse import quote
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive
 
 from motionbase.platform import Rus6Geometry
 
 GEOMETRY = Rus6Geometry.preset("ceart")  # the command's default --platform
-# four decimals of a degree: the speed and acceleration below are not blurred by rounding
-FORMAT = "text:" + "".join(f"{c}{{{i}:.4f}}" for i, c in enumerate("ABCDEF", 1)) + r"\n"
-FRAME = re.compile(rb"A(-?\d+\.\d{4})B(-?\d+\.\d{4})C(-?\d+\.\d{4})D(-?\d+\.\d{4})"
-                   rb"E(-?\d+\.\d{4})F(-?\d+\.\d{4})\n")  # fmt: skip
-
-
-class Receiver:
-    """A UDP listener on loopback: ``(arrival time s, crank angles rad)`` per datagram."""
-
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.02)
-        self.port = self.sock.getsockname()[1]
-        self.frames: list[tuple[float, np.ndarray]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65536)
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            t = time.monotonic()
-            m = FRAME.fullmatch(data)
-            assert m is not None, data
-            self.frames.append((t, np.radians([float(x) for x in m.groups()])))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        self.sock.close()
 
 
 def windowed_rates(t: np.ndarray, q: np.ndarray, window_s: float):
@@ -78,9 +39,8 @@ def windowed_rates(t: np.ndarray, q: np.ndarray, window_s: float):
 
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
 def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
-    rx = Receiver()
-    url = f"udp:127.0.0.1:{rx.port}?format={quote(FORMAT, safe='')}"
-    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", url]
+    rx = UdpDrive()
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", rx.url()]
     cmd += ["--speed-deg-s", "60", "--range-deg", "5"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     neutral = np.asarray(GEOMETRY.neutral_angle, dtype=float)
@@ -89,8 +49,8 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
         # wait until motor 1 is on its way up, the others at neutral: mid-sweep
         while time.monotonic() < deadline:
             assert proc.poll() is None, proc.communicate()
-            if rx.frames:
-                dev = np.degrees(rx.frames[-1][1] - neutral)
+            if rx.count():
+                dev = np.degrees(rx.angles(rx.count() - 1)[1][-1] - neutral)
                 if 1.0 < dev[0] < 4.0 and np.all(np.abs(dev[1:]) < 1e-3):
                     break
             time.sleep(0.002)
@@ -98,7 +58,7 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
             pytest.fail("the sweep never reached motor 1")
         proc.send_signal(getattr(signal, sig))
         stdout, stderr = proc.communicate(timeout=60)
-        time.sleep(0.1)  # the last datagrams
+        rx.drain()  # the last datagrams
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -108,8 +68,7 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
     stopped = [line for line in stdout.splitlines() if "stopped" in line]
     assert len(stopped) == 1 and sig in stopped[0], stdout
     assert "Traceback" not in stderr
-    t = np.array([f[0] for f in rx.frames])
-    q = np.array([f[1] for f in rx.frames])
+    t, q = rx.angles()
     park = np.full(6, GEOMETRY.park_angle)
     # the last frame on the wire is the park command (to the format's 1e-4 deg)
     np.testing.assert_allclose(q[-1], park, atol=math.radians(1e-4))
@@ -135,19 +94,16 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
     from motionbase.io.motor_output import output_test
     from motionbase.pipeline import StopRequest
 
-    rx = Receiver()
+    rx = UdpDrive()
     stop = StopRequest()
     stop.set("test")
     try:
-        lines = output_test(
-            f"udp:127.0.0.1:{rx.port}?format={quote(FORMAT, safe='')}", GEOMETRY, stop=stop,
-            echo=lambda s: None,
-        )  # fmt: skip
-        time.sleep(0.1)  # the last datagrams
+        lines = output_test(rx.url(), GEOMETRY, stop=stop, echo=lambda s: None)
+        rx.drain()  # the last datagrams
     finally:
         rx.close()
     assert sum("stopped by test" in line for line in lines) == 1
     assert not any(line.startswith("motor ") for line in lines)
-    q = np.array([f[1] for f in rx.frames])
+    _, q = rx.angles()
     assert len(q) >= 1
     np.testing.assert_allclose(q, np.full_like(q, GEOMETRY.park_angle), atol=math.radians(1e-4))

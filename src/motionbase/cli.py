@@ -132,6 +132,47 @@ def _job(name: str, *args: object, **kwargs: object) -> int:
         restore()
 
 
+#: Options that several subcommands take, by flag (added with :func:`_add_shared`).
+_SHARED_OPTIONS: dict[str, dict[str, object]] = {
+    "--busy-wait": {
+        "action": "store_true",
+        "help": "wait for each tick by busy-waiting, not sleeping: one CPU at 100 %%, "
+        "fewer late ticks at 1 kHz (real-time runs)",
+    },
+    "--output": {
+        "action": "append",
+        "metavar": "URL",
+        "help": "send the safe crank angles to motor drives (repeatable): "
+        "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
+        "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
+        "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",
+    },
+    "--live": {
+        "metavar": "[HOST:]PORT",
+        "help": "also serve every logged topic to Foxglove over WebSocket while running "
+        "(host 127.0.0.1 unless given; 0.0.0.0 to watch from another PC; e.g. --live 8765)",
+    },
+}
+
+
+def _add_shared(p: argparse.ArgumentParser, *flags: str) -> None:
+    """Add the shared options named by their flags (see ``_SHARED_OPTIONS``)."""
+    for flag in flags:
+        p.add_argument(flag, **_SHARED_OPTIONS[flag])  # type: ignore[arg-type]
+
+
+def _pipeline_options(args: argparse.Namespace) -> dict[str, object]:
+    """The options ``fly``, ``replay`` and ``stream`` pass on alike: the robot, the cueing,
+    the motor drives and the live view."""
+    return {
+        "platform": args.platform,
+        "washout": args.washout,
+        "planar": args.planar,
+        "outputs": args.output,
+        "live": args.live,
+    }
+
+
 def _args_fly(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "script",
@@ -146,13 +187,12 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
     p.add_argument("--washout", help="washout preset (default, gentle) or TOML path")
     p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot instead")
     p.add_argument("--realtime", action="store_true", help="pace the flight to wall-clock time")
-    _add_busy_wait_option(p)
+    _add_shared(p, "--busy-wait")
     p.add_argument(
         "--duration", type=_positive_float, metavar="S", help="stop after S simulated seconds"
     )
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default recordings/<script>.mcap)")
-    _add_output_option(p)
-    _add_live_option(p)
+    _add_shared(p, "--output", "--live")
 
 
 @command(
@@ -162,15 +202,11 @@ def run_fly(args: argparse.Namespace) -> int:
     return _job(
         "fly",
         args.script,
-        platform=args.platform,
-        washout=args.washout,
-        planar=args.planar,
         realtime=args.realtime,
         busy_wait=args.busy_wait,
         duration_s=args.duration,
         out=args.out,
-        outputs=args.output,
-        live=args.live,
+        **_pipeline_options(args),
     )
 
 
@@ -185,23 +221,12 @@ def _args_replay(p: argparse.ArgumentParser) -> None:
     p.add_argument("--platform", help="override the recorded geometry (preset or TOML path)")
     p.add_argument("--washout", help="override the recorded washout parameters")
     p.add_argument("--planar", action="store_true", default=None, help="override: drive the 3-RRR")
-    _add_output_option(p)
-    _add_live_option(p)
+    _add_shared(p, "--output", "--live")
 
 
 @command("replay", "re-run the pipeline on a recording's aircraft states", _args_replay)
 def run_replay(args: argparse.Namespace) -> int:
-    return _job(
-        "replay",
-        args.recording,
-        out=args.out,
-        check=args.check,
-        platform=args.platform,
-        washout=args.washout,
-        planar=args.planar,
-        outputs=args.output,
-        live=args.live,
-    )
+    return _job("replay", args.recording, out=args.out, check=args.check, **_pipeline_options(args))
 
 
 def _args_workspace(p: argparse.ArgumentParser) -> None:
@@ -286,7 +311,7 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold unreachable targets instead of clamping them toward home",
     )
-    _add_live_option(p)
+    _add_shared(p, "--live")
 
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
@@ -338,15 +363,14 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
     p.add_argument("--serial", metavar="URL", help="planar: the Arduino's pyserial URL")
     p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
     p.add_argument("--fast", action="store_true", help="log files: as fast as possible")
-    _add_busy_wait_option(p)
+    _add_shared(p, "--busy-wait")
     p.add_argument(
         "--out",
         metavar="FILE.mcap",
         help="log file (default ~/.local/share/motionbase/recordings/stream-<time>.mcap, "
         "under $XDG_DATA_HOME when set)",
     )
-    _add_output_option(p)
-    _add_live_option(p)
+    _add_shared(p, "--output", "--live")
 
 
 @command("stream", "drive the platform live from MAVLink, FlightGear or X-Plane", _args_stream)
@@ -358,17 +382,13 @@ def run_stream(args: argparse.Namespace) -> int:
         compid=args.compid,
         signing_key=args.signing_key,
         rate_hz=args.rate,
-        platform=args.platform,
-        washout=args.washout,
-        planar=args.planar,
         serial=args.serial,
         duration_s=args.duration,
         out=args.out,
         realtime=not args.fast,
         busy_wait=args.busy_wait,
-        outputs=args.output,
         source_url=args.source,
-        live=args.live,
+        **_pipeline_options(args),
     )
 
 
@@ -442,36 +462,6 @@ def run_omct(args: argparse.Namespace) -> int:
 
 
 # --- motor-drive output (issue 8) ---
-
-
-def _add_output_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--output",
-        action="append",
-        metavar="URL",
-        help="send the safe crank angles to motor drives (repeatable): "
-        "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
-        "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
-        "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",
-    )
-
-
-def _add_live_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--live",
-        metavar="[HOST:]PORT",
-        help="also serve every logged topic to Foxglove over WebSocket while running "
-        "(host 127.0.0.1 unless given; 0.0.0.0 to watch from another PC; e.g. --live 8765)",
-    )
-
-
-def _add_busy_wait_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--busy-wait",
-        action="store_true",
-        help="wait for each tick by busy-waiting, not sleeping: one CPU at 100 %%, "
-        "fewer late ticks at 1 kHz (real-time runs)",
-    )
 
 
 def _args_output(p: argparse.ArgumentParser) -> None:

@@ -144,10 +144,10 @@ class FgNativeSource(UdpLiveSource):
 
     Parameters
     ----------
-    url : str
+    url : str, optional
         ``fgnative:udp:HOST:PORT``: listen on HOST:PORT (``127.0.0.1`` for a
         simulator on this machine, ``0.0.0.0`` for one on another PC; port 0 picks
-        a free port).
+        a free port). Default ``fgnative:udp:127.0.0.1:5500``.
     rate_hz, duration_s, busy_wait, stale_timeout_s
         See :class:`~motionbase.io.live_source.UdpLiveSource`.
 
@@ -161,26 +161,10 @@ class FgNativeSource(UdpLiveSource):
 
     kind = "fgnative"
     label = "FlightGear"
+    default_url = "fgnative:udp:127.0.0.1:5500"
 
-    def __init__(
-        self,
-        url: str = "fgnative:udp:127.0.0.1:5500",
-        *,
-        rate_hz: float = 100.0,
-        duration_s: float | None = None,
-        busy_wait: bool = False,
-        stale_timeout_s: float = 0.5,
-    ) -> None:
-        if not isinstance(url, str):
-            raise ConfigError(f"fgnative URL: expected a string, got {url!r}")
+    def _parse_url(self, url: str) -> None:
         self.host, self.port = parse_fgnative_url(url)
-        super().__init__(
-            url.strip(),
-            rate_hz=rate_hz,
-            duration_s=duration_s,
-            busy_wait=busy_wait,
-            stale_timeout_s=stale_timeout_s,
-        )
 
     def _reset_state(self) -> None:
         super()._reset_state()

@@ -23,10 +23,10 @@ address and decodes its packets.
   busy-waiting, otherwise the loop sleeps in :func:`select.select` until a
   datagram or the tick is due.
 
-The same loop is in :class:`~motionbase.io.mavlink_source.MavlinkSource`
-(``_iter_live``, ``_pump_until``, ``_make_state``); MAVLink reads through
-pymavlink rather than a socket of its own, so it would adopt this class by
-supplying its own ``_pump`` (``conn.recv_msg`` instead of ``recvfrom``).
+The ticking, the held sample, the watchdog and the counters are
+:class:`SampleHoldSource`, which :class:`~motionbase.io.mavlink_source.MavlinkSource`
+shares: it reads through pymavlink rather than a socket of its own, so it
+supplies its own reader (``conn.recv_msg`` instead of ``recvfrom``).
 """
 
 from __future__ import annotations
@@ -36,10 +36,10 @@ import math
 import select
 import socket
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Self
 
 from motionbase.errors import ConfigError, SourceError
 from motionbase.pacing import wait_until
@@ -51,10 +51,14 @@ __all__ = [
     "MAX_SPECIFIC_FORCE",
     "LiveStats",
     "LiveTick",
+    "SampleHoldSource",
+    "TickStats",
     "UdpLiveSource",
     "attitude_ok",
     "body_rates_from_euler_rates",
     "finite_within",
+    "is_loopback",
+    "positive_number",
     "split_host_port",
     "wrap_pi",
 ]
@@ -70,7 +74,7 @@ MAX_ANGULAR_RATE = 50.0
 _ANGLE_TOL = 1e-3  # rad, on the limits of roll, pitch and yaw
 
 _POLL_S = 1e-4  # busy-wait: how often the socket is polled between ticks, s
-_MAX_DRAIN = 10000  # datagrams read per pass, so a flood cannot starve the ticks
+_MAX_DRAIN = 10000  # datagrams (messages) read per pass, so a flood cannot starve the ticks
 _RECV_BYTES = 65536
 
 #: slot order of the held sample: specific force (3), body rates (3), attitude (3)
@@ -90,12 +94,13 @@ class LiveTick:
         True when every part of the state (specific force, body rates,
         attitude) is at most ``stale_timeout_s`` old.
     sample_age_s : float
-        Age of the oldest part of the state, s (inf before any sample).
+        Age of the oldest part of the state, s, in the source clock (wall clock
+        for a live link, log time for a log); inf before any sample.
     new_sample : bool
         True when a value entered the state since the previous tick.
     arrival_s : float
-        ``time.monotonic()`` when the newest value in the state arrived, s;
-        nan before any sample.
+        When the newest value in the state arrived, s: ``time.monotonic()`` for
+        a live link, log time for a log; nan before any sample.
     """
 
     fresh: bool
@@ -108,34 +113,35 @@ _NOT_STARTED = LiveTick(fresh=False, sample_age_s=math.inf, new_sample=False, ar
 
 
 @dataclass(frozen=True)
-class LiveStats:
-    """A snapshot of a live source's counters (see :attr:`UdpLiveSource.stats`).
+class TickStats:
+    """The counters every live source keeps (see :attr:`UdpLiveSource.stats`).
 
     Attributes
     ----------
     received : int
-        Datagrams read from the socket.
+        Datagrams (MAVLink: decoded messages) read from the link.
     accepted : int
-        Datagrams whose values entered the state (in whole or in part).
+        Datagrams (messages) that passed the source's checks of origin and
+        protocol.
     rejected_invalid : int
-        Datagrams (FlightGear) or values (X-Plane) that were NaN, infinite or
-        physically absurd; none of them reached the state.
+        Datagrams (FlightGear), values (X-Plane) or messages (MAVLink) that
+        were NaN, infinite or physically absurd; none of them reached the state.
     bad_data : int
-        Datagrams that are not the protocol (wrong header, size or version).
+        Datagrams (chunks of bytes) that are not the protocol.
     bad_bytes : int
-        Bytes in those datagrams.
+        Bytes in those.
     ticks, stale_ticks : int
         Ticks yielded, and how many of them were stale.
     gaps : int
         Fresh-to-stale transitions (each logged as a warning).
     late_ticks : int
-        Ticks that started more than one period late.
+        Live ticks that started more than one period late.
     last_sample_age_s : float
-        Age of the oldest part of the last yielded state, s; inf before any.
+        Age of the oldest part of the last yielded state, s, in the source
+        clock; inf before any.
     message_rate_hz : float
-        Accepted datagrams per second over the last complete second.
-    extra : Mapping[str, Any]
-        Source-specific figures (protocol version, subscription state, ...).
+        Accepted datagrams (messages) per second over the last complete second
+        of source time.
     """
 
     received: int = 0
@@ -149,6 +155,22 @@ class LiveStats:
     late_ticks: int = 0
     last_sample_age_s: float = math.inf
     message_rate_hz: float = 0.0
+
+
+@dataclass(frozen=True)
+class LiveStats(TickStats):
+    """A snapshot of a UDP live source's counters (see :attr:`UdpLiveSource.stats`).
+
+    Attributes
+    ----------
+    extra : Mapping[str, Any]
+        Source-specific figures (protocol version, subscription state, ...).
+
+    The counters are those of :class:`TickStats`: ``accepted`` counts the
+    datagrams whose values entered the state (in whole or in part), ``bad_data``
+    those with a wrong header, size or version.
+    """
+
     extra: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
@@ -224,38 +246,63 @@ def wrap_pi(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _is_loopback(host: str) -> bool:
+def is_loopback(host: str) -> bool:
+    """True for a loopback host name or address (``localhost``, ``::1``, ``127.x.x.x``)."""
     return host in ("localhost", "::1") or host.startswith("127.")
 
 
-class UdpLiveSource:
-    """Base of the live UDP sources: one socket, fixed-rate ticks holding the latest sample.
+def positive_number(kind: str, name: str, value: Any, unit: str) -> float:
+    """``value`` as a float when it is a finite number > 0, else a one-line ConfigError.
+
+    Parameters
+    ----------
+    kind, name : str
+        The source and the parameter, for the message (``"mavlink"``, ``"rate_hz"``).
+    value : Any
+        What was given.
+    unit : str
+        Its unit, for the message (``"Hz"``, ``"s"``).
+    """
+    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"{kind} {name}: must be a finite number > 0 {unit}, got {value!r}")
+    return float(value)
+
+
+class SampleHoldSource:
+    """Fixed-rate ticks holding the latest sample, with a stale watchdog and counters.
+
+    The part every live source shares (the UDP simulator sources and MAVLink):
+    the nine held slots (specific force, body rates, attitude) with their arrival
+    times, the live tick loop on the wall clock, the freshness of each tick and
+    the message rate. A subclass opens its link, reads it (:meth:`_reader`) and
+    stores the values it accepts with :meth:`_store`.
 
     Parameters
     ----------
     url : str
-        The source URL (kept for messages and :meth:`describe`).
+        The source URL (kept for messages and descriptions).
     rate_hz : float
         Tick rate, Hz (> 0): the pipeline rate.
     duration_s : float, optional
         Stop after this long, s; None runs until the consumer stops.
     busy_wait : bool
-        Wait for the next tick by polling the socket (one processor at 100 %)
+        Wait for the next tick by polling the link (one processor at 100 %)
         instead of sleeping in ``select`` (see :mod:`motionbase.pacing`).
     stale_timeout_s : float
         A tick is stale when its oldest part is older than this, s (> 0).
 
     Notes
     -----
-    Subclasses set :attr:`kind` and :attr:`label`, and implement
-    :meth:`_bind_address` and :meth:`_on_packet`; they may override
-    :meth:`_on_open`, :meth:`_on_close`, :meth:`_service` and
-    :meth:`_extra_stats`.
+    Subclasses set :attr:`kind` (messages) and :attr:`label` (log lines),
+    extend :attr:`_COUNTERS`, and implement :meth:`_reader`; they may override
+    :meth:`_service` and :meth:`_peer`. The constructor does not reset the
+    state: a subclass calls :meth:`_reset_state` once its own fields are set.
     """
 
     kind = "live"
     label = "live source"
-    paces_itself = True  # ticks come on the wall clock: the pipeline's loop does not pace them
+    #: counters of :attr:`_c` (subclasses add theirs in front)
+    _COUNTERS: tuple[str, ...] = ("accepted", "ticks", "stale_ticks", "gaps", "late_ticks")
 
     def __init__(
         self,
@@ -267,80 +314,57 @@ class UdpLiveSource:
         stale_timeout_s: float = 0.5,
     ) -> None:
         k = self.kind
-        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
-            raise ConfigError(f"{k} rate_hz: must be a finite number > 0 Hz, got {rate_hz!r}")
-        if not (
-            isinstance(stale_timeout_s, int | float)
-            and math.isfinite(stale_timeout_s)
-            and stale_timeout_s > 0
-        ):
-            raise ConfigError(
-                f"{k} stale_timeout_s: must be a finite number > 0 s, got {stale_timeout_s!r}"
-            )
+        self.url = url
+        self.rate_hz = positive_number(k, "rate_hz", rate_hz, "Hz")
+        self.stale_timeout_s = positive_number(k, "stale_timeout_s", stale_timeout_s, "s")
         if duration_s is not None and not (
             isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0
         ):
             raise ConfigError(f"{k} duration_s: must be > 0 s or None, got {duration_s!r}")
-        self.url = url
-        self.rate_hz = float(rate_hz)
         self.duration_s: float | None = None if duration_s is None else float(duration_s)
         self.busy_wait = bool(busy_wait)
-        self.stale_timeout_s = float(stale_timeout_s)
-        self._sock: socket.socket | None = None
         self._iterating = False
         self.due_time: float | None = None  # when the last tick was due, monotonic s
-        self._reset_state()
 
     # ------------------------------------------------------------------ subclass hooks
 
-    def _bind_address(self) -> tuple[str, int]:
-        """(host, port) to listen on."""
+    def _link(self) -> Any:
+        """The open socket or connection, None when closed."""
         raise NotImplementedError
 
-    def _on_packet(self, data: bytes, addr: Any, arrival: float) -> None:
-        """Decode one datagram; store accepted values with :meth:`_store`."""
+    def _reader(self, link: Any) -> tuple[Callable[[], bool], Any]:
+        """For the open ``link``: a function that reads one datagram or message into the
+        state (False when nothing is waiting), and the object to ``select`` on for more
+        (None: poll every millisecond)."""
         raise NotImplementedError
 
-    def _on_open(self) -> None:
-        """Called once the socket is bound (X-Plane: subscribe)."""
-
-    def _on_close(self) -> None:
-        """Called before the socket closes (X-Plane: unsubscribe)."""
+    def _iterate(self) -> Iterator[AircraftState]:
+        """The ticks of an open source (:meth:`_iter_live` by default)."""
+        return self._iter_live()
 
     def _service(self, now: float) -> None:
-        """Called once per tick before the state is built (X-Plane: resubscribe)."""
+        """Called once per live tick before the state is built (requests, subscriptions)."""
 
-    def _extra_stats(self) -> dict[str, Any]:
-        """Source-specific figures for :attr:`stats`."""
-        return {}
+    def _peer(self) -> str:
+        """What the stale and recovery log lines name after "no fresh sample" (e.g. the
+        system id); empty by default."""
+        return ""
 
-    # ------------------------------------------------------------------ lifecycle
+    # ------------------------------------------------------------------ state
 
     def _reset_state(self) -> None:
-        self._c: dict[str, int] = dict.fromkeys(
-            (
-                "received",
-                "accepted",
-                "rejected_invalid",
-                "bad_data",
-                "bad_bytes",
-                "ticks",
-                "stale_ticks",
-                "gaps",
-                "late_ticks",
-            ),
-            0,
-        )
+        self._c: dict[str, int] = dict.fromkeys(self._COUNTERS, 0)
         self._values = [0.0, 0.0, -G0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        self._times = [-math.inf] * N_SLOTS  # arrival of each slot's value, monotonic s
+        self._times = [-math.inf] * N_SLOTS  # arrival of each slot's value, source clock s
         self._new = False
         self._tick = _NOT_STARTED
         self._was_fresh = False
         self._rate_window_start = math.nan
         self._rate_window_count = 0
         self._rate_hz = 0.0
+        self._live_start = math.inf  # when live ticking began, monotonic s
 
-    def __enter__(self) -> UdpLiveSource:
+    def __enter__(self) -> Self:
         self.open()
         return self
 
@@ -348,64 +372,21 @@ class UdpLiveSource:
         self.close()
 
     def open(self) -> None:
-        """Bind the socket (called by ``with``).
-
-        Raises
-        ------
-        SourceError
-            The address does not resolve or the port cannot be bound.
-        """
-        if self._sock is not None:
-            return
-        host, port = self._bind_address()
-        try:
-            infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
-        except OSError as exc:
-            raise SourceError(
-                f"{self.kind} {self.url}: cannot resolve {host!r} ({exc}); give an IP address "
-                "of this machine, 127.0.0.1 or 0.0.0.0"
-            ) from None
-        family, _, _, _, sockaddr = infos[0]
-        sock = socket.socket(family, socket.SOCK_DGRAM)
-        try:
-            sock.bind(sockaddr)
-        except OSError as exc:
-            sock.close()
-            raise SourceError(
-                f"{self.kind} {self.url}: cannot listen on {host}:{port} ({exc.strerror}); is "
-                "another program using the port, or is the address not on this machine?"
-            ) from None
-        sock.setblocking(False)
-        self._reset_state()
-        self._sock = sock
-        if not _is_loopback(host):
-            _log.warning("%s: listening on %s (not loopback), as requested", self.label, host)
-        try:
-            self._on_open()
-        except BaseException:
-            self.close()
-            raise
+        """Open the link (called by ``with``)."""
+        raise NotImplementedError
 
     def close(self) -> None:
-        """Close the socket (after :meth:`_on_close`). Idempotent."""
-        sock = self._sock
-        if sock is None:
-            return
-        try:
-            self._on_close()
-        finally:
-            self._sock = None
-            sock.close()
+        """Close the link. Idempotent."""
+        raise NotImplementedError
 
-    @property
-    def local_address(self) -> tuple[str, int] | None:
-        """(host, port) the socket is bound to, or None when closed."""
-        if self._sock is None:
-            return None
-        host, port = self._sock.getsockname()[:2]
-        return str(host), int(port)
-
-    # ------------------------------------------------------------------ public state
+    def __iter__(self) -> Iterator[AircraftState]:
+        if self._link() is None:
+            raise SourceError(
+                f"{self.kind} source is not open; use 'with source: for state in source'"
+            )
+        if self._iterating:
+            raise SourceError(f"{self.kind} source: already being iterated; make one iterator")
+        return self._iterate()
 
     @property
     def tick(self) -> LiveTick:
@@ -422,39 +403,6 @@ class UdpLiveSource:
         """Age of the state most recently yielded, s (inf before any sample)."""
         return self._tick.sample_age_s
 
-    @property
-    def stats(self) -> LiveStats:
-        """A frozen snapshot of the counters."""
-        return LiveStats(
-            **self._c,
-            last_sample_age_s=self._tick.sample_age_s,
-            message_rate_hz=self._rate_hz,
-            extra=MappingProxyType(self._extra_stats()),
-        )
-
-    def stats_line(self) -> str:
-        """One line for the end of a run: datagrams, rejects, stale ticks."""
-        st = self.stats
-        extra = "".join(f", {k} {v}" for k, v in st.extra.items())
-        return (
-            f"{self.label}: {st.received} datagrams received, {st.accepted} used, "
-            f"{st.rejected_invalid} rejected as invalid, {st.bad_data} not {self.label} "
-            f"data; {st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps{extra}"
-        )
-
-    def describe(self) -> dict[str, Any]:
-        """Plain-data description for the log's metadata."""
-        return {
-            "kind": self.kind,
-            "url": self.url,
-            "rate_hz": self.rate_hz,
-            "duration_s": self.duration_s,
-            "busy_wait": self.busy_wait,
-            "stale_timeout_s": self.stale_timeout_s,
-        }
-
-    # ------------------------------------------------------------------ helpers for subclasses
-
     def _store(self, first: int, values: Any, arrival: float) -> None:
         """Put ``values`` in slots ``first, first + 1, ...``, arrived at ``arrival``."""
         v, t = self._values, self._times
@@ -463,32 +411,22 @@ class UdpLiveSource:
             t[i] = arrival
         self._new = True
 
-    def _send(self, data: bytes, addr: Any) -> None:
-        """Send one datagram from the listening socket; a failure is logged, not raised."""
-        if self._sock is None:
-            return
-        try:
-            self._sock.sendto(data, addr)
-        except OSError as exc:
-            _log.debug("%s: send to %s failed: %s", self.label, addr, exc)
+    # ------------------------------------------------------------------ ticking
 
-    # ------------------------------------------------------------------ iteration
-
-    def __iter__(self) -> Iterator[AircraftState]:
-        if self._sock is None:
-            raise SourceError(
-                f"{self.kind} source is not open; use 'with source: for state in source'"
-            )
-        if self._iterating:
-            raise SourceError(f"{self.kind} source: already being iterated; make one iterator")
-        return self._iter_live()
+    def _tick_count(self) -> int | None:
+        """Ticks in ``duration_s`` (at least one), or None without a duration."""
+        if self.duration_s is None:
+            return None
+        return max(1, round(self.duration_s * self.rate_hz))
 
     def _iter_live(self) -> Iterator[AircraftState]:
+        """Ticks on the wall clock, reading the link between them."""
         period = 1.0 / self.rate_hz
-        n_max = None if self.duration_s is None else max(1, round(self.duration_s * self.rate_hz))
+        n_max = self._tick_count()
         self._iterating = True
         try:
             start = time.monotonic()
+            self._live_start = start
             k = 0
             while n_max is None or k < n_max:
                 deadline = start + k * period
@@ -507,36 +445,29 @@ class UdpLiveSource:
             self._iterating = False
 
     def _pump_until(self, deadline: float) -> None:
-        """Read and decode every datagram that arrives until ``deadline`` (monotonic s)."""
-        sock = self._sock
-        if sock is None:
+        """Read everything that arrives until ``deadline`` (monotonic s), then return."""
+        link = self._link()
+        if link is None:
             raise SourceError(f"{self.kind} {self.url}: the source was closed while running")
-        recvfrom = sock.recvfrom
-        on_packet = self._on_packet
-        c = self._c
+        read_one, waitable = self._reader(link)
         busy = self.busy_wait
         clock = time.monotonic
         while True:
             for _ in range(_MAX_DRAIN):
-                try:
-                    data, addr = recvfrom(_RECV_BYTES)
-                except BlockingIOError:
+                if not read_one():
                     break
-                except (ConnectionRefusedError, ConnectionResetError):
-                    continue  # an ICMP error for an earlier send (Windows reports these)
-                except OSError as exc:
-                    raise SourceError(f"{self.kind} {self.url}: socket failed ({exc})") from None
-                c["received"] += 1
-                on_packet(data, addr, clock())
             now = clock()
             remaining = deadline - now
             if remaining <= 0.0:
                 return
-            if busy:  # keep the processor: poll the socket again in a moment
+            if busy:  # keep the processor: poll the link again in a moment
                 wait_until(min(deadline, now + _POLL_S), busy=True, clock=clock)
                 continue
+            if waitable is None:
+                time.sleep(min(remaining, 0.001))
+                continue
             try:
-                select.select([sock], [], [], remaining)
+                select.select([waitable], [], [], remaining)
             except (OSError, ValueError):
                 time.sleep(min(remaining, 0.001))
 
@@ -571,12 +502,13 @@ class UdpLiveSource:
             if self._was_fresh:
                 c["gaps"] += 1
                 _log.warning(
-                    "%s: no fresh sample for %.2f s; holding the last state, marked stale",
+                    "%s: no fresh sample%s for %.2f s; holding the last state, marked stale",
                     self.label,
+                    self._peer(),
                     age,
                 )
         elif not self._was_fresh and c["gaps"] > 0:
-            _log.info("%s: fresh samples again", self.label)
+            _log.info("%s: fresh samples again%s", self.label, self._peer())
         self._was_fresh = fresh
         v = self._values
         return AircraftState(
@@ -585,3 +517,210 @@ class UdpLiveSource:
             angular_velocity=v[W_SLOTS],
             attitude=v[ATT_SLOTS],
         )
+
+
+class UdpLiveSource(SampleHoldSource):
+    """Base of the live UDP sources: one socket, fixed-rate ticks holding the latest sample.
+
+    Parameters
+    ----------
+    url : str, optional
+        The source URL, parsed by :meth:`_parse_url`; None takes :attr:`default_url`.
+    rate_hz, duration_s, busy_wait, stale_timeout_s
+        See :class:`SampleHoldSource`.
+
+    Notes
+    -----
+    Subclasses set :attr:`kind`, :attr:`label` and :attr:`default_url`, and
+    implement :meth:`_parse_url`, :meth:`_bind_address` and :meth:`_on_packet`;
+    they may override :meth:`_on_open`, :meth:`_on_close`, :meth:`_service` and
+    :meth:`_extra_stats`.
+    """
+
+    default_url = ""
+    paces_itself = True  # ticks come on the wall clock: the pipeline's loop does not pace them
+    _COUNTERS = (
+        "received",
+        "rejected_invalid",
+        "bad_data",
+        "bad_bytes",
+        *SampleHoldSource._COUNTERS,
+    )
+
+    def __init__(
+        self,
+        url: str | None = None,
+        *,
+        rate_hz: float = 100.0,
+        duration_s: float | None = None,
+        busy_wait: bool = False,
+        stale_timeout_s: float = 0.5,
+    ) -> None:
+        if url is None:
+            url = self.default_url
+        if not isinstance(url, str):
+            raise ConfigError(f"{self.kind} URL: expected a string, got {url!r}")
+        self._parse_url(url)
+        super().__init__(
+            url.strip(),
+            rate_hz=rate_hz,
+            duration_s=duration_s,
+            busy_wait=busy_wait,
+            stale_timeout_s=stale_timeout_s,
+        )
+        self._sock: socket.socket | None = None
+        self._reset_state()
+
+    # ------------------------------------------------------------------ subclass hooks
+
+    def _parse_url(self, url: str) -> None:
+        """Read the URL into attributes, or raise a one-line ConfigError."""
+        raise NotImplementedError
+
+    def _bind_address(self) -> tuple[str, int]:
+        """(host, port) to listen on."""
+        raise NotImplementedError
+
+    def _on_packet(self, data: bytes, addr: Any, arrival: float) -> None:
+        """Decode one datagram; store accepted values with :meth:`_store`."""
+        raise NotImplementedError
+
+    def _on_open(self) -> None:
+        """Called once the socket is bound (X-Plane: subscribe)."""
+
+    def _on_close(self) -> None:
+        """Called before the socket closes (X-Plane: unsubscribe)."""
+
+    def _extra_stats(self) -> dict[str, Any]:
+        """Source-specific figures for :attr:`stats`."""
+        return {}
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def open(self) -> None:
+        """Bind the socket (called by ``with``).
+
+        Raises
+        ------
+        SourceError
+            The address does not resolve or the port cannot be bound.
+        """
+        if self._sock is not None:
+            return
+        host, port = self._bind_address()
+        try:
+            infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        except OSError as exc:
+            raise SourceError(
+                f"{self.kind} {self.url}: cannot resolve {host!r} ({exc}); give an IP address "
+                "of this machine, 127.0.0.1 or 0.0.0.0"
+            ) from None
+        family, _, _, _, sockaddr = infos[0]
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            sock.bind(sockaddr)
+        except OSError as exc:
+            sock.close()
+            raise SourceError(
+                f"{self.kind} {self.url}: cannot listen on {host}:{port} ({exc.strerror}); is "
+                "another program using the port, or is the address not on this machine?"
+            ) from None
+        sock.setblocking(False)
+        self._reset_state()
+        self._sock = sock
+        if not is_loopback(host):
+            _log.warning("%s: listening on %s (not loopback), as requested", self.label, host)
+        try:
+            self._on_open()
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Close the socket (after :meth:`_on_close`). Idempotent."""
+        sock = self._sock
+        if sock is None:
+            return
+        try:
+            self._on_close()
+        finally:
+            self._sock = None
+            sock.close()
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """(host, port) the socket is bound to, or None when closed."""
+        if self._sock is None:
+            return None
+        host, port = self._sock.getsockname()[:2]
+        return str(host), int(port)
+
+    # ------------------------------------------------------------------ public state
+
+    @property
+    def stats(self) -> LiveStats:
+        """A frozen snapshot of the counters."""
+        return LiveStats(
+            **self._c,
+            last_sample_age_s=self._tick.sample_age_s,
+            message_rate_hz=self._rate_hz,
+            extra=MappingProxyType(self._extra_stats()),
+        )
+
+    def stats_line(self) -> str:
+        """One line for the end of a run: datagrams, rejects, stale ticks."""
+        st = self.stats
+        extra = "".join(f", {k} {v}" for k, v in st.extra.items())
+        return (
+            f"{self.label}: {st.received} datagrams received, {st.accepted} used, "
+            f"{st.rejected_invalid} rejected as invalid, {st.bad_data} not {self.label} "
+            f"data; {st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps{extra}"
+        )
+
+    def describe(self) -> dict[str, Any]:
+        """Plain-data description for the log's metadata."""
+        return {
+            "kind": self.kind,
+            "url": self.url,
+            "rate_hz": self.rate_hz,
+            "duration_s": self.duration_s,
+            "busy_wait": self.busy_wait,
+            "stale_timeout_s": self.stale_timeout_s,
+        }
+
+    # ------------------------------------------------------------------ helpers for subclasses
+
+    def _send(self, data: bytes, addr: Any) -> None:
+        """Send one datagram from the listening socket; a failure is logged, not raised."""
+        if self._sock is None:
+            return
+        try:
+            self._sock.sendto(data, addr)
+        except OSError as exc:
+            _log.debug("%s: send to %s failed: %s", self.label, addr, exc)
+
+    # ------------------------------------------------------------------ iteration
+
+    def _link(self) -> socket.socket | None:
+        return self._sock
+
+    def _reader(self, sock: socket.socket) -> tuple[Callable[[], bool], Any]:
+        recvfrom = sock.recvfrom
+        on_packet = self._on_packet
+        c = self._c
+        clock = time.monotonic
+
+        def read_one() -> bool:
+            try:
+                data, addr = recvfrom(_RECV_BYTES)
+            except BlockingIOError:
+                return False
+            except (ConnectionRefusedError, ConnectionResetError):
+                return True  # an ICMP error for an earlier send (Windows reports these)
+            except OSError as exc:
+                raise SourceError(f"{self.kind} {self.url}: socket failed ({exc})") from None
+            c["received"] += 1
+            on_packet(data, addr, clock())
+            return True
+
+        return read_one, sock

@@ -65,10 +65,9 @@ import contextlib
 import logging
 import math
 import os
-import select
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -79,6 +78,20 @@ os.environ["MAVLINK20"] = "1"  # must precede the first import of pymavlink.mavu
 from pymavlink import DFReader, mavutil  # noqa: E402
 
 from motionbase.errors import ConfigError, SourceError  # noqa: E402
+from motionbase.io.live_source import (  # noqa: E402
+    ATT_SLOTS,
+    G0,
+    MAX_ANGULAR_RATE,
+    MAX_SPECIFIC_FORCE,
+    LiveTick,
+    SampleHoldSource,
+    TickStats,
+    attitude_ok,
+    finite_within,
+    is_loopback,
+    positive_number,
+    wrap_pi,
+)
 from motionbase.io.net_address import check_host_port  # noqa: E402
 from motionbase.pacing import wait_until  # noqa: E402
 from motionbase.state import AircraftState  # noqa: E402
@@ -90,17 +103,9 @@ __all__ = ["MavlinkSource", "MavlinkStats", "MavlinkTick", "load_signing_key"]
 
 _log = logging.getLogger("motionbase")
 
-G0 = 9.80665
-"""Standard gravity, m/s^2."""
 MG_TO_MS2 = G0 * 1e-3
 """One milli-g in m/s^2."""
 MRAD_TO_RAD = 1e-3
-
-MAX_SPECIFIC_FORCE = 20.0 * G0
-"""Largest plausible specific-force component, m/s^2 (beyond a +-16 g IMU)."""
-MAX_ANGULAR_RATE = 50.0
-"""Largest plausible body rate, rad/s (beyond a +-2000 deg/s gyro)."""
-_ANGLE_TOL = 1e-3
 
 # IMU messages, best first: name -> (rank, scale of acc to m/s^2, scale of gyro to rad/s)
 _IMU_TYPES: dict[str, tuple[int, float, float]] = {
@@ -117,23 +122,22 @@ _LOG_SUFFIXES = (".tlog", ".bin", ".mavlink", ".log", ".raw", ".px4log")
 _REQUEST_AFTER_S = 1.0  # silence on a live link before asking for streams
 _MAX_REQUESTS = 3
 _HEARTBEAT_PERIOD_S = 1.0
-_POLL_S = 1e-4  # busy-wait: how often the link is polled between ticks, s
 _GCS_SYSID = 255
 _GCS_COMPID = 190  # MAV_COMP_ID_MISSIONPLANNER
 
 
 @dataclass(frozen=True)
-class MavlinkStats:
+class MavlinkStats(TickStats):
     """A snapshot of the source's counters (see :attr:`MavlinkSource.stats`).
+
+    Besides those of :class:`~motionbase.io.live_source.TickStats` (``received``:
+    messages decoded from any source, not counting bad data and signature
+    rejects; ``accepted``: messages from the configured system and component
+    that passed the signature check; ``bad_data``: chunks of bytes that did not
+    parse as MAVLink, garbage or a bad CRC):
 
     Attributes
     ----------
-    received : int
-        MAVLink messages decoded (any source, any type), not counting bad data
-        and signature rejects.
-    accepted : int
-        Messages from the configured system (and component) that passed the
-        signature check.
     used : int
         Accepted IMU and attitude messages whose values entered the state.
     rejected_sysid, rejected_compid : int
@@ -142,28 +146,10 @@ class MavlinkStats:
     rejected_unsigned, rejected_bad_signature : int
         With signing on: unsigned messages, and signed messages whose signature
         or timestamp is wrong. ``rejected_signature`` is their sum.
-    rejected_invalid : int
-        Messages with NaN, infinite or absurd values (not used).
     ignored_raw_imu : int
         ``RAW_IMU`` messages ignored because the vehicle is not ArduPilot.
-    bad_data : int
-        Chunks of bytes that did not parse as MAVLink (garbage, bad CRC).
-    bad_bytes : int
-        Number of bytes in those chunks.
     per_type : Mapping[str, int]
         Accepted messages by type.
-    ticks, stale_ticks : int
-        Ticks yielded, and how many of them were stale.
-    gaps : int
-        Fresh-to-stale transitions (each logged as a warning).
-    late_ticks : int
-        Live ticks that started more than one period late.
-    last_sample_age_s : float
-        Age of the oldest part (IMU or attitude) of the last yielded state, s,
-        in the source clock; inf before any sample.
-    message_rate_hz : float
-        Accepted messages per second over the last complete second of source
-        time.
     imu_source : str
         Message type that currently gives the specific force ("" before any).
     stream_request : str
@@ -174,24 +160,13 @@ class MavlinkStats:
         ``request_timeout_s``) or ``"streaming"`` (fresh data arriving).
     """
 
-    received: int = 0
-    accepted: int = 0
     used: int = 0
     rejected_sysid: int = 0
     rejected_compid: int = 0
     rejected_unsigned: int = 0
     rejected_bad_signature: int = 0
-    rejected_invalid: int = 0
     ignored_raw_imu: int = 0
-    bad_data: int = 0
-    bad_bytes: int = 0
     per_type: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
-    ticks: int = 0
-    stale_ticks: int = 0
-    gaps: int = 0
-    late_ticks: int = 0
-    last_sample_age_s: float = math.inf
-    message_rate_hz: float = 0.0
     imu_source: str = ""
     stream_request: str = "off"
 
@@ -211,33 +186,8 @@ class MavlinkStats:
         )
 
 
-@dataclass(frozen=True)
-class MavlinkTick:
-    """What the pipeline needs to know about the state just yielded.
-
-    Attributes
-    ----------
-    fresh : bool
-        True when both the IMU and the attitude sample are at most
-        ``stale_timeout_s`` old; False when the state is a hold of stale data
-        (or the neutral state before any sample).
-    sample_age_s : float
-        Age of the oldest part of the state, s, in the source clock (wall clock
-        for a live link, log time for a log); inf before any sample.
-    new_sample : bool
-        True when an IMU or attitude message arrived since the previous tick.
-    arrival_s : float
-        Arrival time of the newest message in the state, s: ``time.monotonic()``
-        for a live link, log time for a log; nan before any sample.
-    """
-
-    fresh: bool
-    sample_age_s: float
-    new_sample: bool
-    arrival_s: float
-
-
-_NOT_STARTED = MavlinkTick(fresh=False, sample_age_s=math.inf, new_sample=False, arrival_s=math.nan)
+MavlinkTick = LiveTick
+"""The freshness of a tick (the name this module exported before the live sources shared it)."""
 
 
 def load_signing_key(path: str | os.PathLike[str]) -> bytes:
@@ -356,13 +306,6 @@ def _is_log_url(url: str) -> bool:
     )
 
 
-def _finite_within(values: tuple[float, ...], limit: float) -> bool:
-    for v in values:
-        if not (-limit <= v <= limit):  # False for NaN too
-            return False
-    return True
-
-
 def _quat_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float] | None:
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if not (0.9 <= n <= 1.1):  # also rejects NaN
@@ -372,10 +315,6 @@ def _quat_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float
     pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return roll, pitch, yaw
-
-
-def _wrap_pi(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class _VehicleClock:
@@ -416,7 +355,7 @@ class _VehicleClock:
         return self.last
 
 
-class MavlinkSource:
+class MavlinkSource(SampleHoldSource):
     """Aircraft states from MAVLink telemetry or a log, at a fixed rate.
 
     Parameters
@@ -481,6 +420,22 @@ class MavlinkSource:
     ...             ...  # the watchdog fades to neutral
     """
 
+    kind = "mavlink"
+    label = "MAVLink"
+    _COUNTERS = (
+        "received",
+        "used",
+        "rejected_sysid",
+        "rejected_compid",
+        "rejected_unsigned",
+        "rejected_bad_signature",
+        "rejected_invalid",
+        "ignored_raw_imu",
+        "bad_data",
+        "bad_bytes",
+        *SampleHoldSource._COUNTERS,
+    )
+
     def __init__(
         self,
         url: str = "udpin:127.0.0.1:14550",
@@ -499,33 +454,24 @@ class MavlinkSource:
     ) -> None:
         if not isinstance(url, str) or not url.strip():
             raise ConfigError("mavlink url: empty; give e.g. udpin:127.0.0.1:14550 or a .tlog path")
-        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
-            raise ConfigError(f"mavlink rate_hz: must be a finite number > 0 Hz, got {rate_hz!r}")
+        super().__init__(
+            url.strip(),
+            rate_hz=rate_hz,
+            duration_s=duration_s,
+            busy_wait=busy_wait,
+            stale_timeout_s=stale_timeout_s,
+        )
         if not (isinstance(sysid, int) and 1 <= sysid <= 255):
             raise ConfigError(f"mavlink sysid: must be an integer 1..255, got {sysid!r}")
         if compid is not None and not (isinstance(compid, int) and 1 <= compid <= 255):
             raise ConfigError(f"mavlink compid: must be an integer 1..255 or None, got {compid!r}")
-        for name, val in (
-            ("stale_timeout_s", stale_timeout_s),
-            ("request_timeout_s", request_timeout_s),
-        ):
-            if not (isinstance(val, int | float) and math.isfinite(val) and val > 0):
-                raise ConfigError(f"mavlink {name}: must be a finite number > 0 s, got {val!r}")
-        if duration_s is not None and not (
-            isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0
-        ):
-            raise ConfigError(f"mavlink duration_s: must be > 0 s or None, got {duration_s!r}")
-
-        self.url = url.strip()
-        self.rate_hz = float(rate_hz)
+        self.request_timeout_s = positive_number(
+            self.kind, "request_timeout_s", request_timeout_s, "s"
+        )
         self.sysid = sysid
         self.compid = compid
-        self.duration_s: float | None = None if duration_s is None else float(duration_s)
         self.realtime = bool(realtime)
-        self.busy_wait = bool(busy_wait)
         self.request_streams = bool(request_streams)
-        self.stale_timeout_s = float(stale_timeout_s)
-        self.request_timeout_s = float(request_timeout_s)
         if log_clock not in ("vehicle", "receive"):
             raise ConfigError(f"mavlink log_clock: 'vehicle' or 'receive', got {log_clock!r}")
         self.log_clock = log_clock
@@ -540,62 +486,32 @@ class MavlinkSource:
             self._key = load_signing_key(signing_key)
 
         self._conn: Any = None
-        self._iterating = False
-        self.due_time: float | None = None
         self._reset_state()
 
     # ------------------------------------------------------------------ lifecycle
 
     def _reset_state(self) -> None:
-        self._c: dict[str, int] = dict.fromkeys(
-            (
-                "received",
-                "accepted",
-                "used",
-                "rejected_sysid",
-                "rejected_compid",
-                "rejected_unsigned",
-                "rejected_bad_signature",
-                "rejected_invalid",
-                "ignored_raw_imu",
-                "bad_data",
-                "bad_bytes",
-                "ticks",
-                "stale_ticks",
-                "gaps",
-                "late_ticks",
-            ),
-            0,
-        )
+        super()._reset_state()
         self._per_type: dict[str, int] = {}
-        self._f = (0.0, 0.0, -G0)
-        self._w = (0.0, 0.0, 0.0)
-        self._att = (0.0, 0.0, 0.0)
-        self._imu_time = -math.inf  # arrival time of the last used IMU message, source clock
-        self._att_time = -math.inf
         self._imu_rank = 99
         self._imu_name = ""
         self._att_rank = 99
-        self._new = False
         self._ardupilot = False
-        self._tick = _NOT_STARTED
-        self._was_fresh = False
-        self._rate_window_start = math.nan
-        self._rate_window_count = 0
-        self._rate_hz = 0.0
         self._req_state = "idle" if (self.request_streams and not self.is_log) else "off"
         self._req_time = math.nan
         self._req_count = 0
         self._warned_ignored = False
         self._last_hb = -math.inf
-        self._live_t0 = math.inf
 
-    def __enter__(self) -> MavlinkSource:
-        self.open()
-        return self
+    @property
+    def _imu_time(self) -> float:
+        """Arrival of the IMU values in the state, source clock s (-inf before any)."""
+        return self._times[0]
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    @property
+    def _att_time(self) -> float:
+        """Arrival of the attitude in the state, source clock s (-inf before any)."""
+        return self._times[ATT_SLOTS.start]
 
     def open(self) -> None:
         """Open the connection (called by ``with``).
@@ -643,7 +559,7 @@ class MavlinkSource:
                     self._key, sign_outgoing=True, allow_unsigned_callback=_reject_unsigned
                 )
             host = self._bind_host()
-            if host is not None and host not in ("127.0.0.1", "localhost", "::1"):
+            if host is not None and not is_loopback(host):
                 _log.warning("MAVLink: listening on %s (not loopback), as requested", host)
 
     def close(self) -> None:
@@ -676,21 +592,6 @@ class MavlinkSource:
     # ------------------------------------------------------------------ public state
 
     @property
-    def tick(self) -> MavlinkTick:
-        """Freshness of the state most recently yielded."""
-        return self._tick
-
-    @property
-    def fresh(self) -> bool:
-        """True when the state most recently yielded is fresh (see :class:`MavlinkTick`)."""
-        return self._tick.fresh
-
-    @property
-    def sample_age_s(self) -> float:
-        """Age of the state most recently yielded, s (inf before any sample)."""
-        return self._tick.sample_age_s
-
-    @property
     def stats(self) -> MavlinkStats:
         """A frozen snapshot of the counters."""
         return MavlinkStats(
@@ -700,6 +601,16 @@ class MavlinkSource:
             message_rate_hz=self._rate_hz,
             imu_source=self._imu_name,
             stream_request=self._req_state,
+        )
+
+    def stats_line(self) -> str:
+        """One line for the end of a run: messages, rejects, stale ticks."""
+        st = self.stats
+        return (
+            f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
+            f"{st.rejected} rejected (other system {st.rejected_sysid}, signature "
+            f"{st.rejected_signature}, invalid {st.rejected_invalid}), {st.bad_data} garbled; "
+            f"{st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps"
         )
 
     def describe(self) -> dict[str, Any]:
@@ -732,111 +643,39 @@ class MavlinkSource:
         """True when ticks come on the wall clock (a live link, or a log with ``realtime``)."""
         return not self.is_log or self.realtime
 
-    def __iter__(self) -> Iterator[AircraftState]:
-        if self._conn is None:
-            raise SourceError(
-                "mavlink source is not open; use 'with MavlinkSource(...) as src: for s in src'"
-            )
-        if self._iterating:
-            raise SourceError("mavlink source: already being iterated; make one iterator only")
+    def _link(self) -> Any:
+        return self._conn
+
+    def _iterate(self) -> Iterator[AircraftState]:
         return self._iter_log() if self.is_log else self._iter_live()
 
-    def _make_state(self, k: int, now: float) -> AircraftState:
-        """Build tick k's state (hold of the latest sample) and its freshness at time ``now``."""
-        age_imu = now - self._imu_time
-        age_att = now - self._att_time
-        age = max(age_imu, age_att)
-        fresh = age <= self.stale_timeout_s
-        arrival = max(self._imu_time, self._att_time)
-        self._tick = MavlinkTick(
-            fresh=fresh,
-            sample_age_s=age,
-            new_sample=self._new,
-            arrival_s=arrival if math.isfinite(arrival) else math.nan,
-        )
-        self._new = False
-        c = self._c
-        c["ticks"] += 1
-        if not fresh:
-            c["stale_ticks"] += 1
-            if self._was_fresh:
-                c["gaps"] += 1
-                _log.warning(
-                    "MAVLink: no fresh sample from system %d for %.2f s; holding the last "
-                    "state, marked stale",
-                    self.sysid,
-                    age,
-                )
-        elif not self._was_fresh and c["ticks"] > 1 and c["gaps"] > 0:
-            _log.info("MAVLink: fresh samples again from system %d", self.sysid)
-        self._was_fresh = fresh
-        return AircraftState(
-            t=k / self.rate_hz,
-            specific_force=self._f,
-            angular_velocity=self._w,
-            attitude=self._att,
-        )
+    def _peer(self) -> str:
+        return f" from system {self.sysid}"
 
-    def _iter_live(self) -> Iterator[AircraftState]:
-        conn = self._conn
-        period = 1.0 / self.rate_hz
-        n_max = None if self.duration_s is None else max(1, round(self.duration_s * self.rate_hz))
-        self._iterating = True
-        try:
-            start = time.monotonic()
-            self._live_t0 = start
-            k = 0
-            while n_max is None or k < n_max:
-                deadline = start + k * period
-                self._pump_until(conn, deadline)
-                now = time.monotonic()
-                if now - deadline > period:
-                    self._c["late_ticks"] += 1
-                    if now - deadline > 0.25:  # stalled: re-anchor the clock, keep k contiguous
-                        start = now - k * period
-                self._update_rate(now)
-                if self._req_state != "off":
-                    self._service_requests(conn, now)
-                self.due_time = deadline
-                yield self._make_state(k, now)
-                k += 1
-        finally:
-            self._iterating = False
+    def _service(self, now: float) -> None:
+        if self._req_state != "off":
+            self._service_requests(self._conn, now)
 
-    def _pump_until(self, conn: Any, deadline: float) -> None:
-        """Parse every message that arrives until ``deadline`` (monotonic s), then return."""
-        fd = getattr(conn, "fd", None)
+    def _reader(self, conn: Any) -> tuple[Callable[[], bool], Any]:
         recv_msg = conn.recv_msg
         handle = self._handle
-        busy = self.busy_wait
-        while True:
-            for _ in range(10000):  # bounded drain, so a flood cannot starve the ticks
-                try:
-                    msg = recv_msg()
-                except OSError as exc:
-                    raise SourceError(f"mavlink {self.url}: link failed ({exc})") from None
-                if msg is None:
-                    break
-                handle(msg, time.monotonic())
-            now = time.monotonic()
-            remaining = deadline - now
-            if remaining <= 0.0:
-                return
-            if busy:  # keep the processor: poll the link again in a moment
-                wait_until(min(deadline, now + _POLL_S), busy=True, clock=time.monotonic)
-                continue
-            if fd is None:
-                time.sleep(min(remaining, 0.001))
-                continue
+
+        def read_one() -> bool:
             try:
-                select.select([fd], [], [], remaining)
-            except (OSError, ValueError):
-                time.sleep(min(remaining, 0.001))
+                msg = recv_msg()
+            except OSError as exc:
+                raise SourceError(f"mavlink {self.url}: link failed ({exc})") from None
+            if msg is None:
+                return False
+            handle(msg, time.monotonic())
+            return True
+
+        return read_one, getattr(conn, "fd", None)
 
     def _iter_log(self) -> Iterator[AircraftState]:
         conn = self._conn
         period = 1.0 / self.rate_hz
-        n_max = None if self.duration_s is None else max(1, round(self.duration_s * self.rate_hz))
+        n_max = self._tick_count()
         if isinstance(conn, DFReader.DFReader):
             types = ["IMU", "ATT"]
             handle = self._handle_dataflash
@@ -882,17 +721,6 @@ class MavlinkSource:
 
     # ------------------------------------------------------------------ messages
 
-    def _update_rate(self, now: float) -> None:
-        if math.isnan(self._rate_window_start):
-            self._rate_window_start = now
-            self._rate_window_count = self._c["accepted"]
-            return
-        span = now - self._rate_window_start
-        if span >= 1.0:
-            self._rate_hz = (self._c["accepted"] - self._rate_window_count) / span
-            self._rate_window_start = now
-            self._rate_window_count = self._c["accepted"]
-
     def _handle(self, msg: Any, arrival: float) -> None:
         """Filter one decoded MAVLink message and fold it into the state."""
         c = self._c
@@ -931,16 +759,9 @@ class MavlinkSource:
                 return  # a better IMU message is still fresh
             acc = (msg.xacc * ka, msg.yacc * ka, msg.zacc * ka)
             gyr = (msg.xgyro * kg, msg.ygyro * kg, msg.zgyro * kg)
-            if not (
-                _finite_within(acc, MAX_SPECIFIC_FORCE) and _finite_within(gyr, MAX_ANGULAR_RATE)
-            ):
-                c["rejected_invalid"] += 1
+            if not self._store_imu(acc, gyr, arrival):
                 return
-            self._f, self._w = acc, gyr
-            self._imu_time = arrival
             self._imu_rank, self._imu_name = rank, mtype
-            self._new = True
-            c["used"] += 1
             return
 
         att_rank = _ATT_TYPES.get(mtype)
@@ -949,24 +770,10 @@ class MavlinkSource:
                 return
             if att_rank == 0:
                 att: tuple[float, float, float] | None = (msg.roll, msg.pitch, msg.yaw)
-                if not (
-                    _finite_within(att[:1], math.pi + _ANGLE_TOL)
-                    and _finite_within(att[1:2], 0.5 * math.pi + _ANGLE_TOL)
-                    and _finite_within(att[2:], 2.0 * math.pi + _ANGLE_TOL)
-                ):
-                    att = None
-                else:
-                    att = (att[0], att[1], _wrap_pi(att[2]))
             else:
                 att = _quat_to_euler(msg.q1, msg.q2, msg.q3, msg.q4)
-            if att is None:
-                c["rejected_invalid"] += 1
-                return
-            self._att = att
-            self._att_time = arrival
-            self._att_rank = att_rank
-            self._new = True
-            c["used"] += 1
+            if self._store_attitude(att, arrival):
+                self._att_rank = att_rank
             return
 
         if mtype == "HEARTBEAT":
@@ -987,27 +794,30 @@ class MavlinkSource:
                 return
             acc = (msg.AccX, msg.AccY, msg.AccZ)
             gyr = (msg.GyrX, msg.GyrY, msg.GyrZ)
-            if not (
-                _finite_within(acc, MAX_SPECIFIC_FORCE) and _finite_within(gyr, MAX_ANGULAR_RATE)
-            ):
-                c["rejected_invalid"] += 1
-                return
-            self._f, self._w = acc, gyr
-            self._imu_time = arrival
-            self._imu_name = "IMU"
+            if self._store_imu(acc, gyr, arrival):
+                self._imu_name = "IMU"
         else:  # ATT, degrees
             att = (math.radians(msg.Roll), math.radians(msg.Pitch), math.radians(msg.Yaw))
-            if not (
-                _finite_within(att[:1], math.pi + _ANGLE_TOL)
-                and _finite_within(att[1:2], 0.5 * math.pi + _ANGLE_TOL)
-                and _finite_within(att[2:], 2.0 * math.pi + _ANGLE_TOL)
-            ):
-                c["rejected_invalid"] += 1
-                return
-            self._att = (att[0], att[1], _wrap_pi(att[2]))
-            self._att_time = arrival
-        self._new = True
-        c["used"] += 1
+            self._store_attitude(att, arrival)
+
+    def _store_imu(self, acc: tuple[float, ...], gyr: tuple[float, ...], arrival: float) -> bool:
+        """Specific force (m/s^2) and body rates (rad/s) into the state, or count them invalid."""
+        if not (finite_within(acc, MAX_SPECIFIC_FORCE) and finite_within(gyr, MAX_ANGULAR_RATE)):
+            self._c["rejected_invalid"] += 1
+            return False
+        self._store(0, (*acc, *gyr), arrival)
+        self._c["used"] += 1
+        return True
+
+    def _store_attitude(self, att: tuple[float, float, float] | None, arrival: float) -> bool:
+        """Euler angles (rad; None: not convertible) into the state, yaw wrapped to [-pi, pi),
+        or count them invalid."""
+        if att is None or not attitude_ok(*att):
+            self._c["rejected_invalid"] += 1
+            return False
+        self._store(ATT_SLOTS.start, (att[0], att[1], wrap_pi(att[2])), arrival)
+        self._c["used"] += 1
+        return True
 
     # ------------------------------------------------------------------ stream requests
 
@@ -1034,7 +844,7 @@ class MavlinkSource:
             return
         state = self._req_state
         if state in ("idle", "streaming"):
-            silent_since = max(self._imu_time, self._att_time, self._live_t0)
+            silent_since = max(self._imu_time, self._att_time, self._live_start)
             if now - silent_since >= _REQUEST_AFTER_S and self._req_count < _MAX_REQUESTS:
                 self._send_requests(conn, now)
         elif state in ("sent", "acknowledged", "ignored") and (

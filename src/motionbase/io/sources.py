@@ -107,13 +107,4 @@ def open_live_source(
 
 def stats_line(source: Any) -> str:
     """One line of counters for the end of a ``stream`` run, whatever the source."""
-    own = getattr(source, "stats_line", None)
-    if callable(own):
-        return own()
-    st = source.stats  # MAVLink
-    return (
-        f"MAVLink: {st.received} messages received, {st.accepted} accepted, "
-        f"{st.rejected} rejected (other system {st.rejected_sysid}, signature "
-        f"{st.rejected_signature}, invalid {st.rejected_invalid}), {st.bad_data} garbled; "
-        f"{st.stale_ticks} of {st.ticks} ticks stale, {st.gaps} gaps"
-    )
+    return source.stats_line()

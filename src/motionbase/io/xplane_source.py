@@ -91,6 +91,7 @@ from motionbase.io.live_source import (
     UdpLiveSource,
     attitude_ok,
     finite_within,
+    is_loopback,
     split_host_port,
     wrap_pi,
 )
@@ -153,8 +154,8 @@ def parse_xplane_url(url: str) -> tuple[str, int, str, int, int | None]:
     host, port = split_host_port(addr, f"xplane URL {url!r}", example)
     if port == 0:
         raise ConfigError(f"xplane URL {url!r}: X-Plane's port cannot be 0 ({example})")
-    loopback = host in ("localhost", "::1") or host.startswith("127.")
-    listen_host, listen_port = ("127.0.0.1" if loopback else "0.0.0.0"), DEFAULT_LISTEN_PORT
+    listen_host = "127.0.0.1" if is_loopback(host) else "0.0.0.0"
+    listen_port = DEFAULT_LISTEN_PORT
     version: int | None = None
     try:
         params = parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
@@ -195,9 +196,9 @@ class XPlaneSource(UdpLiveSource):
 
     Parameters
     ----------
-    url : str
+    url : str, optional
         ``xplane:HOST:PORT[?listen=[ADDR:]PORT][&version=11|12]`` (see the module
-        docstring).
+        docstring). Default ``xplane:127.0.0.1:49000``.
     rate_hz, duration_s, busy_wait, stale_timeout_s
         See :class:`~motionbase.io.live_source.UdpLiveSource`. The datarefs are
         requested at ``rate_hz`` answers per second (X-Plane sends at most one
@@ -212,18 +213,9 @@ class XPlaneSource(UdpLiveSource):
 
     kind = "xplane"
     label = "X-Plane"
+    default_url = "xplane:127.0.0.1:49000"
 
-    def __init__(
-        self,
-        url: str = "xplane:127.0.0.1:49000",
-        *,
-        rate_hz: float = 100.0,
-        duration_s: float | None = None,
-        busy_wait: bool = False,
-        stale_timeout_s: float = 0.5,
-    ) -> None:
-        if not isinstance(url, str):
-            raise ConfigError(f"xplane URL: expected a string, got {url!r}")
+    def _parse_url(self, url: str) -> None:
         (
             self.host,
             self.port,
@@ -231,16 +223,11 @@ class XPlaneSource(UdpLiveSource):
             self.listen_port,
             self.version_given,
         ) = parse_xplane_url(url)
-        super().__init__(
-            url.strip(),
-            rate_hz=rate_hz,
-            duration_s=duration_s,
-            busy_wait=busy_wait,
-            stale_timeout_s=stale_timeout_s,
-        )
-        self.freq = max(1, round(self.rate_hz))
-        self._xplane_addr: Any = None
-        self._xplane_ips: frozenset[str] = frozenset()
+
+    @property
+    def freq(self) -> int:
+        """Answers per second asked of X-Plane for each dataref: the rate, at least 1."""
+        return max(1, round(self.rate_hz))
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -258,6 +245,8 @@ class XPlaneSource(UdpLiveSource):
         self._x = dict.fromkeys(
             ("rref", "data", "unknown_index", "other_host", "data_groups_ignored"), 0
         )
+        self._xplane_addr: Any = None  # X-Plane's address, once resolved at open
+        self._xplane_ips: frozenset[str] = frozenset()
 
     def _bind_address(self) -> tuple[str, int]:
         return self.listen_host, self.listen_port
