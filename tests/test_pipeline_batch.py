@@ -24,7 +24,7 @@ from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.pipeline import Pipeline
 from motionbase.state import AircraftState
 from motionbase.washout.cueing import CUEINGS, STEP_SIGNATURE, TRACK_SIGNATURE, Cueing, CueingSpec
-from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams
+from motionbase.washout.params import WashoutParams
 
 G = 9.80665
 LEVEL = np.array([0.0, 0.0, -G, 0.0, 0.0, 0.0])
@@ -214,7 +214,6 @@ def test_a_plugin_cueing_flies_and_replays_with_no_pipeline_change(plugins, tmp_
             "6",
             "--out",
             str(out),
-            "--no-progress",
         ]
     )
     assert code == 0
@@ -240,11 +239,12 @@ def test_a_plugin_cueing_flies_and_replays_with_no_pipeline_change(plugins, tmp_
 
 def test_a_recording_of_an_unknown_cueing_is_refused_in_one_line(plugins, tmp_path, capsys):
     out = tmp_path / "linear.mcap"
-    assert main(["fly", "c1723", "--cueing", "test_linear", "--duration", "2", "--out", str(out),
-                 "--no-progress"]) == 0  # fmt: skip
+    assert (
+        main(["fly", "c1723", "--cueing", "test_linear", "--duration", "2", "--out", str(out)]) == 0
+    )
     del CUEINGS["test_linear"]
     try:
-        code = main(["replay", str(out), "--check", "--no-progress"])
+        code = main(["replay", str(out), "--check"])
     finally:
         CUEINGS["test_linear"] = CueingSpec(
             "test_linear", LinearCue, "motionbase.washout.params:WashoutParams", "washout"
@@ -255,12 +255,6 @@ def test_a_recording_of_an_unknown_cueing_is_refused_in_one_line(plugins, tmp_pa
 
 
 def test_an_unknown_cueing_name_is_one_line_and_exit_2(capsys):
-    code = main(["fly", "c1723", "--cueing", "nope", "--duration", "1", "--no-progress"])
+    code = main(["fly", "c1723", "--cueing", "nope", "--duration", "1"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "nope" in err[0] and "classical" in err[0]
-
-
-def test_level_flight_is_standard_gravity_everywhere():
-    """One standard gravity: the pipeline's level flight and the washout's default agree."""
-    p = Pipeline(load_config())
-    assert p.params[0]["level"][2] == -STANDARD_GRAVITY == -WashoutParams().gravity

@@ -161,12 +161,35 @@ def _add_shared(p: argparse.ArgumentParser, *flags: str) -> None:
         p.add_argument(flag, **_SHARED_OPTIONS[flag])  # type: ignore[arg-type]
 
 
+def _add_cueing(p: argparse.ArgumentParser, *, recorded: bool = False) -> None:
+    """``--cueing NAME`` and ``--params PRESET|FILE.toml`` (``--washout`` is the same)."""
+    p.add_argument(
+        "--cueing",
+        default=None if recorded else "classical",
+        metavar="NAME",
+        help="the recorded cueing unless given, else classical"
+        if recorded
+        else "cueing algorithm (default classical)",
+    )
+    p.add_argument(
+        "--params",
+        "--washout",
+        dest="washout",
+        metavar="PRESET|FILE.toml",
+        help="override the recorded cueing parameters"
+        if recorded
+        else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart) "
+        "or TOML path",
+    )
+
+
 def _pipeline_options(args: argparse.Namespace) -> dict[str, object]:
     """The options ``fly``, ``replay`` and ``stream`` pass on alike: the robot, the cueing,
     the motor drives and the live view."""
     return {
         "platform": args.platform,
         "washout": args.washout,
+        "cueing": args.cueing,
         "planar": args.planar,
         "outputs": args.output,
         "live": args.live,
@@ -184,7 +207,7 @@ def _args_fly(p: argparse.ArgumentParser) -> None:
         "--platform",
         help=f"geometry preset or TOML path (default {DEFAULT_RUS6}; {DEFAULT_RRR3} with --planar)",
     )
-    p.add_argument("--washout", help="washout preset (default, gentle) or TOML path")
+    _add_cueing(p)
     p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot instead")
     p.add_argument("--realtime", action="store_true", help="pace the flight to wall-clock time")
     _add_shared(p, "--busy-wait")
@@ -219,7 +242,7 @@ def _args_replay(p: argparse.ArgumentParser) -> None:
         help="compare every output with the recording; exit 1 when they differ",
     )
     p.add_argument("--platform", help="override the recorded geometry (preset or TOML path)")
-    p.add_argument("--washout", help="override the recorded washout parameters")
+    _add_cueing(p, recorded=True)
     p.add_argument("--planar", action="store_true", default=None, help="override: drive the 3-RRR")
     _add_shared(p, "--output", "--live")
 
@@ -358,7 +381,7 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
         help="pipeline rate (default 100)",
     )
     p.add_argument("--platform", help="geometry preset or TOML path")
-    p.add_argument("--washout", help="washout preset or TOML path")
+    _add_cueing(p)
     p.add_argument("--planar", action="store_true", help="drive the planar 3-RRR robot")
     p.add_argument("--serial", metavar="URL", help="planar: the Arduino's pyserial URL")
     p.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds")
@@ -420,13 +443,7 @@ def _args_omct(p: argparse.ArgumentParser) -> None:
         metavar="PRESET|FILE.toml",
         help=f"geometry preset or TOML path (default {DEFAULT_RUS6}; {DEFAULT_RRR3} with --planar)",
     )
-    p.add_argument(
-        "--washout",
-        "--params",
-        dest="washout",
-        metavar="PRESET|FILE.toml",
-        help="classical washout preset (default, gentle) or TOML path; --params FILE is the same",
-    )
+    _add_cueing(p)
     p.add_argument(
         "--planar", action="store_true", help="the planar 3-RRR robot (surge, sway, yaw tests)"
     )
@@ -454,7 +471,8 @@ def run_omct(args: argparse.Namespace) -> int:
     from motionbase import app
 
     files = app.omct(
-        args.out, platform=args.platform, washout=args.washout, planar=args.planar,
+        args.out, platform=args.platform, washout=args.washout, cueing=args.cueing,
+        planar=args.planar,
         rate_hz=args.rate, scale=args.scale,
     )  # fmt: skip
     print(files.summary_text())
