@@ -448,7 +448,13 @@ def forward_batch(angles, guesses, G, tol, max_iter, out, iters):
 def solve(params, target, cue_out, pose_out, q_out):
     """The robot plug-in's kernel (:data:`motionbase.platform.robot.SOLVE_SIGNATURE`):
     clamp the cue pose, solve the cranks; the 6-RUS renders the cue pose as it is."""
-    clamped = clamp_inverse_one(target, params.reshape((6, NG)), pose_out, q_out)
+    G = params.reshape((6, NG))
+    if _inverse_row(target, G, q_out) == 0 and _within(q_out, G):
+        clamped = False  # reachable as it is (what the clamp finds first): solved once
+        for j in range(6):
+            pose_out[j] = target[j]
+    else:
+        clamped = clamp_inverse_one(target, G, pose_out, q_out)
     for j in range(6):
         cue_out[j] = pose_out[j]
     return clamped
