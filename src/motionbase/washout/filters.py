@@ -34,8 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
+import scipy.linalg  # (numba imports it anyway)
 
 from motionbase.errors import ConfigError
 
@@ -62,6 +61,8 @@ class ContinuousBlock:
 
     def transfer_function(self) -> tuple[np.ndarray, np.ndarray]:
         """Numerator and denominator polynomials (descending powers of s)."""
+        import scipy.signal  # here: about a second to import, and a run never needs it
+
         num, den = scipy.signal.ss2tf(self.a, self.b[:, None], self.c[None, :], [[0.0]])
         return np.atleast_1d(np.squeeze(num)), den
 
@@ -231,6 +232,8 @@ def tustin_tf(
     b, a : ndarray
         Discrete polynomials in descending powers of z (``a[0] == 1``).
     """
+    import scipy.signal  # here: about a second to import, and a run never needs it
+
     fs = 1.0 / dt
     if prewarp is not None:
         fs = prewarp / (2.0 * np.tan(prewarp * dt / 2.0))

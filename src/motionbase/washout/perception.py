@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.signal
 
 from motionbase.errors import MotionbaseError
 from motionbase.washout.filters import tustin_tf
@@ -138,6 +137,8 @@ def perceive(
         ``"steady"``: the model starts adapted to the first sample (as if it had
         lasted forever); ``"rest"``: all states zero before the first sample.
     """
+    import scipy.signal  # here: about a second to import, and a run never needs it
+
     b, a = tustin_tf(num, den, dt)
     u = np.asarray(u, dtype=float)
     if initial == "rest":
