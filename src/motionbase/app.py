@@ -111,6 +111,7 @@ class JobResult:
     out: Path | None
     notes: list[str] = field(default_factory=list)
     failed: bool = False
+    actuator_unit: str = "rad"  # the robot's: "rad" (cranks, servos) or "m" (linear)
 
     def summary_text(self) -> str:
         s = self.summary
@@ -138,11 +139,17 @@ class JobResult:
             )
         if s.peak_angle is not None:
             lo, hi = s.angle_limits
-            deg = math.degrees
+            # shown in deg for rotary actuators, mm for linear ones
+            linear = self.actuator_unit == "m"
+            unit, what = ("mm", "length") if linear else ("deg", "angle")
+
+            def deg(x: float) -> float:
+                return 1000.0 * x if linear else math.degrees(x)
+
             if s.running_samples:
                 lines.append(
                     f"flight ({s.running_samples} samples at full motion), per actuator: "
-                    "peak |angle| deg (limits), peak speed deg/s (limit)"
+                    f"peak |{what}| {unit} (limits), peak speed {unit}/s (limit)"
                 )
                 for i in range(len(s.peak_angle)):
                     lines.append(
@@ -154,9 +161,9 @@ class JobResult:
                 lines.append("flight: none (stopped before the soft start reached full motion)")
             lines.append(
                 f"parking: start ramp {s.start_s:.1f} s (peak speed "
-                f"{deg(float(np.max(s.start_peak_speed))):.1f} deg/s), way back to park "
+                f"{deg(float(np.max(s.start_peak_speed))):.1f} {unit}/s), way back to park "
                 f"{s.stop_s:.1f} s (peak speed {deg(float(np.max(s.stop_peak_speed))):.1f} "
-                f"deg/s); speed limit {deg(float(np.min(s.max_speed))):.1f} deg/s"
+                f"{unit}/s); speed limit {deg(float(np.min(s.max_speed))):.1f} {unit}/s"
             )
         if self.out is not None:
             size = self.out.stat().st_size if self.out.exists() else 0
@@ -302,12 +309,14 @@ def _drive_stoppable(
                 sink.__enter__()
                 sinks.append(sink)
             if out:
+                robot = pipeline.robot
                 log = PipelineLog(
                     out,
                     run_metadata(config, source),
                     health=pipeline.health.as_dict,
-                    planar=config.robot == "rrr3",
-                    kinematics=pipeline.robot.kin,
+                    planar=config.planar,
+                    # the scene draws cranks and servos; linear actuators get none (yet)
+                    kinematics=robot.kin if robot.actuator_unit == "rad" else None,
                     live=live,
                 )
                 log.__enter__()
@@ -333,7 +342,13 @@ def _drive_stoppable(
                 bar.close()
             except OSError:  # a closed terminal
                 pass
-    return JobResult(title, summary, out, notes=[d.stats_line() for d in drives])
+    return JobResult(
+        title,
+        summary,
+        out,
+        notes=[d.stats_line() for d in drives],
+        actuator_unit=pipeline.robot.actuator_unit,
+    )
 
 
 def _live_address(live: str | None) -> Any:
@@ -530,7 +545,12 @@ def _replay(
         if recorded is not None and all(x is None for x in asked):
             config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
         else:
-            base_planar = (recorded or {}).get("robot") == "rrr3" if planar is None else planar
+            from motionbase.platform.robot import ROBOTS
+
+            spec = ROBOTS.get((recorded or {}).get("robot"))  # type: ignore[arg-type]
+            base_planar = (spec is not None and spec.planar) if planar is None else planar
+            if platform is None and spec is not None and spec.planar == base_planar:
+                platform = None if spec.planar else spec.name  # the recorded robot's default
             config = load_config(
                 planar=base_planar,
                 platform=platform,

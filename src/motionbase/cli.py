@@ -256,8 +256,9 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--platform",
         metavar="PRESET|FILE.toml",
-        help=f"geometry preset name or TOML path: the 6-RUS (default {DEFAULT_RUS6}), or with "
-        f"--planar the 3-RRR (default {DEFAULT_RRR3})",
+        help="a robot (rus6, stewart6: its default geometry), a geometry preset name or a TOML "
+        f"path (default: the 6-RUS {DEFAULT_RUS6}); with --planar the 3-RRR (default "
+        f"{DEFAULT_RRR3})",
     )
     p.add_argument(
         "--plot",
@@ -292,11 +293,11 @@ def run_workspace(args: argparse.Namespace) -> int:
             )
         print(planar_workspace_report(args.platform or args.rrr3, args.plot))
     else:
-        from motionbase.io.workspace_plots import rus6_workspace_report
+        from motionbase.io.workspace_plots import workspace_report
 
         if args.rrr3:
             raise ConfigError(f"--rrr3 {args.rrr3} names a 3-RRR geometry: add --planar")
-        print(rus6_workspace_report(args.platform, args.plot))
+        print(workspace_report(args.platform, args.plot))
     return 0
 
 

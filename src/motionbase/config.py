@@ -175,12 +175,39 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
         frozenset({"base_side", "platform_side", "modes", "servo", "safety"}),
         "a 3-RRR geometry file (give it with --platform and --planar)",
     ),
+    "stewart6": (
+        frozenset(
+            {"base_radius", "platform_radius", "base_half_angle", "base_half_angle_deg"}
+            | {"platform_half_angle", "platform_half_angle_deg", "neutral_length"}
+            | {"length_min", "length_max", "park_margin"}
+        ),
+        "a 6-UPS Stewart platform geometry file (give it with --platform, without --planar)",
+    ),
 }
 _KIND_NAMES = {
     "washout": "washout parameters",
     "rus6": "a 6-RUS geometry",
     "rrr3": "a 3-RRR geometry",
+    "stewart6": "a 6-UPS Stewart platform geometry",
 }
+
+
+def file_kind(table: Any) -> str | None:
+    """Which kind of configuration file a parsed table is (a key of the file kinds:
+    ``"washout"``, ``"rus6"``, ``"rrr3"``, ``"stewart6"``), or None when it cannot tell.
+
+    A ``kind`` field naming one decides; otherwise the kind whose own fields it has (the
+    one with the most of them).
+    """
+    if not isinstance(table, Mapping):
+        return None
+    declared = table.get("kind")
+    if isinstance(declared, str) and declared in _FILE_KINDS:
+        return declared
+    keys = set(table)
+    score = {k: len(keys & marks) for k, (marks, _) in _FILE_KINDS.items()}
+    best = max(score, key=score.__getitem__)
+    return best if score[best] > 0 else None
 
 
 def check_file_kind(source: str, table: Any, expected: str) -> None:
@@ -192,7 +219,7 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
         Named in the message (the file).
     table : mapping
         The parsed file.
-    expected : {"washout", "rus6", "rrr3"}
+    expected : {"washout", "rus6", "rrr3", "stewart6"}
         What the caller reads.
 
     Raises

@@ -12,7 +12,8 @@ What is compared
 (rad/s), body axes FRD. Rejected samples are replaced by the last accepted one,
 as the pipeline did.
 
-*Platform cue* (6-RUS): the pose the actuators realised (``/platform/pose``,
+*Platform cue* (6-DOF platforms: the 6-RUS, the 6-UPS Stewart platform): the pose the
+actuators realised (``/platform/pose``,
 after clamping and safety), turned into what the seated pilot feels by
 :func:`~motionbase.washout.perception.platform_specific_force` (cab specific
 force ``R^T (p'' - g)``: translational acceleration plus the gravity component
@@ -47,7 +48,7 @@ from motionbase.washout.perception import (
     platform_specific_force,
 )
 
-__all__ = ["AXES6", "PHASES", "Report", "build_report", "planar_reach", "rus6_reach"]
+__all__ = ["AXES6", "PHASES", "Report", "build_report", "planar_reach", "robot_reach", "rus6_reach"]
 
 #: Pose axis names, in pose order.
 AXES6 = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -68,7 +69,8 @@ class Report:
     ----------
     name : str
         What the report is about (the recording's file name).
-    robot : {"rus6", "rrr3"}
+    robot : str
+        The robot's registry name (``"rus6"``, ``"stewart6"``, ``"rrr3"``).
     dt : float
         Pipeline period, s.
     t : ndarray, shape (N,)
@@ -101,8 +103,9 @@ class Report:
         ``cab_pose`` on every tick (the stop phase included): the realised 6-RUS pose, or the
         planar robot's motion mapped back to a full-size cab.
     actuators : ndarray, shape (M, n)
-        6-RUS crank angles (rad), or planar servo commands (integer degrees, as float).
-    actuator_unit : {"rad", "deg"}
+        Actuator commands in the robot's unit: crank angles (rad), actuator lengths (m), or
+        planar servo commands (integer degrees, as float).
+    actuator_unit : {"rad", "m", "deg"}
     actuator_limits : ndarray, shape (2, n)
         Lower and upper actuator limits in ``actuator_unit``.
     actuator_label : str
@@ -152,21 +155,46 @@ class Report:
 
     @property
     def planar(self) -> bool:
-        return self.robot == "rrr3"
+        from motionbase.platform.robot import robot_spec
+
+        return robot_spec(self.robot).planar
+
+    @property
+    def robot_title(self) -> str:
+        """The robot as the titles name it (``6-RUS``, ``6-UPS``, ``planar 3-RRR``)."""
+        from motionbase.platform.robot import robot_spec
+
+        kind = robot_spec(self.robot).description.removeprefix("planar ").split()[0]
+        return f"planar {kind}" if self.planar else kind
+
+    def actuators_shown(self) -> tuple[np.ndarray, np.ndarray, str]:
+        """``(actuators (M, n), limits (2, n), unit)`` in display units: deg for angles, mm
+        for lengths, servo degrees as they are."""
+        scale = {"rad": np.degrees(1.0), "m": 1000.0}.get(self.actuator_unit, 1.0)
+        unit = {"rad": "deg", "m": "mm"}.get(self.actuator_unit, self.actuator_unit)
+        return self.actuators * scale, self.actuator_limits * scale, unit
 
 
 # --------------------------------------------------------------------------- reach
 
 
-def rus6_reach(geometry: Any, tol: float = 1e-6) -> np.ndarray:
-    """Single-axis reach of a 6-RUS geometry, ``(2, 6)``: lower (< 0) and upper (> 0) bounds.
+def robot_reach(robot: Any, tol: float = 1e-6) -> np.ndarray:
+    """Single-axis reach of a 6-DOF robot (anything with a batch ``reachable``), ``(2, 6)``:
+    lower (< 0) and upper (> 0) bounds, m and rad.
 
-    From :func:`motionbase.platform.rus6_workspace.single_axis_envelope` (m and rad).
+    From :func:`motionbase.platform.rus6_workspace.single_axis_envelope`.
     """
-    from motionbase.platform import Rus6, single_axis_envelope
+    from motionbase.platform import single_axis_envelope
 
-    env = single_axis_envelope(Rus6(geometry), tol=tol)
+    env = single_axis_envelope(robot, tol=tol)
     return np.array([[-a.negative for a in env], [a.positive for a in env]])
+
+
+def rus6_reach(geometry: Any, tol: float = 1e-6) -> np.ndarray:
+    """:func:`robot_reach` of a 6-RUS geometry."""
+    from motionbase.platform import Rus6
+
+    return robot_reach(Rus6(geometry), tol=tol)
 
 
 def planar_reach(
@@ -290,6 +318,7 @@ def build_report(
         The recorded configuration is missing or invalid.
     """
     from motionbase.pipeline import PipelineConfig
+    from motionbase.platform.robot import robot_spec
 
     air_msgs = list(messages.get("/aircraft/state") or [])
     if not air_msgs:
@@ -304,7 +333,7 @@ def build_report(
             "the geometry (record with motionbase fly or replay)"
         )
     config = PipelineConfig.from_dict(dict(recorded), source=f"{name}: metadata")
-    planar = config.robot == "rrr3"
+    planar = config.planar
     pose_topic, act_topic = (
         ("/planar/pose", "/planar/actuators")
         if planar
@@ -341,11 +370,11 @@ def build_report(
         limits = np.array([g.servo_min_deg, g.servo_max_deg], dtype=float)
         unit, label = "deg", "servo command"
     else:
-        from motionbase.platform import Rus6
-
-        actuators = _array(act_msgs, "angles", 6, act_topic)
-        limits = np.array(Rus6(g).angle_limits, dtype=float)
-        unit, label = "rad", "crank angle"
+        robot = config.make_robot()
+        actuators = _array(act_msgs, "angles", robot.n, act_topic)
+        limits = np.array([robot.limits.lower, robot.limits.upper], dtype=float)
+        unit = robot.actuator_unit
+        label = "crank angle" if unit == "rad" else "actuator length"
     if actuators.shape[0] != tick_t.size:
         act_t = _times(act_msgs, act_topic)
         idx = {float(x): i for i, x in enumerate(act_t)}
@@ -396,9 +425,10 @@ def build_report(
         )
     else:
         cab_all = platform_pose
-        reach = rus6_reach(g)
+        reach = robot_reach(robot)
+        kind = robot_spec(config.robot).description.split(" (")[0]
         compared = (
-            "6-RUS: the aircraft's specific force at the pilot and body rates against the cab's "
+            f"{kind}: the aircraft's specific force at the pilot and body rates against the cab's "
             "specific force R^T (p'' - g) (acceleration plus the gravity component of the tilt) "
             "and body rates, from the realised platform pose (after clamping and safety)."
         )
@@ -484,7 +514,7 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
     """The text summary of a report (what ``summary.txt`` holds)."""
     r = report
     m = r.metrics
-    robot = "planar 3-RRR" if r.planar else "6-RUS"
+    robot = r.robot_title
     src = (metadata or {}).get("source") or {}
     what = src.get("script") or src.get("kind") or "unknown source"
     n_run = int(r.running.sum())
@@ -527,11 +557,8 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         + "; ".join(f"{k} {100 * v.mean():.1f} % of ticks" for k, v in shares)
         + f"; faded {100 * (r.fade < 1).mean():.1f} %; rejected inputs {int(r.rejected.sum())}"
     )
-    lo, hi = r.actuator_limits
-    act = r.actuators
-    if r.actuator_unit == "rad":
-        act, lo, hi = np.degrees(act), np.degrees(lo), np.degrees(hi)
-    lines.append(f"  {r.actuator_label} [deg]: range used (limits)")
+    act, (lo, hi), unit = r.actuators_shown()
+    lines.append(f"  {r.actuator_label} [{unit}]: range used (limits)")
     for i in range(act.shape[1]):
         col = act[:, i][np.isfinite(act[:, i])]
         used = f"{col.min():7.1f} .. {col.max():6.1f}" if col.size else "    n/a"

@@ -1048,12 +1048,14 @@ def open_outputs(urls: Sequence[str] | None, robot: Robot) -> list[MotorOutput]:
 
 
 def mapping_for(robot: Robot) -> OutputMapping:
-    """The geometry's ``[output]`` mapping, or degrees for every motor when it has none."""
+    """The geometry's ``[output]`` mapping; when it has none, degrees for every motor
+    (rotary actuators) or millimetres (linear ones, ``robot.actuator_unit == "m"``)."""
     out = getattr(robot.geometry, "output", None)
     if out is not None:
         return out
     lim = robot.limits
-    return OutputMapping.default(lim.lower, lim.upper)
+    unit = "mm" if robot.actuator_unit == "m" else "deg"
+    return OutputMapping.default(lim.lower, lim.upper, unit=unit)
 
 
 # --------------------------------------------------------------------------- wiring check

@@ -12,7 +12,8 @@ Files written:
   outputs, aircraft against platform.
 * ``pose.png``: washout pose (before clamping) against the realised pose, on every tick;
   heave plotted up (the log's z is down).
-* ``actuators.png``: crank angles (6-RUS) or servo commands (planar) against their limits.
+* ``actuators.png``: crank angles (6-RUS), actuator lengths (6-UPS) or servo commands
+  (planar) against their limits.
 * ``timeline.png``: pipeline phase, clamping, rate limiting, held commands, fade.
 * ``summary.txt``: the cueing metrics and run facts.
 """
@@ -151,8 +152,7 @@ def _shade_phases(ax: Any, t: np.ndarray, phase: np.ndarray, dt: float) -> None:
 
 
 def _title(report: Report, what: str) -> str:
-    robot = "planar 3-RRR" if report.planar else "6-RUS"
-    return f"{report.name} ({robot}): {what}"
+    return f"{report.name} ({report.robot_title}): {what}"
 
 
 def _specific_force_figure(r: Report) -> Any:
@@ -278,9 +278,7 @@ def _actuators_figure(r: Report) -> Any:
     rows = 3
     cols = (n + rows - 1) // rows
     fig, axes = _figure(rows, cols, 8.0, 12.0 if cols == 1 else 7.0 * cols)
-    conv = np.degrees if r.actuator_unit == "rad" else (lambda x: np.asarray(x, dtype=float))
-    values = conv(r.actuators)
-    lo, hi = conv(r.actuator_limits[0]), conv(r.actuator_limits[1])
+    values, (lo, hi), unit = r.actuators_shown()
     for i in range(n):
         ax = axes[i % rows, i // rows]
         _shade_phases(ax, r.tick_t, r.phase, r.dt)
@@ -289,12 +287,12 @@ def _actuators_figure(r: Report) -> Any:
         ax.axhline(hi[i], color="#b00020", lw=1.0, ls="--")
         span = hi[i] - lo[i]
         ax.set_ylim(lo[i] - 0.08 * span, hi[i] + 0.08 * span)
-        ax.set_ylabel(f"{'motor' if r.planar else 'leg'} {i + 1} [deg]")
+        ax.set_ylabel(f"{'motor' if r.planar else 'leg'} {i + 1} [{unit}]")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(loc="upper right", fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
-    what = "servo commands (integer degrees)" if r.planar else "crank angles"
+    what = "servo commands (integer degrees)" if r.planar else f"{r.actuator_label}s"
     fig.suptitle(_title(r, f"{what} against their limits; shaded: start/stop"))
     return fig
 

@@ -1,8 +1,8 @@
 """Plots of platform workspaces (matplotlib, Agg canvas; no display needed).
 
-The sweeps themselves are pure math in :mod:`motionbase.platform.rus6_workspace`; this module
-only draws them and writes the file, in the format its extension names (``.png``, ``.svg``,
-``.pdf``: :func:`plot_format`).
+The sweeps themselves are pure math in :mod:`motionbase.platform.rus6_workspace` (any 6-DOF
+robot's ``reachable``); this module only draws them and writes the file, in the format its
+extension names (``.png``, ``.svg``, ``.pdf``: :func:`plot_format`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-from motionbase.config import DEFAULT_RUS6
 from motionbase.errors import ConfigError, SinkError
 from motionbase.platform.rus6_workspace import AxisReach, WorkspaceSlices
 
@@ -19,7 +18,7 @@ __all__ = [
     "PLOT_FORMATS",
     "plot_format",
     "plot_rus6_workspace",
-    "rus6_workspace_report",
+    "workspace_report",
     "save_figure",
 ]
 
@@ -146,23 +145,22 @@ def plot_rus6_workspace(
     return save_figure(fig, path)
 
 
-def rus6_workspace_report(
-    platform: str | Path | None = None, plot: str | Path | None = None
-) -> str:
-    """The ``motionbase workspace`` job for a 6-RUS platform.
+def workspace_report(platform: str | Path | None = None, plot: str | Path | None = None) -> str:
+    """The ``motionbase workspace`` job for a 6-DOF platform (any non-planar robot).
 
-    Loads the geometry (preset name or TOML path; default
-    :data:`~motionbase.config.DEFAULT_RUS6`), computes the single-axis envelope and, if
-    ``plot`` is given, draws the workspace slices at neutral orientation to that file
-    (``.png``, ``.svg`` or ``.pdf``; another extension is refused before any work).
+    Loads the robot and its geometry the way ``--platform`` names them
+    (:func:`motionbase.platform.robot.load_geometry`: a robot's name, a preset name or a
+    TOML path; default the 6-RUS :data:`~motionbase.config.DEFAULT_RUS6`), computes the
+    single-axis envelope of its ``reachable`` and, if ``plot`` is given, draws the workspace
+    slices at neutral orientation to that file (``.png``, ``.svg`` or ``.pdf``; another
+    extension is refused before any work).
 
     Returns
     -------
     str
         The envelope table (and where the plot went), ready to print.
     """
-    from motionbase.platform.rus6 import Rus6
-    from motionbase.platform.rus6_geometry import Rus6Geometry
+    from motionbase.platform.robot import load_geometry, robot_spec
     from motionbase.platform.rus6_workspace import (
         format_envelope,
         single_axis_envelope,
@@ -171,19 +169,27 @@ def rus6_workspace_report(
 
     if plot is not None:
         plot_format(plot)
-    geometry = Rus6Geometry.preset(str(platform if platform is not None else DEFAULT_RUS6))
-    rus6 = Rus6(geometry)
-    envelope = single_axis_envelope(rus6)
-    lo, hi = rus6.angle_limits
+    name, geometry = load_geometry(None if platform is None else str(platform))
+    spec = robot_spec(name)
+    robot = spec.make(geometry)
+    envelope = single_axis_envelope(robot)
+    lim = robot.limits
+    if robot.actuator_unit == "m":
+        limits = f"actuator lengths {1000 * lim.lower.min():g} .. {1000 * lim.upper.max():g} mm"
+    else:
+        limits = (
+            f"crank limits {math.degrees(lim.lower.min()):g} .. "
+            f"{math.degrees(lim.upper.max()):g} deg"
+        )
+    kind = spec.description.split(" (")[0]
     text = [
-        f"6-RUS platform {geometry.name!r}: single-axis reach from neutral "
-        f"(crank limits {math.degrees(lo.min()):g} .. {math.degrees(hi.max()):g} deg)",
+        f"{kind} {geometry.name!r}: single-axis reach from neutral ({limits})",
         format_envelope(envelope),
     ]
     if plot is not None:
-        slices = workspace_slices(rus6)
+        slices = workspace_slices(robot)
         written = plot_rus6_workspace(
-            slices, plot, envelope=envelope, title=f"6-RUS {geometry.name}"
+            slices, plot, envelope=envelope, title=f"{kind.split()[0]} {geometry.name}"
         )
         text.append(f"workspace slices written to {written}")
     return "\n".join(text)

@@ -3,7 +3,9 @@
 All kernels take the geometry packed into one array ``G`` of shape (6, NG) (see
 :func:`pack_geometry`) and work on rows of poses ``[x, y, z, roll, pitch, yaw]``.
 They compile lazily on first call and are cached on disk (``cache=True``). No fastmath:
-NaN must propagate and comparisons with NaN must stay false.
+NaN must propagate and comparisons with NaN must stay false. The rotation, the angle wrap
+and the 6x6 solver are shared with the Stewart platform (:mod:`._pose_kernels`; after
+changing them there, delete this module's numba cache).
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from motionbase.platform._pose_kernels import rotation, rotation_terms, solve6, wrap
 
 # Columns of the packed geometry array.
 AX, AY, AZ, CX, CY, PX, PY, PZ, RC, RR, LO, HI, OX, OY, OZ = range(15)
@@ -34,23 +38,6 @@ def pack_geometry(pivots, cdir, joints_local, origin, crank, rod, lo, hi) -> np.
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _rotation(roll, pitch, yaw, R):
-    """R = Rz(yaw) Ry(pitch) Rx(roll) into the 3x3 array R."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    R[0, 0] = cy * cp
-    R[0, 1] = cy * sp * sr - sy * cr
-    R[0, 2] = cy * sp * cr + sy * sr
-    R[1, 0] = sy * cp
-    R[1, 1] = sy * sp * sr + cy * cr
-    R[1, 2] = sy * sp * cr - cy * sr
-    R[2, 0] = -sp
-    R[2, 1] = cp * sr
-    R[2, 2] = cp * cr
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _inverse_row(p, G, out):
     """Closed-form inverse kinematics of one pose (thesis eq. 8.57) into ``out`` (6,).
 
@@ -64,18 +51,7 @@ def _inverse_row(p, G, out):
     Returns 0 if every leg closes, 1 if not (then the whole row is NaN).
     """
     x, y, z = p[0], p[1], p[2]
-    cr, sr = math.cos(p[3]), math.sin(p[3])
-    cp, sp = math.cos(p[4]), math.sin(p[4])
-    cy, sy = math.cos(p[5]), math.sin(p[5])
-    r00 = cy * cp
-    r01 = cy * sp * sr - sy * cr
-    r02 = cy * sp * cr + sy * sr
-    r10 = sy * cp
-    r11 = sy * sp * sr + cy * cr
-    r12 = sy * sp * cr - cy * sr
-    r20 = -sp
-    r21 = cp * sr
-    r22 = cp * cr
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_terms(p[3], p[4], p[5])
     bad = False
     for i in range(6):
         px, py, pz = G[i, PX], G[i, PY], G[i, PZ]
@@ -126,14 +102,6 @@ def reachable_batch(poses, G, out):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _ok(p, G, tmp):
     return _inverse_row(p, G, tmp) == 0 and _within(tmp, G)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _wrap(a):
-    """Wrap an angle to [-pi, pi); angles already in range are returned bit for bit."""
-    if -math.pi <= a < math.pi:
-        return a
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -213,7 +181,7 @@ def _clamp_row(p, G, out):
         return False
     for j in range(3):
         out[j] = p[j]
-        out[3 + j] = _wrap(p[3 + j])
+        out[3 + j] = wrap(p[3 + j])
     if _ok(out, G, tmp):
         return True
     # keep the rotation, scale the translation toward zero
@@ -255,7 +223,7 @@ def _constraint_jacobian(p, theta, G, R, jx, jq, resid, omega=False):
     jx[i, :] = dg_i/d(pose rate): columns 3..5 per unit Euler-angle rate (omega=False) or per
     unit angular velocity in base axes (omega=True); jq[i] = dg_i/dtheta_i; resid[i] = g_i (m^2).
     """
-    _rotation(p[3], p[4], p[5], R)
+    rotation(p[3], p[4], p[5], R)
     cp, sp = math.cos(p[4]), math.sin(p[4])
     cy, sy = math.cos(p[5]), math.sin(p[5])
     # angular velocity (base axes) per unit Euler rate: roll -> Rz Ry ex, pitch -> Rz ey, yaw -> ez
@@ -330,40 +298,6 @@ def jacobian_batch(poses, G, omega, out, lines, jqs):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _solve6(A, b, x):
-    """Solve A x = b (6x6) by Gaussian elimination with partial pivoting; False if singular.
-
-    Overwrites A and b.
-    """
-    n = 6
-    for c in range(n):
-        piv = c
-        best = abs(A[c, c])
-        for r in range(c + 1, n):
-            if abs(A[r, c]) > best:
-                best = abs(A[r, c])
-                piv = r
-        if not best > 1e-300:
-            return False
-        if piv != c:
-            for j in range(n):
-                A[c, j], A[piv, j] = A[piv, j], A[c, j]
-            b[c], b[piv] = b[piv], b[c]
-        for r in range(c + 1, n):
-            f = A[r, c] / A[c, c]
-            if f != 0.0:
-                for j in range(c, n):
-                    A[r, j] -= f * A[c, j]
-                b[r] -= f * b[c]
-    for r in range(n - 1, -1, -1):
-        s = b[r]
-        for j in range(r + 1, n):
-            s -= A[r, j] * x[j]
-        x[r] = s / A[r, r]
-    return True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _residual_norm(p, theta, G, R, jx, jq, res):
     _constraint_jacobian(p, theta, G, R, jx, jq, res)
     m = 0.0
@@ -406,7 +340,7 @@ def forward_batch(angles, guesses, G, tol, max_iter, out, iters):
                 n += 1
                 for i in range(6):
                     rhs[i] = -res[i]
-                if not _solve6(jx, rhs, dx):
+                if not solve6(jx, rhs, dx):
                     break
                 step = 0.0
                 for j in range(6):

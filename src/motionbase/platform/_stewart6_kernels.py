@@ -5,13 +5,13 @@ All kernels take the geometry packed into one array ``G`` of shape (6, NG) (see
 base axes; ``R = Rz(yaw) Ry(pitch) Rx(roll)``). Leg ``i`` joins the base joint ``B_i`` to the
 platform joint ``P_i = O + p + R q_i``; its actuator length is ``|P_i - B_i|``. This module is
 the one definition of that formula: the class, the clamp and the forward kinematics all call
-:func:`_platform_joints`. The rotation and the 6x6 solver are the 6-RUS kernels' own.
+:func:`_platform_joints`. The rotation, the angle wrap and the 6x6 solver are shared with the
+6-RUS (``_pose_kernels``); :func:`solve` is the robot plug-in's kernel.
 
 They compile lazily on first call and are cached on disk (``cache=True``). No fastmath: NaN
 must propagate and comparisons with NaN must stay false. numba's on-disk cache keys a kernel
-on its own file only: after changing ``_rotation``, ``_solve6`` or ``_wrap`` in
-``_rus6_kernels.py``, delete this module's cache (``__pycache__/_stewart6_kernels*.nb[ic]``)
-or it keeps the old code compiled in.
+on its own file only: after changing ``_pose_kernels.py``, delete this module's cache
+(``__pycache__/_stewart6_kernels*.nb[ic]``) or it keeps the old code compiled in.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from motionbase.platform._rus6_kernels import _rotation, _solve6, _wrap
+from motionbase.platform._pose_kernels import rotation, solve6, wrap
 
 # Columns of the packed geometry array.
 BX, BY, BZ, QX, QY, QZ, OX, OY, OZ, LO, HI = range(11)
@@ -45,7 +45,7 @@ def pack_geometry(base, local, origin, lo, hi) -> np.ndarray:
 @njit(cache=True, nogil=True, error_model="numpy")
 def _platform_joints(p, G, R, J):
     """Rotation ``R`` (3, 3) and platform joints ``J`` (6, 3) in base axes of pose ``p``."""
-    _rotation(p[3], p[4], p[5], R)
+    rotation(p[3], p[4], p[5], R)
     for i in range(6):
         qx, qy, qz = G[i, QX], G[i, QY], G[i, QZ]
         J[i, 0] = G[i, OX] + p[0] + R[0, 0] * qx + R[0, 1] * qy + R[0, 2] * qz
@@ -140,7 +140,7 @@ def _clamp_row(p, G, out):
         return False
     for j in range(3):
         out[j] = p[j]
-        out[3 + j] = _wrap(p[3 + j])
+        out[3 + j] = wrap(p[3 + j])
     if _ok(out, G, R, J, L):
         return True
     lo = 0.0
@@ -253,7 +253,7 @@ def forward_batch(lengths, guesses, G, tol, max_iter, out, iters):
                 n += 1
                 for i in range(6):
                     rhs[i] = -res[i]
-                if not _solve6(jac, rhs, dx):
+                if not solve6(jac, rhs, dx):
                     break
                 step = 0.0
                 for j in range(6):
@@ -283,3 +283,19 @@ def forward_batch(lengths, guesses, G, tol, max_iter, out, iters):
             for j in range(6):
                 out[k, j] = np.nan
             iters[k] = -1
+
+
+@njit(
+    "boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1])",
+    cache=True,
+    nogil=True,
+    error_model="numpy",
+)
+def solve(params, target, cue_out, pose_out, q_out):
+    """The robot plug-in's kernel (:data:`motionbase.platform.robot.SOLVE_SIGNATURE`):
+    clamp the cue pose, solve the actuator lengths; the platform renders the cue pose as
+    it is (robot pose = cue pose)."""
+    clamped = clamp_inverse_one(target, params.reshape((6, NG)), pose_out, q_out)
+    for j in range(6):
+        cue_out[j] = pose_out[j]
+    return clamped

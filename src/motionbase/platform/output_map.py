@@ -15,7 +15,11 @@ growing as the crank tip rises):
    * ``"range"``: ``round(lo + (hi - lo) (m - span_min) / (span_max - span_min))``, a
      normalised integer range ``lo..hi`` (e.g. 0..4095, 0..65535) across the motor-angle span
      ``span_min..span_max`` (rad). The default span is the image of the crank range, so ``lo``
-     and ``hi`` are the crank limits (reversed for a mirrored motor).
+     and ``hi`` are the crank limits (reversed for a mirrored motor);
+   * ``"mm"``, ``"m"``: linear actuators. Their actuator value ``q`` is a length (m), and
+     so is ``m`` (``zero_offset`` in m); the drive value is ``1000 m`` (mm, float) or ``m``.
+     The default mapping of a linear-actuator robot is ``"mm"``; ``"range"`` works for
+     lengths too (its span then in m).
 
 Every motor has a drive range ``drive_min..drive_max`` (drive units); a value outside it is
 never sent. The default is the image of the crank limits (rounded for integer units), so a
@@ -49,7 +53,7 @@ from motionbase.errors import ConfigError
 
 __all__ = ["OutputMapping", "UNITS", "sweep_profile"]
 
-UNITS = ("deg", "rad", "counts", "range")
+UNITS = ("deg", "rad", "counts", "range", "mm", "m")
 _INTEGER_UNITS = ("counts", "range")
 _TWO_PI = 2.0 * math.pi
 
@@ -64,7 +68,7 @@ class OutputMapping:
 
     Parameters
     ----------
-    unit : {"deg", "rad", "counts", "range"}
+    unit : {"deg", "rad", "counts", "range", "mm", "m"}
         What the drive expects (see the module docstring).
     sign : tuple of n float
         +1, or -1 for a mirrored motor.
@@ -177,8 +181,10 @@ class OutputMapping:
         n = self.n
         if self.unit == "deg":
             return np.full(n, 180.0 / math.pi), np.zeros(n)
-        if self.unit == "rad":
+        if self.unit in ("rad", "m"):
             return np.ones(n), np.zeros(n)
+        if self.unit == "mm":
+            return np.full(n, 1000.0), np.zeros(n)
         if self.unit == "counts":
             return np.full(n, self.counts_per_rev / _TWO_PI), np.zeros(n)
         smin, smax = np.array(self.span_min), np.array(self.span_max)
@@ -228,9 +234,12 @@ class OutputMapping:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def default(cls, angle_min: Sequence[float], angle_max: Sequence[float]) -> OutputMapping:
-        """Degrees, no mirroring, no offset, direct drive, for crank limits (rad)."""
-        return cls.from_dict({"unit": "deg"}, angle_min=angle_min, angle_max=angle_max)
+    def default(
+        cls, angle_min: Sequence[float], angle_max: Sequence[float], unit: str = "deg"
+    ) -> OutputMapping:
+        """No mirroring, no offset, direct drive, for actuator limits: degrees for crank
+        limits (rad), or ``unit="mm"`` for the length limits (m) of linear actuators."""
+        return cls.from_dict({"unit": unit}, angle_min=angle_min, angle_max=angle_max)
 
     @classmethod
     def from_dict(

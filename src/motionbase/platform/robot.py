@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numba
@@ -235,29 +236,105 @@ def robot_spec(name: str) -> RobotSpec:
         ) from None
 
 
+#: The robot a ``--platform`` value selects when it names none (planar mode: the first
+#: planar robot of :data:`ROBOTS`).
+DEFAULT_ROBOT = "rus6"
+
+
+def _robot_of_file(path: str) -> str | None:
+    """The robot a geometry TOML file is for (its ``kind``, else its fields), or None."""
+    from motionbase.config import file_kind, read_toml
+
+    try:
+        kind = file_kind(read_toml(path))
+    except ConfigError:  # unreadable: the geometry class says so, with its own message
+        return None
+    return kind if kind in ROBOTS else None
+
+
+def _robot_of_preset(name: str, robots: list[str]) -> str | None:
+    """The first of ``robots`` that ships a geometry preset ``name``, or None."""
+    from motionbase.config import preset_path
+
+    for robot in robots:
+        try:
+            preset_path(robot, name)
+        except ConfigError:
+            continue
+        return robot
+    return None
+
+
 def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[str, Any]:
     """The robot and geometry a ``--platform`` value names.
 
     Parameters
     ----------
     name_or_path : str or None
-        A robot's name (its default preset), a geometry preset name or a TOML path;
-        None: the default robot's default preset.
+        One of
+
+        * None: the default robot's default preset (:data:`DEFAULT_ROBOT`, or in planar mode
+          the planar robot's);
+        * a robot's name (``rus6``, ``stewart6``): its default preset;
+        * a geometry preset name of any robot of the mode (``ceart``, ``seat``; the 6-DOF
+          robots are searched in :data:`ROBOTS` order);
+        * a TOML path: the robot its ``kind`` field names, or else the robot whose fields
+          it has (a 6-DOF robot's file given with ``planar`` is refused, and vice versa,
+          with one line saying which flag to use).
     planar : bool
-        The robot is the planar 3-RRR (``--planar``).
+        Planar mode (``--planar``): a planar robot (the 3-RRR).
 
     Returns
     -------
     (robot name, geometry)
+
+    Raises
+    ------
+    ConfigError
+        Unknown preset, or a file or robot of the other mode.
     """
     from motionbase.config import resolve_preset_or_path
 
-    if planar:
-        robot = "rrr3"
-    elif name_or_path in ROBOTS and not ROBOTS[name_or_path].planar:
-        robot, name_or_path = name_or_path, None
-    else:
-        robot = "rus6"
+    candidates = [name for name, spec in ROBOTS.items() if spec.planar == planar]
+    default = candidates[0] if planar else DEFAULT_ROBOT
+    robot = default
+    value = name_or_path
+    if value in ROBOTS:
+        if ROBOTS[value].planar != planar:
+            flag = "drop --planar" if planar else "add --planar"
+            raise ConfigError(
+                f"--platform {value}: the {ROBOTS[value].description} is "
+                f"{'a planar' if ROBOTS[value].planar else 'not a planar'} robot ({flag})"
+            )
+        robot, value = value, None
+    elif value is not None:
+        text = str(value)
+        if text.endswith(".toml") or "/" in text or Path(text).is_file():
+            found = _robot_of_file(text)
+            if found is not None and ROBOTS[found].planar == planar:
+                robot = found
+        else:
+            found = _robot_of_preset(text, candidates)
+            if found is None:
+                names = sorted(
+                    {
+                        q.name[len(r) + 1 : -5]
+                        for r in candidates
+                        for q in _preset_dir().glob(f"{r}_*.toml")
+                    }
+                )
+                raise ConfigError(
+                    f"unknown {default} preset {text!r} (nor any other robot's): choose a "
+                    f"robot ({', '.join(candidates)}), a preset ({', '.join(names)}) or give "
+                    "a path to a .toml file"
+                )
+            robot = found
     spec = ROBOTS[robot]
-    path = resolve_preset_or_path(robot, name_or_path or spec.default_preset)
+    path = resolve_preset_or_path(robot, value or spec.default_preset)
     return robot, spec.geometry_type.from_toml(path)
+
+
+def _preset_dir() -> Path:
+    from importlib import resources
+
+    return Path(str(resources.files("motionbase") / "presets"))

@@ -27,6 +27,14 @@ from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
 from motionbase.platform import _rus6_kernels as _k
+from motionbase.platform._pose_kernels import (
+    as_poses,
+    rotation_matrix,
+    run_clamp,
+    run_forward,
+    run_inverse,
+    run_reachable,
+)
 from motionbase.platform.robot import Robot
 from motionbase.platform.rus6_geometry import Rus6Geometry
 from motionbase.safety import ActuatorLimits
@@ -82,17 +90,6 @@ class JacobianResult(NamedTuple):
     margin: np.ndarray
     transmission: np.ndarray
     conditioning: np.ndarray
-
-
-def _as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...]]:
-    p = np.asarray(pose, dtype=np.float64)
-    if p.ndim == 0 or p.shape[-1] != 6:
-        raise ConfigError(
-            f"{what}: expected shape (6,) or (..., 6) "
-            f"[x, y, z, roll, pitch, yaw], got shape {p.shape}"
-        )
-    lead = p.shape[:-1]
-    return np.ascontiguousarray(p.reshape(-1, 6)), lead
 
 
 class Rus6:
@@ -184,15 +181,7 @@ class Rus6:
             NaN (no warning, no exception). Angles are *not* limited here: use
             :meth:`reachable` or :meth:`clamp` before commanding an actuator.
         """
-        p = np.asarray(pose, dtype=np.float64)
-        if p.shape == (6,):
-            out = np.empty(6)
-            _k.inverse_batch(p.reshape(1, 6), self._G, out.reshape(1, 6))
-            return out
-        flat, lead = _as_poses(p)
-        out = np.empty_like(flat)
-        _k.inverse_batch(flat, self._G, out)
-        return out.reshape(lead + (6,))
+        return run_inverse(_k.inverse_batch, self._G, pose)
 
     def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
         """Whether each pose closes every leg with every crank within its limits.
@@ -200,12 +189,7 @@ class Rus6:
         Returns a bool for one pose, a bool array of shape (...) for a batch. NaN/inf poses are
         not reachable.
         """
-        flat, lead = _as_poses(pose)
-        out = np.empty(flat.shape[0], dtype=np.bool_)
-        _k.reachable_batch(flat, self._G, out)
-        if lead == ():
-            return bool(out[0])
-        return out.reshape(lead)
+        return run_reachable(_k.reachable_batch, self._G, pose)
 
     def forward(
         self,
@@ -236,23 +220,7 @@ class Rus6:
             Poses; a row of NaN where the iteration did not converge (or the input is not
             finite).
         """
-        flat, lead = _as_poses(angles, "angles")
-        if guess is None:
-            g = np.zeros_like(flat)
-        else:
-            gp = np.asarray(guess, dtype=np.float64)
-            if gp.ndim == 0 or gp.shape[-1] != 6:
-                raise ConfigError(f"guess: expected shape (6,) or (..., 6), got {gp.shape}")
-            try:
-                g = np.ascontiguousarray(np.broadcast_to(gp, lead + (6,)).reshape(-1, 6))
-            except ValueError:
-                raise ConfigError(
-                    f"guess: shape {gp.shape} does not broadcast to angles' {lead + (6,)}"
-                ) from None
-        out = np.empty_like(flat)
-        iters = np.empty(flat.shape[0], dtype=np.int64)
-        _k.forward_batch(flat, g, self._G, float(tol), int(max_iter), out, iters)
-        return out.reshape(lead + (6,))
+        return run_forward(_k.forward_batch, self._G, angles, guess, tol, max_iter, "angles")
 
     def joint_points(self, pose: ArrayLike) -> JointPoints:
         """Crank pivots, crank tips and platform joints of a pose, in base axes.
@@ -264,7 +232,7 @@ class Rus6:
             tips where the pose cannot be closed (the platform joints are still the commanded
             rigid-body positions).
         """
-        flat, lead = _as_poses(pose)
+        flat, lead = as_poses(pose)
         theta = np.empty_like(flat)
         _k.inverse_batch(flat, self._G, theta)
         rot = rotation_matrix(flat[:, 3:])
@@ -294,7 +262,7 @@ class Rus6:
         """
         if angular not in ("euler", "omega"):
             raise ConfigError(f"jacobian: angular must be 'euler' or 'omega', got {angular!r}")
-        flat, lead = _as_poses(pose)
+        flat, lead = as_poses(pose)
         n = flat.shape[0]
         J = np.empty((n, 6, 6))
         lines = np.empty((n, 6, 6))
@@ -335,17 +303,7 @@ class Rus6:
         clamped : bool or ndarray of bool, shape (...)
             True where the returned pose differs from the input.
         """
-        p = np.asarray(pose, dtype=np.float64)
-        if p.shape == (6,):
-            out = np.empty(6)
-            flags = np.empty(1, dtype=np.bool_)
-            _k.clamp_batch(p.reshape(1, 6), self._G, out.reshape(1, 6), flags)
-            return out, bool(flags[0])
-        flat, lead = _as_poses(p)
-        out = np.empty_like(flat)
-        flags = np.empty(flat.shape[0], dtype=np.bool_)
-        _k.clamp_batch(flat, self._G, out, flags)
-        return out.reshape(lead + (6,)), flags.reshape(lead)
+        return run_clamp(_k.clamp_batch, self._G, pose)
 
     def clamp_inverse(self, pose: ArrayLike) -> tuple[np.ndarray, bool, np.ndarray]:
         """:meth:`clamp` then :meth:`inverse` of one pose in a single compiled call.
@@ -379,26 +337,6 @@ class Rus6:
         self.clamp(p)
         self.jacobian(p)
         self.forward(self.inverse(p))
-
-
-def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
-    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` for Euler angles ``(..., 3)`` -> ``(..., 3, 3)``."""
-    a = np.asarray(rpy, dtype=np.float64)
-    with np.errstate(invalid="ignore"):  # inf -> NaN entries, quietly
-        cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
-        cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
-        cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
-    R = np.empty(a.shape[:-1] + (3, 3))
-    R[..., 0, 0] = cy * cp
-    R[..., 0, 1] = cy * sp * sr - sy * cr
-    R[..., 0, 2] = cy * sp * cr + sy * sr
-    R[..., 1, 0] = sy * cp
-    R[..., 1, 1] = sy * sp * sr + cy * cr
-    R[..., 1, 2] = sy * sp * cr - cy * sr
-    R[..., 2, 0] = -sp
-    R[..., 2, 1] = cp * sr
-    R[..., 2, 2] = cp * cr
-    return R
 
 
 class Rus6Robot(Robot):

@@ -30,25 +30,18 @@ from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
 from motionbase.platform import _stewart6_kernels as _k
+from motionbase.platform._pose_kernels import (
+    as_poses,
+    run_clamp,
+    run_forward,
+    run_inverse,
+    run_reachable,
+)
+from motionbase.platform.robot import Robot
 from motionbase.platform.stewart6_geometry import Stewart6Geometry
+from motionbase.safety import ActuatorLimits
 
-__all__ = ["ActuatorLimits", "Park", "Stewart6", "Stewart6Joints"]
-
-
-class ActuatorLimits(NamedTuple):
-    """Per-actuator limits, each a read-only array of shape (6,).
-
-    Attributes
-    ----------
-    lower, upper : actuator length limits, m (joint centre to joint centre).
-    max_speed : actuator speed limit, m/s.
-    max_accel : actuator acceleration limit, m/s^2.
-    """
-
-    lower: np.ndarray
-    upper: np.ndarray
-    max_speed: np.ndarray
-    max_accel: np.ndarray
+__all__ = ["Park", "Stewart6", "Stewart6Joints", "Stewart6Robot"]
 
 
 class Park(NamedTuple):
@@ -79,17 +72,6 @@ class Stewart6Joints(NamedTuple):
 
     base_joints: np.ndarray
     platform_joints: np.ndarray
-
-
-def _as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...]]:
-    p = np.asarray(pose, dtype=np.float64)
-    if p.ndim == 0 or p.shape[-1] != 6:
-        raise ConfigError(
-            f"{what}: expected shape (6,) or (..., 6) "
-            f"[x, y, z, roll, pitch, yaw], got shape {p.shape}"
-        )
-    lead = p.shape[:-1]
-    return np.ascontiguousarray(p.reshape(-1, 6)), lead
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -127,11 +109,8 @@ class Stewart6:
             geometry.length_min,
             geometry.length_max,
         )
-        self._limits = ActuatorLimits(
-            _read_only(geometry.length_min),
-            _read_only(geometry.length_max),
-            _read_only(geometry.max_speed),
-            _read_only(geometry.max_accel),
+        self._limits = ActuatorLimits.broadcast(
+            6, geometry.length_min, geometry.length_max, geometry.max_speed, geometry.max_accel
         )
         src = f"stewart6 geometry {geometry.name!r}"
         zero = np.zeros(6)
@@ -186,15 +165,7 @@ class Stewart6:
             *not* limited here: use :meth:`reachable` or :meth:`clamp` before commanding an
             actuator. A non-finite pose gives NaN.
         """
-        p = np.asarray(pose, dtype=np.float64)
-        if p.shape == (6,):
-            out = np.empty(6)
-            _k.inverse_batch(p.reshape(1, 6), self._G, out.reshape(1, 6))
-            return out
-        flat, lead = _as_poses(p)
-        out = np.empty_like(flat)
-        _k.inverse_batch(flat, self._G, out)
-        return out.reshape(lead + (6,))
+        return run_inverse(_k.inverse_batch, self._G, pose)
 
     def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
         """Whether each pose keeps every actuator within its length limits.
@@ -204,12 +175,7 @@ class Stewart6:
         equations (platform below the base or upside down). A bool for one pose, a bool array
         of shape (...) for a batch. NaN/inf poses are not reachable.
         """
-        flat, lead = _as_poses(pose)
-        out = np.empty(flat.shape[0], dtype=np.bool_)
-        _k.reachable_batch(flat, self._G, out)
-        if lead == ():
-            return bool(out[0])
-        return out.reshape(lead)
+        return run_reachable(_k.reachable_batch, self._G, pose)
 
     def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
         """The whole pose scaled toward neutral until it is reachable (never one leg alone).
@@ -227,17 +193,7 @@ class Stewart6:
         clamped : bool or ndarray of bool, shape (...)
             True where the returned pose differs from the input.
         """
-        p = np.asarray(pose, dtype=np.float64)
-        if p.shape == (6,):
-            out = np.empty(6)
-            flags = np.empty(1, dtype=np.bool_)
-            _k.clamp_batch(p.reshape(1, 6), self._G, out.reshape(1, 6), flags)
-            return out, bool(flags[0])
-        flat, lead = _as_poses(p)
-        out = np.empty_like(flat)
-        flags = np.empty(flat.shape[0], dtype=np.bool_)
-        _k.clamp_batch(flat, self._G, out, flags)
-        return out.reshape(lead + (6,)), flags.reshape(lead)
+        return run_clamp(_k.clamp_batch, self._G, pose)
 
     def clamp_inverse(self, pose: ArrayLike) -> tuple[np.ndarray, bool, np.ndarray]:
         """:meth:`clamp` then :meth:`inverse` of one pose in one compiled call (real-time path).
@@ -286,23 +242,7 @@ class Stewart6:
             Poses; a row of NaN where the iteration did not converge (or the input is not
             finite, or a length is not positive).
         """
-        flat, lead = _as_poses(lengths, "lengths")
-        if guess is None:
-            g = np.zeros_like(flat)
-        else:
-            gp = np.asarray(guess, dtype=np.float64)
-            if gp.ndim == 0 or gp.shape[-1] != 6:
-                raise ConfigError(f"guess: expected shape (6,) or (..., 6), got {gp.shape}")
-            try:
-                g = np.ascontiguousarray(np.broadcast_to(gp, lead + (6,)).reshape(-1, 6))
-            except ValueError:
-                raise ConfigError(
-                    f"guess: shape {gp.shape} does not broadcast to lengths' {lead + (6,)}"
-                ) from None
-        out = np.empty_like(flat)
-        iters = np.empty(flat.shape[0], dtype=np.int64)
-        _k.forward_batch(flat, g, self._G, float(tol), int(max_iter), out, iters)
-        return out.reshape(lead + (6,))
+        return run_forward(_k.forward_batch, self._G, lengths, guess, tol, max_iter, "lengths")
 
     def joint_points(self, pose: ArrayLike) -> Stewart6Joints:
         """Base joints and platform joints of a pose, in base axes, m.
@@ -313,7 +253,7 @@ class Stewart6:
             ``(base_joints, platform_joints)``, each shape (..., 6, 3). The platform joints
             are the commanded rigid-body positions, whether or not the pose is reachable.
         """
-        flat, lead = _as_poses(pose)
+        flat, lead = as_poses(pose)
         joints = np.empty((flat.shape[0], 6, 3))
         _k.joints_batch(flat, self._G, joints)
         base = np.broadcast_to(self._base, joints.shape).copy()
@@ -330,3 +270,46 @@ class Stewart6:
         self.clamp_inverse(p[0])
         self.joint_points(p)
         self.forward(self.inverse(p))
+
+
+class Stewart6Robot(Robot):
+    """The 6-UPS Stewart platform as a pipeline robot
+    (:class:`~motionbase.platform.robot.Robot`): the cue pose is the platform pose;
+    actuators are linear (lengths joint centre to joint centre, m; speeds m/s,
+    accelerations m/s^2); park is every actuator at ``length_min + park_margin``.
+
+    Parameters
+    ----------
+    geometry : Stewart6Geometry
+    """
+
+    name = "stewart6"
+    actuator_unit = "m"
+    solve_kernel = staticmethod(_k.solve)
+
+    def __init__(self, geometry: Stewart6Geometry) -> None:
+        self.kin = Stewart6(geometry)
+        self.geometry = geometry
+        self.n = 6
+        self.limits = self.kin.limits
+        self.park_angles = self.kin.park.lengths
+        self.neutral_pose = np.zeros(6)
+        self.park_pose = self.kin.park.pose
+        self.park_cue = self.park_pose
+        self.kernel_params = self.kin._G.ravel()
+        self._finish()
+
+    def inverse(self, pose: ArrayLike) -> np.ndarray:
+        return self.kin.inverse(pose)
+
+    def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
+        return self.kin.reachable(pose)
+
+    def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
+        return self.kin.clamp(pose)
+
+    def forward(self, q: ArrayLike, guess: ArrayLike) -> np.ndarray:
+        return self.kin.forward(q, guess=guess)
+
+    def joint_points(self, pose: ArrayLike) -> Stewart6Joints:
+        return self.kin.joint_points(pose)

@@ -1,0 +1,229 @@
+"""Pose maths shared by the 6-DOF platforms' kernels and classes (6-RUS, 6-UPS Stewart).
+
+Compiled (numba) pieces: the Z-Y-X rotation :func:`rotation` (and :func:`rotation_terms`,
+its nine entries as scalars for kernels that keep them in registers), the angle wrap
+:func:`wrap` and the 6x6 linear solver :func:`solve6`. Python pieces: the argument checks
+and batch plumbing every 6-DOF kinematics class uses (:func:`as_poses`, :func:`run_inverse`,
+:func:`run_reachable`, :func:`run_clamp`, :func:`run_forward`) and the numpy
+:func:`rotation_matrix`.
+
+Conventions (DESIGN.md): a pose is ``[x, y, z, roll, pitch, yaw]`` (m, rad; FRD base axes)
+and ``R = Rz(yaw) Ry(pitch) Rx(roll)`` maps platform-frame vectors to base axes.
+
+numba's on-disk cache keys a kernel on its own file only: after changing a kernel here,
+delete the callers' caches (``__pycache__/_rus6_kernels*.nb[ic]``,
+``__pycache__/_stewart6_kernels*.nb[ic]``) or they keep the old code compiled in.
+No fastmath: NaN must propagate and comparisons with NaN must stay false.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from numba import njit
+from numpy.typing import ArrayLike
+
+from motionbase.errors import ConfigError
+
+__all__ = [
+    "as_poses",
+    "rotation",
+    "rotation_matrix",
+    "rotation_terms",
+    "run_clamp",
+    "run_forward",
+    "run_inverse",
+    "run_reachable",
+    "solve6",
+    "wrap",
+]
+
+
+# --------------------------------------------------------------------------- compiled
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def rotation_terms(roll, pitch, yaw):
+    """The nine entries ``(r00, r01, r02, r10, r11, r12, r20, r21, r22)`` of
+    ``R = Rz(yaw) Ry(pitch) Rx(roll)``, row by row."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return (
+        cy * cp,
+        cy * sp * sr - sy * cr,
+        cy * sp * cr + sy * sr,
+        sy * cp,
+        sy * sp * sr + cy * cr,
+        sy * sp * cr - cy * sr,
+        -sp,
+        cp * sr,
+        cp * cr,
+    )
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def rotation(roll, pitch, yaw, R):
+    """R = Rz(yaw) Ry(pitch) Rx(roll) into the 3x3 array R."""
+    t = rotation_terms(roll, pitch, yaw)
+    R[0, 0], R[0, 1], R[0, 2] = t[0], t[1], t[2]
+    R[1, 0], R[1, 1], R[1, 2] = t[3], t[4], t[5]
+    R[2, 0], R[2, 1], R[2, 2] = t[6], t[7], t[8]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def wrap(a):
+    """Wrap an angle to [-pi, pi); angles already in range are returned bit for bit."""
+    if -math.pi <= a < math.pi:
+        return a
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def solve6(A, b, x):
+    """Solve A x = b (6x6) by Gaussian elimination with partial pivoting; False if singular.
+
+    Overwrites A and b.
+    """
+    n = 6
+    for c in range(n):
+        piv = c
+        best = abs(A[c, c])
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > best:
+                best = abs(A[r, c])
+                piv = r
+        if not best > 1e-300:
+            return False
+        if piv != c:
+            for j in range(n):
+                A[c, j], A[piv, j] = A[piv, j], A[c, j]
+            b[c], b[piv] = b[piv], b[c]
+        for r in range(c + 1, n):
+            f = A[r, c] / A[c, c]
+            if f != 0.0:
+                for j in range(c, n):
+                    A[r, j] -= f * A[c, j]
+                b[r] -= f * b[c]
+    for r in range(n - 1, -1, -1):
+        s = b[r]
+        for j in range(r + 1, n):
+            s -= A[r, j] * x[j]
+        x[r] = s / A[r, r]
+    return True
+
+
+# --------------------------------------------------------------------------- numpy
+
+
+def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
+    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` for Euler angles ``(..., 3)`` -> ``(..., 3, 3)``."""
+    a = np.asarray(rpy, dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # inf -> NaN entries, quietly
+        cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
+        cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
+        cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
+    R = np.empty(a.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cy * cp
+    R[..., 0, 1] = cy * sp * sr - sy * cr
+    R[..., 0, 2] = cy * sp * cr + sy * sr
+    R[..., 1, 0] = sy * cp
+    R[..., 1, 1] = sy * sp * sr + cy * cr
+    R[..., 1, 2] = sy * sp * cr - cy * sr
+    R[..., 2, 0] = -sp
+    R[..., 2, 1] = cp * sr
+    R[..., 2, 2] = cp * cr
+    return R
+
+
+# --------------------------------------------------------------------------- batch plumbing
+
+
+def as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...]]:
+    """Rows ``(k, 6)`` (C-contiguous float64) of one pose or a batch, and the leading shape.
+
+    Raises
+    ------
+    ConfigError
+        The last axis is not 6 long.
+    """
+    p = np.asarray(pose, dtype=np.float64)
+    if p.ndim == 0 or p.shape[-1] != 6:
+        raise ConfigError(
+            f"{what}: expected shape (6,) or (..., 6) "
+            f"[x, y, z, roll, pitch, yaw], got shape {p.shape}"
+        )
+    lead = p.shape[:-1]
+    return np.ascontiguousarray(p.reshape(-1, 6)), lead
+
+
+def run_inverse(kernel: Callable, G: np.ndarray, pose: ArrayLike) -> np.ndarray:
+    """``kernel(poses (k, 6), G, out (k, 6))`` over one pose or a batch: shape (..., 6)."""
+    p = np.asarray(pose, dtype=np.float64)
+    if p.shape == (6,):
+        out = np.empty(6)
+        kernel(p.reshape(1, 6), G, out.reshape(1, 6))
+        return out
+    flat, lead = as_poses(p)
+    out = np.empty_like(flat)
+    kernel(flat, G, out)
+    return out.reshape(lead + (6,))
+
+
+def run_reachable(kernel: Callable, G: np.ndarray, pose: ArrayLike) -> np.ndarray | bool:
+    """``kernel(poses, G, out bool (k,))``: a bool for one pose, a bool array (...) else."""
+    flat, lead = as_poses(pose)
+    out = np.empty(flat.shape[0], dtype=np.bool_)
+    kernel(flat, G, out)
+    if lead == ():
+        return bool(out[0])
+    return out.reshape(lead)
+
+
+def run_clamp(
+    kernel: Callable, G: np.ndarray, pose: ArrayLike
+) -> tuple[np.ndarray, np.ndarray | bool]:
+    """``kernel(poses, G, out (k, 6), flags (k,))``: clamped poses and whether each moved."""
+    p = np.asarray(pose, dtype=np.float64)
+    if p.shape == (6,):
+        out = np.empty(6)
+        flags = np.empty(1, dtype=np.bool_)
+        kernel(p.reshape(1, 6), G, out.reshape(1, 6), flags)
+        return out, bool(flags[0])
+    flat, lead = as_poses(p)
+    out = np.empty_like(flat)
+    flags = np.empty(flat.shape[0], dtype=np.bool_)
+    kernel(flat, G, out, flags)
+    return out.reshape(lead + (6,)), flags.reshape(lead)
+
+
+def run_forward(
+    kernel: Callable,
+    G: np.ndarray,
+    q: ArrayLike,
+    guess: ArrayLike | None,
+    tol: float,
+    max_iter: int,
+    what: str,
+) -> np.ndarray:
+    """``kernel(q (k, 6), guesses (k, 6), G, tol, max_iter, out, iters)`` over actuator rows
+    ``q`` named ``what``, from ``guess`` (broadcast; zero pose by default): shape (..., 6)."""
+    flat, lead = as_poses(q, what)
+    if guess is None:
+        g = np.zeros_like(flat)
+    else:
+        gp = np.asarray(guess, dtype=np.float64)
+        if gp.ndim == 0 or gp.shape[-1] != 6:
+            raise ConfigError(f"guess: expected shape (6,) or (..., 6), got {gp.shape}")
+        try:
+            g = np.ascontiguousarray(np.broadcast_to(gp, lead + (6,)).reshape(-1, 6))
+        except ValueError:
+            raise ConfigError(
+                f"guess: shape {gp.shape} does not broadcast to {what}' {lead + (6,)}"
+            ) from None
+    out = np.empty_like(flat)
+    iters = np.empty(flat.shape[0], dtype=np.int64)
+    kernel(flat, g, G, float(tol), int(max_iter), out, iters)
+    return out.reshape(lead + (6,))
