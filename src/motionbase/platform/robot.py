@@ -35,6 +35,7 @@ from typing import Any, ClassVar
 import numba
 import numpy as np
 
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
 from motionbase.errors import ConfigError
 from motionbase.safety import ActuatorLimits
 
@@ -204,7 +205,7 @@ ROBOTS: dict[str, RobotSpec] = {
             "rus6",
             "motionbase.platform.rus6:Rus6Robot",
             "motionbase.platform.rus6_geometry:Rus6Geometry",
-            "ceart",
+            DEFAULT_RUS6,
             description="6-RUS",
         ),
         RobotSpec(
@@ -218,7 +219,7 @@ ROBOTS: dict[str, RobotSpec] = {
             "rrr3",
             "motionbase.platform.rrr3:Rrr3Robot",
             "motionbase.platform.rrr3:Rrr3Geometry",
-            "udesc_symmetric",
+            DEFAULT_RRR3,
             planar=True,
             description="3-RRR, planar mode",
         ),
