@@ -132,15 +132,17 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
 
 
 def test_a_stop_before_the_sweep_starts_sends_only_park():
-    from motionbase.io.motor_output import output_test
+    from motionbase.app import output_test
     from motionbase.pipeline import StopRequest
+    from motionbase.platform.robot import robot_spec
 
     rx = Receiver()
     stop = StopRequest()
     stop.set("test")
     try:
         lines = output_test(
-            f"udp:127.0.0.1:{rx.port}?format={quote(FORMAT, safe='')}", GEOMETRY, stop=stop,
+            f"udp:127.0.0.1:{rx.port}?format={quote(FORMAT, safe='')}",
+            robot_spec("rus6").make(GEOMETRY), stop=stop,
             echo=lambda s: None,
         )  # fmt: skip
         time.sleep(0.1)  # the last datagrams

@@ -153,6 +153,7 @@ class CommandPipeline:
         self.mode = mode
         self.dt = 1.0 / float(rate_hz)
         self.clamp = bool(clamp)
+        self.soft_start_s = float(soft_start_s)
         self.health = Health()
         n = robot.n
         self._n = n
