@@ -153,3 +153,53 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
     q = np.array([f[1] for f in rx.frames])
     assert len(q) >= 1
     np.testing.assert_allclose(q, np.full_like(q, GEOMETRY.park_angle), atol=math.radians(1e-4))
+
+
+def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too():
+    """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
+    geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
+    arriving there, the frames within the servos' limits, the last frame home (its park)."""
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    fmt = "text:" + "".join(f"{c}{{{i}:.4f}}" for i, c in enumerate("ABC", 1)) + r"\n"
+    frame = re.compile(rb"A(-?\d+\.\d{4})B(-?\d+\.\d{4})C(-?\d+\.\d{4})\n")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.05)
+    port = sock.getsockname()[1]
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test"]
+    cmd += [f"udp:127.0.0.1:{port}?format={quote(fmt, safe='')}", "--platform", "rrr3"]
+    cmd += ["--speed-deg-s", "60", "--rate", "200"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    frames = []
+    try:
+        while proc.poll() is None:
+            try:
+                data = sock.recv(65536)
+            except TimeoutError:
+                continue
+            m = frame.fullmatch(data)
+            assert m is not None, data
+            frames.append(np.radians([float(x) for x in m.groups()]))
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        sock.close()
+    assert proc.returncode == 0, stderr
+    assert [f"motor {i}:" in stdout for i in (1, 2, 3)] == [True] * 3
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))  # the planar default
+    lo, hi = rrr3.angle_limits.T
+    home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
+    q = np.array(frames)
+    np.testing.assert_allclose(q[-1], home, atol=math.radians(1e-4))
+    assert np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)
+    away = np.abs(q - home) > math.radians(0.01)
+    assert away.sum(axis=1).max() == 1  # never two servos away from home at once
+    for i in range(3):
+        dev = np.degrees(q[away[:, i], i] - home[i])
+        assert dev.max() == pytest.approx(5.0, abs=1e-3)
+        assert dev.min() == pytest.approx(-5.0, abs=1e-3)
+    order = [int(np.flatnonzero(a)[0]) for a in away if a.any()]
+    assert list(dict.fromkeys(order)) == [0, 1, 2]
