@@ -28,26 +28,38 @@ from urllib.parse import quote
 
 import numpy as np
 
-#: Six crank angles in degrees, four decimals: quantisation 1e-4 deg, far below the limits.
-FORMAT = "text:" + ",".join(f"{{{i}:.4f}}" for i in range(1, 7)) + "\\n"
-_FRAME = re.compile(rb"(-?\d+\.\d{4}),(-?\d+\.\d{4}),(-?\d+\.\d{4}),"
-                    rb"(-?\d+\.\d{4}),(-?\d+\.\d{4}),(-?\d+\.\d{4})\n")  # fmt: skip
+
+def frame_format(n: int = 6) -> str:
+    """``n`` actuator positions in degrees (or mm), four decimals: quantisation 1e-4, far
+    below the limits."""
+    return "text:" + ",".join(f"{{{i}:.4f}}" for i in range(1, n + 1)) + "\\n"
+
+
+def _frame_regex(n: int) -> re.Pattern[bytes]:
+    return re.compile(b",".join([rb"(-?\d+\.\d{4})"] * n) + rb"\n")
+
+
+FORMAT = frame_format(6)
+_FRAME = _frame_regex(6)
 WINDOW_S = 0.1
 JITTER_S = 0.005
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 
 
-def decode(frame: bytes) -> np.ndarray:
+def decode(frame: bytes, pattern: re.Pattern[bytes] = _FRAME) -> np.ndarray:
     """Crank angles of one frame, rad."""
-    m = _FRAME.fullmatch(frame)
+    m = pattern.fullmatch(frame)
     assert m is not None, f"not a drive frame: {frame!r}"
     return np.radians([float(x) for x in m.groups()])
 
 
 class UdpDrive:
-    """A drive listening on a loopback UDP port (0: a free one)."""
+    """A drive of ``n`` actuators listening on a loopback UDP port (0: a free one)."""
 
-    def __init__(self, port: int = 0) -> None:
+    def __init__(self, port: int = 0, n: int = 6) -> None:
+        self.n = n
+        self._format = frame_format(n)
+        self._pattern = _frame_regex(n)
         self.frames: list[tuple[float, bytes]] = []  # (arrival s, datagram)
         self._lock = threading.Lock()
         self._sock: socket.socket | None = None
@@ -55,7 +67,7 @@ class UdpDrive:
         self.port = self._listen(port)
 
     def url(self, rate_hz: float = 100.0) -> str:
-        return f"udp:127.0.0.1:{self.port}?rate={rate_hz:g}&format={quote(FORMAT, safe='')}"
+        return f"udp:127.0.0.1:{self.port}?rate={rate_hz:g}&format={quote(self._format, safe='')}"
 
     def _listen(self, port: int) -> int:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -111,11 +123,13 @@ class UdpDrive:
             threading.Event().wait(0.2)
 
     def angles(self, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """(arrival times s, crank angles rad (n, 6)) of the frames from index ``start``."""
+        """(arrival times s, positions (k, n): rad, or m / 1000 for mm) of the frames from
+        index ``start``."""
         with self._lock:
             frames = self.frames[start:]
         t = np.array([a for a, _ in frames], dtype=float)
-        q = np.array([decode(f) for _, f in frames], dtype=float).reshape(-1, 6)
+        q = np.array([decode(f, self._pattern) for _, f in frames], dtype=float)
+        q = q.reshape(-1, self.n)
         return t, q
 
 

@@ -91,14 +91,17 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
 
 
 def test_a_stop_before_the_sweep_starts_sends_only_park():
-    from motionbase.io.motor_output import output_test
+    from motionbase.app import output_test
     from motionbase.pipeline import StopRequest
+    from motionbase.platform.robot import robot_spec
 
     rx = UdpDrive()
     stop = StopRequest()
     stop.set("test")
     try:
-        lines = output_test(rx.url(), GEOMETRY, stop=stop, echo=lambda s: None)
+        lines = output_test(
+            rx.url(), robot_spec("rus6").make(GEOMETRY), stop=stop, echo=lambda s: None
+        )
         rx.drain()  # the last datagrams
     finally:
         rx.close()
@@ -107,3 +110,36 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
     _, q = rx.angles()
     assert len(q) >= 1
     np.testing.assert_allclose(q, np.full_like(q, GEOMETRY.park_angle), atol=math.radians(1e-4))
+
+
+def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too():
+    """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
+    geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
+    arriving there, the frames within the servos' limits, the last frame home (its park)."""
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    rx = UdpDrive(n=3)
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", rx.url(200)]
+    cmd += ["--platform", "rrr3", "--speed-deg-s", "60", "--rate", "200"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        rx.drain()
+    finally:
+        rx.close()
+    stdout, stderr = proc.stdout, proc.stderr
+    assert proc.returncode == 0, stderr
+    assert [f"motor {i}:" in stdout for i in (1, 2, 3)] == [True] * 3
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))  # the planar default
+    lo, hi = rrr3.angle_limits.T
+    home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
+    _, q = rx.angles()
+    np.testing.assert_allclose(q[-1], home, atol=math.radians(1e-4))
+    assert np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)
+    away = np.abs(q - home) > math.radians(0.01)
+    assert away.sum(axis=1).max() == 1  # never two servos away from home at once
+    for i in range(3):
+        dev = np.degrees(q[away[:, i], i] - home[i])
+        assert dev.max() == pytest.approx(5.0, abs=1e-3)
+        assert dev.min() == pytest.approx(-5.0, abs=1e-3)
+    order = [int(np.flatnonzero(a)[0]) for a in away if a.any()]
+    assert list(dict.fromkeys(order)) == [0, 1, 2]

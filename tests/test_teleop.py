@@ -533,3 +533,36 @@ def test_a_full_disk_mid_run_parks_the_robot_then_says_so_in_one_line(tmp_path):
     # integer degrees on the wire: a frame moves at most the speed limit (+1 deg of rounding)
     step = math.degrees(Rrr3Geometry.preset("udesc").max_speed * DT) + 1
     assert np.abs(np.diff(frames, axis=0)).max() <= step
+
+
+def test_a_serial_link_failing_mid_motion_parks_through_the_log_then_says_so(tmp_path):
+    """The serial sink fails (an OSError) while the robot moves fast: the run does not stop
+    dead; it brakes and goes home within the limits (what the log, the remaining sink,
+    records), and then raises one SinkError naming the failed link."""
+    from motionbase.errors import SinkError
+
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
+    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    write_csv(tmp_path / "fast.csv", duration=5.0, omega=8.0)
+
+    class FailingLink:
+        url = "serial:/dev/ttyFAKE"
+
+        def write(self, servo, t=None):
+            if t >= 1.0 - 1e-9:
+                raise OSError(5, "Input/output error")
+            return True
+
+    log = DictLog()
+    with pytest.raises(SinkError, match="ttyFAKE") as info:
+        run_teleop(
+            FileCursor(tmp_path / "fast.csv"), rrr3, cal, sink=FailingLink(), logger=log,
+            realtime=False,
+        )  # fmt: skip
+    assert "\n" not in str(info.value)
+    q = np.array([d["angles"] for _, d in log.m["/planar/actuators"]])
+    assert speed_at(q, 50) > rrr3.geometry.max_accel * DT  # moving fast when it failed
+    assert q.shape[0] > 55
+    assert_stops_within_limits(q, rrr3.geometry)
+    np.testing.assert_allclose(log.m["/planar/pose"][-1][1]["pose"], rrr3.home, atol=1e-9)

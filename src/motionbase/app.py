@@ -351,6 +351,128 @@ def _drive_stoppable(
     )
 
 
+def output_test(
+    url: str,
+    platform: Any = None,
+    *,
+    range_deg: float = 5.0,
+    speed_deg_s: float = 10.0,
+    range_mm: float = 10.0,
+    speed_mm_s: float = 20.0,
+    rate_hz: float = 100.0,
+    echo: Callable[[str], None] | None = None,
+    stop: StopRequest | None = None,
+) -> list[str]:
+    """``motionbase output --test``: sweep each actuator in turn about neutral, slowly, for a
+    wiring and sign check: park -> neutral, actuator 1 up, down, back, actuator 2, ...,
+    neutral -> park.
+
+    The sweep is a command source (:class:`motionbase.commanding.SweepSource`) run by the
+    pipeline's loop (:func:`motionbase.pipeline.run`, paced at ``rate_hz``) in actuator
+    mode (:class:`motionbase.commanding.CommandPipeline`): every command passes the soft
+    start and the limiter with the robot's limits, and goes to the drive through
+    :func:`motionbase.io.motor_output.open_output` (ramped at the drive within the same
+    limits). Prints (``echo``) which actuator moves and its drive values.
+
+    A stop (SIGINT, SIGTERM, SIGHUP or SIGQUIT, or ``stop`` raised by the caller) at any
+    moment, start-up included, ends the sweep as it ends a flight: one line says so, the
+    sweep holds where it is and the pipeline blends back to park over its soft-start time
+    (a second signal: an E-stop, to park at once within the limits); the last frame is the
+    park command and the function returns normally.
+
+    Parameters
+    ----------
+    url : str
+        The output URL.
+    platform : str or Robot, optional
+        A ``--platform`` value (a robot's name, a geometry preset or TOML path, its
+        ``[output]`` table mapping the drive values; degrees or metres when it has none),
+        or a robot. Default: the default 6-RUS.
+    range_deg, speed_deg_s : float
+        Rotary actuators: half-range of each sweep about neutral (deg) and peak speed
+        (deg/s, capped by the speed limit).
+    range_mm, speed_mm_s : float
+        Linear actuators: the same in mm and mm/s.
+    rate_hz : float
+        The pipeline's rate and the drive's frame rate, Hz.
+    echo : callable, optional
+        Prints a line (default: stdout).
+    stop : StopRequest, optional
+        Raised to stop the test (a new one, routed from the stop signals, when not given).
+
+    Returns
+    -------
+    list of str
+        The lines printed.
+    """
+    from motionbase.commanding import CommandPipeline, SweepSource
+    from motionbase.io.motor_output import mapping_for, open_output
+    from motionbase.platform.robot import ROBOTS, Robot, load_geometry, robot_spec
+
+    echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
+    lines: list[str] = []
+
+    def say(s: str) -> None:
+        lines.append(s)
+        echo(s)
+
+    with _stopping(stop) as stop:  # first: a stop during start-up parks too
+        if isinstance(platform, Robot):
+            robot = platform
+        else:  # a planar robot's name: its default geometry
+            planar = platform in ROBOTS and ROBOTS[platform].planar
+            name, geometry = load_geometry(None if planar else platform, planar=planar)
+            robot = robot_spec(name).make(geometry)
+        linear = robot.actuator_unit == "m"
+        unit, scale = ("mm", 1e-3) if linear else ("deg", math.radians(1.0))
+        rng, speed = (range_mm, speed_mm_s) if linear else (range_deg, speed_deg_s)
+        pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
+        mapping = mapping_for(robot)
+
+        def on_motor(motor: int) -> None:
+            if motor:
+                say(_sweep_line(mapping, sweep.neutral, motor - 1, rng, unit, scale, linear))
+            else:
+                say("moving from neutral back to park")
+
+        sweep = SweepSource(
+            robot, range_=rng * scale, speed=speed * scale, rate_hz=rate_hz,
+            lead_s=pipeline.soft_start_s, stop=stop, on_motor=on_motor,
+        )  # fmt: skip
+        told = False
+
+        def on_tick(out: PipelineOutput) -> None:
+            nonlocal told
+            if not told and stop and out.phase in ("stopping", "parked"):
+                told = True
+                why = stop.reason or "a stop request"
+                say(f"output test stopped by {why}: moving back to park")
+
+        sink = open_output(url, mapping, rate_hz=rate_hz)  # (the pipeline limits the commands)
+        say(f"output test on {sink.label}: {mapping.describe()}")
+        say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")
+        with sink:
+            run(pipeline, sweep, [sink], paced=True, stop=stop, progress=on_tick)
+        say(sink.stats_line())
+        return lines
+
+
+def _sweep_line(
+    mapping: Any, neutral: np.ndarray, i: int, rng: float, unit: str, scale: float, linear: bool
+) -> str:
+    """What the sweep of actuator ``i`` (0-based) does, with its drive values."""
+    up, dn = neutral.copy(), neutral.copy()
+    up[i] += rng * scale
+    dn[i] -= rng * scale
+    d0, d1, d2 = (float(np.round(mapping.to_drive(a)[i], 6)) + 0.0 for a in (neutral, up, dn))
+    what = "length" if linear else "crank"
+    sense = "longer" if linear else "tip up"
+    return (
+        f"motor {i + 1}: {what} +{rng:g} {unit} ({sense}), -{rng:g} {unit}, back to neutral; "
+        f"drive value {d0:g} -> {d1:g} -> {d2:g} -> {d0:g}"
+    )
+
+
 def _live_address(live: str | None) -> Any:
     """``--live [HOST:]PORT`` checked before anything opens (None when not asked)."""
     from motionbase.io.mcap_log import LiveAddress

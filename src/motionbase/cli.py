@@ -491,16 +491,33 @@ def _args_output(p: argparse.ArgumentParser) -> None:
         help="sweep each motor in turn about neutral through this output URL",
     )
     p.add_argument(
-        "--platform", default="ceart", help="6-RUS geometry preset or TOML path with [output]"
+        "--platform",
+        default=None,
+        help="robot name, geometry preset or TOML path with [output] (default ceart)",
     )
     p.add_argument(
-        "--range-deg", type=_positive_float, default=5.0, help="sweep half-range, deg (default 5)"
+        "--range-deg",
+        type=_positive_float,
+        default=5.0,
+        help="sweep half-range of a crank, deg (default 5)",
     )
     p.add_argument(
         "--speed-deg-s",
         type=_positive_float,
         default=10.0,
         help="peak crank speed, deg/s (default 10)",
+    )
+    p.add_argument(
+        "--range-mm",
+        type=_positive_float,
+        default=10.0,
+        help="sweep half-range of a linear actuator, mm (default 10)",
+    )
+    p.add_argument(
+        "--speed-mm-s",
+        type=_positive_float,
+        default=20.0,
+        help="peak linear actuator speed, mm/s (default 20)",
     )
     p.add_argument(
         "--rate", type=_positive_float, default=100.0, help="command rate, Hz (default 100)"
@@ -514,14 +531,15 @@ def _args_output(p: argparse.ArgumentParser) -> None:
     _args_output,
 )
 def run_output(args: argparse.Namespace) -> int:
-    from motionbase.io.motor_output import output_test
-    from motionbase.platform import Rus6Geometry
+    from motionbase.app import output_test
 
     output_test(
         args.test,
-        Rus6Geometry.preset(args.platform),
+        args.platform,
         range_deg=args.range_deg,
         speed_deg_s=args.speed_deg_s,
+        range_mm=args.range_mm,
+        speed_mm_s=args.speed_mm_s,
         rate_hz=args.rate,
     )
     return 0

@@ -16,8 +16,8 @@ Two ways:
   command sooner after its due time (see ``benchmarks/RESULTS.md``, issue 7). The usual
   choice for a 1 kHz loop on a core of its own.
 
-(The teleoperation loop still sleeps. Sinks never wait: the motor-drive outputs send from
-a thread of their own at a fixed rate.)
+(Teleoperation and the motor wiring check run in the pipeline's loop too. Sinks never
+wait: the motor-drive outputs send from a thread of their own at a fixed rate.)
 
 Times are seconds on :func:`time.perf_counter` unless a ``clock`` is given
 (:func:`time.monotonic` is the same clock on Linux).

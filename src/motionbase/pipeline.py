@@ -808,6 +808,8 @@ def run(
     Parameters
     ----------
     pipeline : Pipeline
+        Or a :class:`motionbase.commanding.CommandPipeline` (teleop, the wiring check),
+        whose source yields commands instead of aircraft states.
     source : iterable of AircraftState
         Already entered (``with source:``). A source may expose ``fresh`` (bool) to
         mark stale holds; ``paces_itself`` (bool), true when it hands its samples over

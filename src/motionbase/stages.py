@@ -272,6 +272,34 @@ def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def brake_stage(P, S, q):  # pragma: no cover - compiled
+    """Coordinated braking to rest where the actuators are, through :func:`limit_stage`.
+
+    Every actuator's speed is scaled by one factor per tick, so that all come to rest
+    together in the time the slowest-braking one needs (``max |v| / max_accel``): each
+    decelerates within its ``max_accel`` and keeps its direction, so a parallel robot's
+    actuators stay on the path they were on. ``q`` (n,) receives the command; the
+    state's ``wanted`` becomes it (nothing to feed forward). Returns
+    :func:`limit_stage`'s bits.
+    """
+    p = P[0]
+    s = S[0]
+    n = p.n
+    t_stop = 0.0
+    for i in range(n):
+        t_stop = max(t_stop, abs(s.v[i]) / p.max_accel[i])
+    scale = max(0.0, 1.0 - p.dt / t_stop) if t_stop > 0.0 else 0.0
+    wanted = np.empty(n)
+    for i in range(n):
+        wanted[i] = s.q[i] + scale * s.v[i] * p.dt
+        s.wanted[i] = s.q[i]
+    flags = limit_stage(P, S, wanted, q)
+    for i in range(n):
+        s.wanted[i] = q[i]
+    return flags
+
+
+@numba.njit(cache=True)
 def at_park(P, S):  # pragma: no cover - compiled
     """Stopped, with every actuator at park and at rest."""
     p = P[0]

@@ -28,6 +28,5 @@ from motionbase.io.motor_output import (  # noqa: E402, F401
     TextFormat,
     open_output,
     open_outputs,
-    output_test,
     parse_format,
 )

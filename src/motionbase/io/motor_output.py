@@ -78,7 +78,6 @@ import logging
 import math
 import re
 import socket
-import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -92,7 +91,7 @@ from motionbase.config import as_float, read_toml
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
-from motionbase.platform.output_map import OutputMapping, sweep_profile
+from motionbase.platform.output_map import OutputMapping
 from motionbase.platform.robot import Robot
 from motionbase.safety import RATE_LIMITED, ActuatorLimits, limit_command
 
@@ -105,7 +104,6 @@ __all__ = [
     "mapping_for",
     "open_output",
     "open_outputs",
-    "output_test",
     "parse_format",
 ]
 
@@ -1056,156 +1054,3 @@ def mapping_for(robot: Robot) -> OutputMapping:
     lim = robot.limits
     unit = "mm" if robot.actuator_unit == "m" else "deg"
     return OutputMapping.default(lim.lower, lim.upper, unit=unit)
-
-
-# --------------------------------------------------------------------------- wiring check
-
-
-@dataclass(frozen=True)
-class _Command:
-    """One command of the wiring check: loop time ``t`` (s) and crank ``angles`` (rad)."""
-
-    t: float
-    angles: np.ndarray
-
-
-def output_test(
-    url: str,
-    geometry: Any,
-    *,
-    range_deg: float = 5.0,
-    speed_deg_s: float = 10.0,
-    rate_hz: float = 100.0,
-    echo: Callable[[str], None] | None = None,
-    stop: Any = None,
-) -> list[str]:
-    """Sweep each motor in turn through ``+-range_deg`` about neutral, slowly, for a wiring and
-    sign check: park -> neutral, motor 1 up, down, back, motor 2, ..., neutral -> park.
-
-    Every command passes the safety stage (:func:`motionbase.safety.limit_command`, the
-    geometry's speed and acceleration limits) and is sent through :func:`open_output`; this
-    loop keeps the time (one command every ``1 / rate_hz`` s of the wall clock). Prints
-    (``echo``) which motor moves and its drive values.
-
-    A stop (SIGINT, SIGTERM, SIGHUP or SIGQUIT, routed by
-    :func:`motionbase.stopping.install_signal_stop`, or ``stop`` raised by the caller) at
-    any moment, start-up included, ends the sweep: one line says so, the motors ramp from
-    where they are back to park at the sweep's own pace (``speed_deg_s`` and half the
-    acceleration limit, through the safety stage), the last frame is the park command, and
-    the function returns normally.
-
-    Parameters
-    ----------
-    url : str
-        The output URL.
-    geometry : Rus6Geometry
-        Geometry with its ``[output]`` mapping (degrees when it has none).
-    range_deg : float
-        Half-range of each sweep about neutral, deg.
-    speed_deg_s : float
-        Peak crank speed, deg/s (capped by the geometry's speed limit).
-    rate_hz : float
-        Command rate, Hz.
-    echo : callable, optional
-        Prints a line (default: stdout).
-    stop : StopRequest, optional
-        Raised to stop the test (a new one when not given; signals raise it).
-
-    Returns
-    -------
-    list of str
-        The lines printed.
-    """
-    from motionbase.pacing import wait_until
-    from motionbase.pipeline import StopRequest
-    from motionbase.safety import ActuatorLimits, limit_command
-    from motionbase.stopping import install_signal_stop
-
-    stop = stop if stop is not None else StopRequest()
-    restore = install_signal_stop(stop)  # first: a stop during start-up parks too
-    try:
-        echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
-        mapping = geometry.output or OutputMapping.default(geometry.angle_min, geometry.angle_max)
-        lower, upper = np.array(geometry.angle_min), np.array(geometry.angle_max)
-        vmax, amax = np.array(geometry.max_speed), np.array(geometry.max_accel)
-        speed = min(math.radians(speed_deg_s), float(vmax.min()))
-        accel = 0.5 * float(amax.min())
-        dt = 1.0 / rate_hz
-        park = np.full(mapping.n, float(geometry.park_angle))
-        neutral = np.asarray(geometry.neutral_angle, dtype=float)
-        angles, motor = sweep_profile(
-            park,
-            neutral,
-            lower,
-            upper,
-            range_rad=math.radians(range_deg),
-            speed=speed,
-            accel=accel,
-            dt=dt,
-            dwell_s=0.2,
-        )
-        hold = max(1, int(0.2 * rate_hz))  # rest at park before and after the sweep
-        angles = np.concatenate(
-            [np.repeat(angles[:1], hold, 0), angles, np.repeat(angles[-1:], hold, 0)]
-        )
-        motor = np.concatenate([np.zeros(hold, int), motor, np.zeros(hold, int)])
-        limits = ActuatorLimits.broadcast(mapping.n, lower, upper, vmax, amax)
-        # a stop ramps back to park at the sweep's pace, never faster
-        park_limits = ActuatorLimits.broadcast(mapping.n, lower, upper, speed, accel)
-        lines: list[str] = []
-
-        def say(s: str) -> None:
-            lines.append(s)
-            echo(s)
-
-        sink = open_output(url, mapping, rate_hz=rate_hz)
-        say(f"output test on {sink.label}: {mapping.describe()}")
-        say(f"moving from park to neutral at up to {math.degrees(speed):.1f} deg/s")
-        q, v, wanted = angles[0].copy(), np.zeros(mapping.n), angles[0]
-        current = 0
-        stopping = False
-        with sink:
-            start = time.perf_counter()
-            k = 0
-            while True:
-                if stop and not stopping:
-                    stopping = True
-                    say(
-                        f"output test stopped by {stop.reason or 'a stop request'}: moving back "
-                        f"to park at up to {math.degrees(speed):.1f} deg/s"
-                    )
-                if stopping:
-                    if k > 0 and np.array_equal(q, park) and not v.any():
-                        break
-                    q, v, _ = limit_command(q, v, park, park, dt, park_limits)
-                else:
-                    if k >= len(angles):
-                        break
-                    if motor[k] != current:
-                        current = int(motor[k])
-                        if current:
-                            say(_sweep_line(mapping, neutral, current - 1, range_deg))
-                        else:
-                            say("moving from neutral back to park")
-                    q, v, _ = limit_command(q, v, wanted, angles[k], dt, limits)
-                    wanted = angles[k]
-                wait_until(start + k * dt)
-                sink.write(_Command(k * dt, q))
-                k += 1
-        say(sink.stats_line())
-        return lines
-    finally:
-        restore()
-
-
-def _sweep_line(mapping: OutputMapping, neutral: np.ndarray, i: int, range_deg: float) -> str:
-    """What the sweep of motor ``i`` (0-based) does, with its drive values."""
-    up = neutral.copy()
-    up[i] += math.radians(range_deg)
-    dn = neutral.copy()
-    dn[i] -= math.radians(range_deg)
-    d0, d1, d2 = (float(np.round(mapping.to_drive(a)[i], 6)) + 0.0 for a in (neutral, up, dn))
-    return (
-        f"motor {i + 1}: crank +{range_deg:g} deg (tip up), -{range_deg:g} deg, "
-        f"back to neutral; drive value {d0:g} -> {d1:g} -> {d2:g} -> {d0:g}"
-    )

@@ -1,0 +1,559 @@
+"""The pipeline without cueing: sources of robot poses or of actuator positions.
+
+Teleoperation (a cursor gives the robot's pose) and the motor wiring check (a sweep of
+actuator positions) run through the loop every flight runs through,
+:func:`motionbase.pipeline.run`: the same clock and pacing, stop and E-stop, stop
+signals, watchdog (a source's ``fresh`` mark), fault handling and parking, and the same
+safety limiter (:func:`motionbase.stages.limit_stage`). Only what comes before the
+limiter differs: :class:`CommandPipeline` takes the place of
+:class:`~motionbase.pipeline.Pipeline` (it has the interface ``run`` drives: ``step``,
+``stop``, ``estop``, ``estopped``, ``phase``, ``parked``, ``command``, ``speed``,
+``robot``, ``health``, ``dt``). Its source yields :class:`Command` samples.
+
+Two modes
+---------
+``"actuators"`` (the wiring check): a command is the actuator positions themselves. The
+stages are those of a flight after the cueing (:func:`motionbase.stages.after_cueing`)
+with the inverse kinematics replaced by the identity: the soft start and stop blend from
+park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the limiter.
+
+``"poses"`` (teleoperation): a command is a robot pose (the 3-RRR's ``[x, y, phi]``).
+
+* While running: the robot's workspace clamp (toward neutral; ``clamp=False`` refuses
+  unreachable poses instead), the inverse kinematics, the *approach* stage below, the
+  limiter. A refused target (non-finite, unreachable), no input yet, or stale input (the
+  source marks it not fresh) brakes the robot to rest where it is
+  (:func:`motionbase.stages.brake_stage`) until a usable target comes.
+* Approach (far jumps): a parallel robot's actuators must move together, or the mechanism
+  leaves its assembly during a large jump. When the limiter cannot reach the target in one
+  tick, the target it is given is the point of the straight pose segment from the current
+  pose toward the goal whose actuators lie one planned step away (max norm, by bisection:
+  the inverse kinematics is not linear), the step planned by the limiter's own law on one
+  virtual axis at 80 % of the limits (:func:`path_step`). The limits themselves are
+  enforced by the limiter alone, which every command passes.
+* Stopping (a stop or an E-stop, the end of the input): brake to rest where the robot is,
+  then go home (the park pose) along the approach above, then parked. Home, not where the
+  input left it: the next run starts there. When home is not reached within
+  ``max_home_s`` the robot brakes to rest where it is, and the pipeline reports itself
+  parked there.
+* ``platform_pose`` is the pose the actuators realise: the goal when the limiter sent it
+  unchanged, else forward kinematics of the command.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from typing import Any, NamedTuple
+
+import numba
+import numpy as np
+
+from motionbase import stages
+from motionbase.errors import ConfigError
+from motionbase.pipeline import MIN_RATE_HZ, Health, PipelineOutput
+from motionbase.platform.output_map import sweep_profile
+from motionbase.platform.robot import SOLVE_SIGNATURE, Robot
+from motionbase.safety import ActuatorLimits, limit_command
+from motionbase.stopping import StopRequest
+
+__all__ = ["MODES", "Command", "CommandPipeline", "SweepSource", "path_step"]
+
+MODES = ("actuators", "poses")
+
+# Stopping in pose mode: braking to rest; going home from rest; braking to rest where it
+# is after ``max_home_s``; at rest there.
+_BRAKE, _HOME, _BRAKE_LAST, _DONE = range(4)
+
+
+class Command(NamedTuple):
+    """One sample of a command source.
+
+    Attributes
+    ----------
+    t : float
+        Time, s (the source's clock; the pipeline's output keeps it).
+    target : ndarray or None
+        Actuator positions (n,) in the robot's unit, or a robot pose (m,); None: no input
+        yet (the robot holds where it is).
+    info : object
+        Passed through to the sinks in ``PipelineOutput.state`` (a cursor's pixel).
+    """
+
+    t: float
+    target: np.ndarray | None
+    info: Any = None
+
+
+@numba.njit(SOLVE_SIGNATURE, cache=True)
+def _as_given(G, target, cue_out, pose_out, q_out):  # pragma: no cover - compiled
+    """The robot kernel of actuator mode: the target *is* the actuator command."""
+    n = int(G[0])
+    for i in range(6):
+        cue_out[i] = target[i]
+    for i in range(n):
+        q_out[i] = target[i]
+        pose_out[i] = target[i]
+    return False
+
+
+class CommandPipeline:
+    """The pipeline's safety stages driven by robot poses or actuator positions.
+
+    Parameters
+    ----------
+    robot : Robot
+    rate_hz : float
+        Tick rate, Hz (as the pipeline's: 10 Hz to 10 kHz).
+    mode : {"poses", "actuators"}
+    soft_start_s : float
+        Actuator mode: the blend from park and back, s.
+    clamp : bool
+        Pose mode: clamp unreachable poses toward neutral (else refuse them).
+    max_home_s : float
+        Pose mode: longest time given to braking and going home after a stop, s.
+
+    Attributes
+    ----------
+    health : Health
+        ``clamps``, ``rate_limited`` (the target could not be reached in one tick) and
+        ``unsafe_commands`` (targets refused or held) count the running phase only;
+        ``watchdog_fades`` counts the times the input went stale.
+    no_input, stale_ticks, trims, park_ticks : int
+        Pose mode: running ticks without input yet, running ticks holding on stale input,
+        running ticks on which the limiter changed the (approach) command, ticks after
+        the stop.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        *,
+        rate_hz: float,
+        mode: str = "poses",
+        soft_start_s: float = 2.0,
+        clamp: bool = True,
+        max_home_s: float = 10.0,
+    ) -> None:
+        if mode not in MODES:
+            raise ConfigError(f"command pipeline: mode must be one of {MODES}, got {mode!r}")
+        for name, value in (("soft_start_s", soft_start_s), ("max_home_s", max_home_s)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"command pipeline: {name} must be > 0, got {value!r}")
+        if not (
+            isinstance(rate_hz, (int, float))
+            and math.isfinite(rate_hz)
+            and MIN_RATE_HZ <= rate_hz <= 10_000
+        ):
+            raise ConfigError(
+                f"rate must be {MIN_RATE_HZ:g} Hz to 10 kHz (fast enough to answer a stop in "
+                f"time), got {rate_hz!r}"
+            )
+        self.robot = robot
+        self.mode = mode
+        self.dt = 1.0 / float(rate_hz)
+        self.clamp = bool(clamp)
+        self.soft_start_s = float(soft_start_s)
+        self.health = Health()
+        n = robot.n
+        self._n = n
+        self._m = n if mode == "actuators" else len(robot.park_pose)
+        self.params = self._make_params(soft_start_s)
+        self.state = stages.new_state()
+        self._max_home_ticks = int(round(max_home_s / self.dt))
+        lim = robot.limits
+        # the approach's virtual axis: progress along the path in actuator units (max
+        # norm), planned at 80 % of the limits so that the path's curvature seldom makes
+        # the limiter trim (150 random jumps across the 3-RRR's phi = 0 workspace of either
+        # preset: no tick left the mechanism unassemblable or singular; the limiter trimmed
+        # < 2 % of ticks)
+        self._path_limits = ActuatorLimits.broadcast(
+            1, -1e3, 1e3, 0.8 * float(lim.max_speed.min()), 0.8 * float(lim.max_accel.min())
+        )
+        self._solve = stages.kernel_list(_as_given, stages.SOLVE_LIST)
+        self._G = np.array([float(n)])
+        self._cue = np.zeros(6)  # actuator mode: the held target, padded to 6
+        self._target = np.empty(6)
+        self._cue_out = np.empty(6)
+        self._wanted = np.empty(n)
+        self._no_cue = np.zeros(6)
+        self._no_cue.setflags(write=False)
+        self.reset()
+        self.warm_up()
+
+    def _make_params(self, soft_start_s: float) -> np.ndarray:
+        robot, n, m = self.robot, self._n, self._m
+        P = np.zeros(1, dtype=stages.PARAMS)
+        p = P[0]
+        p["dt"] = self.dt
+        p["blend_step"] = self.dt / soft_start_s
+        park_q = robot.park_angles
+        p["park_q"][:n] = park_q
+        # actuator mode: the blend runs in actuator space and the "pose" is the actuators
+        p["park_cue"][:n] = park_q if self.mode == "actuators" else 0.0
+        p["park_pose"][:m] = park_q if self.mode == "actuators" else robot.park_pose
+        p["lower"][:n] = robot.limits.lower
+        p["upper"][:n] = robot.limits.upper
+        p["max_speed"][:n] = robot.limits.max_speed
+        p["max_accel"][:n] = robot.limits.max_accel
+        p["n"] = n
+        p["m"] = m
+        return P
+
+    # -- lifecycle -------------------------------------------------------------
+    def reset(self) -> None:
+        """Parked, at rest, no command seen; counters kept."""
+        stages.reset_state(self.state, self.params, self.params[0]["park_pose"][: self._m])
+        self._cue[:] = 0.0
+        self._cue[: self._n] = self.robot.park_angles
+        self._pose = np.array(self.robot.park_pose, dtype=float)
+        self._sub = _BRAKE
+        self._ticks = 0
+        self._deadline = 0
+        self._stale = False
+        self.no_input = self.stale_ticks = self.trims = self.park_ticks = 0
+
+    def warm_up(self) -> None:
+        """Load the compiled kernels now (the first live tick is then on time); the
+        pipeline is left reset, its counters untouched."""
+        counts = self.health.as_dict()
+        park = self.robot.park_angles if self.mode == "actuators" else self.robot.park_pose
+        self.step(Command(0.0, np.array(park, dtype=float)))
+        self.stop()
+        self.step(None)
+        self.reset()
+        for name, value in counts.items():
+            setattr(self.health, name, value)
+
+    def stop(self) -> None:
+        """Head for park: actuator mode, the blend back over ``soft_start_s``; pose mode,
+        brake to rest, then home."""
+        s = self.state[0]
+        if s["phase"] in (stages.STARTING, stages.RUNNING):
+            s["phase"] = stages.STOPPING
+            if self.mode == "poses":
+                s["blend"] = 0.0
+                self._sub = _BRAKE
+                self._deadline = self._ticks + self._max_home_ticks
+
+    def estop(self) -> None:
+        """Emergency stop: actuator mode, head for park at once within the limits; pose
+        mode, as :meth:`stop` (braking first is the fastest safe way for a parallel robot)."""
+        self.health.estops += 1
+        s = self.state[0]
+        if self.mode == "poses":
+            self.stop()
+        else:
+            s["phase"] = stages.STOPPING
+            s["blend"] = 0.0
+        s["estop"] = True
+
+    @property
+    def estopped(self) -> bool:
+        return bool(self.state[0]["estop"])
+
+    @property
+    def parked(self) -> bool:
+        """Stopped at park and at rest (pose mode: or at rest where home was given up)."""
+        if stages.at_park(self.params, self.state):
+            return True
+        return (
+            self.mode == "poses"
+            and self._sub in (_BRAKE_LAST, _DONE)
+            and self.state[0]["phase"] == stages.STOPPING
+            and not self.speed.any()
+        )
+
+    @property
+    def phase(self) -> str:
+        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
+
+    @property
+    def command(self) -> np.ndarray:
+        """The last actuator command (a copy), in the robot's unit."""
+        return self.state[0]["q"][: self._n].copy()
+
+    @property
+    def speed(self) -> np.ndarray:
+        """The last command's speed (a live view)."""
+        return self.state[0]["v"][: self._n]
+
+    # -- one tick --------------------------------------------------------------
+    def _usable(self, cmd: Command | None, size: int) -> tuple[np.ndarray | None, bool]:
+        """The command's target if usable: (target or None, rejected)."""
+        if cmd is None or cmd.target is None:
+            return None, False
+        x = np.asarray(cmd.target, dtype=float)
+        if x.shape != (size,) or not np.isfinite(x).all():
+            self.health.rejected_inputs += 1
+            self.health.last_rejection = f"target {np.round(x, 6).tolist()} is not {size} numbers"
+            return None, True
+        return x, False
+
+    def _time(self, cmd: Command | None) -> float:
+        s = self.state[0]
+        last = float(s["t"]) if s["has_t"] else -self.dt
+        t = last + self.dt
+        if cmd is not None and math.isfinite(cmd.t) and cmd.t > last:
+            t = float(cmd.t)
+        s["t"], s["has_t"] = t, True
+        return t
+
+    def step(self, cmd: Command | None, fresh: bool = True) -> PipelineOutput:
+        """Advance one tick with the source's command (None: none, e.g. after its end).
+
+        Parameters
+        ----------
+        cmd : Command or None
+        fresh : bool
+            False when the source says its input went stale (pose mode: hold).
+        """
+        self.health.samples += 1
+        self._ticks += 1
+        t = self._time(cmd)
+        if self.mode == "actuators":
+            return self._step_actuators(cmd, t)
+        return self._step_poses(cmd, t, fresh)
+
+    def _step_actuators(self, cmd: Command | None, t: float) -> PipelineOutput:
+        n = self._n
+        x, rejected = self._usable(cmd, n)
+        if x is not None:
+            self._cue[:n] = x
+        q = np.empty(n)
+        act = np.empty(n)
+        flags = stages.after_cueing(
+            self.params, self.state, self._solve, self._G, self._cue, self._target,
+            self._cue_out, act, self._wanted, q,
+        )  # fmt: skip
+        self.health.count(flags & ~stages.PROBLEM)
+        pose = self.robot.forward(q, guess=self._pose)
+        if np.isfinite(pose).all():
+            self._pose = pose
+        return PipelineOutput(
+            t, cmd, True, cmd is not None and not rejected, self._no_cue, self._pose, False, q,
+            self.robot.servo(q), bool(flags & stages.RATE_LIMITED), bool(flags & stages.HELD),
+            stages.PHASES[flags >> stages.PHASE_SHIFT], 1.0,
+        )  # fmt: skip
+
+    def _step_poses(self, cmd: Command | None, t: float, fresh: bool) -> PipelineOutput:
+        P, S, robot, health = self.params, self.state, self.robot, self.health
+        s = S[0]
+        n, m = self._n, self._m
+        if s["phase"] == stages.STARTING:
+            s["phase"] = stages.RUNNING  # no blend: the approach and the limiter pace it
+        running = s["phase"] == stages.RUNNING
+        at_rest = not self.speed.any()
+        goal: np.ndarray | None = None
+        clamped = refused = False
+        x, rejected = self._usable(cmd, m)
+        if running:
+            if cmd is None or cmd.target is None:
+                self.no_input += 1
+            elif x is None:
+                refused = True
+                health.unsafe_commands += 1
+            else:
+                pose = x
+                if self.clamp:
+                    pose, moved = robot.clamp(x)
+                    pose = np.asarray(pose, dtype=float)
+                    clamped = bool(moved)
+                    health.clamps += clamped
+                if bool(robot.reachable(pose)):
+                    goal = pose
+                else:
+                    refused = True
+                    health.unsafe_commands += 1
+                if not fresh and not self._stale:
+                    health.watchdog_fades += 1
+                self._stale = not fresh
+                if self._stale:
+                    self.stale_ticks += 1
+                    goal = None
+        else:
+            self.park_ticks += 1
+            if self._sub == _BRAKE and at_rest:
+                self._sub = _HOME if self._ticks <= self._deadline else _DONE
+            if self._sub == _HOME and self._ticks > self._deadline:
+                self._sub = _BRAKE_LAST  # home not reached in time: to rest where it is
+            if self._sub == _HOME:
+                goal = np.array(robot.park_pose, dtype=float)
+        q = np.empty(n)
+        before = self._pose
+        if goal is None:
+            q_prev = s["q"][:n].copy()
+            flags = stages.brake_stage(P, S, q)
+            new_pose = before if np.array_equal(q, q_prev) else None
+        else:
+            flags, new_pose = self._approach(goal, q, running)
+        if new_pose is None:  # the actuators realise another pose than the one asked
+            achieved = np.asarray(robot.forward(q, guess=before), dtype=float)
+            new_pose = achieved if np.isfinite(achieved).all() else before
+        self._pose = np.array(new_pose, dtype=float)
+        s["pose"][:m] = self._pose
+        phase = "parked" if self.parked else stages.PHASES[int(s["phase"])]
+        return PipelineOutput(
+            t, cmd, bool(fresh), cmd is not None and not rejected, self._no_cue, self._pose,
+            clamped, q, robot.servo(q), bool(flags & stages.RATE_LIMITED),
+            refused or self._stale and running or bool(flags & stages.HELD), phase,
+            0.0 if self._stale and running else 1.0,
+        )  # fmt: skip
+
+    def _approach(
+        self, goal: np.ndarray, q: np.ndarray, counted: bool
+    ) -> tuple[int, np.ndarray | None]:
+        """Limiter toward ``goal`` (a valid pose), shaped into the coordinated approach
+        when the goal is out of one tick's reach; returns (limiter bits, the pose the
+        command realises or None when it is not the one asked)."""
+        P, S, n = self.params, self.state, self._n
+        s = S[0]
+        goal_q = np.asarray(self.robot.inverse(goal), dtype=float)
+        q_prev = s["q"][:n].copy()
+        v_prev = s["v"][:n].copy()
+        saved = S.copy()
+        flags = stages.limit_stage(P, S, goal_q, q)
+        new_pose: np.ndarray | None = goal
+        wanted = goal_q
+        if flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
+            self.health.unsafe_commands += counted
+            new_pose = None
+        elif flags & stages.RATE_LIMITED:
+            self.health.rate_limited += counted
+            dist = float(np.max(np.abs(goal_q - q_prev)))
+            step = path_step(dist, float(np.max(np.abs(v_prev))), self.dt, self._path_limits)
+            if 0.0 < step < dist:  # else braking or overshooting: the limiter's own output
+                found = self._along(self._pose, goal, q_prev, step)
+                if found is not None:
+                    new_pose, wanted = found
+                    S[0] = saved[0]
+                    s["wanted"][:n] = q_prev  # from the current command: no feed-forward
+                    flags = stages.limit_stage(P, S, wanted, q)
+                # else the segment leaves the valid region: the limiter's own approach
+            if flags:
+                self.trims += counted
+        if not flags & stages.HELD:
+            s["wanted"][:n] = goal_q  # the goal's own speed is fed forward next tick
+        if not np.array_equal(q, wanted):
+            new_pose = None
+        return flags, new_pose
+
+    def _valid(self, pose: np.ndarray) -> np.ndarray | None:
+        """Actuator positions of a pose, or None when it is not reachable."""
+        if not bool(self.robot.reachable(pose)):
+            return None
+        q = np.asarray(self.robot.inverse(pose), dtype=float)
+        return q if np.isfinite(q).all() else None
+
+    def _along(
+        self, pose: np.ndarray, goal: np.ndarray, q: np.ndarray, step: float, n_iter: int = 16
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The point of the pose segment ``pose -> goal`` whose actuators lie ``step`` (max
+        norm) from ``q``, by bisection on the fraction; ``(pose, actuators)`` or None."""
+        lo, hi = 0.0, 1.0
+        best = None
+        for _ in range(n_iter):
+            f = 0.5 * (lo + hi)
+            cand = pose + f * (goal - pose)
+            qc = self._valid(cand)
+            if qc is not None and float(np.max(np.abs(qc - q))) <= step:
+                lo, best = f, (cand, qc)
+            else:
+                hi = f
+        return best
+
+
+def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) -> float:
+    """Progress allowed this tick toward a fixed target ``distance`` away on one virtual
+    axis moving at ``speed`` (the limiter's own law, :func:`motionbase.safety.limit_command`,
+    with ``limits`` of one axis): the approach stage's plan, not a limit."""
+    d = np.array([distance])
+    s, _, _ = limit_command(np.zeros(1), np.array([speed]), d, d, dt, limits)
+    return float(s[0])
+
+
+# --------------------------------------------------------------------------- the sweep
+
+
+class SweepSource:
+    """The wiring check as a command source: actuator targets that rest at park, move to
+    neutral, take each actuator in turn through ``+range, -range`` about neutral and back,
+    return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`).
+
+    Once ``stop`` is raised it holds its current target (the pipeline then ramps to park).
+
+    Parameters
+    ----------
+    robot : Robot
+    range_ : float
+        Half-range about neutral, in the robot's actuator unit (rad or m).
+    speed : float
+        Peak speed of the sweep, unit/s (capped by the slowest actuator's limit).
+    rate_hz : float
+        The pipeline's rate, Hz (one target per tick).
+    lead_s : float
+        Rest at park first, s (give the pipeline's soft start: the sweep then starts
+        when the blend from park is complete, so it is not scaled down).
+    stop : StopRequest, optional
+    on_motor : callable, optional
+        Called with the actuator (1-based; 0 on the way to or from park) when the one
+        being moved changes.
+
+    Attributes
+    ----------
+    speed, accel : float
+        The sweep's peak speed and acceleration, unit/s and unit/s^2.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        *,
+        range_: float,
+        speed: float,
+        rate_hz: float,
+        lead_s: float,
+        stop: StopRequest | None = None,
+        on_motor: Callable[[int], None] | None = None,
+    ) -> None:
+        lim = robot.limits
+        self.speed = min(float(speed), float(lim.max_speed.min()))
+        self.accel = 0.5 * float(lim.max_accel.min())
+        self.dt = 1.0 / rate_hz
+        park = np.asarray(robot.park_angles, dtype=float)
+        self.neutral = np.asarray(robot.inverse(robot.neutral_pose), dtype=float)
+        targets, motor = sweep_profile(
+            park, self.neutral, lim.lower, lim.upper, range_rad=range_, speed=self.speed,
+            accel=self.accel, dt=self.dt, dwell_s=0.2,
+        )  # fmt: skip
+        lead = max(1, math.ceil(lead_s / self.dt))
+        rest = max(1, int(0.2 / self.dt))
+        self.targets = np.concatenate(
+            [np.repeat(targets[:1], lead, 0), targets, np.repeat(targets[-1:], rest, 0)]
+        )
+        self.motor = np.concatenate([np.zeros(lead, int), motor, np.zeros(rest, int)])
+        self.stop = stop
+        self.on_motor = on_motor
+        self._k = 0
+        self._current = 0
+        self._held: int | None = None
+
+    def __iter__(self) -> Iterator[Command]:
+        return self
+
+    def __next__(self) -> Command:
+        k = self._k
+        if self._held is None and self.stop:
+            self._held = max(0, k - 1)  # frozen where it was
+        if self._held is not None:
+            self._k += 1
+            return Command(k * self.dt, self.targets[self._held])
+        if k >= len(self.targets):
+            raise StopIteration
+        motor = int(self.motor[k])
+        if motor != self._current:
+            self._current = motor
+            if self.on_motor is not None:
+                self.on_motor(motor)
+        self._k += 1
+        return Command(k * self.dt, self.targets[k])
