@@ -151,7 +151,7 @@ def forbidden_imports(module: str, imports: list[Import], forbidden: tuple[str, 
 
 
 def load_graph(files: dict[str, str]) -> dict[str, list[Import]]:
-    """Module name -> its imports, for sources ``{module: text}`` (packages end in ``.__init__``)."""
+    """Module -> its imports, for sources ``{module: text}`` (a package as ``pkg.__init__``)."""
     graph = {}
     for name, text in files.items():
         is_package = name.endswith(".__init__")

@@ -63,13 +63,13 @@ from motionbase import __version__, stages
 from motionbase.config import as_float
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import wait_until
+from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
 from motionbase.state import AircraftState
 from motionbase.stopping import StopRequest, install_signal_stop  # noqa: F401 - re-exported
 from motionbase.washout.classical import WashoutInputError
 from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
-from motionbase.washout.params import STANDARD_GRAVITY
 
 # --------------------------------------------------------------------------- config
 

@@ -1115,9 +1115,8 @@ def output_test(
         The lines printed.
     """
     from motionbase.pacing import wait_until
-    from motionbase.pipeline import StopRequest
     from motionbase.safety import ActuatorLimits, limit_command
-    from motionbase.stopping import install_signal_stop
+    from motionbase.stopping import StopRequest, install_signal_stop
 
     stop = stop if stop is not None else StopRequest()
     restore = install_signal_stop(stop)  # first: a stop during start-up parks too

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
+from motionbase.physics import rotation_matrix
 from motionbase.platform import _rus6_kernels as _k
 from motionbase.platform.robot import Robot
 from motionbase.platform.rus6_geometry import Rus6Geometry
@@ -379,26 +380,6 @@ class Rus6:
         self.clamp(p)
         self.jacobian(p)
         self.forward(self.inverse(p))
-
-
-def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
-    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` for Euler angles ``(..., 3)`` -> ``(..., 3, 3)``."""
-    a = np.asarray(rpy, dtype=np.float64)
-    with np.errstate(invalid="ignore"):  # inf -> NaN entries, quietly
-        cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
-        cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
-        cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
-    R = np.empty(a.shape[:-1] + (3, 3))
-    R[..., 0, 0] = cy * cp
-    R[..., 0, 1] = cy * sp * sr - sy * cr
-    R[..., 0, 2] = cy * sp * cr + sy * sr
-    R[..., 1, 0] = sy * cp
-    R[..., 1, 1] = sy * sp * sr + cy * cr
-    R[..., 1, 2] = sy * sp * cr - cy * sr
-    R[..., 2, 0] = -sp
-    R[..., 2, 1] = cp * sr
-    R[..., 2, 2] = cp * cr
-    return R
 
 
 class Rus6Robot(Robot):
