@@ -109,11 +109,12 @@ def false_part(aircraft_dev: np.ndarray, platform_dev: np.ndarray) -> np.ndarray
 def measure(mcap_path: Path, name: str) -> FalseCues:
     """The false-cue figures of a recording."""
     from motionbase.io.mcap_source import read_messages, read_metadata
+    from motionbase.physics import STANDARD_GRAVITY
     from motionbase.report import build_report
     from motionbase.washout.perception import THRESHOLD_SPECIFIC_FORCE
 
     r = build_report(read_messages(mcap_path), read_metadata(mcap_path), name=name)
-    level = np.array([0.0, 0.0, -9.80665])
+    level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
     run = r.running
     fp = false_part(r.aircraft_f[run] - level, r.cue_f[run] - level)
     k, axis = np.unravel_index(int(np.argmax(fp)), fp.shape)

@@ -49,10 +49,9 @@ from motionbase.io.mcap_log import LiveAddress
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.pipeline_log import PipelineLog
 from motionbase.pacing import wait_until
+from motionbase.physics import STANDARD_GRAVITY as G
 from motionbase.pipeline import Pipeline, StopRequest, run
 from motionbase.state import AircraftState
-
-G = 9.80665
 
 
 def rss_mb() -> float:

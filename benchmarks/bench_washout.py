@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
+from motionbase.physics import STANDARD_GRAVITY as G
 from motionbase.washout import ClassicalWashout, WashoutParams
 
-G = 9.80665
 DT = 1.0 / 120.0
 
 

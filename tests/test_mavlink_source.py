@@ -318,6 +318,35 @@ def test_nan_inf_and_absurd_values_are_rejected() -> None:
         assert abs(state.attitude[0]) <= math.pi and abs(state.attitude[1]) <= math.pi / 2
 
 
+def test_what_the_pipeline_would_reject_never_enters_the_held_state() -> None:
+    """The source drops values beyond the pipeline's own plausibility bounds (one definition,
+    :mod:`motionbase.physics`): a 16 g specific force or a 30 rad/s body rate (readable by a
+    +-2000 deg/s gyro, absurd for an aircraft) is not held and handed on as the state."""
+    from motionbase.safety import InputLimits, input_problem
+
+    limits = InputLimits()
+    beyond = [
+        (1.07 * limits.max_specific_force, 0.0, -G, 0.0, 0.0, 0.0),
+        (0.0, 0.0, -G, 0.0, 1.5 * limits.max_angular_velocity, 0.0),
+    ]
+
+    def mixed(mav: Any, i: int) -> None:
+        send_good(mav, i)
+        mav.highres_imu_send(i, *beyond[i % 2], 0, 0, 0, 0, 0, 0, 0, 0x3F)
+
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=100.0, duration_s=1.0, request_streams=False
+    ) as src:
+        with sender(src.local_address[1], mixed) as sent:
+            ticks = run_live(src)
+        stats = src.stats
+    assert stats.rejected_invalid >= len(sent)
+    assert check_states_match_sent(ticks, len(sent) + 1) > 30
+    for state, _ in ticks:
+        f, w, att = state.specific_force, state.angular_velocity, state.attitude
+        assert input_problem(0.0, f, w, att, None, limits) is None
+
+
 def test_scaled_imu_and_attitude_quaternion_units_and_frames() -> None:
     """SCALED_IMU carries mG and mrad/s; ATTITUDE_QUATERNION is converted to
     Z-Y-X Euler angles (checked against scipy's Rotation)."""

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motionbase.physics import smoothstep
 from motionbase.safety import (
     RATE_LIMITED,
     UNSAFE_TARGET,
@@ -13,7 +14,6 @@ from motionbase.safety import (
     InputLimits,
     input_problem,
     limit_command,
-    smoothstep,
 )
 
 DT = 1 / 120

@@ -116,6 +116,7 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.physics import STANDARD_GRAVITY
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.platform.robot import ROBOTS
 from motionbase.washout.filters import (
@@ -124,7 +125,7 @@ from motionbase.washout.filters import (
     rotational_highpass,
     translational_highpass,
 )
-from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams
+from motionbase.washout.params import WashoutParams
 from motionbase.washout.perception import platform_angular_velocity, platform_specific_force
 
 __all__ = [

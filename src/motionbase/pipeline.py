@@ -54,7 +54,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numba
 import numpy as np
@@ -63,13 +63,16 @@ from motionbase import __version__, stages
 from motionbase.config import as_float
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import wait_until
+from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
-from motionbase.state import AircraftState
+from motionbase.state import AircraftState, PipelineOutput  # (re-exported)
 from motionbase.stopping import StopRequest, install_signal_stop  # noqa: F401 - re-exported
 from motionbase.washout.classical import WashoutInputError
 from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
-from motionbase.washout.params import STANDARD_GRAVITY
+
+if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
+    from motionbase.io.base import Sink, Source
 
 # --------------------------------------------------------------------------- config
 
@@ -254,59 +257,6 @@ class PipelineConfig:
 
 
 # --------------------------------------------------------------------------- outputs
-
-
-class PipelineOutput(NamedTuple):
-    """Everything one tick produced (what the sinks log and send); immutable.
-
-    Attributes
-    ----------
-    t : float
-        Time, s (source clock).
-    state : AircraftState or None
-        The sample the source gave this tick, as given (None on park ticks after
-        the source ended).
-    fresh : bool
-        False when the source marked the sample stale.
-    accepted : bool
-        False when validation rejected the sample (the last valid one was held).
-    washout_pose : ndarray, shape (6,)
-        The cueing's pose ``[x, y, z, roll, pitch, yaw]`` (m, rad), before the soft start
-        and clamping (a watchdog fade acts on its input).
-    platform_pose : ndarray, shape (m,)
-        The pose the actuators realise, in robot coordinates (6-DOF pose, or planar
-        ``[x, y, phi]``).
-    clamped : bool
-        The workspace clamp moved the pose.
-    angles : ndarray, shape (n,)
-        Actuator command in the robot's unit (rad for cranks and servos, m for linear
-        actuators); always finite and within limits.
-    servo_deg : ndarray of int, shape (n,), or None
-        Robots driven as hobby servos: the command in integer degrees.
-    rate_limited : bool
-        The safety stage's speed or acceleration limit changed the command.
-    held : bool
-        The safety stage replaced an unsafe command by the last safe one.
-    phase : str
-        ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
-    fade : float
-        Watchdog fade in [0, 1]: the share of the held sample's deviation from level
-        flight given to the cueing (1 = the aircraft's motion, 0 = level flight).
-    """
-
-    t: float
-    state: AircraftState | None
-    fresh: bool
-    accepted: bool
-    washout_pose: np.ndarray
-    platform_pose: np.ndarray
-    clamped: bool
-    angles: np.ndarray
-    servo_deg: np.ndarray | None
-    rate_limited: bool
-    held: bool
-    phase: str
-    fade: float
 
 
 @dataclass
@@ -782,8 +732,8 @@ def _sink_name(sink: Any) -> str:
 
 def run(
     pipeline: Pipeline,
-    source: Iterable[AircraftState],
-    sinks: Sequence[Any] = (),
+    source: Source | Iterable[AircraftState],
+    sinks: Sequence[Sink] = (),
     *,
     paced: bool = False,
     busy_wait: bool = False,
@@ -810,14 +760,15 @@ def run(
     pipeline : Pipeline
         Or a :class:`motionbase.commanding.CommandPipeline` (teleop, the wiring check),
         whose source yields commands instead of aircraft states.
-    source : iterable of AircraftState
-        Already entered (``with source:``). A source may expose ``fresh`` (bool) to
-        mark stale holds; ``paces_itself`` (bool), true when it hands its samples over
-        in real time itself (a live link, a ``--realtime`` flight); and ``due_time``,
-        when its last sample was due (s on :func:`time.monotonic`).
-    sinks : sequence
-        Objects with ``write(output)``, already entered. Sinks never wait: in a paced
-        run only this loop keeps time.
+    source : Source or iterable of AircraftState
+        Already entered (``with source:``). A source may mark stale holds (``fresh``,
+        :class:`~motionbase.io.base.StaleMarkingSource`) and hand its samples over in
+        real time itself (``paces_itself`` and ``due_time``,
+        :class:`~motionbase.io.base.SelfPacedSource`); a plain iterable is always fresh
+        and paced by this loop.
+    sinks : sequence of Sink
+        Sinks (:class:`~motionbase.io.base.Sink`), already entered. They never wait:
+        in a paced run only this loop keeps time.
     paced : bool
         Real-time run. Time comes from the wall clock, never from the samples' own
         times (a jump or a gap in them is the validation stage's business): unless the

@@ -55,8 +55,6 @@ AXES6 = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 #: Pipeline phases, in the order they occur.
 PHASES = ("starting", "running", "stopping", "parked")
 
-_STANDARD_GRAVITY = 9.80665
-
 
 @dataclass(frozen=True)
 class Report:

@@ -9,8 +9,9 @@ angles, :func:`limit_command` returns the next command so that
 * the acceleration ``|v_k - v_{k-1}| / dt`` never exceeds ``max_accel``;
 * a moving target is tracked without lag (its speed is fed forward) and the
   remaining error is closed no faster than the speed from which the actuator can
-  still stop in time (the exact discrete braking curve), so a limited actuator
-  converges to a fixed target without overshoot or oscillation;
+  still stop in time (the exact discrete braking curve,
+  :func:`motionbase.physics.brake_speed`), so a limited actuator converges to a fixed
+  target without overshoot or oscillation;
 * it never approaches an angle limit faster than it can stop before it.
 
 All angles in rad, speeds in rad/s, accelerations in rad/s^2, ``dt`` in s. Arrays
@@ -25,6 +26,12 @@ import numba
 import numpy as np
 
 from motionbase.config import as_float
+from motionbase.physics import (
+    MAX_ANGULAR_VELOCITY,
+    MAX_ATTITUDE,
+    MAX_SPECIFIC_FORCE,
+    brake_speed,
+)
 
 # Command status bits returned by limit_command.
 OK = 0
@@ -63,19 +70,14 @@ class ActuatorLimits:
         return cls(arr(lower), arr(upper), arr(max_speed), arr(max_accel))
 
 
-@numba.njit(cache=True, inline="always")
-def _brake_speed(dist, u, dt):
-    # Largest speed from which an actuator braking by u = a dt per tick still stops
-    # within `dist`: from v in [n u, (n + 1) u) it covers
-    # d(v) = dt ((n + 1) v - u n (n + 1) / 2) before standing still; invert d(v) = dist.
-    if dist <= 0.0:
-        return 0.0
-    n = np.floor((-1.0 + np.sqrt(1.0 + 8.0 * dist / (dt * u))) / 2.0)
-    return (dist / dt + u * n * (n + 1.0) / 2.0) / (n + 1.0)
-
-
 @numba.njit(cache=True)
-def _limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
+def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
+    """The compiled limiter: :func:`limit_command` on arrays, writing ``q_out`` and ``v_out``.
+
+    ``lower``, ``upper``, ``vmax``, ``amax`` are :class:`ActuatorLimits`'s arrays; returns
+    the status bits (``OK``, ``RATE_LIMITED``, ``UNSAFE_TARGET``). Called by
+    :func:`limit_command` and by the pipeline's limit stage (:mod:`motionbase.stages`).
+    """
     n = q_prev.shape[0]
     status = 0
     # 1. The target must be finite and inside the limits, or the whole vector is held.
@@ -94,10 +96,10 @@ def _limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, a
             vt = min(max((tgt - target_prev[i]) / dt, -vmax[i]), vmax[i])
         # error left after the feed-forward, closed no faster than the braking curve allows
         e = tgt - q_prev[i] - vt * dt
-        cap = _brake_speed(abs(e), u, dt)
+        cap = brake_speed(abs(e), u, dt)
         # never approach an angle limit faster than one can stop before it
-        v_hi = _brake_speed(upper[i] - q_prev[i], u, dt)
-        v_lo = -_brake_speed(q_prev[i] - lower[i], u, dt)
+        v_hi = brake_speed(upper[i] - q_prev[i], u, dt)
+        v_lo = -brake_speed(q_prev[i] - lower[i], u, dt)
         v_full = (tgt - q_prev[i]) / dt
         if (
             abs(e) / dt <= cap
@@ -159,7 +161,7 @@ def limit_command(
     """
     q = np.empty_like(q_prev)
     v = np.empty_like(q_prev)
-    status = _limit_kernel(
+    status = limit_kernel(
         q_prev,
         v_prev,
         target_prev,
@@ -189,9 +191,9 @@ class InputLimits:
         rad, on each Euler angle; default 10 (any wrapped angle is below 2 pi).
     """
 
-    max_specific_force: float = 150.0
-    max_angular_velocity: float = 20.0
-    max_attitude: float = 10.0
+    max_specific_force: float = MAX_SPECIFIC_FORCE
+    max_angular_velocity: float = MAX_ANGULAR_VELOCITY
+    max_attitude: float = MAX_ATTITUDE
 
     def __post_init__(self) -> None:
         # a NaN bound would let every sample through (no comparison with NaN is true)
@@ -223,7 +225,10 @@ INPUT_PROBLEMS = (
 
 
 @numba.njit(cache=True)
-def _input_code(t, last_t, f, w, att, max_f, max_w, max_att):
+def input_code(t, last_t, f, w, att, max_f, max_w, max_att):
+    """The compiled validation: the index in :data:`INPUT_PROBLEMS` of why a sample is
+    rejected (0 when it is usable); see :func:`input_problem` (``last_t`` is -inf before
+    the first tick). Called by it and by the pipeline's input stage."""
     if not np.isfinite(t):
         return 1
     if not (0.0 <= t <= MAX_SAMPLE_TIME_S):
@@ -263,7 +268,7 @@ def input_problem(
         Time of the previous tick, s (None before the first).
     limits : InputLimits
     """
-    code = _input_code(
+    code = input_code(
         float(t),
         -np.inf if last_t is None else float(last_t),
         specific_force,
@@ -274,12 +279,3 @@ def input_problem(
         limits.max_attitude,
     )
     return INPUT_PROBLEMS[code]
-
-
-def smoothstep(x: float) -> float:
-    """C1 ramp from 0 (x <= 0) to 1 (x >= 1): 3x^2 - 2x^3."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    return x * x * (3.0 - 2.0 * x)

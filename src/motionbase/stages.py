@@ -26,8 +26,9 @@ import numba
 import numpy as np
 from numba import types
 
+from motionbase.physics import smoothstep
 from motionbase.platform.robot import SOLVE_SIGNATURE
-from motionbase.safety import _input_code, _limit_kernel
+from motionbase.safety import input_code, limit_kernel
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
 
 #: Phases of the soft start and stop (``STATE.phase``), by code.
@@ -129,16 +130,6 @@ def reset_state(S: np.ndarray, P: np.ndarray, park_pose: np.ndarray) -> None:
     s["fade"] = 1.0
 
 
-@numba.njit(cache=True, inline="always")
-def smooth(x):  # pragma: no cover - compiled
-    """C1 ramp 3x^2 - 2x^3 from 0 (x <= 0) to 1 (x >= 1) (as safety.smoothstep)."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    return x * x * (3.0 - 2.0 * x)
-
-
 @numba.njit(cache=True)
 def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - compiled
     """Validation and the watchdog fade: this tick's sample to the cueing's input ``u``.
@@ -177,7 +168,7 @@ def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - co
     flags = 0
     accepted = False
     if present:
-        flags = _input_code(t, s.t if s.has_t else -np.inf, f, w, att, p.max_f, p.max_w, p.max_att)
+        flags = input_code(t, s.t if s.has_t else -np.inf, f, w, att, p.max_f, p.max_w, p.max_att)
         accepted = flags == 0
     if accepted:
         if s.has_t and t - s.t > p.stale_timeout:
@@ -209,7 +200,7 @@ def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - co
         for i in range(6):
             u[i] = s.sample[i]
     else:
-        sf = smooth(s.fade)
+        sf = smoothstep(s.fade)
         for i in range(6):
             u[i] = p.level[i] + sf * (s.sample[i] - p.level[i])
     return flags
@@ -232,7 +223,7 @@ def blend_stage(P, S, cue, target):  # pragma: no cover - compiled
             s.phase = RUNNING
     elif s.phase == STOPPING and not s.estop:
         s.blend = max(0.0, s.blend - p.blend_step)
-    b = smooth(s.blend)
+    b = smoothstep(s.blend)
     for i in range(6):
         target[i] = cue[i] if b >= 1.0 else p.park_cue[i] + b * (cue[i] - p.park_cue[i])
     return s.phase == STOPPING and b == 0.0
@@ -250,7 +241,7 @@ def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
     s = S[0]
     n = p.n
     v_new = np.empty(n)
-    status = _limit_kernel(
+    status = limit_kernel(
         s.q[:n],
         s.v[:n],
         s.wanted[:n],

@@ -1,8 +1,14 @@
-"""Plain value objects that cross module boundaries."""
+"""Plain value objects that cross module boundaries.
+
+:class:`AircraftState` is what a source yields, :class:`PipelineOutput` what the pipeline
+hands its sinks each tick; both live here so that the sources and sinks (:mod:`motionbase.io`)
+and the pipeline can name them without importing one another.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -81,3 +87,56 @@ class AircraftState:
         if self.angular_acceleration is not None:
             parts.append(self.angular_acceleration)
         return bool(np.isfinite(self.t) and all(np.isfinite(p).all() for p in parts))
+
+
+class PipelineOutput(NamedTuple):
+    """Everything one tick produced (what the sinks log and send); immutable.
+
+    Attributes
+    ----------
+    t : float
+        Time, s (source clock).
+    state : AircraftState or None
+        The sample the source gave this tick, as given (None on park ticks after
+        the source ended).
+    fresh : bool
+        False when the source marked the sample stale.
+    accepted : bool
+        False when validation rejected the sample (the last valid one was held).
+    washout_pose : ndarray, shape (6,)
+        The cueing's pose ``[x, y, z, roll, pitch, yaw]`` (m, rad), before the soft start
+        and clamping (a watchdog fade acts on its input).
+    platform_pose : ndarray, shape (m,)
+        The pose the actuators realise, in robot coordinates (6-DOF pose, or planar
+        ``[x, y, phi]``).
+    clamped : bool
+        The workspace clamp moved the pose.
+    angles : ndarray, shape (n,)
+        Actuator command in the robot's unit (rad for cranks and servos, m for linear
+        actuators); always finite and within limits.
+    servo_deg : ndarray of int, shape (n,), or None
+        Robots driven as hobby servos: the command in integer degrees.
+    rate_limited : bool
+        The safety stage's speed or acceleration limit changed the command.
+    held : bool
+        The safety stage replaced an unsafe command by the last safe one.
+    phase : str
+        ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
+    fade : float
+        Watchdog fade in [0, 1]: the share of the held sample's deviation from level
+        flight given to the cueing (1 = the aircraft's motion, 0 = level flight).
+    """
+
+    t: float
+    state: AircraftState | None
+    fresh: bool
+    accepted: bool
+    washout_pose: np.ndarray
+    platform_pose: np.ndarray
+    clamped: bool
+    angles: np.ndarray
+    servo_deg: np.ndarray | None
+    rate_limited: bool
+    held: bool
+    phase: str
+    fade: float

@@ -1,4 +1,4 @@
-"""The two small interfaces every I/O adapter implements.
+"""The interfaces every I/O adapter implements, and what the pipeline's loop reads of them.
 
 A *source* is a context manager and an iterator of
 :class:`~motionbase.state.AircraftState` at a nominal fixed rate::
@@ -7,16 +7,36 @@ A *source* is a context manager and an iterator of
         for state in source:
             ...
 
-A *sink* is a context manager with ``write(output)`` taking one
-:class:`~motionbase.pipeline.PipelineOutput`-like record per pipeline tick.
+:func:`motionbase.pipeline.run` takes an entered :class:`Source` (or, in tests, any
+iterable of states). Besides the states it reads two optional capabilities, each its own
+protocol so that a source declares it by having the attributes:
+
+* :class:`StaleMarkingSource`: ``fresh``, False while the state just yielded is a stale
+  hold (the pipeline's watchdog then fades the cue to level flight). A source without it
+  is always fresh.
+* :class:`SelfPacedSource`: ``paces_itself``, true when the source hands its states over
+  in real time by itself (a live link, a ``--realtime`` flight: the loop then does not
+  pace the ticks), and ``due_time``, when the state just yielded was due (s on
+  :func:`time.monotonic`), from which the loop counts late commands.
+
+The live links (MAVLink, FlightGear, X-Plane) have both: :class:`LiveSource`.
+
+A *sink* (:class:`Sink`) is a context manager with ``write(output)`` taking one
+:class:`~motionbase.state.PipelineOutput` per tick. It never waits (only the pipeline's
+loop keeps time), and what it returns is ignored by the loop.
+
+These are :func:`typing.runtime_checkable` protocols: ``isinstance(x, Source)`` checks
+that ``x`` has every member (not their types).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, Self, runtime_checkable
 
-from motionbase.state import AircraftState
+from motionbase.state import AircraftState, PipelineOutput
+
+__all__ = ["LiveSource", "SelfPacedSource", "Sink", "Source", "StaleMarkingSource"]
 
 
 @runtime_checkable
@@ -35,7 +55,7 @@ class Source(Protocol):
     rate_hz: float
     duration_s: float | None
 
-    def __enter__(self) -> Source: ...
+    def __enter__(self) -> Self: ...
 
     def __exit__(self, *exc: object) -> None: ...
 
@@ -47,11 +67,49 @@ class Source(Protocol):
 
 
 @runtime_checkable
-class Sink(Protocol):
-    """A consumer of pipeline outputs (MCAP log, serial link, UDP output)."""
+class StaleMarkingSource(Source, Protocol):
+    """A source that marks stale holds (read by the pipeline's loop after each state).
 
-    def __enter__(self) -> Sink: ...
+    Attributes
+    ----------
+    fresh : bool
+        False when the state just yielded is a hold older than the source's stale
+        timeout (or, for a recording, was recorded so).
+    """
+
+    fresh: bool
+
+
+@runtime_checkable
+class SelfPacedSource(Source, Protocol):
+    """A source that may hand its states over in real time by itself.
+
+    Attributes
+    ----------
+    paces_itself : bool
+        True when it does (the pipeline's loop then does not pace the ticks).
+    due_time : float or None
+        When the state just yielded was due, s on :func:`time.monotonic` (None when
+        not paced); the loop counts a command as late from it.
+    """
+
+    paces_itself: bool
+    due_time: float | None
+
+
+@runtime_checkable
+class LiveSource(StaleMarkingSource, SelfPacedSource, Protocol):
+    """A live link: marks stale holds and paces itself (MAVLink, FlightGear, X-Plane)."""
+
+
+@runtime_checkable
+class Sink(Protocol):
+    """A consumer of pipeline outputs (MCAP log, motor drives, servo serial link)."""
+
+    def __enter__(self) -> Self: ...
 
     def __exit__(self, *exc: object) -> None: ...
 
-    def write(self, output: Any) -> None: ...
+    def write(self, output: PipelineOutput) -> object:
+        """Take one tick's output; never waits. The return value is ignored by the loop."""
+        ...

@@ -40,9 +40,9 @@ Fields used, and the conversions at this edge:
 An unknown version is refused: its datagrams are counted as ``bad_data`` and
 one warning per distinct version number is logged (the run goes on: the
 watchdog holds the platform at neutral while nothing valid arrives). A datagram
-of the wrong size, or with a NaN, infinite or absurd value (specific force
-beyond 20 g, a body rate beyond 50 rad/s, an angle out of range), is rejected
-whole and counted.
+of the wrong size, or with a NaN, infinite or absurd value (a specific force or
+a body rate beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`:
+150 m/s^2, 20 rad/s; an angle out of range), is rejected whole and counted.
 """
 
 from __future__ import annotations
@@ -53,14 +53,16 @@ from typing import Any
 
 from motionbase.errors import ConfigError
 from motionbase.io.live_source import (
-    MAX_ANGULAR_RATE,
-    MAX_SPECIFIC_FORCE,
     UdpLiveSource,
     attitude_ok,
-    body_rates_from_euler_rates,
     finite_within,
     split_host_port,
     wrap_pi,
+)
+from motionbase.physics import (
+    MAX_ANGULAR_VELOCITY,
+    MAX_SPECIFIC_FORCE,
+    body_rates_from_euler_rates,
 )
 
 __all__ = ["FG_NET_FDM_SIZES", "FgNativeSource", "decode_fgnetfdm", "parse_fgnative_url"]
@@ -194,7 +196,7 @@ class FgNativeSource(UdpLiveSource):
             return
         if not (
             finite_within(values[0:3], MAX_SPECIFIC_FORCE)
-            and finite_within(values[3:6], MAX_ANGULAR_RATE)
+            and finite_within(values[3:6], MAX_ANGULAR_VELOCITY)
             and attitude_ok(*values[6:9])
         ):
             c["rejected_invalid"] += 1

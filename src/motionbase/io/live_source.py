@@ -43,19 +43,16 @@ from typing import Any, Self
 
 from motionbase.errors import ConfigError, SourceError
 from motionbase.pacing import wait_until
+from motionbase.physics import STANDARD_GRAVITY
 from motionbase.state import AircraftState
 
 __all__ = [
-    "G0",
-    "MAX_ANGULAR_RATE",
-    "MAX_SPECIFIC_FORCE",
     "LiveStats",
     "LiveTick",
     "SampleHoldSource",
     "TickStats",
     "UdpLiveSource",
     "attitude_ok",
-    "body_rates_from_euler_rates",
     "finite_within",
     "is_loopback",
     "positive_number",
@@ -65,12 +62,6 @@ __all__ = [
 
 _log = logging.getLogger("motionbase")
 
-G0 = 9.80665
-"""Standard gravity, m/s^2."""
-MAX_SPECIFIC_FORCE = 20.0 * G0
-"""Largest plausible specific-force component, m/s^2."""
-MAX_ANGULAR_RATE = 50.0
-"""Largest plausible body rate, rad/s (beyond a +-2000 deg/s gyro)."""
 _ANGLE_TOL = 1e-3  # rad, on the limits of roll, pitch and yaw
 
 _POLL_S = 1e-4  # busy-wait: how often the socket is polled between ticks, s
@@ -199,29 +190,6 @@ def split_host_port(text: str, what: str, example: str) -> tuple[str, int]:
             f"{what}: expected HOST:PORT with a port 0..65535, got {text!r} ({example})"
         )
     return host, int(port_s)
-
-
-def body_rates_from_euler_rates(
-    phi: float, theta: float, phidot: float, thetadot: float, psidot: float
-) -> tuple[float, float, float]:
-    """Body rates (p, q, r) from Z-Y-X Euler angle rates, rad/s.
-
-    The inverse of ``phidot = p + (q sin phi + r cos phi) tan theta``,
-    ``thetadot = q cos phi - r sin phi``, ``psidot = (q sin phi + r cos phi) / cos theta``.
-
-    Parameters
-    ----------
-    phi, theta : float
-        Roll and pitch, rad.
-    phidot, thetadot, psidot : float
-        Euler angle rates, rad/s.
-    """
-    sphi, cphi = math.sin(phi), math.cos(phi)
-    sth, cth = math.sin(theta), math.cos(theta)
-    p = phidot - psidot * sth
-    q = thetadot * cphi + psidot * sphi * cth
-    r = -thetadot * sphi + psidot * cphi * cth
-    return p, q, r
 
 
 def finite_within(values: Any, limit: float) -> bool:
@@ -354,7 +322,7 @@ class SampleHoldSource:
 
     def _reset_state(self) -> None:
         self._c: dict[str, int] = dict.fromkeys(self._COUNTERS, 0)
-        self._values = [0.0, 0.0, -G0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        self._values = [0.0, 0.0, -STANDARD_GRAVITY, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
         self._times = [-math.inf] * N_SLOTS  # arrival of each slot's value, source clock s
         self._new = False
         self._tick = _NOT_STARTED

@@ -48,7 +48,8 @@ Only messages from ``sysid`` (and ``compid`` when given) are used
 (``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter).
 With a signing key, unsigned and badly signed messages are rejected. Bytes that
 do not parse are counted as ``bad_data``. Values that are NaN, infinite or
-physically absurd are rejected and counted. Nothing rejected reaches the state.
+physically absurd (beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`)
+are rejected and counted. Nothing rejected reaches the state.
 
 MAVLink 2
 ---------
@@ -80,9 +81,6 @@ from pymavlink import DFReader, mavutil  # noqa: E402
 from motionbase.errors import ConfigError, SourceError  # noqa: E402
 from motionbase.io.live_source import (  # noqa: E402
     ATT_SLOTS,
-    G0,
-    MAX_ANGULAR_RATE,
-    MAX_SPECIFIC_FORCE,
     LiveTick,
     SampleHoldSource,
     TickStats,
@@ -94,6 +92,12 @@ from motionbase.io.live_source import (  # noqa: E402
 )
 from motionbase.io.net_address import check_host_port  # noqa: E402
 from motionbase.pacing import wait_until  # noqa: E402
+from motionbase.physics import (  # noqa: E402
+    MAX_ANGULAR_VELOCITY,
+    MAX_SPECIFIC_FORCE,
+    STANDARD_GRAVITY,
+    euler_zyx_from_quaternion,
+)
 from motionbase.state import AircraftState  # noqa: E402
 
 if getattr(mavutil.mavlink, "WIRE_PROTOCOL_VERSION", "1.0") != "2.0":  # imported earlier as v1
@@ -103,7 +107,7 @@ __all__ = ["MavlinkSource", "MavlinkStats", "MavlinkTick", "load_signing_key"]
 
 _log = logging.getLogger("motionbase")
 
-MG_TO_MS2 = G0 * 1e-3
+MG_TO_MS2 = STANDARD_GRAVITY * 1e-3
 """One milli-g in m/s^2."""
 MRAD_TO_RAD = 1e-3
 
@@ -307,14 +311,10 @@ def _is_log_url(url: str) -> bool:
 
 
 def _quat_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float] | None:
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if not (0.9 <= n <= 1.1):  # also rejects NaN
+    """Euler angles of MAVLink's ``q1..q4`` (w, x, y, z), or None unless about unit length."""
+    if not (0.9 <= math.sqrt(w * w + x * x + y * y + z * z) <= 1.1):  # also rejects NaN
         return None
-    w, x, y, z = w / n, x / n, y / n, z / n
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
+    return euler_zyx_from_quaternion(x, y, z, w)
 
 
 class _VehicleClock:
@@ -802,7 +802,9 @@ class MavlinkSource(SampleHoldSource):
 
     def _store_imu(self, acc: tuple[float, ...], gyr: tuple[float, ...], arrival: float) -> bool:
         """Specific force (m/s^2) and body rates (rad/s) into the state, or count them invalid."""
-        if not (finite_within(acc, MAX_SPECIFIC_FORCE) and finite_within(gyr, MAX_ANGULAR_RATE)):
+        if not (
+            finite_within(acc, MAX_SPECIFIC_FORCE) and finite_within(gyr, MAX_ANGULAR_VELOCITY)
+        ):
             self._c["rejected_invalid"] += 1
             return False
         self._store(0, (*acc, *gyr), arrival)

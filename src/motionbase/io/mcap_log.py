@@ -63,6 +63,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
+from motionbase.physics import quaternion_from_euler_zyx
 
 log = logging.getLogger("motionbase")
 
@@ -137,31 +138,6 @@ def encode_message(message: Mapping[str, Any]) -> bytes:
     if b"null" in data:
         return _SAFE_ENCODER.encode(json_safe(message)).encode()
     return data
-
-
-def quaternion_from_euler_zyx(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
-    """Unit quaternion ``(x, y, z, w)`` of R = Rz(yaw) Ry(pitch) Rx(roll).
-
-    Parameters
-    ----------
-    roll, pitch, yaw : float
-        Z-Y-X Euler angles, rad.
-
-    Returns
-    -------
-    tuple of 4 floats
-        ``(x, y, z, w)``, the rotation that maps child-frame vectors to the
-        parent frame, with ``w >= 0`` for small angles.
-    """
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
 
 
 def transform_message(

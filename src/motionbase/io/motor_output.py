@@ -94,6 +94,7 @@ from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_
 from motionbase.platform.output_map import OutputMapping
 from motionbase.platform.robot import Robot
 from motionbase.safety import RATE_LIMITED, ActuatorLimits, limit_command
+from motionbase.state import PipelineOutput
 
 __all__ = [
     "BinaryFormat",
@@ -768,7 +769,7 @@ class MotorOutput:
         self.close()
 
     # -- the pipeline side ------------------------------------------------------------------
-    def write(self, output: Any) -> bool:
+    def write(self, output: PipelineOutput | np.ndarray) -> bool:
         """Offer the latest safe command; returns False when it was held (never sent).
 
         Never waits: the pipeline's loop keeps time, the sender thread sends.

@@ -31,6 +31,7 @@ from typing import Any
 from motionbase.errors import SinkError
 from motionbase.io.mcap_log import LiveAddress, McapLogger
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
+from motionbase.state import PipelineOutput
 
 
 def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any]:
@@ -155,8 +156,8 @@ class PipelineLog:
         finally:
             logger.finish()
 
-    def write(self, out) -> None:
-        """Log one :class:`~motionbase.pipeline.PipelineOutput`."""
+    def write(self, out: PipelineOutput) -> None:
+        """Log one :class:`~motionbase.state.PipelineOutput`."""
         logger = self._logger
         if logger is None:
             raise SinkError(f"{self.path}: the pipeline log is closed")
@@ -173,7 +174,7 @@ class PipelineLog:
             logger.add("/health", t, {"t": t, **self._health()})
             self._next_health_t = t + 1.0
 
-    def _write_scene(self, logger: McapLogger, out) -> None:
+    def _write_scene(self, logger: McapLogger, out: PipelineOutput) -> None:
         assert self._scene is not None
         t = out.t
         msg = self._scene.message(t, out.platform_pose, out.angles, out.clamped)

@@ -21,6 +21,7 @@ import serial
 
 from motionbase.errors import SinkError
 from motionbase.io.servo_protocol import encode
+from motionbase.state import PipelineOutput
 
 __all__ = ["ServoSerialSink", "READY_LINE", "SERIAL_ERRORS", "open_serial_port", "close_quietly"]
 
@@ -176,7 +177,7 @@ class ServoSerialSink:
         self.close()
 
     # -- writing ----------------------------------------------------------------------------
-    def write(self, output: Any, t: float | None = None) -> bool:
+    def write(self, output: PipelineOutput | Sequence[int], t: float | None = None) -> bool:
         """Offer the current servo command; returns True when a frame went out.
 
         Parameters

@@ -68,9 +68,9 @@ DATA (legacy: Settings > Data Output, "Network via UDP" ticked for the rows belo
 
 While RREF values are fresh, DATA values for the same quantities are ignored
 (one stream at a time, not two interleaved). Datagrams from another host than
-HOST are refused (counted). A value that is NaN, infinite or absurd (beyond
-20 g, 50 rad/s, an angle out of range) is rejected and counted; the rest of its
-datagram is still used.
+HOST are refused (counted). A value that is NaN, infinite or absurd (beyond the
+pipeline's plausibility bounds, :mod:`motionbase.physics`: 150 m/s^2, 20 rad/s; an
+angle out of range) is rejected and counted; the rest of its datagram is still used.
 """
 
 from __future__ import annotations
@@ -85,9 +85,6 @@ from urllib.parse import parse_qs
 
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.live_source import (
-    G0,
-    MAX_ANGULAR_RATE,
-    MAX_SPECIFIC_FORCE,
     UdpLiveSource,
     attitude_ok,
     finite_within,
@@ -95,6 +92,7 @@ from motionbase.io.live_source import (
     split_host_port,
     wrap_pi,
 )
+from motionbase.physics import MAX_ANGULAR_VELOCITY, MAX_SPECIFIC_FORCE, STANDARD_GRAVITY
 
 __all__ = ["DATAREFS", "DEFAULT_LISTEN_PORT", "XPlaneSource", "parse_xplane_url"]
 
@@ -126,7 +124,7 @@ _RESUBSCRIBE_S = 1.0  # RREF silence before subscribing again, s
 _SILENT_WARN_S = 3.0  # silence after the first subscription before one warning, s
 _RAD = math.pi / 180.0
 
-_G_SCALE = -G0  # g-load (X-Plane sign) -> specific force FRD, m/s^2
+_G_SCALE = -STANDARD_GRAVITY  # g-load (X-Plane sign) -> specific force FRD, m/s^2
 
 
 def parse_xplane_url(url: str) -> tuple[str, int, str, int, int | None]:
@@ -390,7 +388,7 @@ class XPlaneSource(UdpLiveSource):
             return f if -MAX_SPECIFIC_FORCE <= f <= MAX_SPECIFIC_FORCE else None
         if slot < 6:
             w = value * _RAD
-            return w if -MAX_ANGULAR_RATE <= w <= MAX_ANGULAR_RATE else None
+            return w if -MAX_ANGULAR_VELOCITY <= w <= MAX_ANGULAR_VELOCITY else None
         a = value * _RAD
         if slot == 6:
             ok = attitude_ok(a, 0.0, 0.0)
@@ -426,7 +424,7 @@ class XPlaneSource(UdpLiveSource):
                 else:
                     values = (v[1], v[0], v[2])  # X-Plane 11: Q, P, R in rad/s
                 first = 3
-                ok = finite_within(values, MAX_ANGULAR_RATE)
+                ok = finite_within(values, MAX_ANGULAR_VELOCITY)
             elif group == 17:
                 first = 6
                 values = (v[1] * _RAD, v[0] * _RAD, v[2] * _RAD)  # roll, pitch, heading

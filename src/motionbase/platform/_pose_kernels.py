@@ -4,8 +4,8 @@ Compiled (numba) pieces: the Z-Y-X rotation :func:`rotation` (and :func:`rotatio
 its nine entries as scalars for kernels that keep them in registers), the angle wrap
 :func:`wrap` and the 6x6 linear solver :func:`solve6`. Python pieces: the argument checks
 and batch plumbing every 6-DOF kinematics class uses (:func:`as_poses`, :func:`run_inverse`,
-:func:`run_reachable`, :func:`run_clamp`, :func:`run_forward`) and the numpy
-:func:`rotation_matrix`.
+:func:`run_reachable`, :func:`run_clamp`, :func:`run_forward`). The numpy rotation matrix
+is :func:`motionbase.physics.rotation_matrix`.
 
 Conventions (DESIGN.md): a pose is ``[x, y, z, roll, pitch, yaw]`` (m, rad; FRD base axes)
 and ``R = Rz(yaw) Ry(pitch) Rx(roll)`` maps platform-frame vectors to base axes.
@@ -30,7 +30,6 @@ from motionbase.errors import ConfigError
 __all__ = [
     "as_poses",
     "rotation",
-    "rotation_matrix",
     "rotation_terms",
     "run_clamp",
     "run_forward",
@@ -113,29 +112,6 @@ def solve6(A, b, x):
             s -= A[r, j] * x[j]
         x[r] = s / A[r, r]
     return True
-
-
-# --------------------------------------------------------------------------- numpy
-
-
-def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
-    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` for Euler angles ``(..., 3)`` -> ``(..., 3, 3)``."""
-    a = np.asarray(rpy, dtype=np.float64)
-    with np.errstate(invalid="ignore"):  # inf -> NaN entries, quietly
-        cr, sr = np.cos(a[..., 0]), np.sin(a[..., 0])
-        cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
-        cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
-    R = np.empty(a.shape[:-1] + (3, 3))
-    R[..., 0, 0] = cy * cp
-    R[..., 0, 1] = cy * sp * sr - sy * cr
-    R[..., 0, 2] = cy * sp * cr + sy * sr
-    R[..., 1, 0] = sy * cp
-    R[..., 1, 1] = sy * sp * sr + cy * cr
-    R[..., 1, 2] = sy * sp * cr - cy * sr
-    R[..., 2, 0] = -sp
-    R[..., 2, 1] = cp * sr
-    R[..., 2, 2] = cp * cr
-    return R
 
 
 # --------------------------------------------------------------------------- batch plumbing

@@ -26,10 +26,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
+from motionbase.physics import rotation_matrix
 from motionbase.platform import _rus6_kernels as _k
 from motionbase.platform._pose_kernels import (
     as_poses,
-    rotation_matrix,
     run_clamp,
     run_forward,
     run_inverse,

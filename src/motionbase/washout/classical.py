@@ -104,7 +104,7 @@ import numba
 import numpy as np
 
 from motionbase.errors import MotionbaseError
-from motionbase.safety import _brake_speed
+from motionbase.physics import brake_speed
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE, Cueing
 from motionbase.washout.filters import (
     discretise,
@@ -160,12 +160,12 @@ def _clip(x: float, lo: float, hi: float) -> float:
 def _glide_speed(dist, u, dt, k):  # pragma: no cover - compiled
     """Largest tilt speed at ``dist`` from where it must stop (rad, rad/s).
 
-    The lower of the discrete braking curve of :mod:`motionbase.safety` (stop in time
+    The lower of the discrete braking curve (:func:`motionbase.physics.brake_speed`, stop in time
     braking by ``u`` per tick) and the glide ``k dist + u`` (``k = a/v_max``): the
     deceleration is proportional to the speed (time constant ``1/k``), equal to the
     acceleration limit only at the rate limit, so the tilt eases onto a stop.
     """
-    return min(_brake_speed(dist, u, dt), k * dist + _GLIDE_END * u)
+    return min(brake_speed(dist, u, dt), k * dist + _GLIDE_END * u)
 
 
 @numba.njit(cache=True, inline="always")
@@ -173,7 +173,7 @@ def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
     """Tilt axis ``i`` one tick toward ``tgt`` (within +-lim); returns the new tilt.
 
     Rate, acceleration and angle limits with the braking curve of
-    :func:`motionbase.safety._limit_kernel` (module docstring, "Tilt tracker").
+    the safety limiter (:func:`motionbase.safety.limit_kernel`; module docstring, "Tilt tracker").
     """
     dt = cf[_DT]
     lim = cf[_TLIM]

@@ -61,9 +61,9 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
+from motionbase.physics import STANDARD_GRAVITY
 from motionbase.washout.filters import METHODS
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
 #: Tilt acceleration limit when a file does not give one, deg/s^2. With the 3 deg/s rate
 #: limit the tilt rate builds up in 0.375 s and glides onto the angle limit with that time
 #: constant (braking starts about 1.1 deg before it); the linear tilt path needs at most

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from motionbase.errors import MotionbaseError
+from motionbase.physics import STANDARD_GRAVITY, body_rates_from_euler_rates, rotation_matrix
 from motionbase.washout.filters import tustin_tf
-from motionbase.washout.params import STANDARD_GRAVITY
 
 __all__ = [
     "CANAL_TAU_L",
@@ -204,23 +204,6 @@ def perceived_angular_velocity(w: np.ndarray, dt: float, *, initial: str = "stea
 # --- platform motion in cab axes -----------------------------------------------------------
 
 
-def _rotation(angles: np.ndarray) -> np.ndarray:
-    """Z-Y-X rotation matrices (N, 3, 3) mapping platform-frame vectors to base axes."""
-    r, p, y = angles[:, 0], angles[:, 1], angles[:, 2]
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    m = np.empty((angles.shape[0], 3, 3))
-    m[:, 0, 0] = cy * cp
-    m[:, 0, 1] = cy * sp * sr - sy * cr
-    m[:, 0, 2] = cy * sp * cr + sy * sr
-    m[:, 1, 0] = sy * cp
-    m[:, 1, 1] = sy * sp * sr + cy * cr
-    m[:, 1, 2] = sy * sp * cr - cy * sr
-    m[:, 2, 0] = -sp
-    m[:, 2, 1] = cp * sr
-    m[:, 2, 2] = cp * cr
-    return m
-
-
 def _second_difference(x: np.ndarray, dt: float) -> np.ndarray:
     acc = np.zeros_like(x)
     if x.shape[0] >= 3:
@@ -249,7 +232,7 @@ def platform_specific_force(pose: np.ndarray, dt: float, g: float = STANDARD_GRA
     """
     pose = _check(pose, "platform pose", 6)
     acc = _second_difference(pose[:, :3], dt) - np.array([0.0, 0.0, g])
-    return np.einsum("nji,nj->ni", _rotation(pose[:, 3:]), acc)
+    return np.einsum("nji,nj->ni", rotation_matrix(pose[:, 3:]), acc)
 
 
 def platform_angular_velocity(pose: np.ndarray, dt: float) -> np.ndarray:
@@ -259,12 +242,9 @@ def platform_angular_velocity(pose: np.ndarray, dt: float) -> np.ndarray:
     if ang.shape[0] < 2:
         return np.zeros((ang.shape[0], 3))
     rate = np.gradient(ang, dt, axis=0)
-    phi, th = ang[:, 0], ang[:, 1]
-    sphi, cphi, sth, cth = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
-    p = rate[:, 0] - sth * rate[:, 2]
-    q = cphi * rate[:, 1] + sphi * cth * rate[:, 2]
-    r = -sphi * rate[:, 1] + cphi * cth * rate[:, 2]
-    return np.column_stack([p, q, r])
+    return np.column_stack(
+        body_rates_from_euler_rates(ang[:, 0], ang[:, 1], rate[:, 0], rate[:, 1], rate[:, 2])
+    )
 
 
 # --- metrics -------------------------------------------------------------------------------
