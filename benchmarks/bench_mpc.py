@@ -54,7 +54,9 @@ def score_set(problem: tuning.TuningProblem, cueing: str, params, preview: bool 
             pipe.cueing.set_preview(m.specific_force, m.angular_velocity)
         if cueing == "mpc":
             before = pipe.cueing.counts["fallbacks"]
-        r = pipe.run_batch(*(np.array(a) for a in (m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh)))
+        r = pipe.run_batch(
+            *(np.array(a) for a in (m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh))
+        )
         if cueing == "mpc":
             fallbacks += pipe.cueing.counts["fallbacks"] - before
         run = tuning.ChainRun(
@@ -116,7 +118,7 @@ def _table(title: str, rows: list[tuple[str, tuning.SetScore, int | None]]) -> N
         f"{'ang deg/s':>11}{'false %':>9}{'clamped %':>11}{'crank %':>9}"
     )
     for i, name in enumerate([*names, "total (mean)"]):
-        for label, s, fb in rows:
+        for label, s, _fb in rows:
             sc = s if i == len(names) else s.scores[i]
             axes = (
                 np.mean([x.rmse_specific_force for x in s.scores], 0)
@@ -205,12 +207,16 @@ def main() -> None:
         base = rows[1][1]
         for label, s, _ in rows[2:]:
             goals = (
-                ("sf RMSE -15 % vs tuned", s.error_specific_force <= 0.85 * base.error_specific_force),
+                (
+                    "sf RMSE -15 % vs tuned",
+                    s.error_specific_force <= 0.85 * base.error_specific_force,
+                ),
                 ("angular no worse", s.error_angular_velocity <= base.error_angular_velocity),
                 ("false cues no more", s.false_cue_share <= base.false_cue_share),
             )
+            sf = _pct(base.error_specific_force, s.error_specific_force)
             print(
-                f"  {label} vs classical tuned: sf {_pct(base.error_specific_force, s.error_specific_force)}, "
+                f"  {label} vs classical tuned: sf {sf}, "
                 f"angular {_pct(base.error_angular_velocity, s.error_angular_velocity)}; "
                 + ", ".join(f"{n}: {'met' if ok else 'NOT met'}" for n, ok in goals)
             )

@@ -35,11 +35,13 @@ acceleration is applied for one tick and the problem solved again the next tick.
       + sum_k |W_j (a_k - a_{k-1})|^2 / h_k
 
 (jerk ``a_{-1}``: the acceleration applied last tick). Constraints at every step: the pose
-box and the pose rates (total roll and pitch), the tilt's angle and rate (the perception
-thresholds), the pose and tilt accelerations; at the last step every rate is zero (the
-platform can stop inside its limits within the horizon: the braking constraint). The
-Hessian and the constraint matrix do not change from tick to tick; the linear term and
-the bounds do, so OSQP factorises once and each tick is a warm-started solve.
+box and the pose rates (total roll and pitch); the pose half a step ahead at its rate
+(``p + v step_s / 2`` in the box: a glide onto a bound, never across it between grid
+points); the tilt's angle and rate (the perception thresholds); the pose and tilt
+accelerations. At the last step every rate is zero to within a tick's worth of
+acceleration (the platform can stop inside its limits within the horizon: the braking
+constraint). The Hessian and the constraint matrix do not change from tick to tick; the
+linear term and the bounds do, so OSQP factorises once and each tick is a warm-started solve.
 
 The reference over the horizon
 ------------------------------
@@ -70,6 +72,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+
 import numpy as np
 import scipy.linalg
 import scipy.signal
@@ -242,18 +245,30 @@ def build_model(params: MpcParams, dt: float) -> MpcModel:
     # -- constraints: per step, on the states: total pose (6), total rates (6), tilt angle
     # (2), tilt rate (2); at the last step: every rate = 0; on the inputs: total pose
     # accelerations (6), tilt accelerations (2)
-    S = np.zeros((16, NX))
+    S = np.zeros((22, NX))
+    tau = 0.5 * params.step_s
     for d in range(ND):
         S[_POSE_OF[d], d] = 1.0
         S[6 + _POSE_OF[d], ND + d] = 1.0
+        # the pose a half step ahead at this rate stays in the box too: the platform glides
+        # onto a bound instead of crossing it between two points of the grid (and the next
+        # tick's problem stays feasible)
+        S[16 + _POSE_OF[d], d] = 1.0
+        S[16 + _POSE_OF[d], ND + d] = tau
     S[12, 3] = S[13, 4] = 1.0
     S[14, ND + 3] = S[15, ND + 4] = 1.0
     tilt = params.tilt_limits
     box_hi = np.concatenate(
-        [params.pose_upper, params.velocity_limit, [tilt[0]] * 2, [tilt[1]] * 2]
+        [params.pose_upper, params.velocity_limit, [tilt[0]] * 2, [tilt[1]] * 2, params.pose_upper]
     )
     box_lo = np.concatenate(
-        [params.pose_lower, -params.velocity_limit, [-tilt[0]] * 2, [-tilt[1]] * 2]
+        [
+            params.pose_lower,
+            -params.velocity_limit,
+            [-tilt[0]] * 2,
+            [-tilt[1]] * 2,
+            params.pose_lower,
+        ]
     )
     Sbar = scipy.linalg.block_diag(*[S] * N)
     term = np.zeros((ND, N * NX))
@@ -266,8 +281,12 @@ def build_model(params: MpcParams, dt: float) -> MpcModel:
     A_con = np.vstack([Sbar @ Gam, term @ Gam, scipy.linalg.block_diag(*[Su] * N)])
     Sz = np.vstack([Sbar @ Phi, term @ Phi, np.zeros((8 * N, NX))])
     # the exogenous inputs do not move the platform's states: Sbar @ Lam is zero
-    lo = np.concatenate([np.tile(box_lo, N), np.zeros(ND), np.tile(-acc_hi, N)])
-    hi = np.concatenate([np.tile(box_hi, N), np.zeros(ND), np.tile(acc_hi, N)])
+    # the terminal rates: at rest, within a tick's worth of the accelerations (the plans
+    # of successive ticks sit on grids shifted by one tick: an exact zero made a shifted
+    # plan infeasible now and then)
+    v_end = dt * acc_hi[[0, 1, 2, 6, 7, 3, 4, 5]]
+    lo = np.concatenate([np.tile(box_lo, N), -v_end, np.tile(-acc_hi, N)])
+    hi = np.concatenate([np.tile(box_hi, N), v_end, np.tile(acc_hi, N)])
     Ad, Bd, Ed = disc[0]
     return MpcModel(A, B, E, C, h, Ad, Bd, Ed, Phi, Gam, Lam, P, Fz, Fd, Fu, A_con, Sz, lo, hi)
 
@@ -336,6 +355,7 @@ class MpcCueing(Cueing):
         self._N = N
         self._Fd_hold = m.Fd @ np.tile(np.eye(NE), (N, 1))
         self._offsets = np.concatenate([[0.0], np.cumsum(m.h[:-1])])
+        budget = {"time_limit": params.time_limit_ms * 1e-3} if params.time_limit_ms > 0 else {}
         self._solver = osqp.OSQP()
         self._solver.setup(
             sp.triu(sp.csc_matrix(m.P), format="csc"),
@@ -347,7 +367,7 @@ class MpcCueing(Cueing):
             warm_starting=True,
             polishing=False,
             max_iter=params.max_iter,
-            time_limit=params.time_limit_ms * 1e-3,
+            **budget,
             eps_abs=params.eps_abs,
             eps_rel=params.eps_rel,
             check_termination=5,
@@ -416,10 +436,13 @@ class MpcCueing(Cueing):
         tot = np.zeros(12)
         np.add.at(tot, np.concatenate([_POSE_OF, 6 + _POSE_OF]), z[: 2 * ND])
         over = np.clip(tot, self._lo_box, self._hi_box) - tot
-        if over.any():
+        if over[:6].any():
             for k in range(6):
-                if over[k]:
+                if over[k]:  # onto the box, and the rates of this axis going out stop
                     z[_rot_dof(k)] += over[k]
+                    for j in np.flatnonzero(_POSE_OF == k):
+                        if z[ND + j] * over[k] < 0.0:
+                            z[ND + j] = 0.0
         self._a_prev = a0
         self._mpc_pose[:] = _pose_of(z)
         wgt = _smoothstep(self._blend)
@@ -450,7 +473,7 @@ class MpcCueing(Cueing):
             q = m.Fz @ z + m.Fd @ self._reference(d) + m.Fu @ self._a_prev
         s = m.Sz @ z
         self._solver.update(q=q, l=m.lo - s, u=m.hi - s)
-        res = self._solver.solve()
+        res = self._solver.solve(raise_error=False)
         dt_solve = time.perf_counter() - t0
         status = res.info.status
         info = self.info

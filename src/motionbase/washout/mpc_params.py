@@ -333,8 +333,9 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         value = d[section][key]
         if integer:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ConfigError(f"{source}: field {where!r}: expected a whole number >= 1, "
-                                  f"got {value!r}")
+                raise ConfigError(
+                    f"{source}: field {where!r}: expected a whole number >= 1, got {value!r}"
+                )
             out[name] = int(value)
             continue
         if length:
@@ -424,5 +425,3 @@ def limits_from_robot(
         "acceleration_m_s2": r(acc[:3], False),
         "angular_acceleration_deg_s2": r(acc[3:], True),
     }
-
-
