@@ -167,6 +167,14 @@ CUEINGS: dict[str, CueingSpec] = {
         preset_kind="washout",
         description="classical washout (Reid & Nahon), tilt coordination",
     ),
+    "mpc": CueingSpec(
+        "mpc",
+        "motionbase.washout.mpc:MpcCueing",
+        "motionbase.washout.mpc_params:MpcParams",
+        preset_kind="mpc",
+        default_preset="ceart",
+        description="model-predictive cueing (vestibular models, platform limits; OSQP)",
+    ),
 }
 
 

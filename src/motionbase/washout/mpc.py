@@ -1,0 +1,548 @@
+"""Model-predictive motion cueing (``--cueing mpc``): the platform's motion optimised over a
+horizon with the vestibular models in the prediction, inside the platform's limits.
+
+The model (linear, small angles)
+--------------------------------
+Eight double integrators, driven by their accelerations ``a`` (the QP's variables):
+surge ``x``, sway ``y``, heave ``z``, the *tilt* of roll and pitch ``phi_t, theta_t``, the
+*rotational* part of roll and pitch ``phi_r, theta_r`` and yaw ``psi``. The pose sent is
+``[x, y, z, phi_t + phi_r, theta_t + theta_r, psi]`` (m, rad, base axes FRD). Its specific
+force in cab axes, linearised (``R^T (p'' - (0, 0, g))`` of
+:mod:`motionbase.washout.perception` at small angles), as a deviation from level flight::
+
+    f = (x'' + g theta,  y'' - g phi,  z'')
+
+and its body rates ``(phi', theta', psi')``. Tilt coordination is not a filter here: a
+sustained ``f_x`` is cheapest to render by ``g theta``, and the optimiser finds it.
+
+The error states: the otolith (normalised, DC gain 1) and semicircular-canal transfer
+functions of :mod:`motionbase.washout.perception` (:func:`~.perception.otolith_tf`,
+:func:`~.perception.canal_tf`, per axis) realised in state space and driven by the
+platform's signal *minus the aircraft's*; being linear, their outputs are the perceived
+platform motion minus the perceived aircraft motion, the errors the tuner scores. State
+(31): 8 positions, 8 rates, 3 x 2 otolith states, 3 x 3 canal states; exogenous input: the
+aircraft's specific-force deviation ``f - (0, 0, -g)`` and body rates (6).
+
+The prediction (condensed QP)
+-----------------------------
+``N`` steps, the first one tick (``dt``) long, the others ``step_s`` (the horizon is
+``dt + (N - 1) step_s``); the accelerations are held over each step and the model is
+discretised exactly (zero-order hold, :func:`scipy.linalg.expm`). The first step's
+acceleration is applied for one tick and the problem solved again the next tick. Cost
+(each term times its step's length, so it approximates an integral)::
+
+    sum_k h_k ( |W_f e_f|^2 + |W_w e_w|^2 + |W_p p|^2 + |W_v v|^2 + |W_a a|^2 )
+      + sum_k |W_j (a_k - a_{k-1})|^2 / h_k
+
+(jerk ``a_{-1}``: the acceleration applied last tick). Constraints at every step: the pose
+box and the pose rates (total roll and pitch); the pose half a step ahead at its rate
+(``p + v step_s / 2`` in the box: a glide onto a bound, never across it between grid
+points); the tilt's angle and rate (the perception thresholds); the pose and tilt
+accelerations. At the last step every rate is zero to within a tick's worth of
+acceleration (the platform can stop inside its limits within the horizon: the braking
+constraint). The Hessian and the constraint matrix do not change from tick to tick; the
+linear term and the bounds do, so OSQP factorises once and each tick is a warm-started solve.
+
+The reference over the horizon
+------------------------------
+The reference is the aircraft's specific-force deviation from level flight and its body
+rates, each limited and scaled per axis (``[reference]``: a force no platform renders
+would otherwise hold the platform at its limit for a gain too small to feel). Real-time
+mode (the default): the current sample, held over the horizon.
+Preview mode (offline, :meth:`MpcCueing.set_preview`): the recorded future of the
+reference, sample ``k + round(tau / dt)`` for a step starting ``tau`` s ahead.
+
+Failure and lateness
+--------------------
+The solver has ``max_iter`` iterations and ``time_limit_ms`` per tick. A classical washout
+(``solver.fallback``) runs alongside every tick. When OSQP does not return *solved* (or
+*solved inaccurate*), the MPC follows the rest of its last plan (feasible by construction)
+and the pose sent blends toward the fallback's, with a smoothstep over ``blend_s``; when
+it solves again the pose blends back. :attr:`MpcCueing.info` holds the last tick's solver
+status, iterations and solve time; :attr:`MpcCueing.counts` the ticks solved and fallen
+back.
+
+Anti-windup: :meth:`MpcCueing.track` moves the model's pose to the one the platform got
+(roll and pitch differences into the rotational part), stops the rates pointing further
+out, and tells the fallback washout the same.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+import scipy.sparse as sp
+
+from motionbase.washout.cueing import Cueing
+from motionbase.washout.mpc_params import MpcParams
+from motionbase.washout.perception import CANAL_TAU_L, OTOLITH_K, canal_tf, otolith_tf
+
+__all__ = ["MpcCueing", "MpcInfo", "MpcModel", "build_model"]
+
+#: The eight double integrators, in state order.
+DOFS = ("x", "y", "z", "roll_tilt", "pitch_tilt", "roll_rot", "pitch_rot", "yaw")
+ND = 8  # dofs
+NU = 8  # inputs: their accelerations
+NX = 31  # states
+NE = 6  # exogenous: aircraft f deviation (3), body rates (3)
+_OTO = 16  # first otolith state
+_CAN = 22  # first canal state
+#: Pose axis of each dof, and the tilt dofs.
+_POSE_OF = np.array([0, 1, 2, 3, 4, 3, 4, 5])
+_TILT = (3, 4)
+#: Statuses whose solution is used.
+_OK = ("solved", "solved inaccurate")
+
+
+@dataclass(frozen=True)
+class MpcModel:
+    """The continuous model and the condensed prediction of one configuration.
+
+    Attributes
+    ----------
+    A, B, E, C : ndarray
+        Continuous model ``z' = A z + B a + E d``, error outputs ``e = C z`` (6: perceived
+        specific force x y z, m/s^2; perceived angular velocity roll pitch yaw, rad/s).
+    h : ndarray, shape (N,)
+        Step lengths, s.
+    Ad, Bd, Ed : ndarray
+        Discrete model of one tick (the first step).
+    Phi, Gam, Lam : ndarray
+        Condensed prediction: the states at steps 1..N, stacked, ``Z = Phi z0 + Gam U +
+        Lam D`` (U: accelerations of steps 0..N-1; D: exogenous inputs per step).
+    P : ndarray
+        Hessian of the cost in U (dense, symmetric).
+    Fz, Fd, Fu : ndarray
+        Linear term ``q = Fz z0 + Fd D + Fu a_prev``.
+    A_con : ndarray
+        Constraint rows in U; their bounds are ``lo - S z0`` and ``hi - S z0`` with ``S =
+        Sz`` (:attr:`lo`, :attr:`hi`).
+    Sz : ndarray
+        Free response of the constrained quantities.
+    lo, hi : ndarray
+        Their bounds.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    C: np.ndarray
+    h: np.ndarray
+    Ad: np.ndarray
+    Bd: np.ndarray
+    Ed: np.ndarray
+    Phi: np.ndarray
+    Gam: np.ndarray
+    Lam: np.ndarray
+    P: np.ndarray
+    Fz: np.ndarray
+    Fd: np.ndarray
+    Fu: np.ndarray
+    A_con: np.ndarray
+    Sz: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        return len(self.h)
+
+
+def _continuous(g: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    A = np.zeros((NX, NX))
+    B = np.zeros((NX, NU))
+    E = np.zeros((NX, NE))
+    C = np.zeros((6, NX))
+    A[:ND, ND : 2 * ND] = np.eye(ND)
+    B[ND : 2 * ND, :] = np.eye(NU)
+    num, den = otolith_tf()
+    ao, bo, co, _ = scipy.signal.tf2ss(num / OTOLITH_K, den)
+    for i in range(3):
+        s = slice(_OTO + 2 * i, _OTO + 2 * i + 2)
+        A[s, s] = ao
+        b = bo[:, 0]
+        # the signal: a_i (+ g theta for x, - g phi for y) - aircraft f_i
+        B[s, i] += b
+        if i == 0:
+            A[s, 4] += g * b  # pitch tilt
+            A[s, 6] += g * b  # pitch rot
+        elif i == 1:
+            A[s, 3] -= g * b
+            A[s, 5] -= g * b
+        E[s, i] = -b
+        C[i, s] = co[0]
+    for i in range(3):
+        num, den = canal_tf(CANAL_TAU_L[i])
+        ac, bc, cc, _ = scipy.signal.tf2ss(num, den)
+        s = slice(_CAN + 3 * i, _CAN + 3 * i + 3)
+        A[s, s] = ac
+        b = bc[:, 0]
+        rates = (ND + 3, ND + 5) if i == 0 else (ND + 4, ND + 6) if i == 1 else (ND + 7,)
+        for r in rates:
+            A[s, r] += b
+        E[s, 3 + i] = -b
+        C[3 + i, s] = cc[0]
+    return A, B, E, C
+
+
+def _discretise(A: np.ndarray, B: np.ndarray, E: np.ndarray, h: float):
+    n, m, k = A.shape[0], B.shape[1], E.shape[1]
+    M = np.zeros((n + m + k, n + m + k))
+    M[:n, :n] = A
+    M[:n, n : n + m] = B
+    M[:n, n + m :] = E
+    X = scipy.linalg.expm(M * h)
+    return X[:n, :n], X[:n, n : n + m], X[:n, n + m :]
+
+
+def build_model(params: MpcParams, dt: float) -> MpcModel:
+    """The condensed prediction, cost and constraints for ``params`` at tick ``dt`` (s)."""
+    N = params.steps
+    h = np.full(N, params.step_s)
+    h[0] = dt
+    A, B, E, C = _continuous(params.gravity)
+    disc = [_discretise(A, B, E, hk) for hk in ((dt, params.step_s) if N > 1 else (dt,))]
+    Phi = np.zeros((N * NX, NX))
+    Gam = np.zeros((N * NX, N * NU))
+    Lam = np.zeros((N * NX, N * NE))
+    phi, gam, lam = np.eye(NX), np.zeros((NX, N * NU)), np.zeros((NX, N * NE))
+    for k in range(N):
+        Ad, Bd, Ed = disc[0 if k == 0 else 1]
+        phi, gam, lam = Ad @ phi, Ad @ gam, Ad @ lam
+        gam[:, k * NU : (k + 1) * NU] += Bd
+        lam[:, k * NE : (k + 1) * NE] += Ed
+        r = slice(k * NX, (k + 1) * NX)
+        Phi[r], Gam[r], Lam[r] = phi, gam, lam
+
+    # -- cost: stage weights on the states (errors, positions, rates) and on the inputs
+    p = params
+    w_pos = np.array([*p.w_position[:3], p.w_tilt[0], p.w_tilt[0], *p.w_position[3:]])
+    w_vel = np.array([*p.w_velocity[:3], p.w_tilt[1], p.w_tilt[1], *p.w_velocity[3:]])
+    w_acc = np.array([*p.w_acceleration[:3], p.w_tilt[2], p.w_tilt[2], *p.w_acceleration[3:]])
+    w_jerk = np.array([*p.w_jerk[:3], p.w_tilt[3], p.w_tilt[3], *p.w_jerk[3:]])
+    Qx = C.T @ np.diag([*p.w_specific_force, *p.w_angular_velocity]) @ C
+    Qx[:ND, :ND] += np.diag(w_pos)
+    Qx[ND : 2 * ND, ND : 2 * ND] += np.diag(w_vel)
+    Qbar = scipy.linalg.block_diag(*[h[k] * Qx for k in range(N)])
+    R = np.diag(np.concatenate([h[k] * w_acc for k in range(N)]))
+    # jerk: (a_k - a_{k-1}) / h_k weighted by h_k, a_{-1} the last applied
+    Dm = np.eye(N * NU) - np.eye(N * NU, k=-NU)
+    Jw = np.diag(np.concatenate([w_jerk / h[k] for k in range(N)]))
+    GQ = Gam.T @ Qbar
+    P = GQ @ Gam + R + Dm.T @ Jw @ Dm
+    P = 0.5 * (P + P.T)
+    E0 = np.zeros((N * NU, NU))
+    E0[:NU] = np.eye(NU)
+    Fz = GQ @ Phi
+    Fd = GQ @ Lam
+    Fu = -Dm.T @ Jw @ E0
+
+    # -- constraints: per step, on the states: total pose (6), total rates (6), tilt angle
+    # (2), tilt rate (2); at the last step: every rate = 0; on the inputs: total pose
+    # accelerations (6), tilt accelerations (2)
+    S = np.zeros((22, NX))
+    tau = 0.5 * params.step_s
+    for d in range(ND):
+        S[_POSE_OF[d], d] = 1.0
+        S[6 + _POSE_OF[d], ND + d] = 1.0
+        # the pose a half step ahead at this rate stays in the box too: the platform glides
+        # onto a bound instead of crossing it between two points of the grid (and the next
+        # tick's problem stays feasible)
+        S[16 + _POSE_OF[d], d] = 1.0
+        S[16 + _POSE_OF[d], ND + d] = tau
+    S[12, 3] = S[13, 4] = 1.0
+    S[14, ND + 3] = S[15, ND + 4] = 1.0
+    tilt = params.tilt_limits
+    box_hi = np.concatenate(
+        [params.pose_upper, params.velocity_limit, [tilt[0]] * 2, [tilt[1]] * 2, params.pose_upper]
+    )
+    box_lo = np.concatenate(
+        [
+            params.pose_lower,
+            -params.velocity_limit,
+            [-tilt[0]] * 2,
+            [-tilt[1]] * 2,
+            params.pose_lower,
+        ]
+    )
+    Sbar = scipy.linalg.block_diag(*[S] * N)
+    term = np.zeros((ND, N * NX))
+    term[:, (N - 1) * NX + ND : (N - 1) * NX + 2 * ND] = np.eye(ND)
+    Su = np.zeros((8, NU))
+    for d in range(ND):
+        Su[_POSE_OF[d], d] = 1.0
+    Su[6, 3] = Su[7, 4] = 1.0
+    acc_hi = np.concatenate([params.acceleration_limit, [tilt[2]] * 2])
+    A_con = np.vstack([Sbar @ Gam, term @ Gam, scipy.linalg.block_diag(*[Su] * N)])
+    Sz = np.vstack([Sbar @ Phi, term @ Phi, np.zeros((8 * N, NX))])
+    # the exogenous inputs do not move the platform's states: Sbar @ Lam is zero
+    # the terminal rates: at rest, within a tick's worth of the accelerations (the plans
+    # of successive ticks sit on grids shifted by one tick: an exact zero made a shifted
+    # plan infeasible now and then)
+    v_end = dt * acc_hi[[0, 1, 2, 6, 7, 3, 4, 5]]
+    lo = np.concatenate([np.tile(box_lo, N), -v_end, np.tile(-acc_hi, N)])
+    hi = np.concatenate([np.tile(box_hi, N), v_end, np.tile(acc_hi, N)])
+    Ad, Bd, Ed = disc[0]
+    return MpcModel(A, B, E, C, h, Ad, Bd, Ed, Phi, Gam, Lam, P, Fz, Fd, Fu, A_con, Sz, lo, hi)
+
+
+@dataclass
+class MpcInfo:
+    """The last tick of the MPC.
+
+    Attributes
+    ----------
+    status : str
+        OSQP's status (``"solved"``, ``"maximum iterations reached"``, ``"run time limit
+        reached"``, ``"primal infeasible"``...), or ``"not solved"`` before the first tick.
+    iterations : int
+        OSQP iterations.
+    solve_time_s : float
+        Wall time of the update and solve, s.
+    fallback : bool
+        The solution was not used (the tick followed the last plan).
+    weight : float
+        Share of the MPC's pose in the pose sent (1: all MPC, 0: all fallback washout).
+    """
+
+    status: str = "not solved"
+    iterations: int = 0
+    solve_time_s: float = 0.0
+    fallback: bool = False
+    weight: float = 1.0
+
+
+class MpcCueing(Cueing):
+    """Model-predictive cueing (see the module docstring).
+
+    Parameters
+    ----------
+    params : MpcParams
+    dt : float
+        Sample period, s (the pipeline's).
+
+    Attributes
+    ----------
+    info : MpcInfo
+        The last tick's solver status, iterations, solve time, fallback and blend weight.
+    counts : dict
+        ``{"ticks", "solved", "fallbacks"}`` since construction (not reset).
+    """
+
+    name = "mpc"
+
+    def __init__(self, params: MpcParams, dt: float) -> None:
+        import osqp
+
+        from motionbase.washout.classical import ClassicalWashout
+        from motionbase.washout.params import WashoutParams
+
+        if not isinstance(params, MpcParams):
+            raise TypeError(f"params must be MpcParams, got {type(params).__name__}")
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"mpc: dt must be > 0 s, got {dt!r}")
+        self.params = params
+        self.dt = dt
+        self.model = m = build_model(params, dt)
+        self.fallback = ClassicalWashout(WashoutParams.load(params.fallback), dt)
+        N = params.steps
+        self._N = N
+        self._Fd_hold = m.Fd @ np.tile(np.eye(NE), (N, 1))
+        self._offsets = np.concatenate([[0.0], np.cumsum(m.h[:-1])])
+        budget = {"time_limit": params.time_limit_ms * 1e-3} if params.time_limit_ms > 0 else {}
+        self._solver = osqp.OSQP()
+        self._solver.setup(
+            sp.triu(sp.csc_matrix(m.P), format="csc"),
+            np.zeros(N * NU),
+            sp.csc_matrix(m.A_con),
+            m.lo.copy(),
+            m.hi.copy(),
+            verbose=False,
+            warm_starting=True,
+            polishing=False,
+            max_iter=params.max_iter,
+            **budget,
+            eps_abs=params.eps_abs,
+            eps_rel=params.eps_rel,
+            check_termination=5,
+        )
+        self._ref_gain = np.array([*params.specific_force_gain, *params.angular_velocity_gain])
+        self._ref_limit = np.array(
+            [*params.specific_force_limit, *np.radians(params.angular_velocity_limit_deg_s)]
+        )
+        self._lo_box = np.concatenate([params.pose_lower, -params.velocity_limit])
+        self._hi_box = np.concatenate([params.pose_upper, params.velocity_limit])
+        self._preview: np.ndarray | None = None
+        self.info = MpcInfo()
+        self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
+        self._pose = np.zeros(6)
+        self._mpc_pose = np.zeros(6)
+        self._fb_pose = np.zeros(6)
+        self.reset()
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to rest at the neutral pose (model, plan, blend and fallback)."""
+        self.z = np.zeros(NX)
+        self._a_prev = np.zeros(NU)
+        self._plan = np.zeros((self._N, NU))
+        self._plan_age = 0.0
+        self._blend = 1.0
+        self._tick = 0
+        self.fallback.reset()
+        self._pose[:] = 0.0
+
+    def set_preview(self, f: np.ndarray | None, w: np.ndarray | None = None) -> None:
+        """Offline (preview) mode: the whole reference, one row per tick from the next
+        :meth:`reset` (or from now, counted from the last reset): specific force (N, 3),
+        m/s^2, and body rates (N, 3), rad/s. ``None`` goes back to the real-time mode."""
+        if f is None:
+            self._preview = None
+            return
+        f = np.asarray(f, dtype=float)
+        w = np.asarray(w, dtype=float)
+        if f.ndim != 2 or f.shape[1] != 3 or w.shape != f.shape or not len(f):
+            raise ValueError("mpc preview: f and w must be (N, 3) arrays of the same length")
+        d = np.hstack([f - np.array([0.0, 0.0, -self.params.gravity]), w])
+        if not np.isfinite(d).all():
+            raise ValueError("mpc preview: the reference has non-finite values")
+        self._preview = self._ref_gain * np.clip(d, -self._ref_limit, self._ref_limit)
+
+    @property
+    def preview(self) -> bool:
+        """True in preview (offline) mode."""
+        return self._preview is not None
+
+    # -- one tick ----------------------------------------------------------------------
+    def advance(self, u: np.ndarray, out: np.ndarray) -> bool:
+        """One sample ``u = [f, w]`` to the pose in ``out`` (see :class:`Cueing`)."""
+        if not np.isfinite(u).all():
+            return False
+        g = self.params.gravity
+        d = np.array([u[0], u[1], u[2] + g, u[3], u[4], u[5]])
+        d = self._ref_gain * np.clip(d, -self._ref_limit, self._ref_limit)
+        self.fallback.advance(u, self._fb_pose)
+        a0 = self._solve(d)
+        m = self.model
+        self.z = m.Ad @ self.z + m.Bd @ a0 + m.Ed @ d
+        # the model's pose stays in its box (OSQP's tolerance): never an out-of-box pose
+        z = self.z
+        tot = np.zeros(12)
+        np.add.at(tot, np.concatenate([_POSE_OF, 6 + _POSE_OF]), z[: 2 * ND])
+        over = np.clip(tot, self._lo_box, self._hi_box) - tot
+        if over[:6].any():
+            for k in range(6):
+                if over[k]:  # onto the box, and the rates of this axis going out stop
+                    z[_rot_dof(k)] += over[k]
+                    for j in np.flatnonzero(_POSE_OF == k):
+                        if z[ND + j] * over[k] < 0.0:
+                            z[ND + j] = 0.0
+        self._a_prev = a0
+        self._mpc_pose[:] = _pose_of(z)
+        wgt = _smoothstep(self._blend)
+        self.info.weight = wgt
+        if wgt >= 1.0:
+            out[:] = self._mpc_pose
+        else:
+            out[:] = wgt * self._mpc_pose + (1.0 - wgt) * self._fb_pose
+        self._pose[:] = out
+        self._tick += 1
+        return True
+
+    def _reference(self, d: np.ndarray) -> np.ndarray:
+        """Exogenous inputs per step (N * 6)."""
+        D = np.tile(d, self._N)
+        if self._preview is not None:
+            n = len(self._preview)
+            idx = self._tick + np.rint(self._offsets[1:] / self.dt).astype(int)
+            D[NE:] = self._preview[np.minimum(idx, n - 1)].reshape(-1)
+        return D
+
+    def _solve(self, d: np.ndarray) -> np.ndarray:
+        m, z = self.model, self.z
+        t0 = time.perf_counter()
+        if self._preview is None:
+            q = m.Fz @ z + self._Fd_hold @ d + m.Fu @ self._a_prev
+        else:
+            q = m.Fz @ z + m.Fd @ self._reference(d) + m.Fu @ self._a_prev
+        s = m.Sz @ z
+        self._solver.update(q=q, l=m.lo - s, u=m.hi - s)
+        res = self._solver.solve(raise_error=False)
+        dt_solve = time.perf_counter() - t0
+        status = res.info.status
+        info = self.info
+        info.status, info.iterations, info.solve_time_s = status, int(res.info.iter), dt_solve
+        self.counts["ticks"] += 1
+        x = res.x
+        ok = status in _OK and x is not None and np.isfinite(x).all()
+        step = self.dt / self.params.blend_s
+        if ok:
+            self.counts["solved"] += 1
+            info.fallback = False
+            self._plan = x.reshape(self._N, NU)
+            self._plan_age = 0.0
+            self._blend = min(1.0, self._blend + step)
+        else:
+            self.counts["fallbacks"] += 1
+            info.fallback = True
+            self._plan_age += self.dt
+            self._blend = max(0.0, self._blend - step)
+        return self._planned(self._plan_age)
+
+    def _planned(self, age: float) -> np.ndarray:
+        """The last plan's acceleration ``age`` s after it was made; past its end, a brake
+        to rest within the acceleration limits."""
+        ends = np.cumsum(self.model.h)
+        k = int(np.searchsorted(ends, age + 1e-12, side="right"))
+        if k < self._N:
+            return self._plan[k].copy()
+        v = self.z[ND : 2 * ND]
+        lim = np.concatenate([self.params.acceleration_limit, self.params.tilt_limits[2:]])
+        a_lim = lim[[0, 1, 2, 6, 6, 3, 4, 5]]  # per dof
+        return np.clip(-v / self.dt, -a_lim, a_lim)
+
+    def track(self, achieved: np.ndarray) -> None:
+        """Anti-windup: the model (and the fallback washout) continue from the pose the
+        platform got (roll and pitch differences go to their rotational parts)."""
+        ach = np.asarray(achieved, dtype=float)
+        if ach.shape != (6,) or not np.isfinite(ach).all():
+            return
+        self.fallback.track(ach)
+        diff = ach - self._pose
+        z = self.z
+        for k in range(6):
+            if diff[k] != 0.0:
+                dof = _rot_dof(k)
+                z[dof] += diff[k]
+                lo, hi = self.params.pose_lower[k], self.params.pose_upper[k]
+                tot = _pose_of(z)[k]
+                z[dof] += np.clip(tot, lo, hi) - tot
+                # rates of this axis pointing further out stop
+                for j in np.flatnonzero(_POSE_OF == k):
+                    if z[ND + j] * diff[k] < 0.0:
+                        z[ND + j] = 0.0
+        self._pose[:] = ach
+
+    def __repr__(self) -> str:
+        mode = "preview" if self.preview else "real-time"
+        return f"MpcCueing(dt={self.dt:g}, steps={self._N}, {mode})"
+
+
+def _rot_dof(axis: int) -> int:
+    """The dof that takes a correction of pose axis ``axis`` (the rotational part)."""
+    return (0, 1, 2, 5, 6, 7)[axis]
+
+
+def _pose_of(z: np.ndarray) -> np.ndarray:
+    p = z[:ND]
+    return np.array([p[0], p[1], p[2], p[3] + p[5], p[4] + p[6], p[7]])
+
+
+def _smoothstep(b: float) -> float:
+    return b * b * (3.0 - 2.0 * b)

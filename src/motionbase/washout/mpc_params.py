@@ -1,0 +1,427 @@
+"""Parameters of the model-predictive cueing (``--cueing mpc``), loaded from TOML presets.
+
+A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
+
+    description = "..."                # optional free text
+    g = 9.80665                        # m/s^2, optional
+
+    [horizon]
+    steps = 15                         # prediction steps (the first is one tick long)
+    step_s = 0.1                       # length of the others, s
+
+    [weights]                          # of the quadratic cost, per second of horizon
+    specific_force = [1.0, 1.0, 1.0]   # perceived specific-force error x, y, z, per (m/s^2)^2
+    angular_velocity = [400, 400, 400] # perceived rate error roll, pitch, yaw, per (rad/s)^2
+    position = [1, 1, 1, 10, 10, 1]    # pose (roll, pitch: the rotational part, not the tilt)
+    velocity = [0.1, 0.1, 0.1, 0.1, 0.1, 0.1]
+    acceleration = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]
+    jerk = [1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4]
+    tilt = [0.1, 0.0, 0.01, 1e-4]      # the tilt's angle, rate, acceleration, jerk
+
+    [tilt]                             # perception thresholds, hard constraints on the tilt
+    rate_limit_deg_s = 3.0
+    accel_limit_deg_s2 = 8.0
+    angle_limit_deg = 15.0
+
+    [limits]                           # the platform's, from the robot (limits_from_robot)
+    position_lower_m = [-0.27, -0.28, -0.17]
+    position_upper_m = [0.32, 0.28, 0.10]
+    angle_lower_deg = [-17, -15.8, -44]
+    angle_upper_deg = [17, 27, 44]
+    velocity_m_s = [0.4, 0.4, 0.3]
+    angular_velocity_deg_s = [40, 40, 60]
+    acceleration_m_s2 = [4, 4, 4]
+    angular_acceleration_deg_s2 = [300, 300, 300]
+
+    [reference]                        # optional: what the MPC tracks (defaults: as flown)
+    specific_force_gain = [1.0, 1.0, 1.0]
+    specific_force_limit = [3.0, 3.0, 1.0]        # m/s^2, on f - (0, 0, -g)
+    angular_velocity_gain = [1.0, 1.0, 1.0]
+    angular_velocity_limit_deg_s = [30, 30, 30]
+
+    [solver]
+    max_iter = 200                     # OSQP iteration budget per tick
+    time_limit_ms = 4.0                # OSQP time budget per tick (0: none)
+    eps_abs = 1e-4
+    eps_rel = 1e-4
+    blend_s = 0.5                      # blend to and from the fallback, s
+    fallback = "tuned_ceart"           # classical washout preset (or TOML path) to fall back on
+
+Every table is required but for ``[reference]`` (gains 1, no limits), ``[solver]``
+(defaults as above) and ``description`` and
+``g``. The dataclass fields mirror the file one to one, so ``from_dict(p.to_dict()) == p``.
+The pose box, speed and acceleration limits of ``[limits]`` are the robot's: the cueing
+interface hands the MPC no robot, so a preset carries them, written by
+:func:`limits_from_robot` when the preset is made for a platform (the ``ceart`` preset's
+header says how).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from motionbase.config import (
+    as_array,
+    as_float,
+    check_keys,
+    read_toml,
+    resolve_preset_or_path,
+    write_toml,
+)
+from motionbase.errors import ConfigError
+from motionbase.washout.params import STANDARD_GRAVITY
+
+__all__ = ["MpcParams", "limits_from_robot"]
+
+Vec3 = tuple[float, float, float]
+Vec6 = tuple[float, float, float, float, float, float]
+
+#: (section, key, field name, length (0: scalar), strictly positive, integer)
+_SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
+    ("horizon", "steps", "steps", 0, True, True),
+    ("horizon", "step_s", "step_s", 0, True, False),
+    ("weights", "specific_force", "w_specific_force", 3, False, False),
+    ("weights", "angular_velocity", "w_angular_velocity", 3, False, False),
+    ("weights", "position", "w_position", 6, False, False),
+    ("weights", "velocity", "w_velocity", 6, False, False),
+    ("weights", "acceleration", "w_acceleration", 6, False, False),
+    ("weights", "jerk", "w_jerk", 6, False, False),
+    ("weights", "tilt", "w_tilt", 4, False, False),
+    ("tilt", "rate_limit_deg_s", "tilt_rate_limit_deg_s", 0, True, False),
+    ("tilt", "accel_limit_deg_s2", "tilt_accel_limit_deg_s2", 0, True, False),
+    ("tilt", "angle_limit_deg", "tilt_angle_limit_deg", 0, False, False),
+    ("limits", "position_lower_m", "position_lower_m", 3, False, False),
+    ("limits", "position_upper_m", "position_upper_m", 3, True, False),
+    ("limits", "angle_lower_deg", "angle_lower_deg", 3, False, False),
+    ("limits", "angle_upper_deg", "angle_upper_deg", 3, True, False),
+    ("limits", "velocity_m_s", "velocity_m_s", 3, True, False),
+    ("limits", "angular_velocity_deg_s", "angular_velocity_deg_s", 3, True, False),
+    ("limits", "acceleration_m_s2", "acceleration_m_s2", 3, True, False),
+    ("limits", "angular_acceleration_deg_s2", "angular_acceleration_deg_s2", 3, True, False),
+    ("reference", "specific_force_gain", "specific_force_gain", 3, False, False),
+    ("reference", "specific_force_limit", "specific_force_limit", 3, True, False),
+    ("reference", "angular_velocity_gain", "angular_velocity_gain", 3, False, False),
+    ("reference", "angular_velocity_limit_deg_s", "angular_velocity_limit_deg_s", 3, True, False),
+    ("solver", "max_iter", "max_iter", 0, True, True),
+    ("solver", "time_limit_ms", "time_limit_ms", 0, False, False),
+    ("solver", "eps_abs", "eps_abs", 0, True, False),
+    ("solver", "eps_rel", "eps_rel", 0, False, False),
+    ("solver", "blend_s", "blend_s", 0, True, False),
+)
+_SOLVER_DEFAULTS: dict[str, Any] = {
+    "max_iter": 200,
+    "time_limit_ms": 4.0,
+    "eps_abs": 1e-4,
+    "eps_rel": 1e-4,
+    "blend_s": 0.5,
+    "fallback": "tuned_ceart",
+}
+_REFERENCE_DEFAULTS: dict[str, Any] = {
+    "specific_force_gain": [1.0, 1.0, 1.0],
+    "specific_force_limit": [1000.0, 1000.0, 1000.0],
+    "angular_velocity_gain": [1.0, 1.0, 1.0],
+    "angular_velocity_limit_deg_s": [1000.0, 1000.0, 1000.0],
+}
+_SECTIONS = ("horizon", "weights", "tilt", "limits", "reference", "solver")
+_TOP = ("description", "g", *_SECTIONS)
+
+
+@dataclass(frozen=True)
+class MpcParams:
+    """Every number of the model-predictive cueing (:mod:`motionbase.washout.mpc`).
+
+    Attributes
+    ----------
+    steps : int
+        Prediction steps N (>= 2): the first lasts one tick (the pipeline's ``dt``), the
+        others ``step_s``; the horizon is ``dt + (N - 1) step_s``.
+    step_s : float
+        Length of the prediction steps after the first, s.
+    w_specific_force, w_angular_velocity : (3,) float
+        Cost weights of the perceived specific-force error (per (m/s^2)^2 s) and of the
+        perceived angular-velocity error (per (rad/s)^2 s), x y z / roll pitch yaw.
+    w_position, w_velocity, w_acceleration, w_jerk : (6,) float
+        Cost weights of the pose (m or rad; for roll and pitch the rotational part, the
+        tilt apart), its rate, its acceleration and the jerk (change of the acceleration),
+        per axis x, y, z, roll, pitch, yaw.
+    w_tilt : (4,) float
+        Cost weights of the tilt angle, rate, acceleration and jerk (roll and pitch alike).
+    tilt_rate_limit_deg_s, tilt_accel_limit_deg_s2, tilt_angle_limit_deg : float
+        Hard limits of the tilt (the perception thresholds of rotation), deg/s, deg/s^2,
+        deg.
+    position_lower_m, position_upper_m : (3,) float
+        Pose box, m (lower < 0 < upper).
+    angle_lower_deg, angle_upper_deg : (3,) float
+        Pose box, deg (lower < 0 < upper).
+    velocity_m_s, angular_velocity_deg_s : (3,) float
+        Largest pose rates, m/s and deg/s (Euler angle rates).
+    acceleration_m_s2, angular_acceleration_deg_s2 : (3,) float
+        Largest pose accelerations, m/s^2 and deg/s^2.
+    specific_force_gain, specific_force_limit : (3,) float
+        The reference the MPC tracks is the aircraft's specific-force deviation from level
+        flight, limited to ``+-limit`` (m/s^2) and times the gain, per axis: a force no
+        platform can render (a 4 g pull-up) would otherwise hold the platform at its
+        limit for a gain too small to feel.
+    angular_velocity_gain, angular_velocity_limit_deg_s : (3,) float
+        The same for the body rates (deg/s).
+    max_iter : int
+        OSQP iterations per tick at most.
+    time_limit_ms : float
+        OSQP time per tick at most, ms (0: no limit).
+    eps_abs, eps_rel : float
+        OSQP tolerances.
+    blend_s : float
+        Time of the blend from the MPC's pose to the fallback's and back, s.
+    fallback : str
+        The classical washout preset (or TOML path) run alongside, for ticks the solver
+        fails or is late.
+    g : float
+        Gravity, m/s^2.
+    description : str
+    """
+
+    steps: int
+    step_s: float
+    w_specific_force: Vec3
+    w_angular_velocity: Vec3
+    w_position: Vec6
+    w_velocity: Vec6
+    w_acceleration: Vec6
+    w_jerk: Vec6
+    w_tilt: tuple[float, float, float, float]
+    tilt_rate_limit_deg_s: float
+    tilt_accel_limit_deg_s2: float
+    tilt_angle_limit_deg: float
+    position_lower_m: Vec3
+    position_upper_m: Vec3
+    angle_lower_deg: Vec3
+    angle_upper_deg: Vec3
+    velocity_m_s: Vec3
+    angular_velocity_deg_s: Vec3
+    acceleration_m_s2: Vec3
+    angular_acceleration_deg_s2: Vec3
+    specific_force_gain: Vec3 = (1.0, 1.0, 1.0)
+    specific_force_limit: Vec3 = (1000.0, 1000.0, 1000.0)
+    angular_velocity_gain: Vec3 = (1.0, 1.0, 1.0)
+    angular_velocity_limit_deg_s: Vec3 = (1000.0, 1000.0, 1000.0)
+    max_iter: int = 200
+    time_limit_ms: float = 4.0
+    eps_abs: float = 1e-4
+    eps_rel: float = 1e-4
+    blend_s: float = 0.5
+    fallback: str = "tuned_ceart"
+    g: float = STANDARD_GRAVITY
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        validated = _validate(self.to_dict(), "MpcParams")
+        for key, value in validated.items():
+            object.__setattr__(self, key, value)
+
+    # --- SI views -------------------------------------------------------------------------
+
+    @property
+    def gravity(self) -> float:
+        """Gravity, m/s^2."""
+        return self.g
+
+    @property
+    def pose_lower(self) -> np.ndarray:
+        """Pose box lower bounds ``[x, y, z, roll, pitch, yaw]``, m and rad, shape (6,)."""
+        return np.concatenate([self.position_lower_m, np.radians(self.angle_lower_deg)])
+
+    @property
+    def pose_upper(self) -> np.ndarray:
+        """Pose box upper bounds, m and rad, shape (6,)."""
+        return np.concatenate([self.position_upper_m, np.radians(self.angle_upper_deg)])
+
+    @property
+    def velocity_limit(self) -> np.ndarray:
+        """Largest pose rates, m/s and rad/s, shape (6,)."""
+        return np.concatenate([self.velocity_m_s, np.radians(self.angular_velocity_deg_s)])
+
+    @property
+    def acceleration_limit(self) -> np.ndarray:
+        """Largest pose accelerations, m/s^2 and rad/s^2, shape (6,)."""
+        return np.concatenate(
+            [self.acceleration_m_s2, np.radians(self.angular_acceleration_deg_s2)]
+        )
+
+    @property
+    def tilt_limits(self) -> np.ndarray:
+        """Tilt angle, rate and acceleration limits, rad, rad/s, rad/s^2, shape (3,)."""
+        return np.radians(
+            [self.tilt_angle_limit_deg, self.tilt_rate_limit_deg_s, self.tilt_accel_limit_deg_s2]
+        )
+
+    # --- construction ---------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, name_or_path: str | Path) -> MpcParams:
+        """A preset name (``"ceart"``: ``presets/mpc_ceart.toml``) or a TOML path."""
+        return cls.from_toml(resolve_preset_or_path("mpc", name_or_path))
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> MpcParams:
+        """Read an MPC TOML file (format in the module docstring)."""
+        return cls.from_dict(read_toml(path), source=str(path))
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "mpc parameters") -> MpcParams:
+        """Build from the nested mapping :meth:`to_dict` returns (or a parsed TOML file).
+
+        Raises
+        ------
+        ConfigError
+            On a missing, unknown, non-numeric or unphysical value, naming ``source``, the
+            field and the fix.
+        """
+        if not isinstance(d, dict):
+            raise ConfigError(f"{source}: expected a table of MPC parameters, got {d!r}")
+        if "scaling" in d or "translational" in d:
+            raise ConfigError(
+                f"{source}: this is a classical washout file; give it with --cueing classical "
+                "(an MPC file has [horizon], [weights], [tilt], [limits])"
+            )
+        check_keys(source, d, _TOP, required=("horizon", "weights", "tilt", "limits"))
+        d = {k: (dict(v) if isinstance(v, dict) else v) for k, v in d.items()}
+        d.setdefault("solver", {})
+        d.setdefault("reference", {})
+        for section in _SECTIONS:
+            if not isinstance(d[section], dict):
+                raise ConfigError(f"{source}: [{section}] must be a table, got {d[section]!r}")
+            keys = [k for s, k, *_ in _SCHEMA if s == section]
+            if section == "solver":
+                keys.append("fallback")
+                check_keys(f"{source} [solver]", d[section], keys)
+            elif section == "reference":
+                check_keys(f"{source} [reference]", d[section], keys)
+            else:
+                check_keys(f"{source} [{section}]", d[section], keys, required=keys)
+        for key, value in _SOLVER_DEFAULTS.items():
+            d["solver"].setdefault(key, value)
+        for key, value in _REFERENCE_DEFAULTS.items():
+            d["reference"].setdefault(key, value)
+        d.setdefault("g", STANDARD_GRAVITY)
+        d.setdefault("description", "")
+        return cls(**_validate(d, source))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly."""
+        out: dict[str, Any] = {"description": self.description, "g": self.g}
+        for section, key, name, length, *_ in _SCHEMA:
+            value = getattr(self, name)
+            out.setdefault(section, {})[key] = list(value) if length else value
+        out["solver"]["fallback"] = self.fallback
+        return out
+
+    def to_toml(self, path: str | Path) -> None:
+        """Write the parameters as a TOML file that :meth:`from_toml` reads back."""
+        write_toml(path, self.to_dict())
+
+
+def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
+    """Check the nested mapping; return the field values (tuples of floats, floats, ints)."""
+    out: dict[str, Any] = {}
+    for section, key, name, length, positive, integer in _SCHEMA:
+        where = f"{section}.{key}"
+        value = d[section][key]
+        if integer:
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ConfigError(
+                    f"{source}: field {where!r}: expected a whole number >= 1, got {value!r}"
+                )
+            out[name] = int(value)
+            continue
+        if length:
+            arr = as_array(source, where, value, length)
+            if name.endswith("lower_m") or name.endswith("lower_deg"):
+                if not (arr < 0).all():
+                    raise ConfigError(
+                        f"{source}: field {where!r}: lower bounds must be < 0, got {arr.tolist()}"
+                    )
+            else:
+                for v in arr:
+                    as_float(source, where, float(v), min_value=0.0, strict_min=positive)
+            out[name] = tuple(float(v) for v in arr)
+        else:
+            out[name] = as_float(source, where, value, min_value=0.0, strict_min=positive)
+    if out["steps"] < 2:
+        raise ConfigError(f"{source}: field 'horizon.steps': must be >= 2, got {out['steps']}")
+    if out["tilt_angle_limit_deg"] >= 90.0:
+        raise ConfigError(f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg")
+    fallback = d["solver"]["fallback"]
+    if not isinstance(fallback, str) or not fallback:
+        raise ConfigError(
+            f"{source}: field 'solver.fallback': expected a washout preset name or a .toml path, "
+            f"got {fallback!r}"
+        )
+    out["fallback"] = fallback
+    out["g"] = as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2")
+    if not isinstance(d["description"], str):
+        raise ConfigError(f"{source}: field 'description': expected text, got {d['description']!r}")
+    out["description"] = d["description"]
+    return out
+
+
+def limits_from_robot(
+    robot: Any, margin: float = 0.9, rate_margin: float = 0.5
+) -> dict[str, list[float]]:
+    """The ``[limits]`` table of an MPC preset for a 6-DOF robot.
+
+    The pose box is the robot's single-axis reach
+    (:func:`motionbase.platform.rus6_workspace.single_axis_envelope`) times ``margin``. The
+    pose rate and acceleration limits follow from the actuators' speed and acceleration
+    limits through the inverse kinematics' Jacobian at neutral ``J = dq/dpose``: per pose
+    axis, ``rate_margin * min_j(limit_j / |J_ji|)`` (with the default 0.5, two axes at
+    their limits together stay within the actuators' at neutral; the pipeline's safety
+    stage limits the actuators whatever the pose asks).
+
+    Parameters
+    ----------
+    robot : Robot
+        A 6-DOF robot plug-in (``inverse``, ``reachable``, ``limits``).
+    margin : float
+        Share of the single-axis reach the MPC may use, in (0, 1].
+    rate_margin : float
+        Share of the actuator speed and acceleration limits one pose axis may use.
+
+    Returns
+    -------
+    dict
+        The ``[limits]`` keys (m, deg, m/s, deg/s, m/s^2, deg/s^2).
+    """
+    from motionbase.platform.rus6_workspace import single_axis_envelope
+
+    env = single_axis_envelope(robot, tol=1e-6)
+    lower = np.array([-a.negative for a in env]) * margin
+    upper = np.array([a.positive for a in env]) * margin
+    h = 1e-6
+    neutral = np.asarray(robot.neutral_pose, dtype=float)
+    J = np.empty((robot.n, 6))
+    for i in range(6):
+        dp = np.zeros(6)
+        dp[i] = h
+        J[:, i] = (robot.inverse(neutral + dp) - robot.inverse(neutral - dp)) / (2 * h)
+    aJ = np.abs(J)
+    vel = rate_margin * np.min(np.asarray(robot.limits.max_speed)[:, None] / aJ, axis=0)
+    acc = rate_margin * np.min(np.asarray(robot.limits.max_accel)[:, None] / aJ, axis=0)
+
+    def r(v: np.ndarray, deg: bool) -> list[float]:
+        return [float(f"{(math.degrees(x) if deg else x):.4g}") for x in v]
+
+    return {
+        "position_lower_m": r(lower[:3], False),
+        "position_upper_m": r(upper[:3], False),
+        "angle_lower_deg": r(lower[3:], True),
+        "angle_upper_deg": r(upper[3:], True),
+        "velocity_m_s": r(vel[:3], False),
+        "angular_velocity_deg_s": r(vel[3:], True),
+        "acceleration_m_s2": r(acc[:3], False),
+        "angular_acceleration_deg_s2": r(acc[3:], True),
+    }
