@@ -158,7 +158,16 @@ class CommandPipeline:
         n = robot.n
         self._n = n
         self._m = n if mode == "actuators" else len(robot.park_pose)
-        self.params = self._make_params(soft_start_s)
+        # actuator mode: the blend runs in actuator space and the "pose" is the actuators
+        park_q = robot.park_angles
+        actuators = mode == "actuators"
+        self.params = stages.new_params(
+            robot,
+            dt=self.dt,
+            soft_start_s=soft_start_s,
+            park_cue=park_q if actuators else np.zeros(6),
+            park_pose=park_q if actuators else robot.park_pose,
+        )
         self.state = stages.new_state()
         self._max_home_ticks = int(round(max_home_s / self.dt))
         lim = robot.limits
@@ -180,25 +189,6 @@ class CommandPipeline:
         self._no_cue.setflags(write=False)
         self.reset()
         self.warm_up()
-
-    def _make_params(self, soft_start_s: float) -> np.ndarray:
-        robot, n, m = self.robot, self._n, self._m
-        P = np.zeros(1, dtype=stages.PARAMS)
-        p = P[0]
-        p["dt"] = self.dt
-        p["blend_step"] = self.dt / soft_start_s
-        park_q = robot.park_angles
-        p["park_q"][:n] = park_q
-        # actuator mode: the blend runs in actuator space and the "pose" is the actuators
-        p["park_cue"][:n] = park_q if self.mode == "actuators" else 0.0
-        p["park_pose"][:m] = park_q if self.mode == "actuators" else robot.park_pose
-        p["lower"][:n] = robot.limits.lower
-        p["upper"][:n] = robot.limits.upper
-        p["max_speed"][:n] = robot.limits.max_speed
-        p["max_accel"][:n] = robot.limits.max_accel
-        p["n"] = n
-        p["m"] = m
-        return P
 
     # -- lifecycle -------------------------------------------------------------
     def reset(self) -> None:

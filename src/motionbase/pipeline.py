@@ -352,32 +352,6 @@ class BatchResult(NamedTuple):
 # --------------------------------------------------------------------------- core
 
 
-def _pipeline_params(config: PipelineConfig, robot: Robot) -> np.ndarray:
-    """The :data:`~motionbase.stages.PARAMS` record of a configuration and its robot."""
-    P = np.zeros(1, dtype=stages.PARAMS)
-    p = P[0]
-    p["dt"] = config.dt
-    p["stale_timeout"] = config.stale_timeout_s
-    p["fade_step"] = config.dt / config.fade_s
-    p["blend_step"] = config.dt / config.soft_start_s
-    lim = config.input_limits
-    p["max_f"] = lim.max_specific_force
-    p["max_w"] = lim.max_angular_velocity
-    p["max_att"] = lim.max_attitude
-    p["level"][2] = -STANDARD_GRAVITY
-    p["park_cue"] = robot.park_cue
-    n, m = robot.n, len(robot.park_pose)
-    p["park_pose"][:m] = robot.park_pose
-    p["park_q"][:n] = robot.park_angles
-    p["lower"][:n] = robot.limits.lower
-    p["upper"][:n] = robot.limits.upper
-    p["max_speed"][:n] = robot.limits.max_speed
-    p["max_accel"][:n] = robot.limits.max_accel
-    p["n"] = n
-    p["m"] = m
-    return P
-
-
 class Pipeline:
     """The functional core: ``step(state) -> PipelineOutput``, no I/O.
 
@@ -401,7 +375,14 @@ class Pipeline:
         self.robot = config.make_robot()
         self.cueing = cueing if cueing is not None else config.make_cueing()
         self.health = Health()
-        self.params = _pipeline_params(config, self.robot)
+        self.params = stages.new_params(
+            self.robot,
+            dt=config.dt,
+            soft_start_s=config.soft_start_s,
+            stale_timeout_s=config.stale_timeout_s,
+            fade_s=config.fade_s,
+            input_limits=config.input_limits,
+        )
         self.state = stages.new_state()
         n, m = self.robot.n, len(self.robot.park_pose)
         self._solve = stages.kernel_list(self.robot.solve_kernel, stages.SOLVE_LIST)

@@ -26,7 +26,7 @@ import numba
 import numpy as np
 from numba import types
 
-from motionbase.physics import smoothstep
+from motionbase.physics import STANDARD_GRAVITY, smoothstep
 from motionbase.platform.robot import SOLVE_SIGNATURE
 from motionbase.safety import input_code, limit_kernel
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
@@ -112,6 +112,52 @@ def kernel_list(kernel, list_type) -> numba.typed.List:
     out = numba.typed.List.empty_list(list_type.item_type)
     out.append(kernel)
     return out
+
+
+def new_params(
+    robot,
+    *,
+    dt: float,
+    soft_start_s: float,
+    stale_timeout_s: float = np.inf,
+    fade_s: float = 1.0,
+    input_limits=None,
+    park_cue: np.ndarray | None = None,
+    park_pose: np.ndarray | None = None,
+) -> np.ndarray:
+    """The :data:`PARAMS` record for a robot (:class:`~motionbase.platform.robot.Robot`).
+
+    ``dt``, ``soft_start_s``, ``stale_timeout_s`` and ``fade_s`` in s; ``input_limits`` a
+    :class:`~motionbase.safety.InputLimits` (None: no bounds, for commands that are not
+    aircraft samples). ``park_cue`` (up to 6) and ``park_pose`` (m) default to the robot's;
+    the size of the robot pose ``m`` is that of ``park_pose``.
+    """
+    park_cue = robot.park_cue if park_cue is None else park_cue
+    park_pose = robot.park_pose if park_pose is None else park_pose
+    n, m = robot.n, len(park_pose)
+    P = np.zeros(1, dtype=PARAMS)
+    p = P[0]
+    p["dt"] = dt
+    p["stale_timeout"] = stale_timeout_s
+    p["fade_step"] = dt / fade_s
+    p["blend_step"] = dt / soft_start_s
+    if input_limits is not None:
+        p["max_f"] = input_limits.max_specific_force
+        p["max_w"] = input_limits.max_angular_velocity
+        p["max_att"] = input_limits.max_attitude
+    else:
+        p["max_f"] = p["max_w"] = p["max_att"] = np.inf
+    p["level"][2] = -STANDARD_GRAVITY
+    p["park_cue"][: len(park_cue)] = park_cue
+    p["park_pose"][:m] = park_pose
+    p["park_q"][:n] = robot.park_angles
+    p["lower"][:n] = robot.limits.lower
+    p["upper"][:n] = robot.limits.upper
+    p["max_speed"][:n] = robot.limits.max_speed
+    p["max_accel"][:n] = robot.limits.max_accel
+    p["n"] = n
+    p["m"] = m
+    return P
 
 
 def new_state() -> np.ndarray:
