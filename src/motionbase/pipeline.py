@@ -292,6 +292,9 @@ class PipelineOutput(NamedTuple):
     fade : float
         Watchdog fade in [0, 1]: the share of the held sample's deviation from level
         flight given to the cueing (1 = the aircraft's motion, 0 = level flight).
+    cue_status : dict or None
+        The cueing's :attr:`~motionbase.washout.cueing.Cueing.status` (flight-phase
+        profile and blend), logged with ``washout_pose``.
     """
 
     t: float
@@ -307,6 +310,7 @@ class PipelineOutput(NamedTuple):
     held: bool
     phase: str
     fade: float
+    cue_status: dict[str, Any] | None = None
 
 
 @dataclass
@@ -557,6 +561,8 @@ class Pipeline:
                 bool(fresh),
                 u,
             )
+            if state.on_ground is not None:  # the flight phase, for profiled cueings
+                self.cueing.set_flight_phase(state.on_ground)
         cue = np.empty(6)
         if not self.cueing.advance(u, cue):
             raise WashoutInputError(
@@ -595,6 +601,7 @@ class Pipeline:
             bool(flags & stages.HELD),
             stages.PHASES[flags >> stages.PHASE_SHIFT],
             float(s["fade"]),
+            self.cueing.status,
         )
 
     # -- a whole flight ----------------------------------------------------------
@@ -605,6 +612,7 @@ class Pipeline:
         w: np.ndarray,
         att: np.ndarray | None = None,
         fresh: np.ndarray | None = None,
+        on_ground: np.ndarray | None = None,
     ) -> BatchResult:
         """Run a whole flight's samples through every stage at once (no log, no loop).
 
@@ -623,6 +631,9 @@ class Pipeline:
             Specific force (m/s^2), body rates (rad/s), attitude (rad; zeros if None).
         fresh : ndarray of bool, shape (N,), optional
             False where the source marked the sample a stale hold (all fresh if None).
+        on_ground : ndarray of float, shape (N,), optional
+            The flight phase (1 on the ground, 0 in the air, NaN unknown), for a cueing
+            without compiled kernels (a cueing with kernels takes no phase).
 
         Raises
         ------
@@ -646,7 +657,9 @@ class Pipeline:
         cueing = self.cueing
         if cueing.step_kernel is None:
             for k in range(N):
-                o = self.step(AircraftState(t[k], f[k], w[k], att[k]), bool(fresh[k]))
+                g = None if on_ground is None or on_ground[k] != on_ground[k] else on_ground[k]
+                state = AircraftState(t[k], f[k], w[k], att[k], on_ground=g)
+                o = self.step(state, bool(fresh[k]))
                 out.cue_poses[k], out.poses[k], out.commands[k] = (
                     o.washout_pose,
                     o.platform_pose,
