@@ -433,7 +433,8 @@ def test_cue_limits_off_by_default_change_no_number():
     states = step_flight(10.0)
     f = np.array([s.specific_force for s in states])
     w = np.array([s.angular_velocity for s in states])
-    assert np.array_equal(ClassicalWashout(base, DT).run(f, w), ClassicalWashout(same, DT).run(f, w))
+    ref = ClassicalWashout(base, DT).run(f, w)
+    assert np.array_equal(ClassicalWashout(same, DT).run(f, w), ref)
 
 
 def test_a_clamped_limited_cue_continues_from_the_achieved_pose():
@@ -447,7 +448,7 @@ def test_a_clamped_limited_cue_continues_from_the_achieved_pose():
     washout = ClassicalWashout(params, DT)
     f, w = np.array([2.5, 0.0, -G]), np.zeros(3)
     xs = []
-    for k in range(int(20 * RATE)):
+    for _ in range(int(20 * RATE)):
         pose = washout.step(f, w)
         if pose[0] > 0.05:  # a platform that reaches 5 cm forward
             pose[0] = 0.05
