@@ -488,6 +488,8 @@ class Pipeline:
                 bool(fresh),
                 u,
             )
+            if state.on_ground is not None:  # the flight phase, for profiled cueings
+                self.cueing.set_flight_phase(state.on_ground)
         cue = np.empty(6)
         if not self.cueing.advance(u, cue):
             raise WashoutInputError(
@@ -526,6 +528,7 @@ class Pipeline:
             bool(flags & stages.HELD),
             stages.PHASES[flags >> stages.PHASE_SHIFT],
             float(s["fade"]),
+            self.cueing.status,
         )
 
     # -- a whole flight ----------------------------------------------------------
@@ -536,6 +539,7 @@ class Pipeline:
         w: np.ndarray,
         att: np.ndarray | None = None,
         fresh: np.ndarray | None = None,
+        on_ground: np.ndarray | None = None,
     ) -> BatchResult:
         """Run a whole flight's samples through every stage at once (no log, no loop).
 
@@ -554,6 +558,9 @@ class Pipeline:
             Specific force (m/s^2), body rates (rad/s), attitude (rad; zeros if None).
         fresh : ndarray of bool, shape (N,), optional
             False where the source marked the sample a stale hold (all fresh if None).
+        on_ground : ndarray of float, shape (N,), optional
+            The flight phase (1 on the ground, 0 in the air, NaN unknown), for a cueing
+            without compiled kernels (a cueing with kernels takes no phase).
 
         Raises
         ------
@@ -577,7 +584,9 @@ class Pipeline:
         cueing = self.cueing
         if cueing.step_kernel is None:
             for k in range(N):
-                o = self.step(AircraftState(t[k], f[k], w[k], att[k]), bool(fresh[k]))
+                g = None if on_ground is None or on_ground[k] != on_ground[k] else on_ground[k]
+                state = AircraftState(t[k], f[k], w[k], att[k], on_ground=g)
+                o = self.step(state, bool(fresh[k]))
                 out.cue_poses[k], out.poses[k], out.commands[k] = (
                     o.washout_pose,
                     o.platform_pose,

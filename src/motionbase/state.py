@@ -8,7 +8,7 @@ and the pipeline can name them without importing one another.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -42,6 +42,10 @@ class AircraftState:
     angular_acceleration : array_like, shape (3,), optional
         Body angular accelerations, rad/s^2, or None when the source does not
         give them.
+    on_ground : bool or None, optional
+        The flight phase: True on the ground (weight on wheels), False in the air, None
+        when the source does not say (the cueing then keeps its current flight-phase
+        profile).
     """
 
     t: float
@@ -49,6 +53,7 @@ class AircraftState:
     angular_velocity: np.ndarray
     attitude: np.ndarray = field(default_factory=lambda: _vec3((0.0, 0.0, 0.0)))
     angular_acceleration: np.ndarray | None = None
+    on_ground: bool | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t", float(self.t))
@@ -57,9 +62,13 @@ class AircraftState:
         object.__setattr__(self, "attitude", _vec3(self.attitude))
         if self.angular_acceleration is not None:
             object.__setattr__(self, "angular_acceleration", _vec3(self.angular_acceleration))
+        if self.on_ground is not None:
+            object.__setattr__(self, "on_ground", bool(self.on_ground))
 
     @classmethod
-    def from_vector(cls, t: float, vector: np.ndarray) -> AircraftState:
+    def from_vector(
+        cls, t: float, vector: np.ndarray, on_ground: bool | None = None
+    ) -> AircraftState:
         """A state on one float vector, without copies or checks (the sources' fast path).
 
         Parameters
@@ -70,6 +79,8 @@ class AircraftState:
             ``[specific_force, angular_velocity, attitude(, angular_acceleration)]`` in the
             units of the fields. The state takes it over: it is made read-only and its
             fields are views of it; the caller must not keep writing to it.
+        on_ground : bool or None, optional
+            The flight phase (see the class).
         """
         vector.flags.writeable = False
         obj = object.__new__(cls)
@@ -79,6 +90,7 @@ class AircraftState:
         fields_["angular_velocity"] = vector[3:6]
         fields_["attitude"] = vector[6:9]
         fields_["angular_acceleration"] = vector[9:12] if len(vector) == 12 else None
+        fields_["on_ground"] = on_ground
         return obj
 
     def is_finite(self) -> bool:
@@ -125,6 +137,9 @@ class PipelineOutput(NamedTuple):
     fade : float
         Watchdog fade in [0, 1]: the share of the held sample's deviation from level
         flight given to the cueing (1 = the aircraft's motion, 0 = level flight).
+    cue_status : dict or None
+        The cueing's :attr:`~motionbase.washout.cueing.Cueing.status` (flight-phase
+        profile and blend), logged with ``washout_pose``.
     """
 
     t: float
@@ -140,3 +155,4 @@ class PipelineOutput(NamedTuple):
     held: bool
     phase: str
     fade: float
+    cue_status: dict[str, Any] | None = None

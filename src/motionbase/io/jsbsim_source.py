@@ -11,7 +11,8 @@ is the specific force at the pilot's eye point in body axes (FRD), ft/s^2,
 times 0.3048 to m/s^2; body rates ``velocities/{p,q,r}-rad_sec``, angular
 accelerations ``accelerations/{pdot,qdot,rdot}-rad_sec2`` and Euler angles
 ``attitude/{phi,theta,psi}-rad`` are already SI and FRD (``psi`` is JSBSim's
-heading in [0, 2 pi)).
+heading in [0, 2 pi)). The flight phase :attr:`~motionbase.state.AircraftState.on_ground`
+is JSBSim's weight on wheels, ``gear/wow`` (true while any landing gear unit touches).
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ PROPERTIES = (
     "accelerations/qdot-rad_sec2",
     "accelerations/rdot-rad_sec2",
 )
+#: Weight on wheels (any landing gear unit touching the ground), the flight phase
+#: (:attr:`AircraftState.on_ground`); an aircraft without it gives no phase.
+WOW_PROPERTY = "gear/wow"
 
 
 class _QuietLogger(jsbsim.FGLogger):
@@ -344,12 +348,14 @@ class JsbsimSource:
                 if node is None:
                     raise SourceError(f"JSBSim has no property {name!r} for {what}")
                 nodes.append(node)
+            wow = pm.get_node(WOW_PROPERTY)
         except BaseException:
             self._fdm = None
             self.close()
             raise
         self._fdm = fdm
         self._nodes = nodes
+        self._wow = wow
         return self
 
     @property
@@ -361,6 +367,7 @@ class JsbsimSource:
         """Release JSBSim, delete its temporary folder and restore JSBSim's logger."""
         self._fdm = None
         self._nodes = []
+        self._wow = None
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
@@ -428,6 +435,7 @@ class JsbsimSource:
             n.get_double_value for n in self._nodes
         )
         sim_time = fdm.get_sim_time
+        wow = None if self._wow is None else self._wow.get_double_value
         from_vector = AircraftState.from_vector
         array = np.array
         decimation = self._decimation
@@ -466,6 +474,7 @@ class JsbsimSource:
                         rdot(),
                     )
                 ),
+                None if wow is None else wow() > 0.5,
             )
             if realtime:
                 if k == 0:

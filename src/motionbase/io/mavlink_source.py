@@ -29,6 +29,10 @@ Messages and units
   force in body FRD: level and at rest, ``zacc`` is about -9.81 m/s^2 (-1000 mG).
 * Attitude: ``ATTITUDE`` (rad), or ``ATTITUDE_QUATERNION`` while no fresh
   ``ATTITUDE`` arrives, converted to Z-Y-X Euler angles.
+* Flight phase (:attr:`~motionbase.state.AircraftState.on_ground`):
+  ``EXTENDED_SYS_STATE.landed_state``, ``MAV_LANDED_STATE_ON_GROUND`` on the ground,
+  ``IN_AIR``, ``TAKEOFF`` and ``LANDING`` in the air; ``UNDEFINED`` keeps the last one.
+  Held like the other values; None until the first message.
 * DataFlash ``.bin`` logs: ``IMU`` (first instance; AccX/Y/Z m/s^2, GyrX/Y/Z
   rad/s) and ``ATT`` (Roll/Pitch/Yaw in degrees, converted to rad, yaw wrapped
   to [-pi, pi)).
@@ -69,7 +73,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -121,6 +125,13 @@ _IMU_TYPES: dict[str, tuple[int, float, float]] = {
 }
 _IMU_WITH_INSTANCE = frozenset({"HIGHRES_IMU", "RAW_IMU"})  # messages with an `id` field
 _ATT_TYPES: dict[str, int] = {"ATTITUDE": 0, "ATTITUDE_QUATERNION": 1}
+#: EXTENDED_SYS_STATE.landed_state -> on the ground (UNDEFINED, 0, is left out: unknown)
+_LANDED: dict[int, bool] = {
+    mavutil.mavlink.MAV_LANDED_STATE_ON_GROUND: True,
+    mavutil.mavlink.MAV_LANDED_STATE_IN_AIR: False,
+    mavutil.mavlink.MAV_LANDED_STATE_TAKEOFF: False,
+    mavutil.mavlink.MAV_LANDED_STATE_LANDING: False,
+}
 _LOG_SUFFIXES = (".tlog", ".bin", ".mavlink", ".log", ".raw", ".px4log")
 
 _REQUEST_AFTER_S = 1.0  # silence on a live link before asking for streams
@@ -502,6 +513,7 @@ class MavlinkSource(SampleHoldSource):
         self._req_count = 0
         self._warned_ignored = False
         self._last_hb = -math.inf
+        self._on_ground: bool | None = None
 
     @property
     def _imu_time(self) -> float:
@@ -681,7 +693,7 @@ class MavlinkSource(SampleHoldSource):
             handle = self._handle_dataflash
             clock = None  # DataFlash timestamps already come from the vehicle's clock
         else:
-            types = [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT"]
+            types = [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
             handle = self._handle
             clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
 
@@ -776,11 +788,20 @@ class MavlinkSource(SampleHoldSource):
                 self._att_rank = att_rank
             return
 
-        if mtype == "HEARTBEAT":
+        if mtype == "EXTENDED_SYS_STATE":
+            self._on_ground = _LANDED.get(msg.landed_state, self._on_ground)
+        elif mtype == "HEARTBEAT":
             if msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:  # not a GCS/companion
                 self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
         elif mtype == "COMMAND_ACK":
             self._on_command_ack(msg)
+
+    def _make_state(self, k: int, now: float) -> AircraftState:
+        """Tick k's state (a hold of the latest values), with the last flight phase."""
+        state = super()._make_state(k, now)
+        if self._on_ground is None:
+            return state
+        return replace(state, on_ground=self._on_ground)
 
     def _handle_dataflash(self, msg: Any, arrival: float) -> None:
         """Fold one DataFlash IMU or ATT record into the state."""

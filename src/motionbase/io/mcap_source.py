@@ -259,12 +259,16 @@ def _state_from_message(msg: Any) -> AircraftState:
     t = _number(key, msg[key])
     if t < 0.0:
         raise _Malformed(f"time {t:g} s is negative (a recording's times start at 0 s)")
+    on_ground = msg.get("on_ground")
+    if on_ground is not None and not isinstance(on_ground, bool):
+        raise _Malformed(f"'on_ground' is {_show(on_ground)}, not true, false or null")
     return AircraftState(
         t=t,
         specific_force=_vector(msg, "specific_force"),
         angular_velocity=_vector(msg, "angular_velocity"),
         attitude=_vector(msg, "attitude"),
         angular_acceleration=_vector(msg, "angular_acceleration", optional=True),
+        on_ground=on_ground,
     )
 
 

@@ -3,9 +3,11 @@
 Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
 
 * ``/aircraft/state``: the sample as the source gave it (non-finite numbers kept:
-  the logger writes them as strings), with ``fresh`` and ``accepted`` flags and the
-  source's own time ``source_t``; replays feed it back.
-* ``/washout/pose``: the washout output before fades and clamping.
+  the logger writes them as strings), with ``fresh`` and ``accepted`` flags, the
+  source's own time ``source_t`` and the flight phase ``on_ground`` when the source
+  gives one; replays feed it back.
+* ``/washout/pose``: the washout output before fades and clamping, with the cueing's
+  status (a profiled cueing: ``profile`` and ``profile_weights``).
 * 6-RUS: ``/platform/pose`` (after clamping and safety, with ``clamped``,
   ``phase``, ``fade``, ``rate_limited``, ``held``), ``/platform/actuators``
   (crank angles, rad) and a ``foxglove.FrameTransform`` on ``/tf``.
@@ -47,6 +49,8 @@ def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any
     }
     if state.angular_acceleration is not None:
         msg["angular_acceleration"] = state.angular_acceleration
+    if state.on_ground is not None:
+        msg["on_ground"] = state.on_ground
     return msg
 
 
@@ -62,15 +66,18 @@ def tick_messages(out) -> list[tuple[str, dict[str, Any]]]:
         "phase": out.phase,
         "fade": out.fade,
     }
+    cue_msg = {"t": t, "pose": out.washout_pose}
+    if out.cue_status:  # e.g. the flight-phase profile and its blend
+        cue_msg.update(out.cue_status)
     if out.servo_deg is None:
         items = [
-            ("/washout/pose", {"t": t, "pose": out.washout_pose}),
+            ("/washout/pose", cue_msg),
             ("/platform/pose", pose_msg),
             ("/platform/actuators", {"t": t, "angles": out.angles}),
         ]
     else:
         items = [
-            ("/washout/pose", {"t": t, "pose": out.washout_pose}),
+            ("/washout/pose", cue_msg),
             ("/planar/pose", pose_msg),
             ("/planar/actuators", {"t": t, "angles": out.angles, "servo_deg": out.servo_deg}),
         ]

@@ -80,6 +80,11 @@ AIRCRAFT_STATE = _topic(
         "angular_acceleration": _vector(
             3, "body angular accelerations, rad/s^2, body FRD (optional)", _NUMBER_OR_NONFINITE
         ),
+        "on_ground": {
+            "type": "boolean",
+            "description": "flight phase: true on the ground (weight on wheels), false in "
+            "the air (optional: absent when the source does not say)",
+        },
     },
     ["specific_force", "angular_velocity", "attitude"],
 )
@@ -88,7 +93,19 @@ WASHOUT_POSE = _topic(
     "motionbase.WashoutPose",
     "Platform pose the washout asks for, before clamping: [x, y, z] m and "
     "[roll, pitch, yaw] rad (Z-Y-X), base axes FRD.",
-    {"pose": _vector(6, "[x, y, z, roll, pitch, yaw], m and rad")},
+    {
+        "pose": _vector(6, "[x, y, z, roll, pitch, yaw], m and rad"),
+        "profile": {
+            "type": "string",
+            "description": "flight-phase profile the cueing runs or blends toward: base, "
+            "ground or air (optional: parameters with profiles only)",
+        },
+        "profile_weights": {
+            "type": "object",
+            "additionalProperties": {"type": "number", "minimum": 0, "maximum": 1},
+            "description": "each profile's share of the pose (sum 1; optional)",
+        },
+    },
     ["pose"],
 )
 

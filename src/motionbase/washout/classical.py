@@ -38,6 +38,9 @@ simulation motion-base drive algorithms: part 1", UTIAS Report 296, 1985):
    third-order high-pass ``s^2/(s^2 + 2 zeta wn s + wn^2) * s/(s + wb)`` and double
    integration to position, per axis, so that a sustained acceleration returns the
    platform to neutral.
+5. **Cue limiter** (optional, per axis, ``translational.accel_limit`` and
+   ``velocity_limit`` > 0): the translational cue follows the high-pass position within
+   those limits (below, "Cue limiter").
 
 The output pose is ``[x, y, z, roll, pitch, yaw]`` (m, rad) in base axes FRD.
 ``T_s`` uses the attitude of the previous output (the attitude actually sent, after
@@ -75,6 +78,19 @@ discrete braking curve of :mod:`motionbase.safety` applied to the tilt:
   the limits allow the whole step, the tilt lands exactly on the target (bit-exact
   hold of a constant target or of the angle limit).
 
+Cue limiter
+-----------
+Per translational axis whose ``accel_limit`` (``a``, m/s^2) or ``velocity_limit``
+(``v_max``, m/s) is set, the cue position follows the high-pass position with the tilt
+tracker's rules (above) and no angle limit: the target's own velocity fed forward, the
+rest closed no faster than the glide speed ``min(braking curve, dist a/v_max + u/10)``
+(the braking curve alone without a velocity limit; no braking without an acceleration
+limit, only the velocity clip), then ``|v - v_prev| <= a dt`` and ``|v| <= v_max``. The
+cue's velocity and acceleration (finite differences of the pose) never exceed the limits,
+and it lands on a settled target without overshoot. An axis without limits is untouched
+(its numbers are those of the filter alone, bit for bit). The channel's washout still
+brings the cue back to neutral: the limiter only slows it.
+
 Anti-windup (back-calculation)
 ------------------------------
 When the platform cannot reach the commanded pose, the pipeline clamps it and calls
@@ -84,7 +100,8 @@ the platform really is:
 
 - translation, per axis: the position state is set to the achieved position, and
   the velocity state is zeroed if it points in the direction the clamp cut (it
-  would only push further into the limit). The integral-of-position state keeps
+  would only push further into the limit); the cue limiter's position is set the same way,
+  and its velocity zeroed likewise. The integral-of-position state keeps
   integrating the *achieved* position. The realisation has no free integrator, so
   whatever the states hold, they decay back to neutral with the filter's own
   poles: the pose can neither stick at the limit nor pump past neutral.
@@ -130,7 +147,8 @@ _LPHI, _LG0, _LG1 = 69, 77, 81  # tilt low-pass: 2 axes x (2x2), 2 x 2, 2 x 2
 _KF, _FLIM, _KW, _WLIM = 85, 88, 91, 94
 _G, _TVMAX, _TLIM, _TU, _DT, _TK = 97, 98, 99, 100, 101, 102
 _PON, _PPHI, _PG0, _PG1 = 103, 104, 108, 110  # input low-pass: on flag, (2x2), 2, 2
-_NC = 112
+_XON, _XA, _XV = 112, 115, 118  # cue limiter per axis: on flag, accel limit, velocity limit
+_NC = 121
 
 # state
 _QT, _UT = 0, 9  # translational states (axis*3 + [integral, position, velocity]), inputs
@@ -141,7 +159,8 @@ _POSE = 29  # last pose sent (6)
 _TRATE = 35  # tilt rates (roll, pitch)
 _TTGT = 37  # last angle-limited tilt targets (roll, pitch)
 _QP, _UP = 39, 51  # input low-pass states (channel*2 + [output, rate]), inputs (6 channels)
-_NS = 57
+_XS = 57  # cue limiter states (axis*3 + [position, velocity, last target])
+_NS = 66
 
 _GLIDE_END = 0.1  # the glide lands at a speed of this share of one tick's speed change
 _COS_MIN = 1e-3  # guard of 1/cos(pitch) in T_s (pitch within 0.06 deg of +-90 deg)
@@ -204,6 +223,44 @@ def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
     st[_TRATE + i] = (q - q0) / dt
     st[_TTGT + i] = tgt
     st[_TILT + i] = q
+    return q
+
+
+@numba.njit(cache=True, inline="always")
+def _cue_track(cf, st, i, tgt):  # pragma: no cover - compiled
+    """Translational cue axis ``i`` one tick toward the high-pass position ``tgt`` (m),
+    within its acceleration and velocity limits (0: that limit off); returns the new
+    position. The tilt tracker's braking curve without an angle limit ("Cue limiter")."""
+    dt = cf[_DT]
+    j = _XS + 3 * i
+    q0 = st[j]
+    v0 = st[j + 1]
+    a = cf[_XA + i]
+    vmax = cf[_XV + i]
+    if vmax <= 0.0:
+        vmax = np.inf
+    vt = _clip((tgt - st[j + 2]) / dt, -vmax, vmax)  # the target's own velocity, fed forward
+    e = tgt - q0 - vt * dt
+    if a > 0.0:
+        u = a * dt
+        cap = brake_speed(abs(e), u, dt)
+        if vmax < np.inf:
+            cap = min(cap, a / vmax * abs(e) + _GLIDE_END * u)
+    else:
+        u = np.inf
+        cap = np.inf
+    v_full = (tgt - q0) / dt
+    if abs(e) / dt <= cap and abs(v_full) <= vmax and abs(v_full - v0) <= u:
+        q = tgt  # the whole step is allowed: land exactly on the target
+    else:
+        fb = min(cap, abs(e) / dt)
+        v = vt + fb if e >= 0.0 else vt - fb
+        v = _clip(v, v0 - u, v0 + u)
+        v = _clip(v, -vmax, vmax)
+        q = q0 + v * dt
+    st[j + 1] = (q - q0) / dt
+    st[j + 2] = tgt
+    st[j] = q
     return q
 
 
@@ -328,7 +385,7 @@ def _step_kernel(cf, st, fx, fy, fz, wx, wy, wz, out):  # pragma: no cover - com
         st[_QT + 3 * i + 1] = n1
         st[_QT + 3 * i + 2] = n2
         st[_UT + i] = u
-        out[i] = n1
+        out[i] = n1 if cf[_XON + i] == 0.0 else _cue_track(cf, st, i, n1)
     out[3] = roll
     out[4] = pitch
     out[5] = yaw
@@ -371,6 +428,12 @@ def _track(cf, st, ach):  # pragma: no cover - compiled
             st[_QT + 3 * i + 1] = ach[i]
             if st[_QT + 3 * i + 2] * d < 0.0:
                 st[_QT + 3 * i + 2] = 0.0
+            if cf[_XON + i] != 0.0:  # the cue limiter continues from the achieved pose too
+                j = _XS + 3 * i
+                st[j] = ach[i]
+                st[j + 2] = ach[i]
+                if st[j + 1] * d < 0.0:
+                    st[j + 1] = 0.0
     # rotation: scale tilt and high-pass together when the clamp scaled toward neutral
     for j in range(3):
         cmd = st[_POSE + 3 + j]
@@ -424,6 +487,9 @@ class WashoutState:
         rates p, q, r [rad/s]): the input low-pass's (output, rate); zero when it is off.
     input_lowpass_input : ndarray, shape (6,)
         Its last inputs.
+    cue_limiter : ndarray, shape (3, 3)
+        Per axis x, y, z: the limited translational cue's (position [m], velocity [m/s],
+        last high-pass position it followed [m]); zero on axes without limits.
     """
 
     translational: np.ndarray
@@ -438,6 +504,7 @@ class WashoutState:
     pose: np.ndarray
     input_lowpass: np.ndarray
     input_lowpass_input: np.ndarray
+    cue_limiter: np.ndarray
 
     @classmethod
     def from_vector(cls, st: np.ndarray) -> WashoutState:
@@ -454,6 +521,7 @@ class WashoutState:
             "pose": st[_POSE : _POSE + 6],
             "input_lowpass": st[_QP:_UP].reshape(6, 2),
             "input_lowpass_input": st[_UP : _UP + 6],
+            "cue_limiter": st[_XS : _XS + 9].reshape(3, 3),
         }
         frozen = {}
         for key, value in parts.items():
@@ -476,6 +544,7 @@ class WashoutState:
         st[_POSE : _POSE + 6] = self.pose
         st[_QP:_UP] = self.input_lowpass.ravel()
         st[_UP : _UP + 6] = self.input_lowpass_input
+        st[_XS : _XS + 9] = self.cue_limiter.ravel()
         return st
 
 
@@ -525,6 +594,12 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
         cf[_PPHI : _PPHI + 4] = d.phi.ravel()
         cf[_PG0 : _PG0 + 2] = d.gamma0
         cf[_PG1 : _PG1 + 2] = d.gamma1
+    for i in range(3):
+        a = params.translational_accel_limit[i]
+        v = params.translational_velocity_limit[i]
+        cf[_XON + i] = 1.0 if (a > 0.0 or v > 0.0) else 0.0
+        cf[_XA + i] = a
+        cf[_XV + i] = v
     return cf
 
 

@@ -12,6 +12,15 @@ listed in :data:`CUEINGS` (or added with :func:`register_cueing`) and chosen wit
 Time convention: one call of :meth:`Cueing.advance` is one sample period ``dt`` (s), the
 pipeline's.
 
+Flight phase (optional): before :meth:`Cueing.advance`, the pipeline calls
+:meth:`Cueing.set_flight_phase` on every tick whose sample says whether the aircraft is on
+the ground (:attr:`motionbase.state.AircraftState.on_ground`); a cueing that does not use
+it ignores it (the default). A cueing may keep a small dict in :attr:`Cueing.status`
+(plain JSON values) that the log writes with its pose on ``/washout/pose``. Parameters
+with flight-phase profiles (``params.profiles``) are run by
+:class:`~motionbase.washout.profiles.ProfiledCueing`, which :meth:`CueingSpec.make` builds
+for them: one cueing of the registered kind per profile, blended by the phase.
+
 Compiled kernels (optional)
 ---------------------------
 A cueing whose step is a numba function may expose it, so that the pipeline's batch path
@@ -61,6 +70,8 @@ class Cueing(ABC):
         Optional compiled step and feedback (module notes).
     kernel_params, kernel_state : ndarray or None
         Their parameter and (live) state vectors.
+    status : dict or None
+        Extra fields the log writes on ``/washout/pose`` (None: none).
     """
 
     name: ClassVar[str]
@@ -70,6 +81,11 @@ class Cueing(ABC):
     track_kernel: Any = None
     kernel_params: np.ndarray | None = None
     kernel_state: np.ndarray | None = None
+    status: dict[str, Any] | None = None
+
+    def set_flight_phase(self, on_ground: bool) -> None:  # noqa: B027 - optional hook
+        """The sample's flight phase (True: on the ground), before :meth:`advance`; only on
+        ticks whose sample gives one. Ignored unless a cueing uses it."""
 
     @abstractmethod
     def reset(self) -> None:
@@ -155,6 +171,13 @@ class CueingSpec:
         return self.params_type.from_toml(path)
 
     def make(self, params: Any, dt: float) -> Cueing:
+        """The cueing for ``params`` at sample period ``dt`` (s): a
+        :class:`~motionbase.washout.profiles.ProfiledCueing` when they hold flight-phase
+        profiles."""
+        if getattr(params, "profiles", ()):
+            from motionbase.washout.profiles import ProfiledCueing
+
+            return ProfiledCueing(self.cueing_type, params, dt, name=self.name)
         return self.cueing_type(params, dt)
 
 

@@ -16,6 +16,8 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
     wn = [1.0, 1.0, 1.2]         # rad/s
     zeta = [1.0, 1.0, 1.0]
     wb = [0.3, 0.3, 0.3]         # rad/s
+    accel_limit = [2.0, 0, 0]    # optional: the cue's largest acceleration, m/s^2 (0: off)
+    velocity_limit = [0.4, 0, 0] # optional: the cue's largest velocity, m/s (0: off)
 
     [tilt]                       # wn^2/(s^2 + 2 zeta wn s + wn^2) on f_x, f_y
     wn = 2.0                     # rad/s
@@ -31,6 +33,13 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
     [input]                      # optional: wn^2/(s + wn)^2 on every input channel
     lowpass_wn = 8.0             # rad/s; 0 (or no [input] table) turns it off
 
+    [profile]                    # optional: flight-phase profiles
+    blend_s = 3.0                # s, the smoothstep blend when the phase changes
+    [profile.ground.scaling]     # on the ground: these values override the ones above
+    specific_force_gain = [0.7, 0.7, 0.6]
+    [profile.air.tilt]           # in the air
+    angle_limit_deg = 6.0
+
 The dataclass fields mirror the file one to one (angles stay in degrees where the
 name says ``_deg``), so ``from_dict(p.to_dict()) == p`` exactly; the SI values the
 filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit``,
@@ -38,13 +47,26 @@ filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit``,
 
 ``tilt.accel_limit_deg_s2`` may be left out (files written before it existed): it then
 takes :data:`DEFAULT_TILT_ACCEL_LIMIT_DEG_S2`. The ``[input]`` table may be left out too
-(no input low-pass, as before it existed).
+(no input low-pass, as before it existed), and so may ``translational.accel_limit`` and
+``translational.velocity_limit`` (the translational cue's own limits, per axis; 0 turns an
+axis's limit off, the default: see :mod:`motionbase.washout.classical`, "Cue limiter").
+
+Flight-phase profiles
+---------------------
+``[profile.ground]`` and ``[profile.air]`` (:data:`PROFILES`) each hold any of the tables
+above (``scaling``, ``translational``, ``tilt``, ``rotational``, ``input``), full or partial:
+the values they give replace the file's own for that flight phase
+(:meth:`WashoutParams.for_profile`). A missing profile runs the file's own values. The
+cueing switches between them by the source's flight phase
+(:attr:`motionbase.state.AircraftState.on_ground`) with a smoothstep blend of
+``[profile] blend_s`` seconds (:mod:`motionbase.washout.profiles`); until the source gives
+a phase, the file's own values run.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +101,7 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "angular_velocity_gain",
         "angular_velocity_limit_deg_s",
     ),
-    "translational": ("wn", "zeta", "wb"),
+    "translational": ("wn", "zeta", "wb", "accel_limit", "velocity_limit"),
     "tilt": ("wn", "zeta", "rate_limit_deg_s", "angle_limit_deg", "accel_limit_deg_s2"),
     "rotational": ("wn", "zeta"),
     "input": ("lowpass_wn",),
@@ -88,10 +110,19 @@ _TOP = ("description", "g", "method")
 #: Keys that may be left out of a file, per section, with their default.
 _OPTIONAL: dict[str, dict[str, float]] = {
     "tilt": {"accel_limit_deg_s2": DEFAULT_TILT_ACCEL_LIMIT_DEG_S2},
+    "translational": {"accel_limit": 0.0, "velocity_limit": 0.0},
     "input": {"lowpass_wn": 0.0},
 }
 #: Tables that may be left out of a file (all their keys then take their defaults).
 _OPTIONAL_SECTIONS = ("input",)
+#: Optional per-axis keys, off (0) by default, written only when set.
+_OFF_VECTORS: dict[str, tuple[str, ...]] = {"translational": ("accel_limit", "velocity_limit")}
+#: The flight-phase profiles a file may hold (``[profile.<name>]``).
+PROFILES = ("ground", "air")
+#: Blend time between profiles when a file does not give one, s.
+DEFAULT_PROFILE_BLEND_S = 3.0
+
+_TOP_OPTIONAL = ("profile",)
 
 
 @dataclass(frozen=True)
@@ -128,6 +159,15 @@ class WashoutParams:
         Natural frequency of the critically damped second-order low-pass on every input
         channel, rad/s, >= 0; 0 turns it off (for sources that hold sparse samples, such as
         MAVLink telemetry at a few Hz).
+    translational_accel_limit, translational_velocity_limit : (3,) float
+        Largest acceleration (m/s^2) and velocity (m/s) of the translational cue per axis
+        x, y, z, >= 0; 0 turns that axis's limit off (the default).
+    profile_blend_s : float
+        Blend time between flight-phase profiles, s, >= 0.
+    profiles : tuple of (name, overrides)
+        The flight-phase profiles: per name (:data:`PROFILES`), the values it overrides as
+        ``((section, key, value), ...)`` (values as in the file: a number or a 3-tuple).
+        Empty without profiles. :meth:`for_profile` gives a profile's parameters.
     g : float
         Gravity, m/s^2, > 0.
     method : str
@@ -151,15 +191,53 @@ class WashoutParams:
     rotational_zeta: Vec3
     tilt_accel_limit_deg_s2: float = DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
     input_lowpass_wn: float = 0.0
+    translational_accel_limit: Vec3 = (0.0, 0.0, 0.0)
+    translational_velocity_limit: Vec3 = (0.0, 0.0, 0.0)
     g: float = STANDARD_GRAVITY
     method: str = "tustin"
     description: str = ""
+    profile_blend_s: float = DEFAULT_PROFILE_BLEND_S
+    profiles: tuple = ()
 
     def __post_init__(self) -> None:
         # Validate (and normalise to floats) even when built directly in Python.
-        validated = _validate(self.to_dict(), "WashoutParams")
+        d = self.to_dict()
+        d.pop("profile", None)
+        validated = _validate(d, "WashoutParams")
         for key, value in validated.items():
             object.__setattr__(self, key, value)
+        object.__setattr__(
+            self,
+            "profile_blend_s",
+            as_float("WashoutParams", "profile.blend_s", self.profile_blend_s, min_value=0.0),
+        )
+        profiles = _profile_tables(
+            "WashoutParams", {name: _unflatten(items) for name, items in self.profiles}
+        )
+        object.__setattr__(self, "profiles", profiles)
+        for name in self.profile_names:
+            self.for_profile(name)  # each profile must be valid on its own
+
+    # --- flight-phase profiles -------------------------------------------------------------
+
+    @property
+    def profile_names(self) -> tuple[str, ...]:
+        """The profiles this file defines, in :data:`PROFILES` order (empty without any)."""
+        return tuple(name for name, _ in self.profiles)
+
+    def for_profile(self, name: str | None) -> WashoutParams:
+        """The parameters of profile ``name``: these values with the profile's overrides,
+        and no profiles of their own (``self`` when ``name`` is None or not defined here).
+
+        Raises
+        ------
+        ConfigError
+            When the overrides make a value invalid (the message names the profile).
+        """
+        items = dict(self.profiles).get(name) if name is not None else None
+        if items is None:
+            return self if not self.profiles else replace(self, profiles=())
+        return _resolve_profile(self.to_dict(), items, f"WashoutParams [profile.{name}]")
 
     # --- SI views -------------------------------------------------------------------------
 
@@ -219,7 +297,7 @@ class WashoutParams:
             raise ConfigError(f"{source}: expected a table of washout parameters, got {d!r}")
         check_file_kind(source, d, "washout")
         required = tuple(k for k in _SECTIONS if k not in _OPTIONAL_SECTIONS)
-        check_keys(source, d, (*_TOP, *_SECTIONS), required=required)
+        check_keys(source, d, (*_TOP, *_TOP_OPTIONAL, *_SECTIONS), required=required)
         flat: dict[str, Any] = {}
         for section, keys in _SECTIONS.items():
             table = d.get(section, {})
@@ -234,12 +312,40 @@ class WashoutParams:
         flat["method"] = d.get("method", "tustin")
         flat["description"] = d.get("description", "")
         values = _validate(_nest(flat), source)
-        return cls(**values)
+        profile = d.get("profile", {})
+        if not isinstance(profile, dict):
+            raise ConfigError(f"{source}: [profile] must be a table, got {profile!r}")
+        check_keys(f"{source} [profile]", profile, ("blend_s", *PROFILES))
+        blend_s = as_float(
+            source,
+            "profile.blend_s",
+            profile.get("blend_s", DEFAULT_PROFILE_BLEND_S),
+            min_value=0.0,
+            unit="s",
+        )
+        tables = {name: profile[name] for name in profile if name != "blend_s"}
+        profiles = _profile_tables(source, tables)
+        base = _nest(values | {"description": values["description"]})
+        for name, items in profiles:  # name the file when a profile's value is wrong
+            _resolve_profile(base, items, f"{source} [profile.{name}]")
+        return cls(**values, profile_blend_s=blend_s, profiles=profiles)
 
     def to_dict(self) -> dict[str, Any]:
-        """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly."""
+        """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly.
+
+        The optional per-axis cue limits and the ``[profile]`` table appear only when set."""
         flat = {name: getattr(self, name) for name in self.__dataclass_fields__}
-        return _nest(flat)
+        out = _nest(flat)
+        for section, keys in _OFF_VECTORS.items():
+            for key in keys:
+                if not any(out[section][key]):
+                    del out[section][key]
+        if self.profiles or self.profile_blend_s != DEFAULT_PROFILE_BLEND_S:
+            profile: dict[str, Any] = {"blend_s": self.profile_blend_s}
+            for name, items in self.profiles:
+                profile[name] = _unflatten(items)
+            out["profile"] = profile
+        return out
 
     def to_toml(self, path: str | Path) -> None:
         """Write the parameters as a TOML file that :meth:`from_toml` reads back."""
@@ -251,6 +357,58 @@ class WashoutParams:
 
 def _field(section: str, key: str) -> str:
     return key if section == "scaling" else f"{section}_{key}"
+
+
+def _resolve_profile(base: dict[str, Any], items: tuple, source: str) -> WashoutParams:
+    """The parameters of the nested mapping ``base`` with a profile's overrides applied."""
+    d = {k: (dict(v) if isinstance(v, dict) else v) for k, v in base.items() if k != "profile"}
+    for section, key, value in items:
+        d[section][key] = list(value) if isinstance(value, tuple) else value
+    return WashoutParams.from_dict(d, source=source)
+
+
+def _unflatten(items: tuple) -> dict[str, dict[str, Any]]:
+    """``((section, key, value), ...)`` -> ``{section: {key: value}}`` (lists for vectors)."""
+    out: dict[str, dict[str, Any]] = {}
+    for section, key, value in items:
+        out.setdefault(section, {})[key] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+def _profile_tables(source: str, tables: dict[str, Any]) -> tuple:
+    """Check the ``[profile.<name>]`` tables; return them as hashable, ordered overrides."""
+    out = []
+    for name in tables:
+        if name not in PROFILES:
+            raise ConfigError(
+                f"{source}: unknown profile {name!r} (a file may hold [profile.ground] and "
+                "[profile.air])"
+            )
+    for name in PROFILES:
+        if name not in tables:
+            continue
+        where = f"{source} [profile.{name}]"
+        table = tables[name]
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where}: must be a table of washout tables, got {table!r}")
+        check_keys(where, table, _SECTIONS)
+        items = []
+        for section, keys in _SECTIONS.items():
+            sub = table.get(section, {})
+            if not isinstance(sub, dict):
+                raise ConfigError(f"{where} [{section}]: must be a table, got {sub!r}")
+            check_keys(f"{where} [{section}]", sub, keys)
+            for key in keys:
+                if key not in sub:
+                    continue
+                value = sub[key]
+                if isinstance(value, (list, tuple, np.ndarray)):
+                    value = tuple(as_array(where, f"{section}.{key}", value, 3).tolist())
+                else:
+                    value = as_float(where, f"{section}.{key}", value)
+                items.append((section, key, value))
+        out.append((name, tuple(items)))
+    return tuple(out)
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -273,7 +431,7 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
 
     def vec(section: str, key: str, *, strict: bool, unit: str = "") -> Vec3:
         name = f"{section}.{key}"
-        arr = as_array(source, name, d[section][key], 3)
+        arr = as_array(source, name, d[section].get(key, 0.0), 3)
         for v in arr:
             as_float(source, name, float(v), min_value=0.0, strict_min=strict, unit=unit)
         return tuple(float(v) for v in arr)  # type: ignore[return-value]
@@ -301,6 +459,12 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         "input_lowpass_wn": num("input", "lowpass_wn", strict=False, unit="rad/s"),
         "rotational_wn": vec("rotational", "wn", strict=True, unit="rad/s"),
         "rotational_zeta": vec("rotational", "zeta", strict=True),
+        "translational_accel_limit": vec(
+            "translational", "accel_limit", strict=False, unit="m/s^2"
+        ),
+        "translational_velocity_limit": vec(
+            "translational", "velocity_limit", strict=False, unit="m/s"
+        ),
         "g": as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2"),
     }
     if out["tilt_angle_limit_deg"] >= 90.0:
