@@ -30,7 +30,11 @@ GROUPS = {
         "io/_log_kernels.py",
         "io/pipeline_log.py",
     ],
-    "teleop": ["teleop.py"],
+    "teleop, motor outputs and the wiring check": [
+        "teleop.py",
+        "commanding.py",
+        "io/motor_output.py",
+    ],
 }
 
 
@@ -73,15 +77,18 @@ def main() -> None:
     totals = [0, 0, 0, 0]
     for group, files in GROUPS.items():
         row = [0, 0, 0, 0]
+        lines = []
         for name in files:
+            one = [0, 0, 0, 0]
             for k, rev in enumerate((args.before, None)):
                 text = _text(rev, SRC + name)
                 if text is not None:
-                    n_all, n_code = count(text)
-                    row[2 * k] += n_all
-                    row[2 * k + 1] += n_code
+                    one[2 * k], one[2 * k + 1] = count(text)
+            row = [a + b for a, b in zip(row, one, strict=True)]
+            lines.append(f"    {name:43s} {one[0]:5d} / {one[1]:5d}  ->  {one[2]:5d} / {one[3]:5d}")
         totals = [a + b for a, b in zip(totals, row, strict=True)]
         print(f"  {group:45s} {row[0]:5d} / {row[1]:5d}  ->  {row[2]:5d} / {row[3]:5d}")
+        print("\n".join(lines))
     print(
         f"  {'total':45s} {totals[0]:5d} / {totals[1]:5d}  ->  {totals[2]:5d} / {totals[3]:5d}"
         f"  ({totals[3] - totals[1]:+d} code lines)"

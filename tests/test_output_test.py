@@ -143,3 +143,38 @@ def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too():
         assert dev.min() == pytest.approx(-5.0, abs=1e-3)
     order = [int(np.flatnonzero(a)[0]) for a in away if a.any()]
     assert list(dict.fromkeys(order)) == [0, 1, 2]
+
+
+def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
+    """``output --test --platform stewart6``: each of the Stewart platform's linear actuators
+    (millimetres, the default mapping for linear actuators) is swept by +-10 mm about its
+    length at the neutral pose, one at a time, within the stroke; the last frame is park."""
+    from motionbase.platform import Stewart6Geometry
+    from motionbase.platform.robot import robot_spec
+
+    robot = robot_spec("stewart6").make(Stewart6Geometry.preset("seat"))
+    rx = UdpDrive(n=6)
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", rx.url(200)]
+    cmd += ["--platform", "stewart6", "--range-mm", "10", "--speed-mm-s", "60", "--rate", "200"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+        rx.drain()
+    finally:
+        rx.close()
+    assert proc.returncode == 0, proc.stderr
+    _, q = rx.angles()
+    mm = np.degrees(q)  # the drive's parser reads degrees into radians: undo it
+    neutral = 1000.0 * robot.inverse(np.zeros(6))
+    park = 1000.0 * robot.park_angles
+    np.testing.assert_allclose(mm[-1], park, atol=1e-3)
+    lo, hi = 1000.0 * robot.limits.lower, 1000.0 * robot.limits.upper
+    assert np.all(mm >= lo - 1e-3) and np.all(mm <= hi + 1e-3)
+    # away from the neutral lengths one actuator at a time, by +-10 mm each
+    at_neutral = np.flatnonzero(np.all(np.abs(mm - neutral) < 1e-3, axis=1))
+    swept = mm[at_neutral[0] : at_neutral[-1] + 1]  # from neutral, the sweeps, back to it
+    away = np.abs(swept - neutral) > 0.01
+    assert away.sum(axis=1).max() == 1
+    for i in range(6):
+        dev = swept[away[:, i], i] - neutral[i]
+        assert dev.max() == pytest.approx(10.0, abs=1e-3)
+        assert dev.min() == pytest.approx(-10.0, abs=1e-3)
