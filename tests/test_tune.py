@@ -447,6 +447,6 @@ def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
         time.sleep(0.1)
     assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
     if sig == signal.SIGINT:
-        assert proc.returncode == 130
+        assert proc.returncode == 130, err.decode()[-2000:]
         assert err.decode().strip() == "motionbase tune: interrupted"
     assert not (tmp_path / "o.toml").exists()
