@@ -14,11 +14,12 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
 * ``/platform/scene``: the robot drawn at its logged pose (``foxglove.SceneUpdate``, see
   :mod:`motionbase.io.scene`), when the log is given the robot's kinematics: at
   :data:`~motionbase.io.scene.SCENE_RATE_HZ` (30 Hz) of source time, not every tick (a
-  scene is about 14 kB and 0.1 ms to build), and at the last tick.
+  scene is about 14 kB; :meth:`~motionbase.io.scene.SceneBuilder.encode` fills a template,
+  about 50 us a scene, most of it the robot's ``joint_points``), and at the last tick.
 
-With ``live``, the log's own :class:`foxglove.Context` also feeds a Foxglove WebSocket
-server (:class:`~motionbase.io.mcap_log.McapLogger`): every topic above goes to the file
-and to the connected Foxglove apps from the same ``log`` call.
+With ``live``, a Foxglove WebSocket server (:class:`~motionbase.io.mcap_log.McapLogger`)
+also gets every topic above, each message encoded once for both, at most 60 messages per
+second of source time per topic (the file keeps every tick).
 """
 
 from __future__ import annotations
@@ -97,7 +98,8 @@ class PipelineLog:
     kinematics : Rus6 or Rrr3, optional
         The robot the outputs come from: ``/platform/scene`` is written when given.
     live : LiveAddress, optional
-        Also serve every topic to Foxglove over WebSocket while the log is written.
+        Also serve every topic to Foxglove over WebSocket while the log is written (at
+        most :data:`~motionbase.io.mcap_log.LIVE_RATE_HZ` messages a second per topic).
     """
 
     def __init__(
@@ -176,8 +178,8 @@ class PipelineLog:
     def _write_scene(self, logger: McapLogger, out) -> None:
         assert self._scene is not None
         t = out.t
-        msg = self._scene.message(t, out.platform_pose, out.angles, out.clamped)
-        logger.add("/platform/scene", t, msg)
+        data = self._scene.encode(t, out.platform_pose, out.angles, out.clamped)
+        logger.add_encoded("/platform/scene", t, data)
         self._scene_t = t
         nxt = self._next_scene_t + self._scene_period
         self._next_scene_t = nxt if t < nxt else t + self._scene_period  # none owed after a gap
