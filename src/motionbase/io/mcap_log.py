@@ -17,6 +17,11 @@ Live view
     on or past the topic's 60 Hz grid, so on a 1 kHz run about one tick in 17, on a
     120 Hz run every other tick, and every message of the slower topics
     (``/platform/scene`` at 30 Hz, ``/health``, the ``world -> base`` transform).
+    The caller's thread only queues the bytes: a thread of the logger hands them to the
+    server. (Handing them over on the caller's thread made it wait, now and then, for
+    the server's own threads: on a busy machine a 1 kHz loop then overran its tick
+    several times as often, see ``benchmarks/RESULTS.md``, issue 17.) The file does
+    not depend on the live feed: the same input gives the same file, client or not.
 
 Crash safety
     The writer compresses messages into the chunk in progress as they come. The
@@ -56,6 +61,8 @@ import json
 import logging
 import math
 import os
+import queue
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,6 +233,16 @@ class LiveAddress:
         return f"live view: {self.url(port)} (Foxglove: Open connection > Foxglove WebSocket)"
 
 
+def _serve_live(jobs: queue.SimpleQueue) -> None:
+    """The live feed's thread: log each queued ``(channel, data, log_time)`` until ``None``."""
+    while (job := jobs.get()) is not None:
+        channel, data, ns = job
+        try:
+            channel.log(data, log_time=ns)
+        except Exception as exc:  # noqa: BLE001 - the live view never stops the run
+            log.warning("live view: %s", exc)
+
+
 def _channel(topic: str, name: str, schema: Any, context: foxglove.Context) -> foxglove.Channel:
     """A JSON channel of ``topic`` with its JSON Schema, on ``context``."""
     return foxglove.Channel(
@@ -371,6 +388,8 @@ class McapLogger:
         self._live_context: foxglove.Context | None = None
         # topic -> [live channel, log time (ns) from which its next message goes live]
         self._live: dict[str, list] | None = None
+        self._live_queue: queue.SimpleQueue | None = None
+        self._live_thread: threading.Thread | None = None
         self._state = "new"
         self._failure = ""
         self._message_count = 0
@@ -432,6 +451,11 @@ class McapLogger:
                 topic: [_channel(topic, name, schema, self._live_context), _FIRST]
                 for topic, (name, schema) in TOPIC_SCHEMAS.items()
             }
+            self._live_queue = queue.SimpleQueue()
+            self._live_thread = threading.Thread(
+                target=_serve_live, args=(self._live_queue,), name="motionbase-live", daemon=True
+            )
+            self._live_thread.start()
         self._flush()  # the header and the configuration on disk now
 
     def finish(self) -> None:
@@ -456,6 +480,10 @@ class McapLogger:
         finally:
             for channel in self._channels.values():
                 channel.close()
+            if self._live_thread is not None:  # the queued messages go out first
+                self._live_queue.put(None)
+                self._live_thread.join()
+                self._live_thread = None
             for channel, _ in (self._live or {}).values():
                 channel.close()
             file.close()
@@ -572,7 +600,7 @@ class McapLogger:
         entry = self._live[topic]
         due = entry[1]
         if always or ns >= due - _LIVE_SLACK_NS:
-            entry[0].log(data, log_time=ns)
+            self._live_queue.put((entry[0], data, ns))
             if not always:
                 nxt = due + self._live_period_ns
                 entry[1] = nxt if ns < nxt - _LIVE_SLACK_NS else ns + self._live_period_ns
