@@ -33,13 +33,15 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from motionbase import app
+from motionbase.app import load_config
 from motionbase.cli import main
 from motionbase.errors import ConfigError
 from motionbase.io.mcap_log import LiveAddress, McapLogger, encode_message
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.scene import NEAR_LIMIT_DEG, SceneBuilder
-from motionbase.pipeline import PipelineConfig
+from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.platform import Rrr3, Rrr3Geometry, Rus6, Rus6Geometry
+from motionbase.state import AircraftState
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANAR_RECORDING = ROOT / "recordings" / "c1723_planar_15s.mcap"
@@ -298,6 +300,26 @@ def test_scene_of_a_flight_is_the_robot_drawn_at_the_logged_pose(tmp_path):
     span = msgs["/platform/pose"][-1]["t"] - msgs["/platform/pose"][0]["t"]
     assert n < ticks / 2
     assert abs(n - (30 * span + 1)) <= 2
+
+
+def test_scene_drawn_on_the_logs_thread_leaves_the_same_file(tmp_path):
+    """The log draws scenes on a thread of its own: the same outputs still give the very same
+    file, scene messages at their own times, one per 30 Hz grid point."""
+    from motionbase.io.pipeline_log import PipelineLog
+
+    pipeline = Pipeline(load_config(rate_hz=120.0))
+    outs = [pipeline.step(AircraftState(k / 120, (1.0, -0.5, -9.0), (0.1, 0.0, 0.2), (0, 0, 0)))
+            for k in range(1, 400)]  # fmt: skip
+    files = []
+    for name in ("a.mcap", "b.mcap"):
+        with PipelineLog(tmp_path / name, {"kind": "test"}, kinematics=pipeline.robot.kin) as log:
+            for out in outs:
+                log.write(out)
+        files.append((tmp_path / name).read_bytes())
+    assert files[0] == files[1]
+    scenes = [m["t"] for m in read_messages(tmp_path / "a.mcap")["/platform/scene"]]
+    assert scenes == sorted(scenes) and scenes[0] == outs[0].t and scenes[-1] == outs[-1].t
+    assert len(scenes) == pytest.approx(30 * (outs[-1].t - outs[0].t) + 2, abs=1)
 
 
 def test_scene_colours_a_leg_near_its_limit_red():
