@@ -600,7 +600,9 @@ class McapLogger:
         entry = self._live[topic]
         due = entry[1]
         if always or ns >= due - _LIVE_SLACK_NS:
-            self._live_queue.put((entry[0], data, ns))
+            channel = entry[0]
+            if channel.has_sinks():  # a client subscribed to the topic
+                self._live_queue.put((channel, data, ns))
             if not always:
                 nxt = due + self._live_period_ns
                 entry[1] = nxt if ns < nxt - _LIVE_SLACK_NS else ns + self._live_period_ns
