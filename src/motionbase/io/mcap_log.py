@@ -43,7 +43,7 @@ Exact numbers
     ``"-Infinity"`` (see :mod:`motionbase.io.schemas`).
 
 Where the time goes
-    Everything runs on the caller's thread: encoding, the writer's ``log``
+    Everything runs on the caller's thread (but the live hand-over): encoding, the writer's ``log``
     (which holds the interpreter lock, so a writer thread would only add thread
     switches) and its compression, which works a block at a time: the message
     that fills a block (lz4: 64 KiB, zstd: 128 KiB) and the tick that finishes a
