@@ -15,7 +15,9 @@ late for the actuators that ``/health`` counts from each sample's due time.
 the gaps in which it did not run (as jHiccup does).
 ``--live`` also serves the log to Foxglove over WebSocket (``motionbase ... --live``) with one
 client connected, in another process, subscribed to every topic and reading all it gets
-(the ``websockets`` package of the test extra); ``--no-scene`` leaves ``/platform/scene`` out.
+(the ``websockets`` package of the test extra; the server sends each topic at most 60 times a
+second, ``--live-rate HZ`` for another rate); ``--no-scene`` leaves ``/platform/scene`` out.
+The tick times are also given apart for the ticks that drew a scene and for the others.
 
 The source is synthetic but physically plausible: a sum of sines in specific force
 (about +-2 m/s^2 surge and sway around 1 g, +-1.5 m/s^2 heave) and body rates (about
@@ -127,6 +129,8 @@ class TimedLog(PipelineLog):
         self.times = np.zeros(capacity)
         self.cpu = np.zeros(capacity)  # the loop thread's CPU time in the same span
         self.since_due = np.zeros(capacity)  # from the sample's due time to the end of its write
+        self.drew = np.zeros(capacity, dtype=bool)  # the tick wrote /platform/scene
+        self.drew.fill(False)
         self.times.fill(0.0)
         self.cpu.fill(0.0)
         self.since_due.fill(0.0)
@@ -142,6 +146,7 @@ class TimedLog(PipelineLog):
             self.times[self.n] = now - self.source.handed_at
             self.cpu[self.n] = time.thread_time() - self.source.handed_cpu
             self.since_due[self.n] = now - self.source.due
+            self.drew[self.n] = self._scene_t == out.t
         self.n += 1
 
 
@@ -288,6 +293,9 @@ def main() -> None:
     ap.add_argument("--live", action="store_true", help="serve Foxglove, one client connected")
     ap.add_argument("--no-scene", action="store_true", help="leave /platform/scene out")
     ap.add_argument("--live-topics", metavar="T1,T2", help="--live: the client subscribes to these")
+    ap.add_argument(
+        "--live-rate", type=float, default=60.0, help="--live: messages per second per topic"
+    )
     args = ap.parse_args()
     if args.hiccups:
         hiccups(args.minutes, args.rate)
@@ -320,6 +328,7 @@ def main() -> None:
             log=not args.no_log,
             kinematics=None if args.no_scene else pipeline.robot.kin,
             live=LiveAddress("127.0.0.1", 0) if args.live else None,
+            live_rate_hz=args.live_rate,
         )
         every = max(1, n_total // 10)
 
@@ -365,6 +374,7 @@ def main() -> None:
     if args.live:
         what += f", live: one Foxglove client received {received} messages"
         what += f" of {args.live_topics}" if args.live_topics else " (every topic)"
+        what += f", at most {args.live_rate:g} a second each"
     print(f"bench_load: {args.minutes:g} min simulated flight at {args.rate:g} Hz, {robot}{what}")
     print(
         f"  ticks {summary.samples} (incl. park ramp), wall {wall:.1f} s "
@@ -375,6 +385,14 @@ def main() -> None:
         f"p50 {np.percentile(loop, 50):.1f}  p99 {np.percentile(loop, 99):.1f}  "
         f"p99.9 {np.percentile(loop, 99.9):.1f}  max {loop.max():.1f}"
     )
+    drew = log.drew[10 : len(samples)]
+    if drew.any():
+        scene, other = loop[drew], loop[~drew]
+        print(
+            f"    ticks that drew a scene ({len(scene)}) us: p50 {np.percentile(scene, 50):.1f}  "
+            f"p99 {np.percentile(scene, 99):.1f}; the others: p50 {np.percentile(other, 50):.1f}"
+            f"  p99 {np.percentile(other, 99):.1f}"
+        )
     print(
         f"  overruns vs the {budget * 1e3:g} ms budget: {over} of {len(loop)} ticks "
         f"({100 * over / len(loop):.4f} %); first 10 ticks (warm-up) max "

@@ -6,8 +6,10 @@ subprotocol ``foxglove.sdk.v1`` or the older ``foxglove.websocket.v1``): it read
 channel, and decodes binary message frames (opcode 0x01, subscription id u32 LE, log time
 u64 LE, payload). The runs are real ``motionbase`` processes on loopback (port 0: the process
 prints the port it got), stopped with SIGINT once the client has what it needs; the MCAP file
-of the same run is read back with the ``mcap`` reader. The scene's points are checked against
-the robot's own ``joint_points`` of the logged pose, computed here from the logged messages.
+of the same run is read back with the ``mcap`` reader. The live feed is the log at a screen's
+rate: each topic at most 60 messages per second of source time, so a 120 Hz run serves every
+other tick, and the 30 Hz scene every scene. The scene's points are checked against the
+robot's own ``joint_points`` of the logged pose, computed here from the logged messages.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import signal
 import struct
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -29,13 +33,15 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from motionbase import app
+from motionbase.app import load_config
 from motionbase.cli import main
 from motionbase.errors import ConfigError
-from motionbase.io.mcap_log import LiveAddress
+from motionbase.io.mcap_log import LiveAddress, McapLogger, encode_message
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.scene import NEAR_LIMIT_DEG, SceneBuilder
-from motionbase.pipeline import PipelineConfig
-from motionbase.platform import Rrr3, Rus6, Rus6Geometry
+from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.platform import Rrr3, Rrr3Geometry, Rus6, Rus6Geometry
+from motionbase.state import AircraftState
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANAR_RECORDING = ROOT / "recordings" / "c1723_planar_15s.mcap"
@@ -113,15 +119,28 @@ def _logged(path: Path, topics: set[str]) -> dict[str, dict[int, bytes]]:
     return out
 
 
-def _assert_same_as_logged(got: list, logged: dict[int, bytes], topic: str) -> None:
+def _received_as_logged(got: list, logged: dict[int, bytes], topic: str) -> tuple[list, list]:
+    """Every received message is the logged one of its time; (received times, logged times
+    of the received span)."""
     times = [t for t, _ in got]
     assert times, f"no {topic} message received"
-    assert times == sorted(times)
+    assert times == sorted(set(times))
     for t, payload in got:
         assert payload == logged[t], f"{topic} at {t} ns differs from the log"
-    # nothing missing in between: the client got every logged message of its span
-    span = [t for t in sorted(logged) if times[0] <= t <= times[-1]]
+    return times, [t for t in sorted(logged) if times[0] <= t <= times[-1]]
+
+
+def _assert_same_as_logged(got: list, logged: dict[int, bytes], topic: str) -> None:
+    """A topic slower than the live rate (the 30 Hz scene): every logged message of the span."""
+    times, span = _received_as_logged(got, logged, topic)
     assert span == times
+
+
+def _assert_every_other_tick(got: list, logged: dict[int, bytes], topic: str) -> None:
+    """A 120 Hz topic served at 60 Hz: every second logged message of the span, none between."""
+    times, span = _received_as_logged(got, logged, topic)
+    assert len(times) >= 2
+    assert times == span[::2]
 
 
 def _finish(proc: subprocess.Popen) -> str:
@@ -142,11 +161,13 @@ def _serve(args: list[str], tmp_path: Path, topics: set[str], enough) -> tuple[d
     return got, _finish(proc)
 
 
-def _assert_served_as_logged(got: dict, path: Path) -> None:
-    """Every topic received is the log's, message for message, over the span received."""
+def _assert_served_as_logged(got: dict, path: Path, at_120_hz: tuple[str, ...] = ()) -> None:
+    """Every topic received is the log's, message for message, over the span received: every
+    logged message of a topic slower than the live rate, every other one of ``at_120_hz``."""
     logged = _logged(path, set(got))
     for topic in got:
-        _assert_same_as_logged(got[topic], logged[topic], topic)
+        check = _assert_every_other_tick if topic in at_120_hz else _assert_same_as_logged
+        check(got[topic], logged[topic], topic)
 
 
 def _scene_points(entity: dict) -> tuple[list, list, list]:
@@ -209,7 +230,7 @@ def test_live_fly_serves_the_logged_actuators_and_scene(tmp_path):
         lambda g: len(g["/platform/actuators"]) >= 60 and len(g["/platform/scene"]) >= 5,
     )
     assert "stopped by SIGINT" in summary
-    _assert_served_as_logged(got, out)
+    _assert_served_as_logged(got, out, at_120_hz=("/platform/actuators",))
     # received scenes are what the robot's joint points say (checked on the whole log)
     assert _check_scenes(out, planar=False) >= 5
 
@@ -222,7 +243,9 @@ def test_live_replay_of_the_planar_recording(tmp_path):
         {"/planar/actuators", "/platform/scene"},
         lambda g: len(g["/planar/actuators"]) >= 30,
     )
-    _assert_served_as_logged(got, out)
+    ticks = np.diff(sorted(_logged(out, {"/planar/actuators"})["/planar/actuators"]))
+    assert np.median(ticks) == pytest.approx(1e9 / 120, abs=1)  # a 120 Hz recording
+    _assert_served_as_logged(got, out, at_120_hz=("/planar/actuators",))
     assert _check_scenes(out, planar=True) >= 1
 
 
@@ -242,8 +265,6 @@ def test_live_teleop_serves_the_logged_planar_actuators(tmp_path):
     _assert_served_as_logged(got, out)
     # the scene is the robot of the log's geometry at the logged pose
     geometry = read_metadata(out)["geometry"]
-    from motionbase.platform import Rrr3Geometry
-
     robot = Rrr3(Rrr3Geometry.from_dict(geometry))
     msgs = read_messages(out)
     poses = {m["t"]: m["pose"] for m in msgs["/planar/pose"]}
@@ -282,6 +303,26 @@ def test_scene_of_a_flight_is_the_robot_drawn_at_the_logged_pose(tmp_path):
     assert abs(n - (30 * span + 1)) <= 2
 
 
+def test_scene_drawn_on_the_logs_thread_leaves_the_same_file(tmp_path):
+    """The log draws scenes on a thread of its own: the same outputs still give the very same
+    file, scene messages at their own times, one per 30 Hz grid point."""
+    from motionbase.io.pipeline_log import PipelineLog
+
+    pipeline = Pipeline(load_config(rate_hz=120.0))
+    outs = [pipeline.step(AircraftState(k / 120, (1.0, -0.5, -9.0), (0.1, 0.0, 0.2), (0, 0, 0)))
+            for k in range(1, 400)]  # fmt: skip
+    files = []
+    for name in ("a.mcap", "b.mcap"):
+        with PipelineLog(tmp_path / name, {"kind": "test"}, kinematics=pipeline.robot.kin) as log:
+            for out in outs:
+                log.write(out)
+        files.append((tmp_path / name).read_bytes())
+    assert files[0] == files[1]
+    scenes = [m["t"] for m in read_messages(tmp_path / "a.mcap")["/platform/scene"]]
+    assert scenes == sorted(scenes) and scenes[0] == outs[0].t and scenes[-1] == outs[-1].t
+    assert len(scenes) == pytest.approx(30 * (outs[-1].t - outs[0].t) + 2, abs=1)
+
+
 def test_scene_colours_a_leg_near_its_limit_red():
     robot = Rus6(Rus6Geometry.preset("ceart"))
     lo, hi = robot.angle_limits
@@ -294,6 +335,109 @@ def test_scene_colours_a_leg_near_its_limit_red():
     assert red == [1]
     plate = next(e for e in scene["entities"] if e["id"] == "platform")
     assert plate["triangles"][0]["color"]["r"] == 1.0  # clamped: orange
+
+
+def test_scene_encoding_is_the_general_encoders_bytes():
+    """The log writes SceneBuilder.encode (a template filled with the numbers): the very bytes
+    the general JSON encoder makes of the message, for reachable poses, poses near limits, a
+    clamped plate, and a pose the legs cannot reach (NaN crank tips, written as "NaN")."""
+    rng = np.random.default_rng(17)
+    robot = Rus6(Rus6Geometry.preset("ceart"))
+    scene = SceneBuilder(robot)
+    lo, hi = robot.angle_limits
+    for k in range(300):
+        pose = rng.normal(size=6) * [0.05, 0.05, 0.03, 0.1, 0.1, 0.2]
+        angles = rng.uniform(lo, hi)
+        t = float(rng.uniform(0.0, 5000.0))
+        data = scene.encode(t, pose, angles, clamped=bool(k % 2))
+        assert data == encode_message(scene.message(t, pose, angles, clamped=bool(k % 2)))
+    far = np.array([0.0, 0.0, -0.6, 0.0, 0.0, 0.0])  # 0.6 m up: no crank reaches
+    assert np.isnan(robot.joint_points(far)[1]).any()
+    data = scene.encode(1.0, far, robot.inverse(np.zeros(6)))
+    assert data == encode_message(scene.message(1.0, far, robot.inverse(np.zeros(6))))
+    assert b'"NaN"' in data
+    planar = SceneBuilder(Rrr3(Rrr3Geometry()))
+    home = np.array([0.13, 0.26 * math.sqrt(3) / 6, 0.0])
+    for k in range(50):
+        pose = home + rng.normal(size=3) * [0.01, 0.01, 0.1]
+        angles = rng.uniform(0.0, math.pi, 3)
+        t = k / 120
+        assert planar.encode(t, pose, angles) == encode_message(planar.message(t, pose, angles))
+
+
+def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
+    """Two seconds of a 1 kHz log with a client subscribed to everything: the file keeps every
+    tick; the client gets each fast topic on a 60 Hz grid of log time (16 or 17 ms apart,
+    60 per second), the 30 Hz scene and the once-a-second messages all, each message the very
+    bytes the file holds."""
+    rate, seconds = 1000, 2
+    logger = McapLogger(tmp_path / "live.mcap", {}, live=LiveAddress("127.0.0.1", 0)).start()
+    url = f"ws://127.0.0.1:{logger.live_port}"
+    topics = {"/platform/actuators", "/tf", "/platform/scene", "/health"}
+    got: dict[str, list] = {t: [] for t in topics}
+    subscribed = threading.Event()
+
+    def client() -> None:
+        with connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            channels: dict[str, int] = {}
+            while set(channels) != topics:
+                msg = json.loads(ws.recv(timeout=30))
+                if msg["op"] == "advertise":
+                    channels.update({c["topic"]: c["id"] for c in msg["channels"]})
+                    channels = {t: i for t, i in channels.items() if t in topics}
+            by_sub = dict(enumerate(sorted(channels), start=1))
+            subs = [{"id": i, "channelId": channels[t]} for i, t in by_sub.items()]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            subscribed.set()
+            try:
+                while True:
+                    msg = ws.recv(timeout=60)
+                    if isinstance(msg, bytes):
+                        sub, log_time = struct.unpack_from("<IQ", msg, 1)
+                        got[by_sub[sub]].append((log_time, bytes(msg[13:])))
+            except ConnectionClosed:
+                pass
+
+    thread = threading.Thread(target=client)
+    thread.start()
+    try:
+        assert subscribed.wait(30)
+        time.sleep(0.5)  # the server applies the subscription on its own thread
+        scene = SceneBuilder(Rus6(Rus6Geometry.preset("ceart")))
+        for k in range(rate * seconds):
+            t = k / rate
+            pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 * math.sin(t)])
+            logger.add("/platform/actuators", t, {"t": t, "angles": np.full(6, t)})
+            logger.add_transform(t, pose)
+            if k % 33 == 0:
+                logger.add_encoded("/platform/scene", t, scene.encode(t, pose, np.zeros(6)))
+            if k % rate == 0:
+                logger.add("/health", t, {"t": t, "samples": k})
+            if k % 50 == 0:
+                time.sleep(0.002)  # let the server's queue drain (its backlog is 1024)
+        deadline = time.monotonic() + 10  # the server sends on its own thread: let it
+        while len(got["/platform/actuators"]) < 60 * seconds and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        logger.finish()
+        thread.join(60)
+    logged = _logged(tmp_path / "live.mcap", topics)
+    assert len(logged["/platform/actuators"]) == rate * seconds  # the file: every tick
+    acts, _ = _received_as_logged(got["/platform/actuators"], logged["/platform/actuators"],
+                                     "/platform/actuators")  # fmt: skip
+    gaps = np.diff(acts) / 1e6  # ms
+    assert set(gaps.round(3)) <= {16.0, 17.0}
+    assert acts[0] == 0 and len(acts) == 60 * seconds
+    _assert_same_as_logged(got["/platform/scene"], logged["/platform/scene"], "/platform/scene")
+    _assert_same_as_logged(got["/health"], logged["/health"], "/health")
+    # /tf: the platform frame on the 60 Hz grid, world -> base every second
+    tf = [(t, json.loads(p)) for t, p in got["/tf"]]
+    assert [t for t, m in tf if m["child_frame_id"] == "base"] == [0, 1_000_000_000]
+    platform = [t for t, m in tf if m["child_frame_id"] == "platform"]
+    assert platform == acts
+    with open(tmp_path / "live.mcap", "rb") as fh:
+        file_tf = [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages(["/tf"])]
+    assert all((t, p) in file_tf for t, p in got["/tf"])
 
 
 def test_replay_check_of_a_recording_without_scene_still_passes():

@@ -6,10 +6,22 @@ MCAP file that Foxglove and the ``mcap`` library read. It holds the Header, the
 metadata record ``"motionbase"`` (``config``, ``version``, ``log_format``), then
 chunks (each channel's Schema and Channel records in the chunk of its first
 message), and the summary. Each logger has its own :class:`foxglove.Context`, so
-several logs in one process never mix; the same ``Channel.log`` call also feeds
-the live Foxglove WebSocket server started on that context with ``live=``
-(``--live [HOST:]PORT``): each message is encoded once, for the file and for
-every client subscribed to its topic.
+several logs in one process never mix.
+
+Live view
+    With ``live=`` (``--live [HOST:]PORT``) a Foxglove WebSocket server serves the
+    log's topics on a second context of its own, with the same channels. Each message
+    is encoded once; the bytes go to the file always and to the server at most
+    :data:`LIVE_RATE_HZ` (60) times per second of source time per topic (a screen's
+    rate; the file keeps every tick): a topic's message goes live when its log time is
+    on or past the topic's 60 Hz grid, so on a 1 kHz run about one tick in 17, on a
+    120 Hz run every other tick, and every message of the slower topics
+    (``/platform/scene`` at 30 Hz, ``/health``, the ``world -> base`` transform).
+    The caller's thread only queues the bytes: a thread of the logger hands them to the
+    server. (Handing them over on the caller's thread made it wait, now and then, for
+    the server's own threads: on a busy machine a 1 kHz loop then overran its tick
+    several times as often, see ``benchmarks/RESULTS.md``, issue 17.) The file does
+    not depend on the live feed: the same input gives the same file, client or not.
 
 Crash safety
     The writer compresses messages into the chunk in progress as they come. The
@@ -31,7 +43,7 @@ Exact numbers
     ``"-Infinity"`` (see :mod:`motionbase.io.schemas`).
 
 Where the time goes
-    Everything runs on the caller's thread: encoding, the writer's ``log``
+    Everything runs on the caller's thread (but the live hand-over): encoding, the writer's ``log``
     (which holds the interpreter lock, so a writer thread would only add thread
     switches) and its compression, which works a block at a time: the message
     that fills a block (lz4: 64 KiB, zstd: 128 KiB) and the tick that finishes a
@@ -49,6 +61,8 @@ import json
 import logging
 import math
 import os
+import queue
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,6 +91,10 @@ _COMPRESSIONS = {"lz4": MCAPCompression.Lz4, "zstd": MCAPCompression.Zstd, "none
 _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
 _SEC = 1_000_000_000
 _WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
+#: The most messages per second of source time a live client gets on one topic.
+LIVE_RATE_HZ = 60.0
+_LIVE_SLACK_NS = 1_000  # a tick 1 us before its grid point is on it (rounded tick times)
+_FIRST = -(2**63)  # the live grid of a topic starts at its first message
 
 
 def _json_default(obj: Any) -> Any:
@@ -191,6 +209,26 @@ class LiveAddress:
         return f"live view: {self.url(port)} (Foxglove: Open connection > Foxglove WebSocket)"
 
 
+def _serve_live(jobs: queue.SimpleQueue) -> None:
+    """The live feed's thread: log each queued ``(channel, data, log_time)`` until ``None``."""
+    while (job := jobs.get()) is not None:
+        channel, data, ns = job
+        try:
+            channel.log(data, log_time=ns)
+        except Exception as exc:  # noqa: BLE001 - the live view never stops the run
+            log.warning("live view: %s", exc)
+
+
+def _channel(topic: str, name: str, schema: Any, context: foxglove.Context) -> foxglove.Channel:
+    """A JSON channel of ``topic`` with its JSON Schema, on ``context``."""
+    return foxglove.Channel(
+        topic,
+        schema=foxglove.Schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode()),
+        message_encoding="json",
+        context=context,
+    )
+
+
 class _LogFile:
     """The log's file as the writer sees it; keeps the first write error for the logger.
 
@@ -271,9 +309,13 @@ class McapLogger:
         Also ``os.fsync`` after every chunk (survives power loss, costs time).
     live : LiveAddress, optional
         Also serve every topic live to Foxglove: a WebSocket server (the Foxglove SDK's)
-        on this logger's own context, started by ``start()`` before the file is created
-        and stopped by ``finish()`` after the file is finished. A message is encoded once
-        and goes to the file and to every client subscribed to its topic.
+        on a context of its own, started by ``start()`` before the file is created and
+        stopped by ``finish()`` after the file is finished. A message is encoded once; it
+        goes to the file, and to the clients subscribed to its topic at most
+        ``live_rate_hz`` times per second of source time.
+    live_rate_hz : float
+        The live feed's most messages per second of source time per topic (default
+        :data:`LIVE_RATE_HZ`, 60).
 
     Raises
     ------
@@ -292,10 +334,14 @@ class McapLogger:
         flush_interval_s: float = 1.0,
         fsync: bool = False,
         live: LiveAddress | None = None,
+        live_rate_hz: float = LIVE_RATE_HZ,
     ) -> None:
         self.path = Path(path)
         self.live = live
         self._server: Any = None
+        if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
+            raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
+        self._live_period_ns = round(1e9 / live_rate_hz)
         self.metadata: dict[str, Any] = dict(metadata or {})
         if compression not in _COMPRESSIONS:
             raise ConfigError(
@@ -315,6 +361,11 @@ class McapLogger:
         self._context: foxglove.Context | None = None
         self._writer: Any = None
         self._channels: dict[str, foxglove.Channel] = {}
+        self._live_context: foxglove.Context | None = None
+        # topic -> [live channel, log time (ns) from which its next message goes live]
+        self._live: dict[str, list] | None = None
+        self._live_queue: queue.SimpleQueue | None = None
+        self._live_thread: threading.Thread | None = None
         self._state = "new"
         self._failure = ""
         self._message_count = 0
@@ -333,6 +384,7 @@ class McapLogger:
         # the channels only hold a weak reference to their context: keep it alive
         self._context = foxglove.Context()
         if self.live is not None:
+            self._live_context = foxglove.Context()
             self._start_server(self.live)  # first: a port in use leaves no file behind
         try:
             self._file = _LogFile(self.path, self.fsync)
@@ -369,14 +421,17 @@ class McapLogger:
             {"config": config_json, "version": __version__, "log_format": LOG_FORMAT},
         )
         for topic, (name, schema) in TOPIC_SCHEMAS.items():
-            self._channels[topic] = foxglove.Channel(
-                topic,
-                schema=foxglove.Schema(
-                    name=name, encoding="jsonschema", data=json.dumps(schema).encode()
-                ),
-                message_encoding="json",
-                context=context,
+            self._channels[topic] = _channel(topic, name, schema, context)
+        if self._live_context is not None:
+            self._live = {
+                topic: [_channel(topic, name, schema, self._live_context), _FIRST]
+                for topic, (name, schema) in TOPIC_SCHEMAS.items()
+            }
+            self._live_queue = queue.SimpleQueue()
+            self._live_thread = threading.Thread(
+                target=_serve_live, args=(self._live_queue,), name="motionbase-live", daemon=True
             )
+            self._live_thread.start()
         self._flush()  # the header and the configuration on disk now
 
     def finish(self) -> None:
@@ -400,6 +455,12 @@ class McapLogger:
             trouble = exc
         finally:
             for channel in self._channels.values():
+                channel.close()
+            if self._live_thread is not None:  # the queued messages go out first
+                self._live_queue.put(None)
+                self._live_thread.join()
+                self._live_thread = None
+            for channel, _ in (self._live or {}).values():
                 channel.close()
             file.close()
             self._state = "finished"
@@ -431,7 +492,7 @@ class McapLogger:
     def _start_server(self, live: LiveAddress) -> None:
         try:
             self._server = foxglove.start_server(
-                name="motionbase", host=live.host, port=live.port, context=self._context
+                name="motionbase", host=live.host, port=live.port, context=self._live_context
             )
         except RuntimeError as exc:  # the SDK's FoxgloveError: "Failed to bind port: ..."
             reason = str(exc).removeprefix("FoxgloveError: ")
@@ -485,16 +546,48 @@ class McapLogger:
         """
         ns = self._ns(t)
         channels = self._channels
+        live = self._live
         for topic, message in items:
             channel = channels.get(topic)
             if channel is None:
-                raise SinkError(
-                    f"unknown MCAP topic {topic!r}: known topics are {', '.join(TOPIC_SCHEMAS)}"
-                )
+                self._unknown(topic)
             if "t" not in message:
                 message = {"t": t, **message}
-            channel.log(encode_message(message), log_time=ns)
+            data = encode_message(message)
+            channel.log(data, log_time=ns)
+            if live is not None:
+                self._to_live(topic, data, ns)
         self._logged(ns, len(items))
+
+    def add_encoded(self, topic: str, t: float, data: bytes) -> None:
+        """Log one message already encoded (its JSON bytes, e.g.
+        :meth:`motionbase.io.scene.SceneBuilder.encode`); otherwise as :meth:`add`."""
+        ns = self._ns(t)
+        channel = self._channels.get(topic)
+        if channel is None:
+            self._unknown(topic)
+        channel.log(data, log_time=ns)
+        if self._live is not None:
+            self._to_live(topic, data, ns)
+        self._logged(ns, 1)
+
+    def _to_live(self, topic: str, data: bytes, ns: int, always: bool = False) -> None:
+        """Hand ``data`` to the live server when ``topic`` is due (its 60 Hz grid)."""
+        entry = self._live[topic]
+        due = entry[1]
+        if always or ns >= due - _LIVE_SLACK_NS:
+            channel = entry[0]
+            if channel.has_sinks():  # a client subscribed to the topic
+                self._live_queue.put((channel, data, ns))
+            if not always:
+                nxt = due + self._live_period_ns
+                entry[1] = nxt if ns < nxt - _LIVE_SLACK_NS else ns + self._live_period_ns
+
+    @staticmethod
+    def _unknown(topic: str) -> None:
+        raise SinkError(
+            f"unknown MCAP topic {topic!r}: known topics are {', '.join(TOPIC_SCHEMAS)}"
+        )
 
     def add_transform(
         self,
@@ -533,11 +626,17 @@ class McapLogger:
         if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
             self._last_static_ns = ns
             world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
-            tf.log(encode_message(world), log_time=ns)
+            data = encode_message(world)
+            tf.log(data, log_time=ns)
+            if self._live is not None:  # once a second: every one goes live
+                self._to_live("/tf", data, ns, always=True)
             count = 2
         q = quaternion_from_euler_zyx(p[3], p[4], p[5])
         msg = transform_message(ns, parent, child, p[0], p[1], p[2], q)
-        tf.log(encode_message(msg), log_time=ns)
+        data = encode_message(msg)
+        tf.log(data, log_time=ns)
+        if self._live is not None:
+            self._to_live("/tf", data, ns)
         self._logged(ns, count)
 
     def flush(self) -> None:
@@ -602,6 +701,7 @@ class McapLogger:
 
 __all__ = [
     "LIVE_DEFAULT_HOST",
+    "LIVE_RATE_HZ",
     "LOG_FORMAT",
     "LiveAddress",
     "MCAP_MAGIC",
