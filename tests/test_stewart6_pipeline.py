@@ -230,6 +230,26 @@ def test_fly_logs_lengths_within_the_stroke_and_limits(flight):
         np.testing.assert_allclose(q[k], _lengths(poses[k]), atol=1e-9)
 
 
+def test_the_scene_draws_each_leg_at_the_logged_pose(flight):
+    """``/platform/scene``: each leg is a line from its base joint to its platform joint at
+    the logged pose, whose length is the logged actuator length (by the independent leg
+    formula: the drawing is the mechanism the drives realise)."""
+    messages = read_complete_log(flight)
+    poses = {m["t"]: np.array(m["pose"]) for m in messages["/platform/pose"]}
+    lengths = {m["t"]: np.array(m["angles"]) for m in messages["/platform/actuators"]}
+    scenes = messages["/platform/scene"]
+    assert len(scenes) > 100
+    for scene in scenes[::25]:
+        legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
+        assert [e["id"] for e in legs] == [f"leg{i + 1}" for i in range(6)]
+        ends = np.array([[(v["x"], v["y"], v["z"]) for v in e["lines"][0]["points"]] for e in legs])
+        np.testing.assert_allclose(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1),
+                                   _lengths(poses[scene["t"]]), atol=1e-9)  # fmt: skip
+        np.testing.assert_allclose(
+            np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), lengths[scene["t"]], atol=1e-6
+        )
+
+
 def test_replay_check_is_identical(flight, capsys):
     assert main(["replay", str(flight), "--check"]) == 0
     out = capsys.readouterr().out

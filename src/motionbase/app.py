@@ -309,14 +309,12 @@ def _drive_stoppable(
                 sink.__enter__()
                 sinks.append(sink)
             if out:
-                robot = pipeline.robot
                 log = PipelineLog(
                     out,
                     run_metadata(config, source),
                     health=pipeline.health.as_dict,
                     planar=config.planar,
-                    # the scene draws cranks and servos; linear actuators get none (yet)
-                    kinematics=robot.kin if robot.actuator_unit == "rad" else None,
+                    kinematics=pipeline.robot.kin,
                     live=live,
                 )
                 log.__enter__()

@@ -36,10 +36,12 @@ from typing import Any
 import numpy as np
 import orjson
 
-__all__ = ["NEAR_LIMIT_DEG", "SCENE_RATE_HZ", "SceneBuilder", "near_limit"]
+__all__ = ["NEAR_LIMIT_DEG", "NEAR_LIMIT_M", "SCENE_RATE_HZ", "SceneBuilder", "near_limit"]
 
 #: A leg is drawn red when its angle is this close to an end of its range, deg.
 NEAR_LIMIT_DEG = 5.0
+#: A linear actuator within this of an end of its stroke is drawn in the warning colour, m.
+NEAR_LIMIT_M = 0.02
 #: Scenes per second of source time written by the pipeline's log (not every tick).
 SCENE_RATE_HZ = 30.0
 
@@ -63,15 +65,21 @@ PLATE = _color(0.30, 0.70, 0.40, 0.6)
 PLATE_CLAMPED = _color(1.00, 0.60, 0.00, 0.6)
 
 
-def near_limit(angles: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """Which actuators are within :data:`NEAR_LIMIT_DEG` of an end of their range (bool array).
+def near_limit(
+    angles: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    margin: float = math.radians(NEAR_LIMIT_DEG),
+) -> np.ndarray:
+    """Which actuators are within ``margin`` of an end of their range (bool array).
 
     Parameters
     ----------
     angles, lower, upper : ndarray, shape (n,)
-        Actuator angles and their range, rad (angles expressed inside the range).
+        Actuator positions and their range (rad, angles expressed inside the range; or m).
+    margin : float
+        Rad (default :data:`NEAR_LIMIT_DEG`), or m for linear actuators.
     """
-    margin = math.radians(NEAR_LIMIT_DEG)
     a = np.asarray(angles, dtype=float)
     return (a - lower < margin) | (upper - a < margin)
 
@@ -184,8 +192,9 @@ class SceneBuilder:
         of shape ``(n, 3)`` (or ``(n, 2)`` for a planar robot, drawn at z = 0): the first
         is drawn as the base, the last as the top plate, the first segment of each chain as
         the crank and the others as the rod. Its ``angle_limits`` (``(lo, hi)`` arrays, or
-        ``(n, 2)`` intervals for the planar 3-RRR) colour a leg near its limit; a robot
-        without them is drawn without that colour.
+        ``(n, 2)`` intervals for the planar 3-RRR), or for linear actuators its ``limits``
+        (lengths, m; :data:`NEAR_LIMIT_M`), colour a leg near its limit; a robot without
+        them is drawn without that colour.
     """
 
     def __init__(self, kinematics: Any) -> None:
@@ -193,11 +202,16 @@ class SceneBuilder:
         limits = getattr(kinematics, "angle_limits", None)
         self.lower = self.upper = None
         self.planar = False
+        self.margin = math.radians(NEAR_LIMIT_DEG)
         if isinstance(limits, tuple):  # Rus6: (lo, hi)
             self.lower, self.upper = (np.asarray(v, dtype=float) for v in limits)
         elif limits is not None:  # Rrr3: (3, 2) intervals
             self.planar = True
             self.lower, self.upper = np.asarray(limits, dtype=float).T
+        elif hasattr(kinematics, "limits"):  # linear actuators (Stewart6): lengths, m
+            self.lower = np.asarray(kinematics.limits.lower, dtype=float)
+            self.upper = np.asarray(kinematics.limits.upper, dtype=float)
+            self.margin = NEAR_LIMIT_M
         self.frame = "world" if self.planar else "base"
         geometry = getattr(kinematics, "geometry", None)
         crank = getattr(geometry, "crank", None)
@@ -224,7 +238,7 @@ class SceneBuilder:
     def _near(self, angles: np.ndarray, n: int) -> list[bool]:
         if self.lower is None:
             return [False] * n
-        return near_limit(angles, self.lower, self.upper).tolist()
+        return near_limit(angles, self.lower, self.upper, self.margin).tolist()
 
     def message(
         self, t: float, pose: np.ndarray, angles: np.ndarray, clamped: bool = False
