@@ -1,11 +1,12 @@
 """Kinematics of the motion platforms: the 6-RUS rotary platform, the 6-UPS Stewart platform
 (linear actuators) and the planar 3-RRR robot."""
 
+from motionbase.physics import rotation_matrix
 from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.output_map import OutputMapping, sweep_profile
 from motionbase.platform.rrr3 import Rrr3
 from motionbase.platform.rrr3_geometry import Rrr3Geometry
-from motionbase.platform.rus6 import JacobianResult, JointPoints, Rus6, rotation_matrix
+from motionbase.platform.rus6 import JacobianResult, JointPoints, Rus6
 from motionbase.platform.rus6_geometry import Rus6Geometry
 from motionbase.platform.rus6_workspace import (
     AxisReach,

@@ -203,6 +203,31 @@ def _clamp_row(p, G, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def joint_points_batch(poses, G, pivots, tips, joints):
+    """Crank pivots, crank tips and platform joints (base axes, m) of poses (k, 6) into
+    arrays (k, 6, 3); NaN tips where a pose cannot be closed (the joints are still the
+    rigid-body positions)."""
+    theta = np.empty(6)
+    for k in range(poses.shape[0]):
+        p = poses[k]
+        _inverse_row(p, G, theta)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_terms(p[3], p[4], p[5])
+        for i in range(6):
+            px, py, pz = G[i, PX], G[i, PY], G[i, PZ]
+            joints[k, i, 0] = G[i, OX] + p[0] + r00 * px + r01 * py + r02 * pz
+            joints[k, i, 1] = G[i, OY] + p[1] + r10 * px + r11 * py + r12 * pz
+            joints[k, i, 2] = G[i, OZ] + p[2] + r20 * px + r21 * py + r22 * pz
+            c, s = math.cos(theta[i]), math.sin(theta[i])
+            rc = G[i, RC]
+            pivots[k, i, 0] = G[i, AX]
+            pivots[k, i, 1] = G[i, AY]
+            pivots[k, i, 2] = G[i, AZ]
+            tips[k, i, 0] = G[i, AX] + rc * c * G[i, CX]
+            tips[k, i, 1] = G[i, AY] + rc * c * G[i, CY]
+            tips[k, i, 2] = G[i, AZ] - rc * s  # up is -z (FRD)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def clamp_batch(poses, G, out, flags):
     for k in range(poses.shape[0]):
         flags[k] = _clamp_row(poses[k], G, out[k])

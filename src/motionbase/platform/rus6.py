@@ -26,7 +26,6 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
-from motionbase.physics import rotation_matrix
 from motionbase.platform import _rus6_kernels as _k
 from motionbase.platform._pose_kernels import (
     as_poses,
@@ -40,8 +39,6 @@ from motionbase.platform.rus6_geometry import Rus6Geometry
 from motionbase.safety import ActuatorLimits
 
 __all__ = ["Rus6", "Rus6Robot", "JointPoints", "JacobianResult"]
-
-_UP = np.array([0.0, 0.0, -1.0])
 
 
 class JointPoints(NamedTuple):
@@ -233,15 +230,10 @@ class Rus6:
             rigid-body positions).
         """
         flat, lead = as_poses(pose)
-        theta = np.empty_like(flat)
-        _k.inverse_batch(flat, self._G, theta)
-        rot = rotation_matrix(flat[:, 3:])
-        joints = self._origin + flat[:, None, :3] + np.einsum("nij,lj->nli", rot, self._local)
-        ct, st = np.cos(theta)[..., None], np.sin(theta)[..., None]
-        tips = self._pivots + self._crank[:, None] * (ct * self._cdir + st * _UP)
-        pivots = np.broadcast_to(self._pivots, joints.shape).copy()
+        out = np.empty((3, len(flat), 6, 3))
+        _k.joint_points_batch(flat, self._G, out[0], out[1], out[2])
         shape = lead + (6, 3)
-        return JointPoints(pivots.reshape(shape), tips.reshape(shape), joints.reshape(shape))
+        return JointPoints(*(a.reshape(shape) for a in out))
 
     def jacobian(self, pose: ArrayLike, *, angular: str = "euler") -> JacobianResult:
         """Crank-rate Jacobian ``theta_dot = J @ pose_rate`` and a singularity measure.
