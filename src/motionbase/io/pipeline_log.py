@@ -16,12 +16,10 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
 * ``/platform/scene``: the robot drawn at its logged pose (``foxglove.SceneUpdate``, see
   :mod:`motionbase.io.scene`), when the log is given the robot's kinematics: at
   :data:`~motionbase.io.scene.SCENE_RATE_HZ` (30 Hz) of source time, not every tick (a
-  scene is about 14 kB; :meth:`~motionbase.io.scene.SceneBuilder.encode` fills a template,
-  50 us a scene with warm caches, 150-250 us on a real-time loop's tick, most of it the
-  robot's ``joint_points``), and at the last tick. A thread of the log draws it between
-  ticks: the tick that is due hands the pose over, and the next ``write`` (or ``close``)
-  logs the drawn scene, with its own time, before that tick's messages. The file is the
-  same for the same input (the scene waits for its drawing when that is late).
+  scene is about 14 kB; :meth:`~motionbase.io.scene.SceneBuilder.encode` fills a template
+  with the robot's compiled ``joint_points``, about 30 us a scene), and at the last tick.
+  (Drawing it on a thread of the log cost more than drawing it: the hand-over woke a
+  thread and waited for it, about 140 us a scene on this project's 2-core machine.)
 
 With ``live``, a Foxglove WebSocket server (:class:`~motionbase.io.mcap_log.McapLogger`)
 also gets every topic above, each message encoded once for both, at most 60 messages per
@@ -32,11 +30,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from motionbase.errors import SinkError
 from motionbase.io.mcap_log import LIVE_RATE_HZ, LiveAddress, McapLogger
@@ -138,10 +133,6 @@ class PipelineLog:
         self._scene_period = 1.0 / SCENE_RATE_HZ
         self._next_scene_t = -math.inf  # the first tick draws the scene
         self._scene_t: float | None = None  # time of the last scene drawn
-        self._drawing: tuple[float, Future] | None = None  # (t, the scene's bytes to come)
-        self._painter = (
-            ThreadPoolExecutor(1, thread_name_prefix="motionbase-scene") if self._scene else None
-        )
         self._last_out: Any = None
         self._health = health
         self._next_health_t = -math.inf  # the first tick writes /health
@@ -176,12 +167,9 @@ class PipelineLog:
             out = self._last_out
             if out is not None and out.t != self._scene_t:
                 self._write_scene(logger, out)  # the last pose (parked), unless just drawn
-            self._log_drawn(logger)
             if self._health is not None:
                 logger.add("/health", self._last_t, {"t": self._last_t, **self._health()})
         finally:
-            if self._painter is not None:
-                self._painter.shutdown(wait=True, cancel_futures=True)
             logger.finish()
 
     def write(self, out: PipelineOutput) -> None:
@@ -191,8 +179,6 @@ class PipelineLog:
             raise SinkError(f"{self.path}: the pipeline log is closed")
         t = out.t
         self._last_t = t
-        if self._drawing is not None:
-            self._log_drawn(logger)
         logger.add_many(t, tick_messages(out))
         if out.servo_deg is None:
             logger.add_transform(t, out.platform_pose)
@@ -207,17 +193,8 @@ class PipelineLog:
     def _write_scene(self, logger: McapLogger, out: PipelineOutput) -> None:
         assert self._scene is not None
         t = out.t
-        self._log_drawn(logger)  # one at a time: a scene before the next
-        pose, angles = (np.array(v, dtype=float) for v in (out.platform_pose, out.angles))
-        future = self._painter.submit(self._scene.encode, t, pose, angles, bool(out.clamped))
-        self._drawing = (t, future)
+        scene = self._scene.encode(t, out.platform_pose, out.angles, bool(out.clamped))
+        logger.add_encoded("/platform/scene", t, scene)
         self._scene_t = t
         nxt = self._next_scene_t + self._scene_period
         self._next_scene_t = nxt if t < nxt else t + self._scene_period  # none owed after a gap
-
-    def _log_drawn(self, logger: McapLogger) -> None:
-        """Log the scene the thread drew (waiting for it if need be)."""
-        drawing, self._drawing = self._drawing, None
-        if drawing is not None:
-            t, future = drawing
-            logger.add_encoded("/platform/scene", t, future.result())
