@@ -1107,6 +1107,7 @@ class TuneResult:
     out: Path
     wall_time_s: float
     improved: bool
+    cueing: str = "classical"
 
     def summary_text(self) -> str:
         from motionbase.tuning import format_table
@@ -1122,7 +1123,9 @@ class TuneResult:
                 f"{self.wall_time_s:.0f} s, seed {r.seed}: {found}; score terms in "
                 "motionbase.tuning",
                 format_table(sections),
-                f"wrote {self.out} (motionbase fly --washout {self.out})",
+                f"wrote {self.out} (motionbase fly"
+                + ("" if self.cueing == "classical" else f" --cueing {self.cueing}")
+                + f" --params {self.out})",
             ]
         )
 
@@ -1151,9 +1154,10 @@ def tune(
     platform : str, optional
         6-RUS geometry preset or TOML path (default ``ceart``).
     washout : str, optional
-        The start set: washout preset or TOML path (default ``default``).
+        The start set: the cueing's preset or TOML path (default: its default preset).
     cueing : str
-        The cueing algorithm; ``classical`` (the only one so far).
+        The cueing algorithm (a name of :data:`~motionbase.washout.cueing.CUEINGS` with
+        knobs in :data:`motionbase.tuning.KNOBS_BY_CUEING`: classical, mpc).
     scripts : list of str, optional
         JSBSim scripts, ``NAME`` or ``NAME@START:END``
         (:func:`motionbase.io.manoeuvres.load_script`); default
@@ -1185,10 +1189,10 @@ def tune(
     )
     from motionbase.platform import Rus6Geometry
     from motionbase.report import rus6_reach
-    from motionbase.washout import WashoutParams
+    from motionbase.washout.cueing import cueing_spec
 
-    if cueing != "classical":
-        raise ConfigError(f"--cueing {cueing!r}: the cueing algorithms are: classical")
+    spec = cueing_spec(cueing)
+    knobs = tuning.knobs_for(cueing)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ConfigError(f"--budget must be a whole number of evaluations >= 1, got {budget!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -1200,8 +1204,8 @@ def tune(
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
     platform_name = platform or DEFAULT_RUS6
     geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform_name))
-    start_name = washout or "default"
-    start = WashoutParams.from_toml(resolve_preset_or_path("washout", start_name))
+    start_name = washout or spec.default_preset
+    start = spec.load_params(start_name)
     recordings = list(recordings or [])
     scripts = list(DEFAULT_MANOEUVRES if scripts is None and not recordings else scripts or [])
     holdout = list(DEFAULT_HOLDOUT if holdout is None else holdout)
@@ -1217,32 +1221,36 @@ def tune(
                 "be tuned on (drop it from one of them)"
             )
     reach = rus6_reach(geometry)
-    problem = tuning.TuningProblem(geometry, tuple(manoeuvres), reach)
+    problem = tuning.TuningProblem(geometry, tuple(manoeuvres), reach, cueing=cueing)
     bar = EvaluationProgress() if progress else None
     t0 = time.monotonic()
     try:
         with open_evaluator(problem, workers=workers, scheduler=scheduler) as evaluate_many:
-            result = tuning.tune(start, evaluate_many, budget=budget, seed=seed, on_progress=bar)
+            result = tuning.tune(
+                start, evaluate_many, budget=budget, seed=seed, knobs=knobs, on_progress=bar
+            )
     finally:
         if bar is not None:
             bar.close()
     holdout_scores = None
     if held:
-        held_problem = tuning.TuningProblem(geometry, tuple(held), reach)
+        held_problem = tuning.TuningProblem(geometry, tuple(held), reach, cueing=cueing)
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
     wall = time.monotonic() - t0
     description, header = tuning.describe_result(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
     best = replace(result.best, description=description)
-    command = [f"motionbase tune --platform {platform_name} --washout {start_name}"]
+    which = "" if cueing == "classical" else f" --cueing {cueing}"
+    command = [f"motionbase tune{which} --platform {platform_name} --params {start_name}"]
     command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")
     command += [f"--recordings {' '.join(recordings)}"] if recordings else []
     command.append(f"--holdout {','.join(holdout) or 'none'} --budget {budget} --seed {seed}")
     header[:0] = [
-        f"Washout parameters made by `motionbase tune` (motionbase {__version__}):",
+        f"Cueing parameters ({cueing}) made by `motionbase tune` "
+        f"(motionbase {__version__}):",
         f"{' '.join(command)} --out {out_path.name}",
     ]
     write_washout(out_path, best, header)
     improved = result.best is not result.start
-    return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved)
+    return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved, cueing)

@@ -572,11 +572,19 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--platform", help=f"6-RUS geometry preset or TOML path (default {DEFAULT_RUS6})"
     )
-    p.add_argument("--cueing", default="classical", choices=["classical"], help="cueing algorithm")
     p.add_argument(
+        "--cueing",
+        default="classical",
+        choices=["classical", "mpc"],
+        help="cueing algorithm (default classical)",
+    )
+    p.add_argument(
+        "--params",
         "--washout",
+        dest="washout",
         metavar="START.toml",
-        help="the start set: washout preset or TOML path (default: default)",
+        help="the start set: the cueing's preset or TOML path (default: classical default, "
+        "mpc ceart)",
     )
     p.add_argument(
         "--scripts",
@@ -608,7 +616,9 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
         help="evaluations of one parameter set over all the manoeuvres (default 200)",
     )
     p.add_argument("--seed", type=_whole(0), default=0, metavar="S", help="seed (default 0)")
-    p.add_argument("--out", required=True, metavar="FILE.toml", help="washout TOML to write")
+    p.add_argument(
+        "--out", required=True, metavar="FILE.toml", help="cueing parameters TOML to write"
+    )
     p.add_argument(
         "--workers",
         type=_whole(1),
