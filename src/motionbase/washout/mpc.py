@@ -400,6 +400,9 @@ class MpcCueing(Cueing):
             eps_abs=p.eps_abs,
             eps_rel=p.eps_rel,
             check_termination=5,
+            # a fixed interval: OSQP's default (0) derives it from the setup's wall time,
+            # which made runs of the same input differ
+            adaptive_rho_interval=25,
         )
 
     def bind_robot(self, robot: Any) -> None:
@@ -414,19 +417,16 @@ class MpcCueing(Cueing):
         legs = _LegConstraint(robot, self.model, self.params)
         m = self.model
         self._legs = legs
-        # soft: each leg row has a slack (free, cost violation_weight * slack^2 per s of
-        # horizon): a state the new linearisation puts past a limit (a tick cannot undo
-        # it) leaves the problem feasible, and the plan returns within the limits
+        # soft: each leg row has a slack (free, cost violation_weight * slack^2): a state
+        # the new linearisation puts past a limit (a tick cannot undo it) leaves the
+        # problem feasible, and the plan returns within the limits
         k = legs.rows
         A = sp.bmat([[sp.csc_matrix(m.A_con), None], [legs.pattern, -sp.identity(k)]], format="csc")
         A.sort_indices()
         legs.locate(A, m.A_con.shape[0], self._N * NU)
-        h_rows = np.concatenate(
-            [np.repeat(m.h[legs.sel_p], legs.n), np.repeat(m.h[legs.sel_v], legs.n)]
-        )
-        P = sp.block_diag(
-            [sp.csc_matrix(m.P), sp.diags(self.params.violation_weight * h_rows)], format="csc"
-        )
+        # (per row, not per second: the first step, one tick long, is the pose sent)
+        w = np.full(k, self.params.violation_weight)
+        P = sp.block_diag([sp.csc_matrix(m.P), sp.diags(w)], format="csc")
         # set up at the neutral pose's values (OSQP scales the problem from them)
         Ax, l_leg, u_leg = legs.linearise(np.zeros(NX), np.zeros(self._N * NU))
         A.data[legs.ax_idx] = Ax
@@ -464,7 +464,8 @@ class MpcCueing(Cueing):
 
     def diagnostics(self) -> dict[str, Any]:
         """The last tick (:attr:`info`) for the log's ``/cueing/mpc`` topic: ``status``,
-        ``iterations``, ``solve_time_s``, ``fallback``, ``weight``, ``preview``."""
+        ``iterations``, ``solve_time_s``, ``fallback``, ``weight``, ``preview``,
+        ``violation``."""
         i = self.info
         return {
             "status": i.status,
@@ -473,6 +474,7 @@ class MpcCueing(Cueing):
             "fallback": i.fallback,
             "weight": i.weight,
             "preview": self._preview is not None,
+            "violation": i.violation,
         }
 
     @property

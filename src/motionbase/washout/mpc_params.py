@@ -44,7 +44,7 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     speed_share = 0.9                  # share of each actuator's speed limit the plan may use
     steps = 7                          # prediction steps whose actuators are constrained
     speed_steps = 2                    # of which the first ones constrain the speeds too
-    violation_weight = 1e5             # soft constraints: cost per (actuator unit)^2 s
+    violation_weight = 1e5             # soft constraints: cost per (actuator unit)^2
 
     [solver]
     max_iter = 200                     # OSQP iteration budget per tick
@@ -199,7 +199,8 @@ class MpcParams:
         spread to the last) and, of those, how many the speeds too.
     violation_weight : float
         The actuator constraints are soft (so the problem stays feasible when the state is
-        already past a re-linearised limit): cost of a violation, per (rad or m)^2 s.
+        already past a re-linearised limit): cost of a violation, per (rad or m)^2, per
+        constrained step.
     max_iter : int
         OSQP iterations per tick at most.
     time_limit_ms : float
