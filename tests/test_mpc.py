@@ -359,3 +359,98 @@ def test_pipeline_binds_its_robot(ceart):
         cueing_params=WashoutParams.preset("default"),
     )
     assert Pipeline(classical).cueing.diagnostics() is None
+
+
+# -- the log, --preview, tune --------------------------------------------------------------
+
+
+def _read_mcap(path) -> tuple[dict, dict, dict]:
+    """Messages by topic, schema (name, encoding) by topic, and the metadata, read with
+    the mcap library's own reader."""
+    import json
+
+    from mcap.reader import make_reader
+
+    messages: dict = {}
+    schemas: dict = {}
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        for schema, channel, message in reader.iter_messages():
+            messages.setdefault(channel.topic, []).append(json.loads(message.data))
+            schemas[channel.topic] = (schema.name, schema.encoding)
+        fh.seek(0)
+        meta = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}
+    return messages, schemas, meta
+
+
+def test_fly_log_has_the_cueing_topic_and_preview_replays(tmp_path):
+    import json
+
+    from motionbase import app
+
+    out = tmp_path / "pv.mcap"
+    res = app.fly("c1723", cueing="mpc", duration_s=1.0, out=out, progress=False, preview=True)
+    assert any("preview" in n for n in res.notes)
+    messages, schemas, meta = _read_mcap(out)
+    diag = messages["/cueing/mpc"]
+    assert schemas["/cueing/mpc"] == ("motionbase.MpcDiagnostics", "jsonschema")
+    assert len(diag) == len(messages["/platform/pose"])  # one per tick
+    for d in diag:
+        assert d["status"] in ("solved", "solved inaccurate") or d["fallback"]
+        assert d["iterations"] >= 0 and d["solve_time_s"] >= 0.0
+        assert 0.0 <= d["weight"] <= 1.0 and d["preview"] is True
+    assert any(d["iterations"] > 0 for d in diag)
+    config = json.loads(meta["motionbase"]["config"])
+    assert config["preview"] is True
+    # the replay reads the recording ahead and previews as recorded: the same outputs
+    check = app.replay(out, check=True, progress=False)
+    assert not check.failed, check.notes
+    # and without the preview it is another run (the preview moved the platform)
+    real_time = app.replay(out, check=True, progress=False, preview=False)
+    assert real_time.failed
+
+
+def test_preview_refused_for_live_sources_and_cueings_without_it(tmp_path, capsys):
+    from motionbase import app, cli
+
+    with pytest.raises(ConfigError, match="--preview.*live stream"):
+        app.stream("udpin:127.0.0.1:0", cueing="mpc", preview=True, progress=False)
+    with pytest.raises(ConfigError, match="--preview.*real-time"):
+        app.fly("c1723", cueing="mpc", realtime=True, preview=True, out=tmp_path / "x.mcap")
+    for args in (
+        ["stream", "--cueing", "mpc", "--preview"],
+        ["fly", "--preview", "--duration", "1", "--out", str(tmp_path / "y.mcap")],
+    ):
+        try:
+            code = cli.main(args)
+        except SystemExit as exc:
+            code = exc.code
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "--preview" in err[0], (args, err)
+    assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "y.mcap").exists()
+
+
+def test_tune_mpc_tiny_budget(tmp_path):
+    from motionbase import app, tuning
+
+    out = tmp_path / "mpc_t.toml"
+    res = app.tune(
+        out=out,
+        cueing="mpc",
+        scripts=["rudder_kick@0:4"],
+        holdout=[],
+        budget=3,
+        seed=1,
+        workers=1,
+        progress=False,
+    )
+    assert res.result.evaluations == 3
+    tuned = MpcParams.from_toml(out)  # an MPC file the cueing loads
+    start = MpcParams.load("ceart")
+    knobbed = {k.param for k in tuning.MPC_KNOBS}
+    for name in ("steps", "step_s", "position_lower_m", "velocity_m_s", "fallback", "max_iter"):
+        assert name not in knobbed and getattr(tuned, name) == getattr(start, name)
+    if res.improved:  # the best candidate differs only in the knobs
+        assert any(getattr(tuned, k) != getattr(start, k) for k in knobbed)
+    assert res.result.best_score.cost <= res.result.start_score.cost
+    assert "--cueing mpc" in out.read_text()
