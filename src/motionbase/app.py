@@ -1316,13 +1316,14 @@ def tune(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
     best = replace(result.best, description=description)
-    which = "" if cueing == "classical" else f" --cueing {cueing}"
-    command = [f"motionbase tune{which} --platform {platform_name} --params {start_name}"]
+    which = " --washout" if cueing == "classical" else f" --cueing {cueing} --params"
+    command = [f"motionbase tune --platform {platform_name}{which} {start_name}"]
     command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")
     command += [f"--recordings {' '.join(recordings)}"] if recordings else []
     command.append(f"--holdout {','.join(holdout) or 'none'} --budget {budget} --seed {seed}")
     header[:0] = [
-        f"Cueing parameters ({cueing}) made by `motionbase tune` (motionbase {__version__}):",
+        f"{'Washout' if cueing == 'classical' else cueing.upper() + ' cueing'} parameters "
+        f"made by `motionbase tune` (motionbase {__version__}):",
         f"{' '.join(command)} --out {out_path.name}",
     ]
     write_washout(out_path, best, header)
