@@ -67,6 +67,16 @@ def _sample_messages(t: float) -> dict[str, dict]:
         },
         "/cursor": {"pixel": [320.0, 240.0], "target": RNG.normal(size=2) * 0.01},
         "/platform/scene": _SCENE.message(t, np.zeros(6), RNG.normal(size=6) * 0.5),
+        "/cueing/mpc": {
+            "t": t,
+            "status": "solved",
+            "iterations": 12,
+            "solve_time_s": 4e-4,
+            "fallback": False,
+            "weight": 1.0,
+            "preview": False,
+            "violation": 0.0,
+        },
     }
 
 

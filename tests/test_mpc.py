@@ -216,6 +216,8 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
     ceart.to_toml(path)
     assert MpcParams.from_toml(path) == ceart
     assert cueing_spec("mpc").load_params() == ceart
+    tuned = cueing_spec("mpc").load_params("tuned_ceart")  # made by tune --cueing mpc
+    assert tuned.steps == ceart.steps and tuned.time_limit_ms == 0.0
     bad = ceart.to_dict()
     bad["limits"]["position_lower_m"] = [0.1, -0.2, -0.1]
     with pytest.raises(ConfigError, match="limits.position_lower_m.*< 0"):
@@ -235,3 +237,222 @@ def test_non_finite_input_changes_nothing(ceart):
     out = np.zeros(6)
     assert not cue.advance(np.array([np.nan, 0, -G, 0, 0, 0]), out)
     np.testing.assert_array_equal(cue.z, z)
+
+
+# -- the robot inside the MPC (bind_robot) ------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return PipelineConfig(
+        robot="rus6", geometry=Rus6Geometry.preset("ceart"), cueing_params=None
+    ).make_robot()
+
+
+def test_linearised_actuators_match_the_analytic_jacobian(ceart, robot):
+    # the constraint's central differences of robot.inverse against Rus6's own Jacobian
+    # (closed form), at poses spread over the workspace
+    cue = MpcCueing(ceart, DT)
+    cue.bind_robot(robot)
+    rng = np.random.default_rng(3)
+    poses = rng.uniform(0.5 * ceart.pose_lower, 0.5 * ceart.pose_upper, (20, 6))
+    q, J = cue._legs.actuators(poses)
+    np.testing.assert_allclose(q, robot.inverse(poses), atol=1e-12)
+    np.testing.assert_allclose(J, robot.kin.jacobian(poses).matrix, rtol=1e-5, atol=1e-6)
+
+
+def test_updated_qp_equals_a_fresh_solve(ceart, robot):
+    # after ticks that re-linearise (OSQP updates A's values in place), the QP solved is
+    # the one built from scratch: the leg rows J_k (Phi_k z + Gam_k U) from the analytic
+    # Jacobian at the predicted poses, solved by a new OSQP set up on it
+    import osqp
+    import scipy.sparse as sp
+
+    p = dataclasses.replace(
+        ceart, steps=4, eps_abs=1e-9, eps_rel=1e-9, max_iter=100000, time_limit_ms=0.0
+    )
+    cue = MpcCueing(p, DT)
+    cue.bind_robot(robot)
+    _run(cue, _inputs(120))
+    legs, m, z = cue._legs, cue.model, cue.z.copy()
+    plan = cue._plan.reshape(-1).copy()
+    d = np.array([1.5, -0.8, -0.3, 0.1, -0.05, 0.02])
+    cue._solve(d)
+    assert cue.info.status == "solved"
+    x_cue = cue._plan.reshape(-1)
+
+    N = p.steps
+    sel = legs.sel_p
+    Zp = (m.Phi @ z).reshape(N, -1)[:, : 2 * ND]
+    Gp = m.Gam.reshape(N, -1, N * NU)[:, : 2 * ND]
+    pose_of = np.array([0, 1, 2, 3, 4, 3, 4, 5])
+    S = np.zeros((6, ND))
+    S[pose_of, np.arange(ND)] = 1.0
+    pbar = np.einsum("ij,kj->ki", S, Zp[:, :ND] + Gp[:, :ND] @ plan)[sel]
+    J = robot.kin.jacobian(pbar).matrix
+    rows, lo, hi = [], [], []
+    for i, k in enumerate(sel):
+        A_k = J[i] @ S @ Gp[k, :ND]
+        free = J[i] @ S @ Zp[k, :ND]
+        q0 = robot.inverse(pbar[i]) - J[i] @ pbar[i]
+        rows.append(A_k)
+        lo.append(legs.q_lo - q0 - free)
+        hi.append(legs.q_hi - q0 - free)
+    for i, k in enumerate(legs.sel_v):
+        A_k = J[i] @ S @ Gp[k, ND:]
+        free = J[i] @ S @ Zp[k, ND:]
+        rows.append(A_k)
+        lo.append(-legs.v_max - free)
+        hi.append(legs.v_max - free)
+    A_leg, lo_leg, hi_leg = np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+    k = len(A_leg)
+    A = sp.bmat([[sp.csc_matrix(m.A_con), None], [sp.csc_matrix(A_leg), -sp.identity(k)]])
+    P = sp.block_diag([sp.csc_matrix(m.P), sp.identity(k) * p.violation_weight], format="csc")
+    s = m.Sz @ z
+    q = np.concatenate([m.Fz @ z + cue._Fd_hold @ d + m.Fu @ cue._a_prev, np.zeros(k)])
+    solver = osqp.OSQP()
+    solver.setup(
+        sp.triu(P, format="csc"),
+        q,
+        sp.csc_matrix(A),
+        np.concatenate([m.lo - s, lo_leg]),
+        np.concatenate([m.hi - s, hi_leg]),
+        verbose=False,
+        eps_abs=1e-10,
+        eps_rel=1e-10,
+        max_iter=200000,
+        polishing=True,
+    )
+    res = solver.solve(raise_error=True)
+    assert res.info.status == "solved"
+    np.testing.assert_allclose(x_cue, res.x[: N * NU], atol=2e-4 * np.abs(res.x).max())
+
+
+def test_bound_robot_keeps_the_poses_reachable(ceart, robot):
+    # a flight far past the platform (forces and rates on every axis at once): the pose
+    # box alone leaves a third of the poses out of the legs' reach (the clamp would cut
+    # them); with the robot bound every pose reaches, every crank inside its limits
+    p = dataclasses.replace(ceart, time_limit_ms=0.0)
+    u = _inputs(1500)
+    boxed = _run(MpcCueing(p, DT), u)
+    cue = MpcCueing(p, DT)
+    cue.bind_robot(robot)
+    bound = _run(cue, u)
+    assert (~robot.reachable(boxed)).mean() > 0.2
+    assert (~robot.reachable(bound)).mean() < 0.005
+    q = robot.inverse(bound)
+    assert np.isfinite(q).all()
+    assert (q >= robot.limits.lower).all() and (q <= robot.limits.upper).all()
+    assert cue.counts["fallbacks"] < 0.01 * cue.counts["ticks"]
+    # the pose box, the rates and the tilt thresholds hold as without the robot
+    assert (bound >= p.pose_lower - 1e-9).all() and (bound <= p.pose_upper + 1e-9).all()
+
+
+def test_pipeline_binds_its_robot(ceart):
+    cfg = PipelineConfig(
+        robot="rus6", geometry=Rus6Geometry.preset("ceart"), cueing="mpc", cueing_params=ceart
+    )
+    pipe = Pipeline(cfg)
+    assert pipe.cueing.robot is pipe.robot and pipe.cueing._legs is not None
+    # a cueing without use for the robot ignores it (the default hook)
+    classical = PipelineConfig(
+        robot="rus6",
+        geometry=Rus6Geometry.preset("ceart"),
+        cueing_params=WashoutParams.preset("default"),
+    )
+    assert Pipeline(classical).cueing.diagnostics() is None
+
+
+# -- the log, --preview, tune --------------------------------------------------------------
+
+
+def _read_mcap(path) -> tuple[dict, dict, dict]:
+    """Messages by topic, schema (name, encoding) by topic, and the metadata, read with
+    the mcap library's own reader."""
+    import json
+
+    from mcap.reader import make_reader
+
+    messages: dict = {}
+    schemas: dict = {}
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        for schema, channel, message in reader.iter_messages():
+            messages.setdefault(channel.topic, []).append(json.loads(message.data))
+            schemas[channel.topic] = (schema.name, schema.encoding)
+        fh.seek(0)
+        meta = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}
+    return messages, schemas, meta
+
+
+def test_fly_log_has_the_cueing_topic_and_preview_replays(tmp_path):
+    import json
+
+    from motionbase import app
+
+    out = tmp_path / "pv.mcap"
+    res = app.fly("c1723", cueing="mpc", duration_s=1.0, out=out, progress=False, preview=True)
+    assert any("preview" in n for n in res.notes)
+    messages, schemas, meta = _read_mcap(out)
+    diag = messages["/cueing/mpc"]
+    assert schemas["/cueing/mpc"] == ("motionbase.MpcDiagnostics", "jsonschema")
+    assert len(diag) == len(messages["/platform/pose"])  # one per tick
+    for d in diag:
+        assert d["status"] in ("solved", "solved inaccurate") or d["fallback"]
+        assert d["iterations"] >= 0 and d["solve_time_s"] >= 0.0
+        assert 0.0 <= d["weight"] <= 1.0 and d["preview"] is True
+    assert any(d["iterations"] > 0 for d in diag)
+    config = json.loads(meta["motionbase"]["config"])
+    assert config["preview"] is True
+    # the replay reads the recording ahead and previews as recorded: the same outputs
+    check = app.replay(out, check=True, progress=False)
+    assert not check.failed, check.notes
+    # and without the preview it is another run (the preview moved the platform)
+    real_time = app.replay(out, check=True, progress=False, preview=False)
+    assert real_time.failed
+
+
+def test_preview_refused_for_live_sources_and_cueings_without_it(tmp_path, capsys):
+    from motionbase import app, cli
+
+    with pytest.raises(ConfigError, match="--preview.*live stream"):
+        app.stream("udpin:127.0.0.1:0", cueing="mpc", preview=True, progress=False)
+    with pytest.raises(ConfigError, match="--preview.*real-time"):
+        app.fly("c1723", cueing="mpc", realtime=True, preview=True, out=tmp_path / "x.mcap")
+    for args in (
+        ["stream", "--cueing", "mpc", "--preview"],
+        ["fly", "--preview", "--duration", "1", "--out", str(tmp_path / "y.mcap")],
+    ):
+        try:
+            code = cli.main(args)
+        except SystemExit as exc:
+            code = exc.code
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "--preview" in err[0], (args, err)
+    assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "y.mcap").exists()
+
+
+def test_tune_mpc_tiny_budget(tmp_path):
+    from motionbase import app, tuning
+
+    out = tmp_path / "mpc_t.toml"
+    res = app.tune(
+        out=out,
+        cueing="mpc",
+        scripts=["rudder_kick@0:4"],
+        holdout=[],
+        budget=3,
+        seed=1,
+        workers=1,
+        progress=False,
+    )
+    assert res.result.evaluations == 3
+    tuned = MpcParams.from_toml(out)  # an MPC file the cueing loads
+    start = MpcParams.load("ceart")
+    knobbed = {k.param for k in tuning.MPC_KNOBS}
+    for name in ("steps", "step_s", "position_lower_m", "velocity_m_s", "fallback", "max_iter"):
+        assert name not in knobbed and getattr(tuned, name) == getattr(start, name)
+    if res.improved:  # the best candidate differs only in the knobs
+        assert any(getattr(tuned, k) != getattr(start, k) for k in knobbed)
+    assert res.result.best_score.cost <= res.result.start_score.cost
+    assert "--cueing mpc" in out.read_text()

@@ -253,8 +253,13 @@ def _drive(
     on_output: Callable[[PipelineOutput], None] | None = None,
     stop: StopRequest | None = None,
     live: Any = None,
+    preview: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JobResult:
     """Run ``source`` (already entered) through a new pipeline into an MCAP log and sinks.
+
+    ``preview`` (offline runs): the whole reference ``(f, w)``, one row per sample, handed
+    to the cueing (``set_preview``) before the first tick; the log's metadata and the
+    result's notes say so.
 
     ``outputs`` are motor-drive output URLs (:func:`motionbase.io.motor_output.open_output`);
     their statistics end up in the result's notes. A run with outputs, or with a source that
@@ -267,6 +272,7 @@ def _drive(
         return _drive_stoppable(
             title, config, source, out, paced=paced, busy_wait=busy_wait, progress=progress,
             extra_sinks=extra_sinks, outputs=outputs, on_output=on_output, stop=stop, live=live,
+            preview=preview,
         )  # fmt: skip
 
 
@@ -284,11 +290,16 @@ def _drive_stoppable(
     on_output: Callable[[PipelineOutput], None] | None,
     stop: StopRequest,
     live: Any,
+    preview: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JobResult:
     from motionbase.io.motor_output import open_outputs
     from motionbase.io.pipeline_log import PipelineLog
 
     pipeline = Pipeline(config)
+    metadata = run_metadata(config, source)
+    if preview is not None:
+        pipeline.cueing.set_preview(*preview)  # type: ignore[attr-defined]
+        metadata["preview"] = True
     drives = open_outputs(outputs, pipeline.robot)
     extra_sinks = [*(extra_sinks or []), *drives]
     paced = bool(paced or drives or getattr(source, "paces_itself", False))
@@ -311,11 +322,12 @@ def _drive_stoppable(
             if out:
                 log = PipelineLog(
                     out,
-                    run_metadata(config, source),
+                    metadata,
                     health=pipeline.health.as_dict,
                     planar=config.planar,
                     kinematics=pipeline.robot.kin,
                     live=live,
+                    cueing=pipeline.cueing,
                 )
                 log.__enter__()
                 sinks.insert(0, log)  # the log stays the first sink, closed last
@@ -344,9 +356,28 @@ def _drive_stoppable(
         title,
         summary,
         out,
-        notes=[d.stats_line() for d in drives],
+        notes=[d.stats_line() for d in drives]
+        + (
+            [
+                f"preview: the {pipeline.cueing.name} cueing saw the flight's future "
+                f"({len(preview[0])} samples; offline mode, not what a live run does)"
+            ]
+            if preview is not None
+            else []
+        ),
         actuator_unit=pipeline.robot.actuator_unit,
     )
+
+
+def _check_preview(config: PipelineConfig) -> None:
+    """A ConfigError unless the configured cueing can use a preview."""
+    from motionbase.washout.cueing import cueing_spec
+
+    if not hasattr(cueing_spec(config.cueing).cueing_type, "set_preview"):
+        raise ConfigError(
+            f"--preview: the {config.cueing} cueing does not use the flight's future; "
+            "choose one that does (--cueing mpc) or drop --preview"
+        )
 
 
 def output_test(
@@ -498,6 +529,7 @@ def fly(
     outputs: list[str] | None = None,
     stop: StopRequest | None = None,
     live: str | None = None,
+    preview: bool = False,
 ) -> JobResult:
     """Fly a JSBSim script through the pipeline and log it to MCAP.
 
@@ -530,6 +562,10 @@ def fly(
         command line); by default the job does so from its start.
     live : str, optional
         ``[HOST:]PORT``: serve the log's topics to Foxglove while flying (needs ``realtime``).
+    preview : bool
+        Offline mode of a cueing that looks ahead (``--cueing mpc``): the script is flown
+        once ahead (JSBSim is deterministic) and the cueing is given the whole reference.
+        Not with ``realtime`` or ``outputs`` (a live flight has no known future).
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
@@ -539,6 +575,11 @@ def fly(
             raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
         if live is not None and not realtime:
             raise ConfigError("--live shows the flight as it happens: add --realtime")
+        if preview and (realtime or outputs):
+            raise ConfigError(
+                "--preview looks at the flight's future: a real-time flight (--realtime, "
+                "--output) has none; drop --preview or fly offline"
+            )
         live_at = _live_address(live)
         name = Path(script).stem
         out_path = (
@@ -563,6 +604,13 @@ def fly(
                 cueing=cueing,
                 rate_hz=source.rate_hz,
             )
+            reference = None
+            if preview:
+                from motionbase.io.manoeuvres import preview_reference
+
+                _check_preview(config)
+                with JsbsimSource(script, duration_s=duration_s) as ahead:
+                    reference = preview_reference(ahead)
             return _drive(
                 f"flew {name} on the {robot_title(config)}",
                 config,
@@ -574,6 +622,7 @@ def fly(
                 outputs=outputs,
                 stop=stop,
                 live=live_at,
+                preview=reference,
             )
 
 
@@ -590,6 +639,7 @@ def replay(
     outputs: list[str] | None = None,
     stop: StopRequest | None = None,
     live: str | None = None,
+    preview: bool | None = None,
 ) -> JobResult:
     """Re-run the pipeline on a recording's aircraft states, with its recorded configuration.
 
@@ -615,6 +665,9 @@ def replay(
     live : str, optional
         ``[HOST:]PORT``: serve the replay's topics to Foxglove; the replay then runs in real
         time, paced by the pipeline's loop like a replay to drives.
+    preview : bool, optional
+        The cueing sees the whole recording ahead (``--cueing mpc``; the recording's
+        aircraft states are read first). Default: as the recording was made.
 
     Raises
     ------
@@ -626,6 +679,7 @@ def replay(
         return _replay(
             path, out=out, check=check, platform=platform, washout=washout, cueing=cueing,
             planar=planar, progress=progress, outputs=outputs, stop=stop, live=live,
+            preview=preview,
         )  # fmt: skip
 
 
@@ -642,6 +696,7 @@ def _replay(
     outputs: list[str] | None,
     stop: StopRequest,
     live: str | None,
+    preview: bool | None = None,
 ) -> JobResult:
     from motionbase.io.mcap_source import McapSource, read_messages
 
@@ -678,6 +733,16 @@ def _replay(
                 cueing=cueing or "classical",
                 rate_hz=source.rate_hz,
             )
+        if preview is None:  # as recorded, unless the configuration was overridden
+            same = recorded is not None and all(x is None for x in asked)
+            preview = same and bool((source.metadata or {}).get("preview"))
+        reference = None
+        if preview:
+            from motionbase.io.manoeuvres import preview_reference
+
+            _check_preview(config)
+            with McapSource(src_path) as ahead:
+                reference = preview_reference(ahead)
         notes = []
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")
@@ -699,6 +764,7 @@ def _replay(
                 outputs=outputs,
                 stop=stop,
                 live=live_at,
+                preview=reference,
             )
             result.notes.extend(notes)
             if source.malformed:
@@ -806,6 +872,7 @@ def stream(
     source_url: str | None = None,
     stop: StopRequest | None = None,
     live: str | None = None,
+    preview: bool = False,
 ) -> JobResult:
     """Drive the platform from live MAVLink telemetry (or a .tlog/.bin log) until Ctrl-C.
 
@@ -844,7 +911,14 @@ def stream(
         As for :func:`fly`.
     live : str, optional
         ``[HOST:]PORT``: serve the log's topics to Foxglove while streaming.
+    preview : bool
+        Refused (a ConfigError): a live source has no future to preview.
     """
+    if preview:
+        raise ConfigError(
+            "--preview looks at the flight's future: a live stream has none; drop --preview "
+            "(replay a recording with --preview instead)"
+        )
     with _stopping(stop) as stop:
         return _stream(
             mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
@@ -938,7 +1012,8 @@ def _stream(
 
 # Fields that depend on the wall clock or the machine, never compared.
 _UNCOMPARED = {
-    "/health": {"overruns", "overruns_off_cpu", "worst_overrun_s", "late_commands", "worst_late_s"}
+    "/health": {"overruns", "overruns_off_cpu", "worst_overrun_s", "late_commands", "worst_late_s"},
+    "/cueing/mpc": {"solve_time_s"},  # wall time
 }
 # Topics drawn from others, compared only when both recordings have them.
 _DRAWN = {"/platform/scene"}
@@ -1105,6 +1180,7 @@ class TuneResult:
     out: Path
     wall_time_s: float
     improved: bool
+    cueing: str = "classical"
 
     def summary_text(self) -> str:
         from motionbase.tuning import format_table
@@ -1120,7 +1196,9 @@ class TuneResult:
                 f"{self.wall_time_s:.0f} s, seed {r.seed}: {found}; score terms in "
                 "motionbase.tuning",
                 format_table(sections),
-                f"wrote {self.out} (motionbase fly --washout {self.out})",
+                f"wrote {self.out} (motionbase fly"
+                + ("" if self.cueing == "classical" else f" --cueing {self.cueing}")
+                + f" --params {self.out})",
             ]
         )
 
@@ -1149,9 +1227,10 @@ def tune(
     platform : str, optional
         6-RUS geometry preset or TOML path (default ``ceart``).
     washout : str, optional
-        The start set: washout preset or TOML path (default ``default``).
+        The start set: the cueing's preset or TOML path (default: its default preset).
     cueing : str
-        The cueing algorithm; ``classical`` (the only one so far).
+        The cueing algorithm (a name of :data:`~motionbase.washout.cueing.CUEINGS` with
+        knobs in :data:`motionbase.tuning.KNOBS_BY_CUEING`: classical, mpc).
     scripts : list of str, optional
         JSBSim scripts, ``NAME`` or ``NAME@START:END``
         (:func:`motionbase.io.manoeuvres.load_script`); default
@@ -1183,10 +1262,10 @@ def tune(
     )
     from motionbase.platform import Rus6Geometry
     from motionbase.report import rus6_reach
-    from motionbase.washout import WashoutParams
+    from motionbase.washout.cueing import cueing_spec
 
-    if cueing != "classical":
-        raise ConfigError(f"--cueing {cueing!r}: the cueing algorithms are: classical")
+    spec = cueing_spec(cueing)
+    knobs = tuning.knobs_for(cueing)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ConfigError(f"--budget must be a whole number of evaluations >= 1, got {budget!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -1198,8 +1277,8 @@ def tune(
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
     platform_name = platform or DEFAULT_RUS6
     geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform_name))
-    start_name = washout or "default"
-    start = WashoutParams.from_toml(resolve_preset_or_path("washout", start_name))
+    start_name = washout or spec.default_preset
+    start = spec.load_params(start_name)
     recordings = list(recordings or [])
     scripts = list(DEFAULT_MANOEUVRES if scripts is None and not recordings else scripts or [])
     holdout = list(DEFAULT_HOLDOUT if holdout is None else holdout)
@@ -1215,32 +1294,36 @@ def tune(
                 "be tuned on (drop it from one of them)"
             )
     reach = rus6_reach(geometry)
-    problem = tuning.TuningProblem(geometry, tuple(manoeuvres), reach)
+    problem = tuning.TuningProblem(geometry, tuple(manoeuvres), reach, cueing=cueing)
     bar = EvaluationProgress() if progress else None
     t0 = time.monotonic()
     try:
         with open_evaluator(problem, workers=workers, scheduler=scheduler) as evaluate_many:
-            result = tuning.tune(start, evaluate_many, budget=budget, seed=seed, on_progress=bar)
+            result = tuning.tune(
+                start, evaluate_many, budget=budget, seed=seed, knobs=knobs, on_progress=bar
+            )
     finally:
         if bar is not None:
             bar.close()
     holdout_scores = None
     if held:
-        held_problem = tuning.TuningProblem(geometry, tuple(held), reach)
+        held_problem = tuning.TuningProblem(geometry, tuple(held), reach, cueing=cueing)
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
     wall = time.monotonic() - t0
     description, header = tuning.describe_result(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
     best = replace(result.best, description=description)
-    command = [f"motionbase tune --platform {platform_name} --washout {start_name}"]
+    which = " --washout" if cueing == "classical" else f" --cueing {cueing} --params"
+    command = [f"motionbase tune --platform {platform_name}{which} {start_name}"]
     command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")
     command += [f"--recordings {' '.join(recordings)}"] if recordings else []
     command.append(f"--holdout {','.join(holdout) or 'none'} --budget {budget} --seed {seed}")
     header[:0] = [
-        f"Washout parameters made by `motionbase tune` (motionbase {__version__}):",
+        f"{'Washout' if cueing == 'classical' else cueing.upper() + ' cueing'} parameters "
+        f"made by `motionbase tune` (motionbase {__version__}):",
         f"{' '.join(command)} --out {out_path.name}",
     ]
     write_washout(out_path, best, header)
     improved = result.best is not result.start
-    return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved)
+    return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved, cueing)

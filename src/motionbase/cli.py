@@ -161,8 +161,11 @@ def _add_shared(p: argparse.ArgumentParser, *flags: str) -> None:
         p.add_argument(flag, **_SHARED_OPTIONS[flag])  # type: ignore[arg-type]
 
 
-def _add_cueing(p: argparse.ArgumentParser, *, recorded: bool = False) -> None:
-    """``--cueing NAME`` and ``--params PRESET|FILE.toml`` (``--washout`` is the same)."""
+def _add_cueing(
+    p: argparse.ArgumentParser, *, recorded: bool = False, preview: bool = True
+) -> None:
+    """``--cueing NAME``, ``--params PRESET|FILE.toml`` (``--washout`` is the same) and,
+    with ``preview``, ``--preview``."""
     p.add_argument(
         "--cueing",
         default=None if recorded else "classical",
@@ -181,6 +184,14 @@ def _add_cueing(p: argparse.ArgumentParser, *, recorded: bool = False) -> None:
         else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart) "
         "or TOML path",
     )
+    if not preview:
+        return
+    p.add_argument(
+        "--preview",
+        action="store_true",
+        help="offline runs (replay; fly without --realtime): the cueing sees the flight's "
+        "future (mpc only)",
+    )
 
 
 def _pipeline_options(args: argparse.Namespace) -> dict[str, object]:
@@ -193,6 +204,7 @@ def _pipeline_options(args: argparse.Namespace) -> dict[str, object]:
         "planar": args.planar,
         "outputs": args.output,
         "live": args.live,
+        "preview": args.preview,
     }
 
 
@@ -444,7 +456,7 @@ def _args_omct(p: argparse.ArgumentParser) -> None:
         metavar="PRESET|FILE.toml",
         help=f"geometry preset or TOML path (default {DEFAULT_RUS6}; {DEFAULT_RRR3} with --planar)",
     )
-    _add_cueing(p)
+    _add_cueing(p, preview=False)
     p.add_argument(
         "--planar", action="store_true", help="the planar 3-RRR robot (surge, sway, yaw tests)"
     )
@@ -572,11 +584,19 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--platform", help=f"6-RUS geometry preset or TOML path (default {DEFAULT_RUS6})"
     )
-    p.add_argument("--cueing", default="classical", choices=["classical"], help="cueing algorithm")
     p.add_argument(
+        "--cueing",
+        default="classical",
+        choices=["classical", "mpc"],
+        help="cueing algorithm (default classical)",
+    )
+    p.add_argument(
+        "--params",
         "--washout",
+        dest="washout",
         metavar="START.toml",
-        help="the start set: washout preset or TOML path (default: default)",
+        help="the start set: the cueing's preset or TOML path (default: classical default, "
+        "mpc ceart)",
     )
     p.add_argument(
         "--scripts",
@@ -608,7 +628,9 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
         help="evaluations of one parameter set over all the manoeuvres (default 200)",
     )
     p.add_argument("--seed", type=_whole(0), default=0, metavar="S", help="seed (default 0)")
-    p.add_argument("--out", required=True, metavar="FILE.toml", help="washout TOML to write")
+    p.add_argument(
+        "--out", required=True, metavar="FILE.toml", help="cueing parameters TOML to write"
+    )
     p.add_argument(
         "--workers",
         type=_whole(1),

@@ -374,6 +374,7 @@ class Pipeline:
         self.dt = config.dt
         self.robot = config.make_robot()
         self.cueing = cueing if cueing is not None else config.make_cueing()
+        self.cueing.bind_robot(self.robot)
         self.health = Health()
         self.params = stages.new_params(
             self.robot,

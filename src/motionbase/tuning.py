@@ -125,6 +125,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from motionbase import stages
+from motionbase.errors import ConfigError
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.washout.params import WashoutParams
 from motionbase.washout.perception import cueing_metrics
@@ -134,6 +135,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "KNOBS",
+    "KNOBS_BY_CUEING",
+    "MPC_KNOBS",
+    "knobs_for",
     "SIGMA0",
     "SIZING_DURATION_S",
     "SIZING_MARGIN",
@@ -249,6 +253,42 @@ KNOBS: tuple[Knob, ...] = (
     Knob("rot wn pitch", "rotational_wn", (1,), 0.2, 5.0),
     Knob("rot wn yaw", "rotational_wn", (2,), 0.2, 5.0),
 )
+
+
+#: The model-predictive cueing's knobs (:class:`~motionbase.washout.mpc_params.MpcParams`):
+#: the cost weights and the reference limits (its platform limits come from the robot).
+MPC_KNOBS: tuple[Knob, ...] = (
+    Knob("w sf x", "w_specific_force", (0,), 0.1, 10.0),
+    Knob("w sf y", "w_specific_force", (1,), 0.1, 10.0),
+    Knob("w sf z", "w_specific_force", (2,), 0.1, 10.0),
+    Knob("w ang roll,pitch", "w_angular_velocity", (0, 1), 40.0, 4000.0),
+    Knob("w ang yaw", "w_angular_velocity", (2,), 40.0, 4000.0),
+    Knob("w pos x,y", "w_position", (0, 1), 2.0, 200.0),
+    Knob("w pos z", "w_position", (2,), 2.0, 200.0),
+    Knob("w pos roll,pitch", "w_position", (3, 4), 20.0, 2000.0),
+    Knob("w pos yaw", "w_position", (5,), 5.0, 500.0),
+    Knob("w tilt", "w_tilt", (0,), 0.01, 1.0),
+    Knob("ref sf x,y m/s2", "specific_force_limit", (0, 1), 0.5, 5.0),
+    Knob("ref sf z m/s2", "specific_force_limit", (2,), 0.1, 3.0),
+    Knob("ref ang deg/s", "angular_velocity_limit_deg_s", (0, 1, 2), 5.0, 60.0),
+    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", None, 1.0, 6.0),
+    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", None, 2.0, 40.0),
+)
+
+#: The knobs of each cueing (its registry name, :data:`~motionbase.washout.cueing.CUEINGS`).
+KNOBS_BY_CUEING: dict[str, tuple[Knob, ...]] = {"classical": KNOBS, "mpc": MPC_KNOBS}
+
+
+def knobs_for(cueing: str) -> tuple[Knob, ...]:
+    """The tuned parameters of ``cueing``; a ConfigError for a cueing without knobs."""
+    try:
+        return KNOBS_BY_CUEING[cueing]
+    except KeyError:
+        raise ConfigError(
+            f"tune: no knobs for the cueing {cueing!r} (tunable: "
+            f"{', '.join(sorted(KNOBS_BY_CUEING))}; add its entry to "
+            "motionbase.tuning.KNOBS_BY_CUEING)"
+        ) from None
 
 
 def encode(params: WashoutParams, knobs: Sequence[Knob] = KNOBS) -> np.ndarray:
@@ -563,6 +603,7 @@ class TuningProblem:
     manoeuvres: tuple[Manoeuvre, ...]
     reach: np.ndarray
     weights: Weights = Weights()
+    cueing: str = "classical"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cranks", crank_range(self.geometry))
@@ -570,7 +611,11 @@ class TuningProblem:
     def config(self, params: WashoutParams, manoeuvre: Manoeuvre) -> PipelineConfig:
         """The pipeline configuration for one manoeuvre (its rate, default settings)."""
         return PipelineConfig(
-            robot="rus6", geometry=self.geometry, cueing_params=params, rate_hz=manoeuvre.rate_hz
+            robot="rus6",
+            geometry=self.geometry,
+            cueing=self.cueing,
+            cueing_params=params,
+            rate_hz=manoeuvre.rate_hz,
         )
 
     def evaluate(self, params: WashoutParams) -> SetScore:
@@ -587,7 +632,8 @@ class TuningProblem:
                 )
                 for m in self.manoeuvres
             ),
-            saturated_reach_use(params, self.reach),
+            # the sizing rule is the classical washout's (an MPC keeps its box by design)
+            saturated_reach_use(params, self.reach) if self.cueing == "classical" else np.zeros(6),
             self.weights,
         )
 
@@ -856,8 +902,9 @@ def describe_result(
         f"{before.cost:.4g} -> {after.cost:.4g} over {names}"
     )
     lines = [
-        f"for the platform {platform}, from the washout {start}: CMA-ES over "
-        f"{len(result.knobs)} parameters (motionbase.tuning.KNOBS; the others as in the start "
+        f"for the platform {platform}, from the parameters {start}: CMA-ES over "
+        f"{len(result.knobs)} parameters (motionbase.tuning.KNOBS_BY_CUEING; the others as in "
+        "the start "
         f"set), seed {result.seed}, {result.evaluations} evaluations.",
         f"Tuning set: {names}: cost {before.cost:.4g} -> {after.cost:.4g} (perceived "
         f"specific-force error {before.error_specific_force:.3f} -> "

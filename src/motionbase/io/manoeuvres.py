@@ -27,13 +27,14 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tomli_w
 
 from motionbase.errors import ConfigError
 from motionbase.state import AircraftState
-from motionbase.washout.params import WashoutParams
+from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams
 
 __all__ = [
     "DEFAULT_HOLDOUT",
@@ -277,6 +278,32 @@ def write_washout(path: str | Path, params: WashoutParams, header: list[str]) ->
         p.write_text(comments + body, encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
+
+
+def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Every sample of an (entered) offline source, as the preview of a cueing
+    (:meth:`motionbase.washout.mpc.MpcCueing.set_preview`): specific force (N, 3), m/s^2,
+    and body rates (N, 3), rad/s, one row per sample the source gives. A non-finite
+    sample holds the last finite one (level flight before any), as the pipeline holds a
+    rejected sample.
+
+    Raises
+    ------
+    ConfigError
+        The source gave no sample.
+    """
+    f, w = [], []
+    last_f, last_w = np.array([0.0, 0.0, -STANDARD_GRAVITY]), np.zeros(3)
+    for state in source:
+        sf = np.asarray(state.specific_force, dtype=float)
+        av = np.asarray(state.angular_velocity, dtype=float)
+        if np.isfinite(sf).all() and np.isfinite(av).all():
+            last_f, last_w = sf, av
+        f.append(last_f)
+        w.append(last_w)
+    if not f:
+        raise ConfigError("--preview: the source gave no aircraft state to preview")
+    return np.array(f), np.array(w)
 
 
 def _collect(source) -> tuple[list[AircraftState], list[bool]]:

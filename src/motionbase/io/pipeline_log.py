@@ -12,6 +12,8 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
   ``phase``, ``fade``, ``rate_limited``, ``held``), ``/platform/actuators``
   (crank angles, rad) and a ``foxglove.FrameTransform`` on ``/tf``.
 * planar mode: ``/planar/pose`` and ``/planar/actuators`` (with ``servo_deg``).
+* ``/cueing/<name>``: the cueing's own per-tick diagnostics, for a cueing that has them
+  (``/cueing/mpc``: solver status, iterations, solve time, fallback, blend weight).
 * ``/health``: the safety counters, once per second of source time and at the end.
 * ``/platform/scene``: the robot drawn at its logged pose (``foxglove.SceneUpdate``, see
   :mod:`motionbase.io.scene`), when the log is given the robot's kinematics: at
@@ -36,6 +38,7 @@ from typing import Any
 from motionbase.errors import SinkError
 from motionbase.io.mcap_log import LIVE_RATE_HZ, LiveAddress, McapLogger
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
+from motionbase.io.schemas import CUEING_DIAGNOSTICS
 from motionbase.state import PipelineOutput
 
 
@@ -55,6 +58,16 @@ def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any
     if state.on_ground is not None:
         msg["on_ground"] = state.on_ground
     return msg
+
+
+def cueing_message(cueing: Any) -> tuple[str, dict[str, Any]] | None:
+    """The ``/cueing/<name>`` message of the cueing's last tick
+    (:meth:`~motionbase.washout.cueing.Cueing.diagnostics`), or None: no diagnostics, or
+    no schema for them (:data:`~motionbase.io.schemas.CUEING_DIAGNOSTICS`)."""
+    if cueing is None or cueing.name not in CUEING_DIAGNOSTICS:
+        return None
+    diagnostics = cueing.diagnostics()
+    return None if diagnostics is None else (f"/cueing/{cueing.name}", diagnostics)
 
 
 def tick_messages(out) -> list[tuple[str, dict[str, Any]]]:
@@ -112,6 +125,9 @@ class PipelineLog:
         most :data:`~motionbase.io.mcap_log.LIVE_RATE_HZ` messages a second per topic).
     live_rate_hz : float
         That rate, messages per second of source time per topic.
+    cueing : Cueing, optional
+        The pipeline's cueing: its per-tick diagnostics go on ``/cueing/<name>``
+        (:func:`cueing_message`), read right after the tick it describes.
     """
 
     def __init__(
@@ -124,7 +140,9 @@ class PipelineLog:
         kinematics: Any = None,
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,
+        cueing: Any = None,
     ) -> None:
+        self._cueing = cueing
         self.path = Path(path)
         self._logger: McapLogger | None = McapLogger(
             self.path, metadata, live=live, live_rate_hz=live_rate_hz
@@ -180,6 +198,8 @@ class PipelineLog:
         t = out.t
         self._last_t = t
         logger.add_many(t, tick_messages(out))
+        if self._cueing is not None and (diag := cueing_message(self._cueing)) is not None:
+            logger.add(diag[0], t, diag[1])
         if out.servo_deg is None:
             logger.add_transform(t, out.platform_pose)
         if self._scene is not None:

@@ -337,6 +337,36 @@ SCENE_UPDATE = {
     "required": ["deletions", "entities"],
 }
 
+MPC_DIAGNOSTICS = _topic(
+    "motionbase.MpcDiagnostics",
+    "The model-predictive cueing's solver, per tick (motionbase.washout.mpc.MpcInfo)",
+    {
+        "status": {"type": "string", "description": "OSQP's status of this tick's solve"},
+        "iterations": {"type": "integer", "minimum": 0, "description": "OSQP iterations"},
+        "solve_time_s": {"type": "number", "description": "update + solve wall time, s"},
+        "fallback": {
+            "type": "boolean",
+            "description": "the solution was not used: the last plan, blending to the fallback",
+        },
+        "weight": {
+            "type": "number",
+            "description": "share of the MPC's pose in the pose sent (1: all MPC)",
+        },
+        "preview": {"type": "boolean", "description": "the recorded future of the reference"},
+        "violation": {
+            "type": "number",
+            "description": "largest slack of the soft actuator constraints, rad or m",
+        },
+    },
+    ["status", "iterations", "solve_time_s", "fallback", "weight"],
+)
+
+#: Cueings with per-tick diagnostics (:meth:`motionbase.washout.cueing.Cueing.diagnostics`),
+#: logged on ``/cueing/<name>``: name -> (schema name, JSON Schema).
+CUEING_DIAGNOSTICS: dict[str, tuple[str, dict[str, Any]]] = {
+    "mpc": ("motionbase.MpcDiagnostics", MPC_DIAGNOSTICS),
+}
+
 #: topic -> (schema name, JSON Schema). The MCAP logger accepts exactly these topics.
 TOPIC_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/aircraft/state": ("motionbase.AircraftState", AIRCRAFT_STATE),
@@ -349,9 +379,11 @@ TOPIC_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/cursor": ("motionbase.Cursor", CURSOR),
     "/tf": ("foxglove.FrameTransform", FRAME_TRANSFORM),
     "/platform/scene": ("foxglove.SceneUpdate", SCENE_UPDATE),
+    **{f"/cueing/{name}": entry for name, entry in CUEING_DIAGNOSTICS.items()},
 }
 
 __all__ = [
+    "CUEING_DIAGNOSTICS",
     "FRAME_TRANSFORM",
     "NONFINITE_STRINGS",
     "SCENE_UPDATE",

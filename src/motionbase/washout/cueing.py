@@ -101,6 +101,18 @@ class Cueing(ABC):
     def track(self, achieved: np.ndarray) -> None:
         """Anti-windup: the cue pose (6,) the platform actually got after the clamp."""
 
+    def bind_robot(self, robot: Any) -> None:  # noqa: B027 (optional hook, no-op default)
+        """Optional: the robot plug-in (:class:`~motionbase.platform.robot.Robot`) this
+        cueing drives, given once by the pipeline after the cueing is made, before the
+        first tick. A cueing that plans within the actuators' limits keeps it; the
+        default ignores it."""
+
+    def diagnostics(self) -> dict[str, Any] | None:
+        """Optional: the last tick's diagnostics (flat mapping of numbers, bools and short
+        strings), logged on ``/cueing/<name>`` each tick; None (the default): nothing to
+        log."""
+        return None
+
     def step(self, specific_force: Any, angular_velocity: Any) -> np.ndarray:
         """One sample from ``f`` (3,) and ``w`` (3,); the cue pose (6,), a new array."""
         from motionbase.washout.classical import WashoutInputError

@@ -72,6 +72,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -308,6 +309,9 @@ class MpcInfo:
         The solution was not used (the tick followed the last plan).
     weight : float
         Share of the MPC's pose in the pose sent (1: all MPC, 0: all fallback washout).
+    violation : float
+        With a robot bound: the largest slack of the soft actuator constraints in the last
+        solution (actuator units; 0: every constraint held as linearised).
     """
 
     status: str = "not solved"
@@ -315,6 +319,7 @@ class MpcInfo:
     solve_time_s: float = 0.0
     fallback: bool = False
     weight: float = 1.0
+    violation: float = 0.0
 
 
 class MpcCueing(Cueing):
@@ -355,23 +360,10 @@ class MpcCueing(Cueing):
         self._N = N
         self._Fd_hold = m.Fd @ np.tile(np.eye(NE), (N, 1))
         self._offsets = np.concatenate([[0.0], np.cumsum(m.h[:-1])])
-        budget = {"time_limit": params.time_limit_ms * 1e-3} if params.time_limit_ms > 0 else {}
-        self._solver = osqp.OSQP()
-        self._solver.setup(
-            sp.triu(sp.csc_matrix(m.P), format="csc"),
-            np.zeros(N * NU),
-            sp.csc_matrix(m.A_con),
-            m.lo.copy(),
-            m.hi.copy(),
-            verbose=False,
-            warm_starting=True,
-            polishing=False,
-            max_iter=params.max_iter,
-            **budget,
-            eps_abs=params.eps_abs,
-            eps_rel=params.eps_rel,
-            check_termination=5,
-        )
+        self._osqp = osqp
+        self.robot = None
+        self._legs: _LegConstraint | None = None
+        self._setup_solver(sp.csc_matrix(m.A_con), m.lo.copy(), m.hi.copy())
         self._ref_gain = np.array([*params.specific_force_gain, *params.angular_velocity_gain])
         self._ref_limit = np.array(
             [*params.specific_force_limit, *np.radians(params.angular_velocity_limit_deg_s)]
@@ -384,6 +376,62 @@ class MpcCueing(Cueing):
         self._pose = np.zeros(6)
         self._mpc_pose = np.zeros(6)
         self._fb_pose = np.zeros(6)
+        self.reset()
+
+    def _setup_solver(
+        self, A: sp.csc_matrix, lo: np.ndarray, hi: np.ndarray, P: Any = None
+    ) -> None:
+        p = self.params
+        P = sp.csc_matrix(self.model.P) if P is None else P
+        self._slack = np.zeros(P.shape[0] - self._N * NU)
+        budget = {"time_limit": p.time_limit_ms * 1e-3} if p.time_limit_ms > 0 else {}
+        self._solver = self._osqp.OSQP()
+        self._solver.setup(
+            sp.triu(P, format="csc"),
+            np.zeros(P.shape[0]),
+            A,
+            lo,
+            hi,
+            verbose=False,
+            warm_starting=True,
+            polishing=False,
+            max_iter=p.max_iter,
+            **budget,
+            eps_abs=p.eps_abs,
+            eps_rel=p.eps_rel,
+            check_termination=5,
+            # a fixed interval: OSQP's default (0) derives it from the setup's wall time,
+            # which made runs of the same input differ
+            adaptive_rho_interval=25,
+        )
+
+    def bind_robot(self, robot: Any) -> None:
+        """Constrain the actuators, not only the pose box: the robot's actuator positions,
+        linearised around the pose the last plan predicts at each step (re-linearised every
+        tick), within their limits less ``[robot] actuator_margin`` of their range, and the
+        actuator speeds within ``speed_share`` of theirs (see :class:`_LegConstraint`). The
+        pose box stays. Called once by the pipeline, after the cueing is made."""
+        if robot is None or robot.n < 1:
+            return
+        self.robot = robot
+        legs = _LegConstraint(robot, self.model, self.params)
+        m = self.model
+        self._legs = legs
+        # soft: each leg row has a slack (free, cost violation_weight * slack^2): a state
+        # the new linearisation puts past a limit (a tick cannot undo it) leaves the
+        # problem feasible, and the plan returns within the limits
+        k = legs.rows
+        A = sp.bmat([[sp.csc_matrix(m.A_con), None], [legs.pattern, -sp.identity(k)]], format="csc")
+        A.sort_indices()
+        legs.locate(A, m.A_con.shape[0], self._N * NU)
+        # (per row, not per second: the first step, one tick long, is the pose sent)
+        w = np.full(k, self.params.violation_weight)
+        P = sp.block_diag([sp.csc_matrix(m.P), sp.diags(w)], format="csc")
+        # set up at the neutral pose's values (OSQP scales the problem from them)
+        Ax, l_leg, u_leg = legs.linearise(np.zeros(NX), np.zeros(self._N * NU))
+        A.data[legs.ax_idx] = Ax
+        lo, hi = np.concatenate([m.lo, l_leg]), np.concatenate([m.hi, u_leg])
+        self._setup_solver(A, lo, hi, P)
         self.reset()
 
     # -- lifecycle ---------------------------------------------------------------------
@@ -413,6 +461,21 @@ class MpcCueing(Cueing):
         if not np.isfinite(d).all():
             raise ValueError("mpc preview: the reference has non-finite values")
         self._preview = self._ref_gain * np.clip(d, -self._ref_limit, self._ref_limit)
+
+    def diagnostics(self) -> dict[str, Any]:
+        """The last tick (:attr:`info`) for the log's ``/cueing/mpc`` topic: ``status``,
+        ``iterations``, ``solve_time_s``, ``fallback``, ``weight``, ``preview``,
+        ``violation``."""
+        i = self.info
+        return {
+            "status": i.status,
+            "iterations": i.iterations,
+            "solve_time_s": i.solve_time_s,
+            "fallback": i.fallback,
+            "weight": i.weight,
+            "preview": self._preview is not None,
+            "violation": i.violation,
+        }
 
     @property
     def preview(self) -> bool:
@@ -472,7 +535,17 @@ class MpcCueing(Cueing):
         else:
             q = m.Fz @ z + m.Fd @ self._reference(d) + m.Fu @ self._a_prev
         s = m.Sz @ z
-        self._solver.update(q=q, l=m.lo - s, u=m.hi - s)
+        if self._legs is None:
+            self._solver.update(q=q, l=m.lo - s, u=m.hi - s)
+        else:
+            Ax, l_leg, u_leg = self._legs.linearise(z, self._plan.reshape(-1))
+            self._solver.update(
+                q=np.concatenate([q, self._slack]),
+                l=np.concatenate([m.lo - s, l_leg]),
+                u=np.concatenate([m.hi - s, u_leg]),
+                Ax=Ax,
+                Ax_idx=self._legs.ax_idx,
+            )
         res = self._solver.solve(raise_error=False)
         dt_solve = time.perf_counter() - t0
         status = res.info.status
@@ -485,7 +558,8 @@ class MpcCueing(Cueing):
         if ok:
             self.counts["solved"] += 1
             info.fallback = False
-            self._plan = x.reshape(self._N, NU)
+            self._plan = x[: self._N * NU].reshape(self._N, NU)
+            info.violation = float(np.max(np.abs(x[self._N * NU :]), initial=0.0))
             self._plan_age = 0.0
             self._blend = min(1.0, self._blend + step)
         else:
@@ -532,6 +606,136 @@ class MpcCueing(Cueing):
     def __repr__(self) -> str:
         mode = "preview" if self.preview else "real-time"
         return f"MpcCueing(dt={self.dt:g}, steps={self._N}, {mode})"
+
+
+class _LegConstraint:
+    """The actuators in the QP: their positions and speeds, linearised per step.
+
+    At step ``k`` the last plan (applied from the current state) predicts the pose
+    ``pbar_k``; there the actuator positions are ``q_k = q(pbar_k)`` and their Jacobian
+    ``J_k = dq/dpose`` (central differences of ``robot.inverse(robot.pose_from_cue(.))``,
+    one batched call for every step). The constraints, on the QP's accelerations ``U``::
+
+        lower + margin <= q_k + J_k (p_k(U) - pbar_k) <= upper - margin
+        |J_k v_k(U)| <= speed_share * max_speed
+
+    with ``p_k(U)``, ``v_k(U)`` the predicted pose and pose rate (linear in ``U``). Their
+    constraints hold at the steps :func:`constrained_steps` picks (``[robot] steps`` of
+    them; the speeds at the first ``speed_steps``: fewer rows, a cheaper refactorisation).
+    Their rows ``J_k T_k`` change every tick but not their sparsity pattern (every dof's
+    acceleration of steps ``0..k``), so OSQP updates the values and refactorises
+    numerically. A predicted pose the robot cannot reach is replaced by its clamp (the
+    nearest reachable one toward neutral) as the linearisation point.
+    """
+
+    def __init__(self, robot: Any, model: MpcModel, params: MpcParams) -> None:
+        self.robot = robot
+        N = model.steps
+        n = int(robot.n)
+        self.n, self.N = n, N
+        Sp = np.zeros((6, NX))
+        Sv = np.zeros((6, NX))
+        for d in range(ND):
+            Sp[_POSE_OF[d], d] = 1.0
+            Sv[_POSE_OF[d], ND + d] = 1.0
+        G = model.Gam.reshape(N, NX, N * NU)
+        F = model.Phi.reshape(N, NX, NX)
+        sel_p = constrained_steps(N, params.robot_steps)
+        sel_v = sel_p[: min(params.robot_speed_steps, len(sel_p))]
+        self.sel_p, self.sel_v = sel_p, sel_v
+        self.Tp = np.einsum("ij,kjc->kic", Sp, G)  # (N, 6, N NU)
+        self.Tv = np.einsum("ij,kjc->kic", Sv, G[sel_v])
+        self.Pp = np.einsum("ij,kjc->kic", Sp, F)  # (N, 6, NX)
+        self.Pv = np.einsum("ij,kjc->kic", Sv, F[sel_v])
+        lim = robot.limits
+        lower = np.asarray(lim.lower, dtype=float)
+        upper = np.asarray(lim.upper, dtype=float)
+        span = upper - lower
+        self.q_lo = lower + params.actuator_margin * span
+        self.q_hi = upper - params.actuator_margin * span
+        self.v_max = params.speed_share * np.asarray(lim.max_speed, dtype=float)
+        self.rows = (len(sel_p) + len(sel_v)) * n
+        # the structural pattern: crank rows of step k touch every dof of steps 0..k
+        cp = np.abs(self.Tp[sel_p]).sum(axis=1) > 0
+        cv = np.abs(self.Tv).sum(axis=1) > 0
+        mask = np.vstack([np.repeat(cp, n, axis=0), np.repeat(cv, n, axis=0)])
+        self.pattern = sp.csc_matrix(mask.astype(float))
+        self._h = 1e-6
+        steps = np.eye(6) * self._h
+        self._probe = np.concatenate([np.zeros((1, 6)), steps, -steps])  # (13, 6)
+        self.ax_idx = np.empty(0, dtype=np.int64)
+        self._rows = self._cols = np.empty(0, dtype=np.int64)
+        self.clamped_points = 0
+
+    def locate(self, A: sp.csc_matrix, row0: int, ncols: int) -> None:
+        """The positions of the leg rows' entries in the CSC data of ``A`` (rows from
+        ``row0``, columns before ``ncols``: the accelerations), in OSQP's order."""
+        idx, rows, cols = [], [], []
+        for c in range(ncols):
+            for j in range(A.indptr[c], A.indptr[c + 1]):
+                r = A.indices[j]
+                if r >= row0:
+                    idx.append(j)
+                    rows.append(r - row0)
+                    cols.append(c)
+        self.ax_idx = np.array(idx, dtype=np.int64)
+        self._rows = np.array(rows, dtype=np.int64)
+        self._cols = np.array(cols, dtype=np.int64)
+
+    def actuators(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Actuator positions (M, n) and Jacobians (M, n, 6) of cue poses (M, 6); a pose
+        out of reach is replaced by its clamp."""
+        robot = self.robot
+        M = len(poses)
+        cue = (poses[:, None, :] + self._probe[None]).reshape(-1, 6)
+        q = np.asarray(robot.inverse(robot.pose_from_cue(cue)), dtype=float).reshape(M, 13, -1)
+        bad = ~np.isfinite(q).all(axis=(1, 2))
+        if bad.any():
+            self.clamped_points += int(bad.sum())
+            rpose = robot.pose_from_cue(poses[bad])
+            cl, _ = robot.clamp(rpose)
+            pairs = zip(cl, poses[bad], strict=True)
+            back = np.array([robot.cue_from_pose(c, p) for c, p in pairs])
+            cue = (back[:, None, :] + self._probe[None]).reshape(-1, 6)
+            qb = np.asarray(robot.inverse(robot.pose_from_cue(cue)), dtype=float)
+            q[bad] = qb.reshape(len(back), 13, -1)
+        J = (q[:, 1:7] - q[:, 7:13]) / (2.0 * self._h)  # (M, 6, n): d q / d pose_i
+        J = np.nan_to_num(J).transpose(0, 2, 1)
+        return np.nan_to_num(q[:, 0]), J
+
+    def linearise(self, z: np.ndarray, plan: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The leg rows' values (in :attr:`ax_idx` order) and bounds for state ``z`` and
+        the last plan (N NU,)."""
+        free_p = self.Pp @ z  # (N, 6)
+        moved = self.Tp @ plan
+        sp_ = self.sel_p
+        q, J = self.actuators((free_p + moved)[sp_])
+        Mp = J @ self.Tp[sp_]  # (Np, n, N NU)
+        Jv_k = J[: len(self.sel_v)]  # the speed steps are the first position steps
+        Mv = Jv_k @ self.Tv
+        vals = np.concatenate([Mp.reshape(-1, Mp.shape[-1]), Mv.reshape(-1, Mv.shape[-1])])
+        Jm = np.einsum("kij,kj->ki", J, moved[sp_])  # J_k (pbar_k - free_k)
+        Jv = np.einsum("kij,kj->ki", Jv_k, self.Pv @ z)
+        lo = np.concatenate([(self.q_lo - q + Jm).ravel(), (-self.v_max - Jv).ravel()])
+        hi = np.concatenate([(self.q_hi - q + Jm).ravel(), (self.v_max - Jv).ravel()])
+        return vals[self._rows, self._cols], lo, hi
+
+
+def constrained_steps(steps: int, count: int) -> np.ndarray:
+    """The prediction steps (of ``steps``) whose actuators are constrained: ``count`` of
+    them, the first ones dense and then spread to the last (quadratic spacing:
+    15, 7 -> 0 1 2 3 6 10 14)."""
+    count = max(1, min(int(count), steps))
+    if count == 1:
+        return np.zeros(1, dtype=int)
+    raw = np.rint(np.linspace(0.0, math.sqrt(steps - 1), count) ** 2).astype(int)
+    out = [0]
+    for r in raw[1:]:
+        out.append(max(out[-1] + 1, int(r)))
+    over = out[-1] - (steps - 1)
+    if over > 0:  # pulled back from the end, keeping them distinct
+        out = [min(o, steps - 1 - (count - 1 - i)) for i, o in enumerate(out)]
+    return np.array(out, dtype=int)
 
 
 def _rot_dof(axis: int) -> int:

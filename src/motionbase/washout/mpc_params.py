@@ -39,6 +39,13 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     angular_velocity_gain = [1.0, 1.0, 1.0]
     angular_velocity_limit_deg_s = [30, 30, 30]
 
+    [robot]                            # optional: with a robot bound (the pipeline binds it)
+    actuator_margin = 0.02             # share of each actuator's range kept free
+    speed_share = 0.9                  # share of each actuator's speed limit the plan may use
+    steps = 7                          # prediction steps whose actuators are constrained
+    speed_steps = 2                    # of which the first ones constrain the speeds too
+    violation_weight = 1e5             # soft constraints: cost per (actuator unit)^2
+
     [solver]
     max_iter = 200                     # OSQP iteration budget per tick
     time_limit_ms = 4.0                # OSQP time budget per tick (0: none)
@@ -47,13 +54,14 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     blend_s = 0.5                      # blend to and from the fallback, s
     fallback = "tuned_ceart"           # classical washout preset (or TOML path) to fall back on
 
-Every table is required but for ``[reference]`` (gains 1, no limits), ``[solver]``
+Every table is required but for ``[reference]`` (gains 1, no limits), ``[robot]``, ``[solver]``
 (defaults as above) and ``description`` and
 ``g``. The dataclass fields mirror the file one to one, so ``from_dict(p.to_dict()) == p``.
-The pose box, speed and acceleration limits of ``[limits]`` are the robot's: the cueing
-interface hands the MPC no robot, so a preset carries them, written by
+The pose box, speed and acceleration limits of ``[limits]`` are the robot's, written by
 :func:`limits_from_robot` when the preset is made for a platform (the ``ceart`` preset's
-header says how).
+header says how); they hold with or without a robot. When the pipeline binds its robot
+(:meth:`~motionbase.washout.cueing.Cueing.bind_robot`) the actuators are constrained too
+(``[robot]``).
 """
 
 from __future__ import annotations
@@ -107,6 +115,11 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("reference", "specific_force_limit", "specific_force_limit", 3, True, False),
     ("reference", "angular_velocity_gain", "angular_velocity_gain", 3, False, False),
     ("reference", "angular_velocity_limit_deg_s", "angular_velocity_limit_deg_s", 3, True, False),
+    ("robot", "actuator_margin", "actuator_margin", 0, False, False),
+    ("robot", "speed_share", "speed_share", 0, True, False),
+    ("robot", "steps", "robot_steps", 0, True, True),
+    ("robot", "violation_weight", "violation_weight", 0, True, False),
+    ("robot", "speed_steps", "robot_speed_steps", 0, True, True),
     ("solver", "max_iter", "max_iter", 0, True, True),
     ("solver", "time_limit_ms", "time_limit_ms", 0, False, False),
     ("solver", "eps_abs", "eps_abs", 0, True, False),
@@ -127,7 +140,14 @@ _REFERENCE_DEFAULTS: dict[str, Any] = {
     "angular_velocity_gain": [1.0, 1.0, 1.0],
     "angular_velocity_limit_deg_s": [1000.0, 1000.0, 1000.0],
 }
-_SECTIONS = ("horizon", "weights", "tilt", "limits", "reference", "solver")
+_ROBOT_DEFAULTS: dict[str, Any] = {
+    "actuator_margin": 0.02,
+    "speed_share": 0.9,
+    "steps": 7,
+    "speed_steps": 2,
+    "violation_weight": 1e5,
+}
+_SECTIONS = ("horizon", "weights", "tilt", "limits", "reference", "robot", "solver")
 _TOP = ("description", "g", *_SECTIONS)
 
 
@@ -169,6 +189,18 @@ class MpcParams:
         limit for a gain too small to feel.
     angular_velocity_gain, angular_velocity_limit_deg_s : (3,) float
         The same for the body rates (deg/s).
+    actuator_margin : float
+        With a robot bound (:meth:`~motionbase.washout.mpc.MpcCueing.bind_robot`): the
+        share of each actuator's range kept free of the linearised constraint, in [0, 0.5).
+    speed_share : float
+        The share of each actuator's speed limit the plan may use, in (0, 1].
+    robot_steps, robot_speed_steps : int
+        How many prediction steps constrain the actuator positions (the first ones, then
+        spread to the last) and, of those, how many the speeds too.
+    violation_weight : float
+        The actuator constraints are soft (so the problem stays feasible when the state is
+        already past a re-linearised limit): cost of a violation, per (rad or m)^2, per
+        constrained step.
     max_iter : int
         OSQP iterations per tick at most.
     time_limit_ms : float
@@ -209,6 +241,11 @@ class MpcParams:
     specific_force_limit: Vec3 = (1000.0, 1000.0, 1000.0)
     angular_velocity_gain: Vec3 = (1.0, 1.0, 1.0)
     angular_velocity_limit_deg_s: Vec3 = (1000.0, 1000.0, 1000.0)
+    actuator_margin: float = 0.02
+    speed_share: float = 0.9
+    robot_steps: int = 7
+    robot_speed_steps: int = 2
+    violation_weight: float = 1e5
     max_iter: int = 200
     time_limit_ms: float = 4.0
     eps_abs: float = 1e-4
@@ -292,6 +329,7 @@ class MpcParams:
         d = {k: (dict(v) if isinstance(v, dict) else v) for k, v in d.items()}
         d.setdefault("solver", {})
         d.setdefault("reference", {})
+        d.setdefault("robot", {})
         for section in _SECTIONS:
             if not isinstance(d[section], dict):
                 raise ConfigError(f"{source}: [{section}] must be a table, got {d[section]!r}")
@@ -299,14 +337,16 @@ class MpcParams:
             if section == "solver":
                 keys.append("fallback")
                 check_keys(f"{source} [solver]", d[section], keys)
-            elif section == "reference":
-                check_keys(f"{source} [reference]", d[section], keys)
+            elif section in ("reference", "robot"):
+                check_keys(f"{source} [{section}]", d[section], keys)
             else:
                 check_keys(f"{source} [{section}]", d[section], keys, required=keys)
         for key, value in _SOLVER_DEFAULTS.items():
             d["solver"].setdefault(key, value)
         for key, value in _REFERENCE_DEFAULTS.items():
             d["reference"].setdefault(key, value)
+        for key, value in _ROBOT_DEFAULTS.items():
+            d["robot"].setdefault(key, value)
         d.setdefault("g", STANDARD_GRAVITY)
         d.setdefault("description", "")
         return cls(**_validate(d, source))
@@ -353,6 +393,15 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             out[name] = as_float(source, where, value, min_value=0.0, strict_min=positive)
     if out["steps"] < 2:
         raise ConfigError(f"{source}: field 'horizon.steps': must be >= 2, got {out['steps']}")
+    if out["actuator_margin"] >= 0.5:
+        raise ConfigError(
+            f"{source}: field 'robot.actuator_margin': a share of the actuator range, must be "
+            f"< 0.5, got {out['actuator_margin']}"
+        )
+    if out["speed_share"] > 1.0:
+        raise ConfigError(
+            f"{source}: field 'robot.speed_share': must be in (0, 1], got {out['speed_share']}"
+        )
     if out["tilt_angle_limit_deg"] >= 90.0:
         raise ConfigError(f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg")
     fallback = d["solver"]["fallback"]

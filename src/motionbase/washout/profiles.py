@@ -181,6 +181,15 @@ class ProfiledCueing(Cueing):
                 continue
             c.track(achieved)
 
+    def bind_robot(self, robot: Any) -> None:
+        """Every profile's cueing drives the same robot."""
+        for c in self._cueings:
+            c.bind_robot(robot)
+
+    def diagnostics(self) -> dict[str, Any] | None:
+        """The diagnostics of the profile the weights go to."""
+        return self._cueings[self._target].diagnostics()
+
     def __repr__(self) -> str:
         return (
             f"ProfiledCueing({self.name!r}, profiles={self._names[1:]}, "
