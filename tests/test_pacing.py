@@ -67,3 +67,43 @@ def test_busy_waiting_leaves_the_interpreter_to_other_threads() -> None:
         thread.join()
     during = [t for t in turns if start <= t <= end]
     assert len(during) > 20  # it ran all along (about every 0.1 ms asked, 2000 possible)
+
+
+def test_a_paced_run_collects_garbage_between_ticks_and_restores_the_collector() -> None:
+    """Inside a paced run's ticks the cyclic collector never starts on its own; the
+    cycles made during the run are still freed during the run (after the ticks), and
+    afterwards the collector is on again with nothing left frozen."""
+    import gc
+    import weakref
+
+    from motionbase.app import load_config
+    from motionbase.pipeline import Pipeline, run
+    from motionbase.state import AircraftState
+
+    config = load_config(rate_hz=400.0)
+    states = [AircraftState(i * config.dt, [0.0, 0.0, -9.80665], [0.0] * 3) for i in range(400)]
+
+    class Node:
+        def __init__(self) -> None:
+            self.other = self  # a cycle: only the cyclic collector frees it
+            self.pad = [[] for _ in range(20)]  # tracked objects: the collector's count grows
+
+    class CycleMaker:
+        def __init__(self) -> None:
+            self.refs: list[weakref.ref] = []
+            self.enabled_in_tick: set[bool] = set()
+            self.freed_during_run = 0
+
+        def write(self, out) -> None:
+            self.enabled_in_tick.add(gc.isenabled())
+            self.refs.append(weakref.ref(Node()))
+            self.freed_during_run = sum(r() is None for r in self.refs)
+
+    assert gc.isenabled()
+    sink = CycleMaker()
+    run(Pipeline(config), states, [sink], paced=True)
+    assert sink.enabled_in_tick == {False}
+    assert sink.freed_during_run > len(sink.refs) // 2  # most cycles freed while it ran
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+    gc.collect()
+    assert all(r() is None for r in sink.refs)

@@ -50,6 +50,7 @@ start/stop, the limiter and their named state), in the cueing plug-in
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -62,7 +63,7 @@ import numpy as np
 from motionbase import __version__, stages
 from motionbase.config import as_float
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
-from motionbase.pacing import wait_until
+from motionbase.pacing import GarbageBetweenTicks, wait_until
 from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
@@ -793,21 +794,26 @@ def run(
     GIL for short stretches between its GIL-free calls (compression, checksum,
     file writes), and with Python's default 5 ms it waits up to 5 ms for each one
     behind the busy loop, falls seconds behind in as-fast-as-possible runs and
-    queues chunks in memory.
+    queues chunks in memory. A paced run collects cyclic garbage after each tick's
+    commands are out, never inside a tick
+    (:class:`~motionbase.pacing.GarbageBetweenTicks`).
     """
     old = sys.getswitchinterval()
     sys.setswitchinterval(min(old, SWITCH_INTERVAL_S))
+    garbage = GarbageBetweenTicks() if paced else None
     try:
-        return _run(
-            pipeline,
-            source,
-            sinks,
-            paced=paced,
-            busy_wait=busy_wait,
-            stop=stop,
-            progress=progress,
-            max_park_s=max_park_s,
-        )
+        with garbage if garbage is not None else contextlib.nullcontext():
+            return _run(
+                pipeline,
+                source,
+                sinks,
+                paced=paced,
+                busy_wait=busy_wait,
+                stop=stop,
+                progress=progress,
+                max_park_s=max_park_s,
+                after_tick=garbage.after_tick if garbage is not None else None,
+            )
     finally:
         sys.setswitchinterval(old)
 
@@ -822,6 +828,7 @@ def _run(
     stop: StopRequest | None,
     progress: Callable[[PipelineOutput], None] | None,
     max_park_s: float,
+    after_tick: Callable[[], None] | None = None,
 ) -> RunSummary:
     stop = stop if stop is not None else StopRequest()  # (an unset StopRequest is falsy)
     summary = RunSummary(health=pipeline.health)
@@ -905,6 +912,8 @@ def _run(
                 health.late_commands += 1
                 if late > health.worst_late_s:
                     health.worst_late_s = late
+            if after_tick is not None:
+                after_tick()  # (the garbage collector: the command is out)
 
     def apply_stop() -> None:
         if pipeline.phase in ("starting", "running"):
