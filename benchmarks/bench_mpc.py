@@ -13,7 +13,7 @@
     recorded future of the reference). Goals: specific-force RMSE at least 15 % below the
     tuned classical, angular RMSE no worse, false cues no more frequent.
 
-Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc ceart] [--platform ceart] [--no-preview]
+Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc tuned_ceart|ceart|PATH] [--platform ceart] [--no-preview]
      [--no-quality] [--no-time]
 """
 
@@ -155,7 +155,7 @@ def _table(title: str, rows: list[tuple[str, tuning.SetScore, int | None]]) -> N
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mpc", default="ceart", help="MPC preset or TOML path")
+    ap.add_argument("--mpc", default="tuned_ceart", help="MPC preset or TOML path")
     ap.add_argument("--platform", default="ceart")
     ap.add_argument("--no-preview", action="store_true", help="skip the preview-mode rows")
     ap.add_argument("--no-quality", action="store_true")

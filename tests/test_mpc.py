@@ -215,8 +215,9 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
     path = tmp_path / "m.toml"
     ceart.to_toml(path)
     assert MpcParams.from_toml(path) == ceart
-    assert cueing_spec("mpc").load_params() == ceart
-    tuned = cueing_spec("mpc").load_params("tuned_ceart")  # made by tune --cueing mpc
+    assert cueing_spec("mpc").load_params("ceart") == ceart
+    tuned = cueing_spec("mpc").load_params()  # the default: made by tune --cueing mpc
+    assert tuned == MpcParams.load("tuned_ceart") != ceart
     assert tuned.steps == ceart.steps and tuned.time_limit_ms == 0.0
     bad = ceart.to_dict()
     bad["limits"]["position_lower_m"] = [0.1, -0.2, -0.1]

@@ -207,7 +207,7 @@ CUEINGS: dict[str, CueingSpec] = {
         "motionbase.washout.mpc:MpcCueing",
         "motionbase.washout.mpc_params:MpcParams",
         preset_kind="mpc",
-        default_preset="ceart",
+        default_preset="tuned_ceart",
         description="model-predictive cueing (vestibular models, platform limits; OSQP)",
     ),
 }
