@@ -22,7 +22,7 @@ def _sources():
 
     return {
         # name: (make one, marks stale holds, paces itself)
-        "jsbsim": (lambda: JsbsimSource("c1723"), False, True),
+        "jsbsim": (lambda: JsbsimSource("c1723"), False, False),  # the loop paces a flight
         "mcap": (lambda: McapSource(RECORDING), True, False),
         "mavlink": (lambda: MavlinkSource("udpin:127.0.0.1:0"), True, True),
         "flightgear": (lambda: FgNativeSource("fgnative:udp:127.0.0.1:0"), True, True),

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -137,32 +136,3 @@ def test_from_aircraft_applies_initial_conditions(capfd) -> None:
     assert out == "" and err == ""
     with pytest.raises(SourceError, match="aircraft"):
         JsbsimSource.from_aircraft("c172xx", init)
-
-
-@pytest.mark.parametrize("busy_wait", [False, True], ids=["sleeping", "busy-waiting"])
-def test_realtime_paces_to_the_wall_clock(busy_wait: bool) -> None:
-    """~1 s of flight: each sample arrives at (never before) its due time, which follows the
-    simulated time on the wall clock, sleeping or spinning between. (How late they arrive is
-    the machine's figure: ``python benchmarks/bench_load.py --paced`` prints it.)"""
-    src = JsbsimSource("c1723", duration_s=1.0, realtime=True, busy_wait=busy_wait)
-    assert src.paces_itself and not JsbsimSource("c1723", duration_s=1.0).paces_itself
-    arrivals = []
-    cpu0 = time.process_time()
-    wall0 = time.perf_counter()
-    with src:
-        for state in src:
-            arrivals.append((time.monotonic(), src.due_time, state.t))
-    wall = time.perf_counter() - wall0
-    cpu = time.process_time() - cpu0
-    assert len(arrivals) == 120
-    arrived, due, t = (np.array(x) for x in zip(*arrivals, strict=True))
-    assert np.all(np.diff(t) > 0)
-    np.testing.assert_allclose(due - due[0], t - t[0], atol=1e-9)  # due at the simulated time
-    assert np.all(arrived >= due)  # never ahead of the clock
-    assert wall > 0.95 * (t[-1] - t[0])
-    # a quarter: a busy-waiting thread on a shared machine gets a share of a core, a
-    # sleeping one a few per cent
-    if busy_wait:
-        assert cpu > 0.25 * wall  # it kept the processor between the samples
-    else:
-        assert cpu < 0.25 * wall  # it slept

@@ -545,7 +545,8 @@ def fly(
     planar : bool
         Drive the 3-RRR robot.
     realtime : bool
-        Pace the simulation to wall-clock time.
+        Fly in real time: the pipeline's loop paces the ticks at the script's rate on the
+        wall clock (never by the simulation's times, never bursting to catch up).
     busy_wait : bool
         With ``realtime`` or ``outputs``: wait for each tick by busy-waiting instead of
         sleeping (one processor at 100 %, fewer late ticks; :mod:`motionbase.pacing`).
@@ -587,15 +588,8 @@ def fly(
             if out is not None
             else RECORDINGS / f"{name}{'_planar' if planar else ''}.mcap"
         )
-        # with drives the loop paces the flight (the simulation's own pacing catches up
-        # after a stall in a burst); the flight alone may pace itself
-        self_paced = realtime and not outputs
-        source = JsbsimSource(
-            script,
-            duration_s=duration_s,
-            realtime=self_paced,
-            busy_wait=busy_wait and self_paced,
-        )
+        # a real-time flight is paced by the pipeline's loop (the source never waits)
+        source = JsbsimSource(script, duration_s=duration_s)
         with source:
             config = load_config(
                 planar=planar,

@@ -20,7 +20,6 @@ from __future__ import annotations
 import difflib
 import math
 import tempfile
-import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -31,7 +30,6 @@ import jsbsim
 import numpy as np
 
 from motionbase.errors import ConfigError, SourceError
-from motionbase.pacing import wait_until
 from motionbase.state import AircraftState
 
 FT_TO_M = 0.3048
@@ -116,7 +114,11 @@ def _script_timing(path: Path) -> tuple[float, float, float]:
 
 
 class JsbsimSource:
-    """Aircraft states from a JSBSim script, headless, quiet, as fast as possible or paced.
+    """Aircraft states from a JSBSim script, headless, quiet, as fast as they are asked for.
+
+    The source never waits: a real-time flight is paced by the pipeline's loop
+    (:func:`motionbase.pipeline.run` with ``paced=True``), which asks for the next sample
+    when its tick is due.
 
     Parameters
     ----------
@@ -130,13 +132,6 @@ class JsbsimSource:
     duration_s : float, optional
         Simulated time to run, s, at most the script's length. Default: the
         script's end time minus its start time.
-    realtime : bool
-        Pace the samples to wall-clock time, waiting until each sample's time.
-        Default: as fast as possible.
-    busy_wait : bool
-        With ``realtime``: wait by busy-waiting instead of sleeping (one
-        processor at 100 %, fewer late ticks at 1 kHz; see
-        :mod:`motionbase.pacing`).
     root : str, optional
         JSBSim data folder (aircraft, engine, systems, scripts). Default: the
         one shipped with the ``jsbsim`` package.
@@ -147,12 +142,6 @@ class JsbsimSource:
         Output sample rate, Hz.
     duration_s : float
         Simulated time the source will cover, s.
-    paces_itself : bool
-        True with ``realtime``: the samples are handed over at their time on the wall clock
-        (the pipeline's loop does not pace them again).
-    due_time : float or None
-        With ``realtime``: when the last sample was due, s on :func:`time.monotonic` (the
-        pipeline counts a command late from it).
 
     Raises
     ------
@@ -174,14 +163,9 @@ class JsbsimSource:
         *,
         rate_hz: float | None = None,
         duration_s: float | None = None,
-        realtime: bool = False,
-        busy_wait: bool = False,
         root: str | None = None,
     ) -> None:
         self.root = Path(root) if root is not None else default_root()
-        self.realtime = bool(realtime)
-        self.due_time: float | None = None
-        self.busy_wait = bool(busy_wait)
         self.aircraft: str | None = None
         self.init: str | dict[str, float] | None = None
         self.script_path: Path | None = self._resolve_script(script)
@@ -203,8 +187,6 @@ class JsbsimSource:
         *,
         rate_hz: float = 120.0,
         duration_s: float = 60.0,
-        realtime: bool = False,
-        busy_wait: bool = False,
         root: str | None = None,
     ) -> JsbsimSource:
         """An aircraft from ``<root>/aircraft`` with initial conditions, no script.
@@ -223,14 +205,11 @@ class JsbsimSource:
             Simulation and output rate, Hz (JSBSim steps at 1/rate_hz).
         duration_s : float
             Simulated time to run, s.
-        realtime, busy_wait, root
+        root
             As for :class:`JsbsimSource`.
         """
         self = cls.__new__(cls)
         self.root = Path(root) if root is not None else default_root()
-        self.realtime = bool(realtime)
-        self.due_time: float | None = None
-        self.busy_wait = bool(busy_wait)
         self.script_path = None
         self.script = None
         if not (self.root / "aircraft" / aircraft).is_dir():
@@ -439,11 +418,8 @@ class JsbsimSource:
         from_vector = AircraftState.from_vector
         array = np.array
         decimation = self._decimation
-        realtime, busy = self.realtime, self.busy_wait
-        wall0 = 0.0
-        t0 = 0.0
         steps = range(decimation)
-        for k in range(self._samples):
+        for _ in range(self._samples):
             try:
                 if decimation == 1:
                     alive = run()
@@ -476,17 +452,7 @@ class JsbsimSource:
                 ),
                 None if wow is None else wow() > 0.5,
             )
-            if realtime:
-                if k == 0:
-                    wall0, t0 = time.monotonic(), state.t
-                self.due_time = due = wall0 + (state.t - t0)
-                wait_until(due, busy=busy, clock=time.monotonic)
             yield state
-
-    @property
-    def paces_itself(self) -> bool:
-        """True when the samples come in real time (``realtime``)."""
-        return self.realtime
 
     def describe(self) -> dict[str, Any]:
         """Plain-data description of the source for the log's metadata."""
@@ -501,8 +467,6 @@ class JsbsimSource:
             rate_hz=self.rate_hz,
             dt_s=self._dt,
             duration_s=self.duration_s,
-            realtime=self.realtime,
-            busy_wait=self.busy_wait,
             root=str(self.root),
             jsbsim_version=jsbsim.__version__,
         )
