@@ -138,6 +138,25 @@ def test_real_logs_stream_to_finite_angles_within_limits(log, flight_data, tmp_p
     assert np.ptp(angles, axis=0).min() > np.radians(1)  # the flight does move every crank
 
 
+def test_a_log_streamed_in_real_time_is_paced_by_the_loop(flight_data, tmp_path):
+    """A log in real time (``stream LOG`` without ``--fast``) is paced by the pipeline's
+    loop, not by the source (which never waits on a log): two seconds of the log take at
+    least two seconds, and the log's metadata says it ran in real time."""
+    import time
+
+    from motionbase.io.mavlink_source import MavlinkSource
+
+    assert not MavlinkSource(str(flight_data / TLOG)).paces_itself
+    out = tmp_path / "rt.mcap"
+    wall0 = time.monotonic()
+    result = app.stream(str(flight_data / TLOG), duration_s=2.0, out=out, progress=False)
+    wall = time.monotonic() - wall0
+    config = PipelineConfig.from_dict(McapSource(out).metadata["pipeline_config"])
+    assert wall >= (result.summary.samples - 1) * config.dt >= 2.0
+    assert McapSource(out).metadata["source"]["realtime"] is True
+    check_actuators_safe(out)
+
+
 # --------------------------------------------------------------------------- where the log goes
 
 

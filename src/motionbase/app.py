@@ -967,9 +967,9 @@ def _stream(
         compid=compid,
         signing_key=signing_key,
         duration_s=duration_s,
-        # a log with drives is paced by the loop (the log's own pacing catches up in bursts);
-        # a live link always paces itself
-        realtime=realtime and not outputs,
+        # a log is paced by the pipeline's loop (its source never waits); a live link's
+        # ticks come on the wall clock
+        realtime=realtime,
         busy_wait=busy_wait,
         stale_timeout_s=config.stale_timeout_s,
     )

@@ -16,7 +16,8 @@ protocol so that a source declares it by having the attributes:
   is always fresh.
 * :class:`SelfPacedSource`: ``paces_itself``, true when the source hands its states over
   in real time by itself (a live link, whose samples arrive on the sender's clock: the
-  loop then does not pace the ticks; a JSBSim flight never waits, the loop paces it), and ``due_time``, when the state just yielded was due (s on
+  loop then does not pace the ticks; a JSBSim flight or a log never waits, the loop paces
+  it), and ``due_time``, when the state just yielded was due (s on
   :func:`time.monotonic`), from which the loop counts late commands.
 
 The live links (MAVLink, FlightGear, X-Plane) have both: :class:`LiveSource`.

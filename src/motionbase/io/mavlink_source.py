@@ -95,7 +95,6 @@ from motionbase.io.live_source import (  # noqa: E402
     wrap_pi,
 )
 from motionbase.io.net_address import check_host_port  # noqa: E402
-from motionbase.pacing import wait_until  # noqa: E402
 from motionbase.physics import (  # noqa: E402
     MAX_ANGULAR_VELOCITY,
     MAX_SPECIFIC_FORCE,
@@ -392,8 +391,10 @@ class MavlinkSource(SampleHoldSource):
         Stop after this much source time, s; None runs until the log ends (or
         forever on a live link).
     realtime : bool
-        For a log: True replays at the recorded timing (wall-clock paced), False
-        as fast as possible. A live link is always wall-clock paced.
+        For a log: whether the run replays it at the recorded timing (recorded in the
+        log's metadata). The source itself never waits on a log: the pipeline's loop
+        paces the ticks (``run(..., paced=True)``). A live link's ticks always come on
+        the wall clock.
     busy_wait : bool
         Wait for the next tick by busy-waiting (polling the link) instead of
         sleeping: one processor at 100 %, fewer late ticks at 1 kHz (see
@@ -417,8 +418,8 @@ class MavlinkSource(SampleHoldSource):
     Attributes
     ----------
     paces_itself : bool
-        True on a live link and for a log replayed with ``realtime``: ticks come on the
-        wall clock (the pipeline's loop does not pace them again).
+        True on a live link: ticks come on the wall clock (the pipeline's loop does not
+        pace them again). False for a log.
     due_time : float or None
         When the last tick was due, s on :func:`time.monotonic` (paced ticks only; the
         pipeline counts a command late from it).
@@ -652,8 +653,8 @@ class MavlinkSource(SampleHoldSource):
 
     @property
     def paces_itself(self) -> bool:
-        """True when ticks come on the wall clock (a live link, or a log with ``realtime``)."""
-        return not self.is_log or self.realtime
+        """True on a live link (its ticks come on the wall clock); a log never waits."""
+        return not self.is_log
 
     def _link(self) -> Any:
         return self._conn
@@ -713,16 +714,12 @@ class MavlinkSource(SampleHoldSource):
                     "telemetry .tlog or a DataFlash .bin with IMU and ATT?)"
                 )
             t0 = t_pending
-            wall0 = time.monotonic()
             k = 0
             while n_max is None or k < n_max:
                 t_tick = t0 + k * period
                 while t_pending <= t_tick:
                     handle(pending, t_pending)
                     pending, t_pending = next_msg()
-                if self.realtime:
-                    self.due_time = wall0 + k * period
-                    wait_until(self.due_time, busy=self.busy_wait, clock=time.monotonic)
                 self._update_rate(t_tick)
                 yield self._make_state(k, t_tick)
                 k += 1
