@@ -13,8 +13,8 @@
     recorded future of the reference). Goals: specific-force RMSE at least 15 % below the
     tuned classical, angular RMSE no worse, false cues no more frequent.
 
-Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc tuned_ceart|ceart|PATH] [--platform ceart] [--no-preview]
-     [--no-quality] [--no-time]
+Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc tuned_ceart|ceart|PATH] [--platform ceart]
+     [--no-preview] [--no-quality] [--no-time]
 """
 
 from __future__ import annotations
