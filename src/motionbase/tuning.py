@@ -256,7 +256,8 @@ KNOBS: tuple[Knob, ...] = (
 
 
 #: The model-predictive cueing's knobs (:class:`~motionbase.washout.mpc_params.MpcParams`):
-#: the cost weights and the reference limits (its platform limits come from the robot).
+#: the cost weights, the reference limits and the tilt thresholds (its platform limits come
+#: from the robot).
 MPC_KNOBS: tuple[Knob, ...] = (
     Knob("w sf x", "w_specific_force", (0,), 0.1, 10.0),
     Knob("w sf y", "w_specific_force", (1,), 0.1, 10.0),
@@ -268,6 +269,9 @@ MPC_KNOBS: tuple[Knob, ...] = (
     Knob("w pos roll,pitch", "w_position", (3, 4), 20.0, 2000.0),
     Knob("w pos yaw", "w_position", (5,), 5.0, 500.0),
     Knob("w tilt", "w_tilt", (0,), 0.01, 1.0),
+    # from 3e-3 up: lighter jerk weights let the MPC amplify specific force above about
+    # 3 rad/s in the objective motion cueing test (benchmarks/RESULTS.md, issue 16)
+    Knob("w jerk", "w_jerk", (0, 1, 2, 3, 4, 5), 3e-3, 0.1),
     Knob("ref sf x,y m/s2", "specific_force_limit", (0, 1), 0.5, 5.0),
     Knob("ref sf z m/s2", "specific_force_limit", (2,), 0.1, 3.0),
     Knob("ref ang deg/s", "angular_velocity_limit_deg_s", (0, 1, 2), 5.0, 60.0),
