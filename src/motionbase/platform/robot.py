@@ -27,7 +27,7 @@ kernel from compiled code (:mod:`motionbase.stages`).
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import ABC
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -72,6 +72,11 @@ class Robot(ABC):
         Packed parameters of :attr:`solve_kernel` (do not change them).
     solve_kernel : numba dispatcher
         Clamp + inverse kinematics, compiled with :data:`SOLVE_SIGNATURE`.
+    kin : object
+        The robot's kinematics class (:class:`~motionbase.platform.rus6.Rus6`,
+        :class:`~motionbase.platform.stewart6.Stewart6`,
+        :class:`~motionbase.platform.rrr3.Rrr3`). The kinematics methods below call its
+        methods of the same names; a robot whose coordinates differ overrides them.
     """
 
     name: ClassVar[str]
@@ -85,6 +90,7 @@ class Robot(ABC):
     neutral_pose: np.ndarray
     kernel_params: np.ndarray
     solve_kernel: Any
+    kin: Any
 
     # -- the real-time path ------------------------------------------------------------
     def solve(
@@ -98,27 +104,27 @@ class Robot(ABC):
         """
         return self.solve_kernel(self.kernel_params, target, cue_out, pose_out, q_out)
 
-    # -- kinematics (robot coordinates) -----------------------------------------------
-    @abstractmethod
+    # -- kinematics (robot coordinates): the kinematics class's, by default -------------
     def inverse(self, pose: np.ndarray) -> np.ndarray:
         """Actuator positions of robot poses ``(..., m) -> (..., n)`` (NaN: no solution)."""
+        return self.kin.inverse(pose)
 
-    @abstractmethod
     def reachable(self, pose: np.ndarray) -> np.ndarray | bool:
         """Whether each robot pose ``(..., m)`` is reachable within the actuator limits."""
+        return self.kin.reachable(pose)
 
-    @abstractmethod
     def clamp(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray | bool]:
         """The nearest reachable pose toward neutral, and whether it moved."""
+        return self.kin.clamp(pose)
 
-    @abstractmethod
     def forward(self, q: np.ndarray, guess: np.ndarray) -> np.ndarray:
         """Robot poses ``(..., m)`` of actuator positions ``(..., n)``, by Newton from
         ``guess`` (rows of NaN where it does not converge)."""
+        return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
 
-    @abstractmethod
     def joint_points(self, pose: np.ndarray) -> Any:
         """The joints' positions at a robot pose, for drawing (a named tuple of arrays)."""
+        return self.kin.joint_points(pose)
 
     # -- cue pose <-> robot pose -------------------------------------------------------
     def pose_from_cue(self, cue: np.ndarray) -> np.ndarray:

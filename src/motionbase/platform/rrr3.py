@@ -620,17 +620,5 @@ class Rrr3Robot(Robot):
         lo = self.limits.lower
         return lo + np.mod(angles - lo, _TWO_PI)
 
-    def reachable(self, pose: Any) -> np.ndarray | bool:
-        return self.kin.reachable(pose)
-
-    def clamp(self, pose: Any) -> tuple[np.ndarray, np.ndarray | bool]:
-        return self.kin.clamp(pose)
-
-    def forward(self, q: Any, guess: Any) -> np.ndarray:
-        return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
-
-    def joint_points(self, pose: Any) -> Any:
-        return self.kin.joint_points(pose)
-
     def servo(self, q: np.ndarray) -> np.ndarray:
         return np.asarray(self.kin.to_servo(q))

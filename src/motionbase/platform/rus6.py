@@ -359,18 +359,3 @@ class Rus6Robot(Robot):
         if not np.isfinite(self.park_pose).all():
             raise ConfigError("geometry: park_angle gives no assembled platform (choose another)")
         self._finish()
-
-    def inverse(self, pose: ArrayLike) -> np.ndarray:
-        return self.kin.inverse(pose)
-
-    def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
-        return self.kin.reachable(pose)
-
-    def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
-        return self.kin.clamp(pose)
-
-    def forward(self, q: ArrayLike, guess: ArrayLike) -> np.ndarray:
-        return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
-
-    def joint_points(self, pose: ArrayLike) -> JointPoints:
-        return self.kin.joint_points(pose)

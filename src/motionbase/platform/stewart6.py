@@ -298,18 +298,3 @@ class Stewart6Robot(Robot):
         self.park_cue = self.park_pose
         self.kernel_params = self.kin._G.ravel()
         self._finish()
-
-    def inverse(self, pose: ArrayLike) -> np.ndarray:
-        return self.kin.inverse(pose)
-
-    def reachable(self, pose: ArrayLike) -> np.ndarray | bool:
-        return self.kin.reachable(pose)
-
-    def clamp(self, pose: ArrayLike) -> tuple[np.ndarray, np.ndarray | bool]:
-        return self.kin.clamp(pose)
-
-    def forward(self, q: ArrayLike, guess: ArrayLike) -> np.ndarray:
-        return self.kin.forward(q, guess=guess)
-
-    def joint_points(self, pose: ArrayLike) -> Stewart6Joints:
-        return self.kin.joint_points(pose)
