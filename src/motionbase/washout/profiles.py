@@ -38,22 +38,14 @@ from typing import Any
 
 import numpy as np
 
+from motionbase.physics import smoothstep
 from motionbase.washout.cueing import Cueing
 
-__all__ = ["BASE", "ProfiledCueing", "smoothstep"]
+__all__ = ["BASE", "ProfiledCueing"]
 
 #: Name of the file's own values (before the first known phase, or a phase without a
 #: profile of its own).
 BASE = "base"
-
-
-def smoothstep(s: float) -> float:
-    """``3 s^2 - 2 s^3`` on [0, 1] (0 below, 1 above): C1, zero slope at both ends."""
-    if s <= 0.0:
-        return 0.0
-    if s >= 1.0:
-        return 1.0
-    return s * s * (3.0 - 2.0 * s)
 
 
 class ProfiledCueing(Cueing):
