@@ -2,8 +2,8 @@
 
 The robot (``Stewart6Robot``) is the third implementation of the robot interface, added
 without touching the pipeline. Expectations are independent of the code under test: leg
-lengths |B_i - (O + p + R q_i)| from this file's own rotation matrices and the preset's
-layout as its comments describe it, speed and acceleration limits measured on the logged
+lengths |B_i - (O + p + R q_i)| from ``test_stewart6.py``'s own rotation matrices and the
+preset's layout as its comments describe it, speed and acceleration limits measured on the logged
 commands (read back by the ``mcap`` library's reader) and on the frames a loopback UDP
 drive received, and the mirror symmetry of the layout.
 """
@@ -29,43 +29,12 @@ from motionbase.platform.stewart6_geometry import Stewart6Geometry
 sys.path.insert(0, str(Path(__file__).parent))
 from drive_wire import UdpDrive, check_wire_limits, read_complete_log  # noqa: E402
 
+# the preset's layout and the independent leg lengths, written out in test_stewart6.py
+from test_stewart6 import HEIGHT, L_MAX, L_MIN, _lengths, _within  # noqa: E402
+
 GEOMETRY = Stewart6Geometry.preset("seat")
 ROBOT = Stewart6Robot(GEOMETRY)
-L_MIN, L_MAX, V_MAX, A_MAX = 0.60, 0.90, 0.30, 3.0  # the preset's stroke and limits
-
-# the preset's layout, from its comments (see test_stewart6.py): base joints on a 0.50 m
-# circle, platform joints on a 0.35 m circle, every leg 0.75 m long at neutral
-BASE_DEG = [-12.0, 12.0, 108.0, 132.0, 228.0, 252.0]
-PLATFORM_DEG = [-48.0, 48.0, 72.0, 168.0, 192.0, 288.0]
-
-
-def _ring(radius: float, degrees: list[float]) -> np.ndarray:
-    a = np.radians(degrees)
-    return np.stack([radius * np.cos(a), radius * np.sin(a), np.zeros(a.size)], axis=-1)
-
-
-BASE = _ring(0.50, BASE_DEG)
-LOCAL = _ring(0.35, PLATFORM_DEG)
-HEIGHT = math.sqrt(0.75**2 - float(np.sum((LOCAL[0] - BASE[0]) ** 2)))
-
-
-def _rot(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = (f(a) for a in (roll, pitch, yaw) for f in (math.cos, math.sin))
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
-def _lengths(pose) -> np.ndarray:
-    """Independent leg lengths |B_i - (O + p + R q_i)|, O = (0, 0, -HEIGHT) (FRD)."""
-    p = np.asarray(pose, dtype=float)
-    joints = np.array([0.0, 0.0, -HEIGHT]) + p[:3] + LOCAL @ _rot(*p[3:]).T
-    return np.linalg.norm(joints - BASE, axis=1)
-
-
-def _within(pose) -> bool:
-    return bool(np.all((_lengths(pose) >= L_MIN) & (_lengths(pose) <= L_MAX)))
+V_MAX, A_MAX = 0.30, 3.0  # the preset's speed and acceleration limits
 
 
 POSES = st.tuples(*[st.floats(-0.4, 0.4)] * 3, *[st.floats(-0.8, 0.8)] * 3).map(
