@@ -11,6 +11,7 @@ import math
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from motionbase.io.manoeuvres import (
 )
 from motionbase.platform import Rus6Geometry
 from motionbase.report import rus6_reach
+from motionbase.stopping import Stopped, StopRequest
 from motionbase.washout import WashoutParams
 from motionbase.washout.perception import (
     perceived_angular_velocity,
@@ -394,6 +396,27 @@ def test_process_pool_and_dask_cluster_give_the_same_scores(kick, ceart):
     assert len({s.cost for s in here}) == 3  # three different sets, three different scores
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_stop_cancels_the_evaluations_not_yet_started(workers, kick, ceart):
+    """A stop request set while a batch of evaluations runs ends it with ``Stopped``
+    instead of letting it finish (400 evaluations of the kick: several seconds)."""
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    default = WashoutParams.preset("default")
+    stop = StopRequest()
+    with open_evaluator(problem, workers=workers, stop=stop) as evaluate_many:
+        assert len(evaluate_many([default, _bad_start()])) == 2  # no stop: they run
+        timer = threading.Timer(0.3, stop.set, args=("SIGTERM",))
+        timer.start()
+        with pytest.raises(Stopped) as stopped:
+            evaluate_many([default] * 400)
+        timer.join()
+        with pytest.raises(Stopped):  # and stays stopped
+            evaluate_many([default])
+    assert stopped.value.reason == "SIGTERM"
+    assert stopped.value.exit_status == 128 + signal.SIGTERM
+
+
 def _workers_of(pid: int) -> list[int]:
     """Pool workers (``spawn_main`` processes) whose parent is ``pid``, from /proc."""
     out = []
@@ -446,7 +469,31 @@ def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
-    if sig == signal.SIGINT:
-        assert proc.returncode == 130, err.decode()[-2000:]
-        assert err.decode().strip() == "motionbase tune: interrupted"
+    said = "" if sig == signal.SIGINT else f" ({sig.name})"
+    assert err.decode().strip() == f"motionbase tune: interrupted{said}"
+    assert proc.returncode == 128 + sig, err.decode()[-2000:]
+    assert not (tmp_path / "o.toml").exists()
+
+
+@pytest.mark.parametrize("after_s", [0.5, 1.5, 3.0])
+def test_a_signal_while_tune_starts_ends_it_cleanly(after_s, tmp_path):
+    """Ctrl-C while the program loads (numba, CMA-ES and its plotting library), flies the
+    JSBSim manoeuvres or starts its workers: one line, exit 130, nothing written. (A
+    Ctrl-C inside an import used to surface as another library's RuntimeError.)"""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase.cli", "tune", "--scripts", "c1723@0:20",
+         "--holdout", "none", "--budget", "100000", "--workers", "2",
+         "--out", str(tmp_path / "o.toml")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        time.sleep(after_s)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert err.decode().strip() == "motionbase tune: interrupted"
+    assert proc.returncode == 130
     assert not (tmp_path / "o.toml").exists()

@@ -1211,6 +1211,7 @@ def tune(
     workers: int | None = None,
     scheduler: str | None = None,
     progress: bool = True,
+    stop: StopRequest | None = None,
 ) -> TuneResult:
     """Tune the washout for a platform over manoeuvres (:mod:`motionbase.tuning`); write it.
 
@@ -1244,18 +1245,24 @@ def tune(
         A Dask distributed scheduler, ``tcp://HOST:PORT``, instead of local processes.
     progress : bool
         Progress bar on stderr (a terminal only).
+    stop : StopRequest, optional
+        Watched between manoeuvres and evaluations: once set, the evaluations not yet
+        started are cancelled, nothing is written and
+        :class:`~motionbase.stopping.Stopped` is raised.
     """
     from motionbase import tuning
     from motionbase.io.executors import open_evaluator
     from motionbase.io.manoeuvres import (
         DEFAULT_HOLDOUT,
         DEFAULT_MANOEUVRES,
+        Manoeuvre,
         load_recording,
         load_spec,
         write_washout,
     )
     from motionbase.platform import Rus6Geometry
     from motionbase.report import rus6_reach
+    from motionbase.stopping import Stopped
     from motionbase.washout.cueing import cueing_spec
 
     spec = cueing_spec(cueing)
@@ -1278,8 +1285,15 @@ def tune(
     holdout = list(DEFAULT_HOLDOUT if holdout is None else holdout)
     if not scripts and not recordings:
         raise ConfigError("tune: no manoeuvres; give --scripts NAME,... or --recordings FILE")
-    manoeuvres = [load_spec(s) for s in scripts] + [load_recording(r) for r in recordings]
-    held = [load_spec(s) for s in holdout]
+
+    def loaded(load: Callable[[str], Manoeuvre], name: str) -> Manoeuvre:
+        if stop:  # each JSBSim script takes a second or more to fly
+            raise Stopped(stop.reason)
+        return load(name)
+
+    manoeuvres = [loaded(load_spec, s) for s in scripts]
+    manoeuvres += [loaded(load_recording, r) for r in recordings]
+    held = [loaded(load_spec, s) for s in holdout]
     names = [m.name for m in manoeuvres]
     for m in held:
         if m.name in names:
@@ -1292,7 +1306,9 @@ def tune(
     bar = EvaluationProgress() if progress else None
     t0 = time.monotonic()
     try:
-        with open_evaluator(problem, workers=workers, scheduler=scheduler) as evaluate_many:
+        with open_evaluator(
+            problem, workers=workers, scheduler=scheduler, stop=stop
+        ) as evaluate_many:
             result = tuning.tune(
                 start, evaluate_many, budget=budget, seed=seed, knobs=knobs, on_progress=bar
             )
@@ -1300,6 +1316,8 @@ def tune(
         if bar is not None:
             bar.close()
     holdout_scores = None
+    if stop:
+        raise Stopped(stop.reason)
     if held:
         held_problem = tuning.TuningProblem(geometry, tuple(held), reach, cueing=cueing)
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))

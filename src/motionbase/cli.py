@@ -12,11 +12,13 @@ import argparse
 import logging
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 from motionbase import __version__
 from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
 from motionbase.errors import ConfigError, MotionbaseError
+from motionbase.stopping import Stopped, StopRequest, install_signal_stop
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
 _Command = tuple[
@@ -87,6 +89,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"motionbase {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Stopped as exc:  # a job that moves nothing, stopped by a signal (tune)
+        by = "" if exc.reason == "SIGINT" else f" ({exc.reason})"
+        print(f"motionbase {args.command}: interrupted{by}", file=sys.stderr)
+        return exc.exit_status
 
 
 # --- subcommands -----------------------------------------------------------------
@@ -112,24 +118,29 @@ def _print_result(result) -> int:
     return 1 if result.failed else 0
 
 
-def _job(name: str, *args: object, **kwargs: object) -> int:
-    """Run a job that moves the platform, with the stop signals routed to it from now on.
+@contextmanager
+def _stop_routed() -> Iterator[StopRequest]:
+    """A stop request with SIGINT, SIGTERM, SIGHUP and SIGQUIT routed to it meanwhile.
 
-    Installed before the job's modules load (numba and the compiled kernels take a second
-    or more): a SIGINT, SIGTERM, SIGHUP or SIGQUIT that comes meanwhile stops the run
-    before anything moves, instead of being lost; during the run the first one parks the
-    platform at the soft-start pace, a second one E-stops it.
+    Entered before a job's modules load (numba and the compiled kernels take a second or
+    more): a signal that comes meanwhile stops the job before it starts, instead of being
+    lost or cutting the loading short with a traceback.
     """
-    from motionbase.stopping import StopRequest, install_signal_stop
-
     stop = StopRequest()
     restore = install_signal_stop(stop)
     try:
+        yield stop
+    finally:
+        restore()
+
+
+def _job(name: str, *args: object, **kwargs: object) -> int:
+    """Run a job that moves the platform, with the stop signals routed to it from now on:
+    the first one parks the platform at the soft-start pace, a second one E-stops it."""
+    with _stop_routed() as stop:
         from motionbase import app
 
         return _print_result(getattr(app, name)(*args, **kwargs, stop=stop))
-    finally:
-        restore()
 
 
 #: Options that several subcommands take, by flag (added with :func:`_add_shared`).
@@ -651,21 +662,23 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     _args_tune,
 )
 def run_tune(args: argparse.Namespace) -> int:
-    from motionbase import app
+    with _stop_routed() as stop:  # a stop cancels the evaluations, writes nothing
+        from motionbase import app
 
-    result = app.tune(
-        out=args.out,
-        platform=args.platform,
-        washout=args.washout,
-        cueing=args.cueing,
-        scripts=args.scripts,
-        recordings=args.recordings,
-        holdout=args.holdout,
-        budget=args.budget,
-        seed=args.seed,
-        workers=args.workers,
-        scheduler=args.scheduler,
-    )
+        result = app.tune(
+            out=args.out,
+            platform=args.platform,
+            washout=args.washout,
+            cueing=args.cueing,
+            scripts=args.scripts,
+            recordings=args.recordings,
+            holdout=args.holdout,
+            budget=args.budget,
+            seed=args.seed,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            stop=stop,
+        )
     print(result.summary_text())
     return 0
 

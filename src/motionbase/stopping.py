@@ -22,7 +22,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterable
 
-__all__ = ["STOP_SIGNALS", "StopRequest", "install_signal_stop"]
+__all__ = ["STOP_SIGNALS", "StopRequest", "Stopped", "install_signal_stop"]
 
 #: The signals that stop a run: Ctrl-C, ``kill``, a closed terminal, Ctrl-\.
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
@@ -71,6 +71,31 @@ class StopRequest:
 
     def __bool__(self) -> bool:
         return self._event.is_set()
+
+
+class Stopped(Exception):
+    """A job that nothing moves with (``tune``) gave up its work because it was asked to stop.
+
+    Jobs that move the platform do not raise it: they park and report the stop in their
+    summary. The command line says "interrupted" and exits with 128 + the signal's number
+    (130 for Ctrl-C).
+
+    Parameters
+    ----------
+    reason : str
+        :attr:`StopRequest.reason` (``"SIGINT"``, ``"SIGTERM"``, ...).
+    """
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+    @property
+    def exit_status(self) -> int:
+        """128 + the number of the signal that stopped the job (1 when no signal did)."""
+        name = self.reason.split()[0] if self.reason else ""
+        sig = getattr(signal, name, None) if name.startswith("SIG") else None
+        return 128 + int(sig) if sig is not None else 1
 
 
 def install_signal_stop(

@@ -14,7 +14,7 @@ order of the candidates, whatever finishes first), the function
   ``spawn``), each given the problem (the manoeuvre arrays) once, by its initializer.
   The workers leave Ctrl-C to the main process (which cancels what is queued and waits
   for the evaluations under way, a fraction of a second) and exit on their own when the
-  main process dies (a SIGTERM, a kill), instead of waiting for work forever;
+  main process dies (a kill), instead of waiting for work forever;
 - ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler, through the
   ``concurrent.futures`` interface of its client (``Client.get_executor``); the problem
   is scattered to every worker once and each evaluation refers to it. The workers need
@@ -28,13 +28,15 @@ import os
 import signal
 import threading
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
 from contextlib import contextmanager
 from multiprocessing import get_context, parent_process
 from multiprocessing.connection import wait
 from typing import TYPE_CHECKING
 
 from motionbase.errors import ConfigError, SourceError
+from motionbase.stopping import Stopped, StopRequest
 
 if TYPE_CHECKING:
     from motionbase.tuning import EvaluateMany, SetScore, TuningProblem
@@ -44,6 +46,9 @@ __all__ = ["default_workers", "open_evaluator"]
 
 #: Seconds to wait for a Dask scheduler to answer.
 CONNECT_TIMEOUT_S = 10.0
+
+#: Seconds between two looks at the stop request while evaluations run elsewhere.
+STOP_POLL_S = 0.05
 
 
 def default_workers() -> int:
@@ -56,7 +61,11 @@ def default_workers() -> int:
 
 @contextmanager
 def open_evaluator(
-    problem: TuningProblem, *, workers: int | None = None, scheduler: str | None = None
+    problem: TuningProblem,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    stop: StopRequest | None = None,
 ) -> Iterator[EvaluateMany]:
     """Evaluate parameter sets on ``problem`` here, in local processes or on a cluster.
 
@@ -68,6 +77,9 @@ def open_evaluator(
         Local processes (>= 1); default :func:`default_workers`. Ignored with ``scheduler``.
     scheduler : str, optional
         Address of a Dask distributed scheduler, ``tcp://HOST:PORT``.
+    stop : StopRequest, optional
+        Watched while evaluating: once set, ``evaluate_many`` cancels what has not
+        started and raises :class:`~motionbase.stopping.Stopped`.
 
     Yields
     ------
@@ -83,14 +95,22 @@ def open_evaluator(
         The scheduler does not answer.
     """
     if scheduler is not None:
-        with _dask(problem, scheduler) as evaluate_many:
+        with _dask(problem, scheduler, stop) as evaluate_many:
             yield evaluate_many
         return
     n = default_workers() if workers is None else workers
     if not (isinstance(n, int) and n >= 1):
         raise ConfigError(f"--workers must be a whole number >= 1, got {workers!r}")
     if n == 1:
-        yield lambda candidates: [problem.evaluate(p) for p in candidates]
+
+        def evaluate_here(candidates: list[WashoutParams]) -> list[SetScore]:
+            scores = []
+            for params in candidates:
+                _check(stop)
+                scores.append(problem.evaluate(params))
+            return scores
+
+        yield evaluate_here
         return
     pool = ProcessPoolExecutor(
         max_workers=n,
@@ -100,11 +120,31 @@ def open_evaluator(
     )
     try:
         _start_workers(pool, n)
-        yield lambda candidates: list(pool.map(_evaluate_here, candidates))
+        yield lambda candidates: _results(
+            [pool.submit(_evaluate_here, p) for p in candidates], stop
+        )
     except BaseException:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+def _check(stop: StopRequest | None) -> None:
+    if stop:
+        raise Stopped(stop.reason)
+
+
+def _results(futures: list[Future], stop: StopRequest | None) -> list[SetScore]:
+    """The futures' results in order; on a stop, cancel those not started and raise
+    :class:`~motionbase.stopping.Stopped` (the caller's shutdown waits for the others)."""
+    pending = set(futures)
+    while pending:
+        if stop:
+            for future in pending:
+                future.cancel()
+            raise Stopped(stop.reason)
+        _, pending = wait_futures(pending, timeout=None if stop is None else STOP_POLL_S)
+    return [future.result() for future in futures]
 
 
 def _start_workers(pool: ProcessPoolExecutor, n: int) -> None:
@@ -158,7 +198,7 @@ def _evaluate(problem: TuningProblem, params: WashoutParams) -> SetScore:
 
 
 @contextmanager
-def _dask(problem: TuningProblem, address: str) -> Iterator[EvaluateMany]:
+def _dask(problem: TuningProblem, address: str, stop: StopRequest | None) -> Iterator[EvaluateMany]:
     host, _, port = address.removeprefix("tcp://").rpartition(":")
     if not address.startswith("tcp://") or not host or not port.isdigit():
         raise ConfigError(
@@ -182,9 +222,8 @@ def _dask(problem: TuningProblem, address: str) -> Iterator[EvaluateMany]:
         shared = client.scatter(problem, broadcast=True)
         executor = client.get_executor(pure=False)
 
-        def evaluate_many(candidates):
-            futures = [executor.submit(_evaluate, shared, p) for p in candidates]
-            return [f.result() for f in futures]
+        def evaluate_many(candidates: list[WashoutParams]) -> list[SetScore]:
+            return _results([executor.submit(_evaluate, shared, p) for p in candidates], stop)
 
         yield evaluate_many
     finally:
