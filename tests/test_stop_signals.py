@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import pytest
@@ -35,3 +37,44 @@ def test_each_stop_signal_raises_the_request_and_the_handlers_go_back(sig):
         restore()
     assert stop and stop.reason == signal.Signals(sig).name
     assert {s: signal.getsignal(s) for s in ALL} == before
+
+
+@pytest.mark.parametrize("after_s", [0.3, 1.0, 2.0])
+def test_ctrl_c_during_a_measurement_is_one_line_and_exit_130(after_s, tmp_path):
+    """``omct`` moves nothing: Ctrl-C simply ends it, at any moment, with one line and
+    exit 130, also while it loads matplotlib (whose imports turn the KeyboardInterrupt
+    into a RuntimeError)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase.cli", "omct", "--out", str(tmp_path / "o")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        time.sleep(after_s)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert err.decode().strip() == "motionbase omct: interrupted"
+    assert proc.returncode == 130
+
+
+def test_an_error_caused_by_ctrl_c_counts_as_ctrl_c():
+    from motionbase.cli import _raised_by_ctrl_c
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("Error calling __set_name__") from exc
+    except RuntimeError as wrapped:
+        assert _raised_by_ctrl_c(wrapped)
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise ValueError("raised while handling it") from None
+    except ValueError as hidden:
+        assert _raised_by_ctrl_c(hidden)  # the context is still there
+    assert not _raised_by_ctrl_c(RuntimeError("a bug"))

@@ -93,6 +93,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         by = "" if exc.reason == "SIGINT" else f" ({exc.reason})"
         print(f"motionbase {args.command}: interrupted{by}", file=sys.stderr)
         return exc.exit_status
+    except Exception as exc:
+        if not _raised_by_ctrl_c(exc):
+            raise  # a bug: its traceback is what a bug report needs
+        print(f"motionbase {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _raised_by_ctrl_c(exc: BaseException) -> bool:
+    """A library turned the KeyboardInterrupt into another error (matplotlib's imports
+    do: a Ctrl-C while ``omct`` loads it is a RuntimeError "calling __set_name__")."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
 
 
 # --- subcommands -----------------------------------------------------------------
