@@ -12,8 +12,7 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -29,9 +28,9 @@ from motionbase.pipeline import (
     PipelineOutput,
     RunSummary,
     StopRequest,
-    install_signal_stop,
     run,
 )
+from motionbase.stopping import stop_on_signals
 
 RECORDINGS = Path("recordings")
 
@@ -223,22 +222,6 @@ def _close_sinks(sinks: list[Any], *, quiet: bool) -> None:
         raise first
 
 
-@contextmanager
-def _stopping(stop: StopRequest | None) -> Iterator[StopRequest]:
-    """The job's stop request. Unless the caller gives one (the command line does, before it
-    loads anything), the stop signals are routed to a new one for the job's length, from
-    its very start: before the source opens and the pipeline's kernels load."""
-    if stop is not None:
-        yield stop
-        return
-    stop = StopRequest()
-    restore = install_signal_stop(stop)
-    try:
-        yield stop
-    finally:
-        restore()
-
-
 def _drive(
     title: str,
     config: PipelineConfig,
@@ -268,7 +251,7 @@ def _drive(
     ``live`` (a :class:`~motionbase.io.mcap_log.LiveAddress`) also serves the log's topics to
     Foxglove.
     """
-    with _stopping(stop) as stop:
+    with stop_on_signals(stop) as stop:
         return _drive_stoppable(
             title, config, source, out, paced=paced, busy_wait=busy_wait, progress=progress,
             extra_sinks=extra_sinks, outputs=outputs, on_output=on_output, stop=stop, live=live,
@@ -445,7 +428,7 @@ def output_test(
         lines.append(s)
         echo(s)
 
-    with _stopping(stop) as stop:  # first: a stop during start-up parks too
+    with stop_on_signals(stop) as stop:  # first: a stop during start-up parks too
         if isinstance(platform, Robot):
             robot = platform
         else:  # a planar robot's name: its default geometry
@@ -570,7 +553,7 @@ def fly(
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
-    with _stopping(stop) as stop:
+    with stop_on_signals(stop) as stop:
         _check_duration(duration_s)
         if busy_wait and not (realtime or outputs):
             raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
@@ -669,7 +652,7 @@ def replay(
         ``out`` is the recording itself; ``outputs`` without ``platform``; a recorded
         configuration with wrong, non-finite or inverted limits.
     """
-    with _stopping(stop) as stop:
+    with stop_on_signals(stop) as stop:
         return _replay(
             path, out=out, check=check, platform=platform, washout=washout, cueing=cueing,
             planar=planar, progress=progress, outputs=outputs, stop=stop, live=live,
@@ -913,7 +896,7 @@ def stream(
             "--preview looks at the flight's future: a live stream has none; drop --preview "
             "(replay a recording with --preview instead)"
         )
-    with _stopping(stop) as stop:
+    with stop_on_signals(stop) as stop:
         return _stream(
             mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
             platform=platform, washout=washout, cueing=cueing, planar=planar, serial=serial,

@@ -12,13 +12,12 @@ import argparse
 import logging
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 
 from motionbase import __version__
 from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
 from motionbase.errors import ConfigError, MotionbaseError
-from motionbase.stopping import Stopped, StopRequest, install_signal_stop
+from motionbase.stopping import Stopped, stop_on_signals
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
 _Command = tuple[
@@ -136,26 +135,10 @@ def _print_result(result) -> int:
     return 1 if result.failed else 0
 
 
-@contextmanager
-def _stop_routed() -> Iterator[StopRequest]:
-    """A stop request with SIGINT, SIGTERM, SIGHUP and SIGQUIT routed to it meanwhile.
-
-    Entered before a job's modules load (numba and the compiled kernels take a second or
-    more): a signal that comes meanwhile stops the job before it starts, instead of being
-    lost or cutting the loading short with a traceback.
-    """
-    stop = StopRequest()
-    restore = install_signal_stop(stop)
-    try:
-        yield stop
-    finally:
-        restore()
-
-
 def _job(name: str, *args: object, **kwargs: object) -> int:
     """Run a job that moves the platform, with the stop signals routed to it from now on:
     the first one parks the platform at the soft-start pace, a second one E-stops it."""
-    with _stop_routed() as stop:
+    with stop_on_signals() as stop:
         from motionbase import app
 
         return _print_result(getattr(app, name)(*args, **kwargs, stop=stop))
@@ -680,7 +663,7 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     _args_tune,
 )
 def run_tune(args: argparse.Namespace) -> int:
-    with _stop_routed() as stop:  # a stop cancels the evaluations, writes nothing
+    with stop_on_signals() as stop:  # a stop cancels the evaluations, writes nothing
         from motionbase import app
 
         result = app.tune(

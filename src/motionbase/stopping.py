@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 
-__all__ = ["STOP_SIGNALS", "StopRequest", "Stopped", "install_signal_stop"]
+__all__ = ["STOP_SIGNALS", "StopRequest", "Stopped", "install_signal_stop", "stop_on_signals"]
 
 #: The signals that stop a run: Ctrl-C, ``kill``, a closed terminal, Ctrl-\.
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
@@ -135,3 +136,28 @@ def install_signal_stop(
             signal.signal(sig, h if h is not None else signal.SIG_DFL)
 
     return restore
+
+
+@contextmanager
+def stop_on_signals(stop: StopRequest | None = None) -> Iterator[StopRequest]:
+    """A job's stop request, with the stop signals routed to it for the job's length.
+
+    Entered first, before the job loads its modules (numba and the compiled kernels take a
+    second or more), opens its source or starts its workers: a signal that comes meanwhile
+    stops the job before it starts, instead of being lost or cutting an import short.
+
+    Parameters
+    ----------
+    stop : StopRequest, optional
+        A request the caller has already routed the signals to (the command line does,
+        before it loads anything): used as it is. Default: a new one, routed here.
+    """
+    if stop is not None:
+        yield stop
+        return
+    stop = StopRequest()
+    restore = install_signal_stop(stop)
+    try:
+        yield stop
+    finally:
+        restore()
