@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
+from signalled import signalled
 
 from motionbase.pipeline import StopRequest
 from motionbase.stopping import install_signal_stop
@@ -44,20 +43,10 @@ def test_ctrl_c_during_a_measurement_is_one_line_and_exit_130(after_s, tmp_path)
     """``omct`` moves nothing: Ctrl-C simply ends it, at any moment, with one line and
     exit 130, also while it loads matplotlib (whose imports turn the KeyboardInterrupt
     into a RuntimeError)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "motionbase.cli", "omct", "--out", str(tmp_path / "o")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
-    try:
-        time.sleep(after_s)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert err.decode().strip() == "motionbase omct: interrupted"
-    assert proc.returncode == 130
+    args = ["omct", "--out", str(tmp_path / "o")]
+    status, err = signalled(args, lambda _: time.sleep(after_s))
+    assert err.strip() == "motionbase omct: interrupted"
+    assert status == 130
 
 
 def test_an_error_caused_by_ctrl_c_counts_as_ctrl_c():

@@ -9,14 +9,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from signalled import signalled
 
 from motionbase import app, cli, tuning
 from motionbase.config import preset_path
@@ -442,36 +441,33 @@ def _alive(pid: int) -> bool:
     return state != "Z"  # a zombie has exited
 
 
+def _tune_args(tmp_path: Path) -> list[str]:
+    """A tuning that would run for hours: it only ends when stopped."""
+    return ["tune", "--scripts", "c1723@0:20", "--holdout", "none", "--budget", "100000",
+            "--workers", "2", "--out", str(tmp_path / "o.toml")]  # fmt: skip
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "motionbase.cli", "tune", "--scripts", "c1723@0:20",
-         "--holdout", "none", "--budget", "100000", "--workers", "2",
-         "--out", str(tmp_path / "o.toml")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )  # fmt: skip
-    try:
+    workers: list[int] = []
+
+    def evaluating(proc) -> None:
         deadline = time.monotonic() + 60
-        workers: list[int] = []
         while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.2)
-            workers = _workers_of(proc.pid)
+            workers[:] = _workers_of(proc.pid)
         assert len(workers) == 2, "the pool did not start"
         time.sleep(1.0)  # evaluations under way
-        proc.send_signal(sig)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+
+    status, err = signalled(_tune_args(tmp_path), evaluating, sig)
     deadline = time.monotonic() + 15
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
     said = "" if sig == signal.SIGINT else f" ({sig.name})"
-    assert err.decode().strip() == f"motionbase tune: interrupted{said}"
-    assert proc.returncode == 128 + sig, err.decode()[-2000:]
+    assert err.strip() == f"motionbase tune: interrupted{said}"
+    assert status == 128 + sig, err[-2000:]
     assert not (tmp_path / "o.toml").exists()
 
 
@@ -480,20 +476,7 @@ def test_a_signal_while_tune_starts_ends_it_cleanly(after_s, tmp_path):
     """Ctrl-C while the program loads (numba, CMA-ES and its plotting library), flies the
     JSBSim manoeuvres or starts its workers: one line, exit 130, nothing written. (A
     Ctrl-C inside an import used to surface as another library's RuntimeError.)"""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "motionbase.cli", "tune", "--scripts", "c1723@0:20",
-         "--holdout", "none", "--budget", "100000", "--workers", "2",
-         "--out", str(tmp_path / "o.toml")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )  # fmt: skip
-    try:
-        time.sleep(after_s)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert err.decode().strip() == "motionbase tune: interrupted"
-    assert proc.returncode == 130
+    status, err = signalled(_tune_args(tmp_path), lambda _: time.sleep(after_s))
+    assert err.strip() == "motionbase tune: interrupted"
+    assert status == 130
     assert not (tmp_path / "o.toml").exists()

@@ -1,0 +1,38 @@
+"""Run ``motionbase ARGS`` in a process of its own and send it a signal once it is ready."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+
+
+def signalled(
+    args: Sequence[str],
+    ready: Callable[[subprocess.Popen], object],
+    sig: int = signal.SIGINT,
+    timeout_s: float = 60.0,
+) -> tuple[int, str]:
+    """Start ``python -m motionbase.cli ARGS``, call ``ready(proc)`` (it waits for the
+    moment to stop the program), send ``sig``, and wait for the program to end.
+
+    Returns
+    -------
+    (int, str)
+        The exit status (negative: killed by that signal) and what it wrote on stderr.
+    """
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        ready(proc)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=timeout_s)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, err.decode()
