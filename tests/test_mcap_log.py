@@ -274,6 +274,32 @@ def test_bad_times_and_lifecycle_errors(tmp_path: Path) -> None:
         McapLogger(tmp_path / "x.mcap", {}, compression="gzip")
 
 
+def test_extra_topics_are_logged_with_their_schema_and_bad_ones_refused(tmp_path: Path) -> None:
+    """A plug-in's topic (``topics=``) gets a channel with its JSON Schema; a built-in topic
+    keeps its own schema; an entry that is not (name, schema of an object) is refused."""
+    schema = {"type": "object", "properties": {"n": {"type": "integer"}}, "required": ["n"]}
+    path = tmp_path / "extra.mcap"
+    other = {"type": "object"}
+    with McapLogger(
+        path, {}, topics={"/cueing/mine": ("my.Diag", schema), "/health": ("x.Other", other)}
+    ) as logger:
+        logger.add("/cueing/mine", 0.5, {"n": 3})
+        logger.add("/washout/pose", 0.5, {"pose": [0.0] * 6})
+        assert logger.topics["/health"] == TOPIC_SCHEMAS["/health"]
+    with open(path, "rb") as fh:
+        seen = {
+            channel.topic: (s.name, json.loads(s.data), json.loads(m.data))
+            for s, channel, m in make_reader(fh).iter_messages()
+        }
+    assert seen["/cueing/mine"] == ("my.Diag", schema, {"t": 0.5, "n": 3})
+    assert seen["/washout/pose"][0] == TOPIC_SCHEMAS["/washout/pose"][0]
+    for bad in (("", schema), ("my.Diag", {"type": "array"}), "my.Diag", ("a", "b", "c")):
+        with pytest.raises(ConfigError, match="/cueing/mine"):
+            McapLogger(tmp_path / "x.mcap", {}, topics={"/cueing/mine": bad})
+    with pytest.raises(ConfigError, match="'mine'"):
+        McapLogger(tmp_path / "x.mcap", {}, topics={"mine": ("my.Diag", schema)})
+
+
 def test_time_beyond_mcaps_u64_nanoseconds_is_a_sink_error(tmp_path: Path) -> None:
     """MCAP log times are u64 ns: 2**64 ns is about 1.8e10 s; later times cannot be logged."""
     path = tmp_path / "far.mcap"

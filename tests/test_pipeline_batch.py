@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import math
 
+import jsonschema
 import numba
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from motionbase import app, stages
 from motionbase.app import load_config
@@ -111,11 +113,22 @@ class LinearCue(Cueing):
     level flight (no filter, no tilt); it counts the anti-windup calls it gets."""
 
     name = "test_linear"
+    diagnostics_schema = (
+        "test.LinearDiagnostics",
+        {
+            "type": "object",
+            "properties": {"tracked": {"type": "integer", "minimum": 0}},
+            "required": ["tracked"],
+        },
+    )
 
     def __init__(self, params: WashoutParams, dt: float) -> None:
         self.params = params
         self.dt = dt
         self.tracked = 0
+
+    def diagnostics(self) -> dict[str, int]:
+        return {"tracked": self.tracked}
 
     def reset(self) -> None:
         pass
@@ -232,6 +245,20 @@ def test_a_plugin_cueing_flies_and_replays_with_no_pipeline_change(plugins, tmp_
         np.testing.assert_allclose(m["pose"], GAIN * (u - LEVEL), rtol=0, atol=1e-12)
         checked += 1
     assert checked > 500
+    # its diagnostics, on a topic of its own with its schema: one a tick, the count of
+    # anti-windup calls never falling
+    diagnostics = msgs["/cueing/test_linear"]
+    assert len(diagnostics) == len(msgs["/washout/pose"])
+    for m in diagnostics:
+        jsonschema.validate(m, LinearCue.diagnostics_schema[1])
+    tracked = [m["tracked"] for m in diagnostics]
+    assert tracked == sorted(tracked)
+    with open(out, "rb") as fh:
+        schemas = {
+            channel.topic: schema.name
+            for schema, channel, _ in make_reader(fh).iter_messages(topics=["/cueing/test_linear"])
+        }
+    assert schemas == {"/cueing/test_linear": "test.LinearDiagnostics"}
     # replay takes the cueing from the recording and reproduces the log bit for bit
     result = app.replay(out, check=True, progress=False)
     assert not result.failed, "\n".join(result.notes)

@@ -219,6 +219,23 @@ def _serve_live(jobs: queue.SimpleQueue) -> None:
             log.warning("live view: %s", exc)
 
 
+def _checked_topics(
+    topics: Mapping[str, tuple[str, Mapping[str, Any]]],
+) -> dict[str, tuple[str, Mapping[str, Any]]]:
+    """``topics`` (topic -> (schema name, JSON Schema)) when each entry is one, else a
+    ConfigError naming the entry."""
+    for topic, entry in topics.items():
+        ok = isinstance(topic, str) and topic.startswith("/") and isinstance(entry, tuple)
+        ok = ok and len(entry) == 2 and isinstance(entry[0], str) and entry[0] != ""
+        ok = ok and isinstance(entry[1], Mapping) and entry[1].get("type") == "object"
+        if not ok:
+            raise ConfigError(
+                f"MCAP topic {topic!r}: expected '/name' -> (schema name, JSON Schema of an "
+                f"object), got {entry!r:.80}"
+            )
+    return dict(topics)
+
+
 def _channel(topic: str, name: str, schema: Any, context: foxglove.Context) -> foxglove.Channel:
     """A JSON channel of ``topic`` with its JSON Schema, on ``context``."""
     return foxglove.Channel(
@@ -316,6 +333,11 @@ class McapLogger:
     live_rate_hz : float
         The live feed's most messages per second of source time per topic (default
         :data:`LIVE_RATE_HZ`, 60).
+    topics : Mapping, optional
+        More topics than :data:`~motionbase.io.schemas.TOPIC_SCHEMAS`: topic ->
+        (schema name, JSON Schema of its messages), e.g. a cueing plug-in's
+        diagnostics (:attr:`motionbase.washout.cueing.Cueing.diagnostics_schema`).
+        A topic of ``TOPIC_SCHEMAS`` keeps its own schema.
 
     Raises
     ------
@@ -335,9 +357,11 @@ class McapLogger:
         fsync: bool = False,
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,
+        topics: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
     ) -> None:
         self.path = Path(path)
         self.live = live
+        self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
         self._server: Any = None
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
@@ -420,12 +444,12 @@ class McapLogger:
             METADATA_NAME,
             {"config": config_json, "version": __version__, "log_format": LOG_FORMAT},
         )
-        for topic, (name, schema) in TOPIC_SCHEMAS.items():
+        for topic, (name, schema) in self.topics.items():
             self._channels[topic] = _channel(topic, name, schema, context)
         if self._live_context is not None:
             self._live = {
                 topic: [_channel(topic, name, schema, self._live_context), _FIRST]
-                for topic, (name, schema) in TOPIC_SCHEMAS.items()
+                for topic, (name, schema) in self.topics.items()
             }
             self._live_queue = queue.SimpleQueue()
             self._live_thread = threading.Thread(
@@ -583,11 +607,8 @@ class McapLogger:
                 nxt = due + self._live_period_ns
                 entry[1] = nxt if ns < nxt - _LIVE_SLACK_NS else ns + self._live_period_ns
 
-    @staticmethod
-    def _unknown(topic: str) -> None:
-        raise SinkError(
-            f"unknown MCAP topic {topic!r}: known topics are {', '.join(TOPIC_SCHEMAS)}"
-        )
+    def _unknown(self, topic: str) -> None:
+        raise SinkError(f"unknown MCAP topic {topic!r}: known topics are {', '.join(self.topics)}")
 
     def add_transform(
         self,

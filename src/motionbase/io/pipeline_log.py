@@ -60,11 +60,20 @@ def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any
     return msg
 
 
+def cueing_schema(cueing: Any) -> tuple[str, Any] | None:
+    """(schema name, JSON Schema) of the cueing's diagnostics: the shipped cueings' from
+    :data:`~motionbase.io.schemas.CUEING_DIAGNOSTICS`, a plug-in's from its
+    :attr:`~motionbase.washout.cueing.Cueing.diagnostics_schema`; None: it has none."""
+    if cueing is None:
+        return None
+    return CUEING_DIAGNOSTICS.get(cueing.name) or getattr(cueing, "diagnostics_schema", None)
+
+
 def cueing_message(cueing: Any) -> tuple[str, dict[str, Any]] | None:
     """The ``/cueing/<name>`` message of the cueing's last tick
     (:meth:`~motionbase.washout.cueing.Cueing.diagnostics`), or None: no diagnostics, or
-    no schema for them (:data:`~motionbase.io.schemas.CUEING_DIAGNOSTICS`)."""
-    if cueing is None or cueing.name not in CUEING_DIAGNOSTICS:
+    no schema for them (:func:`cueing_schema`)."""
+    if cueing_schema(cueing) is None:
         return None
     diagnostics = cueing.diagnostics()
     return None if diagnostics is None else (f"/cueing/{cueing.name}", diagnostics)
@@ -144,8 +153,13 @@ class PipelineLog:
     ) -> None:
         self._cueing = cueing
         self.path = Path(path)
+        schema = cueing_schema(cueing)
         self._logger: McapLogger | None = McapLogger(
-            self.path, metadata, live=live, live_rate_hz=live_rate_hz
+            self.path,
+            metadata,
+            live=live,
+            live_rate_hz=live_rate_hz,
+            topics={f"/cueing/{cueing.name}": schema} if schema is not None else None,
         )
         self._scene = SceneBuilder(kinematics) if kinematics is not None else None
         self._scene_period = 1.0 / SCENE_RATE_HZ

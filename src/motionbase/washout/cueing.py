@@ -107,10 +107,16 @@ class Cueing(ABC):
         first tick. A cueing that plans within the actuators' limits keeps it; the
         default ignores it."""
 
+    #: Optional: (schema name, JSON Schema of the :meth:`diagnostics` object) for a
+    #: plug-in's diagnostics to be logged, e.g. ``("my.Diagnostics", {"type": "object",
+    #: "properties": {"residual": {"type": "number"}}})``; the shipped cueings' schemas
+    #: are in :data:`motionbase.io.schemas.CUEING_DIAGNOSTICS`.
+    diagnostics_schema: ClassVar[tuple[str, dict[str, Any]] | None] = None
+
     def diagnostics(self) -> dict[str, Any] | None:
         """Optional: the last tick's diagnostics (flat mapping of numbers, bools and short
-        strings), logged on ``/cueing/<name>`` each tick; None (the default): nothing to
-        log."""
+        strings), logged on ``/cueing/<name>`` each tick when the cueing has a schema for
+        them (:attr:`diagnostics_schema`); None (the default): nothing to log."""
         return None
 
     def step(self, specific_force: Any, angular_velocity: Any) -> np.ndarray:
