@@ -256,6 +256,28 @@ def test_a_phase_reversal_mid_blend_is_continuous():
     assert w[-1] == 1.0
 
 
+def test_a_profiled_plugin_logs_the_diagnostics_of_the_profile_it_runs():
+    """A cueing plug-in with diagnostics keeps its topic's schema under profiles, and the
+    diagnostics are those of the profile the weights go to."""
+    from motionbase.io.pipeline_log import cueing_message
+
+    class Counting(ClassicalWashout):
+        name = "test_counting"
+        diagnostics_schema = ("test.Counting", {"type": "object"})
+
+        def diagnostics(self) -> dict[str, float]:
+            return {"tilt_limit_deg": float(self.params.tilt_angle_limit_deg)}
+
+    params = profiled_params(blend_s=1.0)
+    cueing = ProfiledCueing(Counting, params, DT)
+    cueing.set_flight_phase(True)
+    cueing.advance(np.array([0.0, 0.0, -G, 0.0, 0.0, 0.0]), np.empty(6))
+    topic, message = cueing_message(cueing)
+    assert topic == "/cueing/test_counting"
+    assert message == {"tilt_limit_deg": params.for_profile("ground").tilt_angle_limit_deg}
+    assert params.for_profile("ground").tilt_angle_limit_deg != params.tilt_angle_limit_deg
+
+
 def test_the_phase_known_before_the_first_sample_starts_there():
     """A flight that starts on the ground runs the ground profile from its first sample,
     bit for bit (nothing was sent yet, so no blend); reset() forgets the phase."""

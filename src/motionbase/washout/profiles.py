@@ -79,6 +79,8 @@ class ProfiledCueing(Cueing):
         self.params = params
         self.dt = float(dt)
         self.name = name or getattr(cueing_class, "name", "profiled")
+        #: the profiles' cueing's schema: its diagnostics are logged as without profiles
+        self.diagnostics_schema = getattr(cueing_class, "diagnostics_schema", None)
         defined = tuple(params.profile_names)
         self._names = (BASE, *defined)
         self._cueings = [cueing_class(params.for_profile(None), self.dt)] + [
