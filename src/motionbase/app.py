@@ -1299,11 +1299,11 @@ def tune(
         if bar is not None:
             bar.close()
     holdout_scores = None
-    if stop:
-        raise Stopped(stop.reason)
-    if held:
+    if held and not stop:
         held_problem = tuning.TuningProblem(geometry, tuple(held), reach, cueing=cueing)
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
+    if stop:  # also one that came while the held-out flights were scored: nothing written
+        raise Stopped(stop.reason)
     wall = time.monotonic() - t0
     description, header = tuning.describe_result(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
