@@ -155,6 +155,24 @@ def test_the_ideal_platform_scores_below_a_bad_set_and_the_default(ceart):
     assert perfect.cost < min(scores)
 
 
+def test_a_profiled_file_is_scored_with_the_manoeuvres_flight_phase(takeoff, ceart):
+    """The take-off run is on the ground throughout (JSBSim's weight on wheels): a file with
+    flight-phase profiles scores there exactly as its ground profile alone does (the
+    compiled classical washout with the ground values), not as the file's own values."""
+    geometry, reach = ceart
+    assert (takeoff.on_ground == 1.0).all()
+    profiled = WashoutParams.preset("profiles_example")
+    ground = profiled.for_profile("ground")
+    assert ground != profiled.for_profile(None)  # the profile changes something
+    problem = tuning.TuningProblem(geometry, (takeoff,), reach)
+    with_phase = tuning.run_chain(problem.config(profiled, takeoff), takeoff)
+    alone = tuning.run_chain(problem.config(ground, takeoff), takeoff)
+    base = tuning.run_chain(problem.config(profiled.for_profile(None), takeoff), takeoff)
+    np.testing.assert_allclose(with_phase.angles, alone.angles, rtol=0, atol=1e-12)
+    assert np.abs(base.angles - alone.angles).max() > 1e-3
+    assert problem.evaluate(profiled).cost == pytest.approx(problem.evaluate(ground).cost)
+
+
 def test_clamping_is_counted_and_costs(takeoff, ceart):
     geometry, reach = ceart
     default = WashoutParams.preset("default")

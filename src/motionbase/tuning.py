@@ -366,10 +366,11 @@ class ChainRun(NamedTuple):
 
 def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre) -> ChainRun:
     """Run a manoeuvre through the whole pipeline from park, one tick per sample (the
-    pipeline's batch path); the one place the tuner runs the chain."""
+    pipeline's batch path), with its flight phase (a profiled cueing runs the profile of
+    the phase); the one place the tuner runs the chain."""
     m = manoeuvre
     result = Pipeline(config).run_batch(
-        m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh
+        m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh, on_ground=m.on_ground
     )
     return ChainRun(
         result.poses,

@@ -110,6 +110,9 @@ class Manoeuvre:
         Roll, pitch, yaw, rad.
     fresh : ndarray of bool, shape (N,)
         False where a live source's sample was a stale hold (the watchdog fades then).
+    on_ground : ndarray of float, shape (N,)
+        The flight phase: 1 on the ground, 0 in the air, NaN where the source did not say
+        (a flight-phase profiled cueing runs the profile of the phase).
     """
 
     name: str
@@ -120,12 +123,15 @@ class Manoeuvre:
     angular_velocity: np.ndarray
     attitude: np.ndarray
     fresh: np.ndarray = field(default=None)  # type: ignore[assignment]
+    on_ground: np.ndarray = field(default=None)  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         n = np.asarray(self.t).shape[0]
         if self.fresh is None:
             object.__setattr__(self, "fresh", np.ones(n, dtype=bool))
-        for key in ("t", "specific_force", "angular_velocity", "attitude", "fresh"):
+        if self.on_ground is None:
+            object.__setattr__(self, "on_ground", np.full(n, np.nan))
+        for key in ("t", "specific_force", "angular_velocity", "attitude", "fresh", "on_ground"):
             arr = np.array(getattr(self, key), dtype=bool if key == "fresh" else float)
             arr.flags.writeable = False
             object.__setattr__(self, key, arr)
@@ -332,4 +338,5 @@ def _from_states(
         angular_velocity=np.array([s.angular_velocity for s in states]),
         attitude=np.array([s.attitude for s in states]),
         fresh=np.ones(len(states), dtype=bool) if fresh is None else np.array(fresh, dtype=bool),
+        on_ground=np.array([np.nan if s.on_ground is None else float(s.on_ground) for s in states]),
     )
