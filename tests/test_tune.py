@@ -173,6 +173,34 @@ def test_a_profiled_file_is_scored_with_the_manoeuvres_flight_phase(takeoff, cea
     assert problem.evaluate(profiled).cost == pytest.approx(problem.evaluate(ground).cost)
 
 
+def test_tuning_a_profile_changes_only_that_profile_and_scores_where_it_runs(takeoff, ceart):
+    """On the take-off run (on the ground throughout): tuning the air profile cannot change
+    the score (that profile never runs), while tuning the ground profile changes only that
+    profile's overrides, and the best set scores as its ground profile alone."""
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (takeoff,), reach)
+    start = WashoutParams.preset("profiles_example")
+
+    costs: list[float] = []
+
+    def evaluate_many(candidates):
+        scores = [problem.evaluate(p) for p in candidates]
+        costs.extend(s.cost for s in scores)
+        return scores
+
+    air = tuning.tune(start, evaluate_many, budget=7, seed=0, profile="air")
+    assert len(costs) == 7 and len(set(costs)) == 1  # every candidate scored as the start
+    assert air.best is air.start
+    ground = tuning.tune(start, evaluate_many, budget=7, seed=0, profile="ground")
+    best = ground.best
+    assert best.for_profile(None) == start.for_profile(None)  # the file's own values
+    assert best.for_profile("air") == start.for_profile("air")
+    assert ground.best_score.cost < ground.start_score.cost  # something was found
+    assert best.for_profile("ground") != start.for_profile("ground")
+    alone = problem.evaluate(best.for_profile("ground"))
+    assert ground.best_score.cost == pytest.approx(alone.cost)
+
+
 def test_clamping_is_counted_and_costs(takeoff, ceart):
     geometry, reach = ceart
     default = WashoutParams.preset("default")
@@ -367,6 +395,8 @@ def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):
         (["--scheduler", "localhost:8786"], "tcp://HOST:PORT"),
         (["--budget", "0"], "expected a whole number >= 1"),
         (["--recordings", "notes.txt"], "MCAP file"),
+        (["--profile", "taxi"], "--profile taxi: unknown"),
+        (["--cueing", "mpc", "--profile", "air"], "cannot be tuned yet"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):

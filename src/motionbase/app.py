@@ -1195,6 +1195,7 @@ def tune(
     scheduler: str | None = None,
     progress: bool = True,
     stop: StopRequest | None = None,
+    profile: str | None = None,
 ) -> TuneResult:
     """Tune the washout for a platform over manoeuvres (:mod:`motionbase.tuning`); write it.
 
@@ -1232,6 +1233,9 @@ def tune(
         Watched between manoeuvres and evaluations: once set, the evaluations not yet
         started are cancelled, nothing is written and
         :class:`~motionbase.stopping.Stopped` is raised.
+    profile : str, optional
+        Tune this flight-phase profile of the start file (``ground``, ``air``; written as
+        the profile's overrides) instead of the file's own values (classical washout).
     """
     from motionbase import tuning
     from motionbase.io.executors import open_evaluator
@@ -1263,6 +1267,18 @@ def tune(
     geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform_name))
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
+    if profile is not None:
+        from motionbase.washout.params import PROFILES
+
+        if profile not in PROFILES:
+            raise ConfigError(
+                f"--profile {profile}: unknown; a file's profiles are {', '.join(PROFILES)}"
+            )
+        if not hasattr(start, "with_profile"):
+            raise ConfigError(
+                f"--profile: the {cueing} cueing's profiles cannot be tuned yet; tune its "
+                "file's own values (leave --profile out) or use --cueing classical"
+            )
     recordings = list(recordings or [])
     scripts = list(DEFAULT_MANOEUVRES if scripts is None and not recordings else scripts or [])
     holdout = list(DEFAULT_HOLDOUT if holdout is None else holdout)
@@ -1293,7 +1309,13 @@ def tune(
             problem, workers=workers, scheduler=scheduler, stop=stop
         ) as evaluate_many:
             result = tuning.tune(
-                start, evaluate_many, budget=budget, seed=seed, knobs=knobs, on_progress=bar
+                start,
+                evaluate_many,
+                budget=budget,
+                seed=seed,
+                knobs=knobs,
+                on_progress=bar,
+                profile=profile,
             )
     finally:
         if bar is not None:
@@ -1314,6 +1336,7 @@ def tune(
     command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")
     command += [f"--recordings {' '.join(recordings)}"] if recordings else []
     command.append(f"--holdout {','.join(holdout) or 'none'} --budget {budget} --seed {seed}")
+    command += [f"--profile {profile}"] if profile else []
     header[:0] = [
         f"{'Washout' if cueing == 'classical' else cueing.upper() + ' cueing'} parameters "
         f"made by `motionbase tune` (motionbase {__version__}):",

@@ -641,6 +641,12 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seed", type=_whole(0), default=0, metavar="S", help="seed (default 0)")
     p.add_argument(
+        "--profile",
+        metavar="ground|air",
+        help="tune this flight-phase profile of the start file (its [profile.NAME] table) "
+        "instead of the file's own values; the manoeuvres' flight phase decides where it runs",
+    )
+    p.add_argument(
         "--out", required=True, metavar="FILE.toml", help="cueing parameters TOML to write"
     )
     p.add_argument(
@@ -679,6 +685,7 @@ def run_tune(args: argparse.Namespace) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
             stop=stop,
+            profile=args.profile,
         )
     print(result.summary_text())
     return 0

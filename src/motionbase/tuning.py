@@ -732,6 +732,7 @@ def tune(
     sigma0: float = SIGMA0,
     knobs: Sequence[Knob] = KNOBS,
     on_progress: Callable[[int, int, float], None] | None = None,
+    profile: str | None = None,
 ) -> TuningResult:
     """CMA-ES over ``knobs`` from ``start``, within ``budget`` evaluations.
 
@@ -755,6 +756,11 @@ def tune(
         The parameters tuned.
     on_progress : callable, optional
         ``on_progress(evaluations, budget, best_cost)`` after each batch.
+    profile : str, optional
+        Tune this flight-phase profile of ``start`` (``"ground"``, ``"air"``: its values,
+        written as the profile's overrides, :meth:`WashoutParams.with_profile`) instead of
+        the file's own values; the rest of the file is kept. The manoeuvres' flight phase
+        decides where each profile runs.
     """
     import cma
 
@@ -763,6 +769,12 @@ def tune(
     if seed < 0:
         raise ValueError(f"tune: seed must be >= 0, got {seed}")
     knobs = tuple(knobs)
+    tuned = start if profile is None else start.for_profile(profile)
+
+    def candidate(x: np.ndarray) -> WashoutParams:
+        values = decode(x, tuned, knobs)
+        return values if profile is None else start.with_profile(profile, values)
+
     start_score = evaluate_many([start])[0]
     best, best_score = start, start_score
     evaluations, generations = 1, 0
@@ -780,13 +792,13 @@ def tune(
         options["popsize"] = int(popsize)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        es = cma.CMAEvolutionStrategy(encode(start, knobs).tolist(), sigma0, options)
+        es = cma.CMAEvolutionStrategy(encode(tuned, knobs).tolist(), sigma0, options)
         while evaluations < budget and not es.stop():
             xs = es.ask()
             remaining = budget - evaluations
             whole = len(xs) <= remaining
             xs = xs if whole else xs[:remaining]
-            candidates = [decode(x, start, knobs) for x in xs]
+            candidates = [candidate(x) for x in xs]
             scores = evaluate_many(candidates)
             evaluations += len(candidates)
             for cand, score in zip(candidates, scores, strict=True):

@@ -239,6 +239,37 @@ class WashoutParams:
             return self if not self.profiles else replace(self, profiles=())
         return _resolve_profile(self.to_dict(), items, f"WashoutParams [profile.{name}]")
 
+    def with_profile(self, name: str, values: WashoutParams) -> WashoutParams:
+        """These parameters with profile ``name`` overriding just what makes
+        :meth:`for_profile` of it give ``values``' washout values (the values it already
+        overrode stay overrides); the file's own values and the other profiles are kept.
+
+        Parameters
+        ----------
+        name : str
+            One of :data:`PROFILES` (``"ground"``, ``"air"``).
+        values : WashoutParams
+            The profile's parameters (their own profiles, ``g``, ``method`` and
+            description are not used).
+
+        Raises
+        ------
+        ConfigError
+            An unknown profile name.
+        """
+        if name not in PROFILES:
+            raise ConfigError(f"profile {name!r} is unknown: a file may hold {', '.join(PROFILES)}")
+        overridden = {(s, k) for s, k, _ in dict(self.profiles).get(name, ())}
+        items = []
+        for section, keys in _SECTIONS.items():
+            for key in keys:
+                field_name = _field(section, key)
+                value = getattr(values, field_name)
+                if (section, key) in overridden or value != getattr(self, field_name):
+                    items.append((section, key, value))
+        tables = {**dict(self.profiles), name: tuple(items)}
+        return replace(self, profiles=tuple((n, tables[n]) for n in PROFILES if n in tables))
+
     # --- SI views -------------------------------------------------------------------------
 
     @property
