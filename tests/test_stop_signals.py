@@ -67,3 +67,28 @@ def test_an_error_caused_by_ctrl_c_counts_as_ctrl_c():
     except ValueError as hidden:
         assert _raised_by_ctrl_c(hidden)  # the context is still there
     assert not _raised_by_ctrl_c(RuntimeError("a bug"))
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the dropped one
+def test_ctrl_c_is_not_lost_in_a_c_callback():
+    """A KeyboardInterrupt raised while C code runs a Python callback is printed and dropped
+    by Python (numba's compiler works through such callbacks); inside
+    ``insistent_ctrl_c`` the Ctrl-C comes again until the Python code it stops sees it."""
+    import ctypes
+    import threading
+
+    from motionbase.stopping import insistent_ctrl_c
+
+    callback = ctypes.CFUNCTYPE(None)(lambda: time.sleep(0.5))  # the signal lands in here
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with insistent_ctrl_c(period_s=0.05):
+            threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT)).start()
+            callback()  # drops the first KeyboardInterrupt ("Exception ignored ...")
+            reached.append(True)  # the Ctrl-C was lost here
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline:  # plain Python work: the next one stops it
+                time.sleep(0.01)
+    assert reached  # the callback did drop it
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from motionbase import __version__
 from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
 from motionbase.errors import ConfigError, MotionbaseError
-from motionbase.stopping import Stopped, stop_on_signals
+from motionbase.stopping import Stopped, insistent_ctrl_c, stop_on_signals
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
 _Command = tuple[
@@ -81,7 +81,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with insistent_ctrl_c():  # jobs that move the platform route the signals to a stop
+            return int(args._run(args) or 0)
     except MotionbaseError as exc:
         print(f"motionbase {args.command}: error: {exc}", file=sys.stderr)
         return 2

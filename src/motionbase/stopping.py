@@ -18,12 +18,20 @@ Two kinds of stop (see the README's Safety section):
 
 from __future__ import annotations
 
+import _thread
 import signal
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["STOP_SIGNALS", "StopRequest", "Stopped", "install_signal_stop", "stop_on_signals"]
+__all__ = [
+    "STOP_SIGNALS",
+    "StopRequest",
+    "Stopped",
+    "insistent_ctrl_c",
+    "install_signal_stop",
+    "stop_on_signals",
+]
 
 #: The signals that stop a run: Ctrl-C, ``kill``, a closed terminal, Ctrl-\.
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
@@ -161,3 +169,50 @@ def stop_on_signals(stop: StopRequest | None = None) -> Iterator[StopRequest]:
         yield stop
     finally:
         restore()
+
+
+@contextmanager
+def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
+    """Ctrl-C raises ``KeyboardInterrupt``, and again every ``period_s`` until the block ends.
+
+    For commands that move nothing (``omct``, ``report``, ``workspace``): Python prints and
+    drops a ``KeyboardInterrupt`` raised while C code has called back into Python, and
+    numba's compiler does that throughout a compilation (the first run of a fresh install
+    compiles for several seconds), so a single one would be lost and the command run on.
+    A no-op outside the main thread, and where SIGINT is not Python's default handler (a
+    background job ignores it; a host program has its own).
+
+    Parameters
+    ----------
+    period_s : float
+        Seconds between two raises, > 0.
+    """
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield
+        return
+    done = threading.Event()
+    repeater: list[threading.Thread] = []
+
+    def repeat() -> None:
+        while not done.wait(period_s):
+            _thread.interrupt_main()  # runs the handler below in the main thread
+
+    def handler(signum: int, _frame: object) -> None:
+        if done.is_set():
+            return  # a last repeat after the block ended
+        if not repeater:
+            repeater.append(threading.Thread(target=repeat, name="motionbase-ctrl-c", daemon=True))
+            repeater[0].start()
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        done.set()
+        if repeater:
+            repeater[0].join()  # its last repeat, if any, reaches the handler above
+        signal.signal(signal.SIGINT, signal.default_int_handler)
