@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 
 def signalled(
@@ -13,9 +14,11 @@ def signalled(
     ready: Callable[[subprocess.Popen], object],
     sig: int = signal.SIGINT,
     timeout_s: float = 60.0,
+    env: Mapping[str, str] | None = None,
 ) -> tuple[int, str]:
     """Start ``python -m motionbase.cli ARGS``, call ``ready(proc)`` (it waits for the
-    moment to stop the program), send ``sig``, and wait for the program to end.
+    moment to stop the program), send ``sig``, and wait for the program to end. ``env``:
+    environment variables to set for it.
 
     Returns
     -------
@@ -26,6 +29,7 @@ def signalled(
         [sys.executable, "-m", "motionbase.cli", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
+        env=None if env is None else {**os.environ, **env},
     )
     try:
         ready(proc)

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import _thread
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
+from typing import Any
 
 __all__ = [
     "STOP_SIGNALS",
@@ -179,6 +181,7 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
     drops a ``KeyboardInterrupt`` raised while C code has called back into Python, and
     numba's compiler does that throughout a compilation (the first run of a fresh install
     compiles for several seconds), so a single one would be lost and the command run on.
+    The dropped ones are not reported (``sys.unraisablehook``): the next one is raised.
     A no-op outside the main thread, and where SIGINT is not Python's default handler (a
     background job ignores it; a host program has its own).
 
@@ -208,6 +211,12 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
             repeater[0].start()
         raise KeyboardInterrupt
 
+    def quiet(unraisable: Any) -> None:  # a dropped one: raised again, not worth a traceback
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            previous_hook(unraisable)
+
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = quiet
     signal.signal(signal.SIGINT, handler)
     try:
         yield
@@ -216,3 +225,4 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
         if repeater:
             repeater[0].join()  # its last repeat, if any, reaches the handler above
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        sys.unraisablehook = previous_hook
