@@ -14,8 +14,13 @@
     of the way from neutral to its limit (``crank %``). Goals on the tuning set: total
     specific-force RMSE -25 %, angular no worse, no more clamping.
 
+``--start PRESET|FILE`` tunes from another washout (default: the default washout);
+``--profile ground|air`` tunes that flight-phase profile of it (``tune --profile``: the
+manoeuvres run with their flight phase, through the profiled cueing's per-tick path).
+
 Run: .venv/bin/python benchmarks/bench_cueing.py [--budget 200] [--seed 0] [--workers K]
-     [--platform ceart] [--tuned FILE.toml] [--out FILE.toml]
+     [--platform ceart] [--start PRESET] [--profile ground|air] [--tuned FILE.toml]
+     [--out FILE.toml]
 """
 
 from __future__ import annotations
@@ -122,6 +127,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--platform", default="ceart")
+    ap.add_argument("--start", default="default", help="washout to tune from (preset or file)")
+    ap.add_argument("--profile", help="tune this flight-phase profile of the start (ground, air)")
     ap.add_argument("--tuned", help="score this washout file instead of tuning one")
     ap.add_argument("--out", help="keep the tuned file here (default: a temporary file)")
     args = ap.parse_args()
@@ -135,13 +142,14 @@ def main() -> None:
         + " ".join(f"{v:.3f}" for v in np.concatenate([reach[1, :3], np.degrees(reach[1, 3:])]))
     )
     default = WashoutParams.preset("default")
+    start = WashoutParams.load(args.start)
     tuning_set = tuple(load_spec(s) for s in DEFAULT_MANOEUVRES)
     held = tuple(load_spec(s) for s in DEFAULT_HOLDOUT)
     problem = tuning.TuningProblem(geometry, tuning_set, reach)
     held_problem = tuning.TuningProblem(geometry, held, reach)
 
     print("\n(a) time")
-    _time_one_evaluation(problem, default)
+    _time_one_evaluation(problem, start)
     with tempfile.TemporaryDirectory() as tmp:
         if args.tuned:
             tuned = WashoutParams.load(args.tuned)
@@ -153,15 +161,19 @@ def main() -> None:
             result = app.tune(
                 out=out,
                 platform=args.platform,
+                washout=args.start,
                 budget=args.budget,
                 seed=args.seed,
                 workers=workers,
                 progress=False,
+                profile=args.profile,
             )
             wall = time.perf_counter() - t0
             verdict = "goal met" if wall < GOAL_S else "goal NOT met"
+            profile = f" --profile {args.profile}" if args.profile else ""
             print(
-                f"motionbase tune --budget {args.budget} --seed {args.seed} --workers {workers}: "
+                f"motionbase tune --washout {args.start}{profile} --budget {args.budget} "
+                f"--seed {args.seed} --workers {workers}: "
                 f"{wall:.1f} s wall ({wall / args.budget:.2f} s per evaluation, everything "
                 f"included), {result.result.generations} generations; {verdict} "
                 f"(< {GOAL_S:.0f} s)"
@@ -170,6 +182,11 @@ def main() -> None:
 
     print("\n(b) quality: the tuned parameters against the default washout")
     before, after = problem.evaluate(default), problem.evaluate(tuned)
+    if args.start != "default":
+        print(
+            f"the start set {args.start}: cost {problem.evaluate(start).cost:.4f} "
+            f"(default {before.cost:.4f}, tuned {after.cost:.4f})"
+        )
     _rows("tuning set", before, after)
     _rows("held out (not tuned on)", held_problem.evaluate(default), held_problem.evaluate(tuned))
     goals = [
