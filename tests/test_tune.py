@@ -396,7 +396,7 @@ def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):
         (["--budget", "0"], "expected a whole number >= 1"),
         (["--recordings", "notes.txt"], "MCAP file"),
         (["--profile", "taxi"], "--profile taxi: unknown"),
-        (["--cueing", "mpc", "--profile", "air"], "cannot be tuned yet"),
+        (["--cueing", "mpc", "--profile", "air"], "no flight-phase profiles"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):

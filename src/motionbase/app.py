@@ -1276,8 +1276,8 @@ def tune(
             )
         if not hasattr(start, "with_profile"):
             raise ConfigError(
-                f"--profile: the {cueing} cueing's profiles cannot be tuned yet; tune its "
-                "file's own values (leave --profile out) or use --cueing classical"
+                f"--profile: the {cueing} cueing's parameter files have no flight-phase "
+                "profiles; leave --profile out, or tune a classical washout (--cueing classical)"
             )
     recordings = list(recordings or [])
     scripts = list(DEFAULT_MANOEUVRES if scripts is None and not recordings else scripts or [])
