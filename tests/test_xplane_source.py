@@ -166,7 +166,8 @@ def test_rref_subscribes_converts_and_unsubscribes(xplane):
     url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:0"
     with XPlaneSource(url, rate_hz=100) as src:
         it = iter(src)
-        state = _until(src, it, lambda s: src.fresh)
+        # the motion datarefs come at 100 Hz, the version at 1 Hz: either may come first
+        state = _until(src, it, lambda s: src.fresh and src.stats.extra.get("X-Plane version"))
         f, w, att = expected(TURN)
         np.testing.assert_allclose(state.specific_force, f, atol=1e-9)
         np.testing.assert_allclose(state.angular_velocity, w, atol=1e-9)
