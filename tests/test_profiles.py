@@ -259,7 +259,7 @@ def test_a_phase_reversal_mid_blend_is_continuous():
 def test_a_profiled_plugin_logs_the_diagnostics_of_the_profile_it_runs():
     """A cueing plug-in with diagnostics keeps its topic's schema under profiles, and the
     diagnostics are those of the profile the weights go to."""
-    from motionbase.io.pipeline_log import cueing_message
+    from motionbase.io.pipeline_log import cueing_schema
 
     class Counting(ClassicalWashout):
         name = "test_counting"
@@ -272,8 +272,9 @@ def test_a_profiled_plugin_logs_the_diagnostics_of_the_profile_it_runs():
     cueing = ProfiledCueing(Counting, params, DT)
     cueing.set_flight_phase(True)
     cueing.advance(np.array([0.0, 0.0, -G, 0.0, 0.0, 0.0]), np.empty(6))
-    topic, message = cueing_message(cueing)
-    assert topic == "/cueing/test_counting"
+    assert cueing.name == "test_counting"  # its topic: /cueing/test_counting
+    assert cueing_schema(cueing) == Counting.diagnostics_schema
+    message = cueing.diagnostics()
     assert message == {"tilt_limit_deg": params.for_profile("ground").tilt_angle_limit_deg}
     assert params.for_profile("ground").tilt_angle_limit_deg != params.tilt_angle_limit_deg
 

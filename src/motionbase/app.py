@@ -1249,7 +1249,7 @@ def tune(
     )
     from motionbase.platform import Rus6Geometry
     from motionbase.report import rus6_reach
-    from motionbase.stopping import Stopped
+    from motionbase.stopping import raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
 
     spec = cueing_spec(cueing)
@@ -1286,8 +1286,7 @@ def tune(
         raise ConfigError("tune: no manoeuvres; give --scripts NAME,... or --recordings FILE")
 
     def loaded(load: Callable[[str], Manoeuvre], name: str) -> Manoeuvre:
-        if stop:  # each JSBSim script takes a second or more to fly
-            raise Stopped(stop.reason)
+        raise_if_stopped(stop)  # each JSBSim script takes a second or more to fly
         return load(name)
 
     manoeuvres = [loaded(load_spec, s) for s in scripts]
@@ -1324,8 +1323,7 @@ def tune(
     if held and not stop:
         held_problem = tuning.TuningProblem(geometry, tuple(held), reach, cueing=cueing)
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
-    if stop:  # also one that came while the held-out flights were scored: nothing written
-        raise Stopped(stop.reason)
+    raise_if_stopped(stop)  # also one during the held-out scoring: nothing is written
     wall = time.monotonic() - t0
     description, header = tuning.describe_result(
         result, platform=platform_name, start=start_name, holdout=holdout_scores

@@ -32,6 +32,7 @@ __all__ = [
     "Stopped",
     "insistent_ctrl_c",
     "install_signal_stop",
+    "raise_if_stopped",
     "stop_on_signals",
 ]
 
@@ -107,6 +108,12 @@ class Stopped(Exception):
         name = self.reason.split()[0] if self.reason else ""
         sig = getattr(signal, name, None) if name.startswith("SIG") else None
         return 128 + int(sig) if sig is not None else 1
+
+
+def raise_if_stopped(stop: StopRequest | None) -> None:
+    """Raise :class:`Stopped` when ``stop`` is set: where a job that moves nothing gives up."""
+    if stop:
+        raise Stopped(stop.reason)
 
 
 def install_signal_stop(

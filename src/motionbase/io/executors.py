@@ -36,7 +36,7 @@ from multiprocessing.connection import wait
 from typing import TYPE_CHECKING
 
 from motionbase.errors import ConfigError, SourceError
-from motionbase.stopping import Stopped, StopRequest
+from motionbase.stopping import StopRequest, raise_if_stopped
 
 if TYPE_CHECKING:
     from motionbase.tuning import EvaluateMany, SetScore, TuningProblem
@@ -106,7 +106,7 @@ def open_evaluator(
         def evaluate_here(candidates: list[WashoutParams]) -> list[SetScore]:
             scores = []
             for params in candidates:
-                _check(stop)
+                raise_if_stopped(stop)
                 scores.append(problem.evaluate(params))
             return scores
 
@@ -129,11 +129,6 @@ def open_evaluator(
     pool.shutdown(wait=True)
 
 
-def _check(stop: StopRequest | None) -> None:
-    if stop:
-        raise Stopped(stop.reason)
-
-
 def _results(futures: list[Future], stop: StopRequest | None) -> list[SetScore]:
     """The futures' results in order; on a stop, cancel those not started and raise
     :class:`~motionbase.stopping.Stopped` (the caller's shutdown waits for the others)."""
@@ -142,7 +137,7 @@ def _results(futures: list[Future], stop: StopRequest | None) -> list[SetScore]:
         if stop:
             for future in pending:
                 future.cancel()
-            raise Stopped(stop.reason)
+            raise_if_stopped(stop)
         _, pending = wait_futures(pending, timeout=None if stop is None else STOP_POLL_S)
     return [future.result() for future in futures]
 

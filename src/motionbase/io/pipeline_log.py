@@ -69,16 +69,6 @@ def cueing_schema(cueing: Any) -> tuple[str, Any] | None:
     return CUEING_DIAGNOSTICS.get(cueing.name) or getattr(cueing, "diagnostics_schema", None)
 
 
-def cueing_message(cueing: Any) -> tuple[str, dict[str, Any]] | None:
-    """The ``/cueing/<name>`` message of the cueing's last tick
-    (:meth:`~motionbase.washout.cueing.Cueing.diagnostics`), or None: no diagnostics, or
-    no schema for them (:func:`cueing_schema`)."""
-    if cueing_schema(cueing) is None:
-        return None
-    diagnostics = cueing.diagnostics()
-    return None if diagnostics is None else (f"/cueing/{cueing.name}", diagnostics)
-
-
 def tick_messages(out) -> list[tuple[str, dict[str, Any]]]:
     """The ``(topic, message)`` pairs of one output, ``/tf`` and ``/health`` aside."""
     t = out.t
@@ -136,7 +126,7 @@ class PipelineLog:
         That rate, messages per second of source time per topic.
     cueing : Cueing, optional
         The pipeline's cueing: its per-tick diagnostics go on ``/cueing/<name>``
-        (:func:`cueing_message`), read right after the tick it describes.
+        (:func:`cueing_schema`), read right after the tick it describes.
     """
 
     def __init__(
@@ -151,15 +141,17 @@ class PipelineLog:
         live_rate_hz: float = LIVE_RATE_HZ,
         cueing: Any = None,
     ) -> None:
-        self._cueing = cueing
         self.path = Path(path)
         schema = cueing_schema(cueing)
+        #: the cueing whose diagnostics go on ``/cueing/<name>`` (None: it has no schema)
+        self._cueing = cueing if schema is not None else None
+        self._cueing_topic = f"/cueing/{cueing.name}" if schema is not None else ""
         self._logger: McapLogger | None = McapLogger(
             self.path,
             metadata,
             live=live,
             live_rate_hz=live_rate_hz,
-            topics={f"/cueing/{cueing.name}": schema} if schema is not None else None,
+            topics={self._cueing_topic: schema} if schema is not None else None,
         )
         self._scene = SceneBuilder(kinematics) if kinematics is not None else None
         self._scene_period = 1.0 / SCENE_RATE_HZ
@@ -212,8 +204,8 @@ class PipelineLog:
         t = out.t
         self._last_t = t
         logger.add_many(t, tick_messages(out))
-        if self._cueing is not None and (diag := cueing_message(self._cueing)) is not None:
-            logger.add(diag[0], t, diag[1])
+        if self._cueing is not None and (diagnostics := self._cueing.diagnostics()) is not None:
+            logger.add(self._cueing_topic, t, diagnostics)
         if out.servo_deg is None:
             logger.add_transform(t, out.platform_pose)
         if self._scene is not None:
