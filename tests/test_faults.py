@@ -8,6 +8,7 @@ message (exit status 2 for what a user can fix), and a log that reads back up to
 from __future__ import annotations
 
 import math
+import os
 import re
 import resource
 import signal
@@ -261,6 +262,60 @@ def test_any_failing_sink_parks_through_the_others_then_one_clear_error(tmp_path
     assert len(msgs["/aircraft/state"]) < 900  # it stopped at the failure, not at the end
     config, q_log, _ = check_logged_commands(out)
     assert np.array_equal(q_log[-1], park_angles(config))
+
+
+class WriterKiller:
+    """A sink that kills this process's MCAP writer processes (``kill -9``) at tick ``n``:
+    the log's writer vanishes mid-run, as after an out-of-memory kill."""
+
+    label = "writer-killer"
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.killed: list[int] = []
+
+    def __enter__(self) -> WriterKiller:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def write(self, out) -> None:
+        self.n -= 1
+        if self.n == 0:
+            for task in Path("/proc/self/task").iterdir():
+                for pid in (task / "children").read_text().split():
+                    cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+                    if b"log_writer.py" in cmdline:
+                        os.kill(int(pid), signal.SIGKILL)
+                        self.killed.append(int(pid))
+
+
+def test_a_vanished_log_writer_parks_through_the_drives_then_one_clear_error(tmp_path):
+    out = tmp_path / "vanished.mcap"
+    config = app.load_config()
+    drive = UdpDrive()
+    killer = WriterKiller(360)
+    try:
+        with pytest.raises(SinkError) as info:
+            app._drive(
+                "test", config, FailingSource(900, RuntimeError("unused")), out, paced=False,
+                progress=False, extra_sinks=[killer], outputs=[drive.url()],
+            )  # fmt: skip
+        drive.drain()
+    finally:
+        drive.close()
+    assert len(killer.killed) == 1
+    message = str(info.value)
+    assert "\n" not in message
+    assert str(out) in message and "writer process" in message and "parked" in message
+    t, q = drive.angles()
+    np.testing.assert_allclose(q[-1], park_angles(config), atol=math.radians(1e-4))
+    check_wire_limits(t, q, config.geometry.max_speed, config.geometry.max_accel)
+    with McapSource(out) as src:  # readable up to the last chunk the writer finished
+        states = list(src)
+        assert src.truncated
+    assert len(states) < 360  # (how much is on disk depends on how far the writer had got)
 
 
 def test_dev_full_and_an_uncreatable_folder_are_one_line_errors(tmp_path):

@@ -415,6 +415,7 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
                 logger.add("/health", t, {"t": t, "samples": k})
             if k % 50 == 0:
                 time.sleep(0.002)  # let the server's queue drain (its backlog is 1024)
+        logger.flush()  # the last records to the writer process (it gets them in batches)
         deadline = time.monotonic() + 10  # the server sends on its own thread: let it
         while len(got["/platform/actuators"]) < 60 * seconds and time.monotonic() < deadline:
             time.sleep(0.01)

@@ -400,6 +400,9 @@ def test_unfinished_chunk_on_disk_reads_as_a_cut(tmp_path: Path, compression: st
     flushed = path.stat().st_size
     for k in range(201, 1000):  # 0.8 s more: no flush due, the chunk only grows
         logger.add("/washout/pose", k / 1000, {"pose": rng.normal(size=6)})
+    deadline = time.monotonic() + 5.0  # the writer process takes the records as they come
+    while path.stat().st_size <= flushed + 10_000 and time.monotonic() < deadline:
+        time.sleep(0.01)
     assert path.stat().st_size > flushed + 10_000, "the unfinished chunk is not on disk"
     times = [m["t"] for m in read_messages(path)["/washout/pose"]]
     assert times == [k / 1000 for k in range(1, 201)]
@@ -445,12 +448,82 @@ def test_killed_writer_leaves_a_readable_prefix(tmp_path: Path) -> None:
             proc.kill()
             proc.wait()
     assert proc.returncode == -signal.SIGKILL
-    got = read_messages(path)
+    got = read_messages(path)  # at once: the writer process may still be finishing the file
     times = [m["t"] for m in got["/aircraft/state"]]
     assert times == [k / 120 for k in range(1, len(times) + 1)]
     # at most about a second (one chunk) is lost
     assert times[-1] >= last - 1.0 - 1 / 120
     assert len(got["/washout/pose"]) in (len(times), len(times) - 1)
+    # the writer process reads to the end of its input and finishes the file: only what the
+    # killed process had not handed over is lost (at most 16 KiB, here about 30 ticks)
+    summary = _finished_summary(path, timeout_s=20)
+    got = read_messages(path)
+    times = [m["t"] for m in got["/aircraft/state"]]
+    assert times == [k / 120 for k in range(1, len(times) + 1)]
+    assert times[-1] >= last - 0.5
+    assert summary.statistics.message_count == sum(len(v) for v in got.values())
+
+
+def _finished_summary(path: Path, timeout_s: float):
+    """The summary of ``path`` once its writer has finished it (None before the timeout)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with open(path, "rb") as fh:
+            try:
+                summary = make_reader(fh).get_summary()
+            except Exception:  # noqa: BLE001 - not finished yet: no footer to read
+                summary = None
+        if summary is not None or time.monotonic() > deadline:
+            return summary
+        time.sleep(0.05)
+
+
+def _writer_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as fh:  # a zombie is not alive
+        return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_the_writer_process_ignores_the_terminals_signals(tmp_path: Path) -> None:
+    """Ctrl-C at a terminal signals the whole foreground group: the writer is not in it, and
+    a stop signal sent to it straight does not cut the log either (the pipeline's close
+    ends it)."""
+    path = tmp_path / "signals.mcap"
+    with McapLogger(path, CONFIG) as logger:
+        pid = logger.writer_pid
+        assert pid is not None and pid != os.getpid()
+        assert os.getsid(pid) != os.getsid(0) and os.getpgid(pid) != os.getpgid(0)
+        for k in range(1, 121):
+            logger.add("/washout/pose", k / 120, {"pose": [k * 1e-3] * 6})
+            if k == 60:
+                for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
+                    os.kill(pid, sig)
+        logger.flush()
+        assert _writer_alive(pid)
+    assert not _writer_alive(pid)  # finish() waited for it
+    assert len(read_messages(path)["/washout/pose"]) == 120
+
+
+def test_a_vanished_writer_process_is_one_clear_error(tmp_path: Path) -> None:
+    path = tmp_path / "vanished.mcap"
+    logger = McapLogger(path, CONFIG).start()
+    for k in range(1, 241):  # two seconds: one chunk on disk
+        logger.add("/washout/pose", k / 120, {"pose": [k * 1e-3] * 6})
+    logger.flush()
+    os.kill(logger.writer_pid, signal.SIGKILL)
+    with pytest.raises(SinkError) as err:
+        for k in range(241, 120 * 60):  # the records reach the pipe 16 KiB at a time
+            logger.add("/washout/pose", k / 120, {"pose": [k * 1e-3] * 6})
+    msg = str(err.value)
+    assert str(path) in msg and "writer process" in msg and "\n" not in msg
+    with pytest.raises(SinkError, match="writer process"):  # the same error after it
+        logger.add("/washout/pose", 100.0, {"pose": [0.0] * 6})
+    logger.finish()  # reported already: no second error
+    times = [m["t"] for m in read_messages(path)["/washout/pose"]]
+    assert times[: 2 * 120] == [k / 120 for k in range(1, 241)]  # what was on disk stays
 
 
 _CHILD_FULL = """

@@ -176,16 +176,22 @@ def test_a_killed_run_leaves_a_readable_log(tmp_path):
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(timeout=10)
-    with McapSource(out) as source:
-        states = list(source)
-        assert source.truncated
+    # the log's writer process outlives the run: it finishes the file with what it was given
+    deadline = time.monotonic() + 20
+    while True:
+        with McapSource(out) as source:
+            states = list(source)
+            truncated = source.truncated
+        if not truncated or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert not truncated, "the writer process did not finish the log of the killed run"
     assert len(states) > 120  # more than a second survived
     t = np.array([s.t for s in states])
-    assert np.all(np.diff(t) > 0)  # a gap-free prefix
-    # and the replay command reads what survived
+    assert np.all(np.diff(t) > 0)  # gap-free
+    # and the replay command reads it
     result = app.replay(out, progress=False)
     assert result.summary.samples >= len(states)
-    assert any("truncated" in n for n in result.notes)
 
 
 @pytest.mark.parametrize("busy_wait", [False, True], ids=["sleeping", "busy-waiting"])

@@ -288,10 +288,17 @@ def test_sigkill_leaves_a_readable_log_whose_commands_are_all_safe(tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == -signal.SIGKILL
-    with McapSource(out) as src:
-        states = list(src)
-        assert src.truncated
+    # the log's writer process outlives the run and finishes the file with what it was given
+    deadline = time.monotonic() + 20
+    while True:
+        with McapSource(out) as src:
+            states = list(src)
+            truncated = src.truncated
+        if not truncated or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert not truncated, "the writer process did not finish the log of the killed run"
     assert len(states) > 120
     check_logged_commands(out)  # whatever survived is a safe, gap-free command sequence
-    result = app.replay(out, progress=False)  # the recover path reads what survived
-    assert any("truncated" in n for n in result.notes)
+    result = app.replay(out, progress=False)
+    assert result.summary.samples >= len(states)

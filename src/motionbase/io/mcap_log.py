@@ -5,35 +5,45 @@ chunks, compression, CRCs, message and summary indexes are its work): a standard
 MCAP file that Foxglove and the ``mcap`` library read. It holds the Header, the
 metadata record ``"motionbase"`` (``config``, ``version``, ``log_format``), then
 chunks (each channel's Schema and Channel records in the chunk of its first
-message), and the summary. Each logger has its own :class:`foxglove.Context`, so
-several logs in one process never mix.
+message), and the summary.
+
+The writer runs in a process of its own
+    :class:`McapLogger` encodes each message (orjson, on the caller's thread) and writes
+    the bytes to a pipe; a writer process (:mod:`motionbase.io.log_writer`, started by
+    ``start()`` and ended by ``finish()``) logs them with the SDK. The SDK compresses
+    and writes on the thread that calls it, holding the interpreter lock: in the
+    pipeline's process that work (about 80 us for each 64 KiB lz4 block, and every
+    wait for the disk) fell on the real-time tick, now and then, and set its 99th
+    percentile; in a process of its own it runs on the other core. The caller writes
+    its records to the pipe once they reach 16 KiB (a few ticks) or span 0.1 s of
+    source time, and at ``flush()`` and ``finish()``. A write error, or the writer's
+    end, is raised as a :class:`SinkError` by the next call that writes to the pipe (or
+    by ``finish()``).
 
 Live view
-    With ``live=`` (``--live [HOST:]PORT``) a Foxglove WebSocket server serves the
-    log's topics on a second context of its own, with the same channels. Each message
-    is encoded once; the bytes go to the file always and to the server at most
-    :data:`LIVE_RATE_HZ` (60) times per second of source time per topic (a screen's
-    rate; the file keeps every tick): a topic's message goes live when its log time is
-    on or past the topic's 60 Hz grid, so on a 1 kHz run about one tick in 17, on a
-    120 Hz run every other tick, and every message of the slower topics
-    (``/platform/scene`` at 30 Hz, ``/health``, the ``world -> base`` transform).
-    The caller's thread only queues the bytes: a thread of the logger hands them to the
-    server. (Handing them over on the caller's thread made it wait, now and then, for
-    the server's own threads: on a busy machine a 1 kHz loop then overran its tick
-    several times as often, see ``benchmarks/RESULTS.md``, issue 17.) The file does
-    not depend on the live feed: the same input gives the same file, client or not.
+    With ``live=`` (``--live [HOST:]PORT``) the writer process also serves the log's
+    topics on a Foxglove WebSocket server, with the same channels on a context of its
+    own. Each message is encoded once; the bytes go to the file always and to the
+    server at most :data:`LIVE_RATE_HZ` (60) times per second of source time per topic
+    (a screen's rate; the file keeps every tick): a topic's message goes live when its
+    log time is on or past the topic's 60 Hz grid, so on a 1 kHz run about one tick in
+    17, on a 120 Hz run every other tick, and every message of the slower topics
+    (``/platform/scene`` at 30 Hz, ``/health``, the ``world -> base`` transform), and
+    only to topics a client subscribed to. The file does not depend on the live feed:
+    the same input gives the same file, client or not.
 
 Crash safety
-    The writer compresses messages into the chunk in progress as they come. The
-    logger finishes the chunk and hands it to the operating system as soon as it
-    spans ``flush_interval_s`` of source time (1 s by default); the writer also
-    finishes one when it grows past ``chunk_size`` bytes. A crash or ``kill -9``
-    therefore loses at most the chunk in progress, about the last second. A file
-    cut anywhere is read back up to its last complete chunk by
-    :class:`~motionbase.io.mcap_source.McapSource` (an unfinished chunk on disk
-    still has the writer's placeholder length, which the reader rejects).
-    ``fsync=True`` also survives a power cut, at the cost of one ``fsync`` per
-    chunk.
+    The writer compresses messages into the chunk in progress as they come. It
+    finishes the chunk and hands it to the operating system as soon as it spans
+    ``flush_interval_s`` of source time (1 s by default), or grows past
+    ``chunk_size`` bytes. A crash or ``kill -9`` of the pipeline's process loses only
+    the records it had not yet written to the pipe (at most 16 KiB, 0.1 s): the writer
+    process reads to the end of its input and finishes the file. A kill of both (or of
+    the writer) loses at most the chunk in progress, about the last second. A file cut
+    anywhere is read back up to its last complete chunk by
+    :class:`~motionbase.io.mcap_source.McapSource` (an unfinished chunk on disk still
+    has the writer's placeholder length, which the reader rejects). ``fsync=True``
+    also survives a power cut, at the cost of one ``fsync`` per chunk.
 
 Exact numbers
     Messages are encoded here, with orjson: floats in their shortest round-trip
@@ -42,39 +52,34 @@ Exact numbers
     rejects) writes it as the string ``"NaN"``, ``"Infinity"`` or
     ``"-Infinity"`` (see :mod:`motionbase.io.schemas`).
 
-Where the time goes
-    Everything runs on the caller's thread (but the live hand-over): encoding, the writer's ``log``
-    (which holds the interpreter lock, so a writer thread would only add thread
-    switches) and its compression, which works a block at a time: the message
-    that fills a block (lz4: 64 KiB, zstd: 128 KiB) and the tick that finishes a
-    chunk pay for compressing it. lz4 is the default because those stalls are
-    about three times shorter than zstd's (about 80 us against 220 us per block
-    here), for files about 1.7 times larger. zstd suits runs where the file's
-    size matters more than a tick's worst case (``compression="zstd"``).
+Compression
+    lz4 by default; ``compression="zstd"`` gives files about 1.7 times smaller for
+    about three times the writer's work (which is no longer the tick's).
     ``benchmarks/RESULTS.md`` (issue 14) has the figures.
 """
 
 from __future__ import annotations
 
-import errno
+import contextlib
+import fcntl
 import json
 import logging
 import math
 import os
-import queue
-import threading
+import subprocess
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-import foxglove
 import numpy as np
 import orjson
-from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from motionbase.errors import ConfigError, SinkError
+from motionbase.io import log_writer
+from motionbase.io.log_writer import FLAG_ALWAYS_LIVE, OP_CLOSE, OP_FLUSH, OP_LOG, OP_START
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
 from motionbase.physics import quaternion_from_euler_zyx
@@ -87,14 +92,18 @@ METADATA_NAME = "motionbase"
 #: Version of the message layout written in the metadata (key ``log_format``).
 LOG_FORMAT = "1"
 
-_COMPRESSIONS = {"lz4": MCAPCompression.Lz4, "zstd": MCAPCompression.Zstd, "none": None}
+_COMPRESSIONS = ("lz4", "zstd", "none")
+_HEADER = log_writer.HEADER
+_WRITER_SCRIPT = log_writer.__file__
+#: pending records are written to the writer process once they are this long (a few ticks)
+_SEND_BYTES = 16 * 1024
+_SEND_NS = 100_000_000  # ... or once they span 0.1 s of source time
+_PIPE_BYTES = 1 << 20  # the writer process's pipe: about 3 s of a 1 kHz log with its scene
 _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
 _SEC = 1_000_000_000
 _WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
 #: The most messages per second of source time a live client gets on one topic.
 LIVE_RATE_HZ = 60.0
-_LIVE_SLACK_NS = 1_000  # a tick 1 us before its grid point is on it (rounded tick times)
-_FIRST = -(2**63)  # the live grid of a topic starts at its first message
 
 
 def _json_default(obj: Any) -> Any:
@@ -209,16 +218,6 @@ class LiveAddress:
         return f"live view: {self.url(port)} (Foxglove: Open connection > Foxglove WebSocket)"
 
 
-def _serve_live(jobs: queue.SimpleQueue) -> None:
-    """The live feed's thread: log each queued ``(channel, data, log_time)`` until ``None``."""
-    while (job := jobs.get()) is not None:
-        channel, data, ns = job
-        try:
-            channel.log(data, log_time=ns)
-        except Exception as exc:  # noqa: BLE001 - the live view never stops the run
-            log.warning("live view: %s", exc)
-
-
 def _checked_topics(
     topics: Mapping[str, tuple[str, Mapping[str, Any]]],
 ) -> dict[str, tuple[str, Mapping[str, Any]]]:
@@ -236,66 +235,9 @@ def _checked_topics(
     return dict(topics)
 
 
-def _channel(topic: str, name: str, schema: Any, context: foxglove.Context) -> foxglove.Channel:
-    """A JSON channel of ``topic`` with its JSON Schema, on ``context``."""
-    return foxglove.Channel(
-        topic,
-        schema=foxglove.Schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode()),
-        message_encoding="json",
-        context=context,
-    )
-
-
-class _LogFile:
-    """The log's file as the writer sees it; keeps the first write error for the logger.
-
-    After an error the file takes no more bytes but keeps counting positions, so
-    the writer goes on as if they were written: it finishes without a cascade of
-    errors (each of which it would print), the logger raises the one
-    :class:`SinkError`, and the file stays as it was at the error, readable up to
-    its last complete chunk.
-    """
-
-    def __init__(self, path: Path, fsync: bool) -> None:
-        self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
-        self._fsync = fsync
-        self.error: OSError | None = None
-        self._pos = self._end = 0  # positions after an error
-
-    def write(self, data: bytes) -> int:
-        if self.error is None:
-            try:
-                return self._fh.write(data)
-            except OSError as exc:  # nothing of `data` was written
-                self._failed(exc)
-        self._pos += len(data)
-        self._end = max(self._end, self._pos)
-        return len(data)
-
-    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
-        if self.error is None:
-            return self._fh.seek(offset, whence)
-        self._pos = offset + (0, self._pos, self._end)[whence]
-        return self._pos
-
-    def flush(self) -> None:
-        if self._fsync and self.error is None:
-            try:
-                os.fsync(self._fh.fileno())
-            except OSError as exc:
-                self._failed(exc)
-
-    def _failed(self, exc: OSError) -> None:
-        self.error = exc
-        self._pos = self._fh.tell()
-        self._end = self._fh.seek(0, os.SEEK_END)
-
-    def close(self) -> None:
-        self._fh.close()  # unbuffered: nothing left to write
-
-
 class McapLogger:
-    """Write pipeline topics to an MCAP file through the Foxglove SDK's writer.
+    """Write pipeline topics to an MCAP file through the Foxglove SDK's writer, which runs
+    in a process of its own (see the module's notes).
 
     Lifecycle: ``start()`` -> ``add(...)``/``add_many(...)``/``add_transform(...)``
     -> ``finish()``; or use it as a context manager (enter starts, exit finishes,
@@ -316,7 +258,7 @@ class McapLogger:
     chunk_size : int
         Uncompressed size, bytes, past which the writer finishes a chunk.
     compression : {"lz4", "zstd", "none"}
-        Chunk compression: lz4 (the shortest stalls, see the module's notes), or
+        Chunk compression: lz4 (the least work for the writer process), or
         zstd at level 1 (files about 1.7 times smaller, as small as zstd's default
         level on these JSON chunks, and faster).
     flush_interval_s : float
@@ -326,9 +268,9 @@ class McapLogger:
         Also ``os.fsync`` after every chunk (survives power loss, costs time).
     live : LiveAddress, optional
         Also serve every topic live to Foxglove: a WebSocket server (the Foxglove SDK's)
-        on a context of its own, started by ``start()`` before the file is created and
-        stopped by ``finish()`` after the file is finished. A message is encoded once; it
-        goes to the file, and to the clients subscribed to its topic at most
+        in the writer process, on a context of its own, started by ``start()`` before the
+        file is created and stopped by ``finish()`` after the file is finished. A message
+        is encoded once; it goes to the file, and to the clients subscribed to its topic at most
         ``live_rate_hz`` times per second of source time.
     live_rate_hz : float
         The live feed's most messages per second of source time per topic (default
@@ -362,7 +304,7 @@ class McapLogger:
         self.path = Path(path)
         self.live = live
         self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
-        self._server: Any = None
+        self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
         self._live_period_ns = round(1e9 / live_rate_hz)
@@ -380,83 +322,79 @@ class McapLogger:
         self.chunk_size = chunk_size
         self.flush_interval_s = float(flush_interval_s)
         self.fsync = fsync
-        self._flush_interval_ns = round(flush_interval_s * 1e9)
-        self._file: _LogFile | None = None
-        self._context: foxglove.Context | None = None
-        self._writer: Any = None
-        self._channels: dict[str, foxglove.Channel] = {}
-        self._live_context: foxglove.Context | None = None
-        # topic -> [live channel, log time (ns) from which its next message goes live]
-        self._live: dict[str, list] | None = None
-        self._live_queue: queue.SimpleQueue | None = None
-        self._live_thread: threading.Thread | None = None
+        self._process: subprocess.Popen | None = None
+        self._data_fd = -1  # the pipe to the writer process
+        self._reply: Any = None  # its answers, one JSON line each
+        self._port: int | None = None
         self._state = "new"
         self._failure = ""
         self._message_count = 0
-        self._chunk_start_ns = -1  # log time of the first message since the last flush
         self._last_static_ns = -1
+        self._pending = bytearray()  # records not yet written to the writer process
+        self._pending_ns = -1  # log time of the first of them
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> McapLogger:
-        """Create the file and write the header and the configuration metadata."""
+        """Start the writer process: it creates the file and writes the header and the
+        configuration metadata (on disk when this returns)."""
         if self._state != "new":
             raise SinkError(f"{self.path}: MCAP logger already started")
+        from motionbase import __version__
+
         try:
             config_json = json.dumps(json_safe(self.metadata), allow_nan=False)
         except TypeError as exc:
             raise SinkError(f"{self.path}: configuration cannot be logged: {exc}") from None
-        # the channels only hold a weak reference to their context: keep it alive
-        self._context = foxglove.Context()
-        if self.live is not None:
-            self._live_context = foxglove.Context()
-            self._start_server(self.live)  # first: a port in use leaves no file behind
-        try:
-            self._file = _LogFile(self.path, self.fsync)
-        except OSError as exc:
-            self._stop_server()
-            raise SinkError(
-                f"{self.path}: cannot create the MCAP log: {exc.strerror or exc} "
-                "(check the folder exists and is writable)"
-            ) from None
+        config = {
+            "path": str(self.path),
+            "file": os.path.abspath(self.path),
+            "compression": self.compression,
+            "chunk_size": self.chunk_size,
+            "flush_interval_ns": round(self.flush_interval_s * 1e9),
+            "fsync": self.fsync,
+            "metadata_name": METADATA_NAME,
+            "metadata": {"config": config_json, "version": __version__, "log_format": LOG_FORMAT},
+            "topics": [[topic, name, schema] for topic, (name, schema) in self.topics.items()],
+            "live": None if self.live is None else [self.live.host, self.live.port],
+            "live_period_ns": self._live_period_ns,
+        }
+        self._spawn()
         self._state = "open"
         try:
-            self._open_writer(config_json)
+            payload = json.dumps(config).encode()
+            self._pending += _HEADER.pack(OP_START, 0, 0, len(payload), 0) + payload
+            self._send()
+            self._port = self._answer().get("port")
         except BaseException:
             self._state = "failed"  # reported by this exception, not again by finish()
             self.finish()
             raise
         return self
 
-    def _open_writer(self, config_json: str) -> None:
-        from motionbase import __version__
-
-        context = self._context
-        options = MCAPWriteOptions(
-            compression=_COMPRESSIONS[self.compression],
-            chunk_size=self.chunk_size,
-            compression_level=1 if self.compression == "zstd" else 0,
-            # zstd's worker threads get a chunk's data only at its end (their jobs
-            # are larger than a chunk) and the tick waits for them: a longer stall
-            compression_threads=0,
-        )
-        self._writer = foxglove.open_mcap(self._file, context=context, writer_options=options)
-        self._writer.write_metadata(
-            METADATA_NAME,
-            {"config": config_json, "version": __version__, "log_format": LOG_FORMAT},
-        )
-        for topic, (name, schema) in self.topics.items():
-            self._channels[topic] = _channel(topic, name, schema, context)
-        if self._live_context is not None:
-            self._live = {
-                topic: [_channel(topic, name, schema, self._live_context), _FIRST]
-                for topic, (name, schema) in self.topics.items()
-            }
-            self._live_queue = queue.SimpleQueue()
-            self._live_thread = threading.Thread(
-                target=_serve_live, args=(self._live_queue,), name="motionbase-live", daemon=True
+    def _spawn(self) -> None:
+        """Start the writer process, its data and reply pipes (the front keeps one end each)."""
+        data_r, data_w = os.pipe()
+        reply_r, reply_w = os.pipe()
+        with contextlib.suppress(OSError):  # room for a few seconds of a 1 kHz log
+            fcntl.fcntl(data_w, fcntl.F_SETPIPE_SZ, _PIPE_BYTES)
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-P", _WRITER_SCRIPT, str(data_r), str(reply_w)],
+                pass_fds=(data_r, reply_w),
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,  # the terminal's signals go to the pipeline only
             )
-            self._live_thread.start()
-        self._flush()  # the header and the configuration on disk now
+        except OSError as exc:
+            os.close(data_w)
+            os.close(reply_r)
+            raise SinkError(
+                f"{self.path}: cannot start the MCAP log's writer process: {exc.strerror or exc}"
+            ) from None
+        finally:
+            os.close(data_r)
+            os.close(reply_w)
+        self._data_fd = data_w
+        self._reply = os.fdopen(reply_r, "rb")
 
     def finish(self) -> None:
         """Finish the last chunk, write the summary and the footer, and close the file.
@@ -468,33 +406,20 @@ class McapLogger:
             self._state = "finished"
             return
         failed = self._state == "failed"
-        writer, self._writer = self._writer, None
-        file = self._file
-        assert file is not None
-        trouble = None
         try:
-            if writer is not None:
-                writer.close()
-        except RuntimeError as exc:  # the SDK's FoxgloveError
-            trouble = exc
+            if not failed:
+                self._pending += _HEADER.pack(OP_CLOSE, 0, 0, 0, 0)
+                self._send()
+                self._answer()
         finally:
-            for channel in self._channels.values():
-                channel.close()
-            if self._live_thread is not None:  # the queued messages go out first
-                self._live_queue.put(None)
-                self._live_thread.join()
-                self._live_thread = None
-            for channel, _ in (self._live or {}).values():
-                channel.close()
-            file.close()
             self._state = "finished"
-            self._stop_server()
-        if failed:
-            return
-        if file.error is not None:
-            raise SinkError(self._failure_message(file.error))
-        if trouble is not None:
-            raise SinkError(f"{self.path}: cannot finish the MCAP log: {trouble}")
+            if self._data_fd >= 0:
+                os.close(self._data_fd)  # the writer ends at the end of its input
+                self._data_fd = -1
+            if self._process is not None:
+                self._process.wait()
+            if self._reply is not None:
+                self._reply.close()
 
     def __enter__(self) -> McapLogger:
         return self.start()
@@ -513,31 +438,15 @@ class McapLogger:
         except SinkError as err:  # do not hide the exception that is propagating
             log.warning("%s", err)
 
-    def _start_server(self, live: LiveAddress) -> None:
-        try:
-            self._server = foxglove.start_server(
-                name="motionbase", host=live.host, port=live.port, context=self._live_context
-            )
-        except RuntimeError as exc:  # the SDK's FoxgloveError: "Failed to bind port: ..."
-            reason = str(exc).removeprefix("FoxgloveError: ")
-            hint = (
-                "another program uses that port: choose another"
-                if "in use" in reason
-                else "check the address"
-            )
-            raise ConfigError(
-                f"--live {live.host}:{live.port}: cannot serve Foxglove there: {reason} ({hint})"
-            ) from None
-
-    def _stop_server(self) -> None:
-        server, self._server = self._server, None
-        if server is not None:
-            server.stop()
-
     @property
     def live_port(self) -> int | None:
         """The port the live server listens on (None without ``live``, or once finished)."""
-        return None if self._server is None else int(self._server.port)
+        return self._port if self._state == "open" else None
+
+    @property
+    def writer_pid(self) -> int | None:
+        """The process id of the writer process (None before ``start()``)."""
+        return None if self._process is None else self._process.pid
 
     @property
     def message_count(self) -> int:
@@ -566,46 +475,34 @@ class McapLogger:
         """Log several messages of one time ``t`` (the pipeline's per-tick path).
 
         The same as calling :meth:`add` for each ``(topic, message)`` pair, with the
-        per-call checks done once.
+        per-call checks done once and one write to the writer process.
         """
         ns = self._ns(t)
-        channels = self._channels
-        live = self._live
+        index = self._index
+        buf = self._pending
         for topic, message in items:
-            channel = channels.get(topic)
-            if channel is None:
+            i = index.get(topic)
+            if i is None:
                 self._unknown(topic)
             if "t" not in message:
                 message = {"t": t, **message}
             data = encode_message(message)
-            channel.log(data, log_time=ns)
-            if live is not None:
-                self._to_live(topic, data, ns)
-        self._logged(ns, len(items))
+            buf += _HEADER.pack(OP_LOG, 0, i, len(data), ns)
+            buf += data
+        self._message_count += len(items)
+        self._queued(ns)
 
     def add_encoded(self, topic: str, t: float, data: bytes) -> None:
         """Log one message already encoded (its JSON bytes, e.g.
         :meth:`motionbase.io.scene.SceneBuilder.encode`); otherwise as :meth:`add`."""
         ns = self._ns(t)
-        channel = self._channels.get(topic)
-        if channel is None:
+        i = self._index.get(topic)
+        if i is None:
             self._unknown(topic)
-        channel.log(data, log_time=ns)
-        if self._live is not None:
-            self._to_live(topic, data, ns)
-        self._logged(ns, 1)
-
-    def _to_live(self, topic: str, data: bytes, ns: int, always: bool = False) -> None:
-        """Hand ``data`` to the live server when ``topic`` is due (its 60 Hz grid)."""
-        entry = self._live[topic]
-        due = entry[1]
-        if always or ns >= due - _LIVE_SLACK_NS:
-            channel = entry[0]
-            if channel.has_sinks():  # a client subscribed to the topic
-                self._live_queue.put((channel, data, ns))
-            if not always:
-                nxt = due + self._live_period_ns
-                entry[1] = nxt if ns < nxt - _LIVE_SLACK_NS else ns + self._live_period_ns
+        self._pending += _HEADER.pack(OP_LOG, 0, i, len(data), ns)
+        self._pending += data
+        self._message_count += 1
+        self._queued(ns)
 
     def _unknown(self, topic: str) -> None:
         raise SinkError(f"unknown MCAP topic {topic!r}: known topics are {', '.join(self.topics)}")
@@ -642,28 +539,30 @@ class McapLogger:
         p = pose6.tolist() if isinstance(pose6, np.ndarray) else [float(v) for v in pose6]
         if len(p) != 6:
             raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
-        tf = self._channels["/tf"]
+        tf = self._index["/tf"]
+        buf = self._pending
         count = 1
         if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
             self._last_static_ns = ns
             world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
             data = encode_message(world)
-            tf.log(data, log_time=ns)
-            if self._live is not None:  # once a second: every one goes live
-                self._to_live("/tf", data, ns, always=True)
+            buf += _HEADER.pack(OP_LOG, FLAG_ALWAYS_LIVE, tf, len(data), ns)  # every one live
+            buf += data
             count = 2
         q = quaternion_from_euler_zyx(p[3], p[4], p[5])
-        msg = transform_message(ns, parent, child, p[0], p[1], p[2], q)
-        data = encode_message(msg)
-        tf.log(data, log_time=ns)
-        if self._live is not None:
-            self._to_live("/tf", data, ns)
-        self._logged(ns, count)
+        data = encode_message(transform_message(ns, parent, child, p[0], p[1], p[2], q))
+        buf += _HEADER.pack(OP_LOG, 0, tf, len(data), ns)
+        buf += data
+        self._message_count += count
+        self._queued(ns)
 
     def flush(self) -> None:
-        """Finish the chunk in progress and hand it to the OS now (e.g. before a risky step)."""
+        """Finish the chunk in progress and hand it to the OS now (e.g. before a risky
+        step); returns when the writer process has."""
         if self._state == "open":
-            self._flush()
+            self._pending += _HEADER.pack(OP_FLUSH, 0, 0, 0, 0)
+            self._send()
+            self._answer()
 
     # ------------------------------------------------------------------ internals
     def _ns(self, t: float) -> int:
@@ -685,39 +584,48 @@ class McapLogger:
             raise SinkError(self._failure)
         raise SinkError(f"{self.path}: MCAP logger already finished")
 
-    def _logged(self, ns: int, count: int) -> None:
-        """Account ``count`` messages at ``ns``; finish the chunk when it spans the interval."""
-        self._message_count += count
-        if self._file.error is not None:
-            self._fail(self._file.error)
-        if self._chunk_start_ns < 0:
-            self._chunk_start_ns = ns
-        elif abs(ns - self._chunk_start_ns) >= self._flush_interval_ns:
-            self._flush()
+    def _queued(self, ns: int) -> None:
+        """Records of log time ``ns`` were added: write the pending ones when they reach
+        16 KiB or span 0.1 s of source time."""
+        if self._pending_ns < 0:
+            self._pending_ns = ns
+        if len(self._pending) >= _SEND_BYTES or abs(ns - self._pending_ns) >= _SEND_NS:
+            self._send()
 
-    def _flush(self) -> None:
+    def _send(self) -> None:
+        """Write the pending records to the writer process (all of them: a signal can cut a
+        write short)."""
+        data, self._pending = self._pending, bytearray()
+        self._pending_ns = -1
         try:
-            self._writer.flush()
-        except RuntimeError as exc:  # the SDK's FoxgloveError, with no errno
-            if self._file.error is None:
-                self._failure = f"{self.path}: cannot write the MCAP log: {exc}"
-                self._state = "failed"
-                raise SinkError(self._failure) from None
-        if self._file.error is not None:
-            self._fail(self._file.error)
-        self._chunk_start_ns = -1
+            n = os.write(self._data_fd, data)
+            if n < len(data):
+                view = memoryview(data)[n:]
+                while view:
+                    view = view[os.write(self._data_fd, view) :]
+        except BrokenPipeError:  # the writer failed and closed its end: its answer says why
+            self._answer()
+            raise SinkError(f"{self.path}: the MCAP log's writer process stopped") from None
 
-    def _fail(self, exc: OSError) -> None:
-        self._failure = self._failure_message(exc)
+    def _answer(self) -> dict[str, Any]:
+        """The writer process's next answer; a failure it reports raises, as does its end."""
+        line = self._reply.readline()
+        if not line:
+            status = self._process.wait()
+            self._failed(
+                SinkError,
+                f"{self.path}: the MCAP log's writer process ended unexpectedly (status "
+                f"{status}); the file is readable up to its last complete chunk",
+            )
+        answer = json.loads(line)
+        if "error" in answer:
+            self._failed(ConfigError if answer["kind"] == "config" else SinkError, answer["error"])
+        return answer
+
+    def _failed(self, kind: type[Exception], message: str) -> None:
+        self._failure = message
         self._state = "failed"
-        raise SinkError(self._failure) from None
-
-    def _failure_message(self, exc: OSError) -> str:
-        hint = " (disk full?)" if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) else ""
-        return (
-            f"{self.path}: cannot write the MCAP log: {exc.strerror or exc}{hint}; "
-            "the file is readable up to its last complete chunk"
-        )
+        raise kind(message) from None
 
 
 __all__ = [

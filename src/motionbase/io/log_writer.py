@@ -1,0 +1,321 @@
+"""The MCAP log's writer process: the Foxglove SDK's writer, off the pipeline's process.
+
+:class:`~motionbase.io.mcap_log.McapLogger` starts this file as a script of its own
+(``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library and
+``foxglove`` only, so it starts in about 40 ms) and sends it encoded messages through a
+pipe; this process logs them with the SDK and, with a live view, serves them to Foxglove.
+
+Why a process: the SDK's ``Channel.log`` compresses and writes on the thread that calls
+it, holding the interpreter lock (a 64 KiB lz4 block costs about 80 us, a chunk's write
+waits for the disk), so a thread would not take that work off the real-time loop; a
+process does, on the other core. The caller's thread only encodes the JSON (orjson) and
+writes it to the pipe.
+
+Protocol (one machine, one version: this file and ``mcap_log.py`` change together):
+
+* front -> writer, on the data pipe: records of a :data:`HEADER` (op, flags, topic index,
+  payload length, log time in ns) and a payload. The first is :data:`OP_START` with the
+  configuration as JSON; then :data:`OP_LOG` (a message's JSON bytes on the topic of
+  that index in the configuration's ``topics``), :data:`OP_FLUSH` and :data:`OP_CLOSE`.
+* writer -> front, on the reply pipe: one JSON line per answer: ``{"ok": true, ...}`` to
+  the start, a flush and the close; ``{"error": "...", "kind": "config" | "sink"}`` when
+  something fails. After a failure the writer closes the data pipe (the front's next
+  write fails at once and reads the line), finishes what the file has, and exits.
+* End of input without :data:`OP_CLOSE` (the front died, even by ``kill -9``): the writer
+  finishes the file as a close would. It runs in a session of its own and ignores the
+  stop signals: the terminal's Ctrl-C stops the pipeline, whose close ends the log.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import struct
+import sys
+from typing import Any, BinaryIO
+
+#: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
+HEADER = struct.Struct("<BBHIQ")
+OP_START, OP_LOG, OP_FLUSH, OP_CLOSE = 1, 2, 3, 4
+#: OP_LOG flag: the message goes live whatever the topic's live grid says
+FLAG_ALWAYS_LIVE = 1
+_FIRST = -(2**63)  # the live grid of a topic starts at its first message
+_LIVE_SLACK_NS = 1_000  # a tick 1 us before its grid point is on it (rounded tick times)
+
+
+class LogFile:
+    """The log's file as the writer sees it; keeps the first write error.
+
+    After an error the file takes no more bytes but keeps counting positions, so
+    the SDK's writer goes on as if they were written: it finishes without a cascade
+    of errors, the front raises the one error, and the file stays as it was at the
+    error, readable up to its last complete chunk.
+    """
+
+    def __init__(self, path: str, fsync: bool) -> None:
+        self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
+        self._fsync = fsync
+        self.error: OSError | None = None
+        self._pos = self._end = 0  # positions after an error
+
+    def write(self, data: bytes) -> int:
+        if self.error is None:
+            try:
+                return self._fh.write(data)
+            except OSError as exc:  # nothing of `data` was written
+                self._failed(exc)
+        self._pos += len(data)
+        self._end = max(self._end, self._pos)
+        return len(data)
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        if self.error is None:
+            return self._fh.seek(offset, whence)
+        self._pos = offset + (0, self._pos, self._end)[whence]
+        return self._pos
+
+    def flush(self) -> None:
+        if self._fsync and self.error is None:
+            try:
+                os.fsync(self._fh.fileno())
+            except OSError as exc:
+                self._failed(exc)
+
+    def _failed(self, exc: OSError) -> None:
+        self.error = exc
+        self._pos = self._fh.tell()
+        self._end = self._fh.seek(0, os.SEEK_END)
+
+    def close(self) -> None:
+        self._fh.close()  # unbuffered: nothing left to write
+
+
+class WriterFailed(Exception):
+    """What to tell the front: ``kind`` is ``"config"`` (the user's setting) or ``"sink"``."""
+
+    def __init__(self, message: str, kind: str = "sink") -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+def write_failure(path: str, exc: OSError) -> str:
+    """The one line for a write error of the file at ``path``."""
+    hint = " (disk full?)" if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) else ""
+    return (
+        f"{path}: cannot write the MCAP log: {exc.strerror or exc}{hint}; "
+        "the file is readable up to its last complete chunk"
+    )
+
+
+class Writer:
+    """The SDK's MCAP writer (and live server) for one log, as configured by the front.
+
+    ``config`` keys: ``path`` (as the user named it, for messages), ``file`` (the same,
+    absolute), ``compression`` (``"lz4"``, ``"zstd"``, ``"none"``),
+    ``chunk_size`` (bytes), ``flush_interval_ns``, ``fsync``, ``metadata_name`` and
+    ``metadata`` (the metadata record's name and string fields), ``topics`` (``[topic,
+    schema name, JSON Schema]`` in index order), ``live`` (``[host, port]`` or null),
+    ``live_period_ns``.
+    """
+
+    def __init__(self, config: dict[str, Any]) -> None:
+        import foxglove
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+        self._foxglove = foxglove
+        self.path = config["path"]
+        self._flush_interval_ns = int(config["flush_interval_ns"])
+        self._chunk_start_ns = -1  # log time of the first message since the last flush
+        self._context = foxglove.Context()  # channels hold only a weak reference to it
+        self._server: Any = None
+        self._live: list[list] | None = None  # per topic: [live channel, next due ns]
+        self._live_period_ns = int(config["live_period_ns"])
+        topics = config["topics"]
+        if config["live"] is not None:
+            host, port = config["live"]
+            self._live_context = foxglove.Context()  # kept alive, as the file's
+            self._start_server(host, int(port), self._live_context)  # first: no file left
+            self._live = [
+                [self._channel(t, n, s, self._live_context), _FIRST] for t, n, s in topics
+            ]
+        try:
+            self._file = LogFile(config["file"], bool(config["fsync"]))
+        except OSError as exc:
+            self.stop_server()
+            raise WriterFailed(
+                f"{self.path}: cannot create the MCAP log: {exc.strerror or exc} "
+                "(check the folder exists and is writable)"
+            ) from None
+        compression = {"lz4": MCAPCompression.Lz4, "zstd": MCAPCompression.Zstd}
+        options = MCAPWriteOptions(
+            compression=compression.get(config["compression"]),
+            chunk_size=int(config["chunk_size"]),
+            compression_level=1 if config["compression"] == "zstd" else 0,
+            compression_threads=0,  # this process is the log's worker already
+        )
+        self._writer = foxglove.open_mcap(self._file, context=self._context, writer_options=options)
+        self._writer.write_metadata(config["metadata_name"], config["metadata"])
+        self._channels = [self._channel(t, n, s, self._context) for t, n, s in topics]
+        self.flush()  # the header and the configuration on disk now
+
+    def _channel(self, topic: str, name: str, schema: Any, context: Any) -> Any:
+        """A JSON channel of ``topic`` with its JSON Schema, on ``context``."""
+        foxglove = self._foxglove
+        return foxglove.Channel(
+            topic,
+            schema=foxglove.Schema(
+                name=name, encoding="jsonschema", data=json.dumps(schema).encode()
+            ),
+            message_encoding="json",
+            context=context,
+        )
+
+    def _start_server(self, host: str, port: int, context: Any) -> None:
+        try:
+            self._server = self._foxglove.start_server(
+                name="motionbase", host=host, port=port, context=context
+            )
+        except RuntimeError as exc:  # the SDK's FoxgloveError: "Failed to bind port: ..."
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            hint = (
+                "another program uses that port: choose another"
+                if "in use" in reason
+                else "check the address"
+            )
+            raise WriterFailed(
+                f"--live {host}:{port}: cannot serve Foxglove there: {reason} ({hint})", "config"
+            ) from None
+
+    @property
+    def live_port(self) -> int | None:
+        return None if self._server is None else int(self._server.port)
+
+    def stop_server(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            server.stop()
+
+    def log(self, index: int, data: bytes, ns: int, flags: int) -> None:
+        """Log one message; finish the chunk when it spans the flush interval."""
+        self._channels[index].log(data, log_time=ns)
+        if self._live is not None:
+            self._to_live(index, data, ns, bool(flags & FLAG_ALWAYS_LIVE))
+        if self._file.error is not None:
+            raise WriterFailed(write_failure(self.path, self._file.error))
+        if self._chunk_start_ns < 0:
+            self._chunk_start_ns = ns
+        elif abs(ns - self._chunk_start_ns) >= self._flush_interval_ns:
+            self.flush()
+
+    def _to_live(self, index: int, data: bytes, ns: int, always: bool) -> None:
+        """Serve ``data`` when its topic is due on its grid (at most one message per
+        ``live_period_ns`` of source time) and a client subscribed to it."""
+        entry = self._live[index]
+        due = entry[1]
+        if always or ns >= due - _LIVE_SLACK_NS:
+            channel = entry[0]
+            if channel.has_sinks():
+                channel.log(data, log_time=ns)
+            if not always:
+                nxt = due + self._live_period_ns
+                entry[1] = nxt if ns < nxt - _LIVE_SLACK_NS else ns + self._live_period_ns
+
+    def flush(self) -> None:
+        """Finish the chunk in progress and hand it to the operating system."""
+        try:
+            self._writer.flush()
+        except RuntimeError as exc:  # the SDK's FoxgloveError, with no errno
+            if self._file.error is None:
+                raise WriterFailed(f"{self.path}: cannot write the MCAP log: {exc}") from None
+        if self._file.error is not None:
+            raise WriterFailed(write_failure(self.path, self._file.error))
+        self._chunk_start_ns = -1
+
+    def close(self) -> str | None:
+        """Finish the file (summary, footer) and stop the server; the failure, if any."""
+        trouble = None
+        try:
+            self._writer.close()
+        except RuntimeError as exc:  # the SDK's FoxgloveError
+            trouble = f"{self.path}: cannot finish the MCAP log: {exc}"
+        finally:
+            for channel in self._channels:
+                channel.close()
+            for channel, _ in self._live or ():
+                channel.close()
+            self._file.close()
+            self.stop_server()
+        if self._file.error is not None:
+            return write_failure(self.path, self._file.error)
+        return trouble
+
+
+def _read_record(data: BinaryIO) -> tuple[int, int, int, int, bytes] | None:
+    """The next record, or None at the end of input (a record cut short counts as the end)."""
+    head = data.read(HEADER.size)
+    if len(head) < HEADER.size:
+        return None
+    op, flags, index, size, ns = HEADER.unpack(head)
+    payload = data.read(size) if size else b""
+    if len(payload) < size:
+        return None
+    return op, flags, index, ns, payload
+
+
+def serve(data_fd: int, reply_fd: int) -> int:
+    """Run one log: the start record, the messages, the close (or the end of input)."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
+        signal.signal(sig, signal.SIG_IGN)  # the front's close ends the log, not a signal
+    data = os.fdopen(data_fd, "rb", buffering=1 << 20)
+    reply = os.fdopen(reply_fd, "wb", buffering=0)
+
+    def answer(**fields: Any) -> None:
+        try:
+            reply.write(json.dumps(fields).encode() + b"\n")
+        except OSError:  # the front is gone: nobody to tell
+            pass
+
+    record = _read_record(data)
+    if record is None or record[0] != OP_START:
+        return 1
+    config = json.loads(record[4])
+    try:
+        writer = Writer(config)
+    except WriterFailed as exc:
+        answer(error=str(exc), kind=exc.kind)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - told to the front, never a traceback
+        answer(error=f"{config['path']}: cannot start the MCAP log: {exc}", kind="sink")
+        return 1
+    answer(ok=True, port=writer.live_port)
+    failure = None
+    try:
+        while (record := _read_record(data)) is not None:
+            op, flags, index, ns, payload = record
+            if op == OP_LOG:
+                writer.log(index, payload, ns, flags)
+            elif op == OP_FLUSH:
+                writer.flush()
+                answer(ok=True)
+            elif op == OP_CLOSE:
+                break
+    except WriterFailed as exc:
+        failure = str(exc)
+    except Exception as exc:  # noqa: BLE001 - told to the front, never a traceback
+        failure = f"{writer.path}: cannot write the MCAP log: {exc}"
+    if failure is not None:
+        answer(error=failure, kind="sink")
+        data.close()  # the front's next write fails at once and reads the line above
+    trouble = writer.close()
+    if failure is None:
+        if trouble is None:
+            answer(ok=True)
+        else:
+            answer(error=trouble, kind="sink")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(serve(int(sys.argv[1]), int(sys.argv[2])))
