@@ -188,3 +188,22 @@ def read_complete_log(path) -> dict[str, list[dict]]:
             out.setdefault(channel.topic, []).append(json.loads(message.data))
     assert sum(len(v) for v in out.values()) == summary.statistics.message_count
     return out
+
+
+def states_of_a_killed_run(path, timeout: float = 20.0) -> list:
+    """The states of the log of a run killed with SIGKILL, once its writer process (which
+    outlives the run) has finished the file with what it was given; fails if it never does."""
+    import time
+
+    from motionbase.io.mcap_source import McapSource
+
+    deadline = time.monotonic() + timeout
+    while True:
+        with McapSource(path) as source:
+            states = list(source)
+            truncated = source.truncated
+        if not truncated or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert not truncated, "the writer process did not finish the log of the killed run"
+    return states
