@@ -27,6 +27,7 @@ GROUPS = {
     ],
     "log (MCAP writer, pipeline log)": [
         "io/mcap_log.py",
+        "io/log_writer.py",
         "io/_log_kernels.py",
         "io/pipeline_log.py",
     ],
