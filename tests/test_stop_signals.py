@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import pytest
@@ -48,6 +50,27 @@ def test_ctrl_c_during_a_measurement_is_one_line_and_exit_130(after_s, tmp_path)
     status, err = signalled(args, lambda _: time.sleep(after_s), env=fresh)
     assert err.strip() == "motionbase omct: interrupted"
     assert status == 130
+
+
+def test_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(tmp_path):
+    """A Ctrl-C that lands while the command still imports numpy (a few tenths of a second
+    after it starts; before, a traceback): made to land there every time by raising the
+    KeyboardInterrupt from the import of numpy itself."""
+    code = (
+        "import builtins, runpy, sys\n"
+        "real = builtins.__import__\n"
+        "def ctrl_c_at_numpy(name, *args, **kwargs):\n"
+        "    if name == 'numpy':\n"
+        "        raise KeyboardInterrupt\n"
+        "    return real(name, *args, **kwargs)\n"
+        "builtins.__import__ = ctrl_c_at_numpy\n"
+        f"sys.argv = ['motionbase', 'omct', '--out', {str(tmp_path / 'o')!r}]\n"
+        "runpy.run_module('motionbase.cli', run_name='__main__')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.stderr.strip() == "motionbase omct: interrupted"
+    assert done.returncode == 130
+    assert not (tmp_path / "o").exists()
 
 
 def test_an_error_caused_by_ctrl_c_counts_as_ctrl_c():

@@ -10,14 +10,25 @@ Conventions (see README): SI units inside, FRD body and base axes, poses
 ``[x, y, z, roll, pitch, yaw]`` with Z-Y-X Euler angles, time in float seconds.
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("motionbase")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.0.0+unknown"
-
-from motionbase.errors import ConfigError, MotionbaseError  # noqa: E402
-from motionbase.state import AircraftState  # noqa: E402
+from motionbase.errors import ConfigError, MotionbaseError
 
 __all__ = ["AircraftState", "ConfigError", "MotionbaseError", "__version__"]
+
+
+def __getattr__(name: str) -> object:
+    """``__version__`` and ``AircraftState``, loaded on first use: importing the package
+    stays cheap (no numpy, no package metadata), so a command can install its Ctrl-C
+    handling before anything slow runs (``motionbase.cli``)."""
+    if name == "__version__":
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            value = version("motionbase")
+        except PackageNotFoundError:  # running from a source tree that is not installed
+            value = "0.0.0+unknown"
+    elif name == "AircraftState":
+        from motionbase.state import AircraftState as value
+    else:
+        raise AttributeError(f"module 'motionbase' has no attribute {name!r}")
+    globals()[name] = value
+    return value

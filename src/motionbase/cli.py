@@ -8,16 +8,29 @@ status 2; it is never a traceback.
 
 from __future__ import annotations
 
-import argparse
-import logging
-import os
 import sys
-from collections.abc import Callable, Sequence
 
-from motionbase import __version__
-from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
-from motionbase.errors import ConfigError, MotionbaseError
-from motionbase.stopping import Stopped, insistent_ctrl_c, stop_on_signals
+
+def _interrupted_at_start(argv: Sequence[str] | None = None) -> int:
+    """Ctrl-C while the command was still starting (its imports, the parsing): one line,
+    exit 130, as later on. The package imports nothing slow before this module's guard."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    print(f"motionbase{' ' + words[0] if words else ''}: interrupted", file=sys.stderr)
+    return 130
+
+
+try:  # numpy and the rest take a few tenths of a second to import
+    import argparse
+    import logging
+    import os
+    from collections.abc import Callable, Sequence
+
+    from motionbase import __version__
+    from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
+    from motionbase.errors import ConfigError, MotionbaseError
+    from motionbase.stopping import Stopped, insistent_ctrl_c, stop_on_signals
+except KeyboardInterrupt:
+    sys.exit(_interrupted_at_start())
 
 # Each subcommand registers (name, add_arguments, run). ``run(args) -> int``.
 _Command = tuple[
@@ -72,9 +85,12 @@ def _setup_logging() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    _setup_logging()
-    parser = build_parser()
-    args, extra = parser.parse_known_args(argv)
+    try:
+        _setup_logging()
+        parser = build_parser()
+        args, extra = parser.parse_known_args(argv)
+    except KeyboardInterrupt:
+        return _interrupted_at_start(argv)
     if extra:  # name the subcommand that does not know them, not the top-level parser
         getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "_run", None):
@@ -194,8 +210,9 @@ def _add_cueing(
         metavar="PRESET|FILE.toml",
         help="override the recorded cueing parameters"
         if recorded
-        else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart) "
-        "or TOML path",
+        else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart; "
+        "unless given: tuned_ceart on the ceart platform, else default; stream: telemetry) or "
+        "TOML path",
     )
     if not preview:
         return

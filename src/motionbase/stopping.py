@@ -231,5 +231,25 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
         done.set()
         if repeater:
             repeater[0].join()  # its last repeat, if any, reaches the handler above
+            _forget_escaped_ctrl_c()
         signal.signal(signal.SIGINT, signal.default_int_handler)
         sys.unraisablehook = previous_hook
+
+
+def _forget_escaped_ctrl_c() -> None:
+    """Clear CPython's record of a KeyboardInterrupt that ended code a C library ran.
+
+    When a Ctrl-C ends Python code that a compiled library runs through ``PyRun_String``
+    (one of the libraries a measurement loads does, now and then), CPython notes an
+    "unhandled" KeyboardInterrupt and, at exit, kills its own process with SIGINT: the
+    command caught the Ctrl-C and returned 130, yet the shell would see -2. Every
+    ``PyRun_SimpleString`` starts by clearing that note, so running an empty one forgets it.
+    """
+    if sys.implementation.name != "cpython":
+        return
+    try:
+        import ctypes
+
+        ctypes.pythonapi.PyRun_SimpleString(b"")
+    except (AttributeError, OSError):  # no C API to call: the exit status may be -2
+        pass
