@@ -35,7 +35,8 @@ CUE_RGB = (0xD9, 0x48, 0x0F)  # the report's platform colour
 @pytest.fixture(scope="module")
 def rus6_flight(tmp_path_factory):
     path = tmp_path_factory.mktemp("rus6") / "c1723.mcap"
-    fly("c1723", duration_s=10, out=path, progress=False)
+    # the SIMONA set (gains 0.5), which the last test tells from a perfect cueing
+    fly("c1723", duration_s=10, out=path, washout="default", progress=False)
     return path
 
 

@@ -528,3 +528,31 @@ def test_a_signal_while_tune_starts_ends_it_cleanly(after_s, tmp_path):
     assert err.strip() == "motionbase tune: interrupted"
     assert status == 130
     assert not (tmp_path / "o.toml").exists()
+
+
+def test_the_ceart_default_is_the_washout_tuned_for_it(tmp_path):
+    """Issue 15: the shipped default on `ceart` is the tuned set; every other geometry, and
+    an explicit ``--params``, keep theirs."""
+    tuned = WashoutParams.preset("tuned_ceart").to_dict()
+    simona = WashoutParams.preset("default").to_dict()
+    assert tuned != simona
+
+    def params(**kwargs) -> dict:
+        return app.load_config(**kwargs).cueing_params.to_dict()
+
+    for platform in (None, "rus6", "ceart"):
+        assert params(platform=platform) == tuned, platform
+    # the same geometry from the user's own file, under another name: tuned too
+    text = preset_path("rus6", "ceart").read_text()
+    mine = tmp_path / "my_seat.toml"
+    mine.write_text(text.replace('name = "ceart"', 'name = "my seat"'))
+    assert params(platform=str(mine)) == tuned
+    # another geometry (longer rods), another robot, the planar robot: the SIMONA set
+    longer = tmp_path / "longer.toml"
+    longer.write_text(text.replace("rod = 0.724", "rod = 0.760"))
+    assert params(platform=str(longer)) == simona
+    assert params(platform="stewart6") == simona
+    assert params(planar=True) == simona
+    # asked for by name, on ceart: what was asked for
+    assert params(washout="default") == simona
+    assert params(washout="gentle") == WashoutParams.preset("gentle").to_dict()

@@ -71,6 +71,8 @@ def load_config(
     washout : str, optional
         The cueing's parameters: a preset name (classical: ``default``, ``gentle``,
         ``telemetry``, ``tuned_ceart``) or a TOML path (``--params``, ``--washout``).
+        By default the preset tuned for the geometry where one ships (classical on the
+        ``ceart`` geometry: ``tuned_ceart``), else the cueing's ``default`` preset.
     cueing : str
         The cueing plug-in (``--cueing``), ``classical`` by default.
     rate_hz : float
@@ -80,10 +82,27 @@ def load_config(
     from motionbase.washout.cueing import cueing_spec
 
     robot, geometry = load_geometry(platform, planar=planar)
-    params = cueing_spec(cueing).load_params(washout)
+    spec = cueing_spec(cueing)
+    if washout is None:
+        washout = tuned_preset(spec, robot, geometry)
+    params = spec.load_params(washout)
     return PipelineConfig(
         robot=robot, geometry=geometry, cueing=cueing, cueing_params=params, rate_hz=rate_hz
     )
+
+
+def tuned_preset(spec: Any, robot: str, geometry: Any) -> str | None:
+    """The preset of the cueing ``spec`` tuned for ``geometry`` (the same numbers as one of
+    its ``tuned_presets``' geometry presets, whatever the file and name), or None."""
+    from motionbase.platform.robot import load_geometry
+
+    def numbers(g: Any) -> dict[str, Any]:
+        return {k: v for k, v in g.to_dict().items() if k != "name"}
+
+    for (tuned_robot, geometry_preset), preset in spec.tuned_presets.items():
+        if tuned_robot == robot and numbers(load_geometry(geometry_preset)[1]) == numbers(geometry):
+            return preset
+    return None
 
 
 def robot_title(config: PipelineConfig) -> str:

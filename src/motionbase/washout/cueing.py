@@ -36,7 +36,7 @@ them the batch path steps the cueing from Python, with the same results.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -154,7 +154,12 @@ class CueingSpec:
     preset_kind : str
         Shipped parameter files are ``motionbase/presets/<preset_kind>_<name>.toml``.
     default_preset : str
+        The preset used when none is given, except on a geometry of ``tuned_presets``.
     description : str
+    tuned_presets : dict of (str, str) to str
+        Presets tuned for one robot geometry (``motionbase tune``):
+        ``{(robot, geometry preset): cueing preset}``; on that geometry the tuned preset is
+        the default.
     """
 
     name: str
@@ -163,6 +168,7 @@ class CueingSpec:
     preset_kind: str
     default_preset: str = "default"
     description: str = ""
+    tuned_presets: dict[tuple[str, str], str] = field(default_factory=dict)
 
     @staticmethod
     def _load(path: Any) -> Any:
@@ -207,6 +213,7 @@ CUEINGS: dict[str, CueingSpec] = {
         "motionbase.washout.params:WashoutParams",
         preset_kind="washout",
         description="classical washout (Reid & Nahon), tilt coordination",
+        tuned_presets={("rus6", "ceart"): "tuned_ceart"},
     ),
     "mpc": CueingSpec(
         "mpc",
