@@ -53,6 +53,7 @@ from __future__ import annotations
 import contextlib
 import sys
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -353,7 +354,60 @@ class BatchResult(NamedTuple):
 # --------------------------------------------------------------------------- core
 
 
-class Pipeline:
+class PipelineCore(ABC):
+    """What :func:`run` reads of a pipeline, the same for :class:`Pipeline` and
+    :class:`motionbase.commanding.CommandPipeline`: both keep their state in the record
+    :attr:`state` (:data:`~motionbase.stages.STATE`) and say when they are :attr:`parked`.
+    """
+
+    robot: Robot
+    health: Health
+    state: np.ndarray
+
+    def warm_up(self) -> None:
+        """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
+        time; the pipeline is left reset, its counters untouched."""
+        counts = self.health.as_dict()
+        self._warm_ticks()
+        self.reset()
+        for name, value in counts.items():
+            setattr(self.health, name, value)
+
+    @abstractmethod
+    def _warm_ticks(self) -> None:
+        """A few ticks that call every compiled kernel (:meth:`warm_up` resets after them)."""
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Back to parked, at rest; counters kept."""
+
+    @property
+    @abstractmethod
+    def parked(self) -> bool:
+        """Stopped, at rest, where the run may end."""
+
+    @property
+    def estopped(self) -> bool:
+        """An E-stop was asked since the last reset."""
+        return bool(self.state[0]["estop"])
+
+    @property
+    def phase(self) -> str:
+        """``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``."""
+        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
+
+    @property
+    def command(self) -> np.ndarray:
+        """The last actuator command (a copy), in the robot's unit."""
+        return self.state[0]["q"][: self.robot.n].copy()
+
+    @property
+    def speed(self) -> np.ndarray:
+        """The last command's speed (a live view: read it, do not keep it)."""
+        return self.state[0]["v"][: self.robot.n]
+
+
+class Pipeline(PipelineCore):
     """The functional core: ``step(state) -> PipelineOutput``, no I/O.
 
     Parameters
@@ -406,17 +460,11 @@ class Pipeline:
         self.cueing.reset()
         stages.reset_state(self.state, self.params, self.robot.park_pose)
 
-    def warm_up(self) -> None:
-        """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
-        time; the pipeline is left reset, its counters untouched."""
-        counts = self.health.as_dict()
+    def _warm_ticks(self) -> None:
         level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
         self.step(AircraftState(0.0, level, self._zero3))
         self.step(None)
         self.robot.forward(self.robot.park_angles, guess=self.robot.park_pose)
-        self.reset()
-        for name, value in counts.items():
-            setattr(self.health, name, value)
 
     def stop(self) -> None:
         """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
@@ -437,29 +485,9 @@ class Pipeline:
         s["blend"] = 0.0
 
     @property
-    def estopped(self) -> bool:
-        """An E-stop was asked since the last reset."""
-        return bool(self.state[0]["estop"])
-
-    @property
     def parked(self) -> bool:
         """True once stopped with the actuators at park and at rest."""
         return bool(stages.at_park(self.params, self.state))
-
-    @property
-    def phase(self) -> str:
-        """``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``."""
-        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
-
-    @property
-    def command(self) -> np.ndarray:
-        """The last actuator command (a copy), in the robot's unit."""
-        return self.state[0]["q"][: self.robot.n].copy()
-
-    @property
-    def speed(self) -> np.ndarray:
-        """The last command's speed (a live view: read it, do not keep it)."""
-        return self.state[0]["v"][: self.robot.n]
 
     # -- one tick --------------------------------------------------------------
     def step(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
