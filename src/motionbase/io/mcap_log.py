@@ -498,20 +498,13 @@ class McapLogger:
     def _unknown(self, topic: str) -> None:
         raise SinkError(f"unknown MCAP topic {topic!r}: known topics are {', '.join(self.topics)}")
 
-    def add_transform(
-        self,
-        t: float,
-        pose6: Sequence[float] | np.ndarray,
-        *,
-        parent: str = "base",
-        child: str = "platform",
-    ) -> None:
+    def add_transform(self, t: float, pose6: Sequence[float] | np.ndarray) -> None:
         """Log the platform pose as a ``foxglove.FrameTransform`` on ``/tf``.
 
-        The transform is the platform frame (``child``) in the base frame
-        (``parent``): translation ``pose6[:3]`` m, rotation the quaternion of the
-        Z-Y-X Euler angles ``pose6[3:]`` rad. Both frames are FRD (x forward,
-        y right, z down) and Foxglove shows them as they are. So that the 3D
+        The transform is the ``platform`` frame in the ``base`` frame: translation
+        ``pose6[:3]`` m, rotation the quaternion of the Z-Y-X Euler angles ``pose6[3:]``
+        rad. Both frames are FRD (x forward, y right, z down) and Foxglove shows them as
+        they are. So that the 3D
         panel shows the platform upright, a transform from Foxglove's z-up
         ``world`` frame to ``base`` (half a turn about x) is also written at the
         first call and then once per second of source time: pick ``world`` as
@@ -523,8 +516,6 @@ class McapLogger:
             Time, s, source clock.
         pose6 : array_like, shape (6,)
             ``[x, y, z, roll, pitch, yaw]``, m and rad, base axes FRD.
-        parent, child : str
-            Frame names.
         """
         ns = self._ns(t)
         p = pose6.tolist() if isinstance(pose6, np.ndarray) else [float(v) for v in pose6]
@@ -539,7 +530,7 @@ class McapLogger:
             buf += _HEADER.pack(OP_LOG, FLAG_ALWAYS_LIVE, tf, len(data), ns)  # every one live
             buf += data
         q = quaternion_from_euler_zyx(p[3], p[4], p[5])
-        data = encode_message(transform_message(ns, parent, child, p[0], p[1], p[2], q))
+        data = encode_message(transform_message(ns, "base", "platform", p[0], p[1], p[2], q))
         buf += _HEADER.pack(OP_LOG, 0, tf, len(data), ns)
         buf += data
         self._queued(ns)
