@@ -499,8 +499,7 @@ class _SerialTransport:
         self.port = open_serial_port(self.url, self.baud, timeout=0, write_timeout=0.2)
 
     def reopen(self) -> bool:
-        close_quietly(self.port)
-        self.port = None
+        self.close()
         try:
             self.open()
             return True
