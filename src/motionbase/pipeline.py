@@ -55,7 +55,7 @@ import sys
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numba
@@ -190,9 +190,7 @@ class PipelineConfig:
                 "fade_s": self.fade_s,
                 "planar_scale_m": self.planar_scale_m,
                 "planar_yaw_scale": self.planar_yaw_scale,
-                "input_limits": {
-                    f.name: getattr(self.input_limits, f.name) for f in fields(InputLimits)
-                },
+                "input_limits": asdict(self.input_limits),
             },
             "version": __version__,
         }
@@ -606,11 +604,9 @@ class Pipeline(PipelineCore):
                 g = None if on_ground is None or on_ground[k] != on_ground[k] else on_ground[k]
                 state = AircraftState(t[k], f[k], w[k], att[k], on_ground=g)
                 o = self.step(state, bool(fresh[k]))
-                out.cue_poses[k], out.poses[k], out.commands[k] = (
-                    o.washout_pose,
-                    o.platform_pose,
-                    o.angles,
-                )
+                out.cue_poses[k] = o.washout_pose
+                out.poses[k] = o.platform_pose
+                out.commands[k] = o.angles
                 out.flags[k] = self.flags
             return out
         done = stages.run_batch(
