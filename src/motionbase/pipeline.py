@@ -889,14 +889,12 @@ def run(
                     health.overruns += 1
                     if cpu_clock() - cpu_started < dt:
                         health.overruns_off_cpu += 1  # the thread was waiting, not computing
-                    if late > health.worst_overrun_s:
-                        health.worst_overrun_s = late
+                    health.worst_overrun_s = max(health.worst_overrun_s, late)
                 # what the actuators see: the command within one period of its sample's due time
                 late = now - due - dt
                 if late > 0.0:
                     health.late_commands += 1
-                    if late > health.worst_late_s:
-                        health.worst_late_s = late
+                    health.worst_late_s = max(health.worst_late_s, late)
                 if after_tick is not None:
                     after_tick()  # (the garbage collector: the command is out)
 
