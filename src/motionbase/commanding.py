@@ -223,14 +223,9 @@ class CommandPipeline(PipelineCore):
     def estop(self) -> None:
         """Emergency stop: actuator mode, head for park at once within the limits; pose
         mode, as :meth:`stop` (braking first is the fastest safe way for a parallel robot)."""
-        self.health.estops += 1
-        s = self.state[0]
         if self.mode == "poses":
-            self.stop()
-        else:
-            s["phase"] = stages.STOPPING
-            s["blend"] = 0.0
-        s["estop"] = True
+            self.stop()  # (then counted and flagged; phase and blend are stopping and 0 already)
+        super().estop()
 
     @property
     def parked(self) -> bool:

@@ -384,6 +384,16 @@ class PipelineCore(ABC):
     def parked(self) -> bool:
         """Stopped, at rest, where the run may end."""
 
+    def estop(self) -> None:
+        """Emergency stop: head for park at once, as fast as the actuators' speed and
+        acceleration limits allow (the geometry's ``max_speed`` and ``max_accel``, never
+        faster): a second stop signal while stopping, teleop's E-stop key, this call."""
+        self.health.estops += 1
+        s = self.state[0]
+        s["estop"] = True
+        s["phase"] = stages.STOPPING
+        s["blend"] = 0.0
+
     @property
     def estopped(self) -> bool:
         """An E-stop was asked since the last reset."""
@@ -471,16 +481,6 @@ class Pipeline(PipelineCore):
         s = self.state[0]
         if s["phase"] in (stages.STARTING, stages.RUNNING):
             s["phase"] = stages.STOPPING
-
-    def estop(self) -> None:
-        """Emergency stop: head for park at once, as fast as the actuators' speed and
-        acceleration limits allow (the geometry's ``max_speed`` and ``max_accel``, never
-        faster): a second stop signal while stopping, teleop's E-stop key, this call."""
-        self.health.estops += 1
-        s = self.state[0]
-        s["estop"] = True
-        s["phase"] = stages.STOPPING
-        s["blend"] = 0.0
 
     @property
     def parked(self) -> bool:
