@@ -8,7 +8,8 @@ safety limiter (:func:`motionbase.stages.limit_stage`). Only what comes before t
 limiter differs: :class:`CommandPipeline` takes the place of
 :class:`~motionbase.pipeline.Pipeline` (it has the interface ``run`` drives: ``step``,
 ``stop``, ``estop``, ``estopped``, ``phase``, ``parked``, ``command``, ``speed``,
-``robot``, ``health``, ``dt``). Its source yields :class:`Command` samples.
+``robot``, ``health``, ``dt``; the shared part is :class:`~motionbase.pipeline.PipelineCore`).
+Its source yields :class:`Command` samples.
 
 Two modes
 ---------
