@@ -934,9 +934,7 @@ def open_output(
         if not base:
             raise ConfigError(f"output {url!r}: give a device or pyserial URL after 'serial:'")
         dev = base + ("?" + urlencode(other) if other else "")
-        size = (
-            fmt.size if isinstance(fmt, BinaryFormat) else len(fmt.encode([0] * mapping.n) or b"")
-        )
+        size = len(fmt.encode([0] * mapping.n) or b"")  # (a binary frame: always its size)
         if size * 10 * rate > baud:
             log.warning(
                 "output %s: %d-byte frames at %g Hz need %d baud, more than %d: frames will be "
