@@ -62,7 +62,7 @@ import numba
 import numpy as np
 
 from motionbase import __version__, stages
-from motionbase.config import as_float
+from motionbase.config import as_float, is_number
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import GarbageBetweenTicks, wait_until
 from motionbase.physics import STANDARD_GRAVITY
@@ -133,11 +133,7 @@ class PipelineConfig:
         cueing_spec(self.cueing)
         for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not (
-                isinstance(value, (int, float, np.integer, np.floating))
-                and np.isfinite(value)
-                and value > 0
-            ):
+            if not (is_number(value) and np.isfinite(value) and value > 0):
                 raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
         for name in ("planar_scale_m", "planar_yaw_scale"):
             as_float("pipeline", name, getattr(self, name))
