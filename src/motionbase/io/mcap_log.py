@@ -504,11 +504,10 @@ class McapLogger:
         The transform is the ``platform`` frame in the ``base`` frame: translation
         ``pose6[:3]`` m, rotation the quaternion of the Z-Y-X Euler angles ``pose6[3:]``
         rad. Both frames are FRD (x forward, y right, z down) and Foxglove shows them as
-        they are. So that the 3D
-        panel shows the platform upright, a transform from Foxglove's z-up
-        ``world`` frame to ``base`` (half a turn about x) is also written at the
-        first call and then once per second of source time: pick ``world`` as
-        the display frame.
+        they are. So that the 3D panel shows the platform upright, a transform from
+        Foxglove's z-up ``world`` frame to ``base`` (half a turn about x) is also written
+        at the first call and then once per second of source time: pick ``world`` as the
+        display frame.
 
         Parameters
         ----------
