@@ -8,7 +8,8 @@ safety limiter (:func:`motionbase.stages.limit_stage`). Only what comes before t
 limiter differs: :class:`CommandPipeline` takes the place of
 :class:`~motionbase.pipeline.Pipeline` (it has the interface ``run`` drives: ``step``,
 ``stop``, ``estop``, ``estopped``, ``phase``, ``parked``, ``command``, ``speed``,
-``robot``, ``health``, ``dt``). Its source yields :class:`Command` samples.
+``robot``, ``health``, ``dt``; the shared part is :class:`~motionbase.pipeline.PipelineCore`).
+Its source yields :class:`Command` samples.
 
 Two modes
 ---------
@@ -51,7 +52,7 @@ import numpy as np
 
 from motionbase import stages
 from motionbase.errors import ConfigError
-from motionbase.pipeline import MIN_RATE_HZ, Health, PipelineOutput
+from motionbase.pipeline import MIN_RATE_HZ, Health, PipelineCore, PipelineOutput
 from motionbase.platform.output_map import sweep_profile
 from motionbase.platform.robot import SOLVE_SIGNATURE, Robot
 from motionbase.safety import ActuatorLimits, limit_command
@@ -97,7 +98,7 @@ def _as_given(G, target, cue_out, pose_out, q_out):  # pragma: no cover - compil
     return False
 
 
-class CommandPipeline:
+class CommandPipeline(PipelineCore):
     """The pipeline's safety stages driven by robot poses or actuator positions.
 
     Parameters
@@ -203,17 +204,11 @@ class CommandPipeline:
         self._stale = False
         self.no_input = self.stale_ticks = self.trims = self.park_ticks = 0
 
-    def warm_up(self) -> None:
-        """Load the compiled kernels now (the first live tick is then on time); the
-        pipeline is left reset, its counters untouched."""
-        counts = self.health.as_dict()
+    def _warm_ticks(self) -> None:
         park = self.robot.park_angles if self.mode == "actuators" else self.robot.park_pose
         self.step(Command(0.0, np.array(park, dtype=float)))
         self.stop()
         self.step(None)
-        self.reset()
-        for name, value in counts.items():
-            setattr(self.health, name, value)
 
     def stop(self) -> None:
         """Head for park: actuator mode, the blend back over ``soft_start_s``; pose mode,
@@ -229,18 +224,9 @@ class CommandPipeline:
     def estop(self) -> None:
         """Emergency stop: actuator mode, head for park at once within the limits; pose
         mode, as :meth:`stop` (braking first is the fastest safe way for a parallel robot)."""
-        self.health.estops += 1
-        s = self.state[0]
         if self.mode == "poses":
-            self.stop()
-        else:
-            s["phase"] = stages.STOPPING
-            s["blend"] = 0.0
-        s["estop"] = True
-
-    @property
-    def estopped(self) -> bool:
-        return bool(self.state[0]["estop"])
+            self.stop()  # (then counted and flagged; phase and blend are stopping and 0 already)
+        super().estop()
 
     @property
     def parked(self) -> bool:
@@ -253,20 +239,6 @@ class CommandPipeline:
             and self.state[0]["phase"] == stages.STOPPING
             and not self.speed.any()
         )
-
-    @property
-    def phase(self) -> str:
-        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
-
-    @property
-    def command(self) -> np.ndarray:
-        """The last actuator command (a copy), in the robot's unit."""
-        return self.state[0]["q"][: self._n].copy()
-
-    @property
-    def speed(self) -> np.ndarray:
-        """The last command's speed (a live view)."""
-        return self.state[0]["v"][: self._n]
 
     # -- one tick --------------------------------------------------------------
     def _usable(self, cmd: Command | None, size: int) -> tuple[np.ndarray | None, bool]:
@@ -382,7 +354,7 @@ class CommandPipeline:
             new_pose = achieved if np.isfinite(achieved).all() else before
         self._pose = np.array(new_pose, dtype=float)
         s["pose"][:m] = self._pose
-        phase = "parked" if self.parked else stages.PHASES[int(s["phase"])]
+        phase = self.phase
         return PipelineOutput(
             t, cmd, bool(fresh), cmd is not None and not rejected, self._no_cue, self._pose,
             clamped, q, robot.servo(q), bool(flags & stages.RATE_LIMITED),

@@ -53,15 +53,16 @@ from __future__ import annotations
 import contextlib
 import sys
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numba
 import numpy as np
 
 from motionbase import __version__, stages
-from motionbase.config import as_float
+from motionbase.config import as_float, is_number
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.pacing import GarbageBetweenTicks, wait_until
 from motionbase.physics import STANDARD_GRAVITY
@@ -132,11 +133,7 @@ class PipelineConfig:
         cueing_spec(self.cueing)
         for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not (
-                isinstance(value, (int, float, np.integer, np.floating))
-                and np.isfinite(value)
-                and value > 0
-            ):
+            if not (is_number(value) and np.isfinite(value) and value > 0):
                 raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
         for name in ("planar_scale_m", "planar_yaw_scale"):
             as_float("pipeline", name, getattr(self, name))
@@ -189,9 +186,7 @@ class PipelineConfig:
                 "fade_s": self.fade_s,
                 "planar_scale_m": self.planar_scale_m,
                 "planar_yaw_scale": self.planar_yaw_scale,
-                "input_limits": {
-                    f.name: getattr(self.input_limits, f.name) for f in fields(InputLimits)
-                },
+                "input_limits": asdict(self.input_limits),
             },
             "version": __version__,
         }
@@ -353,7 +348,70 @@ class BatchResult(NamedTuple):
 # --------------------------------------------------------------------------- core
 
 
-class Pipeline:
+class PipelineCore(ABC):
+    """What :func:`run` reads of a pipeline, the same for :class:`Pipeline` and
+    :class:`motionbase.commanding.CommandPipeline`: both keep their state in the record
+    :attr:`state` (:data:`~motionbase.stages.STATE`) and say when they are :attr:`parked`.
+    """
+
+    robot: Robot
+    health: Health
+    state: np.ndarray
+
+    def warm_up(self) -> None:
+        """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
+        time; the pipeline is left reset, its counters untouched."""
+        counts = self.health.as_dict()
+        self._warm_ticks()
+        self.reset()
+        for name, value in counts.items():
+            setattr(self.health, name, value)
+
+    @abstractmethod
+    def _warm_ticks(self) -> None:
+        """A few ticks that call every compiled kernel (:meth:`warm_up` resets after them)."""
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Back to parked, at rest; counters kept."""
+
+    @property
+    @abstractmethod
+    def parked(self) -> bool:
+        """Stopped, at rest, where the run may end."""
+
+    def estop(self) -> None:
+        """Emergency stop: head for park at once, as fast as the actuators' speed and
+        acceleration limits allow (the geometry's ``max_speed`` and ``max_accel``, never
+        faster): a second stop signal while stopping, teleop's E-stop key, this call."""
+        self.health.estops += 1
+        s = self.state[0]
+        s["estop"] = True
+        s["phase"] = stages.STOPPING
+        s["blend"] = 0.0
+
+    @property
+    def estopped(self) -> bool:
+        """An E-stop was asked since the last reset."""
+        return bool(self.state[0]["estop"])
+
+    @property
+    def phase(self) -> str:
+        """``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``."""
+        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
+
+    @property
+    def command(self) -> np.ndarray:
+        """The last actuator command (a copy), in the robot's unit."""
+        return self.state[0]["q"][: self.robot.n].copy()
+
+    @property
+    def speed(self) -> np.ndarray:
+        """The last command's speed (a live view: read it, do not keep it)."""
+        return self.state[0]["v"][: self.robot.n]
+
+
+class Pipeline(PipelineCore):
     """The functional core: ``step(state) -> PipelineOutput``, no I/O.
 
     Parameters
@@ -406,17 +464,11 @@ class Pipeline:
         self.cueing.reset()
         stages.reset_state(self.state, self.params, self.robot.park_pose)
 
-    def warm_up(self) -> None:
-        """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
-        time; the pipeline is left reset, its counters untouched."""
-        counts = self.health.as_dict()
+    def _warm_ticks(self) -> None:
         level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
         self.step(AircraftState(0.0, level, self._zero3))
         self.step(None)
         self.robot.forward(self.robot.park_angles, guess=self.robot.park_pose)
-        self.reset()
-        for name, value in counts.items():
-            setattr(self.health, name, value)
 
     def stop(self) -> None:
         """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
@@ -426,40 +478,10 @@ class Pipeline:
         if s["phase"] in (stages.STARTING, stages.RUNNING):
             s["phase"] = stages.STOPPING
 
-    def estop(self) -> None:
-        """Emergency stop: head for park at once, as fast as the actuators' speed and
-        acceleration limits allow (the geometry's ``max_speed`` and ``max_accel``, never
-        faster): a second stop signal while stopping, teleop's E-stop key, this call."""
-        self.health.estops += 1
-        s = self.state[0]
-        s["estop"] = True
-        s["phase"] = stages.STOPPING
-        s["blend"] = 0.0
-
-    @property
-    def estopped(self) -> bool:
-        """An E-stop was asked since the last reset."""
-        return bool(self.state[0]["estop"])
-
     @property
     def parked(self) -> bool:
         """True once stopped with the actuators at park and at rest."""
         return bool(stages.at_park(self.params, self.state))
-
-    @property
-    def phase(self) -> str:
-        """``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``."""
-        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
-
-    @property
-    def command(self) -> np.ndarray:
-        """The last actuator command (a copy), in the robot's unit."""
-        return self.state[0]["q"][: self.robot.n].copy()
-
-    @property
-    def speed(self) -> np.ndarray:
-        """The last command's speed (a live view: read it, do not keep it)."""
-        return self.state[0]["v"][: self.robot.n]
 
     # -- one tick --------------------------------------------------------------
     def step(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
@@ -473,23 +495,12 @@ class Pipeline:
             False when the source says the sample is a stale hold.
         """
         self.health.samples += 1
-        P, S, u = self.params, self.state, self._u
+        P, S, u, z = self.params, self.state, self._u, self._zero3
         if state is None:
-            flags = stages.input_stage(
-                P, S, False, 0.0, self._zero3, self._zero3, self._zero3, bool(fresh), u
-            )
+            flags = stages.input_stage(P, S, False, 0.0, z, z, z, bool(fresh), u)
         else:
-            flags = stages.input_stage(
-                P,
-                S,
-                True,
-                state.t,
-                state.specific_force,
-                state.angular_velocity,
-                state.attitude,
-                bool(fresh),
-                u,
-            )
+            f, w, att = state.specific_force, state.angular_velocity, state.attitude
+            flags = stages.input_stage(P, S, True, state.t, f, w, att, bool(fresh), u)
             if state.on_ground is not None:  # the flight phase, for profiled cueings
                 self.cueing.set_flight_phase(state.on_ground)
         cue = np.empty(6)
@@ -589,11 +600,9 @@ class Pipeline:
                 g = None if on_ground is None or on_ground[k] != on_ground[k] else on_ground[k]
                 state = AircraftState(t[k], f[k], w[k], att[k], on_ground=g)
                 o = self.step(state, bool(fresh[k]))
-                out.cue_poses[k], out.poses[k], out.commands[k] = (
-                    o.washout_pose,
-                    o.platform_pose,
-                    o.angles,
-                )
+                out.cue_poses[k] = o.washout_pose
+                out.poses[k] = o.platform_pose
+                out.commands[k] = o.angles
                 out.flags[k] = self.flags
             return out
         done = stages.run_batch(
@@ -798,211 +807,181 @@ def run(
     commands are out, never inside a tick
     (:class:`~motionbase.pacing.GarbageBetweenTicks`).
     """
-    old = sys.getswitchinterval()
-    sys.setswitchinterval(min(old, SWITCH_INTERVAL_S))
-    garbage = GarbageBetweenTicks() if paced else None
-    try:
-        with garbage if garbage is not None else contextlib.nullcontext():
-            return _run(
-                pipeline,
-                source,
-                sinks,
-                paced=paced,
-                busy_wait=busy_wait,
-                stop=stop,
-                progress=progress,
-                max_park_s=max_park_s,
-                after_tick=garbage.after_tick if garbage is not None else None,
-            )
-    finally:
-        sys.setswitchinterval(old)
+    with contextlib.ExitStack() as restore:  # (the switch interval and the collector as they were)
+        restore.callback(sys.setswitchinterval, sys.getswitchinterval())
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+        after_tick = restore.enter_context(GarbageBetweenTicks()).after_tick if paced else None
+        stop = stop if stop is not None else StopRequest()  # (an unset StopRequest is falsy)
+        summary = RunSummary(health=pipeline.health)
+        robot = pipeline.robot
+        health = pipeline.health
+        dt = pipeline.dt
+        n = robot.n
+        run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
+        ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
+        start_speed, stop_speed = np.zeros(n), np.zeros(n)
+        ticks = {"starting": 0, "stopping": 0}
+        wall0 = time.perf_counter()
+        t_first: float | None = None
+        t_last = 0.0
+        active = list(sinks)
+        failure: BaseException | None = None  # the first source or sink failure
+        failed_sink: Any = None
+        clock = time.monotonic  # the loop's clock (due times are on it)
+        cpu_clock = time.thread_time  # the loop thread's CPU time (tells waiting from computing)
+        loop_paces = paced and not getattr(source, "paces_itself", False)
+        next_due: float | None = None  # paced by this loop: when the next tick is due
 
+        def fail(exc: BaseException, what: str, sink: Any = None) -> None:
+            nonlocal failure, failed_sink
+            if failure is None:
+                failure = exc
+                failed_sink = sink
+                summary.stopped_by = f"{what} failure"
+                stop.set(f"{what} failure")
 
-def _run(
-    pipeline: Pipeline,
-    source: Iterable[AircraftState],
-    sinks: Sequence[Any],
-    *,
-    paced: bool,
-    busy_wait: bool,
-    stop: StopRequest | None,
-    progress: Callable[[PipelineOutput], None] | None,
-    max_park_s: float,
-    after_tick: Callable[[], None] | None = None,
-) -> RunSummary:
-    stop = stop if stop is not None else StopRequest()  # (an unset StopRequest is falsy)
-    summary = RunSummary(health=pipeline.health)
-    robot = pipeline.robot
-    health = pipeline.health
-    dt = pipeline.dt
-    n = robot.n
-    run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
-    ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
-    start_speed, stop_speed = np.zeros(n), np.zeros(n)
-    ticks = {"starting": 0, "stopping": 0}
-    wall0 = time.perf_counter()
-    t_first: float | None = None
-    t_last = 0.0
-    active = list(sinks)
-    failure: BaseException | None = None  # the first source or sink failure
-    failed_sink: Any = None
-    clock = time.monotonic  # the loop's clock (due times are on it)
-    cpu_clock = time.thread_time  # the loop thread's CPU time (tells waiting from computing)
-    loop_paces = paced and not getattr(source, "paces_itself", False)
-    next_due: float | None = None  # paced by this loop: when the next tick is due
-
-    def fail(exc: BaseException, what: str, sink: Any = None) -> None:
-        nonlocal failure, failed_sink
-        if failure is None:
-            failure = exc
-            failed_sink = sink
-            summary.stopped_by = f"{what} failure"
-            stop.set(f"{what} failure")
-
-    def pace() -> float:
-        """Wait for the next tick's due time on this loop's schedule; return it."""
-        nonlocal next_due
-        due = clock() if next_due is None else next_due
-        wait_until(due, busy=busy_wait, clock=clock)
-        now = clock()
-        # more than half a period late: the schedule restarts here (never burst to catch up)
-        next_due = (now if now - due > 0.5 * dt else due) + dt
-        return due
-
-    def emit(out: PipelineOutput, started: float, due: float) -> None:
-        nonlocal t_first, t_last, progress
-        for sink in tuple(active):
-            try:
-                sink.write(out)
-            except Exception as exc:  # noqa: BLE001 - drop the sink, park on the others
-                active.remove(sink)
-                fail(exc, "sink", sink)
-        if progress is not None:
-            try:
-                progress(out)
-            except Exception:  # noqa: BLE001 - a display (a closed terminal): drop it
-                progress = None
-        summary.samples += 1
-        summary.clamped += out.clamped
-        phase = out.phase
-        if phase == "running":
-            summary.running_samples += 1
-            _track_peaks(run_angle, run_speed, out.angles, speeds)
-        else:
-            ramp = "starting" if phase == "starting" else "stopping"
-            ticks[ramp] += 1
-            ramp_speed = start_speed if ramp == "starting" else stop_speed
-            _track_peaks(ramp_angle, ramp_speed, out.angles, speeds)
-        if t_first is None:
-            t_first = out.t
-        t_last = out.t
-        if paced:
+        def pace() -> float:
+            """Wait for the next tick's due time on this loop's schedule; return it."""
+            nonlocal next_due
+            due = clock() if next_due is None else next_due
+            wait_until(due, busy=busy_wait, clock=clock)
             now = clock()
-            # a tick is due when the source hands it over and must be done within one period
-            late = now - started - dt
-            if late > 0.0:
-                health.overruns += 1
-                if cpu_clock() - cpu_started < dt:
-                    health.overruns_off_cpu += 1  # the thread was waiting, not computing
-                if late > health.worst_overrun_s:
-                    health.worst_overrun_s = late
-            # what the actuators see: the command within one period of its sample's due time
-            late = now - due - dt
-            if late > 0.0:
-                health.late_commands += 1
-                if late > health.worst_late_s:
-                    health.worst_late_s = late
-            if after_tick is not None:
-                after_tick()  # (the garbage collector: the command is out)
+            # more than half a period late: the schedule restarts here (never burst to catch up)
+            next_due = (now if now - due > 0.5 * dt else due) + dt
+            return due
 
-    def apply_stop() -> None:
-        if pipeline.phase in ("starting", "running"):
-            pipeline.estop() if stop.estop else pipeline.stop()
-        elif stop.estop and not pipeline.estopped:
-            pipeline.estop()
-
-    stopping_requested = False
-    iterator = iter(source)
-    # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
-    speeds = pipeline.speed
-    stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
-    has_fresh = hasattr(source, "fresh")
-    started = cpu_started = due = 0.0
-    step = pipeline.step
-    scratch = np.zeros(n)
-    _track_peaks(scratch, scratch.copy(), scratch, scratch)  # loaded now, not in the first tick
-    # a stop asked before the first tick (while the program loaded): nothing moves, the
-    # source is not read; the run is one park tick
-    while not (summary.samples == 0 and stop_raised()):
-        try:
-            state = next(iterator)
-        except StopIteration:
-            break
-        except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
-            fail(exc, "source")
-            break
-        if paced:
-            if loop_paces:
-                due = pace()
-            started, cpu_started = clock(), cpu_clock()
-            if not loop_paces:
-                due = getattr(source, "due_time", None)
-                if due is None:
-                    due = started
-                next_due = started + dt  # the park ticks follow on this loop's schedule
-        if stop_raised() and (not stopping_requested or (stop.estop and not pipeline.estopped)):
-            if not stopping_requested:
-                summary.stopped_by = stop.reason
-            stopping_requested = True
-            apply_stop()
-        out = step(state, bool(source.fresh) if has_fresh else True)
-        emit(out, started, due)
-        if out.phase == "parked":
-            break
-    # park ramp on held samples
-    if not pipeline.parked:
-        if not stopping_requested:
-            if stop:
-                summary.stopped_by = stop.reason
-            pipeline.stop()
-        for _ in range(int(max_park_s / dt)):
-            if pipeline.parked and summary.samples:  # (one park tick at least: drives, log)
-                break
-            if stop.estop and not pipeline.estopped:
-                pipeline.estop()
+        def emit(out: PipelineOutput, started: float, due: float) -> None:
+            nonlocal t_first, t_last, progress
+            for sink in tuple(active):
+                try:
+                    sink.write(out)
+                except Exception as exc:  # noqa: BLE001 - drop the sink, park on the others
+                    active.remove(sink)
+                    fail(exc, "sink", sink)
+            if progress is not None:
+                try:
+                    progress(out)
+                except Exception:  # noqa: BLE001 - a display (a closed terminal): drop it
+                    progress = None
+            summary.samples += 1
+            summary.clamped += out.clamped
+            phase = out.phase
+            if phase == "running":
+                summary.running_samples += 1
+                _track_peaks(run_angle, run_speed, out.angles, speeds)
+            else:
+                ramp = "starting" if phase == "starting" else "stopping"
+                ticks[ramp] += 1
+                ramp_speed = start_speed if ramp == "starting" else stop_speed
+                _track_peaks(ramp_angle, ramp_speed, out.angles, speeds)
+            if t_first is None:
+                t_first = out.t
+            t_last = out.t
             if paced:
-                due = pace()
-            started, cpu_started = clock(), cpu_clock()
-            if not paced:
-                due = started
-            emit(pipeline.step(None), started, due)
-    if stop.estop and stop.estop_reason and stop.estop_reason != summary.stopped_by:
-        summary.stopped_by += f", then an E-stop ({stop.estop_reason})"
-    if failure is not None:
-        # parked first; then the failure in one line (a source's bug propagates as is)
-        if isinstance(failure, MotionbaseError):
+                now = clock()
+                # a tick is due when the source hands it over and must be done within one period
+                late = now - started - dt
+                if late > 0.0:
+                    health.overruns += 1
+                    if cpu_clock() - cpu_started < dt:
+                        health.overruns_off_cpu += 1  # the thread was waiting, not computing
+                    health.worst_overrun_s = max(health.worst_overrun_s, late)
+                # what the actuators see: the command within one period of its sample's due time
+                late = now - due - dt
+                if late > 0.0:
+                    health.late_commands += 1
+                    health.worst_late_s = max(health.worst_late_s, late)
+                if after_tick is not None:
+                    after_tick()  # (the garbage collector: the command is out)
+
+        def apply_stop() -> None:
+            if pipeline.phase in ("starting", "running"):
+                pipeline.estop() if stop.estop else pipeline.stop()
+            elif stop.estop and not pipeline.estopped:
+                pipeline.estop()
+
+        stopping_requested = False
+        iterator = iter(source)
+        # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
+        speeds = pipeline.speed
+        stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
+        has_fresh = hasattr(source, "fresh")
+        started = cpu_started = due = 0.0
+        step = pipeline.step
+        scratch = np.zeros(n)
+        _track_peaks(scratch, scratch.copy(), scratch, scratch)  # loaded now, not in the first tick
+        # a stop asked before the first tick (while the program loaded): nothing moves, the
+        # source is not read; the run is one park tick
+        while not (summary.samples == 0 and stop_raised()):
             try:
-                again = type(failure)(f"{failure} (the platform was parked)")
-            except TypeError:
-                again = MotionbaseError(f"{failure} (the platform was parked)")
-            raise again from failure
-        if failed_sink is not None:
-            what = f"{type(failure).__name__}: {failure}".replace("\n", " ")
-            raise SinkError(
-                f"sink {_sink_name(failed_sink)} failed ({what}); the platform was parked"
-            ) from failure
-        raise failure
-    summary.wall_time_s = time.perf_counter() - wall0
-    summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
-    summary.peak_angle = run_angle
-    summary.peak_speed = run_speed
-    summary.start_s = ticks["starting"] * dt
-    summary.stop_s = ticks["stopping"] * dt
-    summary.start_peak_speed = start_speed
-    summary.stop_peak_speed = stop_speed
-    summary.angle_limits = (robot.limits.lower, robot.limits.upper)
-    summary.max_speed = robot.limits.max_speed
-    return summary
+                state = next(iterator)
+            except StopIteration:
+                break
+            except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
+                fail(exc, "source")
+                break
+            if paced:
+                if loop_paces:
+                    due = pace()
+                started, cpu_started = clock(), cpu_clock()
+                if not loop_paces:
+                    due = getattr(source, "due_time", None)
+                    if due is None:
+                        due = started
+                    next_due = started + dt  # the park ticks follow on this loop's schedule
+            if stop_raised() and (not stopping_requested or (stop.estop and not pipeline.estopped)):
+                if not stopping_requested:
+                    summary.stopped_by = stop.reason
+                stopping_requested = True
+                apply_stop()
+            out = step(state, bool(source.fresh) if has_fresh else True)
+            emit(out, started, due)
+            if out.phase == "parked":
+                break
+        # park ramp on held samples
+        if not pipeline.parked:
+            if not stopping_requested:
+                if stop:
+                    summary.stopped_by = stop.reason
+                pipeline.stop()
+            for _ in range(int(max_park_s / dt)):
+                if pipeline.parked and summary.samples:  # (one park tick at least: drives, log)
+                    break
+                if stop.estop and not pipeline.estopped:
+                    pipeline.estop()
+                if paced:
+                    due = pace()
+                started, cpu_started = clock(), cpu_clock()
+                if not paced:
+                    due = started
+                emit(pipeline.step(None), started, due)
+        if stop.estop and stop.estop_reason and stop.estop_reason != summary.stopped_by:
+            summary.stopped_by += f", then an E-stop ({stop.estop_reason})"
+        if failure is not None:
+            # parked first; then the failure in one line (a source's bug propagates as is)
+            if isinstance(failure, MotionbaseError):
+                try:
+                    again = type(failure)(f"{failure} (the platform was parked)")
+                except TypeError:
+                    again = MotionbaseError(f"{failure} (the platform was parked)")
+                raise again from failure
+            if failed_sink is not None:
+                what = f"{type(failure).__name__}: {failure}".replace("\n", " ")
+                raise SinkError(
+                    f"sink {_sink_name(failed_sink)} failed ({what}); the platform was parked"
+                ) from failure
+            raise failure
+        summary.wall_time_s = time.perf_counter() - wall0
+        summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
+        summary.peak_angle = run_angle
+        summary.peak_speed = run_speed
+        summary.start_s = ticks["starting"] * dt
+        summary.stop_s = ticks["stopping"] * dt
+        summary.start_peak_speed = start_speed
+        summary.stop_peak_speed = stop_speed
+        summary.angle_limits = (robot.limits.lower, robot.limits.upper)
+        summary.max_speed = robot.limits.max_speed
+        return summary
 
 
 def with_overrides(config: PipelineConfig, **changes: Any) -> PipelineConfig:

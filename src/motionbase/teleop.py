@@ -92,9 +92,7 @@ class TeleopStats:
         )  # fmt: skip
 
     def as_health(self) -> dict[str, Any]:
-        d = asdict(self)
-        d.update(rejected_inputs=self.held)
-        return d
+        return {**asdict(self), "rejected_inputs": self.held}
 
 
 class CursorCommands:
@@ -308,13 +306,6 @@ def run_teleop(
     if hasattr(source, "view"):
         sinks.append(_Window(source, rrr3, stop))
 
-    def stats(stopped_by: str) -> TeleopStats:
-        asked = bool(stop) and stopped_by.startswith(stop.reason) and "failure" not in stop.reason
-        return TeleopStats.of(
-            pipeline, frames_sent=servo.frames_sent if servo is not None else 0,
-            estops=int(asked), stopped_by=stopped_by,
-        )  # fmt: skip
-
     # the pipeline gives up going home after max_park_s and brakes to rest (a few tenths of
     # a second at most): the loop's own bound is only a backstop
     try:
@@ -332,7 +323,11 @@ def run_teleop(
     stopped_by = summary.stopped_by
     if stopped_by == "end of source":
         stopped_by = commands.ended or "end of input"
-    result = stats(stopped_by)
+    asked = bool(stop) and stopped_by.startswith(stop.reason) and "failure" not in stop.reason
+    result = TeleopStats.of(
+        pipeline, frames_sent=servo.frames_sent if servo is not None else 0,
+        estops=int(asked), stopped_by=stopped_by,
+    )  # fmt: skip
     if logger is not None and not log.failed:
         t_end = float(pipeline.state[0]["t"])
         logger.add("/health", max(0.0, t_end), result.as_health())

@@ -328,7 +328,6 @@ class McapLogger:
         self._port: int | None = None
         self._state = "new"
         self._failure = ""
-        self._message_count = 0
         self._last_static_ns = -1
         self._pending = bytearray()  # records not yet written to the writer process
         self._pending_ns = -1  # log time of the first of them
@@ -430,13 +429,12 @@ class McapLogger:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        if exc_type is None:
-            self.finish()
-            return
         try:
             self.finish()
-        except SinkError as err:  # do not hide the exception that is propagating
-            log.warning("%s", err)
+        except SinkError as err:
+            if exc_type is None:
+                raise
+            log.warning("%s", err)  # do not hide the exception that is propagating
 
     @property
     def live_port(self) -> int | None:
@@ -447,11 +445,6 @@ class McapLogger:
     def writer_pid(self) -> int | None:
         """The process id of the writer process (None before ``start()``)."""
         return None if self._process is None else self._process.pid
-
-    @property
-    def message_count(self) -> int:
-        """Messages logged so far."""
-        return self._message_count
 
     # ------------------------------------------------------------------ messages
     def add(self, topic: str, t: float, message: Mapping[str, Any]) -> None:
@@ -489,7 +482,6 @@ class McapLogger:
             data = encode_message(message)
             buf += _HEADER.pack(OP_LOG, 0, i, len(data), ns)
             buf += data
-        self._message_count += len(items)
         self._queued(ns)
 
     def add_encoded(self, topic: str, t: float, data: bytes) -> None:
@@ -501,30 +493,21 @@ class McapLogger:
             self._unknown(topic)
         self._pending += _HEADER.pack(OP_LOG, 0, i, len(data), ns)
         self._pending += data
-        self._message_count += 1
         self._queued(ns)
 
     def _unknown(self, topic: str) -> None:
         raise SinkError(f"unknown MCAP topic {topic!r}: known topics are {', '.join(self.topics)}")
 
-    def add_transform(
-        self,
-        t: float,
-        pose6: Sequence[float] | np.ndarray,
-        *,
-        parent: str = "base",
-        child: str = "platform",
-    ) -> None:
+    def add_transform(self, t: float, pose6: Sequence[float] | np.ndarray) -> None:
         """Log the platform pose as a ``foxglove.FrameTransform`` on ``/tf``.
 
-        The transform is the platform frame (``child``) in the base frame
-        (``parent``): translation ``pose6[:3]`` m, rotation the quaternion of the
-        Z-Y-X Euler angles ``pose6[3:]`` rad. Both frames are FRD (x forward,
-        y right, z down) and Foxglove shows them as they are. So that the 3D
-        panel shows the platform upright, a transform from Foxglove's z-up
-        ``world`` frame to ``base`` (half a turn about x) is also written at the
-        first call and then once per second of source time: pick ``world`` as
-        the display frame.
+        The transform is the ``platform`` frame in the ``base`` frame: translation
+        ``pose6[:3]`` m, rotation the quaternion of the Z-Y-X Euler angles ``pose6[3:]``
+        rad. Both frames are FRD (x forward, y right, z down) and Foxglove shows them as
+        they are. So that the 3D panel shows the platform upright, a transform from
+        Foxglove's z-up ``world`` frame to ``base`` (half a turn about x) is also written
+        at the first call and then once per second of source time: pick ``world`` as the
+        display frame.
 
         Parameters
         ----------
@@ -532,8 +515,6 @@ class McapLogger:
             Time, s, source clock.
         pose6 : array_like, shape (6,)
             ``[x, y, z, roll, pitch, yaw]``, m and rad, base axes FRD.
-        parent, child : str
-            Frame names.
         """
         ns = self._ns(t)
         p = pose6.tolist() if isinstance(pose6, np.ndarray) else [float(v) for v in pose6]
@@ -541,19 +522,16 @@ class McapLogger:
             raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
         tf = self._index["/tf"]
         buf = self._pending
-        count = 1
         if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
             self._last_static_ns = ns
             world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
             data = encode_message(world)
             buf += _HEADER.pack(OP_LOG, FLAG_ALWAYS_LIVE, tf, len(data), ns)  # every one live
             buf += data
-            count = 2
         q = quaternion_from_euler_zyx(p[3], p[4], p[5])
-        data = encode_message(transform_message(ns, parent, child, p[0], p[1], p[2], q))
+        data = encode_message(transform_message(ns, "base", "platform", p[0], p[1], p[2], q))
         buf += _HEADER.pack(OP_LOG, 0, tf, len(data), ns)
         buf += data
-        self._message_count += count
         self._queued(ns)
 
     def flush(self) -> None:
@@ -597,12 +575,10 @@ class McapLogger:
         write short)."""
         data, self._pending = self._pending, bytearray()
         self._pending_ns = -1
+        view = memoryview(data)
         try:
-            n = os.write(self._data_fd, data)
-            if n < len(data):
-                view = memoryview(data)[n:]
-                while view:
-                    view = view[os.write(self._data_fd, view) :]
+            while view:
+                view = view[os.write(self._data_fd, view) :]
         except BrokenPipeError:  # the writer failed and closed its end: its answer says why
             self._answer()
             raise SinkError(f"{self.path}: the MCAP log's writer process stopped") from None

@@ -74,8 +74,11 @@ Behaviour
 
 from __future__ import annotations
 
+import binascii
+import functools
 import logging
 import math
+import operator
 import re
 import socket
 import threading
@@ -120,23 +123,17 @@ MAX_FIELD_WIDTH = 64
 # --------------------------------------------------------------------------- checksums
 
 
-def _crc_table(poly: int, reflected: bool) -> tuple[int, ...]:
+def _modbus_table() -> tuple[int, ...]:
     table = []
     for byte in range(256):
-        if reflected:
-            crc = byte
-            for _ in range(8):
-                crc = (crc >> 1) ^ poly if crc & 1 else crc >> 1
-        else:
-            crc = byte << 8
-            for _ in range(8):
-                crc = ((crc << 1) ^ poly) if crc & 0x8000 else crc << 1
-        table.append(crc & 0xFFFF)
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+        table.append(crc)
     return tuple(table)
 
 
-_MODBUS = _crc_table(0xA001, True)
-_CCITT = _crc_table(0x1021, False)
+_MODBUS = _modbus_table()
 
 
 def crc16_modbus(data: bytes) -> int:
@@ -149,25 +146,15 @@ def crc16_modbus(data: bytes) -> int:
 
 def crc16_ccitt(data: bytes) -> int:
     """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF); ``b"123456789"`` gives 0x29B1."""
-    crc = 0xFFFF
-    for b in data:
-        crc = ((crc << 8) & 0xFFFF) ^ _CCITT[((crc >> 8) ^ b) & 0xFF]
-    return crc
+    return binascii.crc_hqx(data, 0xFFFF)
 
 
 _CHECKSUMS: dict[str, tuple[Callable[[bytes], int], int, str]] = {
     "sum8": (lambda d: sum(d) & 0xFF, 1, "big"),
-    "xor8": (lambda d: _xor(d), 1, "big"),
+    "xor8": (lambda d: functools.reduce(operator.xor, d, 0), 1, "big"),
     "crc16": (crc16_modbus, 2, "little"),
     "crc16ccitt": (crc16_ccitt, 2, "big"),
 }
-
-
-def _xor(data: bytes) -> int:
-    x = 0
-    for b in data:
-        x ^= b
-    return x
 
 
 # --------------------------------------------------------------------------- formats
@@ -180,25 +167,13 @@ _SPEC_RE = re.compile(
     r"(?P<width>\d+)?(?P<grouping>[,_])?(?:\.(?P<prec>\d+))?(?P<type>[a-zA-Z%])?$"
 )
 _ESCAPES = {"n": "\n", "r": "\r", "t": "\t", "\\": "\\", "0": "\0"}
+_ESCAPE_RE = re.compile(r"\\(?:([nrt\\0])|x([0-9a-fA-F]{2}))")
 
 
 def _unescape(text: str) -> str:
-    out, i = [], 0
-    while i < len(text):
-        c = text[i]
-        if c == "\\" and i + 1 < len(text):
-            nxt = text[i + 1]
-            if nxt in _ESCAPES:
-                out.append(_ESCAPES[nxt])
-                i += 2
-                continue
-            if nxt == "x" and re.fullmatch(r"[0-9a-fA-F]{2}", text[i + 2 : i + 4]):
-                out.append(chr(int(text[i + 2 : i + 4], 16)))
-                i += 4
-                continue
-        out.append(c)
-        i += 1
-    return "".join(out)
+    """``\\n``, ``\\r``, ``\\t``, ``\\\\``, ``\\0`` and ``\\xHH`` expanded, left to right; any
+    other backslash is kept as it is."""
+    return _ESCAPE_RE.sub(lambda m: _ESCAPES.get(m[1]) or chr(int(m[2], 16)), text)
 
 
 @dataclass(frozen=True)
@@ -209,7 +184,6 @@ class _TextField:
     unsigned: bool
     exact_width: int | None
     pattern: str
-    resolution: float | None
 
 
 class TextFormat:
@@ -222,8 +196,6 @@ class TextFormat:
     n_axes : int
         Number of motors; a placeholder above it is an error.
     """
-
-    kind = "text"
 
     def __init__(self, template: str, n_axes: int = 6) -> None:
         self.template = template
@@ -295,8 +267,6 @@ class TextFormat:
             pattern = r"[-+ ]?" + body_re if exact is None else rf"[-+ 0-9a-fA-FxXob]{{{exact}}}"
         else:
             pattern = r"[-+ ]?[0-9.]+(?:[eE][-+]?\d+)?" if exact is None else rf".{{{exact}}}"
-        prec = int(m.group("prec")) if m.group("prec") else 6
-        res = 1.0 if integer else (10.0**-prec if typ in "fF" else None)
         return _TextField(
             int(num) - 1,
             spec,
@@ -304,7 +274,6 @@ class TextFormat:
             typ in _UNSIGNED_TYPES,
             exact,
             "(" + pattern + ")",
-            res,
         )
 
     def encode(self, values: Sequence[float]) -> bytes | None:
@@ -339,24 +308,6 @@ class TextFormat:
                 out[f.axis] = float(s)
         return out
 
-    def split(self, data: bytes) -> tuple[list[bytes], bytes]:
-        """Whole frames in a byte stream and the unmatched remainder (for readers)."""
-        frames, pos = [], 0
-        pat = self._regex
-        while True:
-            m = pat.search(data, pos)
-            if m is None:
-                return frames, data[pos:]
-            frames.append(m.group(0))
-            pos = m.end()
-
-    def resolution(self) -> list[float | None]:
-        """Per motor, the step of the written value (drive units; None when not fixed)."""
-        res: list[float | None] = [None] * (max(self._axes) + 1)
-        for f in self.fields:
-            res[f.axis] = f.resolution
-        return res
-
     def describe(self) -> str:
         return f"text:{self.template}"
 
@@ -389,8 +340,6 @@ class BinaryFormat:
     n_axes : int
         Number of motors.
     """
-
-    kind = "binary"
 
     def __init__(self, spec: str, n_axes: int = 6) -> None:
         self.spec = spec
@@ -454,7 +403,6 @@ class BinaryFormat:
             raise ConfigError(f"{where}: no axis field (add e.g. 6xu16be)")
         self.items = tuple(items)
         self.size = offset
-        self.header = items[0].data if items[0].kind == "lit" else b""
         self.axes = sorted({i.axis for i in items if i.kind == "axis"})
 
     def encode(self, values: Sequence[float]) -> bytes | None:
@@ -499,35 +447,6 @@ class BinaryFormat:
                     raise SinkError(f"frame {frame.hex()}: {i.checksum} mismatch")
                 pos += size
         return out
-
-    def split(self, data: bytes) -> tuple[list[bytes], bytes]:
-        """Whole valid frames in a byte stream (resynchronising on the header) and the rest."""
-        frames, pos = [], 0
-        while len(data) - pos >= self.size:
-            if self.header and not data.startswith(self.header, pos):
-                k = data.find(self.header, pos + 1)
-                if k < 0:
-                    pos = max(pos, len(data) - len(self.header) + 1)
-                    break
-                pos = k
-                continue
-            frame = data[pos : pos + self.size]
-            try:
-                self.decode(frame)
-            except SinkError:
-                pos += 1
-                continue
-            frames.append(frame)
-            pos += self.size
-        return frames, data[pos:]
-
-    def resolution(self) -> list[float | None]:
-        """Per motor, the step of the written value in drive units (1 / scale)."""
-        res: list[float | None] = [None] * (max(self.axes) + 1)
-        for i in self.items:
-            if i.kind == "axis":
-                res[i.axis] = 1.0 / i.scale
-        return res
 
     def describe(self) -> str:
         return f"bin:{self.spec}"
@@ -580,8 +499,7 @@ class _SerialTransport:
         self.port = open_serial_port(self.url, self.baud, timeout=0, write_timeout=0.2)
 
     def reopen(self) -> bool:
-        close_quietly(self.port)
-        self.port = None
+        self.close()
         try:
             self.open()
             return True
@@ -1016,9 +934,7 @@ def open_output(
         if not base:
             raise ConfigError(f"output {url!r}: give a device or pyserial URL after 'serial:'")
         dev = base + ("?" + urlencode(other) if other else "")
-        size = (
-            fmt.size if isinstance(fmt, BinaryFormat) else len(fmt.encode([0] * mapping.n) or b"")
-        )
+        size = len(fmt.encode([0] * mapping.n) or b"")  # (a binary frame: always its size)
         if size * 10 * rate > baud:
             log.warning(
                 "output %s: %d-byte frames at %g Hz need %d baud, more than %d: frames will be "

@@ -85,17 +85,12 @@ def tick_messages(out) -> list[tuple[str, dict[str, Any]]]:
     if out.cue_status:  # e.g. the flight-phase profile and its blend
         cue_msg.update(out.cue_status)
     if out.servo_deg is None:
-        items = [
-            ("/washout/pose", cue_msg),
-            ("/platform/pose", pose_msg),
-            ("/platform/actuators", {"t": t, "angles": out.angles}),
-        ]
+        pose_topic, actuators_topic = "/platform/pose", "/platform/actuators"
+        actuators = {"t": t, "angles": out.angles}
     else:
-        items = [
-            ("/washout/pose", cue_msg),
-            ("/planar/pose", pose_msg),
-            ("/planar/actuators", {"t": t, "angles": out.angles, "servo_deg": out.servo_deg}),
-        ]
+        pose_topic, actuators_topic = "/planar/pose", "/planar/actuators"
+        actuators = {"t": t, "angles": out.angles, "servo_deg": out.servo_deg}
+    items = [("/washout/pose", cue_msg), (pose_topic, pose_msg), (actuators_topic, actuators)]
     if out.state is not None:
         items.insert(0, ("/aircraft/state", state_message(t, out.state, out.fresh, out.accepted)))
     return items

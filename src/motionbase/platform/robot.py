@@ -27,6 +27,7 @@ kernel from compiled code (:mod:`motionbase.stages`).
 
 from __future__ import annotations
 
+import pkgutil
 from abc import ABC
 from dataclasses import dataclass
 from pathlib import Path
@@ -180,22 +181,15 @@ class RobotSpec:
     planar: bool = False
     description: str = ""
 
-    @staticmethod
-    def _load(path: str) -> Any:
-        import importlib
-
-        module, attr = path.split(":")
-        return getattr(importlib.import_module(module), attr)
-
     @property
     def geometry_type(self) -> Any:
         """The geometry class."""
-        return self._load(self.geometry_class)
+        return pkgutil.resolve_name(self.geometry_class)
 
     @property
     def robot_type(self) -> type[Robot]:
         """The :class:`Robot` subclass."""
-        return self._load(self.robot_class)
+        return pkgutil.resolve_name(self.robot_class)
 
     def make(self, geometry: Any, **options: Any) -> Robot:
         """The robot for ``geometry`` (options: the planar mapping's scales)."""

@@ -35,6 +35,7 @@ them the batch path steps the cueing from Python, with the same results.
 
 from __future__ import annotations
 
+import pkgutil
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -170,22 +171,15 @@ class CueingSpec:
     description: str = ""
     tuned_presets: dict[tuple[str, str], str] = field(default_factory=dict)
 
-    @staticmethod
-    def _load(path: Any) -> Any:
-        if not isinstance(path, str):
-            return path
-        import importlib
-
-        module, attr = path.split(":")
-        return getattr(importlib.import_module(module), attr)
-
     @property
     def cueing_type(self) -> type[Cueing]:
-        return self._load(self.cueing_class)
+        c = self.cueing_class
+        return pkgutil.resolve_name(c) if isinstance(c, str) else c
 
     @property
     def params_type(self) -> Any:
-        return self._load(self.params_class)
+        c = self.params_class
+        return pkgutil.resolve_name(c) if isinstance(c, str) else c
 
     def load_params(self, preset_or_path: str | Path | None = None) -> Any:
         """Parameters from a preset name or a TOML path (the default preset for None)."""
