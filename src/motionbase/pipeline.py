@@ -799,11 +799,11 @@ def run(
     Notes
     -----
     While it runs, the interpreter's thread switch interval is lowered to
-    ``SWITCH_INTERVAL_S`` (and restored after): the MCAP writer thread needs the
-    GIL for short stretches between its GIL-free calls (compression, checksum,
-    file writes), and with Python's default 5 ms it waits up to 5 ms for each one
-    behind the busy loop, falls seconds behind in as-fast-as-possible runs and
-    queues chunks in memory. A paced run collects cyclic garbage after each tick's
+    ``SWITCH_INTERVAL_S`` (and restored after): the threads beside the loop (a live
+    source's receiver, the motor outputs' sender) need the GIL for short stretches,
+    and with Python's default 5 ms each would wait up to 5 ms behind the busy loop.
+    (The MCAP log, whose writer thread this was set for first, is written by a
+    process of its own since issue 14.) A paced run collects cyclic garbage after each tick's
     commands are out, never inside a tick
     (:class:`~motionbase.pacing.GarbageBetweenTicks`).
     """
