@@ -30,6 +30,24 @@ FLIGHT_LOGS = ("vtol.tlog", "erle_plane_329.BIN")
 REQUIRE_DISPLAY_ENV = "MOTIONBASE_REQUIRE_DISPLAY"
 
 
+@pytest.fixture(scope="session")
+def streamed(tmp_path_factory):
+    """``motionbase stream LOG --fast`` with its defaults, run once per log for all the tests
+    that read it (a real log takes tens of seconds): ``streamed(path) -> (result, log path)``.
+    The tests only read the log."""
+    runs: dict[Path, tuple] = {}
+
+    def stream(log: Path) -> tuple:
+        if log not in runs:
+            from motionbase import app
+
+            out = tmp_path_factory.mktemp("streamed") / "log.mcap"
+            runs[log] = (app.stream(str(log), realtime=False, out=out, progress=False), out)
+        return runs[log]
+
+    return stream
+
+
 @pytest.fixture
 def flight_data() -> Path:
     """The folder of real flight logs (``$MOTIONBASE_TEST_DATA``, absolute).

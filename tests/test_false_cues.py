@@ -153,16 +153,14 @@ def test_rejected_samples_do_not_hold_the_platform_in_the_manoeuvre():
 
 
 @pytest.mark.parametrize("name", ["vtol.tlog", "erle_plane_329.BIN"])
-def test_real_logs_keep_the_cranks_off_their_limits(name, tmp_path, flight_data):
+def test_real_logs_keep_the_cranks_off_their_limits(name, flight_data, streamed):
     """``motionbase stream --mavlink LOG --fast`` with its defaults: no crank comes within
     5 deg of its limit, nothing is clamped, and the limiter never has to act while running
     (so it cannot add a cue)."""
-    from motionbase import app
     from motionbase.io.mcap_source import McapSource, read_messages
     from motionbase.pipeline import PipelineConfig
 
-    out = tmp_path / "log.mcap"
-    app.stream(str(flight_data / name), realtime=False, out=out, progress=False)
+    _, out = streamed(flight_data / name)
     msgs = read_messages(out)
     config = PipelineConfig.from_dict(McapSource(out).metadata["pipeline_config"])
     poses = msgs["/platform/pose"]

@@ -158,7 +158,11 @@ def test_workspace_prints_a_symmetric_reach(capsys, tmp_path):
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     out = tmp_path_factory.mktemp("stewart6") / "F.mcap"
-    assert main(["fly", "c1723", "--platform", "stewart6", "--out", str(out)]) == 0
+    # the first minute: the take-off run, rotation and climb (the whole 200 s adds a minute
+    # of test time and only the cruise)
+    assert (
+        main(["fly", "c1723", "--platform", "stewart6", "--duration", "60", "--out", str(out)]) == 0
+    )
     return out
 
 

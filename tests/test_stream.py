@@ -130,9 +130,8 @@ def test_other_systems_and_garbage_never_reach_the_platform(tmp_path):
 
 
 @pytest.mark.parametrize("log", [TLOG, BIN])
-def test_real_logs_stream_to_finite_angles_within_limits(log, flight_data, tmp_path):
-    out = tmp_path / "log.mcap"
-    result = app.stream(str(flight_data / log), realtime=False, out=out, progress=False)
+def test_real_logs_stream_to_finite_angles_within_limits(log, flight_data, streamed):
+    result, out = streamed(flight_data / log)
     assert result.summary.samples > 10_000
     t, angles, _ = check_actuators_safe(out)
     assert np.ptp(angles, axis=0).min() > np.radians(1)  # the flight does move every crank
