@@ -219,14 +219,15 @@ def test_a_full_disk_ends_with_one_line_and_a_log_readable_up_to_the_fault(tmp_p
     check_logged_commands(out)
 
 
-class BrokenSink:
-    """A sink with a bug that is not ours: it raises a plain ``struct.error`` at tick ``n``."""
+class ActingSink:
+    """A test sink that does :meth:`act` at its ``n``-th tick and nothing else."""
+
+    label = "acting-test-sink"
 
     def __init__(self, n: int) -> None:
         self.n = n
-        self.label = "broken-test-sink"
 
-    def __enter__(self) -> BrokenSink:
+    def __enter__(self) -> ActingSink:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -235,7 +236,19 @@ class BrokenSink:
     def write(self, out) -> None:
         self.n -= 1
         if self.n == 0:
-            struct.pack("<Q", 2**64)  # what an unrepresentable log time did to the log
+            self.act()
+
+    def act(self) -> None:
+        raise NotImplementedError
+
+
+class BrokenSink(ActingSink):
+    """A sink with a bug that is not ours: it raises a plain ``struct.error`` at tick ``n``."""
+
+    label = "broken-test-sink"
+
+    def act(self) -> None:
+        struct.pack("<Q", 2**64)  # what an unrepresentable log time did to the log
 
 
 def test_any_failing_sink_parks_through_the_others_then_one_clear_error(tmp_path):
@@ -264,31 +277,23 @@ def test_any_failing_sink_parks_through_the_others_then_one_clear_error(tmp_path
     assert np.array_equal(q_log[-1], park_angles(config))
 
 
-class WriterKiller:
+class WriterKiller(ActingSink):
     """A sink that kills this process's MCAP writer processes (``kill -9``) at tick ``n``:
     the log's writer vanishes mid-run, as after an out-of-memory kill."""
 
     label = "writer-killer"
 
     def __init__(self, n: int) -> None:
-        self.n = n
+        super().__init__(n)
         self.killed: list[int] = []
 
-    def __enter__(self) -> WriterKiller:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        pass
-
-    def write(self, out) -> None:
-        self.n -= 1
-        if self.n == 0:
-            for task in Path("/proc/self/task").iterdir():
-                for pid in (task / "children").read_text().split():
-                    cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
-                    if b"log_writer.py" in cmdline:
-                        os.kill(int(pid), signal.SIGKILL)
-                        self.killed.append(int(pid))
+    def act(self) -> None:
+        for task in Path("/proc/self/task").iterdir():
+            for pid in (task / "children").read_text().split():
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+                if b"log_writer.py" in cmdline:
+                    os.kill(int(pid), signal.SIGKILL)
+                    self.killed.append(int(pid))
 
 
 def test_a_vanished_log_writer_parks_through_the_drives_then_one_clear_error(tmp_path):
