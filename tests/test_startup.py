@@ -1,4 +1,5 @@
-"""Start-up: a flight imports only what it uses.
+"""Start-up: a flight imports only what it uses and, once numba's cache is filled, compiles
+nothing.
 
 ``scipy.signal`` takes about a second to import and nothing in a run needs it (the washout's
 filters are designed with ``scipy.linalg``, which numba imports anyway; the perception models
@@ -10,6 +11,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 
 def test_a_flight_does_not_import_scipy_signal(tmp_path):
     code = (
@@ -20,3 +23,47 @@ def test_a_flight_does_not_import_scipy_signal(tmp_path):
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split()[-2:] == ["0", "False"], out.stdout + out.stderr
+
+
+#: Runs a command in this process and prints how many functions numba compiled for it.
+_COUNT_COMPILES = """
+import sys
+
+import pytest
+from numba.core import event
+compiled = []
+class Count(event.Listener):
+    def on_start(self, e):
+        compiled.append(e.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, e):
+        pass
+event.register("numba:compile", Count())
+from motionbase.cli import main
+code = main(sys.argv[1:])
+print(code, compiled)
+"""
+
+
+@pytest.mark.parametrize("robot", [[], ["--planar"], ["--platform", "stewart6"]])
+def test_a_second_process_compiles_nothing(tmp_path, robot):
+    # Every compiled function of a flight comes from numba's on-disk cache once a first
+    # process has filled it: a function compiled in every process (typed-list methods built
+    # from Python, a kernel without cache=True) costs up to a second of each start-up.
+    args = ["fly", "c1723", "--duration", "0.5", "--out", str(tmp_path / "f.mcap"), *robot]
+    for _ in range(2):
+        out = subprocess.run(
+            [sys.executable, "-c", _COUNT_COMPILES, *args], capture_output=True, text=True
+        )
+    assert out.stdout.splitlines()[-1:] == ["0 []"], out.stdout + out.stderr
+
+
+def test_a_plug_in_kernel_of_another_signature_is_refused_by_name():
+    from motionbase import stages
+    from motionbase.washout.classical import ClassicalWashout
+
+    with pytest.raises(TypeError, match="is not a numba function compiled as"):
+        stages.kernel_list(ClassicalWashout.step_kernel, stages.SOLVE_LIST)
+    with pytest.raises(TypeError, match="is not a numba function compiled as"):
+        stages.kernel_list(len, stages.STEP_LIST)
+    held = stages.kernel_list(ClassicalWashout.step_kernel, stages.STEP_LIST)
+    assert len(held) == 1

@@ -103,14 +103,27 @@ STEP_LIST = types.ListType(types.FunctionType(STEP_SIGNATURE))
 TRACK_LIST = types.ListType(types.FunctionType(TRACK_SIGNATURE))
 
 
+@numba.njit([L(L.item_type) for L in (SOLVE_LIST, STEP_LIST, TRACK_LIST)], cache=True)
+def _hold(kernel):  # pragma: no cover - compiled
+    out = numba.typed.List()
+    out.append(kernel)
+    return out
+
+
 def kernel_list(kernel, list_type) -> numba.typed.List:
     """A typed list holding ``kernel`` as a first-class function, what compiled stages call.
 
     Passing a numba dispatcher itself costs a type lookup every call (tens of us); the
-    list's type is known at once, so a call through it costs about a microsecond.
+    list's type is known at once, so a call through it costs about a microsecond. The list
+    is built by a compiled, cached function: built from Python, numba would compile the
+    typed list's methods for the item type in every process (about 1 s of start-up).
     """
-    out = numba.typed.List.empty_list(list_type.item_type)
-    out.append(kernel)
+    try:
+        out = _hold(kernel)
+    except TypeError:
+        out = None
+    if out is None or out._numba_type_ != list_type:
+        raise TypeError(f"{kernel} is not a numba function compiled as {list_type.item_type}")
     return out
 
 
