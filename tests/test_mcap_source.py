@@ -147,6 +147,28 @@ def test_cut_at_every_record_boundary_region_never_raises(recording, tmp_path: P
         previous = len(got)
 
 
+@pytest.mark.parametrize("collecting", [True, False])
+def test_reading_leaves_the_garbage_collector_as_it_was(recording, tmp_path, collecting) -> None:
+    """read_messages switches the cyclic collector off while it reads, and back to what it
+    was after, when the file is whole, cut or not MCAP."""
+    import gc
+
+    path, _ = recording
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[:1000])
+    (tmp_path / "no.mcap").write_bytes(b"not mcap")
+    was = gc.isenabled()
+    try:
+        (gc.enable if collecting else gc.disable)()
+        read_messages(path)
+        read_messages(cut)
+        with pytest.raises(LogFormatError):
+            read_messages(tmp_path / "no.mcap")
+        assert gc.isenabled() is collecting
+    finally:
+        (gc.enable if was else gc.disable)()
+
+
 def test_not_mcap_is_a_one_line_error_naming_the_file(tmp_path: Path) -> None:
     for name, content in [
         ("text.mcap", b"hello, this is a text file, not a recording\n"),

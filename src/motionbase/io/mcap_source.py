@@ -19,10 +19,12 @@ those are read (as non-finite numbers, which the validation rejects too).
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
 import os
+import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
@@ -44,7 +46,7 @@ except ImportError:  # pragma: no cover - depends on the environment
 
 log = logging.getLogger("motionbase")
 
-_NONFINITE_MARKERS = (b'"NaN"', b'"Infinity"', b'"-Infinity"')
+_NONFINITE_MARKER = re.compile(rb'"(?:NaN|-?Infinity)"')
 
 
 def _restore_nonfinite(obj: Any) -> Any:
@@ -78,7 +80,7 @@ def decode_message(data: bytes) -> Any:
             raise ValueError("not UTF-8 text") from None
         except ValueError as exc:
             raise ValueError(f"not JSON: {exc}") from None
-    if any(m in data for m in _NONFINITE_MARKERS):
+    if _NONFINITE_MARKER.search(data):
         msg = _restore_nonfinite(msg)
     return msg
 
@@ -186,7 +188,16 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
         except ValueError as exc:
             skipped.append(f"{topic}: {_short_reason(exc)}")
 
-    truncated = _scan(p, lambda m: None, on_channel, on_message)
+    # The messages are trees of dicts and lists, never cycles; with the cyclic collector on,
+    # each of its passes walks every message read so far (12 s instead of 5 s for a
+    # recording of 330,000 messages).
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        truncated = _scan(p, lambda m: None, on_channel, on_message)
+    finally:
+        if collecting:
+            gc.enable()
     if truncated:
         _warn_truncated(p, f"{sum(len(v) for v in out.values())} messages")
     if skipped:
