@@ -155,7 +155,7 @@ def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
     robot = robot_spec("stewart6").make(Stewart6Geometry.preset("seat"))
     rx = UdpDrive(n=6)
     cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", rx.url(200)]
-    cmd += ["--platform", "stewart6", "--range-mm", "10", "--speed-mm-s", "60", "--rate", "200"]
+    cmd += ["--platform", "stewart6", "--range-mm", "10", "--speed-mm-s", "150", "--rate", "200"]
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
         rx.drain()
