@@ -61,9 +61,25 @@ def test_a_plug_in_kernel_of_another_signature_is_refused_by_name():
     from motionbase import stages
     from motionbase.washout.classical import ClassicalWashout
 
-    with pytest.raises(TypeError, match="is not a numba function compiled as"):
+    with pytest.raises(TypeError, match="is not a numba function that compiles as"):
         stages.kernel_list(ClassicalWashout.step_kernel, stages.SOLVE_LIST)
-    with pytest.raises(TypeError, match="is not a numba function compiled as"):
+    with pytest.raises(TypeError, match="is not a numba function that compiles as"):
         stages.kernel_list(len, stages.STEP_LIST)
     held = stages.kernel_list(ClassicalWashout.step_kernel, stages.STEP_LIST)
     assert len(held) == 1
+
+
+def test_a_lazily_compiled_plug_in_kernel_is_compiled_for_its_list():
+    import numba
+    import numpy as np
+
+    from motionbase import stages
+
+    @numba.njit
+    def track(params, state, achieved):  # a plug-in's kernel without a signature
+        state[:] = params[0] * achieved
+
+    held = stages.kernel_list(track, stages.TRACK_LIST)
+    state = np.zeros(3)
+    held[0](np.array([2.0]), state, np.array([1.0, 2.0, 3.0]))
+    np.testing.assert_array_equal(state, [2.0, 4.0, 6.0])

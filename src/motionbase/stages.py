@@ -103,11 +103,21 @@ STEP_LIST = types.ListType(types.FunctionType(STEP_SIGNATURE))
 TRACK_LIST = types.ListType(types.FunctionType(TRACK_SIGNATURE))
 
 
-@numba.njit([L(L.item_type) for L in (SOLVE_LIST, STEP_LIST, TRACK_LIST)], cache=True)
-def _hold(kernel):  # pragma: no cover - compiled
-    out = numba.typed.List()
-    out.append(kernel)
-    return out
+def _holder(list_type):
+    """A compiled, cached function ``kernel -> typed list [kernel]`` for one list type."""
+
+    @numba.njit(list_type(list_type.item_type), cache=True)
+    def hold(kernel):  # pragma: no cover - compiled
+        out = numba.typed.List()
+        out.append(kernel)
+        return out
+
+    return hold
+
+
+#: One per list type (a numba function that is not compiled yet, a plug-in's lazily
+#: compiled kernel, is compiled for the signature its list asks for).
+_HOLDERS = {list_type: _holder(list_type) for list_type in (SOLVE_LIST, STEP_LIST, TRACK_LIST)}
 
 
 def kernel_list(kernel, list_type) -> numba.typed.List:
@@ -119,12 +129,11 @@ def kernel_list(kernel, list_type) -> numba.typed.List:
     typed list's methods for the item type in every process (about 1 s of start-up).
     """
     try:
-        out = _hold(kernel)
-    except TypeError:
-        out = None
-    if out is None or out._numba_type_ != list_type:
-        raise TypeError(f"{kernel} is not a numba function compiled as {list_type.item_type}")
-    return out
+        return _HOLDERS[list_type](kernel)
+    except (TypeError, numba.core.errors.NumbaError):
+        raise TypeError(
+            f"{kernel} is not a numba function that compiles as {list_type.item_type}"
+        ) from None
 
 
 def new_params(
