@@ -54,9 +54,8 @@ class LogFile:
     error, readable up to its last complete chunk.
     """
 
-    def __init__(self, path: str, fsync: bool) -> None:
+    def __init__(self, path: str) -> None:
         self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
-        self._fsync = fsync
         self.error: OSError | None = None
         self._pos = self._end = 0  # positions after an error
 
@@ -77,11 +76,7 @@ class LogFile:
         return self._pos
 
     def flush(self) -> None:
-        if self._fsync and self.error is None:
-            try:
-                os.fsync(self._fh.fileno())
-            except OSError as exc:
-                self._failed(exc)
+        """Nothing to do: the file is unbuffered (the SDK's writer calls it as it flushes)."""
 
     def _failed(self, exc: OSError) -> None:
         self.error = exc
@@ -114,7 +109,7 @@ class Writer:
 
     ``config`` keys: ``path`` (as the user named it, for messages), ``file`` (the same,
     absolute), ``compression`` (``"lz4"``, ``"zstd"``, ``"none"``),
-    ``chunk_size`` (bytes), ``flush_interval_ns``, ``fsync``, ``metadata_name`` and
+    ``chunk_size`` (bytes), ``flush_interval_ns``, ``metadata_name`` and
     ``metadata`` (the metadata record's name and string fields), ``topics`` (``[topic,
     schema name, JSON Schema]`` in index order), ``live`` (``[host, port]`` or null),
     ``live_period_ns``.
@@ -141,7 +136,7 @@ class Writer:
                 [self._channel(t, n, s, self._live_context), _FIRST] for t, n, s in topics
             ]
         try:
-            self._file = LogFile(config["file"], bool(config["fsync"]))
+            self._file = LogFile(config["file"])
         except OSError as exc:
             self.stop_server()
             raise WriterFailed(
