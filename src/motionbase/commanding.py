@@ -52,7 +52,7 @@ import numpy as np
 
 from motionbase import stages
 from motionbase.errors import ConfigError
-from motionbase.pipeline import MIN_RATE_HZ, Health, PipelineCore, PipelineOutput
+from motionbase.pipeline import Health, PipelineCore, PipelineOutput, check_rate
 from motionbase.platform.output_map import sweep_profile
 from motionbase.platform.robot import SOLVE_SIGNATURE, Robot
 from motionbase.safety import ActuatorLimits, limit_command
@@ -141,15 +141,7 @@ class CommandPipeline(PipelineCore):
         for name, value in (("soft_start_s", soft_start_s), ("max_home_s", max_home_s)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"command pipeline: {name} must be > 0, got {value!r}")
-        if not (
-            isinstance(rate_hz, (int, float))
-            and math.isfinite(rate_hz)
-            and MIN_RATE_HZ <= rate_hz <= 10_000
-        ):
-            raise ConfigError(
-                f"rate must be {MIN_RATE_HZ:g} Hz to 10 kHz (fast enough to answer a stop in "
-                f"time), got {rate_hz!r}"
-            )
+        check_rate(rate_hz, "command pipeline")
         self.robot = robot
         self.mode = mode
         self.dt = 1.0 / float(rate_hz)

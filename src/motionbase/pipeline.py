@@ -83,6 +83,20 @@ if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
 MIN_RATE_HZ = 10.0
 
 
+def check_rate(rate_hz: Any, where: str = "pipeline") -> None:
+    """A ConfigError (saying ``where``) unless a pipeline can tick at ``rate_hz``:
+    :data:`MIN_RATE_HZ` to 10 kHz."""
+    if not (is_number(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"{where}: rate_hz must be > 0, got {rate_hz!r}")
+    if rate_hz > 10_000:
+        raise ConfigError(f"{where}: rate_hz {rate_hz:g} is above 10 kHz (lower it)")
+    if rate_hz < MIN_RATE_HZ:
+        raise ConfigError(
+            f"{where}: rate_hz {rate_hz:g} is below {MIN_RATE_HZ:g} Hz, too slow to "
+            "drive a platform or to answer a stop in time (give a faster rate)"
+        )
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Everything that determines the pipeline's numbers (stored in every log).
@@ -141,13 +155,7 @@ class PipelineConfig:
             raise ConfigError(
                 f"pipeline: input_limits must be InputLimits, got {self.input_limits!r}"
             )
-        if self.rate_hz > 10_000:
-            raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
-        if self.rate_hz < MIN_RATE_HZ:
-            raise ConfigError(
-                f"pipeline: rate_hz {self.rate_hz:g} is below {MIN_RATE_HZ:g} Hz, too slow to "
-                "drive a platform or to answer a stop in time (give a faster rate)"
-            )
+        check_rate(self.rate_hz)
 
     @property
     def dt(self) -> float:

@@ -224,9 +224,8 @@ class _Window:
 def teleop_pipeline(
     rrr3: Rrr3, *, rate_hz: float = 50.0, clamp: bool = True, max_park_s: float = 10.0
 ) -> CommandPipeline:
-    """The pipeline teleop runs: the 3-RRR in pose mode (see :func:`run_teleop`)."""
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ConfigError(f"teleop: rate must be > 0 Hz, got {rate_hz!r}")
+    """The pipeline teleop runs: the 3-RRR in pose mode (see :func:`run_teleop`); a rate
+    it cannot tick at is a ConfigError (:func:`motionbase.pipeline.check_rate`)."""
     return CommandPipeline(
         Rrr3Robot(rrr3.geometry), rate_hz=rate_hz, mode="poses", clamp=clamp,
         max_home_s=max_park_s,
