@@ -2,7 +2,7 @@
 
 The tick (:meth:`motionbase.pipeline.Pipeline.step`) is::
 
-    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve -> limit_stage)
+    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve_kernel -> limit_stage)
                 -> cueing.track (when the clamp acted while running)
 
 The cueing and the robot are plug-ins (:mod:`motionbase.washout.cueing`,
