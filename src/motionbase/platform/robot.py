@@ -278,7 +278,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     ConfigError
         Unknown preset, or a file or robot of the other mode.
     """
-    from motionbase.config import resolve_preset_or_path
+    from motionbase.config import preset_names, resolve_preset_or_path
 
     candidates = [name for name, spec in ROBOTS.items() if spec.planar == planar]
     default = candidates[0] if planar else DEFAULT_ROBOT
@@ -301,13 +301,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
         else:
             found = _robot_of_preset(text, candidates)
             if found is None:
-                names = sorted(
-                    {
-                        q.name[len(r) + 1 : -5]
-                        for r in candidates
-                        for q in _preset_dir().glob(f"{r}_*.toml")
-                    }
-                )
+                names = sorted({name for r in candidates for name in preset_names(r)})
                 raise ConfigError(
                     f"unknown {default} preset {text!r} (nor any other robot's): choose a "
                     f"robot ({', '.join(candidates)}), a preset ({', '.join(names)}) or give "
@@ -317,9 +311,3 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     spec = ROBOTS[robot]
     path = resolve_preset_or_path(robot, value or spec.default_preset)
     return robot, spec.geometry_type.from_toml(path)
-
-
-def _preset_dir() -> Path:
-    from importlib import resources
-
-    return Path(str(resources.files("motionbase") / "presets"))
