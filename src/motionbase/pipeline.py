@@ -97,6 +97,18 @@ def check_rate(rate_hz: Any, where: str = "pipeline") -> None:
         )
 
 
+#: The pipeline's own settings (the fields of :class:`PipelineConfig` stored under
+#: ``pipeline`` in its :meth:`~PipelineConfig.to_dict`, with ``input_limits``), in order.
+_SETTINGS = (
+    "rate_hz",
+    "soft_start_s",
+    "stale_timeout_s",
+    "fade_s",
+    "planar_scale_m",
+    "planar_yaw_scale",
+)
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Everything that determines the pipeline's numbers (stored in every log).
@@ -188,12 +200,7 @@ class PipelineConfig:
             "cueing": self.cueing,
             "cueing_params": self.cueing_params.to_dict(),
             "pipeline": {
-                "rate_hz": self.rate_hz,
-                "soft_start_s": self.soft_start_s,
-                "stale_timeout_s": self.stale_timeout_s,
-                "fade_s": self.fade_s,
-                "planar_scale_m": self.planar_scale_m,
-                "planar_yaw_scale": self.planar_yaw_scale,
+                **{name: getattr(self, name) for name in _SETTINGS},
                 "input_limits": asdict(self.input_limits),
             },
             "version": __version__,
@@ -227,14 +234,7 @@ class PipelineConfig:
         if not isinstance(limits, dict):
             raise ConfigError(f"{source}: 'pipeline' and its 'input_limits' must be tables")
         pipe = {k: v for k, v in pipe.items() if k != "input_limits"}
-        known = {f.name for f in fields(cls)} - {
-            "robot",
-            "geometry",
-            "cueing",
-            "cueing_params",
-            "input_limits",
-        }
-        unknown = sorted(set(pipe) - known) or sorted(
+        unknown = sorted(set(pipe) - set(_SETTINGS)) or sorted(
             set(limits) - {f.name for f in fields(InputLimits)}
         )
         if unknown:
