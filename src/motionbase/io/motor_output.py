@@ -526,8 +526,6 @@ class MotorOutput:
         outside the drive's range or the wire format; failed sends.
     ramped : int
         Frames the drive-side limiter moved short of the latest command.
-    last_values : ndarray or None
-        Drive values of the latest accepted command.
     link_up : bool
     """
 
@@ -565,7 +563,6 @@ class MotorOutput:
         self.held = 0
         self.send_errors = 0
         self.ramped = 0
-        self.last_values: np.ndarray | None = None
         self.link_up = True
         # the latest accepted command: (angles rad, its frame), replaced as one object
         self._command: tuple[np.ndarray, bytes] | None = None
@@ -647,7 +644,6 @@ class MotorOutput:
         else:
             self._holding = False
             self._command = (angles, frame)
-            self.last_values = values
             self.commands += 1
         return frame is not None
 
