@@ -50,17 +50,12 @@ from motionbase.platform.rrr3 import Rrr3, Rrr3Robot
 from motionbase.stopping import StopRequest
 
 __all__ = [
-    "DEFAULT_GEOMETRY",
     "CursorCommands",
     "TeleopStats",
     "run_teleop",
     "teleop_job",
     "teleop_pipeline",
 ]
-
-#: The planar robot teleop and the planar pipeline drive unless told otherwise
-#: (:data:`motionbase.config.DEFAULT_RRR3`, one default for every command).
-DEFAULT_GEOMETRY = DEFAULT_RRR3
 
 
 @dataclass
@@ -341,7 +336,7 @@ def teleop_job(
     rate_hz: float = 50.0,
     out: str | None = None,
     duration_s: float | None = None,
-    geometry: str = DEFAULT_GEOMETRY,
+    geometry: str = DEFAULT_RRR3,
     realtime: bool = True,
     clamp: bool = True,
     stale_timeout_s: float = 0.5,
@@ -359,7 +354,7 @@ def teleop_job(
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
-    from motionbase.io.mcap_log import LiveAddress
+    from motionbase.io.mcap_log import LiveAddress, McapLogger
     from motionbase.platform.rrr3_geometry import Rrr3Geometry
     from motionbase.stopping import install_signal_stop
 
@@ -388,8 +383,6 @@ def teleop_job(
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()
             if out is not None:
-                from motionbase.io.mcap_log import McapLogger
-
                 logger = McapLogger(
                     out,
                     {
