@@ -106,12 +106,11 @@ LIVE_RATE_HZ = 60.0
 
 
 def _json_default(obj: Any) -> Any:
+    """What orjson does not write itself: a strided array or an odd numpy scalar."""
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
         return obj.item()
-    if isinstance(obj, tuple):
-        return list(obj)
     raise TypeError(f"cannot write a {type(obj).__name__} to the log")
 
 
