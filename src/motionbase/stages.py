@@ -151,10 +151,8 @@ def new_params(
     p["park_cue"][: len(park_cue)] = park_cue
     p["park_pose"][:m] = park_pose
     p["park_q"][:n] = robot.park_angles
-    p["lower"][:n] = robot.limits.lower
-    p["upper"][:n] = robot.limits.upper
-    p["max_speed"][:n] = robot.limits.max_speed
-    p["max_accel"][:n] = robot.limits.max_accel
+    for name in ("lower", "upper", "max_speed", "max_accel"):  # the actuator limits
+        p[name][:n] = getattr(robot.limits, name)
     p["n"] = n
     p["m"] = m
     return P
