@@ -369,11 +369,10 @@ class PipelineCore(ABC):
     def warm_up(self) -> None:
         """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
         time; the pipeline is left reset, its counters untouched."""
-        counts = self.health.as_dict()
+        health, self.health = self.health, Health()  # the warm-up ticks count elsewhere
         self._warm_ticks()
         self.reset()
-        for name, value in counts.items():
-            setattr(self.health, name, value)
+        self.health = health
 
     @abstractmethod
     def _warm_ticks(self) -> None:
