@@ -429,7 +429,7 @@ def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) 
 # --------------------------------------------------------------------------- the sweep
 
 
-class SweepSource:
+class SweepSource(Iterator[Command]):
     """The wiring check as a command source: actuator targets that rest at park, move to
     neutral, take each actuator in turn through ``+range, -range`` about neutral and back,
     return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`).
@@ -491,9 +491,6 @@ class SweepSource:
         self._k = 0
         self._current = 0
         self._held: int | None = None
-
-    def __iter__(self) -> Iterator[Command]:
-        return self
 
     def __next__(self) -> Command:
         k = self._k

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -90,7 +91,7 @@ class TeleopStats:
         return {**asdict(self), "rejected_inputs": self.held}
 
 
-class CursorCommands:
+class CursorCommands(Iterator[Command]):
     """A cursor source as the pipeline's source of robot poses ``[x, y, 0]``.
 
     Tick ``k`` (loop time ``k / rate_hz``) reads the cursor and maps its pixel through the
@@ -120,9 +121,6 @@ class CursorCommands:
         self.fresh = True
         self.ended = ""
         self._k = 0
-
-    def __iter__(self) -> CursorCommands:
-        return self
 
     def __next__(self) -> Command:
         t = self._k * self.dt
