@@ -482,10 +482,8 @@ class SweepSource(Iterator[Command]):
         )  # fmt: skip
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))
-        self.targets = np.concatenate(
-            [np.repeat(targets[:1], lead, 0), targets, np.repeat(targets[-1:], rest, 0)]
-        )
-        self.motor = np.concatenate([np.zeros(lead, int), motor, np.zeros(rest, int)])
+        self.targets = np.pad(targets, ((lead, rest), (0, 0)), mode="edge")  # rest at both ends
+        self.motor = np.pad(motor, (lead, rest))  # (motor 0: none)
         self.stop = stop
         self.on_motor = on_motor
         self._k = 0
