@@ -812,15 +812,14 @@ class MotorOutput:
 
 
 def _split_query(rest: str) -> tuple[str, dict[str, str], list[tuple[str, str]]]:
-    base, sep, query = rest.partition("?")
+    base, _, query = rest.partition("?")  # (no "?": an empty query, no keys)
     ours: dict[str, str] = {}
     other: list[tuple[str, str]] = []
-    if sep:
-        for k, v in parse_qsl(query, keep_blank_values=True):
-            if k in ("format", "rate", "baud"):
-                ours[k] = v
-            else:
-                other.append((k, v))
+    for k, v in parse_qsl(query, keep_blank_values=True):
+        if k in ("format", "rate", "baud"):
+            ours[k] = v
+        else:
+            other.append((k, v))
     return base, ours, other
 
 
