@@ -28,6 +28,7 @@ Protocol (one machine, one version: this file and ``mcap_log.py`` change togethe
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -267,10 +268,8 @@ def serve(data_fd: int, reply_fd: int) -> int:
     reply = os.fdopen(reply_fd, "wb", buffering=0)
 
     def answer(**fields: Any) -> None:
-        try:
+        with contextlib.suppress(OSError):  # the front is gone: nobody to tell
             reply.write(json.dumps(fields).encode() + b"\n")
-        except OSError:  # the front is gone: nobody to tell
-            pass
 
     record = _read_record(data)
     if record is None or record[0] != OP_START:
