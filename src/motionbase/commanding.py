@@ -149,17 +149,16 @@ class CommandPipeline(PipelineCore):
         self.soft_start_s = float(soft_start_s)
         self.health = Health()
         n = robot.n
-        self._n = n
-        self._m = n if mode == "actuators" else len(robot.park_pose)
         # actuator mode: the blend runs in actuator space and the "pose" is the actuators
-        park_q = robot.park_angles
         actuators = mode == "actuators"
+        self._n = n
+        self._m = n if actuators else len(robot.park_pose)
         self.params = stages.new_params(
             robot,
             dt=self.dt,
             soft_start_s=soft_start_s,
-            park_cue=park_q if actuators else np.zeros(6),
-            park_pose=park_q if actuators else robot.park_pose,
+            park_cue=robot.park_angles if actuators else np.zeros(6),
+            park_pose=robot.park_angles if actuators else robot.park_pose,
         )
         self.state = stages.new_state()
         self._max_home_ticks = int(round(max_home_s / self.dt))
