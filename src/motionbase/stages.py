@@ -377,20 +377,16 @@ def after_cueing(P, S, solve, G, cue, target, cue_out, pose, wanted, q):  # prag
     s = S[0]
     flags = 0
     if blend_stage(P, S, cue, target):
-        for i in range(p.m):
-            pose[i] = p.park_pose[i]
-        for i in range(p.n):
-            wanted[i] = p.park_q[i]
-        for i in range(6):
-            cue_out[i] = p.park_cue[i]
+        pose[:] = p.park_pose[: p.m]
+        wanted[:] = p.park_q[: p.n]
+        cue_out[:] = p.park_cue
     elif solve[0](G, target, cue_out, pose, wanted):
         flags |= CLAMPED
         if s.phase == RUNNING:
             flags |= RUNNING_CLAMP
     flags |= limit_stage(P, S, wanted, q)
     if not (flags & (HELD | RATE_LIMITED)):
-        for i in range(p.m):
-            s.pose[i] = pose[i]
+        s.pose[: p.m] = pose
     phase = PARKED if at_park(P, S) else s.phase
     return flags | (phase << PHASE_SHIFT)
 
