@@ -178,7 +178,7 @@ def bench(kind: str, rate_hz: float, seconds: float, busy_wait: bool) -> dict[st
 
         meta = app.run_metadata(config, source)
         health = pipeline.health.as_dict
-        with PipelineLog(Path(tmp) / "s.mcap", meta, health=health, planar=False) as log:
+        with PipelineLog(Path(tmp) / "s.mcap", meta, health=health) as log:
             run(pipeline, source, [log], paced=True, busy_wait=busy_wait, progress=on_tick)
     proc.join(timeout=10)
     wall = mark["wall1"] - mark["wall0"]

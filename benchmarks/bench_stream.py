@@ -68,9 +68,8 @@ def main() -> None:
                 mark["acc1"] = source.stats.accepted
 
             meta = app.run_metadata(config, source)
-            planar = config.robot == "rrr3"
             health = pipeline.health.as_dict
-            with PipelineLog(Path(tmp) / "s.mcap", meta, health=health, planar=planar) as log:
+            with PipelineLog(Path(tmp) / "s.mcap", meta, health=health) as log:
                 run(pipeline, source, [log], paced=True, progress=on_tick)
         proc.join(timeout=10)
     wall = mark["wall1"] - mark["wall0"]

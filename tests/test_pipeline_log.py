@@ -51,7 +51,7 @@ def _outputs(planar: bool, n: int = 900) -> list:
     return outs
 
 
-def _write(path: Path, outs: list, planar: bool) -> int:
+def _write(path: Path, outs: list) -> int:
     """Log ``outs``; returns how many /health messages the counter callback gave."""
     calls = []
 
@@ -59,7 +59,7 @@ def _write(path: Path, outs: list, planar: bool) -> int:
         calls.append(len(calls))
         return {"samples": len(calls)}
 
-    with PipelineLog(path, {"kind": "test"}, health=health, planar=planar) as log:
+    with PipelineLog(path, {"kind": "test"}, health=health) as log:
         for out in outs:
             log.write(out)
     return len(calls)
@@ -84,7 +84,7 @@ def test_every_output_is_logged_exactly(tmp_path, planar):
     assert any(o.state is not None and not o.accepted for o in outs)
     assert any(o.state is None for o in outs)
     path = tmp_path / "log.mcap"
-    health_calls = _write(path, outs, planar)
+    health_calls = _write(path, outs)
     records = _read(path)
 
     by_time: dict[int, dict[str, list]] = {}

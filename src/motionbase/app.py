@@ -326,7 +326,6 @@ def _drive_stoppable(
                     out,
                     metadata,
                     health=pipeline.health.as_dict,
-                    planar=config.planar,
                     kinematics=pipeline.robot.kin,
                     live=live,
                     cueing=pipeline.cueing,

@@ -52,7 +52,7 @@ import numpy as np
 
 from motionbase import stages
 from motionbase.errors import ConfigError
-from motionbase.pipeline import MIN_RATE_HZ, Health, PipelineCore, PipelineOutput
+from motionbase.pipeline import Health, PipelineCore, PipelineOutput, check_rate
 from motionbase.platform.output_map import sweep_profile
 from motionbase.platform.robot import SOLVE_SIGNATURE, Robot
 from motionbase.safety import ActuatorLimits, limit_command
@@ -141,15 +141,7 @@ class CommandPipeline(PipelineCore):
         for name, value in (("soft_start_s", soft_start_s), ("max_home_s", max_home_s)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"command pipeline: {name} must be > 0, got {value!r}")
-        if not (
-            isinstance(rate_hz, (int, float))
-            and math.isfinite(rate_hz)
-            and MIN_RATE_HZ <= rate_hz <= 10_000
-        ):
-            raise ConfigError(
-                f"rate must be {MIN_RATE_HZ:g} Hz to 10 kHz (fast enough to answer a stop in "
-                f"time), got {rate_hz!r}"
-            )
+        check_rate(rate_hz, "command pipeline")
         self.robot = robot
         self.mode = mode
         self.dt = 1.0 / float(rate_hz)
@@ -157,17 +149,16 @@ class CommandPipeline(PipelineCore):
         self.soft_start_s = float(soft_start_s)
         self.health = Health()
         n = robot.n
-        self._n = n
-        self._m = n if mode == "actuators" else len(robot.park_pose)
         # actuator mode: the blend runs in actuator space and the "pose" is the actuators
-        park_q = robot.park_angles
         actuators = mode == "actuators"
+        self._n = n
+        self._m = n if actuators else len(robot.park_pose)
         self.params = stages.new_params(
             robot,
             dt=self.dt,
             soft_start_s=soft_start_s,
-            park_cue=park_q if actuators else np.zeros(6),
-            park_pose=park_q if actuators else robot.park_pose,
+            park_cue=robot.park_angles if actuators else np.zeros(6),
+            park_pose=robot.park_angles if actuators else robot.park_pose,
         )
         self.state = stages.new_state()
         self._max_home_ticks = int(round(max_home_s / self.dt))
@@ -437,7 +428,7 @@ def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) 
 # --------------------------------------------------------------------------- the sweep
 
 
-class SweepSource:
+class SweepSource(Iterator[Command]):
     """The wiring check as a command source: actuator targets that rest at park, move to
     neutral, take each actuator in turn through ``+range, -range`` about neutral and back,
     return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`).
@@ -490,18 +481,13 @@ class SweepSource:
         )  # fmt: skip
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))
-        self.targets = np.concatenate(
-            [np.repeat(targets[:1], lead, 0), targets, np.repeat(targets[-1:], rest, 0)]
-        )
-        self.motor = np.concatenate([np.zeros(lead, int), motor, np.zeros(rest, int)])
+        self.targets = np.pad(targets, ((lead, rest), (0, 0)), mode="edge")  # rest at both ends
+        self.motor = np.pad(motor, (lead, rest))  # (motor 0: none)
         self.stop = stop
         self.on_motor = on_motor
         self._k = 0
         self._current = 0
         self._held: int | None = None
-
-    def __iter__(self) -> Iterator[Command]:
-        return self
 
     def __next__(self) -> Command:
         k = self._k

@@ -55,12 +55,20 @@ DEFAULT_RUS6 = "ceart"
 DEFAULT_RRR3 = "udesc_symmetric"
 
 
+def _preset_dir() -> Path:
+    return Path(str(resources.files("motionbase") / "presets"))
+
+
+def preset_names(kind: str) -> list[str]:
+    """The names of the presets shipped for ``kind`` (``<kind>_<name>.toml``), sorted."""
+    return sorted(q.name[len(kind) + 1 : -5] for q in _preset_dir().glob(f"{kind}_*.toml"))
+
+
 def preset_path(kind: str, name: str) -> Path:
     """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
-    base = resources.files("motionbase") / "presets"
-    candidate = Path(str(base / f"{kind}_{name}.toml"))
+    candidate = _preset_dir() / f"{kind}_{name}.toml"
     if not candidate.is_file():
-        known = sorted(q.name[len(kind) + 1 : -5] for q in Path(str(base)).glob(f"{kind}_*.toml"))
+        known = preset_names(kind)
         raise ConfigError(
             f"unknown {kind} preset {name!r}: choose one of {', '.join(known) or '(none)'} "
             "or give a path to a .toml file"

@@ -83,6 +83,32 @@ if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
 MIN_RATE_HZ = 10.0
 
 
+def check_rate(rate_hz: Any, where: str = "pipeline") -> None:
+    """A ConfigError (saying ``where``) unless a pipeline can tick at ``rate_hz``:
+    :data:`MIN_RATE_HZ` to 10 kHz."""
+    if not (is_number(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"{where}: rate_hz must be > 0, got {rate_hz!r}")
+    if rate_hz > 10_000:
+        raise ConfigError(f"{where}: rate_hz {rate_hz:g} is above 10 kHz (lower it)")
+    if rate_hz < MIN_RATE_HZ:
+        raise ConfigError(
+            f"{where}: rate_hz {rate_hz:g} is below {MIN_RATE_HZ:g} Hz, too slow to "
+            "drive a platform or to answer a stop in time (give a faster rate)"
+        )
+
+
+#: The pipeline's own settings (the fields of :class:`PipelineConfig` stored under
+#: ``pipeline`` in its :meth:`~PipelineConfig.to_dict`, with ``input_limits``), in order.
+_SETTINGS = (
+    "rate_hz",
+    "soft_start_s",
+    "stale_timeout_s",
+    "fade_s",
+    "planar_scale_m",
+    "planar_yaw_scale",
+)
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Everything that determines the pipeline's numbers (stored in every log).
@@ -141,13 +167,7 @@ class PipelineConfig:
             raise ConfigError(
                 f"pipeline: input_limits must be InputLimits, got {self.input_limits!r}"
             )
-        if self.rate_hz > 10_000:
-            raise ConfigError(f"pipeline: rate_hz {self.rate_hz:g} is above 10 kHz (lower it)")
-        if self.rate_hz < MIN_RATE_HZ:
-            raise ConfigError(
-                f"pipeline: rate_hz {self.rate_hz:g} is below {MIN_RATE_HZ:g} Hz, too slow to "
-                "drive a platform or to answer a stop in time (give a faster rate)"
-            )
+        check_rate(self.rate_hz)
 
     @property
     def dt(self) -> float:
@@ -180,12 +200,7 @@ class PipelineConfig:
             "cueing": self.cueing,
             "cueing_params": self.cueing_params.to_dict(),
             "pipeline": {
-                "rate_hz": self.rate_hz,
-                "soft_start_s": self.soft_start_s,
-                "stale_timeout_s": self.stale_timeout_s,
-                "fade_s": self.fade_s,
-                "planar_scale_m": self.planar_scale_m,
-                "planar_yaw_scale": self.planar_yaw_scale,
+                **{name: getattr(self, name) for name in _SETTINGS},
                 "input_limits": asdict(self.input_limits),
             },
             "version": __version__,
@@ -219,14 +234,7 @@ class PipelineConfig:
         if not isinstance(limits, dict):
             raise ConfigError(f"{source}: 'pipeline' and its 'input_limits' must be tables")
         pipe = {k: v for k, v in pipe.items() if k != "input_limits"}
-        known = {f.name for f in fields(cls)} - {
-            "robot",
-            "geometry",
-            "cueing",
-            "cueing_params",
-            "input_limits",
-        }
-        unknown = sorted(set(pipe) - known) or sorted(
+        unknown = sorted(set(pipe) - set(_SETTINGS)) or sorted(
             set(limits) - {f.name for f in fields(InputLimits)}
         )
         if unknown:
@@ -361,11 +369,10 @@ class PipelineCore(ABC):
     def warm_up(self) -> None:
         """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
         time; the pipeline is left reset, its counters untouched."""
-        counts = self.health.as_dict()
+        health, self.health = self.health, Health()  # the warm-up ticks count elsewhere
         self._warm_ticks()
         self.reset()
-        for name, value in counts.items():
-            setattr(self.health, name, value)
+        self.health = health
 
     @abstractmethod
     def _warm_ticks(self) -> None:

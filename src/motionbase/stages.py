@@ -2,7 +2,7 @@
 
 The tick (:meth:`motionbase.pipeline.Pipeline.step`) is::
 
-    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve -> limit_stage)
+    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve_kernel -> limit_stage)
                 -> cueing.track (when the clamp acted while running)
 
 The cueing and the robot are plug-ins (:mod:`motionbase.washout.cueing`,
@@ -173,10 +173,8 @@ def new_params(
     p["park_cue"][: len(park_cue)] = park_cue
     p["park_pose"][:m] = park_pose
     p["park_q"][:n] = robot.park_angles
-    p["lower"][:n] = robot.limits.lower
-    p["upper"][:n] = robot.limits.upper
-    p["max_speed"][:n] = robot.limits.max_speed
-    p["max_accel"][:n] = robot.limits.max_accel
+    for name in ("lower", "upper", "max_speed", "max_accel"):  # the actuator limits
+        p[name][:n] = getattr(robot.limits, name)
     p["n"] = n
     p["m"] = m
     return P
@@ -401,20 +399,16 @@ def after_cueing(P, S, solve, G, cue, target, cue_out, pose, wanted, q):  # prag
     s = S[0]
     flags = 0
     if blend_stage(P, S, cue, target):
-        for i in range(p.m):
-            pose[i] = p.park_pose[i]
-        for i in range(p.n):
-            wanted[i] = p.park_q[i]
-        for i in range(6):
-            cue_out[i] = p.park_cue[i]
+        pose[:] = p.park_pose[: p.m]
+        wanted[:] = p.park_q[: p.n]
+        cue_out[:] = p.park_cue
     elif solve[0](G, target, cue_out, pose, wanted):
         flags |= CLAMPED
         if s.phase == RUNNING:
             flags |= RUNNING_CLAMP
     flags |= limit_stage(P, S, wanted, q)
     if not (flags & (HELD | RATE_LIMITED)):
-        for i in range(p.m):
-            s.pose[i] = pose[i]
+        s.pose[: p.m] = pose
     phase = PARKED if at_park(P, S) else s.phase
     return flags | (phase << PHASE_SHIFT)
 

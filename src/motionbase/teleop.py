@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -50,17 +51,12 @@ from motionbase.platform.rrr3 import Rrr3, Rrr3Robot
 from motionbase.stopping import StopRequest
 
 __all__ = [
-    "DEFAULT_GEOMETRY",
     "CursorCommands",
     "TeleopStats",
     "run_teleop",
     "teleop_job",
     "teleop_pipeline",
 ]
-
-#: The planar robot teleop and the planar pipeline drive unless told otherwise
-#: (:data:`motionbase.config.DEFAULT_RRR3`, one default for every command).
-DEFAULT_GEOMETRY = DEFAULT_RRR3
 
 
 @dataclass
@@ -95,7 +91,7 @@ class TeleopStats:
         return {**asdict(self), "rejected_inputs": self.held}
 
 
-class CursorCommands:
+class CursorCommands(Iterator[Command]):
     """A cursor source as the pipeline's source of robot poses ``[x, y, 0]``.
 
     Tick ``k`` (loop time ``k / rate_hz``) reads the cursor and maps its pixel through the
@@ -125,9 +121,6 @@ class CursorCommands:
         self.fresh = True
         self.ended = ""
         self._k = 0
-
-    def __iter__(self) -> CursorCommands:
-        return self
 
     def __next__(self) -> Command:
         t = self._k * self.dt
@@ -224,9 +217,8 @@ class _Window:
 def teleop_pipeline(
     rrr3: Rrr3, *, rate_hz: float = 50.0, clamp: bool = True, max_park_s: float = 10.0
 ) -> CommandPipeline:
-    """The pipeline teleop runs: the 3-RRR in pose mode (see :func:`run_teleop`)."""
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ConfigError(f"teleop: rate must be > 0 Hz, got {rate_hz!r}")
+    """The pipeline teleop runs: the 3-RRR in pose mode (see :func:`run_teleop`); a rate
+    it cannot tick at is a ConfigError (:func:`motionbase.pipeline.check_rate`)."""
     return CommandPipeline(
         Rrr3Robot(rrr3.geometry), rate_hz=rate_hz, mode="poses", clamp=clamp,
         max_home_s=max_park_s,
@@ -342,7 +334,7 @@ def teleop_job(
     rate_hz: float = 50.0,
     out: str | None = None,
     duration_s: float | None = None,
-    geometry: str = DEFAULT_GEOMETRY,
+    geometry: str = DEFAULT_RRR3,
     realtime: bool = True,
     clamp: bool = True,
     stale_timeout_s: float = 0.5,
@@ -360,7 +352,7 @@ def teleop_job(
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
-    from motionbase.io.mcap_log import LiveAddress
+    from motionbase.io.mcap_log import LiveAddress, McapLogger
     from motionbase.platform.rrr3_geometry import Rrr3Geometry
     from motionbase.stopping import install_signal_stop
 
@@ -389,8 +381,6 @@ def teleop_job(
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()
             if out is not None:
-                from motionbase.io.mcap_log import McapLogger
-
                 logger = McapLogger(
                     out,
                     {

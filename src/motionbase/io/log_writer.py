@@ -28,6 +28,7 @@ Protocol (one machine, one version: this file and ``mcap_log.py`` change togethe
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -54,9 +55,8 @@ class LogFile:
     error, readable up to its last complete chunk.
     """
 
-    def __init__(self, path: str, fsync: bool) -> None:
+    def __init__(self, path: str) -> None:
         self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
-        self._fsync = fsync
         self.error: OSError | None = None
         self._pos = self._end = 0  # positions after an error
 
@@ -77,11 +77,7 @@ class LogFile:
         return self._pos
 
     def flush(self) -> None:
-        if self._fsync and self.error is None:
-            try:
-                os.fsync(self._fh.fileno())
-            except OSError as exc:
-                self._failed(exc)
+        """Nothing to do: the file is unbuffered (the SDK's writer calls it as it flushes)."""
 
     def _failed(self, exc: OSError) -> None:
         self.error = exc
@@ -114,7 +110,7 @@ class Writer:
 
     ``config`` keys: ``path`` (as the user named it, for messages), ``file`` (the same,
     absolute), ``compression`` (``"lz4"``, ``"zstd"``, ``"none"``),
-    ``chunk_size`` (bytes), ``flush_interval_ns``, ``fsync``, ``metadata_name`` and
+    ``chunk_size`` (bytes), ``flush_interval_ns``, ``metadata_name`` and
     ``metadata`` (the metadata record's name and string fields), ``topics`` (``[topic,
     schema name, JSON Schema]`` in index order), ``live`` (``[host, port]`` or null),
     ``live_period_ns``.
@@ -141,7 +137,7 @@ class Writer:
                 [self._channel(t, n, s, self._live_context), _FIRST] for t, n, s in topics
             ]
         try:
-            self._file = LogFile(config["file"], bool(config["fsync"]))
+            self._file = LogFile(config["file"])
         except OSError as exc:
             self.stop_server()
             raise WriterFailed(
@@ -272,10 +268,8 @@ def serve(data_fd: int, reply_fd: int) -> int:
     reply = os.fdopen(reply_fd, "wb", buffering=0)
 
     def answer(**fields: Any) -> None:
-        try:
+        with contextlib.suppress(OSError):  # the front is gone: nobody to tell
             reply.write(json.dumps(fields).encode() + b"\n")
-        except OSError:  # the front is gone: nobody to tell
-            pass
 
     record = _read_record(data)
     if record is None or record[0] != OP_START:

@@ -42,8 +42,7 @@ Crash safety
     the writer) loses at most the chunk in progress, about the last second. A file cut
     anywhere is read back up to its last complete chunk by
     :class:`~motionbase.io.mcap_source.McapSource` (an unfinished chunk on disk still
-    has the writer's placeholder length, which the reader rejects). ``fsync=True``
-    also survives a power cut, at the cost of one ``fsync`` per chunk.
+    has the writer's placeholder length, which the reader rejects).
 
 Exact numbers
     Messages are encoded here, with orjson: floats in their shortest round-trip
@@ -107,12 +106,11 @@ LIVE_RATE_HZ = 60.0
 
 
 def _json_default(obj: Any) -> Any:
+    """What orjson does not write itself: a strided array or an odd numpy scalar."""
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
         return obj.item()
-    if isinstance(obj, tuple):
-        return list(obj)
     raise TypeError(f"cannot write a {type(obj).__name__} to the log")
 
 
@@ -264,8 +262,6 @@ class McapLogger:
     flush_interval_s : float
         Source time, s, after which a chunk is finished and handed to the
         operating system even if small: the most a crash can lose.
-    fsync : bool
-        Also ``os.fsync`` after every chunk (survives power loss, costs time).
     live : LiveAddress, optional
         Also serve every topic live to Foxglove: a WebSocket server (the Foxglove SDK's)
         in the writer process, on a context of its own, started by ``start()`` before the
@@ -296,7 +292,6 @@ class McapLogger:
         chunk_size: int = 512 * 1024,
         compression: str = "lz4",
         flush_interval_s: float = 1.0,
-        fsync: bool = False,
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,
         topics: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
@@ -321,7 +316,6 @@ class McapLogger:
         self.compression = compression
         self.chunk_size = chunk_size
         self.flush_interval_s = float(flush_interval_s)
-        self.fsync = fsync
         self._process: subprocess.Popen | None = None
         self._data_fd = -1  # the pipe to the writer process
         self._reply: Any = None  # its answers, one JSON line each
@@ -350,7 +344,6 @@ class McapLogger:
             "compression": self.compression,
             "chunk_size": self.chunk_size,
             "flush_interval_ns": round(self.flush_interval_s * 1e9),
-            "fsync": self.fsync,
             "metadata_name": METADATA_NAME,
             "metadata": {"config": config_json, "version": __version__, "log_format": LOG_FORMAT},
             "topics": [[topic, name, schema] for topic, (name, schema) in self.topics.items()],

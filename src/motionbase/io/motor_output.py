@@ -159,9 +159,8 @@ _CHECKSUMS: dict[str, tuple[Callable[[bytes], int], int, str]] = {
 
 # --------------------------------------------------------------------------- formats
 
-_INT_TYPES = set("dxXobcn")
-_FLOAT_TYPES = set("fFeEgG%")
-_UNSIGNED_TYPES = set("xXob")
+_INT_TYPES = "dxXob"  # the types a text field takes (one character each)
+_FLOAT_TYPES = "fFeEgG"
 _SPEC_RE = re.compile(
     r"^(?:(?P<fill>.)?(?P<align>[<>=^]))?(?P<sign>[-+ ])?(?P<alt>#)?(?P<zero>0)?"
     r"(?P<width>\d+)?(?P<grouping>[,_])?(?:\.(?P<prec>\d+))?(?P<type>[a-zA-Z%])?$"
@@ -183,7 +182,6 @@ class _TextField:
     integer: bool
     unsigned: bool
     exact_width: int | None
-    pattern: str
 
 
 class TextFormat:
@@ -202,7 +200,6 @@ class TextFormat:
         src = re.sub(r"<Axis(\d+)a>", r"{\1}", template)
         src = _unescape(src)
         literals: list[str] = []  # literal, field, literal, field, ..., literal
-        regex: list[str] = []
         fields: list[_TextField] = []
         pos = 0
         literal = ""
@@ -217,11 +214,9 @@ class TextFormat:
                 raise ConfigError(f"text format {template!r}: unmatched {tok!r} (write {tok * 2})")
             fields.append(self._field(m.group(1), n_axes))
             literals += [literal, ""]
-            regex += [re.escape(literal), fields[-1].pattern]
             literal = ""
         literal += src[pos:]
         literals.append(literal)
-        regex.append(re.escape(literal))
         if not fields:
             raise ConfigError(f"text format {template!r}: no placeholder like {{1}} (add one)")
         try:
@@ -230,9 +225,7 @@ class TextFormat:
             raise ConfigError(f"text format {template!r}: only 8-bit characters") from None
         self.fields = tuple(fields)
         self._literals = literals
-        self._axes = [f.axis for f in fields]
-        self._regex = re.compile("".join(regex).encode("latin-1"), re.S)
-        self.axes = sorted(set(self._axes))
+        self.axes = sorted({f.axis for f in fields})
 
     def _field(self, body: str, n_axes: int) -> _TextField:
         where = f"text format {self.template!r}: placeholder {{{body}}}"
@@ -243,7 +236,7 @@ class TextFormat:
         if m is None:
             raise ConfigError(f"{where}: {spec!r} is not a format spec (e.g. 04x, .2f, d)")
         typ = m.group("type") or "d"
-        if typ not in _INT_TYPES | _FLOAT_TYPES or typ in "cn%":
+        if typ not in _INT_TYPES + _FLOAT_TYPES:
             raise ConfigError(f"{where}: unsupported type {typ!r} (use d, x, X, o, b, f, e, g)")
         if not m.group("type"):
             spec += "d"
@@ -251,30 +244,15 @@ class TextFormat:
         if integer and m.group("prec"):
             raise ConfigError(f"{where}: an integer type takes no precision")
         width = int(m.group("width")) if m.group("width") else None
-        for what, digits_ in (("width", m.group("width")), ("precision", m.group("prec"))):
-            if digits_ and int(digits_) > MAX_FIELD_WIDTH:
+        for what, digits in (("width", m.group("width")), ("precision", m.group("prec"))):
+            if digits and int(digits) > MAX_FIELD_WIDTH:
                 raise ConfigError(
-                    f"{where}: {what} {int(digits_)} is more than {MAX_FIELD_WIDTH} characters "
+                    f"{where}: {what} {int(digits)} is more than {MAX_FIELD_WIDTH} characters "
                     "(no drive reads a field that long; fix the format)"
                 )
         zero = bool(m.group("zero")) or (m.group("fill") == "0" and m.group("align") in "=>")
         exact = width if zero and width else None
-        digits = {"d": r"\d", "x": r"[0-9a-f]", "X": r"[0-9A-F]", "o": r"[0-7]", "b": r"[01]"}
-        if integer:
-            body_re = digits[typ] + ("+" if exact is None else "")
-            if m.group("alt"):
-                body_re = r"(?:0[xXob])?" + body_re
-            pattern = r"[-+ ]?" + body_re if exact is None else rf"[-+ 0-9a-fA-FxXob]{{{exact}}}"
-        else:
-            pattern = r"[-+ ]?[0-9.]+(?:[eE][-+]?\d+)?" if exact is None else rf".{{{exact}}}"
-        return _TextField(
-            int(num) - 1,
-            spec,
-            integer,
-            typ in _UNSIGNED_TYPES,
-            exact,
-            "(" + pattern + ")",
-        )
+        return _TextField(int(num) - 1, spec, integer, typ in "xXob", exact)
 
     def encode(self, values: Sequence[float]) -> bytes | None:
         """The frame for drive values (one per motor), or None when a value cannot be written."""
@@ -292,21 +270,6 @@ class TextFormat:
                 return None
             out[2 * k + 1] = text
         return "".join(out).encode("latin-1")
-
-    def decode(self, frame: bytes) -> list[float | None]:
-        """Drive values of one frame, per motor (None for a motor the template omits)."""
-        m = self._regex.fullmatch(frame)
-        if m is None:
-            raise SinkError(f"frame {frame!r} does not match the template {self.template!r}")
-        out: list[float | None] = [None] * (max(self._axes) + 1)
-        for f, g in zip(self.fields, m.groups(), strict=True):
-            s = g.decode("latin-1").strip()
-            if f.integer:
-                base = {"x": 16, "X": 16, "o": 8, "b": 2}.get(f.spec[-1], 10)
-                out[f.axis] = float(int(s, 0 if "#" in f.spec else base))
-            else:
-                out[f.axis] = float(s)
-        return out
 
     def describe(self) -> str:
         return f"text:{self.template}"
@@ -402,7 +365,6 @@ class BinaryFormat:
         if not any(i.kind == "axis" for i in items):
             raise ConfigError(f"{where}: no axis field (add e.g. 6xu16be)")
         self.items = tuple(items)
-        self.size = offset
         self.axes = sorted({i.axis for i in items if i.kind == "axis"})
 
     def encode(self, values: Sequence[float]) -> bytes | None:
@@ -424,29 +386,6 @@ class BinaryFormat:
                 fn, size, order = _CHECKSUMS[i.checksum]
                 out += fn(bytes(out[i.start :])).to_bytes(size, order)
         return bytes(out)
-
-    def decode(self, frame: bytes) -> list[float | None]:
-        """Drive values of one frame, per motor; the literals and checksums must match."""
-        if len(frame) != self.size:
-            raise SinkError(f"frame of {len(frame)} bytes, expected {self.size}")
-        out: list[float | None] = [None] * (max(self.axes) + 1)
-        pos = 0
-        for i in self.items:
-            if i.kind == "lit":
-                if frame[pos : pos + len(i.data)] != i.data:
-                    raise SinkError(f"frame {frame.hex()}: literal bytes differ at {pos}")
-                pos += len(i.data)
-            elif i.kind == "axis":
-                iv = int.from_bytes(frame[pos : pos + i.size], i.order, signed=i.signed)
-                out[i.axis] = iv / i.scale
-                pos += i.size
-            else:
-                fn, size, order = _CHECKSUMS[i.checksum]
-                want = fn(frame[i.start : pos]).to_bytes(size, order)
-                if frame[pos : pos + size] != want:
-                    raise SinkError(f"frame {frame.hex()}: {i.checksum} mismatch")
-                pos += size
-        return out
 
     def describe(self) -> str:
         return f"bin:{self.spec}"
@@ -587,8 +526,6 @@ class MotorOutput:
         outside the drive's range or the wire format; failed sends.
     ramped : int
         Frames the drive-side limiter moved short of the latest command.
-    last_values : ndarray or None
-        Drive values of the latest accepted command.
     link_up : bool
     """
 
@@ -626,7 +563,6 @@ class MotorOutput:
         self.held = 0
         self.send_errors = 0
         self.ramped = 0
-        self.last_values: np.ndarray | None = None
         self.link_up = True
         # the latest accepted command: (angles rad, its frame), replaced as one object
         self._command: tuple[np.ndarray, bytes] | None = None
@@ -708,7 +644,6 @@ class MotorOutput:
         else:
             self._holding = False
             self._command = (angles, frame)
-            self.last_values = values
             self.commands += 1
         return frame is not None
 
@@ -877,15 +812,14 @@ class MotorOutput:
 
 
 def _split_query(rest: str) -> tuple[str, dict[str, str], list[tuple[str, str]]]:
-    base, sep, query = rest.partition("?")
+    base, _, query = rest.partition("?")  # (no "?": an empty query, no keys)
     ours: dict[str, str] = {}
     other: list[tuple[str, str]] = []
-    if sep:
-        for k, v in parse_qsl(query, keep_blank_values=True):
-            if k in ("format", "rate", "baud"):
-                ours[k] = v
-            else:
-                other.append((k, v))
+    for k, v in parse_qsl(query, keep_blank_values=True):
+        if k in ("format", "rate", "baud"):
+            ours[k] = v
+        else:
+            other.append((k, v))
     return base, ours, other
 
 

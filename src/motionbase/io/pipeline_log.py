@@ -108,10 +108,6 @@ class PipelineLog:
         description); stored in the file's ``motionbase`` metadata record.
     health : callable, optional
         Returns the current health counters (a dict) for ``/health``.
-    planar : bool, optional
-        The robot the outputs come from (True: the 3-RRR in planar mode). Not
-        needed any more (the log prepared per-robot encodings when it had its own
-        writer); accepted so that callers need no change.
     kinematics : Rus6 or Rrr3, optional
         The robot the outputs come from: ``/platform/scene`` is written when given.
     live : LiveAddress, optional
@@ -130,7 +126,6 @@ class PipelineLog:
         metadata: Mapping[str, Any],
         health: Callable[[], dict[str, Any]] | None = None,
         *,
-        planar: bool | None = None,
         kinematics: Any = None,
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,

@@ -20,9 +20,9 @@ signature :data:`SOLVE_SIGNATURE`::
 pose (6,) to render; it writes the pose actually commanded in robot coordinates
 (``pose_out``, shape (m,)), the cue pose it realises (``cue_out``, (6,): equal to
 ``target`` unless clamped; what the cueing is told for anti-windup) and the actuator
-command (``q_out``, (n,)), and returns True when the workspace clamp moved the pose. The
-pipeline's tick calls it through :meth:`Robot.solve`, and its batch path calls the same
-kernel from compiled code (:mod:`motionbase.stages`).
+command (``q_out``, (n,)), and returns True when the workspace clamp moved the pose
+(arrays float64, C-contiguous). The pipeline's tick and its batch path both call it from
+compiled code (:func:`motionbase.stages.after_cueing`).
 """
 
 from __future__ import annotations
@@ -93,18 +93,6 @@ class Robot(ABC):
     solve_kernel: Any
     kin: Any
 
-    # -- the real-time path ------------------------------------------------------------
-    def solve(
-        self, target: np.ndarray, cue_out: np.ndarray, pose_out: np.ndarray, q_out: np.ndarray
-    ) -> bool:
-        """Clamp the cue pose ``target`` into the workspace and solve the actuators.
-
-        Writes ``cue_out`` (6,), ``pose_out`` (m,) and ``q_out`` (n,) (see the module
-        notes); returns True when the clamp moved the pose. Arrays are float64,
-        C-contiguous.
-        """
-        return self.solve_kernel(self.kernel_params, target, cue_out, pose_out, q_out)
-
     # -- kinematics (robot coordinates): the kinematics class's, by default -------------
     def inverse(self, pose: np.ndarray) -> np.ndarray:
         """Actuator positions of robot poses ``(..., m) -> (..., n)`` (NaN: no solution)."""
@@ -122,10 +110,6 @@ class Robot(ABC):
         """Robot poses ``(..., m)`` of actuator positions ``(..., n)``, by Newton from
         ``guess`` (rows of NaN where it does not converge)."""
         return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
-
-    def joint_points(self, pose: np.ndarray) -> Any:
-        """The joints' positions at a robot pose, for drawing (a named tuple of arrays)."""
-        return self.kin.joint_points(pose)
 
     # -- cue pose <-> robot pose -------------------------------------------------------
     def pose_from_cue(self, cue: np.ndarray) -> np.ndarray:
@@ -294,7 +278,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     ConfigError
         Unknown preset, or a file or robot of the other mode.
     """
-    from motionbase.config import resolve_preset_or_path
+    from motionbase.config import preset_names, resolve_preset_or_path
 
     candidates = [name for name, spec in ROBOTS.items() if spec.planar == planar]
     default = candidates[0] if planar else DEFAULT_ROBOT
@@ -317,13 +301,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
         else:
             found = _robot_of_preset(text, candidates)
             if found is None:
-                names = sorted(
-                    {
-                        q.name[len(r) + 1 : -5]
-                        for r in candidates
-                        for q in _preset_dir().glob(f"{r}_*.toml")
-                    }
-                )
+                names = sorted({name for r in candidates for name in preset_names(r)})
                 raise ConfigError(
                     f"unknown {default} preset {text!r} (nor any other robot's): choose a "
                     f"robot ({', '.join(candidates)}), a preset ({', '.join(names)}) or give "
@@ -333,9 +311,3 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     spec = ROBOTS[robot]
     path = resolve_preset_or_path(robot, value or spec.default_preset)
     return robot, spec.geometry_type.from_toml(path)
-
-
-def _preset_dir() -> Path:
-    from importlib import resources
-
-    return Path(str(resources.files("motionbase") / "presets"))

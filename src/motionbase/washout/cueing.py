@@ -120,27 +120,6 @@ class Cueing(ABC):
         them (:attr:`diagnostics_schema`); None (the default): nothing to log."""
         return None
 
-    def step(self, specific_force: Any, angular_velocity: Any) -> np.ndarray:
-        """One sample from ``f`` (3,) and ``w`` (3,); the cue pose (6,), a new array."""
-        from motionbase.washout.classical import WashoutInputError
-
-        u = np.empty(6)
-        try:
-            u[:3] = specific_force
-            u[3:] = angular_velocity
-        except (ValueError, TypeError):
-            raise WashoutInputError(
-                f"{self.name} cueing input: specific_force and angular_velocity must be 3 "
-                f"numbers each, got {specific_force!r} and {angular_velocity!r}"
-            ) from None
-        out = np.empty(6)
-        if not self.advance(u, out):
-            raise WashoutInputError(
-                f"{self.name} cueing input: non-finite value in {u} (reject the sample "
-                "before the cueing)"
-            )
-        return out
-
 
 @dataclass(frozen=True)
 class CueingSpec:
