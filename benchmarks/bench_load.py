@@ -322,7 +322,6 @@ def main() -> None:
             path,
             run_metadata(config, source),
             health=pipeline.health.as_dict,
-            planar=args.planar,
             source=source,
             capacity=n_total,
             log=not args.no_log,
