@@ -83,3 +83,52 @@ def test_a_lazily_compiled_plug_in_kernel_is_compiled_for_its_list():
     state = np.zeros(3)
     held[0](np.array([2.0]), state, np.array([1.0, 2.0, 3.0]))
     np.testing.assert_array_equal(state, [2.0, 4.0, 6.0])
+
+
+def _overload_counts() -> dict[str, int]:
+    """How many compiled versions each numba function of motionbase has loaded so far."""
+    import numba.core.registry
+
+    counts = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("motionbase"):
+            for attr, value in vars(module).items():
+                if isinstance(value, numba.core.registry.CPUDispatcher):
+                    counts[f"{name}.{attr}"] = len(value.overloads)
+    return counts
+
+
+def _manoeuvre(rate_hz: float):
+    """Two seconds level, then four of a hard oscillation on every axis."""
+    import math
+
+    from motionbase.state import AircraftState
+
+    g = 9.80665
+    for k in range(int(6 * rate_hz)):
+        t = k / rate_hz
+        a = 0.0 if t < 2.0 else math.sin(2 * math.pi * 0.7 * t)
+        yield AircraftState(t, (12 * a, -12 * a, -g - 8 * a), (2 * a, -2 * a, 1.5 * a))
+
+
+@pytest.mark.parametrize("robot", ["ceart", "stewart6", "udesc_symmetric"])
+def test_after_the_warm_up_a_run_loads_no_compiled_code(robot):
+    # Loading a compiled function from numba's cache takes milliseconds: one loaded at the
+    # first rate-limited tick, or at the end of the run (the loop's parked check), makes a
+    # late tick. The run loads what its own loop uses before its first tick.
+    from motionbase.app import load_config
+    from motionbase.pipeline import Pipeline, run
+
+    planar = robot == "udesc_symmetric"
+    pipeline = Pipeline(load_config(platform=robot, planar=planar, rate_hz=200))
+    pipeline.warm_up()
+    first_tick: list[dict[str, int]] = []
+
+    def at_first_tick(out) -> None:
+        if not first_tick:
+            first_tick.append(_overload_counts())
+
+    summary = run(pipeline, _manoeuvre(200), [], progress=at_first_tick)
+    assert summary.running_samples > 0 and pipeline.parked
+    assert planar or summary.health.rate_limited > 0  # the limiter's path was taken
+    assert _overload_counts() == first_tick[0]

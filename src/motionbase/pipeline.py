@@ -371,6 +371,7 @@ class PipelineCore(ABC):
         time; the pipeline is left reset, its counters untouched."""
         health, self.health = self.health, Health()  # the warm-up ticks count elsewhere
         self._warm_ticks()
+        self.parked  # noqa: B018 - loads the check that the loop makes at the end of a run
         self.reset()
         self.health = health
 
@@ -475,7 +476,8 @@ class Pipeline(PipelineCore):
         level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
         self.step(AircraftState(0.0, level, self._zero3))
         self.step(None)
-        self.robot.forward(self.robot.park_angles, guess=self.robot.park_pose)
+        # as a rate-limited tick calls it (writable arrays: numba compiles per array kind)
+        self.robot.forward(np.array(self.robot.park_angles), guess=np.array(self.robot.park_pose))
 
     def stop(self) -> None:
         """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
