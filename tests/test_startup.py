@@ -132,3 +132,26 @@ def test_after_the_warm_up_a_run_loads_no_compiled_code(robot):
     assert summary.running_samples > 0 and pipeline.parked
     assert planar or summary.health.rate_limited > 0  # the limiter's path was taken
     assert _overload_counts() == first_tick[0]
+
+
+@pytest.mark.parametrize("robot", ["ceart", "stewart6", "rrr3"])
+def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
+    # The same for the command pipeline (output --test, teleop): a wiring sweep, unpaced.
+    from motionbase.commanding import CommandPipeline, SweepSource
+    from motionbase.pipeline import run
+    from motionbase.platform.robot import load_geometry, robot_spec
+
+    planar = robot == "rrr3"
+    name, geometry = load_geometry(None if planar else robot, planar=planar)
+    machine = robot_spec(name).make(geometry)
+    pipeline = CommandPipeline(machine, rate_hz=200, mode="actuators")
+    sweep = SweepSource(machine, range_=0.01, speed=0.2, rate_hz=200, lead_s=pipeline.soft_start_s)
+    first_tick: list[dict[str, int]] = []
+
+    def at_first_tick(out) -> None:
+        if not first_tick:
+            first_tick.append(_overload_counts())
+
+    summary = run(pipeline, sweep, [], progress=at_first_tick)
+    assert name == robot.replace("ceart", "rus6") and summary.samples > 200 and pipeline.parked
+    assert _overload_counts() == first_tick[0]
