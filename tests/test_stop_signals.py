@@ -73,6 +73,30 @@ def test_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_finalizer_that_fails_after_ctrl_c_adds_nothing_to_the_one_line():
+    """A Ctrl-C that lands inside a library's constructor (llvmlite's, while numba compiles)
+    leaves a half-built object whose finalizer fails when the process exits; Python would
+    print "Exception ignored in ..." and a traceback after the one line. Made to happen every
+    time with a command whose object fails so."""
+    code = (
+        "import sys\n"
+        "from motionbase import cli\n"
+        "class HalfBuilt:\n"
+        "    def __del__(self):\n"
+        "        raise AttributeError('no attribute _as_parameter_')\n"
+        "def command(args):\n"
+        "    global left\n"
+        "    left = HalfBuilt()  # finalized at exit\n"
+        "    raise KeyboardInterrupt\n"
+        "cli.COMMANDS[:] = [(n, h, a, command if n == 'workspace' else r)\n"
+        "                   for n, h, a, r in cli.COMMANDS]\n"
+        "sys.exit(cli.main(['workspace']))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.stderr.strip() == "motionbase workspace: interrupted"
+    assert done.returncode == 130
+
+
 def test_an_error_caused_by_ctrl_c_counts_as_ctrl_c():
     from motionbase.cli import _raised_by_ctrl_c
 

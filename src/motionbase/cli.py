@@ -28,7 +28,7 @@ try:  # numpy and the rest take a few tenths of a second to import
     from motionbase import __version__
     from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
     from motionbase.errors import ConfigError, MotionbaseError
-    from motionbase.stopping import Stopped, insistent_ctrl_c, stop_on_signals
+    from motionbase.stopping import Stopped, insistent_ctrl_c, quiet_finalizers, stop_on_signals
 except KeyboardInterrupt:
     sys.exit(_interrupted_at_start())
 
@@ -103,6 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"motionbase {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        quiet_finalizers()
         print(f"motionbase {args.command}: interrupted", file=sys.stderr)
         return 130
     except Stopped as exc:  # a job that moves nothing, stopped by a signal (tune)
@@ -112,6 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if not _raised_by_ctrl_c(exc):
             raise  # a bug: its traceback is what a bug report needs
+        quiet_finalizers()
         print(f"motionbase {args.command}: interrupted", file=sys.stderr)
         return 130
 

@@ -188,9 +188,11 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
     drops a ``KeyboardInterrupt`` raised while C code has called back into Python, and
     numba's compiler does that throughout a compilation (the first run of a fresh install
     compiles for several seconds), so a single one would be lost and the command run on.
-    The dropped ones are not reported (``sys.unraisablehook``): the next one is raised.
-    A no-op outside the main thread, and where SIGINT is not Python's default handler (a
-    background job ignores it; a host program has its own).
+    The dropped ones are not reported (``sys.unraisablehook``): the next one is raised;
+    nor, once a Ctrl-C came, are the errors of the objects it left half-built when their
+    finalizers run (llvmlite's, when it lands inside one's constructor; after the block,
+    see :func:`quiet_finalizers`). A no-op outside the main thread, and where SIGINT is not
+    Python's default handler (a background job ignores it; a host program has its own).
 
     Parameters
     ----------
@@ -219,7 +221,7 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
         raise KeyboardInterrupt
 
     def quiet(unraisable: Any) -> None:  # a dropped one: raised again, not worth a traceback
-        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+        if not (repeater or isinstance(unraisable.exc_value, KeyboardInterrupt)):
             previous_hook(unraisable)
 
     previous_hook = sys.unraisablehook
@@ -234,6 +236,16 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
             _forget_escaped_ctrl_c()
         signal.signal(signal.SIGINT, signal.default_int_handler)
         sys.unraisablehook = previous_hook
+
+
+def quiet_finalizers() -> None:
+    """From now on, errors in finalizers (``sys.unraisablehook``) are not reported.
+
+    For a command that a Ctrl-C ends: it may have landed inside a library's constructor
+    (llvmlite's), and the half-built object's finalizer fails when the process exits; one
+    line has said the command was interrupted, and that is all the user needs to read.
+    """
+    sys.unraisablehook = lambda unraisable: None
 
 
 def _forget_escaped_ctrl_c() -> None:
