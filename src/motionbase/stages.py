@@ -126,7 +126,7 @@ def kernel_list(kernel, list_type) -> numba.typed.List:
     Passing a numba dispatcher itself costs a type lookup every call (tens of us); the
     list's type is known at once, so a call through it costs about a microsecond. The list
     is built by a compiled, cached function: built from Python, numba would compile the
-    typed list's methods for the item type in every process (about 1 s of start-up).
+    typed list's methods for the item type in every process (0.5-1.4 s of start-up).
     """
     try:
         return _HOLDERS[list_type](kernel)
