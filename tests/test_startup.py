@@ -28,8 +28,6 @@ def test_a_flight_does_not_import_scipy_signal(tmp_path):
 #: Runs a command in this process and prints how many functions numba compiled for it.
 _COUNT_COMPILES = """
 import sys
-
-import pytest
 from numba.core import event
 compiled = []
 class Count(event.Listener):
@@ -98,6 +96,21 @@ def _overload_counts() -> dict[str, int]:
     return counts
 
 
+def _run_loading_nothing(pipeline, source):
+    """``run(pipeline, source)``; asserts that no compiled code was loaded after its first tick."""
+    from motionbase.pipeline import run
+
+    first_tick: list[dict[str, int]] = []
+
+    def at_first_tick(out) -> None:
+        if not first_tick:
+            first_tick.append(_overload_counts())
+
+    summary = run(pipeline, source, [], progress=at_first_tick)
+    assert _overload_counts() == first_tick[0]
+    return summary
+
+
 def _manoeuvre(rate_hz: float):
     """Two seconds level, then four of a hard oscillation on every axis."""
     import math
@@ -117,28 +130,19 @@ def test_after_the_warm_up_a_run_loads_no_compiled_code(robot):
     # first rate-limited tick, or at the end of the run (the loop's parked check), makes a
     # late tick. The run loads what its own loop uses before its first tick.
     from motionbase.app import load_config
-    from motionbase.pipeline import Pipeline, run
+    from motionbase.pipeline import Pipeline
 
     planar = robot == "udesc_symmetric"
-    pipeline = Pipeline(load_config(platform=robot, planar=planar, rate_hz=200))
-    pipeline.warm_up()
-    first_tick: list[dict[str, int]] = []
-
-    def at_first_tick(out) -> None:
-        if not first_tick:
-            first_tick.append(_overload_counts())
-
-    summary = run(pipeline, _manoeuvre(200), [], progress=at_first_tick)
+    pipeline = Pipeline(load_config(platform=robot, planar=planar, rate_hz=200))  # warms up
+    summary = _run_loading_nothing(pipeline, _manoeuvre(200))
     assert summary.running_samples > 0 and pipeline.parked
     assert planar or summary.health.rate_limited > 0  # the limiter's path was taken
-    assert _overload_counts() == first_tick[0]
 
 
 @pytest.mark.parametrize("robot", ["ceart", "stewart6", "rrr3"])
 def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
     # The same for the command pipeline (output --test, teleop): a wiring sweep, unpaced.
     from motionbase.commanding import CommandPipeline, SweepSource
-    from motionbase.pipeline import run
     from motionbase.platform.robot import load_geometry, robot_spec
 
     planar = robot == "rrr3"
@@ -146,12 +150,5 @@ def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
     machine = robot_spec(name).make(geometry)
     pipeline = CommandPipeline(machine, rate_hz=200, mode="actuators")
     sweep = SweepSource(machine, range_=0.01, speed=0.2, rate_hz=200, lead_s=pipeline.soft_start_s)
-    first_tick: list[dict[str, int]] = []
-
-    def at_first_tick(out) -> None:
-        if not first_tick:
-            first_tick.append(_overload_counts())
-
-    summary = run(pipeline, sweep, [], progress=at_first_tick)
+    summary = _run_loading_nothing(pipeline, sweep)
     assert name == robot.replace("ceart", "rus6") and summary.samples > 200 and pipeline.parked
-    assert _overload_counts() == first_tick[0]
