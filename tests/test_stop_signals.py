@@ -97,6 +97,27 @@ def test_a_finalizer_that_fails_after_ctrl_c_adds_nothing_to_the_one_line():
     assert done.returncode == 130
 
 
+def test_an_error_after_a_swallowed_ctrl_c_ends_the_block_as_ctrl_c():
+    """Compiled code can swallow the KeyboardInterrupt and fail later with an error of its
+    own that does not name it (numba: "no compiled object yet"): inside
+    ``insistent_ctrl_c`` that error comes out as a KeyboardInterrupt caused by it."""
+    from motionbase.stopping import insistent_ctrl_c
+
+    with pytest.raises(KeyboardInterrupt) as caught:
+        with insistent_ctrl_c(period_s=30.0):
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(5.0)
+            except KeyboardInterrupt:
+                pass  # swallowed, as a C callback does
+            raise RuntimeError("no compiled object yet")
+    assert isinstance(caught.value.__cause__, RuntimeError)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with pytest.raises(ValueError):  # without a Ctrl-C an error is itself
+        with insistent_ctrl_c():
+            raise ValueError("a bug")
+
+
 def test_an_error_caused_by_ctrl_c_counts_as_ctrl_c():
     from motionbase.cli import _raised_by_ctrl_c
 

@@ -191,7 +191,10 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
     The dropped ones are not reported (``sys.unraisablehook``): the next one is raised;
     nor, once a Ctrl-C came, are the errors of the objects it left half-built when their
     finalizers run (llvmlite's, when it lands inside one's constructor; after the block,
-    see :func:`quiet_finalizers`). A no-op outside the main thread, and where SIGINT is not
+    see :func:`quiet_finalizers`). An error that ends the block after a Ctrl-C came is
+    raised as a ``KeyboardInterrupt`` (from it): a Ctrl-C swallowed by compiled code can
+    leave it half done and failing later, as numba's compiler does ("no compiled object
+    yet"). A no-op outside the main thread, and where SIGINT is not
     Python's default handler (a background job ignores it; a host program has its own).
 
     Parameters
@@ -229,6 +232,10 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
     signal.signal(signal.SIGINT, handler)
     try:
         yield
+    except Exception as exc:
+        if repeater:  # a Ctrl-C came: the error is what it broke (numba's compiler, say)
+            raise KeyboardInterrupt from exc
+        raise
     finally:
         done.set()
         if repeater:
