@@ -8,6 +8,8 @@ each tick by busy-waiting instead of sleeping, as ``motionbase fly --realtime --
 ``--paced --loop-paced`` lets the pipeline's loop pace a source that does not pace itself,
 as ``replay --output`` and ``fly --output`` do). With ``--paced`` it prints the commands
 late for the actuators that ``/health`` counts from each sample's due time.
+``--platform P`` and ``--params FILE`` run another geometry and cueing parameters (e.g. an
+earlier version's presets, to compare the code on the same work).
 ``--floor`` measures the machine instead: the same paced 1 kHz loop shape with a fixed
 50 us of computing per tick and nothing else, to tell what the machine does to any loop
 (a virtual machine's host taking the CPU away) from what the pipeline costs.
@@ -275,6 +277,8 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--planar", action="store_true")
+    ap.add_argument("--platform", help="a geometry preset or TOML file (default: ceart)")
+    ap.add_argument("--params", help="the cueing's parameters, a preset or TOML file")
     ap.add_argument("--paced", action="store_true")
     ap.add_argument(
         "--loop-paced",
@@ -304,7 +308,9 @@ def main() -> None:
         floor(args.minutes, args.rate, args.busy_wait)
         return
 
-    config = load_config(planar=args.planar, rate_hz=args.rate)
+    config = load_config(
+        planar=args.planar, platform=args.platform, washout=args.params, rate_hz=args.rate
+    )
     duration = args.minutes * 60.0
     if args.loop_paced and not args.paced:
         ap.error("--loop-paced goes with --paced")
@@ -364,6 +370,8 @@ def main() -> None:
     over = int(late.sum())
     computing = np.nonzero(late & (cpu >= budget * 1e6))[0]
     robot = "3-RRR (planar)" if args.planar else "6-RUS"
+    robot += f" {getattr(config.geometry, 'name', '')}, {config.cueing} cueing"
+    robot += f" ({args.params or 'default parameters'})"
     what = " (--no-log: no MCAP writes but the final /health)" if args.no_log else ""
     if args.paced:
         what += ", busy-waiting between ticks" if args.busy_wait else ", sleeping between ticks"

@@ -1,22 +1,26 @@
 """The MCAP log's writer process: the Foxglove SDK's writer, off the pipeline's process.
 
 :class:`~motionbase.io.mcap_log.McapLogger` starts this file as a script of its own
-(``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library and
-``foxglove`` only, so it starts in about 40 ms) and sends it encoded messages through a
-pipe; this process logs them with the SDK and, with a live view, serves them to Foxglove.
+(``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library, ``orjson``
+and ``foxglove`` only, so it starts in about 40 ms) and sends it messages through a pipe;
+this process logs them with the SDK and, with a live view, serves them to Foxglove.
 
 Why a process: the SDK's ``Channel.log`` compresses and writes on the thread that calls
 it, holding the interpreter lock (a 64 KiB lz4 block costs about 80 us, a chunk's write
 waits for the disk), so a thread would not take that work off the real-time loop; a
-process does, on the other core. The caller's thread only encodes the JSON (orjson) and
-writes it to the pipe.
+process does, on the other core. The caller's thread encodes one tick's messages as one
+JSON array (one orjson call) and writes it to the pipe; this process splits it into the
+messages.
 
 Protocol (one machine, one version: this file and ``mcap_log.py`` change together):
 
 * front -> writer, on the data pipe: records of a :data:`HEADER` (op, flags, topic index,
   payload length, log time in ns) and a payload. The first is :data:`OP_START` with the
   configuration as JSON; then :data:`OP_LOG` (a message's JSON bytes on the topic of
-  that index in the configuration's ``topics``), :data:`OP_FLUSH` and :data:`OP_CLOSE`.
+  that index in the configuration's ``topics``), :data:`OP_BATCH` (a JSON array of
+  ``[topic index, flags, message]``, all of the header's log time: each message is
+  encoded again on its own, orjson both ways, so its numbers are the very same),
+  :data:`OP_FLUSH` and :data:`OP_CLOSE`.
 * writer -> front, on the reply pipe: one JSON line per answer: ``{"ok": true, ...}`` to
   the start, a flush and the close; ``{"error": "...", "kind": "config" | "sink"}`` when
   something fails. After a failure the writer closes the data pipe (the front's next
@@ -37,9 +41,11 @@ import struct
 import sys
 from typing import Any, BinaryIO
 
+import orjson
+
 #: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
 HEADER = struct.Struct("<BBHIQ")
-OP_START, OP_LOG, OP_FLUSH, OP_CLOSE = 1, 2, 3, 4
+OP_START, OP_LOG, OP_FLUSH, OP_CLOSE, OP_BATCH = 1, 2, 3, 4, 5
 #: OP_LOG flag: the message goes live whatever the topic's live grid says
 FLAG_ALWAYS_LIVE = 1
 _FIRST = -(2**63)  # the live grid of a topic starts at its first message
@@ -290,6 +296,9 @@ def serve(data_fd: int, reply_fd: int) -> int:
             op, flags, index, ns, payload = record
             if op == OP_LOG:
                 writer.log(index, payload, ns, flags)
+            elif op == OP_BATCH:  # encoded here, off the pipeline's tick
+                for index, flags, message in orjson.loads(payload):
+                    writer.log(index, orjson.dumps(message), ns, flags)
             elif op == OP_FLUSH:
                 writer.flush()
                 answer(ok=True)

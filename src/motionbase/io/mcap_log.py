@@ -8,9 +8,10 @@ chunks (each channel's Schema and Channel records in the chunk of its first
 message), and the summary.
 
 The writer runs in a process of its own
-    :class:`McapLogger` encodes each message (orjson, on the caller's thread) and writes
-    the bytes to a pipe; a writer process (:mod:`motionbase.io.log_writer`, started by
-    ``start()`` and ended by ``finish()``) logs them with the SDK. The SDK compresses
+    :class:`McapLogger` encodes the messages of one call (orjson, on the caller's thread)
+    as one JSON array and writes it to a pipe; a writer process
+    (:mod:`motionbase.io.log_writer`, started by ``start()`` and ended by ``finish()``)
+    splits it and logs the messages with the SDK. The SDK compresses
     and writes on the thread that calls it, holding the interpreter lock: in the
     pipeline's process that work (about 80 us for each 64 KiB lz4 block, and every
     wait for the disk) fell on the real-time tick, now and then, and set its 99th
@@ -78,7 +79,14 @@ import orjson
 
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io import log_writer
-from motionbase.io.log_writer import FLAG_ALWAYS_LIVE, OP_CLOSE, OP_FLUSH, OP_LOG, OP_START
+from motionbase.io.log_writer import (
+    FLAG_ALWAYS_LIVE,
+    OP_BATCH,
+    OP_CLOSE,
+    OP_FLUSH,
+    OP_LOG,
+    OP_START,
+)
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
 from motionbase.physics import quaternion_from_euler_zyx
@@ -143,8 +151,9 @@ _SAFE_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, check_c
 _ORJSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY
 
 
-def encode_message(message: Mapping[str, Any]) -> bytes:
-    """JSON bytes of one message (floats exact, non-finite numbers as strings).
+def encode_message(message: Any) -> bytes:
+    """JSON bytes of one message, or of a list of them (floats exact, non-finite numbers as
+    strings).
 
     orjson writes floats in their shortest round-trip form, like ``repr``. It
     writes NaN and infinities as ``null``; such messages (and any with a literal
@@ -457,24 +466,35 @@ class McapLogger:
         """
         self.add_many(t, ((topic, message),))
 
-    def add_many(self, t: float, items: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
-        """Log several messages of one time ``t`` (the pipeline's per-tick path).
+    def add_many(
+        self,
+        t: float,
+        items: Sequence[tuple[str, Mapping[str, Any]]],
+        transform: Sequence[float] | np.ndarray | None = None,
+    ) -> None:
+        """Log several messages of one time ``t`` (the pipeline's per-tick path), and the
+        ``transform`` pose on ``/tf`` when given.
 
-        The same as calling :meth:`add` for each ``(topic, message)`` pair, with the
-        per-call checks done once and one write to the writer process.
+        The same as calling :meth:`add` for each ``(topic, message)`` pair and
+        :meth:`add_transform`, with the per-call checks done once and one encoding.
         """
         ns = self._ns(t)
         index = self._index
-        buf = self._pending
+        batch = []
         for topic, message in items:
             i = index.get(topic)
             if i is None:
                 self._unknown(topic)
-            if "t" not in message:
-                message = {"t": t, **message}
-            data = encode_message(message)
-            buf += _HEADER.pack(OP_LOG, 0, i, len(data), ns)
-            buf += data
+            batch.append((i, 0, message if "t" in message else {"t": t, **message}))
+        if transform is not None:
+            self._transforms(ns, transform, batch)
+        self._add_batch(ns, batch)
+
+    def _add_batch(self, ns: int, batch: list[tuple[int, int, Mapping[str, Any]]]) -> None:
+        """``(topic index, flags, message)`` of log time ``ns``: one record, one encoding."""
+        data = encode_message(batch)
+        self._pending += _HEADER.pack(OP_BATCH, 0, 0, len(data), ns)
+        self._pending += data
         self._queued(ns)
 
     def add_encoded(self, topic: str, t: float, data: bytes) -> None:
@@ -509,23 +529,20 @@ class McapLogger:
         pose6 : array_like, shape (6,)
             ``[x, y, z, roll, pitch, yaw]``, m and rad, base axes FRD.
         """
-        ns = self._ns(t)
+        self.add_many(t, (), pose6)
+
+    def _transforms(self, ns: int, pose6: Sequence[float] | np.ndarray, batch: list) -> None:
+        """Append :meth:`add_transform`'s messages to ``batch``."""
         p = pose6.tolist() if isinstance(pose6, np.ndarray) else [float(v) for v in pose6]
         if len(p) != 6:
             raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
         tf = self._index["/tf"]
-        buf = self._pending
         if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
             self._last_static_ns = ns
             world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
-            data = encode_message(world)
-            buf += _HEADER.pack(OP_LOG, FLAG_ALWAYS_LIVE, tf, len(data), ns)  # every one live
-            buf += data
+            batch.append((tf, FLAG_ALWAYS_LIVE, world))  # every one live
         q = quaternion_from_euler_zyx(p[3], p[4], p[5])
-        data = encode_message(transform_message(ns, "base", "platform", p[0], p[1], p[2], q))
-        buf += _HEADER.pack(OP_LOG, 0, tf, len(data), ns)
-        buf += data
-        self._queued(ns)
+        batch.append((tf, 0, transform_message(ns, "base", "platform", p[0], p[1], p[2], q)))
 
     def flush(self) -> None:
         """Finish the chunk in progress and hand it to the OS now (e.g. before a risky

@@ -193,11 +193,10 @@ class PipelineLog:
             raise SinkError(f"{self.path}: the pipeline log is closed")
         t = out.t
         self._last_t = t
-        logger.add_many(t, tick_messages(out))
+        items = tick_messages(out)
         if self._cueing is not None and (diagnostics := self._cueing.diagnostics()) is not None:
-            logger.add(self._cueing_topic, t, diagnostics)
-        if out.servo_deg is None:
-            logger.add_transform(t, out.platform_pose)
+            items.append((self._cueing_topic, diagnostics))
+        logger.add_many(t, items, out.platform_pose if out.servo_deg is None else None)
         if self._scene is not None:
             self._last_out = out
             if t >= self._next_scene_t - 1e-6:  # on a 30 Hz grid of source time (1 us slack)

@@ -186,6 +186,15 @@ def run_forward(
 ) -> np.ndarray:
     """``kernel(q (k, 6), guesses (k, 6), G, tol, max_iter, out, iters)`` over actuator rows
     ``q`` named ``what``, from ``guess`` (broadcast; zero pose by default): shape (..., 6)."""
+    if (
+        type(q) is np.ndarray
+        and type(guess) is np.ndarray
+        and q.shape == guess.shape == (6,)
+        and q.dtype == guess.dtype == np.float64
+    ):  # one pose from one guess, as a rate-limited tick asks: no broadcasting
+        out, iters = np.empty((1, 6)), np.empty(1, dtype=np.int64)
+        kernel(q.reshape(1, 6), guess.reshape(1, 6), G, float(tol), int(max_iter), out, iters)
+        return out[0]
     flat, lead = as_poses(q, what)
     if guess is None:
         g = np.zeros_like(flat)
