@@ -531,8 +531,8 @@ class Pipeline(PipelineCore):
             if flags & (stages.HELD | stages.RATE_LIMITED):
                 # the actuators realise another pose than the one asked: say which
                 s_pose = S[0]["pose"][: self._m]
-                achieved = self.robot.forward(q, guess=s_pose.copy())
-                if np.isfinite(achieved).all():
+                achieved = self.robot.forward(q, guess=s_pose)
+                if not np.isnan(achieved[0]):  # (a row of NaN: Newton did not converge)
                     pose = achieved
                 s_pose[:] = pose
         s = S[0]

@@ -76,17 +76,11 @@ from typing import Any
 
 import numpy as np
 import orjson
+from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io import log_writer
-from motionbase.io.log_writer import (
-    FLAG_ALWAYS_LIVE,
-    OP_BATCH,
-    OP_CLOSE,
-    OP_FLUSH,
-    OP_LOG,
-    OP_START,
-)
+from motionbase.io.log_writer import FLAG_ALWAYS_LIVE, OP_CLOSE, OP_FLUSH, OP_LOG, OP_START
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
 from motionbase.physics import quaternion_from_euler_zyx
@@ -108,6 +102,7 @@ _SEND_NS = 100_000_000  # ... or once they span 0.1 s of source time
 _PIPE_BYTES = 1 << 20  # the writer process's pipe: about 3 s of a 1 kHz log with its scene
 _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
 _SEC = 1_000_000_000
+_Items = Sequence[tuple[str, Mapping[str, Any]]]  # (topic, message) pairs
 _WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
 #: The most messages per second of source time a live client gets on one topic.
 LIVE_RATE_HZ = 60.0
@@ -466,34 +461,35 @@ class McapLogger:
         """
         self.add_many(t, ((topic, message),))
 
-    def add_many(
-        self,
-        t: float,
-        items: Sequence[tuple[str, Mapping[str, Any]]],
-        transform: Sequence[float] | np.ndarray | None = None,
-    ) -> None:
+    def add_many(self, t: float, items: _Items, transform: ArrayLike | None = None) -> None:
         """Log several messages of one time ``t`` (the pipeline's per-tick path), and the
-        ``transform`` pose on ``/tf`` when given.
+        platform pose ``transform`` on ``/tf`` when given.
 
         The same as calling :meth:`add` for each ``(topic, message)`` pair and
-        :meth:`add_transform`, with the per-call checks done once and one encoding.
+        :meth:`add_transform`, with the per-call checks done once and one encoding: the
+        messages go to the writer process as one JSON array, which it splits.
         """
         ns = self._ns(t)
         index = self._index
-        batch = []
+        batch = []  # (topic index, flags, message)
         for topic, message in items:
             i = index.get(topic)
             if i is None:
                 self._unknown(topic)
             batch.append((i, 0, message if "t" in message else {"t": t, **message}))
         if transform is not None:
-            self._transforms(ns, transform, batch)
-        self._add_batch(ns, batch)
-
-    def _add_batch(self, ns: int, batch: list[tuple[int, int, Mapping[str, Any]]]) -> None:
-        """``(topic index, flags, message)`` of log time ``ns``: one record, one encoding."""
+            p = np.asarray(transform, dtype=float).tolist()
+            if len(p) != 6:
+                raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
+            tf = index["/tf"]
+            if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
+                self._last_static_ns = ns
+                world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
+                batch.append((tf, FLAG_ALWAYS_LIVE, world))  # every one live
+            q = quaternion_from_euler_zyx(p[3], p[4], p[5])
+            batch.append((tf, 0, transform_message(ns, "base", "platform", p[0], p[1], p[2], q)))
         data = encode_message(batch)
-        self._pending += _HEADER.pack(OP_BATCH, 0, 0, len(data), ns)
+        self._pending += _HEADER.pack(log_writer.OP_BATCH, 0, 0, len(data), ns)
         self._pending += data
         self._queued(ns)
 
@@ -530,19 +526,6 @@ class McapLogger:
             ``[x, y, z, roll, pitch, yaw]``, m and rad, base axes FRD.
         """
         self.add_many(t, (), pose6)
-
-    def _transforms(self, ns: int, pose6: Sequence[float] | np.ndarray, batch: list) -> None:
-        """Append :meth:`add_transform`'s messages to ``batch``."""
-        p = pose6.tolist() if isinstance(pose6, np.ndarray) else [float(v) for v in pose6]
-        if len(p) != 6:
-            raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
-        tf = self._index["/tf"]
-        if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
-            self._last_static_ns = ns
-            world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
-            batch.append((tf, FLAG_ALWAYS_LIVE, world))  # every one live
-        q = quaternion_from_euler_zyx(p[3], p[4], p[5])
-        batch.append((tf, 0, transform_message(ns, "base", "platform", p[0], p[1], p[2], q)))
 
     def flush(self) -> None:
         """Finish the chunk in progress and hand it to the OS now (e.g. before a risky
