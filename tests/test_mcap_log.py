@@ -183,6 +183,29 @@ def test_floats_round_trip_bit_for_bit(tmp_path_factory, values: list[float], t:
     )
 
 
+def test_one_tick_with_a_non_finite_number_keeps_every_other_number_exact(tmp_path: Path) -> None:
+    # a tick's messages travel to the writer process as one batch; one NaN among them sends
+    # the whole batch through the standard library's encoder: the other numbers stay exact
+    path = tmp_path / "batch.mcap"
+    exact = [0.1, -0.0, 5e-324, 1.7976931348623157e308, 1e-5, 1 / 3]
+    bad = {"specific_force": [math.nan, 1e-5, -9.81], "angular_velocity": [0.0] * 3}
+    with McapLogger(path, {}) as logger:
+        logger.add_many(
+            0.25,
+            [
+                ("/aircraft/state", {**bad, "attitude": [0.0] * 3}),
+                ("/washout/pose", {"pose": exact}),
+            ],
+            transform=exact,
+        )
+    back = read_messages(path)
+    assert struct.pack("<6d", *back["/washout/pose"][0]["pose"]) == struct.pack("<6d", *exact)
+    force = back["/aircraft/state"][0]["specific_force"]
+    assert math.isnan(force[0]) and force[1:] == [1e-5, -9.81]
+    (tf,) = [m for m in back["/tf"] if m["child_frame_id"] == "platform"]
+    assert [tf["translation"][k] for k in "xyz"] == exact[:3]
+
+
 def test_encoding_round_trips_and_handles_non_finite() -> None:
     encode = mcap_log.encode_message
     values = RNG.normal(size=50) * 10.0 ** RNG.integers(-300, 300, size=50)

@@ -47,7 +47,8 @@ Crash safety
 
 Exact numbers
     Messages are encoded here, with orjson: floats in their shortest round-trip
-    form, so a reader gets back the very same doubles. JSON has no NaN or
+    form, so a reader gets back the very same doubles (the writer process decodes the
+    batch and encodes each message again with orjson: the same numbers). JSON has no NaN or
     infinity: a message that holds one (a raw aircraft state that the pipeline
     rejects) writes it as the string ``"NaN"``, ``"Infinity"`` or
     ``"-Infinity"`` (see :mod:`motionbase.io.schemas`).
