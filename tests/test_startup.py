@@ -152,3 +152,23 @@ def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
     sweep = SweepSource(machine, range_=0.01, speed=0.2, rate_hz=200, lead_s=pipeline.soft_start_s)
     summary = _run_loading_nothing(pipeline, sweep)
     assert name == robot.replace("ceart", "rus6") and summary.samples > 200 and pipeline.parked
+
+
+@pytest.mark.parametrize("robot", ["ceart", "stewart6", "udesc_symmetric"])
+def test_the_logs_first_scene_loads_no_compiled_code(robot, tmp_path):
+    # The first /platform/scene used to load the robot's compiled joint_points and build
+    # its template at the first tick (4-7 ms: a late first tick at 1 kHz); the log's scene
+    # builder draws once when it is made.
+    from motionbase.app import load_config
+    from motionbase.io.pipeline_log import PipelineLog
+    from motionbase.pipeline import Pipeline
+    from motionbase.state import AircraftState
+
+    planar = robot == "udesc_symmetric"
+    pipeline = Pipeline(load_config(platform=robot, planar=planar, rate_hz=200))
+    out = pipeline.step(AircraftState(0.0, (0.0, 0.0, -9.80665), (0.0, 0.0, 0.0)))
+    with PipelineLog(tmp_path / "a.mcap", {}, kinematics=pipeline.robot.kin) as log:
+        assert log._scene is not None and log._scene._templates  # drawn once already
+        before = _overload_counts()
+        log.write(out)
+        assert _overload_counts() == before

@@ -28,6 +28,7 @@ Colours (the rule)
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 from operator import itemgetter
@@ -221,6 +222,13 @@ class SceneBuilder:
         self._color_json = {
             id(c): orjson.dumps(c) for c in (CRANK, ROD, NEAR, PLATE, PLATE_CLAMPED)
         }
+        # Draw once now, at rest: the first scene loads the robot's compiled joint_points
+        # and builds the template (4-7 ms, a late first tick at 1 kHz). A robot whose rest
+        # pose is neither of these is drawn cold at its first tick instead.
+        rest = getattr(kinematics, "home", None)  # the planar robot's; the 6-DOF's is zero
+        at_rest = np.zeros(6) if rest is None else np.asarray(rest, dtype=float)
+        with contextlib.suppress(Exception):
+            self.encode(0.0, at_rest, np.zeros(1 if self.lower is None else len(self.lower)))
 
     def points(self, pose: np.ndarray) -> tuple[np.ndarray, ...]:
         """The chains' points of ``pose`` in the scene's frame, each (n, 3), m."""
