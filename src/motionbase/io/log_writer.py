@@ -270,6 +270,7 @@ def serve(data_fd: int, reply_fd: int) -> int:
     """Run one log: the start record, the messages, the close (or the end of input)."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
         signal.signal(sig, signal.SIG_IGN)  # the front's close ends the log, not a signal
+    os.nice(10)  # the real-time loop first when both want a core (the pipe holds seconds)
     data = os.fdopen(data_fd, "rb", buffering=1 << 20)
     reply = os.fdopen(reply_fd, "wb", buffering=0)
 
