@@ -167,3 +167,21 @@ def test_state_from_vector_equals_the_constructor():
     assert a.t == b.t and type(a.t) is float
     c = AircraftState.from_vector(1.0, v[:9].copy())
     assert c.angular_acceleration is None and c.is_finite()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.zeros(9, dtype=np.float32),  # another dtype
+        np.zeros(9, dtype=np.int64),  # the same item size, another dtype
+        np.zeros((3, 3)),  # two dimensions
+        np.zeros(18)[::2],  # strided
+        np.zeros(6),  # too short: the fields would lie beyond it
+        [0.0] * 9,  # not an array
+    ],
+)
+def test_state_from_vector_refuses_what_the_compiled_stages_cannot_read(bad):
+    """The pipeline's tick reads a sample's fields as C-ordered float64 vectors of 3 without
+    checking them again (its stages are bound to those types): from_vector checks."""
+    with pytest.raises(TypeError, match="C-contiguous float64"):
+        AircraftState.from_vector(0.0, bad)

@@ -460,7 +460,16 @@ class Pipeline(PipelineCore):
         self._cue_out = np.empty(6)
         self._wanted = np.empty(n)
         self._zero3 = np.zeros(3)
+        self._zero3.flags.writeable = False  # as a sample's fields (AircraftState)
         self._m = m
+        # the stages, compiled for these buffers' types (a sample's fields are read-only
+        # float vectors of 3, checked by AircraftState), and live views of the state record
+        z, u, P, S = self._zero3, self._u, self.params, self.state
+        self._input_stage = stages.bind(stages.input_stage, P, S, True, 0.0, z, z, z, True, u)
+        self._after_cueing = stages.bind(
+            stages.after_cueing, P, S, self._solve, self._G, u, u, u, u, u, u
+        )
+        self._t, self._fade, self._pose = S["t"], S["fade"], S["pose"][0, :m]
         #: The last tick's status bits (:mod:`motionbase.stages`).
         self.flags = 0
         self.reset()
@@ -506,10 +515,10 @@ class Pipeline(PipelineCore):
         self.health.samples += 1
         P, S, u, z = self.params, self.state, self._u, self._zero3
         if state is None:
-            flags = stages.input_stage(P, S, False, 0.0, z, z, z, bool(fresh), u)
+            flags = self._input_stage(P, S, False, 0.0, z, z, z, bool(fresh), u)
         else:
             f, w, att = state.specific_force, state.angular_velocity, state.attitude
-            flags = stages.input_stage(P, S, True, state.t, f, w, att, bool(fresh), u)
+            flags = self._input_stage(P, S, True, state.t, f, w, att, bool(fresh), u)
             if state.on_ground is not None:  # the flight phase, for profiled cueings
                 self.cueing.set_flight_phase(state.on_ground)
         cue = np.empty(6)
@@ -520,7 +529,7 @@ class Pipeline(PipelineCore):
         pose = np.empty(self._m)
         q = np.empty(self.robot.n)
         cue_out = self._cue_out
-        flags |= stages.after_cueing(
+        flags |= self._after_cueing(
             P, S, self._solve, self._G, cue, self._target, cue_out, pose, self._wanted, q
         )
         self.flags = flags
@@ -530,14 +539,13 @@ class Pipeline(PipelineCore):
             self.health.count(flags)
             if flags & (stages.HELD | stages.RATE_LIMITED):
                 # the actuators realise another pose than the one asked: say which
-                s_pose = S[0]["pose"][: self._m]
+                s_pose = self._pose
                 achieved = self.robot.forward(q, guess=s_pose)
                 if not np.isnan(achieved[0]):  # (a row of NaN: Newton did not converge)
                     pose = achieved
                 s_pose[:] = pose
-        s = S[0]
         return PipelineOutput(
-            float(s["t"]),
+            float(self._t[0]),
             state,
             fresh,
             state is not None and not flags & stages.PROBLEM,
@@ -549,7 +557,7 @@ class Pipeline(PipelineCore):
             bool(flags & stages.RATE_LIMITED),
             bool(flags & stages.HELD),
             stages.PHASES[flags >> stages.PHASE_SHIFT],
-            float(s["fade"]),
+            float(self._fade[0]),
             self.cueing.status,
         )
 

@@ -13,6 +13,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 
+_F64 = np.dtype(np.float64)
+_VECTOR_SHAPES = ((9,), (12,))
+
+
 def _vec3(value: object) -> np.ndarray:
     """A read-only float array of shape (3,) (a copy: the caller's array stays its own)."""
     arr = np.array(value, dtype=float)
@@ -81,7 +85,24 @@ class AircraftState:
             fields are views of it; the caller must not keep writing to it.
         on_ground : bool or None, optional
             The flight phase (see the class).
+
+        Raises
+        ------
+        TypeError
+            ``vector`` is not such an array (the pipeline's compiled stages read the fields
+            as C-ordered float64 vectors of 3, unchecked).
         """
+        if not (
+            type(vector) is np.ndarray
+            and vector.dtype == _F64
+            and vector.shape in _VECTOR_SHAPES
+            and vector.flags.c_contiguous
+        ):
+            raise TypeError(
+                "AircraftState.from_vector: expected a C-contiguous float64 array of shape "
+                f"(9,) or (12,), got {type(vector).__name__} {getattr(vector, 'dtype', '')} "
+                f"{getattr(vector, 'shape', '')}"
+            )
         vector.flags.writeable = False
         obj = object.__new__(cls)
         fields_ = obj.__dict__
