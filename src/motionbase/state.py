@@ -12,7 +12,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-
 _F64 = np.dtype(np.float64)
 _VECTOR_SHAPES = ((9,), (12,))
 
