@@ -23,10 +23,11 @@ from scipy.spatial.transform import Rotation
 from motionbase import __version__
 from motionbase.errors import ConfigError, MotionbaseError, SinkError
 from motionbase.io import mcap_log
-from motionbase.io.mcap_log import McapLogger, quaternion_from_euler_zyx
+from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import read_messages
 from motionbase.io.scene import SceneBuilder
 from motionbase.io.schemas import TOPIC_SCHEMAS
+from motionbase.physics import quaternion_from_euler_zyx
 from motionbase.platform import Rus6, Rus6Geometry
 
 RNG = np.random.default_rng(7)
@@ -321,6 +322,23 @@ def test_extra_topics_are_logged_with_their_schema_and_bad_ones_refused(tmp_path
             McapLogger(tmp_path / "x.mcap", {}, topics={"/cueing/mine": bad})
     with pytest.raises(ConfigError, match="'mine'"):
         McapLogger(tmp_path / "x.mcap", {}, topics={"mine": ("my.Diag", schema)})
+
+
+def test_a_transform_that_is_not_six_finite_numbers_is_a_sink_error(tmp_path: Path) -> None:
+    """The writer process builds /tf from the pose: a pose it could not turn into a
+    rotation is refused where it is given, in one line, and the log goes on."""
+    path = tmp_path / "tf.mcap"
+    with McapLogger(path, {}) as logger:
+        for k, bad in enumerate(
+            ([0.0, 0.0, 0.0, math.nan, 0.0, 0.0], [0.0, math.inf, 0, 0, 0, 0], [0.0] * 5)
+        ):
+            with pytest.raises(SinkError) as err:
+                logger.add_transform(1.0 + k, bad)
+            assert "\n" not in str(err.value) and "6 finite numbers" in str(err.value)
+        logger.add_transform(5.0, [0.0, 0.0, -0.1, 0.0, 0.0, 0.0])
+    tfs = read_messages(path)["/tf"]
+    assert [m["child_frame_id"] for m in tfs] == ["base", "platform"]
+    assert tfs[1]["translation"] == {"x": 0.0, "y": 0.0, "z": -0.1}
 
 
 def test_time_beyond_mcaps_u64_nanoseconds_is_a_sink_error(tmp_path: Path) -> None:

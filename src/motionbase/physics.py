@@ -15,8 +15,10 @@ is meant to and nowhere else.
   (compiled; callable from Python and from compiled code);
 * rotations in the project's convention (Z-Y-X Euler angles, ``R = Rz(yaw) Ry(pitch)
   Rx(roll)`` maps body or platform vectors to base axes, FRD): :func:`rotation_matrix`,
-  quaternions (:func:`quaternion_from_euler_zyx`, :func:`euler_zyx_from_quaternion`) and the
-  Euler-rate kinematics (:func:`body_rates_from_euler_rates`).
+  quaternions (:func:`quaternion_from_euler_zyx`, :func:`euler_zyx_from_quaternion`,
+  defined in :mod:`motionbase.quaternions`, which imports the standard library only, for
+  the log's writer process) and the Euler-rate kinematics
+  (:func:`body_rates_from_euler_rates`).
 
 The compiled kernels of the 6-RUS and the Stewart platform keep their own scalar rotation
 (:mod:`motionbase.platform`), and the classical washout's kernel its inlined one: those are
@@ -25,11 +27,11 @@ the hot loops of the pipeline, pinned bit for bit by the recordings.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 from numpy.typing import ArrayLike
+
+from motionbase.quaternions import euler_zyx_from_quaternion, quaternion_from_euler_zyx
 
 __all__ = [
     "MAX_ANGULAR_VELOCITY",
@@ -122,46 +124,6 @@ def rotation_matrix(rpy: ArrayLike) -> np.ndarray:
     R[..., 2, 1] = cp * sr
     R[..., 2, 2] = cp * cr
     return R
-
-
-def quaternion_from_euler_zyx(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
-    """Unit quaternion ``(x, y, z, w)`` of R = Rz(yaw) Ry(pitch) Rx(roll).
-
-    Parameters
-    ----------
-    roll, pitch, yaw : float
-        Z-Y-X Euler angles, rad.
-
-    Returns
-    -------
-    tuple of 4 floats
-        ``(x, y, z, w)``, the rotation that maps child-frame vectors to the
-        parent frame, with ``w >= 0`` for small angles.
-    """
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
-
-
-def euler_zyx_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:
-    """Z-Y-X Euler angles ``(roll, pitch, yaw)``, rad, of the quaternion ``(x, y, z, w)``.
-
-    The inverse of :func:`quaternion_from_euler_zyx` (for pitch inside +-pi/2). The
-    quaternion is normalised first; it must not be zero (a caller checks its norm).
-    Roll and yaw are in [-pi, pi], pitch in [-pi/2, pi/2].
-    """
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
 
 
 def body_rates_from_euler_rates(phi, theta, phidot, thetadot, psidot):

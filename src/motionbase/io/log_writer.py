@@ -1,9 +1,10 @@
 """The MCAP log's writer process: the Foxglove SDK's writer, off the pipeline's process.
 
 :class:`~motionbase.io.mcap_log.McapLogger` starts this file as a script of its own
-(``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library, ``orjson``
-and ``foxglove`` only, so it starts in about 40 ms) and sends it messages through a pipe;
-this process logs them with the SDK and, with a live view, serves them to Foxglove.
+(``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library, ``orjson``,
+``foxglove`` and :mod:`motionbase.quaternions` only, so it starts in about 40 ms) and sends
+it messages through a pipe; this process logs them with the SDK and, with a live view,
+serves them to Foxglove.
 
 Why a process: the SDK's ``Channel.log`` compresses and writes on the thread that calls
 it, holding the interpreter lock (a 64 KiB lz4 block costs about 80 us, a chunk's write
@@ -19,7 +20,9 @@ Protocol (one machine, one version: this file and ``mcap_log.py`` change togethe
   configuration as JSON; then :data:`OP_LOG` (a message's JSON bytes on the topic of
   that index in the configuration's ``topics``), :data:`OP_BATCH` (a JSON array of
   ``[topic index, flags, message]``, all of the header's log time: each message is
-  encoded again on its own, orjson both ways, so its numbers are the very same),
+  encoded again on its own, orjson both ways, so its numbers are the very same; with
+  :data:`FLAG_POSE` the message is a platform pose ``[x, y, z, roll, pitch, yaw]`` (m,
+  rad) that this process logs as ``foxglove.FrameTransform`` messages, :meth:`Writer.log_pose`),
   :data:`OP_FLUSH` and :data:`OP_CLOSE`.
 * writer -> front, on the reply pipe: one JSON line per answer: ``{"ok": true, ...}`` to
   the start, a flush and the close; ``{"error": "...", "kind": "config" | "sink"}`` when
@@ -43,11 +46,17 @@ from typing import Any, BinaryIO
 
 import orjson
 
+from motionbase.quaternions import quaternion_from_euler_zyx
+
 #: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
 HEADER = struct.Struct("<BBHIQ")
 OP_START, OP_LOG, OP_FLUSH, OP_CLOSE, OP_BATCH = 1, 2, 3, 4, 5
 #: OP_LOG flag: the message goes live whatever the topic's live grid says
 FLAG_ALWAYS_LIVE = 1
+#: OP_BATCH flag: the message is a platform pose, to log as transforms (Writer.log_pose)
+FLAG_POSE = 2
+_SEC = 1_000_000_000
+_WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
 _FIRST = -(2**63)  # the live grid of a topic starts at its first message
 _LIVE_SLACK_NS = 1_000  # a tick 1 us before its grid point is on it (rounded tick times)
 
@@ -111,6 +120,19 @@ def write_failure(path: str, exc: OSError) -> str:
     )
 
 
+def transform_message(
+    ns: int, parent: str, child: str, x: float, y: float, z: float, q: tuple[float, ...]
+) -> dict[str, Any]:
+    """The ``foxglove.FrameTransform`` message at ``ns`` (a plain dict, fields in logged order)."""
+    return {
+        "timestamp": {"sec": ns // _SEC, "nsec": ns % _SEC},
+        "parent_frame_id": parent,
+        "child_frame_id": child,
+        "translation": {"x": x, "y": y, "z": z},
+        "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+    }
+
+
 class Writer:
     """The SDK's MCAP writer (and live server) for one log, as configured by the front.
 
@@ -130,6 +152,7 @@ class Writer:
         self.path = config["path"]
         self._flush_interval_ns = int(config["flush_interval_ns"])
         self._chunk_start_ns = -1  # log time of the first message since the last flush
+        self._world_ns = -1  # log time of the last world -> base transform
         self._context = foxglove.Context()  # channels hold only a weak reference to it
         self._server: Any = None
         self._live: list[list] | None = None  # per topic: [live channel, next due ns]
@@ -210,6 +233,20 @@ class Writer:
             self._chunk_start_ns = ns
         elif abs(ns - self._chunk_start_ns) >= self._flush_interval_ns:
             self.flush()
+
+    def log_pose(self, index: int, pose: list[float], ns: int) -> None:
+        """Log the platform pose ``[x, y, z, roll, pitch, yaw]`` (m, rad, FRD base axes) on
+        topic ``index`` as the ``platform`` frame in the ``base`` frame (rotation: the
+        quaternion of the Z-Y-X Euler angles), after the transform from Foxglove's z-up
+        ``world`` frame to ``base`` (half a turn about x) at the first pose and then once per
+        second of log time (each of those goes live)."""
+        if self._world_ns < 0 or ns - self._world_ns >= _SEC:
+            self._world_ns = ns
+            world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
+            self.log(index, orjson.dumps(world), ns, FLAG_ALWAYS_LIVE)
+        x, y, z, roll, pitch, yaw = pose
+        q = quaternion_from_euler_zyx(roll, pitch, yaw)
+        self.log(index, orjson.dumps(transform_message(ns, "base", "platform", x, y, z, q)), ns, 0)
 
     def _to_live(self, index: int, data: bytes, ns: int, always: bool) -> None:
         """Serve ``data`` when its topic is due on its grid (at most one message per
@@ -299,7 +336,10 @@ def serve(data_fd: int, reply_fd: int) -> int:
                 writer.log(index, payload, ns, flags)
             elif op == OP_BATCH:  # encoded here, off the pipeline's tick
                 for index, flags, message in orjson.loads(payload):
-                    writer.log(index, orjson.dumps(message), ns, flags)
+                    if flags & FLAG_POSE:
+                        writer.log_pose(index, message, ns)
+                    else:
+                        writer.log(index, orjson.dumps(message), ns, flags)
             elif op == OP_FLUSH:
                 writer.flush()
                 answer(ok=True)

@@ -81,10 +81,9 @@ from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io import log_writer
-from motionbase.io.log_writer import FLAG_ALWAYS_LIVE, OP_CLOSE, OP_FLUSH, OP_LOG, OP_START
+from motionbase.io.log_writer import FLAG_POSE, OP_CLOSE, OP_FLUSH, OP_LOG, OP_START
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
-from motionbase.physics import quaternion_from_euler_zyx
 
 log = logging.getLogger("motionbase")
 
@@ -102,9 +101,7 @@ _SEND_BYTES = 16 * 1024
 _SEND_NS = 100_000_000  # ... or once they span 0.1 s of source time
 _PIPE_BYTES = 1 << 20  # the writer process's pipe: about 3 s of a 1 kHz log with its scene
 _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
-_SEC = 1_000_000_000
 _Items = Sequence[tuple[str, Mapping[str, Any]]]  # (topic, message) pairs
-_WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
 #: The most messages per second of source time a live client gets on one topic.
 LIVE_RATE_HZ = 60.0
 
@@ -168,19 +165,6 @@ def encode_message(message: Any) -> bytes:
     if b"null" in data:
         return _SAFE_ENCODER.encode(json_safe(message)).encode()
     return data
-
-
-def transform_message(
-    ns: int, parent: str, child: str, x: float, y: float, z: float, q: Sequence[float]
-) -> dict[str, Any]:
-    """The ``foxglove.FrameTransform`` message at ``ns`` (a plain dict, fields in logged order)."""
-    return {
-        "timestamp": {"sec": ns // _SEC, "nsec": ns % _SEC},
-        "parent_frame_id": parent,
-        "child_frame_id": child,
-        "translation": {"x": x, "y": y, "z": z},
-        "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
-    }
 
 
 #: Where ``--live`` listens when given a port only: this machine only.
@@ -305,6 +289,7 @@ class McapLogger:
         self.live = live
         self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
         self._index = {topic: i for i, topic in enumerate(self.topics)}
+        self._tf = self._index["/tf"]
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
         self._live_period_ns = round(1e9 / live_rate_hz)
@@ -327,7 +312,6 @@ class McapLogger:
         self._port: int | None = None
         self._state = "new"
         self._failure = ""
-        self._last_static_ns = -1
         self._pending = bytearray()  # records not yet written to the writer process
         self._pending_ns = -1  # log time of the first of them
 
@@ -478,17 +462,11 @@ class McapLogger:
             if i is None:
                 self._unknown(topic)
             batch.append((i, 0, message if "t" in message else {"t": t, **message}))
-        if transform is not None:
+        if transform is not None:  # the writer process makes the FrameTransforms
             p = np.asarray(transform, dtype=float).tolist()
-            if len(p) != 6:
-                raise SinkError(f"add_transform: pose must have 6 numbers, got {len(p)}")
-            tf = index["/tf"]
-            if self._last_static_ns < 0 or ns - self._last_static_ns >= _SEC:
-                self._last_static_ns = ns
-                world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
-                batch.append((tf, FLAG_ALWAYS_LIVE, world))  # every one live
-            q = quaternion_from_euler_zyx(p[3], p[4], p[5])
-            batch.append((tf, 0, transform_message(ns, "base", "platform", p[0], p[1], p[2], q)))
+            if len(p) != 6 or not math.isfinite(sum(p)):
+                raise SinkError(f"add_transform: pose must be 6 finite numbers, got {p}")
+            batch.append((self._tf, FLAG_POSE, p))
         data = encode_message(batch)
         self._pending += _HEADER.pack(log_writer.OP_BATCH, 0, 0, len(data), ns)
         self._pending += data
@@ -517,14 +495,19 @@ class McapLogger:
         they are. So that the 3D panel shows the platform upright, a transform from
         Foxglove's z-up ``world`` frame to ``base`` (half a turn about x) is also written
         at the first call and then once per second of source time: pick ``world`` as the
-        display frame.
+        display frame. (The writer process builds these messages from the pose.)
 
         Parameters
         ----------
         t : float
             Time, s, source clock.
         pose6 : array_like, shape (6,)
-            ``[x, y, z, roll, pitch, yaw]``, m and rad, base axes FRD.
+            ``[x, y, z, roll, pitch, yaw]``, m and rad, base axes FRD; finite.
+
+        Raises
+        ------
+        SinkError
+            Not six finite numbers (or a time :meth:`add` refuses).
         """
         self.add_many(t, (), pose6)
 
@@ -608,6 +591,4 @@ __all__ = [
     "McapLogger",
     "encode_message",
     "json_safe",
-    "quaternion_from_euler_zyx",
-    "transform_message",
 ]
