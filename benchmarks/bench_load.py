@@ -392,6 +392,10 @@ def main() -> None:
         f"p50 {np.percentile(loop, 50):.1f}  p99 {np.percentile(loop, 99):.1f}  "
         f"p99.9 {np.percentile(loop, 99.9):.1f}  max {loop.max():.1f}"
     )
+    print(
+        "  the same ticks' CPU time (the loop thread's: what other load on the machine does "
+        f"not add) us: p50 {np.percentile(cpu, 50):.1f}  p99 {np.percentile(cpu, 99):.1f}"
+    )
     drew = log.drew[10 : len(samples)]
     if drew.any():
         scene, other = loop[drew], loop[~drew]
