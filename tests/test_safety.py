@@ -14,6 +14,7 @@ from motionbase.safety import (
     InputLimits,
     input_problem,
     limit_command,
+    limit_kernel,
 )
 
 DT = 1 / 120
@@ -59,6 +60,21 @@ def test_any_target_sequence_stays_finite_in_limits_speed_and_acceleration(seq):
     assert (np.abs(speed) <= LIMITS.max_speed + 1e-6).all()
     accel = np.diff(np.vstack([np.zeros(6), speed]), axis=0) / DT
     assert (np.abs(accel) <= LIMITS.max_accel + 1e-4).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(targets)
+def test_the_kernel_updating_its_state_in_place_equals_separate_outputs(seq):
+    # the pipeline's limit stage passes the state's q and v as both input and output
+    lim = (LIMITS.lower, LIMITS.upper, LIMITS.max_speed, LIMITS.max_accel)
+    qs, vs, statuses = drive(seq)
+    q, v, prev = np.zeros(6), np.zeros(6), np.zeros(6)
+    for k, target in enumerate(seq):
+        target = np.asarray(target, float)
+        status = limit_kernel(q, v, prev, target, DT, *lim, q, v)
+        assert status == statuses[k]
+        assert np.array_equal(q, qs[k + 1]) and np.array_equal(v, vs[k + 1])
+        prev = q.copy() if status & UNSAFE_TARGET else target
 
 
 def test_unsafe_target_holds_the_whole_vector():

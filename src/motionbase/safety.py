@@ -75,7 +75,9 @@ def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, am
     """The compiled limiter: :func:`limit_command` on arrays, writing ``q_out`` and ``v_out``.
 
     ``lower``, ``upper``, ``vmax``, ``amax`` are :class:`ActuatorLimits`'s arrays; returns
-    the status bits (``OK``, ``RATE_LIMITED``, ``UNSAFE_TARGET``). Called by
+    the status bits (``OK``, ``RATE_LIMITED``, ``UNSAFE_TARGET``). Each actuator's inputs
+    are read before its outputs are written, so ``q_out`` may be ``q_prev`` and ``v_out``
+    ``v_prev`` (updated in place). Called by
     :func:`limit_command` and by the pipeline's limit stage (:mod:`motionbase.stages`).
     """
     n = q_prev.shape[0]

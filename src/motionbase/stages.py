@@ -318,10 +318,10 @@ def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
     p = P[0]
     s = S[0]
     n = p.n
-    v_new = np.empty(n)
+    v = s.v[:n]  # the new speeds overwrite the old in place (the kernel allows it)
     status = limit_kernel(
         s.q[:n],
-        s.v[:n],
+        v,
         s.wanted[:n],
         wanted,
         p.dt,
@@ -330,13 +330,12 @@ def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
         p.max_speed[:n],
         p.max_accel[:n],
         q,
-        v_new,
+        v,
     )
     held = (status & 2) != 0
     for i in range(n):
         s.wanted[i] = q[i] if held else wanted[i]
         s.q[i] = q[i]
-        s.v[i] = v_new[i]
     return (HELD if held else 0) | (RATE_LIMITED if status & 1 else 0)
 
 
