@@ -337,32 +337,39 @@ def test_scene_colours_a_leg_near_its_limit_red():
     assert plate["triangles"][0]["color"]["r"] == 1.0  # clamped: orange
 
 
-def test_scene_encoding_is_the_general_encoders_bytes():
-    """The log writes SceneBuilder.encode (a template filled with the numbers): the very bytes
-    the general JSON encoder makes of the message, for reachable poses, poses near limits, a
-    clamped plate, and a pose the legs cannot reach (NaN crank tips, written as "NaN")."""
+def test_the_logged_scene_is_the_general_encoders_bytes(tmp_path):
+    """The log's writer process builds /platform/scene from SceneBuilder.parts: the file holds
+    the very bytes the general JSON encoder makes of SceneBuilder.message, for reachable poses,
+    poses near limits, a clamped plate, a pose the legs cannot reach (NaN crank tips, written
+    as "NaN"), and the planar robot."""
     rng = np.random.default_rng(17)
     robot = Rus6(Rus6Geometry.preset("ceart"))
     scene = SceneBuilder(robot)
     lo, hi = robot.angle_limits
+    cases = []  # (builder, pose, angles, clamped), logged at increasing random times
     for k in range(300):
         pose = rng.normal(size=6) * [0.05, 0.05, 0.03, 0.1, 0.1, 0.2]
-        angles = rng.uniform(lo, hi)
-        t = float(rng.uniform(0.0, 5000.0))
-        data = scene.encode(t, pose, angles, clamped=bool(k % 2))
-        assert data == encode_message(scene.message(t, pose, angles, clamped=bool(k % 2)))
+        cases.append((scene, pose, rng.uniform(lo, hi), bool(k % 2)))
     far = np.array([0.0, 0.0, -0.6, 0.0, 0.0, 0.0])  # 0.6 m up: no crank reaches
     assert np.isnan(robot.joint_points(far)[1]).any()
-    data = scene.encode(1.0, far, robot.inverse(np.zeros(6)))
-    assert data == encode_message(scene.message(1.0, far, robot.inverse(np.zeros(6))))
-    assert b'"NaN"' in data
+    cases.append((scene, far, robot.inverse(np.zeros(6)), False))
     planar = SceneBuilder(Rrr3(Rrr3Geometry()))
     home = np.array([0.13, 0.26 * math.sqrt(3) / 6, 0.0])
-    for k in range(50):
+    for _ in range(50):
         pose = home + rng.normal(size=3) * [0.01, 0.01, 0.1]
-        angles = rng.uniform(0.0, math.pi, 3)
-        t = k / 120
-        assert planar.encode(t, pose, angles) == encode_message(planar.message(t, pose, angles))
+        cases.append((planar, pose, rng.uniform(0.0, math.pi, 3), False))
+    times = np.sort(rng.uniform(0.0, 5000.0, len(cases)))
+    with McapLogger(tmp_path / "scene.mcap", {}) as logger:
+        for t, (builder, pose, angles, clamped) in zip(times, cases, strict=True):
+            logger.add_scene(float(t), builder.parts(float(t), pose, angles, clamped))
+    with open(tmp_path / "scene.mcap", "rb") as fh:
+        logged = [m.data for _, _, m in make_reader(fh).iter_messages(["/platform/scene"])]
+    expected = [
+        encode_message(builder.message(float(t), pose, angles, clamped))
+        for t, (builder, pose, angles, clamped) in zip(times, cases, strict=True)
+    ]
+    assert logged == expected
+    assert b'"NaN"' in logged[300] and b'"frame_id":"world"' in logged[-1]
 
 
 def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
@@ -410,7 +417,7 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
             logger.add("/platform/actuators", t, {"t": t, "angles": np.full(6, t)})
             logger.add_transform(t, pose)
             if k % 33 == 0:
-                logger.add_encoded("/platform/scene", t, scene.encode(t, pose, np.zeros(6)))
+                logger.add_scene(t, scene.parts(t, pose, np.zeros(6)))
             if k % rate == 0:
                 logger.add("/health", t, {"t": t, "samples": k})
             if k % 50 == 0:

@@ -2,9 +2,9 @@
 
 :class:`~motionbase.io.mcap_log.McapLogger` starts this file as a script of its own
 (``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library, ``orjson``,
-``foxglove`` and :mod:`motionbase.quaternions` only, so it starts in about 40 ms) and sends
-it messages through a pipe; this process logs them with the SDK and, with a live view,
-serves them to Foxglove.
+``foxglove``, :mod:`motionbase.quaternions` and :mod:`motionbase.scene_update` only, so it
+starts in about 40 ms) and sends it messages through a pipe; this process logs them with
+the SDK and, with a live view, serves them to Foxglove.
 
 Why a process: the SDK's ``Channel.log`` compresses and writes on the thread that calls
 it, holding the interpreter lock (a 64 KiB lz4 block costs about 80 us, a chunk's write
@@ -15,14 +15,15 @@ messages.
 
 Protocol (one machine, one version: this file and ``mcap_log.py`` change together):
 
-* front -> writer, on the data pipe: records of a :data:`HEADER` (op, flags, topic index,
-  payload length, log time in ns) and a payload. The first is :data:`OP_START` with the
-  configuration as JSON; then :data:`OP_LOG` (a message's JSON bytes on the topic of
-  that index in the configuration's ``topics``), :data:`OP_BATCH` (a JSON array of
-  ``[topic index, flags, message]``, all of the header's log time: each message is
+* front -> writer, on the data pipe: records of a :data:`HEADER` (op, payload length, log
+  time in ns) and a payload. The first is :data:`OP_START` with the configuration as JSON;
+  then :data:`OP_BATCH` (a JSON array of ``[topic index, flags, message]``, the index in
+  the configuration's ``topics``, all of the header's log time: each message is
   encoded again on its own, orjson both ways, so its numbers are the very same; with
   :data:`FLAG_POSE` the message is a platform pose ``[x, y, z, roll, pitch, yaw]`` (m,
-  rad) that this process logs as ``foxglove.FrameTransform`` messages, :meth:`Writer.log_pose`),
+  rad) that this process logs as ``foxglove.FrameTransform`` messages, :meth:`Writer.log_pose`;
+  with :data:`FLAG_SCENE` it is the arguments of
+  :func:`motionbase.scene_update.scene_message`, the ``/platform/scene`` message it builds),
   :data:`OP_FLUSH` and :data:`OP_CLOSE`.
 * writer -> front, on the reply pipe: one JSON line per answer: ``{"ok": true, ...}`` to
   the start, a flush and the close; ``{"error": "...", "kind": "config" | "sink"}`` when
@@ -47,14 +48,16 @@ from typing import Any, BinaryIO
 import orjson
 
 from motionbase.quaternions import quaternion_from_euler_zyx
+from motionbase.scene_update import scene_message
 
 #: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
-HEADER = struct.Struct("<BBHIQ")
-OP_START, OP_LOG, OP_FLUSH, OP_CLOSE, OP_BATCH = 1, 2, 3, 4, 5
-#: OP_LOG flag: the message goes live whatever the topic's live grid says
+HEADER = struct.Struct("<BIQ")  # op, payload length, log time (ns)
+OP_START, OP_BATCH, OP_FLUSH, OP_CLOSE = 1, 2, 3, 4
+#: a message's flag: it goes live whatever the topic's live grid says
 FLAG_ALWAYS_LIVE = 1
 #: OP_BATCH flag: the message is a platform pose, to log as transforms (Writer.log_pose)
 FLAG_POSE = 2
+FLAG_SCENE = 4
 _SEC = 1_000_000_000
 _WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
 _FIRST = -(2**63)  # the live grid of a topic starts at its first message
@@ -291,16 +294,16 @@ class Writer:
         return trouble
 
 
-def _read_record(data: BinaryIO) -> tuple[int, int, int, int, bytes] | None:
+def _read_record(data: BinaryIO) -> tuple[int, int, bytes] | None:
     """The next record, or None at the end of input (a record cut short counts as the end)."""
     head = data.read(HEADER.size)
     if len(head) < HEADER.size:
         return None
-    op, flags, index, size, ns = HEADER.unpack(head)
+    op, size, ns = HEADER.unpack(head)
     payload = data.read(size) if size else b""
     if len(payload) < size:
         return None
-    return op, flags, index, ns, payload
+    return op, ns, payload
 
 
 def serve(data_fd: int, reply_fd: int) -> int:
@@ -318,7 +321,7 @@ def serve(data_fd: int, reply_fd: int) -> int:
     record = _read_record(data)
     if record is None or record[0] != OP_START:
         return 1
-    config = json.loads(record[4])
+    config = json.loads(record[2])
     try:
         writer = Writer(config)
     except WriterFailed as exc:
@@ -331,13 +334,13 @@ def serve(data_fd: int, reply_fd: int) -> int:
     failure = None
     try:
         while (record := _read_record(data)) is not None:
-            op, flags, index, ns, payload = record
-            if op == OP_LOG:
-                writer.log(index, payload, ns, flags)
-            elif op == OP_BATCH:  # encoded here, off the pipeline's tick
+            op, ns, payload = record
+            if op == OP_BATCH:  # encoded here, off the pipeline's tick
                 for index, flags, message in orjson.loads(payload):
                     if flags & FLAG_POSE:
                         writer.log_pose(index, message, ns)
+                    elif flags & FLAG_SCENE:  # the robot drawn from its points
+                        writer.log(index, orjson.dumps(scene_message(*message)), ns, 0)
                     else:
                         writer.log(index, orjson.dumps(message), ns, flags)
             elif op == OP_FLUSH:

@@ -80,7 +80,7 @@ from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io import log_writer
-from motionbase.io.log_writer import FLAG_POSE, OP_CLOSE, OP_FLUSH, OP_LOG, OP_START
+from motionbase.io.log_writer import FLAG_POSE, FLAG_SCENE, OP_BATCH, OP_CLOSE, OP_FLUSH, OP_START
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
 
@@ -342,7 +342,7 @@ class McapLogger:
         self._state = "open"
         try:
             payload = json.dumps(config).encode()
-            self._pending += _HEADER.pack(OP_START, 0, 0, len(payload), 0) + payload
+            self._pending += _HEADER.pack(OP_START, len(payload), 0) + payload
             self._send()
             self._port = self._answer().get("port")
         except BaseException:
@@ -388,7 +388,7 @@ class McapLogger:
         failed = self._state == "failed"
         try:
             if not failed:
-                self._pending += _HEADER.pack(OP_CLOSE, 0, 0, 0, 0)
+                self._pending += _HEADER.pack(OP_CLOSE, 0, 0)
                 self._send()
                 self._answer()
         finally:
@@ -462,18 +462,18 @@ class McapLogger:
                 raise SinkError(f"add_transform: pose must be 6 finite numbers, got {p}")
             batch.append((self._tf, FLAG_POSE, p))
         data = encode_message(batch)
-        self._pending += _HEADER.pack(log_writer.OP_BATCH, 0, 0, len(data), ns)
+        self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
         self._pending += data
         self._queued(ns)
 
-    def add_encoded(self, topic: str, t: float, data: bytes) -> None:
-        """Log one message already encoded (its JSON bytes, e.g.
-        :meth:`motionbase.io.scene.SceneBuilder.encode`); otherwise as :meth:`add`."""
+    def add_scene(self, t: float, parts: list[Any]) -> None:
+        """Log the ``/platform/scene`` message made of ``parts``
+        (:meth:`motionbase.io.scene.SceneBuilder.parts`): the writer process builds it
+        (:func:`motionbase.scene_update.scene_message`) and encodes it, off the caller's
+        thread; otherwise as :meth:`add`."""
         ns = self._ns(t)
-        i = self._index.get(topic)
-        if i is None:
-            self._unknown(topic)
-        self._pending += _HEADER.pack(OP_LOG, 0, i, len(data), ns)
+        data = encode_message([(self._index["/platform/scene"], FLAG_SCENE, parts)])
+        self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
         self._pending += data
         self._queued(ns)
 
@@ -509,7 +509,7 @@ class McapLogger:
         """Finish the chunk in progress and hand it to the OS now (e.g. before a risky
         step); returns when the writer process has."""
         if self._state == "open":
-            self._pending += _HEADER.pack(OP_FLUSH, 0, 0, 0, 0)
+            self._pending += _HEADER.pack(OP_FLUSH, 0, 0)
             self._send()
             self._answer()
 

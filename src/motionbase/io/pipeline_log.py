@@ -17,11 +17,10 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
 * ``/health``: the safety counters, once per second of source time and at the end.
 * ``/platform/scene``: the robot drawn at its logged pose (``foxglove.SceneUpdate``, see
   :mod:`motionbase.io.scene`), when the log is given the robot's kinematics: at
-  :data:`~motionbase.io.scene.SCENE_RATE_HZ` (30 Hz) of source time, not every tick (a
-  scene is about 14 kB; :meth:`~motionbase.io.scene.SceneBuilder.encode` fills a template
-  with the robot's compiled ``joint_points``, about 30 us a scene), and at the last tick.
-  (Drawing it on a thread of the log cost more than drawing it: the hand-over woke a
-  thread and waited for it, about 140 us a scene on this project's 2-core machine.)
+  :data:`~motionbase.io.scene.SCENE_RATE_HZ` (30 Hz) of source time, not every tick, and at
+  the last tick. A scene is about 14 kB of JSON: the tick computes its numbers (the robot's
+  compiled ``joint_points``, :meth:`~motionbase.io.scene.SceneBuilder.parts`) and the log's
+  writer process builds and encodes the message, as it does ``/tf``'s.
 
 With ``live``, a Foxglove WebSocket server (:class:`~motionbase.io.mcap_log.McapLogger`)
 also gets every topic above, each message encoded once for both, at most 60 messages per
@@ -208,8 +207,7 @@ class PipelineLog:
     def _write_scene(self, logger: McapLogger, out: PipelineOutput) -> None:
         assert self._scene is not None
         t = out.t
-        scene = self._scene.encode(t, out.platform_pose, out.angles, bool(out.clamped))
-        logger.add_encoded("/platform/scene", t, scene)
+        logger.add_scene(t, self._scene.parts(t, out.platform_pose, out.angles, out.clamped))
         self._scene_t = t
         nxt = self._next_scene_t + self._scene_period
         self._next_scene_t = nxt if t < nxt else t + self._scene_period  # none owed after a gap
