@@ -470,6 +470,13 @@ class Pipeline(PipelineCore):
             stages.after_cueing, P, S, self._solve, self._G, u, u, u, u, u, u
         )
         self._t, self._fade, self._pose = S["t"], S["fade"], S["pose"][0, :m]
+        # a cueing with a compiled step: that step on its live vectors, as the batch path
+        # runs it (the same as its advance), bound like the stages
+        kernel = self.cueing.step_kernel
+        self._cue_step = None
+        if kernel is not None:
+            cp, cs = self.cueing.kernel_params, self.cueing.kernel_state
+            self._cue_step = stages.bind(kernel, cp, cs, u, u)
         #: The last tick's status bits (:mod:`motionbase.stages`).
         self.flags = 0
         self.reset()
@@ -522,7 +529,12 @@ class Pipeline(PipelineCore):
             if state.on_ground is not None:  # the flight phase, for profiled cueings
                 self.cueing.set_flight_phase(state.on_ground)
         cue = np.empty(6)
-        if not self.cueing.advance(u, cue):
+        cueing = self.cueing
+        if self._cue_step is not None:
+            ok = self._cue_step(cueing.kernel_params, cueing.kernel_state, u, cue)
+        else:
+            ok = cueing.advance(u, cue)
+        if not ok:
             raise WashoutInputError(
                 f"{self.cueing.name} cueing: non-finite input {u} (reject the sample first)"
             )

@@ -145,7 +145,9 @@ def bind(kernel, *args):
     returned checks nothing but each array's item size: give it arguments of exactly the
     types of ``args`` (dtype, number of dimensions, C order), the pipeline's own buffers.
     """
-    return kernel.compile(tuple(numba.typeof(a) for a in args))
+    types = tuple(numba.typeof(a) for a in args)
+    declared = kernel.overloads.get(types)  # a kernel compiled for its declared signature
+    return declared.entry_point if declared is not None else kernel.compile(types)
 
 
 def new_params(

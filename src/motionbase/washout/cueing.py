@@ -24,7 +24,9 @@ for them: one cueing of the registered kind per profile, blended by the phase.
 Compiled kernels (optional)
 ---------------------------
 A cueing whose step is a numba function may expose it, so that the pipeline's batch path
-(:meth:`motionbase.pipeline.Pipeline.run_batch`) runs a whole flight in compiled code:
+(:meth:`motionbase.pipeline.Pipeline.run_batch`) runs a whole flight in compiled code and
+its tick calls the step without numba's per-call dispatch (in place of :meth:`Cueing.advance`,
+which must do the same):
 ``step_kernel(params, state, u, out) -> bool`` (:data:`STEP_SIGNATURE`: ``u`` is
 ``[f, w]``, shape (6,); ``out`` the pose, (6,); False on a non-finite input, with the
 state untouched) and ``track_kernel(params, state, achieved)``
