@@ -461,10 +461,7 @@ class McapLogger:
             if len(p) != 6 or not math.isfinite(sum(p)):
                 raise SinkError(f"add_transform: pose must be 6 finite numbers, got {p}")
             batch.append((self._tf, FLAG_POSE, p))
-        data = encode_message(batch)
-        self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
-        self._pending += data
-        self._queued(ns)
+        self._queue_batch(ns, batch)
 
     def add_scene(self, t: float, parts: list[Any]) -> None:
         """Log the ``/platform/scene`` message made of ``parts``
@@ -472,7 +469,12 @@ class McapLogger:
         (:func:`motionbase.scene_update.scene_message`) and encodes it, off the caller's
         thread; otherwise as :meth:`add`."""
         ns = self._ns(t)
-        data = encode_message([(self._index["/platform/scene"], FLAG_SCENE, parts)])
+        self._queue_batch(ns, [(self._index["/platform/scene"], FLAG_SCENE, parts)])
+
+    def _queue_batch(self, ns: int, batch: list[tuple[int, int, Any]]) -> None:
+        """Queue one batch record (``[topic index, flags, message]`` entries of log time
+        ``ns``) for the writer process."""
+        data = encode_message(batch)
         self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
         self._pending += data
         self._queued(ns)
