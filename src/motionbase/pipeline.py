@@ -471,12 +471,13 @@ class Pipeline(PipelineCore):
         )
         self._t, self._fade, self._pose = S["t"], S["fade"], S["pose"][0, :m]
         # a cueing with a compiled step: that step on its live vectors, as the batch path
-        # runs it (the same as its advance), bound like the stages
-        kernel = self.cueing.step_kernel
-        self._cue_step = None
-        if kernel is not None:
-            cp, cs = self.cueing.kernel_params, self.cueing.kernel_state
-            self._cue_step = stages.bind(kernel, cp, cs, u, u)
+        # runs it (the same as its advance), bound like the stages; else its advance
+        cueing, kernel = self.cueing, self.cueing.step_kernel
+        self._cue_step = (
+            (lambda _p, _s, u, out: cueing.advance(u, out))
+            if kernel is None
+            else stages.bind(kernel, cueing.kernel_params, cueing.kernel_state, u, u)
+        )
         #: The last tick's status bits (:mod:`motionbase.stages`).
         self.flags = 0
         self.reset()
@@ -530,11 +531,7 @@ class Pipeline(PipelineCore):
                 self.cueing.set_flight_phase(state.on_ground)
         cue = np.empty(6)
         cueing = self.cueing
-        if self._cue_step is not None:
-            ok = self._cue_step(cueing.kernel_params, cueing.kernel_state, u, cue)
-        else:
-            ok = cueing.advance(u, cue)
-        if not ok:
+        if not self._cue_step(cueing.kernel_params, cueing.kernel_state, u, cue):
             raise WashoutInputError(
                 f"{self.cueing.name} cueing: non-finite input {u} (reject the sample first)"
             )
@@ -860,6 +857,7 @@ def run(
         cpu_clock = time.thread_time  # the loop thread's CPU time (tells waiting from computing)
         loop_paces = paced and not getattr(source, "paces_itself", False)
         next_due: float | None = None  # paced by this loop: when the next tick is due
+        started = cpu_started = due = 0.0  # the paced tick in progress (see pace)
 
         def fail(exc: BaseException, what: str, sink: Any = None) -> None:
             nonlocal failure, failed_sink
@@ -869,17 +867,23 @@ def run(
                 summary.stopped_by = f"{what} failure"
                 stop.set(f"{what} failure")
 
-        def pace() -> float:
-            """Wait for the next tick's due time on this loop's schedule; return it."""
-            nonlocal next_due
-            due = clock() if next_due is None else next_due
-            wait_until(due, busy=busy_wait, clock=clock)
-            now = clock()
-            # more than half a period late: the schedule restarts here (never burst to catch up)
-            next_due = (now if now - due > 0.5 * dt else due) + dt
-            return due
+        def pace(own_schedule: bool) -> None:
+            """Start a paced tick: wait for its due time on this loop's schedule, or (a source
+            that paces itself) take the source's due time; note when the tick started."""
+            nonlocal next_due, started, cpu_started, due
+            if own_schedule:
+                due = clock() if next_due is None else next_due
+                wait_until(due, busy=busy_wait, clock=clock)
+            started, cpu_started = clock(), cpu_clock()
+            if own_schedule:
+                # more than half a period late: the schedule restarts here (never burst to catch up)
+                next_due = (started if started - due > 0.5 * dt else due) + dt
+            else:
+                source_due = getattr(source, "due_time", None)
+                due = started if source_due is None else source_due
+                next_due = started + dt  # the park ticks follow on this loop's schedule
 
-        def emit(out: PipelineOutput, started: float, due: float) -> None:
+        def emit(out: PipelineOutput) -> None:
             nonlocal t_first, t_last, progress
             for sink in tuple(active):
                 try:
@@ -935,7 +939,6 @@ def run(
         speeds = pipeline.speed
         stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
         has_fresh = hasattr(source, "fresh")
-        started = cpu_started = due = 0.0
         step = pipeline.step
         scratch = np.zeros(n)
         _track_peaks(scratch, scratch.copy(), scratch, scratch)  # loaded now, not in the first tick
@@ -950,21 +953,14 @@ def run(
                 fail(exc, "source")
                 break
             if paced:
-                if loop_paces:
-                    due = pace()
-                started, cpu_started = clock(), cpu_clock()
-                if not loop_paces:
-                    due = getattr(source, "due_time", None)
-                    if due is None:
-                        due = started
-                    next_due = started + dt  # the park ticks follow on this loop's schedule
+                pace(loop_paces)
             if stop_raised() and (not stopping_requested or (stop.estop and not pipeline.estopped)):
                 if not stopping_requested:
                     summary.stopped_by = stop.reason
                 stopping_requested = True
                 apply_stop()
             out = step(state, bool(source.fresh) if has_fresh else True)
-            emit(out, started, due)
+            emit(out)
             if out.phase == "parked":
                 break
         # park ramp on held samples
@@ -979,11 +975,8 @@ def run(
                 if stop.estop and not pipeline.estopped:
                     pipeline.estop()
                 if paced:
-                    due = pace()
-                started, cpu_started = clock(), cpu_clock()
-                if not paced:
-                    due = started
-                emit(pipeline.step(None), started, due)
+                    pace(True)
+                emit(pipeline.step(None))
         if stop.estop and stop.estop_reason and stop.estop_reason != summary.stopped_by:
             summary.stopped_by += f", then an E-stop ({stop.estop_reason})"
         if failure is not None:
