@@ -448,7 +448,6 @@ class McapLogger:
         :meth:`add_transform`, with the per-call checks done once and one encoding: the
         messages go to the writer process as one JSON array, which it splits.
         """
-        ns = self._ns(t)
         index = self._index
         batch = []  # (topic index, flags, message)
         for topic, message in items:
@@ -461,19 +460,19 @@ class McapLogger:
             if len(p) != 6 or not math.isfinite(sum(p)):
                 raise SinkError(f"add_transform: pose must be 6 finite numbers, got {p}")
             batch.append((self._tf, FLAG_POSE, p))
-        self._queue_batch(ns, batch)
+        self._queue_batch(t, batch)
 
     def add_scene(self, t: float, parts: list[Any]) -> None:
         """Log the ``/platform/scene`` message made of ``parts``
         (:meth:`motionbase.io.scene.SceneBuilder.parts`): the writer process builds it
         (:func:`motionbase.scene_update.scene_message`) and encodes it, off the caller's
         thread; otherwise as :meth:`add`."""
-        ns = self._ns(t)
-        self._queue_batch(ns, [(self._index["/platform/scene"], FLAG_SCENE, parts)])
+        self._queue_batch(t, [(self._index["/platform/scene"], FLAG_SCENE, parts)])
 
-    def _queue_batch(self, ns: int, batch: list[tuple[int, int, Any]]) -> None:
-        """Queue one batch record (``[topic index, flags, message]`` entries of log time
-        ``ns``) for the writer process."""
+    def _queue_batch(self, t: float, batch: list[tuple[int, int, Any]]) -> None:
+        """Queue one batch record (``[topic index, flags, message]`` entries of time ``t``,
+        s) for the writer process."""
+        ns = self._ns(t)
         data = encode_message(batch)
         self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
         self._pending += data
