@@ -17,6 +17,11 @@ _ZERO_DURATION = {"sec": 0, "nsec": 0}
 _LINE_STRIP, _LINE_LOOP = 0, 1
 
 
+def timestamp(ns: int) -> dict[str, int]:
+    """A Foxglove ``Timestamp`` (``sec``, ``nsec``) of a log time in ns."""
+    return {"sec": ns // _SEC, "nsec": ns % _SEC}
+
+
 def _color(r: float, g: float, b: float, a: float = 1.0) -> dict[str, float]:
     return {"r": r, "g": g, "b": b, "a": a}
 
@@ -106,7 +111,7 @@ def scene_message(
         The workspace clamp moved the pose this tick (the top plate turns orange).
     """
     ns = round(t * 1e9)
-    ts = {"sec": ns // _SEC, "nsec": ns % _SEC}
+    ts = timestamp(ns)
     joint_size, crank_thickness, rod_thickness = sizes
     base = _line(chains[0], 0.5 * rod_thickness, BASE, _LINE_LOOP)
     entities = [_entity(ts, frame, "base", lines=[base])]

@@ -48,7 +48,7 @@ from typing import Any, BinaryIO
 import orjson
 
 from motionbase.quaternions import quaternion_from_euler_zyx
-from motionbase.scene_update import scene_message
+from motionbase.scene_update import scene_message, timestamp
 
 #: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
 HEADER = struct.Struct("<BIQ")  # op, payload length, log time (ns)
@@ -128,7 +128,7 @@ def transform_message(
 ) -> dict[str, Any]:
     """The ``foxglove.FrameTransform`` message at ``ns`` (a plain dict, fields in logged order)."""
     return {
-        "timestamp": {"sec": ns // _SEC, "nsec": ns % _SEC},
+        "timestamp": timestamp(ns),
         "parent_frame_id": parent,
         "child_frame_id": child,
         "translation": {"x": x, "y": y, "z": z},
