@@ -26,7 +26,7 @@ from motionbase.app import fly, load_config
 from motionbase.cli import main
 from motionbase.config import preset_path
 from motionbase.errors import ConfigError, SinkError
-from motionbase.io.mcap_source import read_messages
+from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.motor_output import (
     crc16_ccitt,
     crc16_modbus,
@@ -425,6 +425,12 @@ def test_killing_the_peers_warns_once_and_the_flight_and_log_go_on(tmp_path, cap
     assert any("serial:" + pty_peer.path in m for m in down)
     assert any("udp:" in m and "refused" in m.lower() for m in down)
     assert all("\n" not in m for m in down)
+    drives = read_metadata(out)["outputs"]  # the log says where its commands went
+    assert [d["url"] for d in drives] == [
+        f"serial:{pty_peer.path}?rate=200&format={quote(fmt, safe='')}",
+        f"udp:127.0.0.1:{dead_port}?rate=200&format={quote(fmt, safe='')}",
+    ]
+    assert all(d["rate_hz"] == 200 and d["ramped_at_the_drive"] for d in drives)
     notes = "\n".join(result.notes)
     assert re.search(r"serial:\S+: \d+ frames sent .* [1-9]\d* send errors", notes)
     assert re.search(r"udp:\S+: \d+ frames sent .* [1-9]\d* send errors", notes)

@@ -303,6 +303,8 @@ def _drive_stoppable(
         pipeline.cueing.set_preview(*preview)  # type: ignore[attr-defined]
         metadata["preview"] = True
     drives = open_outputs(outputs, pipeline.robot)
+    if drives:  # which drives the log's commands went to, in what units and frames
+        metadata["outputs"] = [drive.describe() for drive in drives]
     extra_sinks = [*(extra_sinks or []), *drives]
     paced = bool(paced or drives or getattr(source, "paces_itself", False))
     bar = ProgressBar(getattr(source, "duration_s", None)) if progress else None
