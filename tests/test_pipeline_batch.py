@@ -216,6 +216,27 @@ def test_a_compiled_plugin_runs_the_batch_path_as_the_tick(plugins):
     assert batch_pipe.cueing.kernel_state[1] == running_clamps > 0
 
 
+@pytest.mark.parametrize(
+    ("spoil", "given"),
+    [
+        (lambda c: c.kernel_params.setflags(write=False), "(readonly array(float64, 1d, C), "),
+        (lambda c: setattr(c, "kernel_params", c.kernel_params.astype(np.float32)), "float32"),
+        (lambda c: setattr(c, "kernel_state", np.zeros((1, 2))), "array(float64, 2d, C)"),
+    ],
+)
+def test_a_plugin_whose_kernel_vectors_do_not_fit_its_signature_is_told_so(spoil, given):
+    """A compiled cueing's vectors must be exactly what its declared signature says
+    (writable, C-ordered float64 vectors): building the pipeline says what it takes and what
+    it was given, in one line."""
+    config = load_config()
+    cueing = CompiledLinearCue(config.cueing_params, config.dt)
+    spoil(cueing)
+    with pytest.raises(TypeError, match=r"^_linear_step takes \(array\(float64, 1d, C\), ") as err:
+        Pipeline(config, cueing=cueing)
+    message = str(err.value)
+    assert given in message.split(", not ")[1] and "\n" not in message
+
+
 def test_a_plugin_cueing_flies_and_replays_with_no_pipeline_change(plugins, tmp_path):
     out = tmp_path / "linear.mcap"
     code = main(

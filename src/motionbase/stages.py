@@ -144,10 +144,22 @@ def bind(kernel, *args):
     its stages with the same buffers every time, so it resolves that once. The function
     returned checks nothing but each array's item size: give it arguments of exactly the
     types of ``args`` (dtype, number of dimensions, C order), the pipeline's own buffers.
+
+    Raises
+    ------
+    TypeError
+        ``kernel`` has declared signatures and ``args`` match none (a plug-in's read-only
+        or float32 vector, say): the message gives the types it takes and those given.
     """
     types = tuple(numba.typeof(a) for a in args)
     declared = kernel.overloads.get(types)  # a kernel compiled for its declared signature
-    return declared.entry_point if declared is not None else kernel.compile(types)
+    if declared is not None:
+        return declared.entry_point
+    try:
+        return kernel.compile(types)
+    except RuntimeError:  # numba's "compilation disabled": declared signatures only, not these
+        want, got = (", ".join(map(str, sig)) for sig in (kernel.signatures[0], types))
+        raise TypeError(f"{kernel.__name__} takes ({want}), not ({got})") from None
 
 
 def new_params(
