@@ -97,18 +97,6 @@ def check_rate(rate_hz: Any, where: str = "pipeline") -> None:
         )
 
 
-#: The pipeline's own settings (the fields of :class:`PipelineConfig` stored under
-#: ``pipeline`` in its :meth:`~PipelineConfig.to_dict`, with ``input_limits``), in order.
-_SETTINGS = (
-    "rate_hz",
-    "soft_start_s",
-    "stale_timeout_s",
-    "fade_s",
-    "planar_scale_m",
-    "planar_yaw_scale",
-)
-
-
 @dataclass(frozen=True)
 class PipelineConfig:
     """Everything that determines the pipeline's numbers (stored in every log).
@@ -258,6 +246,11 @@ class PipelineConfig:
         except ConfigError as exc:  # settings and input limits: say where they came from
             msg = str(exc)
             raise ConfigError(msg if msg.startswith(source) else f"{source}: {msg}") from None
+
+
+#: The pipeline's own settings, in order: the number fields of :class:`PipelineConfig`, stored
+#: under ``pipeline`` in its :meth:`~PipelineConfig.to_dict` (with ``input_limits``).
+_SETTINGS = tuple(f.name for f in fields(PipelineConfig) if f.type in ("float", float))
 
 
 # --------------------------------------------------------------------------- outputs
