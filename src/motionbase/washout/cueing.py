@@ -31,8 +31,10 @@ which must do the same):
 ``[f, w]``, shape (6,); ``out`` the pose, (6,); False on a non-finite input, with the
 state untouched) and ``track_kernel(params, state, achieved)``
 (:data:`TRACK_SIGNATURE`), working on the arrays :attr:`Cueing.kernel_params` and
-:attr:`Cueing.kernel_state` (the live state: the kernels change it in place). Without
-them the batch path steps the cueing from Python, with the same results.
+:attr:`Cueing.kernel_state` (the live state: the kernels change it in place), writable,
+C-ordered float64 vectors as the signatures say (building the pipeline with others is a
+TypeError that names the types). Without them the batch path steps the cueing from Python,
+with the same results.
 """
 
 from __future__ import annotations
