@@ -11,6 +11,13 @@ A virtual screen
     The teleop mouse-window test needs ``Xvfb``, ``xdotool`` and Tk. Without them it is skipped
     with the reason, unless ``MOTIONBASE_REQUIRE_DISPLAY=1`` (``.ci/run`` sets it, after
     installing them), which turns the skip into a failure.
+
+Ctrl-C as a terminal gives it
+    A shell without job control starts a background command (``pytest ... &``) with SIGINT
+    ignored, and the programs the tests start inherit that: the tests of Ctrl-C would then
+    see nothing happen. :func:`pytest_configure` gives the test run Python's own SIGINT handler
+    back; the processes the tests start get the default disposition (a handler does not
+    survive ``exec``), so Python installs its handler in them too.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import shutil
+import signal
 from pathlib import Path
 
 import pytest
@@ -28,6 +36,12 @@ FLIGHT_DATA_ENV = "MOTIONBASE_TEST_DATA"
 FLIGHT_LOGS = ("vtol.tlog", "erle_plane_329.BIN")
 #: Set to 1 to fail, instead of skip, a test whose virtual screen cannot start.
 REQUIRE_DISPLAY_ENV = "MOTIONBASE_REQUIRE_DISPLAY"
+
+
+def pytest_configure(config):
+    """Undo an inherited ``SIGINT`` ignore (a background start; see the module notes)."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
