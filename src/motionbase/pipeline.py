@@ -248,7 +248,7 @@ class PipelineConfig:
             raise ConfigError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 
 
-#: The pipeline's own settings, in order: the number fields of :class:`PipelineConfig`, stored
+#: The pipeline's own settings, in order: the float fields of :class:`PipelineConfig`, stored
 #: under ``pipeline`` in its :meth:`~PipelineConfig.to_dict` (with ``input_limits``).
 _SETTINGS = tuple(f.name for f in fields(PipelineConfig) if f.type in ("float", float))
 
