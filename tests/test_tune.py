@@ -28,8 +28,9 @@ from motionbase.io.manoeuvres import (
     load_script,
     parse_script_spec,
 )
-from motionbase.platform import Rus6Geometry
-from motionbase.report import rus6_reach
+from motionbase.platform import Rus6Geometry, Stewart6Geometry
+from motionbase.platform.stewart6 import Stewart6Robot
+from motionbase.report import robot_reach, rus6_reach
 from motionbase.stopping import Stopped, StopRequest
 from motionbase.washout import WashoutParams
 from motionbase.washout.perception import (
@@ -383,6 +384,37 @@ def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):
     assert again.cost == res.result.best_score.cost
 
 
+def test_tune_takes_a_stewart_platform(tmp_path, kick):
+    out = tmp_path / "s.toml"
+    res = app.tune(
+        out=out, platform="stewart6", scripts=["rudder_kick@0:6"], holdout=[], budget=4, workers=1
+    )
+    assert "--platform stewart6" in out.read_text().splitlines()[1]
+    geometry = Stewart6Geometry.preset("seat")
+    problem = tuning.TuningProblem(
+        geometry, (kick,), robot_reach(Stewart6Robot(geometry)), robot="stewart6"
+    )
+    # the legs, from the preset's numbers: 0.75 m at neutral, 0.60-0.90 m
+    np.testing.assert_allclose(problem.cranks, [[0.75] * 6, [0.60] * 6, [0.90] * 6], atol=1e-12)
+    assert problem.evaluate(res.result.best).cost == res.result.best_score.cost
+    # the scored actuator use: the legs' largest excursion from 0.75 m, over the 0.15 m stroke
+    run = tuning.run_chain(problem.config(res.result.best, kick), kick)
+    legs = run.angles[run.running]
+    assert np.all((legs > 0.60) & (legs < 0.90))
+    expected = np.maximum((legs.max(axis=0) - 0.75) / 0.15, (0.75 - legs.min(axis=0)) / 0.15)
+    score = problem.evaluate(res.result.best).scores[0]
+    np.testing.assert_allclose(score.crank_usage, expected, rtol=1e-12)
+    assert 0.0 < score.crank_usage.max() < 1.0
+    flown = app.fly(
+        "c172_elevator_doublet",
+        platform="stewart6",
+        washout=str(out),
+        duration_s=3.0,
+        out=tmp_path / "f.mcap",
+    )
+    assert not flown.failed and flown.summary.samples > 300
+
+
 @pytest.mark.parametrize(
     ("argv", "needle"),
     [
@@ -397,6 +429,7 @@ def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):
         (["--recordings", "notes.txt"], "MCAP file"),
         (["--profile", "taxi"], "--profile taxi: unknown"),
         (["--cueing", "mpc", "--profile", "air"], "no flight-phase profiles"),
+        (["--platform", "rrr3"], "tune scores 6-DOF platforms"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from motionbase import __version__
-from motionbase.config import DEFAULT_RUS6, resolve_preset_or_path
+from motionbase.config import DEFAULT_RUS6
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -1224,7 +1224,8 @@ def tune(
     out : path
         The washout TOML file to write (``fly --washout FILE`` takes it).
     platform : str, optional
-        6-RUS geometry preset or TOML path (default ``ceart``).
+        The platform: a 6-DOF robot's name (``rus6``, ``stewart6``), geometry preset name
+        or TOML path (default ``ceart``); a planar robot is refused.
     washout : str, optional
         The start set: the cueing's preset or TOML path (default: its default preset).
     cueing : str
@@ -1267,8 +1268,8 @@ def tune(
         load_spec,
         write_washout,
     )
-    from motionbase.platform import Rus6Geometry
-    from motionbase.report import rus6_reach
+    from motionbase.platform.robot import ROBOTS, load_geometry, robot_spec
+    from motionbase.report import robot_reach
     from motionbase.stopping import raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
 
@@ -1284,7 +1285,12 @@ def tune(
     if out_path.is_dir():
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
     platform_name = platform or DEFAULT_RUS6
-    geometry = Rus6Geometry.from_toml(resolve_preset_or_path("rus6", platform_name))
+    if platform_name in ROBOTS and ROBOTS[platform_name].planar:
+        raise ConfigError(
+            f"--platform {platform_name}: tune scores 6-DOF platforms; give a 6-RUS or a "
+            "Stewart platform (rus6, stewart6, a preset or a TOML path)"
+        )
+    robot_name, geometry = load_geometry(platform_name)
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
     if profile is not None:
@@ -1319,8 +1325,10 @@ def tune(
                 f"--holdout {m.name} is also in the tuning set; a held-out manoeuvre must not "
                 "be tuned on (drop it from one of them)"
             )
-    reach = rus6_reach(geometry)
-    problem = tuning.TuningProblem(geometry, tuple(manoeuvres), reach, cueing=cueing)
+    reach = robot_reach(robot_spec(robot_name).make(geometry))
+    problem = tuning.TuningProblem(
+        geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name
+    )
     bar = EvaluationProgress() if progress else None
     t0 = time.monotonic()
     try:
@@ -1341,7 +1349,9 @@ def tune(
             bar.close()
     holdout_scores = None
     if held and not stop:
-        held_problem = tuning.TuningProblem(geometry, tuple(held), reach, cueing=cueing)
+        held_problem = tuning.TuningProblem(
+            geometry, tuple(held), reach, cueing=cueing, robot=robot_name
+        )
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
     raise_if_stopped(stop)  # also one during the held-out scoring: nothing is written
     wall = time.monotonic() - t0

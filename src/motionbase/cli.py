@@ -614,7 +614,9 @@ def _whole(minimum: int) -> Callable[[str], int]:
 
 def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--platform", help=f"6-RUS geometry preset or TOML path (default {DEFAULT_RUS6})"
+        "--platform",
+        help=f"a 6-DOF robot (rus6, stewart6), geometry preset or TOML path "
+        f"(default {DEFAULT_RUS6})",
     )
     p.add_argument(
         "--cueing",

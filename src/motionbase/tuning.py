@@ -53,7 +53,7 @@ makes)::
   error the clamp itself causes).
 - ``u``: workspace use beyond a margin, ``sum of max(0, usage - 0.8)^2`` over the six
   pose axes and the six cranks. A pose axis's usage is its largest excursion as a share
-  of the platform's single-axis reach that way (:func:`motionbase.report.rus6_reach`); a
+  of the platform's single-axis reach that way (:func:`motionbase.report.robot_reach`); a
   crank's is its largest angle from its neutral angle as a share of the way to its limit
   that side (combined motions reach the crank limits before any single-axis reach).
   ``WORKSPACE_MARGIN`` = :data:`WORKSPACE_MARGIN` = 0.8, ``W_WORKSPACE`` =
@@ -488,8 +488,8 @@ def score_motion(
     weights : Weights
         Of the cost.
     crank_range : ndarray, shape (3, 6), optional
-        Neutral, lower and upper crank angles, rad (:func:`crank_range`); with it and
-        ``run.angles`` the cranks' use of their range is scored too.
+        Neutral, lower and upper actuator positions, rad or m (:func:`crank_range`); with it
+        and ``run.angles`` the actuators' use of their range is scored too.
 
     Raises
     ------
@@ -593,15 +593,21 @@ class TuningProblem:
 
     Attributes
     ----------
-    geometry : Rus6Geometry
+    geometry : Rus6Geometry or Stewart6Geometry
         The platform.
     manoeuvres : tuple of Manoeuvre
     reach : ndarray, shape (2, 6)
-        The platform's single-axis reach (:func:`motionbase.report.rus6_reach`).
+        The platform's single-axis reach (:func:`motionbase.report.robot_reach`).
     weights : Weights
         Of the cost.
+    cueing : str
+        The cueing algorithm's name.
+    robot : str
+        The robot ``geometry`` is for (a 6-DOF name of
+        :data:`~motionbase.platform.robot.ROBOTS`: ``rus6``, ``stewart6``).
     cranks : ndarray, shape (3, 6)
-        Set from ``geometry``: neutral, lower and upper crank angles (:func:`crank_range`).
+        Set from ``geometry``: the actuators' neutral, lower and upper positions (rad or m,
+        :func:`crank_range`).
     """
 
     geometry: Any
@@ -609,14 +615,15 @@ class TuningProblem:
     reach: np.ndarray
     weights: Weights = Weights()
     cueing: str = "classical"
+    robot: str = "rus6"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "cranks", crank_range(self.geometry))
+        object.__setattr__(self, "cranks", crank_range(self.geometry, self.robot))
 
     def config(self, params: WashoutParams, manoeuvre: Manoeuvre) -> PipelineConfig:
         """The pipeline configuration for one manoeuvre (its rate, default settings)."""
         return PipelineConfig(
-            robot="rus6",
+            robot=self.robot,
             geometry=self.geometry,
             cueing=self.cueing,
             cueing_params=params,
@@ -643,13 +650,14 @@ class TuningProblem:
         )
 
 
-def crank_range(geometry: Any) -> np.ndarray:
-    """Neutral, lower-limit and upper-limit crank angles of a 6-RUS geometry, rad, (3, 6)."""
-    from motionbase.platform import Rus6
+def crank_range(geometry: Any, robot: str = "rus6") -> np.ndarray:
+    """Neutral, lower-limit and upper-limit actuator positions of a 6-DOF platform, (3, 6):
+    crank angles (rad) of a 6-RUS, leg lengths (m) of a Stewart platform. Neutral is the
+    command of the zero cue pose."""
+    from motionbase.platform.robot import robot_spec
 
-    robot = Rus6(geometry)
-    lo, hi = robot.angle_limits
-    return np.array([np.broadcast_to(robot.neutral_angle, (6,)), lo, hi], dtype=float)
+    r = robot_spec(robot).make(geometry)
+    return np.array([r.inverse(r.neutral_pose), r.limits.lower, r.limits.upper], dtype=float)
 
 
 def saturated_reach_use(
