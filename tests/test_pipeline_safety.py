@@ -1,11 +1,12 @@
-"""The whole pipeline under attack: nothing bad ever reaches an actuator, for both robots.
+"""The whole pipeline under attack: nothing bad ever reaches an actuator, for every robot.
 
-Hypothesis drives the real :class:`~motionbase.pipeline.Pipeline` (shipped presets, both
-robots) with arbitrary sequences of good, non-finite and absurd aircraft samples, time
-gaps and jumps (forward and backward), stale stretches, stops and E-stops at random
-ticks. Every command must be finite, inside the angle limits, and within the speed and
-acceleration limits measured from the commands themselves (finite differences, starting
-from park at rest), and a stop must end parked within a time computed from the limits.
+Hypothesis drives the real :class:`~motionbase.pipeline.Pipeline` (shipped presets, the
+three robots, both cueings) with arbitrary sequences of good, non-finite and absurd
+aircraft samples, time gaps and jumps (forward and backward), stale stretches, stops and
+E-stops at random ticks. Every command must be finite, inside the angle limits, and within
+the speed and acceleration limits measured from the commands themselves (finite
+differences, starting from park at rest), and a stop must end parked within a time
+computed from the limits.
 """
 
 from __future__ import annotations
@@ -199,7 +200,27 @@ def park(pipeline: Pipeline, soft: bool = True) -> list:
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(ticks=stretches(tick(), 12), rate=st.sampled_from([60.0, 120.0]), data=st.data())
 def test_any_input_sequence_gives_safe_commands_and_parks(planar, ticks, rate, data):
-    pipeline = Pipeline(CONFIGS[(planar, rate)])
+    check_any_input_sequence(Pipeline(CONFIGS[(planar, rate)]), ticks)
+
+
+# the other robot and the other cueing: the Stewart platform (leg lengths, m) with the
+# classical washout, the 6-RUS with the model-predictive cueing (about a millisecond a tick)
+OTHER_CONFIGS = {
+    "stewart6": {r: load_config(platform="stewart6", rate_hz=r) for r in (60.0, 120.0)},
+    "mpc": {r: load_config(cueing="mpc", rate_hz=r) for r in (60.0, 120.0)},
+}
+
+
+@pytest.mark.parametrize("which", ["stewart6", "mpc"])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(ticks=stretches(tick(), 12), rate=st.sampled_from([60.0, 120.0]))
+def test_any_input_sequence_is_safe_on_the_stewart_platform_and_with_mpc(which, ticks, rate):
+    check_any_input_sequence(Pipeline(OTHER_CONFIGS[which][rate]), ticks)
+
+
+def check_any_input_sequence(pipeline: Pipeline, ticks: list[Tick]) -> None:
+    """Drive ``ticks``, stop, park: safe commands, the right counts, finite outputs."""
+    planar = pipeline.config.planar
     outputs, must_reject = drive(pipeline, ticks)
     outputs += park(pipeline)
     check_commands(pipeline, [o.angles for o in outputs])
