@@ -79,6 +79,7 @@ import scipy.linalg
 import scipy.signal
 import scipy.sparse as sp
 
+from motionbase.physics import smoothstep
 from motionbase.washout.cueing import Cueing
 from motionbase.washout.mpc_params import MpcParams
 from motionbase.washout.perception import CANAL_TAU_L, OTOLITH_K, canal_tf, otolith_tf
@@ -508,7 +509,7 @@ class MpcCueing(Cueing):
                             z[ND + j] = 0.0
         self._a_prev = a0
         self._mpc_pose[:] = _pose_of(z)
-        wgt = _smoothstep(self._blend)
+        wgt = smoothstep(self._blend)
         self.info.weight = wgt
         if wgt >= 1.0:
             out[:] = self._mpc_pose
@@ -746,7 +747,3 @@ def _rot_dof(axis: int) -> int:
 def _pose_of(z: np.ndarray) -> np.ndarray:
     p = z[:ND]
     return np.array([p[0], p[1], p[2], p[3] + p[5], p[4] + p[6], p[7]])
-
-
-def _smoothstep(b: float) -> float:
-    return b * b * (3.0 - 2.0 * b)
