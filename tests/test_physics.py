@@ -17,6 +17,7 @@ from motionbase.physics import (
     quaternion_from_euler_zyx,
     rotation_matrix,
     smoothstep,
+    track_toward,
 )
 
 angle = st.floats(-math.pi, math.pi)
@@ -103,6 +104,35 @@ def test_brake_speed_is_the_speed_that_stops_in_the_distance(
         speed -= u
     assert covered == pytest.approx(dist, rel=1e-9, abs=1e-15)
     assert brake_speed(-dist, u, dt) == 0.0 and brake_speed(0.0, u, dt) == 0.0
+
+
+@settings(deadline=None)
+@given(
+    st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=60),
+    st.sampled_from([(1.0, 0.5, 4.0), (np.inf, 0.5, 4.0), (1.0, np.inf, 4.0), (1.0, 0.5, np.inf)]),
+    st.sampled_from([0.0, 1.0]),
+)
+def test_track_toward_keeps_every_limit_it_is_given(targets, limits, glide) -> None:
+    """Speed, acceleration and position limits hold, measured from the positions; an infinite
+    limit (no position bound, no speed or acceleration limit) never gives a NaN; a target
+    held long enough is reached exactly."""
+    bound, vmax, amax = limits
+    dt = 0.01
+    u = amax * dt
+    k = glide * amax / vmax if np.isfinite(amax) and np.isfinite(vmax) else 0.0
+    clipped = [min(max(x, -bound), bound) for x in targets]
+    q, v, prev = 0.0, 0.0, 0.0
+    path = [0.0]
+    for x in clipped + [clipped[-1]] * 2000:  # then held until it settles
+        new, limited = track_toward(q, v, prev, x, dt, -bound, bound, vmax, u, k)
+        assert math.isfinite(new) and -bound <= new <= bound
+        assert limited or new == x  # not limited: on the target
+        v, q, prev = (new - q) / dt, new, x
+        path.append(q)
+    speeds = np.diff(path) / dt
+    assert np.abs(speeds).max() <= vmax * (1 + 1e-12)
+    assert np.abs(np.diff(np.r_[0.0, speeds])).max() <= amax * dt * (1 + 1e-9) + 1e-9
+    assert q == clipped[-1]
 
 
 def test_smoothstep_is_a_c1_ramp_in_python_and_compiled_code() -> None:

@@ -10,8 +10,9 @@ is meant to and nowhere else.
   :data:`MAX_ATTITUDE`): the defaults of the pipeline's validation
   (:class:`motionbase.safety.InputLimits`) and the bounds the live sources drop values
   beyond;
-* :func:`brake_speed`, the discrete braking curve of the safety limiter and the washout's
-  tilt tracker, and :func:`smoothstep`, the ramp of the soft start and the watchdog fade
+* :func:`brake_speed`, the discrete braking curve, and :func:`track_toward`, the one-tick
+  tracker built on it that the safety limiter, the washout's tilt tracker and its cue
+  limiter all run; :func:`smoothstep`, the ramp of the soft start and the watchdog fade
   (compiled; callable from Python and from compiled code);
 * rotations in the project's convention (Z-Y-X Euler angles, ``R = Rz(yaw) Ry(pitch)
   Rx(roll)`` maps body or platform vectors to base axes, FRD): :func:`rotation_matrix`,
@@ -44,6 +45,8 @@ __all__ = [
     "quaternion_from_euler_zyx",
     "rotation_matrix",
     "smoothstep",
+    "stop_speed",
+    "track_toward",
 ]
 
 STANDARD_GRAVITY = 9.80665
@@ -83,6 +86,90 @@ def brake_speed(dist: float, u: float, dt: float) -> float:
         return 0.0
     n = np.floor((-1.0 + np.sqrt(1.0 + 8.0 * dist / (dt * u))) / 2.0)
     return (dist / dt + u * n * (n + 1.0) / 2.0) / (n + 1.0)
+
+
+GLIDE_END = 0.1
+"""A glide (:func:`stop_speed` with ``k > 0``) lands at this share of one tick's speed change."""
+
+
+@numba.njit(cache=True, inline="always")
+def stop_speed(dist: float, u: float, dt: float, k: float) -> float:
+    """Largest speed at ``dist`` from where the motion must stop: :func:`brake_speed`, and
+    with ``k > 0`` also the glide ``k dist + GLIDE_END u`` (deceleration proportional to the
+    speed, time constant ``1/k``), whichever is lower; no bound (inf) for an infinite
+    ``dist`` or ``u`` (no limit that way, no acceleration limit)."""
+    if u == np.inf or dist == np.inf:
+        return np.inf
+    v = brake_speed(dist, u, dt)
+    if k > 0.0:
+        v = min(v, k * dist + GLIDE_END * u)
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def track_toward(
+    q0: float,
+    v0: float,
+    target_prev: float,
+    target: float,
+    dt: float,
+    lower: float,
+    upper: float,
+    vmax: float,
+    u: float,
+    k: float,
+) -> tuple[float, bool]:
+    """One tick of a position toward a moving target within speed, acceleration and position
+    limits: the rule of the safety limiter, the washout's tilt tracker and its cue limiter.
+
+    The target's own speed (limited to ``vmax``) is fed forward; the error left is closed no
+    faster than :func:`stop_speed` of it; the position never approaches ``lower`` or
+    ``upper`` faster than it can stop before them; the speed changes by at most ``u`` a tick
+    and stays within ``vmax``. When every limit allows the whole step the position lands on
+    the target exactly (a held target is held bit for bit).
+
+    Parameters
+    ----------
+    q0, v0 : float
+        Position (unit) and speed (unit/s) after the previous tick.
+    target_prev, target : float
+        The previous tick's target and this tick's, unit (equal: a target at rest).
+    dt : float
+        Tick, s.
+    lower, upper : float
+        Position limits, unit (``-inf``, ``inf``: none); ``lower <= q0 <= upper``.
+    vmax : float
+        Speed limit, unit/s (inf: none).
+    u : float
+        Speed change allowed per tick, unit/s (``a_max dt``; inf: no acceleration limit).
+    k : float
+        The glide's ``a_max / v_max``, 1/s (0: the braking curve alone).
+
+    Returns
+    -------
+    (float, bool)
+        The new position, and whether a limit acted (the target was not reached).
+    """
+    vt = min(max((target - target_prev) / dt, -vmax), vmax)
+    e = target - q0 - vt * dt
+    cap = stop_speed(abs(e), u, dt, k)
+    v_hi = stop_speed(upper - q0, u, dt, k)
+    v_lo = -stop_speed(q0 - lower, u, dt, k)
+    v_full = (target - q0) / dt
+    if (
+        abs(e) / dt <= cap
+        and abs(v_full) <= vmax
+        and abs(v_full - v0) <= u
+        and v_lo <= v_full <= v_hi
+    ):
+        return target, False
+    fb = min(cap, abs(e) / dt)
+    v = vt + fb if e >= 0.0 else vt - fb
+    v = min(max(v, v_lo), v_hi)
+    v = min(max(v, v0 - u), v0 + u)
+    v = min(max(v, -vmax), vmax)
+    # safety net against rounding: never outside the limits
+    return min(max(q0 + v * dt, lower), upper), True
 
 
 @numba.njit(cache=True, inline="always")

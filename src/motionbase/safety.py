@@ -14,6 +14,9 @@ angles, :func:`limit_command` returns the next command so that
   target without overshoot or oscillation;
 * it never approaches an angle limit faster than it can stop before it.
 
+Per actuator this is :func:`motionbase.physics.track_toward`, the tracker the washout's
+tilt and cue limiters run too.
+
 All angles in rad, speeds in rad/s, accelerations in rad/s^2, ``dt`` in s. Arrays
 have shape ``(n,)`` for ``n`` actuators (6 for the 6-RUS, 3 for the 3-RRR).
 """
@@ -30,7 +33,7 @@ from motionbase.physics import (
     MAX_ANGULAR_VELOCITY,
     MAX_ATTITUDE,
     MAX_SPECIFIC_FORCE,
-    brake_speed,
+    track_toward,
 )
 
 # Command status bits returned by limit_command.
@@ -88,40 +91,15 @@ def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, am
         if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
             status = 2
     for i in range(n):
-        u = amax[i] * dt
-        if status == 2:
-            tgt = q_prev[i]
-            vt = 0.0
-        else:
-            tgt = target[i]
-            # the target's own speed, fed forward so a moving target is tracked without lag
-            vt = min(max((tgt - target_prev[i]) / dt, -vmax[i]), vmax[i])
-        # error left after the feed-forward, closed no faster than the braking curve allows
-        e = tgt - q_prev[i] - vt * dt
-        cap = brake_speed(abs(e), u, dt)
-        # never approach an angle limit faster than one can stop before it
-        v_hi = brake_speed(upper[i] - q_prev[i], u, dt)
-        v_lo = -brake_speed(q_prev[i] - lower[i], u, dt)
-        v_full = (tgt - q_prev[i]) / dt
-        if (
-            abs(e) / dt <= cap
-            and abs(v_full) <= vmax[i]
-            and abs(v_full - v_prev[i]) <= u
-            and v_lo <= v_full <= v_hi
-        ):
-            q = tgt  # the whole step is allowed: land exactly on the target
-        else:
-            fb = min(cap, abs(e) / dt)
-            v = vt + fb if e >= 0.0 else vt - fb
-            v = min(max(v, v_lo), v_hi)
-            v = min(max(v, v_prev[i] - u), v_prev[i] + u)
-            v = min(max(v, -vmax[i]), vmax[i])
-            q = q_prev[i] + v * dt
-            # safety net against rounding: never outside the limits
-            q = min(max(q, lower[i]), upper[i])
-            if status != 2:
-                status = 1
-        v_out[i] = (q - q_prev[i]) / dt
+        q_i = q_prev[i]
+        # a held vector brakes to a stop where it is (a target at rest at its position)
+        tgt = q_i if status == 2 else target[i]
+        was = q_i if status == 2 else target_prev[i]
+        lo, hi = lower[i], upper[i]
+        q, limited = track_toward(q_i, v_prev[i], was, tgt, dt, lo, hi, vmax[i], amax[i] * dt, 0.0)
+        if limited and status != 2:
+            status = 1
+        v_out[i] = (q - q_i) / dt
         q_out[i] = q
     return status
 

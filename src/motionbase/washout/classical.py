@@ -57,8 +57,8 @@ bit-identical numbers.
 
 Tilt tracker
 ------------
-Per tilt axis, each sample (angles in rad, ``u = tilt_accel_limit * dt``), the
-discrete braking curve of :mod:`motionbase.safety` applied to the tilt:
+Per tilt axis, each sample (angles in rad, ``u = tilt_accel_limit * dt``), the one-tick
+tracker of the safety limiter (:func:`motionbase.physics.track_toward`) with a glide:
 
 - the target is the angle-limited tilt ``clip(tilt_t, -lim, lim)``; its own rate,
   limited to the rate limit, is fed forward so a slow target is followed without lag;
@@ -121,7 +121,7 @@ import numba
 import numpy as np
 
 from motionbase.errors import MotionbaseError
-from motionbase.physics import brake_speed
+from motionbase.physics import track_toward
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE, Cueing
 from motionbase.washout.filters import (
     discretise,
@@ -162,7 +162,6 @@ _QP, _UP = 39, 51  # input low-pass states (channel*2 + [output, rate]), inputs 
 _XS = 57  # cue limiter states (axis*3 + [position, velocity, last target])
 _NS = 66
 
-_GLIDE_END = 0.1  # the glide lands at a speed of this share of one tick's speed change
 _COS_MIN = 1e-3  # guard of 1/cos(pitch) in T_s (pitch within 0.06 deg of +-90 deg)
 
 
@@ -176,50 +175,17 @@ def _clip(x: float, lo: float, hi: float) -> float:
 
 
 @numba.njit(cache=True, inline="always")
-def _glide_speed(dist, u, dt, k):  # pragma: no cover - compiled
-    """Largest tilt speed at ``dist`` from where it must stop (rad, rad/s).
-
-    The lower of the discrete braking curve (:func:`motionbase.physics.brake_speed`, stop in time
-    braking by ``u`` per tick) and the glide ``k dist + u`` (``k = a/v_max``): the
-    deceleration is proportional to the speed (time constant ``1/k``), equal to the
-    acceleration limit only at the rate limit, so the tilt eases onto a stop.
-    """
-    return min(brake_speed(dist, u, dt), k * dist + _GLIDE_END * u)
-
-
-@numba.njit(cache=True, inline="always")
 def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
     """Tilt axis ``i`` one tick toward ``tgt`` (within +-lim); returns the new tilt.
 
-    Rate, acceleration and angle limits with the braking curve of
-    the safety limiter (:func:`motionbase.safety.limit_kernel`; module docstring, "Tilt tracker").
+    Rate, acceleration and angle limits with the glide (:func:`motionbase.physics.track_toward`;
+    module docstring, "Tilt tracker").
     """
-    dt = cf[_DT]
-    lim = cf[_TLIM]
-    vmax = cf[_TVMAX]
-    u = cf[_TU]
+    dt, lim = cf[_DT], cf[_TLIM]
     q0 = st[_TILT + i]
-    v0 = st[_TRATE + i]
-    vt = _clip((tgt - st[_TTGT + i]) / dt, -vmax, vmax)  # the target's own rate, fed forward
-    e = tgt - q0 - vt * dt
-    cap = _glide_speed(abs(e), u, dt, cf[_TK])
-    v_hi = _glide_speed(lim - q0, u, dt, cf[_TK])
-    v_lo = -_glide_speed(q0 + lim, u, dt, cf[_TK])
-    v_full = (tgt - q0) / dt
-    if (
-        abs(e) / dt <= cap
-        and abs(v_full) <= vmax
-        and abs(v_full - v0) <= u
-        and v_lo <= v_full <= v_hi
-    ):
-        q = tgt  # the whole step is allowed: land exactly on the target
-    else:
-        fb = min(cap, abs(e) / dt)
-        v = vt + fb if e >= 0.0 else vt - fb
-        v = _clip(v, v_lo, v_hi)
-        v = _clip(v, v0 - u, v0 + u)
-        v = _clip(v, -vmax, vmax)
-        q = _clip(q0 + v * dt, -lim, lim)  # safety net against rounding
+    q = track_toward(
+        q0, st[_TRATE + i], st[_TTGT + i], tgt, dt, -lim, lim, cf[_TVMAX], cf[_TU], cf[_TK]
+    )[0]
     st[_TRATE + i] = (q - q0) / dt
     st[_TTGT + i] = tgt
     st[_TILT + i] = q
@@ -230,34 +196,15 @@ def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
 def _cue_track(cf, st, i, tgt):  # pragma: no cover - compiled
     """Translational cue axis ``i`` one tick toward the high-pass position ``tgt`` (m),
     within its acceleration and velocity limits (0: that limit off); returns the new
-    position. The tilt tracker's braking curve without an angle limit ("Cue limiter")."""
+    position. The tilt tracker's rules without an angle limit ("Cue limiter")."""
     dt = cf[_DT]
     j = _XS + 3 * i
     q0 = st[j]
-    v0 = st[j + 1]
     a = cf[_XA + i]
-    vmax = cf[_XV + i]
-    if vmax <= 0.0:
-        vmax = np.inf
-    vt = _clip((tgt - st[j + 2]) / dt, -vmax, vmax)  # the target's own velocity, fed forward
-    e = tgt - q0 - vt * dt
-    if a > 0.0:
-        u = a * dt
-        cap = brake_speed(abs(e), u, dt)
-        if vmax < np.inf:
-            cap = min(cap, a / vmax * abs(e) + _GLIDE_END * u)
-    else:
-        u = np.inf
-        cap = np.inf
-    v_full = (tgt - q0) / dt
-    if abs(e) / dt <= cap and abs(v_full) <= vmax and abs(v_full - v0) <= u:
-        q = tgt  # the whole step is allowed: land exactly on the target
-    else:
-        fb = min(cap, abs(e) / dt)
-        v = vt + fb if e >= 0.0 else vt - fb
-        v = _clip(v, v0 - u, v0 + u)
-        v = _clip(v, -vmax, vmax)
-        q = q0 + v * dt
+    vmax = cf[_XV + i] if cf[_XV + i] > 0.0 else np.inf
+    u = a * dt if a > 0.0 else np.inf
+    k = a / vmax if a > 0.0 else 0.0  # (0 without a velocity limit: the braking curve alone)
+    q = track_toward(q0, st[j + 1], st[j + 2], tgt, dt, -np.inf, np.inf, vmax, u, k)[0]
     st[j + 1] = (q - q0) / dt
     st[j + 2] = tgt
     st[j] = q
