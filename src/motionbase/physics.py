@@ -21,12 +21,19 @@ is meant to and nowhere else.
   the log's writer process) and the Euler-rate kinematics
   (:func:`body_rates_from_euler_rates`).
 
-The compiled kernels of the 6-RUS and the Stewart platform keep their own scalar rotation
-(:mod:`motionbase.platform`), and the classical washout's kernel its inlined one: those are
-the hot loops of the pipeline, pinned bit for bit by the recordings.
+The rotation has two definitions, one per layer: :func:`rotation_matrix` on numpy arrays
+and :func:`rotation_terms`, compiled, which the platforms' kinematics kernels and the
+classical washout's kernel call (the pipeline's hot loop, pinned bit for bit by the
+recordings).
+
+numba's on-disk cache keys a kernel on its own file only, and the compiled functions here
+are inlined into kernels elsewhere: after changing one, delete the package's caches
+(``find src -name '*.nb[ic]' -delete``) or the callers keep the old code compiled in.
 """
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
@@ -44,6 +51,7 @@ __all__ = [
     "euler_zyx_from_quaternion",
     "quaternion_from_euler_zyx",
     "rotation_matrix",
+    "rotation_terms",
     "smoothstep",
     "stop_speed",
     "track_toward",
@@ -180,6 +188,27 @@ def smoothstep(x: float) -> float:
     if x >= 1.0:
         return 1.0
     return x * x * (3.0 - 2.0 * x)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def rotation_terms(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
+    """The nine entries ``(r00, r01, r02, r10, r11, r12, r20, r21, r22)`` of
+    ``R = Rz(yaw) Ry(pitch) Rx(roll)``, row by row (angles in rad; compiled, for kernels:
+    the platforms' kinematics and the washout's translational channel)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return (
+        cy * cp,
+        cy * sp * sr - sy * cr,
+        cy * sp * cr + sy * sr,
+        sy * cp,
+        sy * sp * sr + cy * cr,
+        sy * sp * cr - cy * sr,
+        -sp,
+        cp * sr,
+        cp * cr,
+    )
 
 
 def rotation_matrix(rpy: ArrayLike) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Pose maths shared by the 6-DOF platforms' kernels and classes (6-RUS, 6-UPS Stewart).
 
-Compiled (numba) pieces: the Z-Y-X rotation :func:`rotation` (and :func:`rotation_terms`,
-its nine entries as scalars for kernels that keep them in registers), the angle wrap
+Compiled (numba) pieces: the Z-Y-X rotation :func:`rotation` (from
+:func:`motionbase.physics.rotation_terms`, its nine entries as scalars, which kernels that
+keep them in registers call directly), the angle wrap
 :func:`wrap` and the 6x6 linear solver :func:`solve6`. Python pieces: the argument checks
 and batch plumbing every 6-DOF kinematics class uses (:func:`as_poses`, :func:`run_inverse`,
 :func:`run_reachable`, :func:`run_clamp`, :func:`run_forward`). The numpy rotation matrix
@@ -26,11 +27,11 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError
+from motionbase.physics import rotation_terms
 
 __all__ = [
     "as_poses",
     "rotation",
-    "rotation_terms",
     "run_clamp",
     "run_forward",
     "run_inverse",
@@ -41,26 +42,6 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- compiled
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def rotation_terms(roll, pitch, yaw):
-    """The nine entries ``(r00, r01, r02, r10, r11, r12, r20, r21, r22)`` of
-    ``R = Rz(yaw) Ry(pitch) Rx(roll)``, row by row."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return (
-        cy * cp,
-        cy * sp * sr - sy * cr,
-        cy * sp * cr + sy * sr,
-        sy * cp,
-        sy * sp * sr + cy * cr,
-        sy * sp * cr - cy * sr,
-        -sp,
-        cp * sr,
-        cp * cr,
-    )
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

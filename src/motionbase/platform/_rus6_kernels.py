@@ -15,7 +15,8 @@ import math
 import numpy as np
 from numba import njit
 
-from motionbase.platform._pose_kernels import rotation, rotation_terms, solve6, wrap
+from motionbase.physics import rotation_terms
+from motionbase.platform._pose_kernels import rotation, solve6, wrap
 
 # Columns of the packed geometry array.
 AX, AY, AZ, CX, CY, PX, PY, PZ, RC, RR, LO, HI, OX, OY, OZ = range(15)

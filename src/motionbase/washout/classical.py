@@ -121,7 +121,7 @@ import numba
 import numpy as np
 
 from motionbase.errors import MotionbaseError
-from motionbase.physics import track_toward
+from motionbase.physics import rotation_terms, track_toward
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE, Cueing
 from motionbase.washout.filters import (
     discretise,
@@ -307,15 +307,10 @@ def _step_kernel(cf, st, fx, fy, fz, wx, wy, wz, out):  # pragma: no cover - com
     yaw = b2
 
     # 4. translational channel: a = L_IS(beta) f_s + (0, 0, g), high-pass, double integration
-    sr = np.sin(roll)
-    cr = np.cos(roll)
-    sp = np.sin(pitch)
-    cp = np.cos(pitch)
-    sy = np.sin(yaw)
-    cy = np.cos(yaw)
-    a0 = cy * cp * fs0 + (cy * sp * sr - sy * cr) * fs1 + (cy * sp * cr + sy * sr) * fs2
-    a1 = sy * cp * fs0 + (sy * sp * sr + cy * cr) * fs1 + (sy * sp * cr - cy * sr) * fs2
-    a2 = -sp * fs0 + cp * sr * fs1 + cp * cr * fs2 + g
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_terms(roll, pitch, yaw)
+    a0 = r00 * fs0 + r01 * fs1 + r02 * fs2
+    a1 = r10 * fs0 + r11 * fs1 + r12 * fs2
+    a2 = r20 * fs0 + r21 * fs1 + r22 * fs2 + g
     for i in range(3):
         u = a0 if i == 0 else (a1 if i == 1 else a2)
         up = st[_UT + i]
