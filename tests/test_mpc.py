@@ -417,6 +417,36 @@ def test_fly_log_has_the_cueing_topic_and_preview_replays(tmp_path):
     assert real_time.failed
 
 
+def test_a_failing_solver_in_a_flight_is_logged_and_flies_the_fallback(tmp_path, capsys):
+    """``fly --cueing mpc`` with a solver that never converges (one iteration): every tick's
+    ``/cueing/mpc`` says so, and once the blend is over the cue is the fallback washout's,
+    tick for tick the cue of a flight with that washout alone; ``report`` reads the log."""
+    from motionbase import app, cli
+    from motionbase.io.manoeuvres import write_washout
+
+    params = dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1)
+    failing = tmp_path / "failing.toml"
+    write_washout(failing, params, ["one iteration: never solved"])
+    out, alone = tmp_path / "mpc.mcap", tmp_path / "classical.mcap"
+    app.fly("c1723", cueing="mpc", washout=str(failing), duration_s=3.0, out=out, progress=False)
+    app.fly("c1723", washout=params.fallback, duration_s=3.0, out=alone, progress=False)
+    messages, _, _ = _read_mcap(out)
+    diag = messages["/cueing/mpc"]
+    assert len(diag) == len(messages["/washout/pose"])
+    # the flight's 3 s (on the park ramp after it, near rest, one iteration may be enough)
+    flight = [d for d in diag if d["t"] <= 3.0]
+    assert len(flight) == 360
+    assert all(d["fallback"] and d["status"] == "maximum iterations reached" for d in flight)
+    cue = np.array([m["pose"] for m in messages["/washout/pose"]])[: len(flight)]
+    reference = np.array([m["pose"] for m in _read_mcap(alone)[0]["/washout/pose"]])
+    blended = int(np.ceil(params.blend_s * 120.0)) + 1
+    assert np.abs(reference).max() > 1e-3  # the flight moves the cue
+    np.testing.assert_array_equal(cue[blended:], reference[blended : len(cue)])
+    assert cli.main(["report", str(out), "--out", str(tmp_path / "report")]) == 0
+    assert "mpc" in (tmp_path / "report" / "summary.txt").read_text()
+    capsys.readouterr()
+
+
 def test_preview_refused_for_live_sources_and_cueings_without_it(tmp_path, capsys):
     from motionbase import app, cli
 
