@@ -17,6 +17,10 @@ class ConfigError(MotionbaseError, ValueError):
     """A configuration (geometry, washout, calibration, CLI value) is invalid."""
 
 
+class CueingInputError(MotionbaseError, ValueError):
+    """A cueing was given an input sample it cannot use (wrong shape, NaN or infinite)."""
+
+
 class SourceError(MotionbaseError):
     """A source (JSBSim, MAVLink, MCAP file, cursor) cannot be opened or read."""
 

@@ -63,14 +63,13 @@ import numpy as np
 
 from motionbase import __version__, stages
 from motionbase.config import as_float, is_number
-from motionbase.errors import ConfigError, MotionbaseError, SinkError
+from motionbase.errors import ConfigError, CueingInputError, MotionbaseError, SinkError
 from motionbase.pacing import GarbageBetweenTicks, wait_until
 from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
 from motionbase.state import AircraftState, PipelineOutput  # (re-exported)
 from motionbase.stopping import StopRequest, install_signal_stop  # noqa: F401 - re-exported
-from motionbase.washout.classical import WashoutInputError
 from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
 
 if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
@@ -525,7 +524,7 @@ class Pipeline(PipelineCore):
         cue = np.empty(6)
         cueing = self.cueing
         if not self._cue_step(cueing.kernel_params, cueing.kernel_state, u, cue):
-            raise WashoutInputError(
+            raise CueingInputError(
                 f"{self.cueing.name} cueing: non-finite input {u} (reject the sample first)"
             )
         pose = np.empty(self._m)
@@ -596,7 +595,7 @@ class Pipeline(PipelineCore):
 
         Raises
         ------
-        WashoutInputError
+        CueingInputError
             The cueing met a non-finite input (validation rejects those first, so only a
             cueing's own failure).
         """
@@ -650,7 +649,7 @@ class Pipeline(PipelineCore):
             ok = np.isfinite(achieved).all(axis=1)
             out.poses[limited[ok]] = achieved[ok]
         if done < N:
-            raise WashoutInputError(
+            raise CueingInputError(
                 f"{cueing.name} cueing: non-finite input at sample {done} (t = {t[done]:.6g} s)"
             )
         return out
@@ -930,7 +929,7 @@ def run(
         iterator = iter(source)
         # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
         speeds = pipeline.speed
-        stop_raised = stop._event.is_set if isinstance(stop, StopRequest) else stop.__bool__
+        stop_raised = stop.is_set if isinstance(stop, StopRequest) else stop.__bool__
         has_fresh = hasattr(source, "fresh")
         step = pipeline.step
         scratch = np.zeros(n)

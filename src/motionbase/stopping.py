@@ -60,6 +60,9 @@ class StopRequest:
 
     def __init__(self) -> None:
         self._event = threading.Event()
+        #: ``is_set()``: True once a stop was asked (the event's own method: the loop's
+        #: per-tick check, without a Python call in between)
+        self.is_set = self._event.is_set
         self.estop = False
         self.reason = ""
         self.estop_reason = ""

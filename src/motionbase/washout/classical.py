@@ -120,7 +120,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from motionbase.errors import MotionbaseError
+from motionbase.errors import CueingInputError
 from motionbase.physics import rotation_terms, track_toward
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE, Cueing
 from motionbase.washout.filters import (
@@ -134,7 +134,7 @@ from motionbase.washout.params import WashoutParams
 __all__ = ["ClassicalWashout", "WashoutInputError", "WashoutState"]
 
 
-class WashoutInputError(MotionbaseError, ValueError):
+class WashoutInputError(CueingInputError):
     """An input sample of the washout is malformed (wrong shape, NaN or infinite)."""
 
 
