@@ -190,7 +190,7 @@ CUEINGS: dict[str, CueingSpec] = {
         "motionbase.washout.params:WashoutParams",
         preset_kind="washout",
         description="classical washout (Reid & Nahon), tilt coordination",
-        tuned_presets={("rus6", "ceart"): "tuned_ceart"},
+        tuned_presets={("rus6", "ceart"): "tuned_ceart", ("stewart6", "seat"): "tuned_seat"},
     ),
     "mpc": CueingSpec(
         "mpc",
