@@ -37,8 +37,8 @@ import numpy as np
 from motionbase import app, tuning
 from motionbase.io.executors import default_workers
 from motionbase.io.manoeuvres import DEFAULT_HOLDOUT, DEFAULT_MANOEUVRES, load_spec
-from motionbase.platform import Rus6Geometry
-from motionbase.report import rus6_reach
+from motionbase.platform.robot import load_geometry, robot_spec
+from motionbase.report import robot_reach
 from motionbase.washout import WashoutParams
 
 GOAL_S = 600.0
@@ -126,15 +126,15 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=None)
-    ap.add_argument("--platform", default="ceart")
+    ap.add_argument("--platform", default="ceart", help="a 6-DOF platform, as tune takes it")
     ap.add_argument("--start", default="default", help="washout to tune from (preset or file)")
     ap.add_argument("--profile", help="tune this flight-phase profile of the start (ground, air)")
     ap.add_argument("--tuned", help="score this washout file instead of tuning one")
     ap.add_argument("--out", help="keep the tuned file here (default: a temporary file)")
     args = ap.parse_args()
 
-    geometry = Rus6Geometry.preset(args.platform)
-    reach = rus6_reach(geometry)
+    robot, geometry = load_geometry(args.platform)
+    reach = robot_reach(robot_spec(robot).make(geometry))
     print(
         f"platform {args.platform}: reach (m, deg) lower "
         + " ".join(f"{v:.3f}" for v in np.concatenate([reach[0, :3], np.degrees(reach[0, 3:])]))
@@ -145,8 +145,8 @@ def main() -> None:
     start = WashoutParams.load(args.start)
     tuning_set = tuple(load_spec(s) for s in DEFAULT_MANOEUVRES)
     held = tuple(load_spec(s) for s in DEFAULT_HOLDOUT)
-    problem = tuning.TuningProblem(geometry, tuning_set, reach)
-    held_problem = tuning.TuningProblem(geometry, held, reach)
+    problem = tuning.TuningProblem(geometry, tuning_set, reach, robot=robot)
+    held_problem = tuning.TuningProblem(geometry, held, reach, robot=robot)
 
     print("\n(a) time")
     _time_one_evaluation(problem, start)
