@@ -331,7 +331,7 @@ def main() -> None:
             source=source,
             capacity=n_total,
             log=not args.no_log,
-            kinematics=None if args.no_scene else pipeline.robot.kin,
+            robot=None if args.no_scene else pipeline.robot,
             live=LiveAddress("127.0.0.1", 0) if args.live else None,
             live_rate_hz=args.live_rate,
         )

@@ -41,6 +41,8 @@ from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.scene import NEAR_LIMIT_DEG, SceneBuilder
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.platform import Rrr3, Rrr3Geometry, Rus6, Rus6Geometry
+from motionbase.platform.rrr3 import Rrr3Robot
+from motionbase.platform.rus6 import Rus6Robot
 from motionbase.state import AircraftState
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -313,7 +315,7 @@ def test_scene_drawn_on_the_logs_thread_leaves_the_same_file(tmp_path):
             for k in range(1, 400)]  # fmt: skip
     files = []
     for name in ("a.mcap", "b.mcap"):
-        with PipelineLog(tmp_path / name, {"kind": "test"}, kinematics=pipeline.robot.kin) as log:
+        with PipelineLog(tmp_path / name, {"kind": "test"}, robot=pipeline.robot) as log:
             for out in outs:
                 log.write(out)
         files.append((tmp_path / name).read_bytes())
@@ -329,7 +331,7 @@ def test_scene_colours_a_leg_near_its_limit_red():
     angles = robot.inverse(np.zeros(6)).copy()
     angles[1] = lo[1] + math.radians(NEAR_LIMIT_DEG - 1)  # 4 deg from the lower limit
     angles[4] = hi[4] - math.radians(NEAR_LIMIT_DEG + 1)  # 6 deg from the upper limit
-    scene = SceneBuilder(robot).message(0.0, np.zeros(6), angles, clamped=True)
+    scene = SceneBuilder(Rus6Robot(robot.geometry)).message(0.0, np.zeros(6), angles, clamped=True)
     legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
     red = [i for i, e in enumerate(legs) if e["lines"][0]["color"] == e["lines"][1]["color"]]
     assert red == [1]
@@ -344,7 +346,7 @@ def test_the_logged_scene_is_the_general_encoders_bytes(tmp_path):
     as "NaN"), and the planar robot."""
     rng = np.random.default_rng(17)
     robot = Rus6(Rus6Geometry.preset("ceart"))
-    scene = SceneBuilder(robot)
+    scene = SceneBuilder(Rus6Robot(robot.geometry))
     lo, hi = robot.angle_limits
     cases = []  # (builder, pose, angles, clamped), logged at increasing random times
     for k in range(300):
@@ -353,7 +355,7 @@ def test_the_logged_scene_is_the_general_encoders_bytes(tmp_path):
     far = np.array([0.0, 0.0, -0.6, 0.0, 0.0, 0.0])  # 0.6 m up: no crank reaches
     assert np.isnan(robot.joint_points(far)[1]).any()
     cases.append((scene, far, robot.inverse(np.zeros(6)), False))
-    planar = SceneBuilder(Rrr3(Rrr3Geometry()))
+    planar = SceneBuilder(Rrr3Robot(Rrr3Geometry()))
     home = np.array([0.13, 0.26 * math.sqrt(3) / 6, 0.0])
     for _ in range(50):
         pose = home + rng.normal(size=3) * [0.01, 0.01, 0.1]
@@ -410,7 +412,7 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
     try:
         assert subscribed.wait(30)
         time.sleep(0.5)  # the server applies the subscription on its own thread
-        scene = SceneBuilder(Rus6(Rus6Geometry.preset("ceart")))
+        scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
         for k in range(rate * seconds):
             t = k / rate
             pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 * math.sin(t)])

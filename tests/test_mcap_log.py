@@ -28,10 +28,11 @@ from motionbase.io.mcap_source import read_messages
 from motionbase.io.scene import SceneBuilder
 from motionbase.io.schemas import TOPIC_SCHEMAS
 from motionbase.physics import quaternion_from_euler_zyx
-from motionbase.platform import Rus6, Rus6Geometry
+from motionbase.platform import Rus6Geometry
+from motionbase.platform.rus6 import Rus6Robot
 
 RNG = np.random.default_rng(7)
-_SCENE = SceneBuilder(Rus6(Rus6Geometry.preset("ceart")))
+_SCENE = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
 CONFIG = {
     "source": {"kind": "jsbsim", "script": "c1723", "rate_hz": 120.0},
     "geometry": {"crank": 0.184, "rod": 0.724, "pivots": np.linspace(0, 1, 6)},

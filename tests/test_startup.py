@@ -167,7 +167,7 @@ def test_the_logs_first_scene_loads_no_compiled_code(robot, tmp_path):
     planar = robot == "udesc_symmetric"
     pipeline = Pipeline(load_config(platform=robot, planar=planar, rate_hz=200))
     out = pipeline.step(AircraftState(0.0, (0.0, 0.0, -9.80665), (0.0, 0.0, 0.0)))
-    with PipelineLog(tmp_path / "a.mcap", {}, kinematics=pipeline.robot.kin) as log:
+    with PipelineLog(tmp_path / "a.mcap", {}, robot=pipeline.robot) as log:
         assert log._scene is not None  # drawn once already, when made
         before = _overload_counts()
         log.write(out)

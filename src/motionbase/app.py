@@ -328,7 +328,7 @@ def _drive_stoppable(
                     out,
                     metadata,
                     health=pipeline.health.as_dict,
-                    kinematics=pipeline.robot.kin,
+                    robot=pipeline.robot,
                     live=live,
                     cueing=pipeline.cueing,
                 )

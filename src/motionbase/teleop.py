@@ -166,9 +166,9 @@ class _TeleopLog:
 
     label = "MCAP log"
 
-    def __init__(self, logger: Any, rrr3: Rrr3, rate_hz: float, stats: Any) -> None:
+    def __init__(self, logger: Any, robot: Rrr3Robot, rate_hz: float, stats: Any) -> None:
         self.logger = logger
-        self.scene = SceneBuilder(rrr3)
+        self.scene = SceneBuilder(robot)
         self.scene_every = max(1, round(rate_hz / SCENE_RATE_HZ))
         self.health_every = max(1, int(round(rate_hz)))
         self.stats = stats  # () -> TeleopStats
@@ -293,7 +293,7 @@ def run_teleop(
     servo = _ServoSink(sink) if sink is not None else None
     log = None
     if logger is not None:
-        log = _TeleopLog(logger, rrr3, rate_hz, lambda: TeleopStats.of(pipeline))
+        log = _TeleopLog(logger, pipeline.robot, rate_hz, lambda: TeleopStats.of(pipeline))
     sinks = [x for x in (servo, log) if x is not None]
     if hasattr(source, "view"):
         sinks.append(_Window(source, rrr3, stop))

@@ -16,7 +16,7 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
   (``/cueing/mpc``: solver status, iterations, solve time, fallback, blend weight).
 * ``/health``: the safety counters, once per second of source time and at the end.
 * ``/platform/scene``: the robot drawn at its logged pose (``foxglove.SceneUpdate``, see
-  :mod:`motionbase.io.scene`), when the log is given the robot's kinematics: at
+  :mod:`motionbase.io.scene`), when the log is given the robot: at
   :data:`~motionbase.io.scene.SCENE_RATE_HZ` (30 Hz) of source time, not every tick, and at
   the last tick. A scene is about 14 kB of JSON: the tick computes its numbers (the robot's
   compiled ``joint_points``, :meth:`~motionbase.io.scene.SceneBuilder.parts`) and the log's
@@ -107,8 +107,8 @@ class PipelineLog:
         description); stored in the file's ``motionbase`` metadata record.
     health : callable, optional
         Returns the current health counters (a dict) for ``/health``.
-    kinematics : Rus6 or Rrr3, optional
-        The robot the outputs come from: ``/platform/scene`` is written when given.
+    robot : Robot, optional
+        The robot plug-in the outputs come from: ``/platform/scene`` is written when given.
     live : LiveAddress, optional
         Also serve every topic to Foxglove over WebSocket while the log is written (at
         most :data:`~motionbase.io.mcap_log.LIVE_RATE_HZ` messages a second per topic).
@@ -125,7 +125,7 @@ class PipelineLog:
         metadata: Mapping[str, Any],
         health: Callable[[], dict[str, Any]] | None = None,
         *,
-        kinematics: Any = None,
+        robot: Any = None,
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,
         cueing: Any = None,
@@ -142,7 +142,7 @@ class PipelineLog:
             live_rate_hz=live_rate_hz,
             topics={self._cueing_topic: schema} if schema is not None else None,
         )
-        self._scene = SceneBuilder(kinematics) if kinematics is not None else None
+        self._scene = SceneBuilder(robot) if robot is not None else None
         self._scene_period = 1.0 / SCENE_RATE_HZ
         self._next_scene_t = -math.inf  # the first tick draws the scene
         self._scene_t: float | None = None  # time of the last scene drawn

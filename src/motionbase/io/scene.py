@@ -11,7 +11,7 @@ What is drawn
     entity ``base`` (a line loop through the crank pivots) and an entity ``platform`` (the
     top plate: triangles from the centroid of the platform joints, and its outline). The
     points are the robot's ``joint_points`` of the logged platform pose
-    (:meth:`motionbase.platform.Rus6.joint_points`, :meth:`motionbase.platform.Rrr3.joint_points`).
+    (:meth:`motionbase.platform.robot.Robot.joint_points`).
 
 Frames
     6-RUS: frame ``base`` (x forward, y right, z down), the parent frame of ``/tf``, so the
@@ -75,47 +75,37 @@ class SceneBuilder:
 
     Parameters
     ----------
-    kinematics : robot
-        Any robot whose ``joint_points(pose)`` gives its chains' points, ``k >= 2`` arrays
-        of shape ``(n, 3)`` (or ``(n, 2)`` for a planar robot, drawn at z = 0): the first
-        is drawn as the base, the last as the top plate, the first segment of each chain as
-        the crank and the others as the rod. Its ``angle_limits`` (``(lo, hi)`` arrays, or
-        ``(n, 2)`` intervals for the planar 3-RRR), or for linear actuators its ``limits``
-        (lengths, m; :data:`NEAR_LIMIT_M`), colour a leg near its limit; a robot without
-        them is drawn without that colour.
+    robot : Robot
+        The robot plug-in (:class:`~motionbase.platform.robot.Robot`): its ``joint_points``
+        (the first array drawn as the base, the last as the top plate, the first segment of
+        each chain as the crank and the others as the rod; a planar robot's drawn at
+        z = 0), and its actuator ``limits`` for the near-limit colour (rad, or m for linear
+        actuators: :data:`NEAR_LIMIT_M`).
     """
 
-    def __init__(self, kinematics: Any) -> None:
-        self.kin = kinematics
-        limits = getattr(kinematics, "angle_limits", None)
-        self.lower = self.upper = None
-        self.planar = False
-        self.margin = math.radians(NEAR_LIMIT_DEG)
-        if isinstance(limits, tuple):  # Rus6: (lo, hi)
-            self.lower, self.upper = (np.asarray(v, dtype=float) for v in limits)
-        elif limits is not None:  # Rrr3: (3, 2) intervals
-            self.planar = True
-            self.lower, self.upper = np.asarray(limits, dtype=float).T
-        elif hasattr(kinematics, "limits"):  # linear actuators (Stewart6): lengths, m
-            self.lower = np.asarray(kinematics.limits.lower, dtype=float)
-            self.upper = np.asarray(kinematics.limits.upper, dtype=float)
-            self.margin = NEAR_LIMIT_M
+    def __init__(self, robot: Any) -> None:
+        from motionbase.platform.robot import robot_spec
+
+        self.robot = robot
+        self.lower = np.asarray(robot.limits.lower, dtype=float)
+        self.upper = np.asarray(robot.limits.upper, dtype=float)
+        linear = robot.actuator_unit == "m"
+        self.margin = NEAR_LIMIT_M if linear else math.radians(NEAR_LIMIT_DEG)
+        self.planar = robot_spec(robot.name).planar
         self.frame = "world" if self.planar else "base"
-        geometry = getattr(kinematics, "geometry", None)
-        crank = getattr(geometry, "crank", None)
+        crank = getattr(robot.geometry, "crank", None)
         # m; a robot without cranks: a size from its base (the first points at rest)
         self._size = None if crank is None else float(np.mean(crank))
         # Draw once now, at rest: the first scene loads the robot's compiled joint_points
-        # (a few ms, a late first tick at 1 kHz). A robot whose rest pose is neither of
-        # these is drawn cold at its first tick instead.
-        rest = getattr(kinematics, "home", None)  # the planar robot's; the 6-DOF's is zero
-        at_rest = np.zeros(6) if rest is None else np.asarray(rest, dtype=float)
+        # (a few ms, a late first tick at 1 kHz). (A writable copy: numba compiles apart
+        # for the robot's read-only arrays, and the ticks' poses are writable.)
+        rest = np.array(robot.neutral_pose, dtype=float)
         with contextlib.suppress(Exception):
-            self.parts(0.0, at_rest, np.zeros(1 if self.lower is None else len(self.lower)))
+            self.parts(0.0, rest, robot.inverse(rest))
 
     def points(self, pose: np.ndarray) -> tuple[np.ndarray, ...]:
         """The chains' points of ``pose`` in the scene's frame, each (n, 3), m."""
-        pts = self.kin.joint_points(np.asarray(pose, dtype=float))
+        pts = self.robot.joint_points(np.asarray(pose, dtype=float))
         return tuple(np.column_stack([v, np.zeros(len(v))]) if v.shape[-1] == 2 else v for v in pts)
 
     def _sizes(self, pts: tuple[np.ndarray, ...]) -> tuple[float, float, float]:
@@ -127,8 +117,6 @@ class SceneBuilder:
         return 0.25 * size, 0.12 * size, 0.06 * size
 
     def _near(self, angles: np.ndarray, n: int) -> list[bool]:
-        if self.lower is None:
-            return [False] * n
         return near_limit(angles, self.lower, self.upper, self.margin).tolist()
 
     def parts(

@@ -120,6 +120,12 @@ class Robot(ABC):
         """The cue pose a robot pose realises; axes the robot lacks keep ``cue``'s."""
         return np.array(pose, dtype=float)
 
+    def joint_points(self, pose: np.ndarray) -> Any:
+        """The robot drawn at a robot pose ``(m,)``: its chains' points, ``k >= 2`` arrays of
+        shape ``(n, 3)`` (``(n, 2)`` for a planar robot), m; the first are the base joints, the
+        last the moving platform's (:mod:`motionbase.io.scene` draws them)."""
+        return self.kin.joint_points(pose)
+
     def servo(self, q: np.ndarray) -> np.ndarray | None:
         """Hobby-servo command in integer degrees, for robots driven that way (else None)."""
         return None
