@@ -116,9 +116,6 @@ class SceneBuilder:
         size = self._size
         return 0.25 * size, 0.12 * size, 0.06 * size
 
-    def _near(self, angles: np.ndarray, n: int) -> list[bool]:
-        return near_limit(angles, self.lower, self.upper, self.margin).tolist()
-
     def parts(
         self, t: float, pose: np.ndarray, angles: np.ndarray, clamped: bool = False
     ) -> list[Any]:
@@ -127,7 +124,7 @@ class SceneBuilder:
         message from them; the parameters are :meth:`message`'s)."""
         pts = self.points(pose)
         chains = [v.tolist() for v in pts]
-        near = self._near(angles, len(chains[0]))
+        near = near_limit(angles, self.lower, self.upper, self.margin).tolist()
         centre = np.mean(pts[-1], axis=0).tolist()
         return [float(t), self.frame, list(self._sizes(pts)), chains, centre, near, bool(clamped)]
 
