@@ -71,8 +71,11 @@ def manoeuvre(t: float) -> np.ndarray:
     )
 
 
-def check_no_false_cue(outputs: list, aircraft_f: np.ndarray, tilt_rate_limit: float) -> None:
-    """The cab's cue stays within what the aircraft (which never rotates) gave."""
+def check_no_false_cue(outputs: list, aircraft_f: np.ndarray, tilt_rate_limit: np.ndarray) -> None:
+    """The cab's cue stays within what the aircraft (which never rotates) gave.
+
+    ``tilt_rate_limit``: the washout's (roll, pitch), rad/s. With no yaw the cab's body rates
+    are ``p = roll rate``, ``q = pitch rate cos(roll)``, ``r = -pitch rate sin(roll)``."""
     run = np.array([o.phase == "running" for o in outputs])
     poses = np.array([o.platform_pose for o in outputs])[run]
     dev_air = np.abs(aircraft_f[run] - np.array([0.0, 0.0, -G])).max(axis=0)
@@ -80,10 +83,11 @@ def check_no_false_cue(outputs: list, aircraft_f: np.ndarray, tilt_rate_limit: f
     worst = dev_cab.max(axis=0)
     assert (worst <= dev_air).all(), f"cab cue {worst} m/s^2 beyond the aircraft's {dev_air}"
     rates = np.abs(cab_body_rates(poses, DT)).max(axis=0)
-    # the aircraft never rotates: only the tilt moves the cab, within its rate limit
-    assert (rates <= tilt_rate_limit * (1 + 1e-6)).all(), (
+    # the aircraft never rotates: only the tilt moves the cab, within its rate limits
+    limit = np.append(tilt_rate_limit, tilt_rate_limit[1])
+    assert (rates <= limit * (1 + 1e-6)).all(), (
         f"cab rotates at {np.degrees(rates)} deg/s; the aircraft does not rotate and the tilt "
-        f"may reach {math.degrees(tilt_rate_limit):.1f} deg/s"
+        f"may reach {np.degrees(tilt_rate_limit)} deg/s"
     )
     assert not any(o.rate_limited or o.held for o in outputs if o.phase == "running")
 

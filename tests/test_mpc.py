@@ -140,6 +140,25 @@ def test_constraints_hold(ceart):
     assert (np.abs(tilt_rate) <= ceart.tilt_limits[1] * 1.001 + 2 * ceart.eps_abs).all()
 
 
+def test_tilt_limits_per_axis_hold(ceart):
+    """Roll and pitch tilt with limits of their own: each holds its own angle and rate
+    limits, and the pitch tilt moves faster than the roll's limit would allow."""
+    p = dataclasses.replace(
+        ceart,
+        time_limit_ms=0.0,
+        tilt_rate_limit_deg_s=(1.0, 4.0),
+        tilt_angle_limit_deg=(3.0, 10.0),
+        tilt_accel_limit_deg_s2=(4.0, 15.0),
+    )
+    tilts = cue_tilts(p, _inputs(800))  # (roll, pitch)
+    angle, rate_limit, _ = p.tilt_limits
+    tol = 2 * p.eps_abs
+    assert (np.abs(tilts) <= angle * 1.001 + tol).all()
+    rate = np.diff(tilts, axis=0) / DT
+    assert (np.abs(rate) <= rate_limit * 1.001 + tol).all()
+    assert np.abs(rate[:, 1]).max() > 1.5 * rate_limit[0]
+
+
 def cue_tilts(params: MpcParams, u: np.ndarray) -> np.ndarray:
     cue = MpcCueing(params, DT)
     out = np.empty(6)

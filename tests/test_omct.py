@@ -8,6 +8,7 @@ numbers the OMCT prints.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -196,6 +197,13 @@ def test_linear_response_has_the_washout_s_asymptotes():
     # a force to the right
     assert omct.classical_response(p, "surge->pitch", lo)[0] == pytest.approx(0.5 / G, rel=1e-3)
     assert omct.classical_response(p, "sway->roll", lo)[0] == pytest.approx(-0.5 / G, rel=1e-3)
+    # no roll tilt (roll's angle limit 0): a sustained sway force is washed out, while
+    # surge keeps its pitch tilt
+    q = dataclasses.replace(p, tilt_angle_limit_deg=(0.0, 8.0))
+    assert abs(omct.classical_response(q, "sway", lo)[0]) < 1e-6
+    assert abs(omct.classical_response(q, "sway->roll", lo)[0]) < 1e-6
+    assert omct.classical_response(q, "sway", hi)[0] == pytest.approx(0.5, rel=1e-3)
+    assert omct.classical_response(q, "surge", lo)[0] == pytest.approx(0.5, rel=1e-3)
 
 
 def test_tight_crank_limits_lower_the_gain_where_the_linear_motion_exceeds_the_reach():

@@ -266,7 +266,7 @@ def test_a_profiled_plugin_logs_the_diagnostics_of_the_profile_it_runs():
         diagnostics_schema = ("test.Counting", {"type": "object"})
 
         def diagnostics(self) -> dict[str, float]:
-            return {"tilt_limit_deg": float(self.params.tilt_angle_limit_deg)}
+            return {"tilt_limit_deg": float(self.params.tilt_angle_limit_deg[1])}
 
     params = profiled_params(blend_s=1.0)
     cueing = ProfiledCueing(Counting, params, DT)
@@ -275,7 +275,7 @@ def test_a_profiled_plugin_logs_the_diagnostics_of_the_profile_it_runs():
     assert cueing.name == "test_counting"  # its topic: /cueing/test_counting
     assert cueing_schema(cueing) == Counting.diagnostics_schema
     message = cueing.diagnostics()
-    assert message == {"tilt_limit_deg": params.for_profile("ground").tilt_angle_limit_deg}
+    assert message == {"tilt_limit_deg": params.for_profile("ground").tilt_angle_limit_deg[1]}
     assert params.for_profile("ground").tilt_angle_limit_deg != params.tilt_angle_limit_deg
 
 

@@ -61,16 +61,16 @@ def test_sustained_forward_force_pitches_nose_up_rate_limited_and_surge_washes_o
     pitch, surge = poses[:, 4], poses[:, 0]
     kx = params.specific_force_gain[0]
     expected = np.arcsin(kx * 1.0 / G)
-    assert expected < params.tilt_angle_limit
+    assert expected < params.tilt_angle_limit[1]  # (roll, pitch)
     assert pitch[-1] == pytest.approx(expected, rel=1e-6)
     # nose up, never faster than the rate limit, never beyond the target
     assert np.all(np.diff(pitch) >= 0.0)
-    assert np.max(np.diff(pitch)) / DT <= params.tilt_rate_limit * (1 + 1e-9)
+    assert np.max(np.diff(pitch)) / DT <= params.tilt_rate_limit[1] * (1 + 1e-9)
     assert pitch.max() <= expected * (1 + 1e-9)
     # surge: first forward, then back toward neutral with the design's slowest pole
     assert surge[int(0.5 / DT)] > 0.0
     peak = np.max(np.abs(surge))
-    t_tilt = expected / params.tilt_rate_limit  # time the tilt needs to reach its target
+    t_tilt = expected / params.tilt_rate_limit[1]  # time the tilt needs to reach its target
     sigma = slowest_decay(
         params.translational_wn[0], params.translational_zeta[0], params.translational_wb[0]
     )
@@ -93,7 +93,7 @@ def test_sustained_lateral_force_rolls_toward_it_with_the_correct_sign(params, f
     # a cab at rest tilted by (roll, pitch) feels f_y = -g sin(roll) cos(pitch): the scaled cue
     felt_y = -G * np.sin(roll) * np.cos(pitch)
     assert felt_y == pytest.approx(params.specific_force_gain[1] * fy, rel=1e-6)
-    assert np.max(np.abs(np.diff(poses[:, 3]))) / DT <= params.tilt_rate_limit * (1 + 1e-9)
+    assert np.max(np.abs(np.diff(poses[:, 3]))) / DT <= params.tilt_rate_limit[0] * (1 + 1e-9)
 
 
 @pytest.mark.parametrize("fx", [1.0, -1.0])
@@ -105,17 +105,53 @@ def test_tilt_pitch_sign_matches_the_felt_gravity(params, fx):
     assert G * np.sin(pitch) == pytest.approx(params.specific_force_gain[0] * fx, rel=1e-6)
 
 
-def test_tilt_is_angle_limited(params):
+def per_axis_tilt() -> WashoutParams:
+    """The default set with different tilt limits for roll and pitch (rate, angle, accel)."""
+    return dataclasses.replace(
+        WashoutParams.preset("default"),
+        tilt_rate_limit_deg_s=(2.0, 3.5),
+        tilt_angle_limit_deg=(5.0, 7.5),
+        tilt_accel_limit_deg_s2=(5.0, 10.0),
+    )
+
+
+#: The default set (one value for roll and pitch) and a set with limits per tilt axis.
+TILT_SETS = pytest.mark.parametrize(
+    "tilt_params",
+    [
+        pytest.param(lambda: WashoutParams.preset("default"), id="one"),
+        pytest.param(per_axis_tilt, id="per-axis"),
+    ],
+)
+
+
+@TILT_SETS
+def test_tilt_is_angle_limited(tilt_params):
+    params = tilt_params()
     n = int(30.0 / DT)
     f, w = constant(n, f=(4.0, -4.0, -G))  # targets well beyond the tilt limit
     poses = ClassicalWashout(params, DT).run(f, w)
-    lim = params.tilt_angle_limit
-    assert np.max(np.abs(poses[:, 3:5])) <= lim * (1 + 1e-12)
-    # the rate limit is engaged here, and holds exactly
+    lim = params.tilt_angle_limit  # (roll, pitch), the pose's columns 3 and 4
+    assert (np.abs(poses[:, 3:5]) <= lim * (1 + 1e-12)).all()
+    # the rate limit is engaged here on each axis, and holds exactly
     rates = np.abs(np.diff(poses[:, 3:5], axis=0)) / DT
-    assert np.max(rates) == pytest.approx(params.tilt_rate_limit, rel=1e-9)
-    assert poses[-1, 4] == pytest.approx(lim, rel=1e-12)
-    assert poses[-1, 3] == pytest.approx(lim, rel=1e-12)  # f_y < 0: right wing down
+    assert rates.max(axis=0) == pytest.approx(params.tilt_rate_limit, rel=1e-9)
+    assert poses[-1, 4] == pytest.approx(lim[1], rel=1e-12)
+    assert poses[-1, 3] == pytest.approx(lim[0], rel=1e-12)  # f_y < 0: right wing down
+
+
+def test_tilt_off_about_one_axis_leaves_that_force_to_the_translational_channel():
+    """A roll tilt limit of 0 turns tilt coordination off for sway only: a sustained
+    sideways force gives no roll (its onset goes to the sway channel, which washes out),
+    while a forward force still pitches the cab to the felt angle."""
+    params = dataclasses.replace(WashoutParams.preset("default"), tilt_angle_limit_deg=(0.0, 8.0))
+    n = int(60.0 / DT)
+    f, w = constant(n, f=(0.5, 0.5, -G))
+    poses = ClassicalWashout(params, DT).run(f, w)
+    assert np.all(poses[:, 3] == 0.0)  # no roll at all
+    assert np.max(np.abs(poses[:, 1])) > 1e-3  # the onset is cued by sway ...
+    assert abs(poses[-1, 1]) < 1e-4  # ... and washed out
+    assert G * np.sin(poses[-1, 4]) == pytest.approx(params.specific_force_gain[0] * 0.5, rel=1e-6)
 
 
 def _tilt_rates(tilt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -124,20 +160,23 @@ def _tilt_rates(tilt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rate, np.diff(rate, axis=0, prepend=0.0)
 
 
-def test_tilt_brakes_before_the_angle_limit_with_a_continuous_rate(params):
+@TILT_SETS
+def test_tilt_brakes_before_the_angle_limit_with_a_continuous_rate(tilt_params):
     """A force far beyond the tilt limit, held, then released: the tilt rate ramps, it is
     never cut in one tick, and the tilt slows down before the limit instead of halting on it."""
+    params = tilt_params()
     on, off = int(15.0 / DT), int(15.0 / DT)
     f, w = constant(on + off, f=(4.0, -4.0, -G))  # both targets well beyond the limit
     f[on:] = LEVEL
     poses = ClassicalWashout(params, DT).run(f, w)
     tilt = poses[:, 3:5]  # no rotation input: the pose angles are the tilt
-    lim, vmax, amax = params.tilt_angle_limit, params.tilt_rate_limit, params.tilt_accel_limit
+    lims, vmaxs, amaxs = params.tilt_angle_limit, params.tilt_rate_limit, params.tilt_accel_limit
     rate, jump = _tilt_rates(tilt)
-    assert np.max(np.abs(tilt)) <= lim  # never beyond the angle limit, not even by rounding
-    assert np.max(np.abs(rate)) <= vmax * (1 + 1e-9)
-    assert np.max(np.abs(jump)) <= amax * DT * (1 + 1e-9)  # the rate never steps
+    assert (np.abs(tilt) <= lims).all()  # never beyond the angle limit, not even by rounding
+    assert (np.abs(rate) <= vmaxs * (1 + 1e-9)).all()
+    assert (np.abs(jump) <= amaxs * DT * (1 + 1e-9)).all()  # the rate never steps
     for axis in (0, 1):  # f_y < 0 rolls right wing down (+), f_x > 0 pitches nose up (+)
+        lim, vmax, amax = lims[axis], vmaxs[axis], amaxs[axis]
         x, v = tilt[:on, axis], rate[:on, axis]
         k_hold = int(np.argmax(x == lim))  # first tick exactly on the limit
         assert x[k_hold] == lim and np.all(x[k_hold:] == lim)  # then held there exactly
@@ -167,16 +206,16 @@ def test_tilt_brakes_before_the_angle_limit_with_a_continuous_rate(params):
 def test_tilt_limits_hold_for_any_specific_force_history(levels, hold):
     """Piecewise-constant forces (jumps of either sign, held for ``hold`` ticks): the tilt
     never leaves the angle limit and its rate never exceeds the rate limit or steps by
-    more than the acceleration limit allows."""
-    params = WashoutParams.preset("default")
+    more than the acceleration limit allows, each axis within its own limits."""
+    params = per_axis_tilt()
     fxy = np.repeat(levels, hold, axis=0)
     f = np.column_stack([fxy, np.full(len(fxy), -G)])
     poses = ClassicalWashout(params, DT).run(f, np.zeros_like(f))
     tilt = poses[:, 3:5]
     rate, jump = _tilt_rates(tilt)
-    assert np.max(np.abs(tilt)) <= params.tilt_angle_limit
-    assert np.max(np.abs(rate)) <= params.tilt_rate_limit * (1 + 1e-9)
-    assert np.max(np.abs(jump)) <= params.tilt_accel_limit * DT * (1 + 1e-9)
+    assert (np.abs(tilt) <= params.tilt_angle_limit).all()
+    assert (np.abs(rate) <= params.tilt_rate_limit * (1 + 1e-9)).all()
+    assert (np.abs(jump) <= params.tilt_accel_limit * DT * (1 + 1e-9)).all()
 
 
 # --- heave ---------------------------------------------------------------------------------

@@ -33,8 +33,8 @@ def test_presets_load_and_round_trip_exactly(name, tmp_path):
 
 def test_si_views_convert_degrees():
     p = WashoutParams.preset("default")
-    assert p.tilt_rate_limit == pytest.approx(math.radians(p.tilt_rate_limit_deg_s))
-    assert p.tilt_angle_limit == pytest.approx(math.radians(p.tilt_angle_limit_deg))
+    assert p.tilt_rate_limit == pytest.approx([math.radians(v) for v in p.tilt_rate_limit_deg_s])
+    assert p.tilt_angle_limit == pytest.approx([math.radians(v) for v in p.tilt_angle_limit_deg])
     assert np.allclose(p.angular_velocity_limit, np.radians(p.angular_velocity_limit_deg_s))
     assert p.gravity == p.g == 9.80665
 
@@ -42,14 +42,16 @@ def test_si_views_convert_degrees():
 def test_default_follows_the_simona_structure():
     p = WashoutParams.preset("default")
     # DESIGN.md: tilt low-pass 2 rad/s, zeta 1, tilt rate 3 deg/s; zeta 1 everywhere
-    assert p.tilt_wn == 2.0 and p.tilt_zeta == 1.0 and p.tilt_rate_limit_deg_s == 3.0
+    assert p.tilt_wn == 2.0 and p.tilt_zeta == 1.0 and p.tilt_rate_limit_deg_s == (3.0, 3.0)
     assert p.translational_zeta == (1.0, 1.0, 1.0)
     assert p.method == "tustin"
     gentle = WashoutParams.preset("gentle")
     assert all(
         g <= d for g, d in zip(gentle.specific_force_gain, p.specific_force_gain, strict=True)
     )
-    assert gentle.tilt_angle_limit_deg < p.tilt_angle_limit_deg
+    assert all(
+        g < d for g, d in zip(gentle.tilt_angle_limit_deg, p.tilt_angle_limit_deg, strict=True)
+    )
 
 
 @pytest.mark.parametrize("name", ["default", "gentle", "telemetry"])
@@ -158,9 +160,44 @@ def test_tilt_accel_limit_is_optional_in_files_written_before_it():
     d = copy.deepcopy(_base())
     del d["tilt"]["accel_limit_deg_s2"]
     p = WashoutParams.from_dict(d, source="old.toml")
-    assert p.tilt_accel_limit_deg_s2 == DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
-    assert p.tilt_accel_limit == pytest.approx(math.radians(DEFAULT_TILT_ACCEL_LIMIT_DEG_S2))
+    assert p.tilt_accel_limit_deg_s2 == (DEFAULT_TILT_ACCEL_LIMIT_DEG_S2,) * 2
+    assert p.tilt_accel_limit == pytest.approx([math.radians(DEFAULT_TILT_ACCEL_LIMIT_DEG_S2)] * 2)
     assert WashoutParams.from_dict(p.to_dict()) == p  # written back with the key
+
+
+def test_tilt_limits_take_one_number_or_a_roll_pitch_pair():
+    """Each tilt limit is one number for both tilt axes or ``[roll, pitch]``; written back
+    as one number when both are equal, as the pair otherwise; a pair that is not two valid
+    numbers is refused naming the field."""
+    d = copy.deepcopy(_base())
+    d["tilt"].update(
+        rate_limit_deg_s=[2.0, 3.5], angle_limit_deg=[0.0, 9.0], accel_limit_deg_s2=6.0
+    )
+    p = WashoutParams.from_dict(d, source="my.toml")
+    assert p.tilt_rate_limit_deg_s == (2.0, 3.5)
+    assert p.tilt_angle_limit_deg == (0.0, 9.0)  # no roll tilt: sway is not tilt-coordinated
+    assert p.tilt_accel_limit_deg_s2 == (6.0, 6.0)
+    assert p.tilt_rate_limit == pytest.approx(np.radians([2.0, 3.5]))
+    out = p.to_dict()["tilt"]
+    assert out["rate_limit_deg_s"] == [2.0, 3.5] and out["accel_limit_deg_s2"] == 6.0
+    assert WashoutParams.from_dict(p.to_dict()) == p
+    for key, value, match in (
+        ("rate_limit_deg_s", [3.0, 3.0, 3.0], "tilt.rate_limit_deg_s.*expected 2 numbers"),
+        ("rate_limit_deg_s", [3.0, 0.0], "tilt.rate_limit_deg_s.*> 0"),
+        ("accel_limit_deg_s2", [-1.0, 8.0], "tilt.accel_limit_deg_s2"),
+        ("angle_limit_deg", [8.0, 90.0], "tilt.angle_limit_deg.*< 90 deg"),
+        ("angle_limit_deg", [8.0, "9"], "tilt.angle_limit_deg"),
+    ):
+        bad = copy.deepcopy(_base())
+        bad["tilt"][key] = value
+        with pytest.raises(ConfigError, match=rf"^my\.toml: .*{match}"):
+            WashoutParams.from_dict(bad, source="my.toml")
+    # a profile may override one axis's limits
+    d = copy.deepcopy(_base())
+    d["profile"] = {"ground": {"tilt": {"rate_limit_deg_s": [1.0, 3.0]}}}
+    p = WashoutParams.from_dict(d, source="my.toml")
+    assert p.for_profile("ground").tilt_rate_limit_deg_s == (1.0, 3.0)
+    assert WashoutParams.from_dict(p.to_dict()) == p
 
 
 def test_input_table_is_optional_and_checked():
@@ -201,7 +238,7 @@ _gain = st.floats(0.0, 2.0, allow_nan=False, allow_infinity=False)
 @settings(max_examples=100, deadline=None)
 @given(
     st.lists(_gain, min_size=6, max_size=6),
-    st.lists(_pos, min_size=21, max_size=21),
+    st.lists(_pos, min_size=22, max_size=22),
     st.floats(0.0, 89.9),
     st.sampled_from(["tustin", "zoh"]),
     st.text(max_size=20),
@@ -217,7 +254,7 @@ def test_any_valid_parameter_set_round_trips_exactly(gains, pos, angle, method, 
         translational_wb=tuple(pos[12:15]),
         tilt_wn=pos[15],
         tilt_zeta=pos[16],
-        tilt_rate_limit_deg_s=pos[17],
+        tilt_rate_limit_deg_s=(pos[17], pos[21]),
         tilt_angle_limit_deg=angle,
         rotational_wn=tuple(pos[18:21]),
         rotational_zeta=tuple(pos[9:12]),

@@ -536,7 +536,8 @@ def classical_response(
         )
         return resp(blk, wn)
 
-    if params.tilt_angle_limit > 0.0:
+    # surge is tilt-coordinated by pitch (tilt axis 1), sway by roll (0)
+    if i < 2 and params.tilt_angle_limit_deg[1 - i] > 0.0:
         low = resp(lowpass2(params.tilt_wn, params.tilt_zeta), params.tilt_wn)
     else:
         low = np.zeros_like(s)  # tilt coordination disabled: the channel renders it all

@@ -94,9 +94,9 @@ angular-velocity gain    ``scaling.angular_velocity_gain`` r, p, y   0.05 .. 1
 translational wn         ``translational.wn`` x, y, z                0.3 .. 20 rad/s
 translational wb         ``translational.wb`` x and y (one), z       0.05 .. 3 rad/s
 tilt low-pass wn         ``tilt.wn``                                 0.3 .. 20 rad/s
-tilt rate limit          ``tilt.rate_limit_deg_s``                   1 .. 6 deg/s
-tilt angle limit         ``tilt.angle_limit_deg``                    1 .. 20 deg
-tilt acceleration limit  ``tilt.accel_limit_deg_s2``                 2 .. 40 deg/s^2
+tilt rate limit          ``tilt.rate_limit_deg_s`` r, p (one)        1 .. 6 deg/s
+tilt angle limit         ``tilt.angle_limit_deg`` r, p (one)         1 .. 20 deg
+tilt acceleration limit  ``tilt.accel_limit_deg_s2`` r, p (one)      2 .. 40 deg/s^2
 rotational wn            ``rotational.wn`` roll, pitch, yaw          0.2 .. 5 rad/s
 =======================  ==========================================  =================
 
@@ -246,9 +246,9 @@ KNOBS: tuple[Knob, ...] = (
     Knob("trans wb x,y", "translational_wb", (0, 1), 0.05, 3.0),
     Knob("trans wb z", "translational_wb", (2,), 0.05, 3.0),
     Knob("tilt wn", "tilt_wn", None, 0.3, 20.0),
-    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", None, 1.0, 6.0),
-    Knob("tilt angle deg", "tilt_angle_limit_deg", None, 1.0, 20.0),
-    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", None, 2.0, 40.0),
+    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", (0, 1), 1.0, 6.0),
+    Knob("tilt angle deg", "tilt_angle_limit_deg", (0, 1), 1.0, 20.0),
+    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", (0, 1), 2.0, 40.0),
     Knob("rot wn roll", "rotational_wn", (0,), 0.2, 5.0),
     Knob("rot wn pitch", "rotational_wn", (1,), 0.2, 5.0),
     Knob("rot wn yaw", "rotational_wn", (2,), 0.2, 5.0),
@@ -275,8 +275,8 @@ MPC_KNOBS: tuple[Knob, ...] = (
     Knob("ref sf x,y m/s2", "specific_force_limit", (0, 1), 0.5, 5.0),
     Knob("ref sf z m/s2", "specific_force_limit", (2,), 0.1, 3.0),
     Knob("ref ang deg/s", "angular_velocity_limit_deg_s", (0, 1, 2), 5.0, 60.0),
-    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", None, 1.0, 6.0),
-    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", None, 2.0, 40.0),
+    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", (0, 1), 1.0, 6.0),
+    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", (0, 1), 2.0, 40.0),
 )
 
 #: The knobs of each cueing (its registry name, :data:`~motionbase.washout.cueing.CUEINGS`).

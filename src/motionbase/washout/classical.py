@@ -27,7 +27,8 @@ simulation motion-base drive algorithms: part 1", UTIAS Report 296, 1985):
    then each is angle-limited and followed by a tracker that limits the tilt rate
    (``|d tilt/dt| <= tilt_rate_limit``, below the semicircular canals' threshold)
    *and* the tilt acceleration (``|d^2 tilt/dt^2| <= tilt_accel_limit``), so the tilt
-   rate never steps (see "Tilt tracker" below). A cab at rest tilted by (roll, pitch)
+   rate never steps (see "Tilt tracker" below). Roll and pitch each have their own angle,
+   rate and acceleration limits. A cab at rest tilted by (roll, pitch)
    feels ``f = (g sin pitch, -g sin roll cos pitch, -g cos roll cos pitch)``, so a
    sustained forward ``f_x > 0`` pitches the nose up and a sustained ``f_y > 0`` rolls
    left wing down (negative roll). The tilt is never high-passed.
@@ -145,10 +146,15 @@ _TPHI, _TG0, _TG1 = 0, 27, 36  # translational: 3 axes x (3x3), 3 x 3, 3 x 3
 _RPHI, _RG0, _RG1 = 45, 57, 63  # rotational: 3 axes x (2x2), 3 x 2, 3 x 2
 _LPHI, _LG0, _LG1 = 69, 77, 81  # tilt low-pass: 2 axes x (2x2), 2 x 2, 2 x 2
 _KF, _FLIM, _KW, _WLIM = 85, 88, 91, 94
-_G, _TVMAX, _TLIM, _TU, _DT, _TK = 97, 98, 99, 100, 101, 102
-_PON, _PPHI, _PG0, _PG1 = 103, 104, 108, 110  # input low-pass: on flag, (2x2), 2, 2
-_XON, _XA, _XV = 112, 115, 118  # cue limiter per axis: on flag, accel limit, velocity limit
-_NC = 121
+_G, _DT = 97, 98
+# tilt tracker per tilt axis (roll, pitch): rate limit, angle limit, rate change per tick,
+# 1/tau of the glide
+_TVMAX, _TLIM, _TU, _TK = 99, 101, 103, 105
+_PON, _PPHI, _PG0, _PG1 = 107, 108, 112, 114  # input low-pass: on flag, (2x2), 2, 2
+# cue limiter per axis: on flag, velocity limit (inf: off), velocity change per tick (inf:
+# off), 1/tau of the glide (0 without a velocity limit)
+_XON, _XV, _XU, _XK = 116, 119, 122, 125
+_NC = 128
 
 # state
 _QT, _UT = 0, 9  # translational states (axis*3 + [integral, position, velocity]), inputs
@@ -181,11 +187,12 @@ def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
     Rate, acceleration and angle limits with the glide (:func:`motionbase.physics.track_toward`;
     module docstring, "Tilt tracker").
     """
-    dt, lim = cf[_DT], cf[_TLIM]
+    dt, lim = cf[_DT], cf[_TLIM + i]
     q0 = st[_TILT + i]
     q = track_toward(
-        q0, st[_TRATE + i], st[_TTGT + i], tgt, dt, -lim, lim, cf[_TVMAX], cf[_TU], cf[_TK]
-    )[0]
+        q0, st[_TRATE + i], st[_TTGT + i], tgt, dt, -lim, lim, cf[_TVMAX + i], cf[_TU + i],
+        cf[_TK + i],
+    )[0]  # fmt: skip
     st[_TRATE + i] = (q - q0) / dt
     st[_TTGT + i] = tgt
     st[_TILT + i] = q
@@ -200,11 +207,9 @@ def _cue_track(cf, st, i, tgt):  # pragma: no cover - compiled
     dt = cf[_DT]
     j = _XS + 3 * i
     q0 = st[j]
-    a = cf[_XA + i]
-    vmax = cf[_XV + i] if cf[_XV + i] > 0.0 else np.inf
-    u = a * dt if a > 0.0 else np.inf
-    k = a / vmax if a > 0.0 else 0.0  # (0 without a velocity limit: the braking curve alone)
-    q = track_toward(q0, st[j + 1], st[j + 2], tgt, dt, -np.inf, np.inf, vmax, u, k)[0]
+    q = track_toward(
+        q0, st[j + 1], st[j + 2], tgt, dt, -np.inf, np.inf, cf[_XV + i], cf[_XU + i], cf[_XK + i]
+    )[0]
     st[j + 1] = (q - q0) / dt
     st[j + 2] = tgt
     st[j] = q
@@ -265,9 +270,8 @@ def _step_kernel(cf, st, fx, fy, fz, wx, wy, wz, out):  # pragma: no cover - com
     pitch_t = np.arcsin(_clip(fl0 / g, -1.0, 1.0))
     cpt = max(np.cos(pitch_t), _COS_MIN)
     roll_t = -np.arcsin(_clip(fl1 / (g * cpt), -1.0, 1.0))
-    tlim = cf[_TLIM]
-    tr = _tilt_track(cf, st, 0, _clip(roll_t, -tlim, tlim))
-    tp = _tilt_track(cf, st, 1, _clip(pitch_t, -tlim, tlim))
+    tr = _tilt_track(cf, st, 0, _clip(roll_t, -cf[_TLIM], cf[_TLIM]))
+    tp = _tilt_track(cf, st, 1, _clip(pitch_t, -cf[_TLIM + 1], cf[_TLIM + 1]))
 
     # 3. rotational channel: Euler rates at the previous attitude, high-pass, integrate
     ph = st[_POSE + 3]
@@ -524,11 +528,11 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
     cf[_KW : _KW + 3] = params.angular_velocity_gain
     cf[_WLIM : _WLIM + 3] = params.angular_velocity_limit
     cf[_G] = params.g
-    cf[_TVMAX] = params.tilt_rate_limit
-    cf[_TLIM] = params.tilt_angle_limit
-    cf[_TU] = params.tilt_accel_limit * dt
     cf[_DT] = dt
-    cf[_TK] = params.tilt_accel_limit / params.tilt_rate_limit  # 1/tau of the glide
+    cf[_TVMAX : _TVMAX + 2] = params.tilt_rate_limit
+    cf[_TLIM : _TLIM + 2] = params.tilt_angle_limit
+    cf[_TU : _TU + 2] = params.tilt_accel_limit * dt
+    cf[_TK : _TK + 2] = params.tilt_accel_limit / params.tilt_rate_limit  # 1/tau of the glide
     wn = params.input_lowpass_wn
     if wn > 0.0:
         d = discretise(lowpass2(wn, 1.0), dt, m, prewarp=wn if m == "tustin" else None)
@@ -540,8 +544,10 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
         a = params.translational_accel_limit[i]
         v = params.translational_velocity_limit[i]
         cf[_XON + i] = 1.0 if (a > 0.0 or v > 0.0) else 0.0
-        cf[_XA + i] = a
-        cf[_XV + i] = v
+        vmax = v if v > 0.0 else np.inf
+        cf[_XV + i] = vmax
+        cf[_XU + i] = a * dt if a > 0.0 else np.inf
+        cf[_XK + i] = a / vmax if a > 0.0 else 0.0  # (0 without a velocity limit: braking alone)
     return cf
 
 

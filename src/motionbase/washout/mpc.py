@@ -259,18 +259,12 @@ def build_model(params: MpcParams, dt: float) -> MpcModel:
         S[16 + _POSE_OF[d], ND + d] = tau
     S[12, 3] = S[13, 4] = 1.0
     S[14, ND + 3] = S[15, ND + 4] = 1.0
-    tilt = params.tilt_limits
+    tilt = params.tilt_limits  # rows angle, rate, acceleration; columns roll, pitch
     box_hi = np.concatenate(
-        [params.pose_upper, params.velocity_limit, [tilt[0]] * 2, [tilt[1]] * 2, params.pose_upper]
+        [params.pose_upper, params.velocity_limit, tilt[0], tilt[1], params.pose_upper]
     )
     box_lo = np.concatenate(
-        [
-            params.pose_lower,
-            -params.velocity_limit,
-            [-tilt[0]] * 2,
-            [-tilt[1]] * 2,
-            params.pose_lower,
-        ]
+        [params.pose_lower, -params.velocity_limit, -tilt[0], -tilt[1], params.pose_lower]
     )
     Sbar = scipy.linalg.block_diag(*[S] * N)
     term = np.zeros((ND, N * NX))
@@ -279,7 +273,7 @@ def build_model(params: MpcParams, dt: float) -> MpcModel:
     for d in range(ND):
         Su[_POSE_OF[d], d] = 1.0
     Su[6, 3] = Su[7, 4] = 1.0
-    acc_hi = np.concatenate([params.acceleration_limit, [tilt[2]] * 2])
+    acc_hi = np.concatenate([params.acceleration_limit, tilt[2]])
     A_con = np.vstack([Sbar @ Gam, term @ Gam, scipy.linalg.block_diag(*[Su] * N)])
     Sz = np.vstack([Sbar @ Phi, term @ Phi, np.zeros((8 * N, NX))])
     # the exogenous inputs do not move the platform's states: Sbar @ Lam is zero
@@ -578,8 +572,8 @@ class MpcCueing(Cueing):
         if k < self._N:
             return self._plan[k].copy()
         v = self.z[ND : 2 * ND]
-        lim = np.concatenate([self.params.acceleration_limit, self.params.tilt_limits[2:]])
-        a_lim = lim[[0, 1, 2, 6, 6, 3, 4, 5]]  # per dof
+        lim = np.concatenate([self.params.acceleration_limit, self.params.tilt_limits[2]])
+        a_lim = lim[[0, 1, 2, 6, 7, 3, 4, 5]]  # per dof
         return np.clip(-v / self.dt, -a_lim, a_lim)
 
     def track(self, achieved: np.ndarray) -> None:

@@ -19,7 +19,7 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     tilt = [0.1, 0.0, 0.01, 1e-4]      # the tilt's angle, rate, acceleration, jerk
 
     [tilt]                             # perception thresholds, hard constraints on the tilt
-    rate_limit_deg_s = 3.0
+    rate_limit_deg_s = 3.0             # each one number, or [roll, pitch]
     accel_limit_deg_s2 = 8.0
     angle_limit_deg = 15.0
 
@@ -100,9 +100,9 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("weights", "acceleration", "w_acceleration", 6, False, False),
     ("weights", "jerk", "w_jerk", 6, False, False),
     ("weights", "tilt", "w_tilt", 4, False, False),
-    ("tilt", "rate_limit_deg_s", "tilt_rate_limit_deg_s", 0, True, False),
-    ("tilt", "accel_limit_deg_s2", "tilt_accel_limit_deg_s2", 0, True, False),
-    ("tilt", "angle_limit_deg", "tilt_angle_limit_deg", 0, False, False),
+    ("tilt", "rate_limit_deg_s", "tilt_rate_limit_deg_s", 2, True, False),
+    ("tilt", "accel_limit_deg_s2", "tilt_accel_limit_deg_s2", 2, True, False),
+    ("tilt", "angle_limit_deg", "tilt_angle_limit_deg", 2, False, False),
     ("limits", "position_lower_m", "position_lower_m", 3, False, False),
     ("limits", "position_upper_m", "position_upper_m", 3, True, False),
     ("limits", "angle_lower_deg", "angle_lower_deg", 3, False, False),
@@ -171,9 +171,9 @@ class MpcParams:
         per axis x, y, z, roll, pitch, yaw.
     w_tilt : (4,) float
         Cost weights of the tilt angle, rate, acceleration and jerk (roll and pitch alike).
-    tilt_rate_limit_deg_s, tilt_accel_limit_deg_s2, tilt_angle_limit_deg : float
-        Hard limits of the tilt (the perception thresholds of rotation), deg/s, deg/s^2,
-        deg.
+    tilt_rate_limit_deg_s, tilt_accel_limit_deg_s2, tilt_angle_limit_deg : (2,) float
+        Hard limits of the tilt (the perception thresholds of rotation) per tilt axis
+        (roll, pitch), deg/s, deg/s^2, deg. The file may give one number for both.
     position_lower_m, position_upper_m : (3,) float
         Pose box, m (lower < 0 < upper).
     angle_lower_deg, angle_upper_deg : (3,) float
@@ -226,9 +226,9 @@ class MpcParams:
     w_acceleration: Vec6
     w_jerk: Vec6
     w_tilt: tuple[float, float, float, float]
-    tilt_rate_limit_deg_s: float
-    tilt_accel_limit_deg_s2: float
-    tilt_angle_limit_deg: float
+    tilt_rate_limit_deg_s: tuple[float, float]
+    tilt_accel_limit_deg_s2: tuple[float, float]
+    tilt_angle_limit_deg: tuple[float, float]
     position_lower_m: Vec3
     position_upper_m: Vec3
     angle_lower_deg: Vec3
@@ -291,7 +291,8 @@ class MpcParams:
 
     @property
     def tilt_limits(self) -> np.ndarray:
-        """Tilt angle, rate and acceleration limits, rad, rad/s, rad/s^2, shape (3,)."""
+        """Tilt angle, rate and acceleration limits (rows), rad, rad/s, rad/s^2, per tilt
+        axis roll, pitch (columns), shape (3, 2)."""
         return np.radians(
             [self.tilt_angle_limit_deg, self.tilt_rate_limit_deg_s, self.tilt_accel_limit_deg_s2]
         )
@@ -352,10 +353,13 @@ class MpcParams:
         return cls(**_validate(d, source))
 
     def to_dict(self) -> dict[str, Any]:
-        """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly."""
+        """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly.
+        A tilt limit equal for roll and pitch is one number."""
         out: dict[str, Any] = {"description": self.description, "g": self.g}
         for section, key, name, length, *_ in _SCHEMA:
             value = getattr(self, name)
+            if section == "tilt" and value[0] == value[1]:
+                value, length = value[0], 0
             out.setdefault(section, {})[key] = list(value) if length else value
         out["solver"]["fallback"] = self.fallback
         return out
@@ -402,7 +406,7 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         raise ConfigError(
             f"{source}: field 'robot.speed_share': must be in (0, 1], got {out['speed_share']}"
         )
-    if out["tilt_angle_limit_deg"] >= 90.0:
+    if max(out["tilt_angle_limit_deg"]) >= 90.0:
         raise ConfigError(f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg")
     fallback = d["solver"]["fallback"]
     if not isinstance(fallback, str) or not fallback:

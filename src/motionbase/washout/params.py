@@ -22,8 +22,8 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
     [tilt]                       # wn^2/(s^2 + 2 zeta wn s + wn^2) on f_x, f_y
     wn = 2.0                     # rad/s
     zeta = 1.0
-    rate_limit_deg_s = 3.0
-    angle_limit_deg = 8.0
+    rate_limit_deg_s = 3.0       # one number for roll and pitch, or [roll, pitch]
+    angle_limit_deg = [6.0, 8.0] # [roll, pitch]: roll tilt renders f_y, pitch tilt f_x
     accel_limit_deg_s2 = 8.0     # optional (default 8 deg/s^2)
 
     [rotational]                 # s/(s^2 + 2 zeta wn s + wn^2) on Euler rates, per axis
@@ -45,6 +45,12 @@ name says ``_deg``), so ``from_dict(p.to_dict()) == p`` exactly; the SI values t
 filter uses are the properties ``angular_velocity_limit``, ``tilt_rate_limit``,
 ``tilt_angle_limit`` and ``tilt_accel_limit`` (radians).
 
+The tilt's three limits (``rate_limit_deg_s``, ``angle_limit_deg``, ``accel_limit_deg_s2``)
+are each one number for both tilt axes or a pair ``[roll, pitch]``: the roll tilt renders
+sustained sway (``f_y``), the pitch tilt sustained surge (``f_x``), and a platform's roll and
+pitch reach, or the rotation a builder accepts about each axis, often differ. The fields are
+always pairs; :meth:`WashoutParams.to_dict` writes one number when both are equal.
+
 ``tilt.accel_limit_deg_s2`` may be left out (files written before it existed): it then
 takes :data:`DEFAULT_TILT_ACCEL_LIMIT_DEG_S2`. The ``[input]`` table may be left out too
 (no input low-pass, as before it existed), and so may ``translational.accel_limit`` and
@@ -65,7 +71,6 @@ a phase, the file's own values run.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -93,6 +98,8 @@ from motionbase.washout.filters import METHODS
 DEFAULT_TILT_ACCEL_LIMIT_DEG_S2 = 8.0
 
 Vec3 = tuple[float, float, float]
+#: A tilt limit per tilt axis: (roll, pitch).
+Vec2 = tuple[float, float]
 
 _SECTIONS: dict[str, tuple[str, ...]] = {
     "scaling": (
@@ -117,6 +124,8 @@ _OPTIONAL: dict[str, dict[str, float]] = {
 _OPTIONAL_SECTIONS = ("input",)
 #: Optional per-axis keys, off (0) by default, written only when set.
 _OFF_VECTORS: dict[str, tuple[str, ...]] = {"translational": ("accel_limit", "velocity_limit")}
+#: Keys that hold one value per tilt axis (roll, pitch); the file may give one number.
+_TILT_PAIRS = ("rate_limit_deg_s", "angle_limit_deg", "accel_limit_deg_s2")
 #: The flight-phase profiles a file may hold (``[profile.<name>]``).
 PROFILES = ("ground", "air")
 #: Blend time between profiles when a file does not give one, s.
@@ -145,16 +154,18 @@ class WashoutParams:
         and first-order break (rad/s, > 0).
     tilt_wn, tilt_zeta : float
         Tilt-coordination low-pass: natural frequency (rad/s, > 0), damping (> 0).
-    tilt_rate_limit_deg_s : float
-        Largest tilt rate, deg/s, > 0 (keep it below the canals' ~3 deg/s threshold).
-    tilt_angle_limit_deg : float
-        Largest tilt angle, deg, in [0, 90); 0 disables tilt coordination.
+    tilt_rate_limit_deg_s : (2,) float
+        Largest tilt rate per tilt axis (roll, pitch), deg/s, > 0 (keep it below the
+        canals' ~3 deg/s threshold). One number is taken for both axes.
+    tilt_angle_limit_deg : (2,) float
+        Largest tilt angle per tilt axis (roll, pitch), deg, in [0, 90); 0 disables tilt
+        coordination about that axis (roll: sway, pitch: surge).
     rotational_wn, rotational_zeta : (3,) float
         Second-order high-pass on the Euler rates per axis (roll, pitch, yaw).
-    tilt_accel_limit_deg_s2 : float
-        Largest change of the tilt rate, deg/s^2, > 0: the tilt rate builds up and
-        dies down smoothly, and the tilt brakes before its angle limit instead of
-        stopping dead on it.
+    tilt_accel_limit_deg_s2 : (2,) float
+        Largest change of the tilt rate per tilt axis (roll, pitch), deg/s^2, > 0: the
+        tilt rate builds up and dies down smoothly, and the tilt brakes before its angle
+        limit instead of stopping dead on it.
     input_lowpass_wn : float
         Natural frequency of the critically damped second-order low-pass on every input
         channel, rad/s, >= 0; 0 turns it off (for sources that hold sparse samples, such as
@@ -185,11 +196,11 @@ class WashoutParams:
     translational_wb: Vec3
     tilt_wn: float
     tilt_zeta: float
-    tilt_rate_limit_deg_s: float
-    tilt_angle_limit_deg: float
+    tilt_rate_limit_deg_s: Vec2
+    tilt_angle_limit_deg: Vec2
     rotational_wn: Vec3
     rotational_zeta: Vec3
-    tilt_accel_limit_deg_s2: float = DEFAULT_TILT_ACCEL_LIMIT_DEG_S2
+    tilt_accel_limit_deg_s2: Vec2 = (DEFAULT_TILT_ACCEL_LIMIT_DEG_S2,) * 2
     input_lowpass_wn: float = 0.0
     translational_accel_limit: Vec3 = (0.0, 0.0, 0.0)
     translational_velocity_limit: Vec3 = (0.0, 0.0, 0.0)
@@ -283,19 +294,19 @@ class WashoutParams:
         return self.g
 
     @property
-    def tilt_rate_limit(self) -> float:
-        """Largest tilt rate, rad/s."""
-        return math.radians(self.tilt_rate_limit_deg_s)
+    def tilt_rate_limit(self) -> np.ndarray:
+        """Largest tilt rate (roll, pitch), rad/s, shape (2,)."""
+        return np.radians(self.tilt_rate_limit_deg_s)
 
     @property
-    def tilt_angle_limit(self) -> float:
-        """Largest tilt angle, rad."""
-        return math.radians(self.tilt_angle_limit_deg)
+    def tilt_angle_limit(self) -> np.ndarray:
+        """Largest tilt angle (roll, pitch), rad, shape (2,)."""
+        return np.radians(self.tilt_angle_limit_deg)
 
     @property
-    def tilt_accel_limit(self) -> float:
-        """Largest tilt acceleration, rad/s^2."""
-        return math.radians(self.tilt_accel_limit_deg_s2)
+    def tilt_accel_limit(self) -> np.ndarray:
+        """Largest tilt acceleration (roll, pitch), rad/s^2, shape (2,)."""
+        return np.radians(self.tilt_accel_limit_deg_s2)
 
     # --- construction ---------------------------------------------------------------------
 
@@ -364,13 +375,18 @@ class WashoutParams:
     def to_dict(self) -> dict[str, Any]:
         """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly.
 
-        The optional per-axis cue limits and the ``[profile]`` table appear only when set."""
+        The optional per-axis cue limits and the ``[profile]`` table appear only when set; a
+        tilt limit equal for roll and pitch is one number."""
         flat = {name: getattr(self, name) for name in self.__dataclass_fields__}
         out = _nest(flat)
         for section, keys in _OFF_VECTORS.items():
             for key in keys:
                 if not any(out[section][key]):
                     del out[section][key]
+        for key in _TILT_PAIRS:
+            value = out["tilt"][key]  # (a number before validation, when built directly)
+            if isinstance(value, list) and len(value) == 2 and value[0] == value[1]:
+                out["tilt"][key] = value[0]
         if self.profiles or self.profile_blend_s != DEFAULT_PROFILE_BLEND_S:
             profile: dict[str, Any] = {"blend_s": self.profile_blend_s}
             for name, items in self.profiles:
@@ -434,12 +450,18 @@ def _profile_tables(source: str, tables: dict[str, Any]) -> tuple:
                     continue
                 value = sub[key]
                 if isinstance(value, (list, tuple, np.ndarray)):
-                    value = tuple(as_array(where, f"{section}.{key}", value, 3).tolist())
+                    size = _length(section, key)
+                    value = tuple(as_array(where, f"{section}.{key}", value, size).tolist())
                 else:
                     value = as_float(where, f"{section}.{key}", value)
                 items.append((section, key, value))
         out.append((name, tuple(items)))
     return tuple(out)
+
+
+def _length(section: str, key: str) -> int:
+    """How many values a vector key holds: 2 for the tilt's limits (roll, pitch), else 3."""
+    return 2 if section == "tilt" and key in _TILT_PAIRS else 3
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -460,12 +482,13 @@ def _nest(flat: dict[str, Any]) -> dict[str, Any]:
 def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
     """Check the nested mapping; return flat field values (tuples of floats, floats)."""
 
-    def vec(section: str, key: str, *, strict: bool, unit: str = "") -> Vec3:
+    def vec(section: str, key: str, *, strict: bool, unit: str = "") -> tuple[float, ...]:
+        """Per axis: x, y, z; the tilt's limits: roll, pitch (one number: all axes)."""
         name = f"{section}.{key}"
-        arr = as_array(source, name, d[section].get(key, 0.0), 3)
+        arr = as_array(source, name, d[section].get(key, 0.0), _length(section, key))
         for v in arr:
             as_float(source, name, float(v), min_value=0.0, strict_min=strict, unit=unit)
-        return tuple(float(v) for v in arr)  # type: ignore[return-value]
+        return tuple(float(v) for v in arr)
 
     def num(section: str, key: str, *, strict: bool, unit: str = "") -> float:
         return as_float(
@@ -484,9 +507,9 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         "translational_wb": vec("translational", "wb", strict=True, unit="rad/s"),
         "tilt_wn": num("tilt", "wn", strict=True, unit="rad/s"),
         "tilt_zeta": num("tilt", "zeta", strict=True),
-        "tilt_rate_limit_deg_s": num("tilt", "rate_limit_deg_s", strict=True, unit="deg/s"),
-        "tilt_angle_limit_deg": num("tilt", "angle_limit_deg", strict=False, unit="deg"),
-        "tilt_accel_limit_deg_s2": num("tilt", "accel_limit_deg_s2", strict=True, unit="deg/s^2"),
+        "tilt_rate_limit_deg_s": vec("tilt", "rate_limit_deg_s", strict=True, unit="deg/s"),
+        "tilt_angle_limit_deg": vec("tilt", "angle_limit_deg", strict=False, unit="deg"),
+        "tilt_accel_limit_deg_s2": vec("tilt", "accel_limit_deg_s2", strict=True, unit="deg/s^2"),
         "input_lowpass_wn": num("input", "lowpass_wn", strict=False, unit="rad/s"),
         "rotational_wn": vec("rotational", "wn", strict=True, unit="rad/s"),
         "rotational_zeta": vec("rotational", "zeta", strict=True),
@@ -498,10 +521,10 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         ),
         "g": as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2"),
     }
-    if out["tilt_angle_limit_deg"] >= 90.0:
+    if max(out["tilt_angle_limit_deg"]) >= 90.0:
         raise ConfigError(
             f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg, "
-            f"got {out['tilt_angle_limit_deg']:g} (fix the value)"
+            f"got {max(out['tilt_angle_limit_deg']):g} (fix the value)"
         )
     method = d["method"]
     if method not in METHODS:
