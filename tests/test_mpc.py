@@ -325,6 +325,13 @@ def test_updated_qp_equals_a_fresh_solve(ceart, robot):
         rows.append(A_k)
         lo.append(-legs.v_max - free)
         hi.append(legs.v_max - free)
+    a_max = p.accel_share * np.asarray(robot.limits.max_accel)
+    for i, k in enumerate(legs.sel_v):  # the pose accelerations of step k are its inputs
+        E_k = np.zeros((ND, N * NU))
+        E_k[:, k * NU : (k + 1) * NU] = np.eye(ND)
+        rows.append(J[i] @ S @ E_k)
+        lo.append(-a_max)
+        hi.append(a_max)
     A_leg, lo_leg, hi_leg = np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
     k = len(A_leg)
     A = sp.bmat([[sp.csc_matrix(m.A_con), None], [sp.csc_matrix(A_leg), -sp.identity(k)]])
@@ -364,12 +371,50 @@ def test_bound_robot_keeps_the_poses_reachable(ceart, robot):
     assert (~robot.reachable(bound)).mean() < 0.005
     q = robot.inverse(bound)
     assert np.isfinite(q).all()
-    assert (q >= robot.limits.lower).all() and (q <= robot.limits.upper).all()
+    # every crank inside its limits but on a handful of ticks, by less than a degree: the
+    # actuator accelerations bind at the first steps of the plan only, so on this flight
+    # the plan cannot always brake in time (the pipeline's clamp takes the rest; without
+    # those rows the cranks were asked up to 5 times their acceleration limit instead)
+    beyond = np.maximum(q - robot.limits.upper, robot.limits.lower - q).max(axis=1)
+    assert (beyond > 0).mean() < 0.005 and beyond.max() < np.radians(1.0)
+    accel = np.abs(np.diff(q, 2, axis=0)) / DT**2 / np.asarray(robot.limits.max_accel)
+    assert (accel.max(axis=1) > 1.0).mean() < 0.005
     # fallbacks stay rare; how many depends on the processor's floating-point rounding (19 of
     # 1500 ticks on one machine, fewer than 15 on another)
     assert cue.counts["fallbacks"] < 0.02 * cue.counts["ticks"]
     # the pose box, the rates and the tilt thresholds hold as without the robot
     assert (bound >= p.pose_lower - 1e-9).all() and (bound <= p.pose_upper + 1e-9).all()
+
+
+def test_bound_robot_keeps_the_actuator_accelerations(ceart, robot):
+    """With a pose-acceleration box far too loose for the actuators, the linearised
+    actuator-acceleration rows are what keeps the cranks within their acceleration limit
+    (the actuator accelerations are the second differences of the commanded cranks; the
+    plan may use 90 % of the limit, ``accel_share``, the rest covers the linearisation)."""
+    loose = dataclasses.replace(
+        ceart,
+        time_limit_ms=0.0,
+        max_iter=4000,  # (this hard problem: every tick solved, no fallback pose blended in)
+        acceleration_m_s2=tuple(20 * np.asarray(ceart.acceleration_m_s2)),
+        angular_acceleration_deg_s2=tuple(20 * np.asarray(ceart.angular_acceleration_deg_s2)),
+        w_jerk=np.full(6, 1e-5),
+    )
+    u = _inputs(1500)
+    a_max = np.asarray(robot.limits.max_accel)
+
+    def crank_accel(rows: bool) -> np.ndarray:
+        cue = MpcCueing(loose, DT)
+        cue.bind_robot(robot)
+        if not rows:  # acceleration rows that never bind
+            cue._legs.a_max = np.full_like(cue._legs.a_max, 1e12)
+        q = robot.inverse(_run(cue, u))
+        return np.abs(np.diff(q, 2, axis=0)) / DT**2 / a_max  # share of the limit
+
+    free = crank_accel(rows=False)
+    bound = crank_accel(rows=True)
+    assert free.max() > 5.0  # without them the cranks are asked far past their limit
+    assert bound.max() < 1.0  # with them, never
+    assert bound.max() > 0.8  # (and the limit is what binds)
 
 
 def test_pipeline_binds_its_robot(ceart):

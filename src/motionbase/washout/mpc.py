@@ -404,8 +404,9 @@ class MpcCueing(Cueing):
         """Constrain the actuators, not only the pose box: the robot's actuator positions,
         linearised around the pose the last plan predicts at each step (re-linearised every
         tick), within their limits less ``[robot] actuator_margin`` of their range, and the
-        actuator speeds within ``speed_share`` of theirs (see :class:`_LegConstraint`). The
-        pose box stays. Called once by the pipeline, after the cueing is made."""
+        actuator speeds and accelerations within ``speed_share`` and ``accel_share`` of
+        theirs (see :class:`_LegConstraint`). The pose box stays. Called once by the
+        pipeline, after the cueing is made."""
         if robot is None or robot.n < 1:
             return
         self.robot = robot
@@ -604,7 +605,7 @@ class MpcCueing(Cueing):
 
 
 class _LegConstraint:
-    """The actuators in the QP: their positions and speeds, linearised per step.
+    """The actuators in the QP: their positions, speeds and accelerations, linearised per step.
 
     At step ``k`` the last plan (applied from the current state) predicts the pose
     ``pbar_k``; there the actuator positions are ``q_k = q(pbar_k)`` and their Jacobian
@@ -613,10 +614,14 @@ class _LegConstraint:
 
         lower + margin <= q_k + J_k (p_k(U) - pbar_k) <= upper - margin
         |J_k v_k(U)| <= speed_share * max_speed
+        |J_k a_k(U) + dJ_k/dt vbar_k| <= accel_share * max_accel
 
-    with ``p_k(U)``, ``v_k(U)`` the predicted pose and pose rate (linear in ``U``). Their
-    constraints hold at the steps :func:`constrained_steps` picks (``[robot] steps`` of
-    them; the speeds at the first ``speed_steps``: fewer rows, a cheaper refactorisation).
+    with ``p_k(U)``, ``v_k(U)`` the predicted pose and pose rate (linear in ``U``),
+    ``a_k(U)`` the pose acceleration of step ``k`` (part of ``U``) and ``dJ_k/dt vbar_k``
+    the actuators' acceleration along the last plan's pose rate ``vbar_k`` at zero pose
+    acceleration (:meth:`curvature`). Their constraints hold at the steps
+    :func:`constrained_steps` picks (``[robot] steps`` of them; the speeds and accelerations
+    at the first ``speed_steps``: fewer rows, a cheaper refactorisation).
     Their rows ``J_k T_k`` change every tick but not their sparsity pattern (every dof's
     acceleration of steps ``0..k``), so OSQP updates the values and refactorises
     numerically. A predicted pose the robot cannot reach is replaced by its clamp (the
@@ -630,9 +635,11 @@ class _LegConstraint:
         self.n, self.N = n, N
         Sp = np.zeros((6, NX))
         Sv = np.zeros((6, NX))
+        Sa = np.zeros((6, NU))  # the inputs are the dofs' accelerations
         for d in range(ND):
             Sp[_POSE_OF[d], d] = 1.0
             Sv[_POSE_OF[d], ND + d] = 1.0
+            Sa[_POSE_OF[d], d] = 1.0
         G = model.Gam.reshape(N, NX, N * NU)
         F = model.Phi.reshape(N, NX, NX)
         sel_p = constrained_steps(N, params.robot_steps)
@@ -642,6 +649,9 @@ class _LegConstraint:
         self.Tv = np.einsum("ij,kjc->kic", Sv, G[sel_v])
         self.Pp = np.einsum("ij,kjc->kic", Sp, F)  # (N, 6, NX)
         self.Pv = np.einsum("ij,kjc->kic", Sv, F[sel_v])
+        self.Ta = np.zeros((len(sel_v), 6, N * NU))  # step k's pose acceleration from U
+        for i, k in enumerate(sel_v):
+            self.Ta[i, :, k * NU : (k + 1) * NU] = Sa
         lim = robot.limits
         lower = np.asarray(lim.lower, dtype=float)
         upper = np.asarray(lim.upper, dtype=float)
@@ -649,11 +659,14 @@ class _LegConstraint:
         self.q_lo = lower + params.actuator_margin * span
         self.q_hi = upper - params.actuator_margin * span
         self.v_max = params.speed_share * np.asarray(lim.max_speed, dtype=float)
-        self.rows = (len(sel_p) + len(sel_v)) * n
-        # the structural pattern: crank rows of step k touch every dof of steps 0..k
+        self.a_max = params.accel_share * np.asarray(lim.max_accel, dtype=float)
+        self.rows = (len(sel_p) + 2 * len(sel_v)) * n
+        # the structural pattern: position and speed rows of step k touch every dof of steps
+        # 0..k, acceleration rows those of step k
         cp = np.abs(self.Tp[sel_p]).sum(axis=1) > 0
         cv = np.abs(self.Tv).sum(axis=1) > 0
-        mask = np.vstack([np.repeat(cp, n, axis=0), np.repeat(cv, n, axis=0)])
+        ca = np.abs(self.Ta).sum(axis=1) > 0
+        mask = np.vstack([np.repeat(c, n, axis=0) for c in (cp, cv, ca)])
         self.pattern = sp.csc_matrix(mask.astype(float))
         self._h = 1e-6
         steps = np.eye(6) * self._h
@@ -708,12 +721,31 @@ class _LegConstraint:
         Mp = J @ self.Tp[sp_]  # (Np, n, N NU)
         Jv_k = J[: len(self.sel_v)]  # the speed steps are the first position steps
         Mv = Jv_k @ self.Tv
-        vals = np.concatenate([Mp.reshape(-1, Mp.shape[-1]), Mv.reshape(-1, Mv.shape[-1])])
+        Ma = Jv_k @ self.Ta
+        vals = np.concatenate([M.reshape(-1, M.shape[-1]) for M in (Mp, Mv, Ma)])
         Jm = np.einsum("kij,kj->ki", J, moved[sp_])  # J_k (pbar_k - free_k)
-        Jv = np.einsum("kij,kj->ki", Jv_k, self.Pv @ z)
-        lo = np.concatenate([(self.q_lo - q + Jm).ravel(), (-self.v_max - Jv).ravel()])
-        hi = np.concatenate([(self.q_hi - q + Jm).ravel(), (self.v_max - Jv).ravel()])
+        free_v = self.Pv @ z
+        Jv = np.einsum("kij,kj->ki", Jv_k, free_v)
+        nv = len(self.sel_v)
+        c = self.curvature((free_p + moved)[sp_][:nv], free_v + self.Tv @ plan, q[:nv])
+        lo = np.concatenate(
+            [(self.q_lo - q + Jm).ravel(), (-self.v_max - Jv).ravel(), (-self.a_max - c).ravel()]
+        )
+        hi = np.concatenate(
+            [(self.q_hi - q + Jm).ravel(), (self.v_max - Jv).ravel(), (self.a_max - c).ravel()]
+        )
         return vals[self._rows, self._cols], lo, hi
+
+    def curvature(self, poses: np.ndarray, rates: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The actuators' acceleration at zero pose acceleration, ``dJ/dt v``: the second
+        derivative of ``q(p + s v)`` in ``s`` (central differences), per pose (M, n); 0
+        where the robot cannot reach the probes."""
+        h = 1e-3  # s
+        cue = np.concatenate([poses + h * rates, poses - h * rates])
+        robot = self.robot
+        qq = np.asarray(robot.inverse(robot.pose_from_cue(cue)), dtype=float)
+        qq = qq.reshape(2, len(poses), -1)
+        return np.nan_to_num((qq[0] - 2.0 * q + qq[1]) / (h * h))
 
 
 def constrained_steps(steps: int, count: int) -> np.ndarray:

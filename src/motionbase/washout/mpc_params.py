@@ -42,12 +42,14 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     [robot]                            # optional: with a robot bound (the pipeline binds it)
     actuator_margin = 0.02             # share of each actuator's range kept free
     speed_share = 0.9                  # share of each actuator's speed limit the plan may use
+    accel_share = 0.9                  # and of its acceleration limit
     steps = 7                          # prediction steps whose actuators are constrained
-    speed_steps = 2                    # of which the first ones constrain the speeds too
+    speed_steps = 2                    # of which the first ones constrain the speeds and
+                                       # accelerations too
     violation_weight = 1e5             # soft constraints: cost per (actuator unit)^2
 
     [solver]
-    max_iter = 200                     # OSQP iteration budget per tick
+    max_iter = 400                     # OSQP iteration budget per tick
     time_limit_ms = 4.0                # OSQP time budget per tick (0: none)
     eps_abs = 1e-4
     eps_rel = 1e-4
@@ -117,6 +119,7 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("reference", "angular_velocity_limit_deg_s", "angular_velocity_limit_deg_s", 3, True, False),
     ("robot", "actuator_margin", "actuator_margin", 0, False, False),
     ("robot", "speed_share", "speed_share", 0, True, False),
+    ("robot", "accel_share", "accel_share", 0, True, False),
     ("robot", "steps", "robot_steps", 0, True, True),
     ("robot", "violation_weight", "violation_weight", 0, True, False),
     ("robot", "speed_steps", "robot_speed_steps", 0, True, True),
@@ -127,7 +130,7 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("solver", "blend_s", "blend_s", 0, True, False),
 )
 _SOLVER_DEFAULTS: dict[str, Any] = {
-    "max_iter": 200,
+    "max_iter": 400,
     "time_limit_ms": 4.0,
     "eps_abs": 1e-4,
     "eps_rel": 1e-4,
@@ -143,6 +146,7 @@ _REFERENCE_DEFAULTS: dict[str, Any] = {
 _ROBOT_DEFAULTS: dict[str, Any] = {
     "actuator_margin": 0.02,
     "speed_share": 0.9,
+    "accel_share": 0.9,
     "steps": 7,
     "speed_steps": 2,
     "violation_weight": 1e5,
@@ -192,11 +196,12 @@ class MpcParams:
     actuator_margin : float
         With a robot bound (:meth:`~motionbase.washout.mpc.MpcCueing.bind_robot`): the
         share of each actuator's range kept free of the linearised constraint, in [0, 0.5).
-    speed_share : float
-        The share of each actuator's speed limit the plan may use, in (0, 1].
+    speed_share, accel_share : float
+        The share of each actuator's speed and acceleration limits the plan may use, in
+        (0, 1] (the rest covers what the linearisation leaves out).
     robot_steps, robot_speed_steps : int
         How many prediction steps constrain the actuator positions (the first ones, then
-        spread to the last) and, of those, how many the speeds too.
+        spread to the last) and, of those, how many the speeds and accelerations too.
     violation_weight : float
         The actuator constraints are soft (so the problem stays feasible when the state is
         already past a re-linearised limit): cost of a violation, per (rad or m)^2, per
@@ -243,10 +248,11 @@ class MpcParams:
     angular_velocity_limit_deg_s: Vec3 = (1000.0, 1000.0, 1000.0)
     actuator_margin: float = 0.02
     speed_share: float = 0.9
+    accel_share: float = 0.9
     robot_steps: int = 7
     robot_speed_steps: int = 2
     violation_weight: float = 1e5
-    max_iter: int = 200
+    max_iter: int = 400
     time_limit_ms: float = 4.0
     eps_abs: float = 1e-4
     eps_rel: float = 1e-4
@@ -402,10 +408,11 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             f"{source}: field 'robot.actuator_margin': a share of the actuator range, must be "
             f"< 0.5, got {out['actuator_margin']}"
         )
-    if out["speed_share"] > 1.0:
-        raise ConfigError(
-            f"{source}: field 'robot.speed_share': must be in (0, 1], got {out['speed_share']}"
-        )
+    for share in ("speed_share", "accel_share"):
+        if out[share] > 1.0:
+            raise ConfigError(
+                f"{source}: field 'robot.{share}': must be in (0, 1], got {out[share]}"
+            )
     if max(out["tilt_angle_limit_deg"]) >= 90.0:
         raise ConfigError(f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg")
     fallback = d["solver"]["fallback"]
