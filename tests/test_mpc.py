@@ -245,6 +245,13 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
         MpcParams.from_dict(bad)
     with pytest.raises(ConfigError, match="classical washout file"):
         MpcParams.from_dict(WashoutParams.preset("default").to_dict())
+    pair = ceart.to_dict()
+    pair["tilt"]["rate_limit_deg_s"] = [2.0, 4.0]
+    assert MpcParams.from_dict(pair).tilt_rate_limit_deg_s == (2.0, 4.0)
+    assert MpcParams.from_dict(MpcParams.from_dict(pair).to_dict()) == MpcParams.from_dict(pair)
+    pair["tilt"]["rate_limit_deg_s"] = [2.0, 4.0, 1.0]
+    with pytest.raises(ConfigError, match=r"tilt\.rate_limit_deg_s.*\[roll, pitch\]"):
+        MpcParams.from_dict(pair)
     cfg = PipelineConfig(
         robot="rus6", geometry=Rus6Geometry.preset("ceart"), cueing="mpc", cueing_params=ceart
     )

@@ -182,7 +182,7 @@ def test_tilt_limits_take_one_number_or_a_roll_pitch_pair():
     assert out["rate_limit_deg_s"] == [2.0, 3.5] and out["accel_limit_deg_s2"] == 6.0
     assert WashoutParams.from_dict(p.to_dict()) == p
     for key, value, match in (
-        ("rate_limit_deg_s", [3.0, 3.0, 3.0], "tilt.rate_limit_deg_s.*expected 2 numbers"),
+        ("rate_limit_deg_s", [3.0, 3.0, 3.0], r"tilt.rate_limit_deg_s.*2 numbers.*\[roll, pitch\]"),
         ("rate_limit_deg_s", [3.0, 0.0], "tilt.rate_limit_deg_s.*> 0"),
         ("accel_limit_deg_s2", [-1.0, 8.0], "tilt.accel_limit_deg_s2"),
         ("angle_limit_deg", [8.0, 90.0], "tilt.angle_limit_deg.*< 90 deg"),

@@ -389,7 +389,14 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             out[name] = int(value)
             continue
         if length:
-            arr = as_array(source, where, value, length)
+            try:
+                arr = as_array(source, where, value, length)
+            except ConfigError as err:
+                if section == "tilt":  # say what the two are
+                    raise ConfigError(
+                        f"{err}; a tilt limit is one number or [roll, pitch]"
+                    ) from None
+                raise
             if name.endswith("lower_m") or name.endswith("lower_deg"):
                 if not (arr < 0).all():
                     raise ConfigError(

@@ -485,7 +485,12 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
     def vec(section: str, key: str, *, strict: bool, unit: str = "") -> tuple[float, ...]:
         """Per axis: x, y, z; the tilt's limits: roll, pitch (one number: all axes)."""
         name = f"{section}.{key}"
-        arr = as_array(source, name, d[section].get(key, 0.0), _length(section, key))
+        try:
+            arr = as_array(source, name, d[section].get(key, 0.0), _length(section, key))
+        except ConfigError as err:
+            if _length(section, key) == 2:  # say what the two are
+                raise ConfigError(f"{err}; a tilt limit is one number or [roll, pitch]") from None
+            raise
         for v in arr:
             as_float(source, name, float(v), min_value=0.0, strict_min=strict, unit=unit)
         return tuple(float(v) for v in arr)
