@@ -612,11 +612,15 @@ class _LegConstraint:
     ``J_k = dq/dpose`` (central differences of ``robot.inverse(robot.pose_from_cue(.))``,
     one batched call for every step). The constraints, on the QP's accelerations ``U``::
 
-        lower + margin <= q_k + J_k (p_k(U) - pbar_k) <= upper - margin
+        lower + margin <= q_k + J_k (p_k(U) - pbar_k) + b_k J_k v_k(U) <= upper - margin
         |J_k v_k(U)| <= speed_share * max_speed
         |J_k a_k(U) + dJ_k/dt vbar_k| <= accel_share * max_accel
 
-    with ``p_k(U)``, ``v_k(U)`` the predicted pose and pose rate (linear in ``U``),
+    with ``p_k(U)``, ``v_k(U)`` the predicted pose and pose rate (linear in ``U``); ``b_k J_k
+    v_k`` the actuators' stopping distance ``v^2 / (2 a)`` at ``a = accel_share * max_accel``,
+    linearised about the last plan's actuator speed ``J_k vbar_k`` (``b_k = |J_k vbar_k| /
+    (2 a)``): an actuator moving toward a limit must be able to stop before it, so the plan
+    brakes in time even where its later steps are not held to the actuators' accelerations;
     ``a_k(U)`` the pose acceleration of step ``k`` (part of ``U``) and ``dJ_k/dt vbar_k``
     the actuators' acceleration along the last plan's pose rate ``vbar_k`` at zero pose
     acceleration (:meth:`curvature`). Their constraints hold at the steps
@@ -646,9 +650,11 @@ class _LegConstraint:
         sel_v = sel_p[: min(params.robot_speed_steps, len(sel_p))]
         self.sel_p, self.sel_v = sel_p, sel_v
         self.Tp = np.einsum("ij,kjc->kic", Sp, G)  # (N, 6, N NU)
-        self.Tv = np.einsum("ij,kjc->kic", Sv, G[sel_v])
+        self.Tv_p = np.einsum("ij,kjc->kic", Sv, G[sel_p])  # pose rates of the position steps
+        self.Tv = self.Tv_p[: len(sel_v)]  # (the speed steps are the first position steps)
         self.Pp = np.einsum("ij,kjc->kic", Sp, F)  # (N, 6, NX)
-        self.Pv = np.einsum("ij,kjc->kic", Sv, F[sel_v])
+        self.Pv_p = np.einsum("ij,kjc->kic", Sv, F[sel_p])
+        self.Pv = self.Pv_p[: len(sel_v)]
         self.Ta = np.zeros((len(sel_v), 6, N * NU))  # step k's pose acceleration from U
         for i, k in enumerate(sel_v):
             self.Ta[i, :, k * NU : (k + 1) * NU] = Sa
@@ -663,7 +669,7 @@ class _LegConstraint:
         self.rows = (len(sel_p) + 2 * len(sel_v)) * n
         # the structural pattern: position and speed rows of step k touch every dof of steps
         # 0..k, acceleration rows those of step k
-        cp = np.abs(self.Tp[sel_p]).sum(axis=1) > 0
+        cp = (np.abs(self.Tp[sel_p]) + np.abs(self.Tv_p)).sum(axis=1) > 0
         cv = np.abs(self.Tv).sum(axis=1) > 0
         ca = np.abs(self.Ta).sum(axis=1) > 0
         mask = np.vstack([np.repeat(c, n, axis=0) for c in (cp, cv, ca)])
@@ -718,16 +724,22 @@ class _LegConstraint:
         moved = self.Tp @ plan
         sp_ = self.sel_p
         q, J = self.actuators((free_p + moved)[sp_])
-        Mp = J @ self.Tp[sp_]  # (Np, n, N NU)
+        # braking: the position rows hold q_k + b_k v_q,k, where the actuator's stopping
+        # distance v^2 / (2 a) is linearised about the last plan's speed vbar (b = |vbar| / 2a)
+        free_vp = self.Pv_p @ z  # (Np, 6)
+        rates = free_vp + self.Tv_p @ plan
+        b = np.abs(np.einsum("kij,kj->ki", J, rates)) / (2.0 * self.a_max)
+        Mp = J @ self.Tp[sp_] + b[:, :, None] * (J @ self.Tv_p)  # (Np, n, N NU)
         Jv_k = J[: len(self.sel_v)]  # the speed steps are the first position steps
         Mv = Jv_k @ self.Tv
         Ma = Jv_k @ self.Ta
         vals = np.concatenate([M.reshape(-1, M.shape[-1]) for M in (Mp, Mv, Ma)])
-        Jm = np.einsum("kij,kj->ki", J, moved[sp_])  # J_k (pbar_k - free_k)
-        free_v = self.Pv @ z
-        Jv = np.einsum("kij,kj->ki", Jv_k, free_v)
+        # J_k (pbar_k - free_k), less the braking term's free part
+        Jm = np.einsum("kij,kj->ki", J, moved[sp_]) - b * np.einsum("kij,kj->ki", J, free_vp)
         nv = len(self.sel_v)
-        c = self.curvature((free_p + moved)[sp_][:nv], free_v + self.Tv @ plan, q[:nv])
+        free_v = free_vp[:nv]
+        Jv = np.einsum("kij,kj->ki", Jv_k, free_v)
+        c = self.curvature((free_p + moved)[sp_][:nv], rates[:nv], q[:nv])
         lo = np.concatenate(
             [(self.q_lo - q + Jm).ravel(), (-self.v_max - Jv).ravel(), (-self.a_max - c).ravel()]
         )

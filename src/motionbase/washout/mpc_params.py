@@ -42,7 +42,7 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     [robot]                            # optional: with a robot bound (the pipeline binds it)
     actuator_margin = 0.02             # share of each actuator's range kept free
     speed_share = 0.9                  # share of each actuator's speed limit the plan may use
-    accel_share = 0.9                  # and of its acceleration limit
+    accel_share = 0.9                  # and of its acceleration limit (also the braking one)
     steps = 7                          # prediction steps whose actuators are constrained
     speed_steps = 2                    # of which the first ones constrain the speeds and
                                        # accelerations too
@@ -198,7 +198,8 @@ class MpcParams:
         share of each actuator's range kept free of the linearised constraint, in [0, 0.5).
     speed_share, accel_share : float
         The share of each actuator's speed and acceleration limits the plan may use, in
-        (0, 1] (the rest covers what the linearisation leaves out).
+        (0, 1] (the rest covers what the linearisation leaves out); the actuators' stopping
+        distances are those at ``accel_share`` of their acceleration limits.
     robot_steps, robot_speed_steps : int
         How many prediction steps constrain the actuator positions (the first ones, then
         spread to the last) and, of those, how many the speeds and accelerations too.
