@@ -654,7 +654,6 @@ class _LegConstraint:
         self.Tv = self.Tv_p[: len(sel_v)]  # (the speed steps are the first position steps)
         self.Pp = np.einsum("ij,kjc->kic", Sp, F)  # (N, 6, NX)
         self.Pv_p = np.einsum("ij,kjc->kic", Sv, F[sel_p])
-        self.Pv = self.Pv_p[: len(sel_v)]
         self.Ta = np.zeros((len(sel_v), 6, N * NU))  # step k's pose acceleration from U
         for i, k in enumerate(sel_v):
             self.Ta[i, :, k * NU : (k + 1) * NU] = Sa
@@ -723,23 +722,23 @@ class _LegConstraint:
         free_p = self.Pp @ z  # (N, 6)
         moved = self.Tp @ plan
         sp_ = self.sel_p
-        q, J = self.actuators((free_p + moved)[sp_])
+        pbar = (free_p + moved)[sp_]
+        q, J = self.actuators(pbar)
         # braking: the position rows hold q_k + b_k v_q,k, where the actuator's stopping
         # distance v^2 / (2 a) is linearised about the last plan's speed vbar (b = |vbar| / 2a)
         free_vp = self.Pv_p @ z  # (Np, 6)
         rates = free_vp + self.Tv_p @ plan
         b = np.abs(np.einsum("kij,kj->ki", J, rates)) / (2.0 * self.a_max)
         Mp = J @ self.Tp[sp_] + b[:, :, None] * (J @ self.Tv_p)  # (Np, n, N NU)
-        Jv_k = J[: len(self.sel_v)]  # the speed steps are the first position steps
-        Mv = Jv_k @ self.Tv
-        Ma = Jv_k @ self.Ta
+        nv = len(self.sel_v)  # the speed steps are the first position steps
+        Mv = J[:nv] @ self.Tv
+        Ma = J[:nv] @ self.Ta
         vals = np.concatenate([M.reshape(-1, M.shape[-1]) for M in (Mp, Mv, Ma)])
+        Jv = np.einsum("kij,kj->ki", J, free_vp)  # the actuators' free speeds
         # J_k (pbar_k - free_k), less the braking term's free part
-        Jm = np.einsum("kij,kj->ki", J, moved[sp_]) - b * np.einsum("kij,kj->ki", J, free_vp)
-        nv = len(self.sel_v)
-        free_v = free_vp[:nv]
-        Jv = np.einsum("kij,kj->ki", Jv_k, free_v)
-        c = self.curvature((free_p + moved)[sp_][:nv], rates[:nv], q[:nv])
+        Jm = np.einsum("kij,kj->ki", J, moved[sp_]) - b * Jv
+        Jv = Jv[:nv]
+        c = self.curvature(pbar[:nv], rates[:nv], q[:nv])
         lo = np.concatenate(
             [(self.q_lo - q + Jm).ravel(), (-self.v_max - Jv).ravel(), (-self.a_max - c).ravel()]
         )
