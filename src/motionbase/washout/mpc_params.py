@@ -84,7 +84,7 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
-from motionbase.washout.params import STANDARD_GRAVITY
+from motionbase.washout.params import STANDARD_GRAVITY, tilt_pair
 
 __all__ = ["MpcParams", "limits_from_robot"]
 
@@ -390,14 +390,10 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             out[name] = int(value)
             continue
         if length:
-            try:
+            if section == "tilt":
+                arr = tilt_pair(source, where, value)
+            else:
                 arr = as_array(source, where, value, length)
-            except ConfigError as err:
-                if section == "tilt":  # say what the two are
-                    raise ConfigError(
-                        f"{err}; a tilt limit is one number or [roll, pitch]"
-                    ) from None
-                raise
             if name.endswith("lower_m") or name.endswith("lower_deg"):
                 if not (arr < 0).all():
                     raise ConfigError(

@@ -450,13 +450,26 @@ def _profile_tables(source: str, tables: dict[str, Any]) -> tuple:
                     continue
                 value = sub[key]
                 if isinstance(value, (list, tuple, np.ndarray)):
-                    size = _length(section, key)
-                    value = tuple(as_array(where, f"{section}.{key}", value, size).tolist())
+                    name = f"{section}.{key}"
+                    if _length(section, key) == 2:
+                        arr = tilt_pair(where, name, value)
+                    else:
+                        arr = as_array(where, name, value, 3)
+                    value = tuple(arr.tolist())
                 else:
                     value = as_float(where, f"{section}.{key}", value)
                 items.append((section, key, value))
         out.append((name, tuple(items)))
     return tuple(out)
+
+
+def tilt_pair(source: str, name: str, value: Any) -> np.ndarray:
+    """A tilt limit of a cueing file: one number or ``[roll, pitch]``, as an array (2,)
+    (:func:`~motionbase.config.as_array`'s checks; its error says what the two are)."""
+    try:
+        return as_array(source, name, value, 2)
+    except ConfigError as err:
+        raise ConfigError(f"{err}; a tilt limit is one number or [roll, pitch]") from None
 
 
 def _length(section: str, key: str) -> int:
@@ -485,12 +498,11 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
     def vec(section: str, key: str, *, strict: bool, unit: str = "") -> tuple[float, ...]:
         """Per axis: x, y, z; the tilt's limits: roll, pitch (one number: all axes)."""
         name = f"{section}.{key}"
-        try:
-            arr = as_array(source, name, d[section].get(key, 0.0), _length(section, key))
-        except ConfigError as err:
-            if _length(section, key) == 2:  # say what the two are
-                raise ConfigError(f"{err}; a tilt limit is one number or [roll, pitch]") from None
-            raise
+        value = d[section].get(key, 0.0)
+        if _length(section, key) == 2:
+            arr = tilt_pair(source, name, value)
+        else:
+            arr = as_array(source, name, value, 3)
         for v in arr:
             as_float(source, name, float(v), min_value=0.0, strict_min=strict, unit=unit)
         return tuple(float(v) for v in arr)
