@@ -450,11 +450,11 @@ def _profile_tables(source: str, tables: dict[str, Any]) -> tuple:
                     continue
                 value = sub[key]
                 if isinstance(value, (list, tuple, np.ndarray)):
-                    name = f"{section}.{key}"
+                    field = f"{section}.{key}"  # (``name`` is the profile's)
                     if _length(section, key) == 2:
-                        arr = tilt_pair(where, name, value)
+                        arr = tilt_pair(where, field, value)
                     else:
-                        arr = as_array(where, name, value, 3)
+                        arr = as_array(where, field, value, 3)
                     value = tuple(arr.tolist())
                 else:
                     value = as_float(where, f"{section}.{key}", value)
