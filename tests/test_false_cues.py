@@ -32,8 +32,8 @@ RATE = 100.0
 DT = 1.0 / RATE
 #: The synthetic tests' washout: the SIMONA set (specific-force gains 0.5), whose cue stays
 #: under the aircraft's with room to spare, so that what is measured is the fades, not the
-#: washout. (The `ceart` default, tuned_ceart, renders sway at 0.95: after the time jump's
-#: restart from level flight its cue overshoots the aircraft's sway by 2 %, 0.035 m/s^2.)
+#: washout. (The `ceart` default, tuned_ceart, renders sway at nearly its whole size: after
+#: the time jump's restart from level flight its cue can overshoot the aircraft's sway.)
 WASHOUT = "default"
 
 

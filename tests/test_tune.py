@@ -306,6 +306,28 @@ def test_encode_decode_round_trip_and_bounds():
     assert low.translational_zeta == default.translational_zeta  # not tuned: kept
 
 
+@pytest.mark.parametrize(
+    "param", ["tilt_rate_limit_deg_s", "tilt_angle_limit_deg", "tilt_accel_limit_deg_s2"]
+)
+def test_the_tuner_sets_roll_and_pitch_tilt_limits_apart(param):
+    """A tilt limit is one number or [roll, pitch] in a washout file; the tuner has a knob
+    for each axis, so moving one leaves the other as it was."""
+    default = WashoutParams.preset("default")
+    x = tuning.encode(default)
+    knobs = [i for i, k in enumerate(tuning.KNOBS) if k.param == param]
+    assert [tuning.KNOBS[i].axes for i in knobs] == [(0,), (1,)]
+    roll, pitch = knobs
+    for moved, kept in ((roll, 1), (pitch, 0)):
+        y = x.copy()
+        y[moved] = 1.0 - y[moved]
+        values = getattr(tuning.decode(y, default), param)
+        assert values[kept] == getattr(default, param)[kept]
+        assert values[1 - kept] != getattr(default, param)[1 - kept]
+        # and the file the tuner writes says both
+        key = param.removeprefix("tilt_")
+        assert tuning.decode(y, default).to_dict()["tilt"][key] == list(values)
+
+
 # --------------------------------------------------------------------------- the optimiser
 
 

@@ -79,7 +79,7 @@ sizing term that does not depend on the manoeuvres::
 
 The parameters tuned (:data:`KNOBS`)
 ------------------------------------
-Eighteen numbers of :class:`~motionbase.washout.params.WashoutParams`, each searched
+Twenty-one numbers of :class:`~motionbase.washout.params.WashoutParams`, each searched
 between the bounds below on a log scale, normalised to [0, 1] (``(ln p - ln lo) /
 (ln hi - ln lo)``), so CMA-ES steps are relative changes alike for every one. The
 rest of the start set is kept as it is: the dampings (``zeta``), the input saturation
@@ -94,9 +94,9 @@ angular-velocity gain    ``scaling.angular_velocity_gain`` r, p, y   0.05 .. 1
 translational wn         ``translational.wn`` x, y, z                0.3 .. 20 rad/s
 translational wb         ``translational.wb`` x and y (one), z       0.05 .. 3 rad/s
 tilt low-pass wn         ``tilt.wn``                                 0.3 .. 20 rad/s
-tilt rate limit          ``tilt.rate_limit_deg_s`` r, p (one)        1 .. 6 deg/s
-tilt angle limit         ``tilt.angle_limit_deg`` r, p (one)         1 .. 20 deg
-tilt acceleration limit  ``tilt.accel_limit_deg_s2`` r, p (one)      2 .. 40 deg/s^2
+tilt rate limit          ``tilt.rate_limit_deg_s`` roll, pitch       1 .. 6 deg/s
+tilt angle limit         ``tilt.angle_limit_deg`` roll, pitch        1 .. 20 deg
+tilt acceleration limit  ``tilt.accel_limit_deg_s2`` roll, pitch     2 .. 40 deg/s^2
 rotational wn            ``rotational.wn`` roll, pitch, yaw          0.2 .. 5 rad/s
 =======================  ==========================================  =================
 
@@ -104,7 +104,7 @@ The optimiser
 -------------
 CMA-ES (:mod:`cma`, Hansen's reference implementation) in the normalised space, with
 the bounds handled by ``cma`` (``bounds = [0, 1]``), starting at the start set with a
-step of :data:`SIGMA0` = 0.2 and ``cma``'s default population (12 for 18 parameters).
+step of :data:`SIGMA0` = 0.2 and ``cma``'s default population (13 for 21 parameters).
 The budget counts evaluations of one parameter set over the whole manoeuvre set; the
 start set is the first of them, so the result is never worse than the start on the
 tuning set. Whole generations are told to CMA-ES; when the budget ends inside a
@@ -246,9 +246,12 @@ KNOBS: tuple[Knob, ...] = (
     Knob("trans wb x,y", "translational_wb", (0, 1), 0.05, 3.0),
     Knob("trans wb z", "translational_wb", (2,), 0.05, 3.0),
     Knob("tilt wn", "tilt_wn", None, 0.3, 20.0),
-    Knob("tilt rate deg/s", "tilt_rate_limit_deg_s", (0, 1), 1.0, 6.0),
-    Knob("tilt angle deg", "tilt_angle_limit_deg", (0, 1), 1.0, 20.0),
-    Knob("tilt accel deg/s2", "tilt_accel_limit_deg_s2", (0, 1), 2.0, 40.0),
+    Knob("tilt rate roll deg/s", "tilt_rate_limit_deg_s", (0,), 1.0, 6.0),
+    Knob("tilt rate pitch deg/s", "tilt_rate_limit_deg_s", (1,), 1.0, 6.0),
+    Knob("tilt angle roll deg", "tilt_angle_limit_deg", (0,), 1.0, 20.0),
+    Knob("tilt angle pitch deg", "tilt_angle_limit_deg", (1,), 1.0, 20.0),
+    Knob("tilt accel roll deg/s2", "tilt_accel_limit_deg_s2", (0,), 2.0, 40.0),
+    Knob("tilt accel pitch deg/s2", "tilt_accel_limit_deg_s2", (1,), 2.0, 40.0),
     Knob("rot wn roll", "rotational_wn", (0,), 0.2, 5.0),
     Knob("rot wn pitch", "rotational_wn", (1,), 0.2, 5.0),
     Knob("rot wn yaw", "rotational_wn", (2,), 0.2, 5.0),
