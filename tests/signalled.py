@@ -15,10 +15,13 @@ def signalled(
     sig: int = signal.SIGINT,
     timeout_s: float = 60.0,
     env: Mapping[str, str] | None = None,
+    group: bool = False,
 ) -> tuple[int, str]:
     """Start ``python -m motionbase.cli ARGS``, call ``ready(proc)`` (it waits for the
     moment to stop the program), send ``sig``, and wait for the program to end. ``env``:
-    environment variables to set for it.
+    environment variables to set for it. ``group``: run it in a process group of its own and
+    send the signal to the whole group (its child processes too), as ``timeout`` and
+    service managers do.
 
     Returns
     -------
@@ -30,10 +33,14 @@ def signalled(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env=None if env is None else {**os.environ, **env},
+        start_new_session=group,
     )
     try:
         ready(proc)
-        proc.send_signal(sig)
+        if group:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
         _, err = proc.communicate(timeout=timeout_s)
     finally:
         if proc.poll() is None:

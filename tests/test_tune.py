@@ -472,6 +472,8 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--profile", "taxi"], "--profile taxi: unknown"),
         (["--cueing", "mpc", "--profile", "air"], "no flight-phase profiles"),
         (["--platform", "rrr3"], "tune scores 6-DOF platforms"),
+        (["--seed", "4294967295"], "--seed must be a whole number from 0 to 4294967294"),
+        (["--workers", "1000"], "--workers 1000: this process may use"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):
@@ -603,6 +605,35 @@ def test_a_signal_while_tune_starts_ends_it_cleanly(after_s, tmp_path):
     assert err.strip() == "motionbase tune: interrupted"
     assert status == 130
     assert not (tmp_path / "o.toml").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
+@pytest.mark.parametrize("after_s", [0.3, 1.5, 3.0, None])
+def test_a_sigterm_to_the_whole_process_group_ends_tune_cleanly(after_s, tmp_path):
+    """``timeout`` and service managers signal the whole process group, the workers too,
+    while they start or while they evaluate (None: once both are running): one line, exit
+    128 + 15, nothing written, no worker left. (A worker killed while it started used to
+    surface as a BrokenProcessPool traceback.)"""
+    workers: list[int] = []
+
+    def ready(proc) -> None:
+        if after_s is not None:
+            time.sleep(after_s)
+            return
+        deadline = time.monotonic() + 60
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            workers[:] = _workers_of(proc.pid)
+        assert len(workers) == 2, "the pool did not start"
+
+    status, err = signalled(_tune_args(tmp_path), ready, signal.SIGTERM, group=True)
+    assert err.strip() == "motionbase tune: interrupted (SIGTERM)", err[-2000:]
+    assert status == 128 + signal.SIGTERM
+    assert not (tmp_path / "o.toml").exists()
+    deadline = time.monotonic() + 15
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
 
 
 def test_the_ceart_default_is_the_washout_tuned_for_it(tmp_path):

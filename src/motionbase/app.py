@@ -1277,8 +1277,10 @@ def tune(
     knobs = tuning.knobs_for(cueing)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ConfigError(f"--budget must be a whole number of evaluations >= 1, got {budget!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"--seed must be a whole number >= 0, got {seed!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= tuning.MAX_SEED:
+        raise ConfigError(
+            f"--seed must be a whole number from 0 to {tuning.MAX_SEED}, got {seed!r}"
+        )
     out_path = Path(out)
     if out_path.suffix.lower() != ".toml":
         raise ConfigError(f"--out {out}: the result is a washout TOML file; name it *.toml")

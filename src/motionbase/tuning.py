@@ -200,6 +200,9 @@ class Weights:
 SIGMA0 = 0.2
 #: Significant digits of the parameters decoded (and written).
 DIGITS = 4
+#: The largest seed: ``cma`` is given ``seed + 1`` (it reads 0 as "from the clock") and
+#: seeds numpy with it, which takes 0 .. 2**32 - 1.
+MAX_SEED = 2**32 - 2
 
 
 # --------------------------------------------------------------------------- parameters
@@ -777,8 +780,8 @@ def tune(
 
     if budget < 1:
         raise ValueError(f"tune: budget must be >= 1 evaluation, got {budget}")
-    if seed < 0:
-        raise ValueError(f"tune: seed must be >= 0, got {seed}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"tune: seed must be from 0 to {MAX_SEED}, got {seed}")
     knobs = tuple(knobs)
     tuned = start if profile is None else start.for_profile(profile)
 

@@ -12,9 +12,13 @@ order of the candidates, whatever finishes first), the function
 - ``workers=K`` (default: the processors this process may use): a
   :class:`concurrent.futures.ProcessPoolExecutor` of K processes (started with
   ``spawn``), each given the problem (the manoeuvre arrays) once, by its initializer.
-  The workers leave Ctrl-C to the main process (which cancels what is queued and waits
-  for the evaluations under way, a fraction of a second) and exit on their own when the
-  main process dies (a kill), instead of waiting for work forever;
+  More than four per processor is refused: the evaluations are CPU bound. The workers
+  leave the stop signals (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT, also when they are sent to the
+  whole process group, as ``timeout`` and service managers do) to the main process, which
+  cancels what is queued and waits for the evaluations under way, a fraction of a second;
+  they exit on their own when the main process dies (a kill), instead of waiting for work
+  forever. A worker that dies anyway (killed, out of memory) ends the run with a one-line
+  error;
 - ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler, through the
   ``concurrent.futures`` interface of its client (``Client.get_executor``); the problem
   is scattered to every worker once and each evaluation refers to it. The workers need
@@ -30,13 +34,14 @@ import threading
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from multiprocessing import get_context, parent_process
 from multiprocessing.connection import wait
 from typing import TYPE_CHECKING
 
-from motionbase.errors import ConfigError, SourceError
-from motionbase.stopping import StopRequest, raise_if_stopped
+from motionbase.errors import ConfigError, MotionbaseError, SourceError
+from motionbase.stopping import STOP_SIGNALS, StopRequest, raise_if_stopped
 
 if TYPE_CHECKING:
     from motionbase.tuning import EvaluateMany, SetScore, TuningProblem
@@ -49,6 +54,9 @@ CONNECT_TIMEOUT_S = 10.0
 
 #: Seconds between two looks at the stop request while evaluations run elsewhere.
 STOP_POLL_S = 0.05
+
+#: Local workers allowed per processor (more is a mistake: each evaluation is CPU bound).
+MAX_WORKERS_PER_PROCESSOR = 4
 
 
 def default_workers() -> int:
@@ -89,10 +97,12 @@ def open_evaluator(
     Raises
     ------
     ConfigError
-        ``workers`` < 1, a scheduler address that is not ``tcp://HOST:PORT``, or Dask
-        not installed.
+        ``workers`` < 1 or more than four per processor, a scheduler address that is not
+        ``tcp://HOST:PORT``, or Dask not installed.
     SourceError
         The scheduler does not answer.
+    MotionbaseError
+        A local worker process died (killed, out of memory).
     """
     if scheduler is not None:
         with _dask(problem, scheduler, stop) as evaluate_many:
@@ -101,6 +111,12 @@ def open_evaluator(
     n = default_workers() if workers is None else workers
     if not (isinstance(n, int) and n >= 1):
         raise ConfigError(f"--workers must be a whole number >= 1, got {workers!r}")
+    if n > MAX_WORKERS_PER_PROCESSOR * default_workers():
+        raise ConfigError(
+            f"--workers {n}: this process may use {default_workers()} processors, and more "
+            "workers than processors only slow each other down; give at most "
+            f"{default_workers()} (the default), or --scheduler for a cluster"
+        )
     if n == 1:
 
         def evaluate_here(candidates: list[WashoutParams]) -> list[SetScore]:
@@ -123,6 +139,13 @@ def open_evaluator(
         yield lambda candidates: _results(
             [pool.submit(_evaluate_here, p) for p in candidates], stop
         )
+    except BrokenProcessPool:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise_if_stopped(stop)  # a stop signal sent to the whole group, before a worker set up
+        raise MotionbaseError(
+            "tune: a worker process died (killed, or out of memory); nothing was written; "
+            "run again, with fewer --workers if memory is short"
+        ) from None
     except BaseException:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
@@ -143,13 +166,15 @@ def _results(futures: list[Future], stop: StopRequest | None) -> list[SetScore]:
 
 
 def _start_workers(pool: ProcessPoolExecutor, n: int) -> None:
-    """Start all ``n`` workers now (n tasks at once: each finds no idle worker), with Ctrl-C
-    held back meanwhile: a Ctrl-C while a worker is being sent its start-up data cuts that
-    data, and the half-started worker prints a traceback."""
+    """Start all ``n`` workers now (n tasks at once: each finds no idle worker), with the stop
+    signals held back meanwhile, here and in the workers until their initializer ignores
+    them (a spawned process inherits the blocked set): a signal while a worker is being
+    sent its start-up data cuts that data, and the half-started worker prints a traceback;
+    a SIGTERM sent to the whole group would kill a worker before it ignores it."""
     block = threading.current_thread() is threading.main_thread() and hasattr(
         signal, "pthread_sigmask"
     )
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if block else None
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS)) if block else None
     try:
         list(pool.map(_worker_pid, range(n)))
     finally:
@@ -162,8 +187,12 @@ def _worker_pid(_: int) -> int:
 
 
 def _init_worker(problem: TuningProblem) -> None:
-    """A pool worker: keep the problem, leave Ctrl-C to the main process, die with it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """A pool worker: keep the problem, leave the stop signals to the main process, die
+    with it."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):  # blocked by _start_workers when spawned
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))
     parent = parent_process()
     if parent is not None:
 
