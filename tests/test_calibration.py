@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from motionbase.config import write_toml
 from motionbase.errors import ConfigError
 from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
 
@@ -79,6 +80,35 @@ def test_toml_round_trip(tmp_path):
     (tmp_path / "bad.toml").write_text("[calibration]\ncoef_x = [1, 2]\n")
     with pytest.raises(ConfigError, match="missing field|coef_x"):
         CursorCalibration.from_toml(tmp_path / "bad.toml")
+
+
+def test_a_file_whose_map_cannot_be_the_workspace_is_refused(tmp_path):
+    """A calibration file edited by hand: a pixel box a fraction of a pixel wide (the map
+    divided by it gave NaN targets, every tick held) or coefficients not in metres (every
+    target clamped) is refused when read, naming the file and the field."""
+    px = grid(3)
+    good = CursorCalibration.fit(px, truth(px)).to_dict()
+    cases = [
+        ({"pixel_scale": [1e-320, 300.0]}, "'pixel_scale': must be at least 0.5 pixels"),
+        ({"pixel_scale": [0.2, 300.0]}, "'pixel_scale': must be at least 0.5 pixels"),
+        ({"coef_x": [1e300] * 9}, "maps its own pixels to"),
+        ({"coef_y": [0.0, 4.0e3] + [0.0] * 7}, "maps its own pixels to 4e+03 m"),  # mm
+        ({"coef_x": [float("nan")] + good["coef_x"][1:]}, "every value must be finite"),
+    ]
+    path = tmp_path / "cal.toml"
+    for change, needle in cases:
+        write_toml(path, {"calibration": {**good, **change}})
+        with pytest.raises(ConfigError, match="cal.toml") as exc:
+            CursorCalibration.from_toml(path)
+        assert needle in str(exc.value), (change, str(exc.value))
+        assert "\n" not in str(exc.value)
+    # a fit from pixels spread over less than a pixel is refused the same way
+    tiny = grid(3) * 1e-3
+    with pytest.raises(ConfigError, match="at least a pixel"):
+        CursorCalibration.fit(tiny, truth(grid(3)))
+    # and one from points in millimetres
+    with pytest.raises(ConfigError, match="maps its own pixels to"):
+        CursorCalibration.fit(px, truth(px) * 1e3)
 
 
 def test_default_maps_window_onto_valid_rectangle_with_y_down():

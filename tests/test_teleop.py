@@ -202,6 +202,9 @@ def test_file_cursor_errors(tmp_path):
         FileCursor(p)
     with pytest.raises(SourceError, match="cannot read"):
         FileCursor(tmp_path / "missing.csv")
+    p.write_bytes(bytes(range(192, 256)) * 4)  # not UTF-8 (a binary file given by mistake)
+    with pytest.raises(SourceError, match="not a text CSV"):
+        FileCursor(p)
     assert main(["teleop", "--input", "joystick", "--duration", "0.1"]) == 2
 
 

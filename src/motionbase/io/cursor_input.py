@@ -104,6 +104,11 @@ class FileCursor(_Base):
                     rows.append((t, x, y))
         except OSError as exc:
             raise SourceError(f"{self.path}: cannot read the cursor file: {exc.strerror}") from None
+        except (UnicodeDecodeError, csv.Error):
+            raise SourceError(
+                f"{self.path}: not a text CSV of cursor positions; --input file: takes UTF-8 "
+                "text of 't,x,y' lines (s, pixels)"
+            ) from None
         if not rows:
             raise SourceError(f"{self.path}: no cursor rows (expected 't,x,y' lines)")
         t0 = rows[0][0]

@@ -32,10 +32,15 @@ from motionbase.errors import ConfigError
 if TYPE_CHECKING:
     from motionbase.platform.rrr3 import Rrr3
 
-__all__ = ["CursorCalibration", "MAX_CONDITION"]
+__all__ = ["CursorCalibration", "MAX_CONDITION", "MAX_REACH_M", "MIN_PIXEL_SCALE"]
 
 #: Largest condition number accepted for the normalised 9-column design matrix.
 MAX_CONDITION = 1e6
+#: Smallest half-spread of the fitted pixels, pixels (below it the map divides by ~0).
+MIN_PIXEL_SCALE = 0.5
+#: Largest distance from the base origin the map may give its own pixel box, m (a planar
+#: robot's workspace is decimetres; more means coefficients in the wrong unit).
+MAX_REACH_M = 10.0
 
 
 def _features(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -108,9 +113,10 @@ class CursorCalibration:
         lo, hi = px.min(axis=0), px.max(axis=0)
         center = (lo + hi) / 2
         scale = (hi - lo) / 2
-        if (scale <= 0).any():
+        if not (scale >= MIN_PIXEL_SCALE).all():
             raise ConfigError(
-                "calibration: the pixels must spread in both u and v (they lie on a line)"
+                "calibration: the pixels must spread over at least a pixel in both u and v "
+                f"(they spread over {2 * scale[0]:g} x {2 * scale[1]:g})"
             )
         M = _features((px[:, 0] - center[0]) / scale[0], (px[:, 1] - center[1]) / scale[1])
         sv = np.linalg.svd(M, compute_uv=False)
@@ -131,7 +137,7 @@ class CursorCalibration:
             residual=float(np.sqrt(np.mean(err**2))),
             max_residual=float(err.max()),
             n_points=int(px.shape[0]),
-        )
+        )._checked("calibration")
 
     @classmethod
     def default(cls, rrr3: Rrr3, width_px: int, height_px: int) -> CursorCalibration:
@@ -149,6 +155,26 @@ class CursorCalibration:
         pixels = np.stack([fu.ravel() * w, fv.ravel() * h], axis=-1)
         points = np.stack([x0 + fu.ravel() * (x1 - x0), y1 - fv.ravel() * (y1 - y0)], axis=-1)
         return cls.fit(pixels, points)
+
+    def _checked(self, source: str) -> CursorCalibration:
+        """This map, if its pixel box is at least a pixel wide and it maps that box
+        (its 3 x 3 grid) to workspace-sized metres; else a ConfigError naming ``source``."""
+        scale = np.array(self.pixel_scale)
+        if not (scale >= MIN_PIXEL_SCALE).all():
+            raise ConfigError(
+                f"{source}: field 'pixel_scale': must be at least {MIN_PIXEL_SCALE} pixels "
+                f"(half the spread of the fitted pixels), got {scale.tolist()}"
+            )
+        unit = np.stack(np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]), axis=-1).reshape(-1, 2)
+        with np.errstate(all="ignore"):
+            reach = np.abs(self(np.array(self.pixel_center) + unit * scale)).max()
+        if not reach <= MAX_REACH_M:
+            raise ConfigError(
+                f"{source}: maps its own pixels to {reach:.3g} m from the base origin, not a "
+                f"planar robot's workspace (at most {MAX_REACH_M:g} m); the points are metres: "
+                "fit it again (CursorCalibration.fit)"
+            )
+        return self
 
     # -- evaluation --------------------------------------------------------------------------
     def __call__(self, pixels: Any) -> np.ndarray:
@@ -204,8 +230,6 @@ class CursorCalibration:
         if data.get("kind", "biquadratic") != "biquadratic":
             raise ConfigError(f"{source}: field 'kind': only 'biquadratic' is known")
         scale = as_array(source, "pixel_scale", data["pixel_scale"], 2)
-        if (scale <= 0).any():
-            raise ConfigError(f"{source}: field 'pixel_scale': must be > 0")
         n = data.get("n_points", 0)
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise ConfigError(f"{source}: field 'n_points': expected a count, got {n!r}")
@@ -219,7 +243,7 @@ class CursorCalibration:
                 source, "max_residual", data.get("max_residual", 0.0), min_value=0.0
             ),
             n_points=n,
-        )
+        )._checked(source)
 
     def to_toml(self, path: str | Path) -> None:
         """Write to TOML under a ``[calibration]`` table."""
