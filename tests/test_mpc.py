@@ -252,6 +252,18 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
     pair["tilt"]["rate_limit_deg_s"] = [2.0, 4.0, 1.0]
     with pytest.raises(ConfigError, match=r"tilt\.rate_limit_deg_s.*\[roll, pitch\]"):
         MpcParams.from_dict(pair)
+    # a horizon of 2000 steps asked numpy for 29 GB when the cueing was built: refused when read
+    long = ceart.to_dict()
+    long["horizon"]["steps"] = 2000
+    with pytest.raises(ConfigError, match=r"'horizon\.steps': must be from 2 to 100, got 2000"):
+        MpcParams.from_dict(long)
+    long["horizon"]["steps"] = 100  # the largest: builds
+    assert MpcCueing(MpcParams.from_dict(long), DT).params.steps == 100
+    # a fallback washout that does not exist is named as this file's field when read
+    fb = ceart.to_dict()
+    fb["solver"]["fallback"] = "nosuch"
+    with pytest.raises(ConfigError, match=r"m\.toml: field 'solver\.fallback': .*'nosuch'"):
+        MpcParams.from_dict(fb, source="m.toml")
     cfg = PipelineConfig(
         robot="rus6", geometry=Rus6Geometry.preset("ceart"), cueing="mpc", cueing_params=ceart
     )

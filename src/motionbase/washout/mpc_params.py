@@ -84,12 +84,16 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
-from motionbase.washout.params import STANDARD_GRAVITY, tilt_pair
+from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams, tilt_pair
 
 __all__ = ["MpcParams", "limits_from_robot"]
 
 Vec3 = tuple[float, float, float]
 Vec6 = tuple[float, float, float, float, float, float]
+
+#: The most prediction steps: the QP's matrices grow with the square of them (2000 steps
+#: asked for 29 GB), and 100 steps of 0.1 s are a 10 s horizon, far more than a cue needs.
+MAX_STEPS = 100
 
 #: (section, key, field name, length (0: scalar), strictly positive, integer)
 _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
@@ -405,8 +409,11 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             out[name] = tuple(float(v) for v in arr)
         else:
             out[name] = as_float(source, where, value, min_value=0.0, strict_min=positive)
-    if out["steps"] < 2:
-        raise ConfigError(f"{source}: field 'horizon.steps': must be >= 2, got {out['steps']}")
+    if not 2 <= out["steps"] <= MAX_STEPS:
+        raise ConfigError(
+            f"{source}: field 'horizon.steps': must be from 2 to {MAX_STEPS}, got {out['steps']} "
+            "(for a longer horizon, lengthen horizon.step_s)"
+        )
     if out["actuator_margin"] >= 0.5:
         raise ConfigError(
             f"{source}: field 'robot.actuator_margin': a share of the actuator range, must be "
@@ -425,6 +432,10 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             f"{source}: field 'solver.fallback': expected a washout preset name or a .toml path, "
             f"got {fallback!r}"
         )
+    try:  # a preset name or a file: load it now, so that a wrong one names this field
+        WashoutParams.load(fallback)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: field 'solver.fallback': {exc}") from None
     out["fallback"] = fallback
     out["g"] = as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2")
     if not isinstance(d["description"], str):
