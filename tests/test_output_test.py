@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -188,3 +189,37 @@ def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
         dev = swept[away[:, i], i] - neutral[i]
         assert dev.max() == pytest.approx(10.0, abs=1e-3)
         assert dev.min() == pytest.approx(-10.0, abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("platform", "option", "needle"),
+    [
+        (
+            "ceart",
+            "--range-mm",
+            "--range-mm/--speed-mm-s: the rus6 platform's actuators are rotary",
+        ),
+        ("ceart", "--speed-mm-s", "give --range-deg/--speed-deg-s instead"),
+        ("stewart6", "--range-deg", "actuators are linear; give --range-mm/--speed-mm-s"),
+    ],
+)
+def test_the_sweep_options_of_the_other_actuator_kind_are_refused(platform, option, needle, capsys):
+    """``--range-mm`` on the rotary 6-RUS (or ``--range-deg`` on the Stewart platform's
+    linear actuators) used to be ignored and the whole sweep ran at the default range: one
+    line, exit 2, before any frame is sent."""
+    from motionbase import cli
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    try:
+        port = sock.getsockname()[1]
+        args = ["output", "--test", f"udp:127.0.0.1:{port}", "--platform", platform]
+        code = cli.main([*args, option, "5"])
+        err = capsys.readouterr().err
+        assert code == 2
+        assert needle in err and len(err.strip().splitlines()) == 1, err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)  # nothing was sent
+    finally:
+        sock.close()

@@ -387,10 +387,10 @@ def output_test(
     url: str,
     platform: Any = None,
     *,
-    range_deg: float = 5.0,
-    speed_deg_s: float = 10.0,
-    range_mm: float = 10.0,
-    speed_mm_s: float = 20.0,
+    range_deg: float | None = None,
+    speed_deg_s: float | None = None,
+    range_mm: float | None = None,
+    speed_mm_s: float | None = None,
     rate_hz: float = 100.0,
     echo: Callable[[str], None] | None = None,
     stop: StopRequest | None = None,
@@ -420,11 +420,12 @@ def output_test(
         A ``--platform`` value (a robot's name, a geometry preset or TOML path, its
         ``[output]`` table mapping the drive values; degrees or metres when it has none),
         or a robot. Default: the default 6-RUS.
-    range_deg, speed_deg_s : float
-        Rotary actuators: half-range of each sweep about neutral (deg) and peak speed
-        (deg/s, capped by the speed limit).
-    range_mm, speed_mm_s : float
-        Linear actuators: the same in mm and mm/s.
+    range_deg, speed_deg_s : float, optional
+        Rotary actuators: half-range of each sweep about neutral (deg, default 5) and peak
+        speed (deg/s, default 10, capped by the speed limit).
+    range_mm, speed_mm_s : float, optional
+        Linear actuators: the same in mm (default 10) and mm/s (default 20). The pair for
+        the other kind of actuator is refused (a ConfigError): it would be ignored.
     rate_hz : float
         The pipeline's rate and the drive's frame rate, Hz.
     echo : callable, optional
@@ -457,7 +458,23 @@ def output_test(
             robot = robot_spec(name).make(geometry)
         linear = robot.actuator_unit == "m"
         unit, scale = ("mm", 1e-3) if linear else ("deg", math.radians(1.0))
-        rng, speed = (range_mm, speed_mm_s) if linear else (range_deg, speed_deg_s)
+        other = (range_deg, speed_deg_s) if linear else (range_mm, speed_mm_s)
+        if any(v is not None for v in other):
+            given, kind, instead = (
+                ("--range-deg/--speed-deg-s", "linear", "--range-mm/--speed-mm-s")
+                if linear
+                else ("--range-mm/--speed-mm-s", "rotary", "--range-deg/--speed-deg-s")
+            )
+            raise ConfigError(
+                f"{given}: the {robot.name} platform's actuators are {kind}; give {instead} instead"
+            )
+        rng, speed, defaults = (
+            (range_mm, speed_mm_s, (10.0, 20.0))
+            if linear
+            else (range_deg, speed_deg_s, (5.0, 10.0))
+        )
+        rng = defaults[0] if rng is None else rng
+        speed = defaults[1] if speed is None else speed
         pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
         mapping = mapping_for(robot)
 

@@ -542,25 +542,21 @@ def _args_output(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--range-deg",
         type=_positive_float,
-        default=5.0,
         help="sweep half-range of a crank, deg (default 5)",
     )
     p.add_argument(
         "--speed-deg-s",
         type=_positive_float,
-        default=10.0,
         help="peak crank speed, deg/s (default 10)",
     )
     p.add_argument(
         "--range-mm",
         type=_positive_float,
-        default=10.0,
         help="sweep half-range of a linear actuator, mm (default 10)",
     )
     p.add_argument(
         "--speed-mm-s",
         type=_positive_float,
-        default=20.0,
         help="peak linear actuator speed, mm/s (default 20)",
     )
     p.add_argument(
