@@ -463,6 +463,17 @@ def test_bad_urls_say_what_is_wrong(url, err, match):
         open_output(url, m).open()
 
 
+@pytest.mark.parametrize("baud", ["0", "-5"])
+def test_a_baud_rate_of_zero_is_one_error_and_no_warning(baud, caplog):
+    """``baud=0`` used to print the frames-will-be-dropped warning (0 baud is less than any
+    frame needs) before the error."""
+    url = f"serial:loop://?format=text:A%7B1%7D%0A&baud={baud}"
+    with caplog.at_level("WARNING", logger="motionbase"):
+        with pytest.raises(ConfigError, match=f"baud must be > 0, got {baud}"):
+            open_output(url, mapping({"unit": "deg"})).open()
+    assert not caplog.records, caplog.text
+
+
 def test_format_from_a_toml_file_and_loop_url(tmp_path):
     path = tmp_path / "drive.toml"
     path.write_text('binary = "0xFFFE,6xu16be,sum8@2"\nrate_hz = 250\n')

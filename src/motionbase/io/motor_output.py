@@ -865,6 +865,8 @@ def open_output(
             baud = int(ours.get("baud", DEFAULT_BAUD))
         except ValueError:
             raise ConfigError(f"output {url!r}: baud must be an integer") from None
+        if baud <= 0:
+            raise ConfigError(f"output {url!r}: baud must be > 0, got {baud}")
         if not base:
             raise ConfigError(f"output {url!r}: give a device or pyserial URL after 'serial:'")
         dev = base + ("?" + urlencode(other) if other else "")
