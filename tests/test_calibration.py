@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motionbase.config import write_toml
+from motionbase.config import preset_path, write_toml
 from motionbase.errors import ConfigError
 from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
 
@@ -102,6 +102,9 @@ def test_a_file_whose_map_cannot_be_the_workspace_is_refused(tmp_path):
             CursorCalibration.from_toml(path)
         assert needle in str(exc.value), (change, str(exc.value))
         assert "\n" not in str(exc.value)
+    # another kind of file given as the calibration (it said "unknown field 'description'")
+    with pytest.raises(ConfigError, match=r"washout parameter file .*not a cursor calibration"):
+        CursorCalibration.from_toml(preset_path("washout", "default"))
     # a fit from pixels spread over less than a pixel is refused the same way
     tiny = grid(3) * 1e-3
     with pytest.raises(ConfigError, match="at least a pixel"):

@@ -130,6 +130,14 @@ def test_platform_names_select_the_robot(tmp_path):
         load_geometry("stewart6", planar=True)
     with pytest.raises(ConfigError, match="without --planar"):
         load_geometry(str(path), planar=True)
+    # a preset of the other mode's robot is named as such (it used to be "unknown rrr3
+    # preset 'ceart' (nor any other robot's)")
+    with pytest.raises(
+        ConfigError, match=r"--platform ceart: a preset of the .* \(drop --planar\)"
+    ):
+        load_geometry("ceart", planar=True)
+    with pytest.raises(ConfigError, match=r"--platform udesc: a preset of the .* \(add --planar\)"):
+        load_geometry("udesc")
 
 
 def test_cli_platform_errors_are_one_line(capsys):

@@ -177,11 +177,11 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
             {"rb", "rp", "chi_a", "chi_a_deg", "chi_j", "chi_j_deg", "beta", "beta_deg"}
             | {"neutral_height", "neutral_angle_deg", "angle_min", "angle_min_deg"}
         ),
-        "a 6-RUS geometry file (give it with --platform, without --planar)",
+        "a 6-RUS geometry file (a --platform, without --planar)",
     ),
     "rrr3": (
         frozenset({"base_side", "platform_side", "modes", "servo", "safety"}),
-        "a 3-RRR geometry file (give it with --platform and --planar)",
+        "a 3-RRR geometry file (a --platform with --planar; teleop's --rrr3)",
     ),
     "stewart6": (
         frozenset(
@@ -189,7 +189,7 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
             | {"platform_half_angle", "platform_half_angle_deg", "neutral_length"}
             | {"length_min", "length_max", "park_margin"}
         ),
-        "a 6-UPS Stewart platform geometry file (give it with --platform, without --planar)",
+        "a 6-UPS Stewart platform geometry file (a --platform, without --planar)",
     ),
 }
 _KIND_NAMES = {
@@ -216,6 +216,12 @@ def file_kind(table: Any) -> str | None:
     score = {k: len(keys & marks) for k, (marks, _) in _FILE_KINDS.items()}
     best = max(score, key=score.__getitem__)
     return best if score[best] > 0 else None
+
+
+def describe_file_kind(kind: str) -> str:
+    """What a kind of :func:`file_kind` is, for a message: ``"a washout parameter file (give
+    it with --washout)"``."""
+    return _FILE_KINDS[kind][1]
 
 
 def check_file_kind(source: str, table: Any, expected: str) -> None:

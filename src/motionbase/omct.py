@@ -399,7 +399,7 @@ def simulate(
         k = int(np.flatnonzero(~result.accepted)[0])
         raise MotionbaseError(
             f"OMCT: the pipeline rejected the test signal at t = {t[k]:.3f} s "
-            f"({pipeline.health.last_rejection}); lower the amplitudes"
+            f"({pipeline.health.last_rejection}); lower the amplitudes (a smaller --scale)"
         )
     angles, poses = result.commands, result.poses
     clamped, limited = result.clamped, result.limited

@@ -26,7 +26,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from motionbase.config import as_array, as_float, check_keys, read_toml, write_toml
+from motionbase.config import (
+    as_array,
+    as_float,
+    check_keys,
+    describe_file_kind,
+    file_kind,
+    read_toml,
+    write_toml,
+)
 from motionbase.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -253,5 +261,11 @@ class CursorCalibration:
     def from_toml(cls, path: str | Path) -> CursorCalibration:
         """Read a file written by :meth:`to_toml`."""
         data = read_toml(path)
+        kind = file_kind(data) if "calibration" not in data else None
+        if kind is not None:
+            raise ConfigError(
+                f"{path}: {describe_file_kind(kind)}, not a cursor calibration (a "
+                "[calibration] table)"
+            )
         check_keys(str(path), data, ("calibration",), required=("calibration",))
         return cls.from_dict(data["calibration"], source=f"{path} [calibration]")

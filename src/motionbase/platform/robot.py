@@ -306,6 +306,15 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
                 robot = found
         else:
             found = _robot_of_preset(text, candidates)
+            other = [name for name, spec in ROBOTS.items() if spec.planar != planar]
+            elsewhere = None if found is not None else _robot_of_preset(text, other)
+            if elsewhere is not None:
+                flag = "drop --planar" if planar else "add --planar"
+                raise ConfigError(
+                    f"--platform {text}: a preset of the {ROBOTS[elsewhere].description}, "
+                    f"{'a planar' if ROBOTS[elsewhere].planar else 'not a planar'} robot "
+                    f"({flag})"
+                )
             if found is None:
                 names = sorted({name for r in candidates for name in preset_names(r)})
                 raise ConfigError(
