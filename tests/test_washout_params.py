@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -216,8 +217,21 @@ def test_input_table_is_optional_and_checked():
         WashoutParams.from_dict(d, source="my.toml")
     d["input"] = {"lowpass_wn": 500.0}
     fast = WashoutParams.from_dict(d, source="my.toml")
-    with pytest.raises(ConfigError, match="Nyquist"):
+    with pytest.raises(ConfigError, match=r"Nyquist.*\(washout field input\.lowpass_wn\)$"):
         ClassicalWashout(fast, DT)
+    # each filter frequency is named by its field when it is too high for the rate
+    for section, axis, label in [
+        ("translational", 1, "translational.wn, y"),
+        ("rotational", 2, "rotational.wn, yaw"),
+        ("tilt", None, "tilt.wn"),
+    ]:
+        e = WashoutParams.preset("default").to_dict()
+        if axis is None:
+            e[section]["wn"] = 1e300
+        else:
+            e[section]["wn"][axis] = 1e300
+        with pytest.raises(ConfigError, match=rf"Nyquist.*\(washout field {re.escape(label)}\)$"):
+            ClassicalWashout(WashoutParams.from_dict(e), DT)
 
 
 def test_direct_construction_is_validated_too():

@@ -121,7 +121,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from motionbase.errors import CueingInputError
+from motionbase.errors import ConfigError, CueingInputError
 from motionbase.physics import rotation_terms, track_toward
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE, Cueing
 from motionbase.washout.filters import (
@@ -500,25 +500,33 @@ class WashoutState:
 def _pack(params: WashoutParams, dt: float) -> np.ndarray:
     cf = np.zeros(_NC)
     m = params.method
+
+    def disc(block, wn: float, field: str):
+        """The block discretised at ``dt``; an error names the file's field."""
+        try:
+            return discretise(block, dt, m, prewarp=wn if m == "tustin" else None)
+        except ConfigError as exc:
+            raise ConfigError(f"{exc} (washout field {field})") from None
+
+    axes = ("x", "y", "z")
     for i in range(3):
         wn = params.translational_wn[i]
         blk = translational_highpass(wn, params.translational_zeta[i], params.translational_wb[i])
-        d = discretise(blk, dt, m, prewarp=wn if m == "tustin" else None)
+        d = disc(blk, wn, f"translational.wn, {axes[i]}")
         cf[_TPHI + 9 * i : _TPHI + 9 * i + 9] = d.phi.ravel()
         cf[_TG0 + 3 * i : _TG0 + 3 * i + 3] = d.gamma0
         cf[_TG1 + 3 * i : _TG1 + 3 * i + 3] = d.gamma1
         wn = params.rotational_wn[i]
-        d = discretise(
+        d = disc(
             rotational_highpass(wn, params.rotational_zeta[i]),
-            dt,
-            m,
-            prewarp=wn if m == "tustin" else None,
+            wn,
+            f"rotational.wn, {('roll', 'pitch', 'yaw')[i]}",
         )
         cf[_RPHI + 4 * i : _RPHI + 4 * i + 4] = d.phi.ravel()
         cf[_RG0 + 2 * i : _RG0 + 2 * i + 2] = d.gamma0
         cf[_RG1 + 2 * i : _RG1 + 2 * i + 2] = d.gamma1
     wn = params.tilt_wn
-    d = discretise(lowpass2(wn, params.tilt_zeta), dt, m, prewarp=wn if m == "tustin" else None)
+    d = disc(lowpass2(wn, params.tilt_zeta), wn, "tilt.wn")
     for i in range(2):
         cf[_LPHI + 4 * i : _LPHI + 4 * i + 4] = d.phi.ravel()
         cf[_LG0 + 2 * i : _LG0 + 2 * i + 2] = d.gamma0
@@ -535,7 +543,7 @@ def _pack(params: WashoutParams, dt: float) -> np.ndarray:
     cf[_TK : _TK + 2] = params.tilt_accel_limit / params.tilt_rate_limit  # 1/tau of the glide
     wn = params.input_lowpass_wn
     if wn > 0.0:
-        d = discretise(lowpass2(wn, 1.0), dt, m, prewarp=wn if m == "tustin" else None)
+        d = disc(lowpass2(wn, 1.0), wn, "input.lowpass_wn")
         cf[_PON] = 1.0
         cf[_PPHI : _PPHI + 4] = d.phi.ravel()
         cf[_PG0 : _PG0 + 2] = d.gamma0
