@@ -32,6 +32,7 @@ from motionbase.io.motor_output import (
     crc16_modbus,
     mapping_for,
     open_output,
+    open_outputs,
 )
 from motionbase.pipeline import Pipeline, run
 from motionbase.platform import OutputMapping, Rus6Geometry
@@ -612,3 +613,37 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
     assert sink.send_errors > 0
     said = [r.getMessage() for r in caplog.records]
     assert any("link is down" in m for m in said) and any("link back" in m for m in said)
+
+
+@pytest.mark.parametrize(
+    ("fmt", "needle"),
+    [
+        # the --output help's old example: unsigned fields, the 6-RUS parks at -55 deg
+        ("bin:0xFFFE,6xu16be,sum8@2", "park command's drive values (-55, -55"),
+        ("text:A%7B1:04x%7D%0A", "do not fit the frame format 'text:A{1:04x}\\n'"),  # hex
+    ],
+)
+def test_a_format_that_can_never_send_is_refused_before_the_run(fmt, needle, capsys, tmp_path):
+    """An output whose frame cannot carry the park command would hold every frame of the
+    run (the summary said "0 frames sent, 241 held out of range"): refused before anything
+    moves, in one line, exit 2."""
+    from motionbase.platform.robot import robot_spec
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    try:
+        url = f"udp:127.0.0.1:{sock.getsockname()[1]}?format={fmt}"
+        out = tmp_path / "f.mcap"
+        code = main(["fly", "c1723", "--duration", "1", "--out", str(out), "--output", url])
+        err = capsys.readouterr().err
+        assert code == 2
+        assert needle in err and len(err.strip().splitlines()) == 1, err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)
+        # a signed field in centidegrees carries them
+        robot = robot_spec("rus6").make(Rus6Geometry.preset("ceart"))
+        url = f"udp:127.0.0.1:{sock.getsockname()[1]}?format=bin:0xFFFE,6xi16be*100,sum8@2"
+        assert len(open_outputs([url], robot)) == 1
+    finally:
+        sock.close()

@@ -439,7 +439,7 @@ def output_test(
         The lines printed.
     """
     from motionbase.commanding import CommandPipeline, SweepSource
-    from motionbase.io.motor_output import mapping_for, open_output
+    from motionbase.io.motor_output import check_sendable, mapping_for, open_output
     from motionbase.platform.robot import ROBOTS, Robot, load_geometry, robot_spec
 
     echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
@@ -498,6 +498,7 @@ def output_test(
                 say(f"output test stopped by {why}: moving back to park")
 
         sink = open_output(url, mapping, rate_hz=rate_hz)  # (the pipeline limits the commands)
+        check_sendable(sink, robot)
         say(f"output test on {sink.label}: {mapping.describe()}")
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")
         with sink:

@@ -175,7 +175,7 @@ _SHARED_OPTIONS: dict[str, dict[str, object]] = {
         "metavar": "URL",
         "help": "send the safe crank angles to motor drives (repeatable): "
         "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
-        "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xu16be,sum8@2; see "
+        "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xi16be*100,sum8@2; see "
         "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",
     },
     "--live": {

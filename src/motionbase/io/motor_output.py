@@ -105,6 +105,7 @@ __all__ = [
     "TextFormat",
     "crc16_ccitt",
     "crc16_modbus",
+    "check_sendable",
     "mapping_for",
     "open_output",
     "open_outputs",
@@ -891,11 +892,41 @@ def open_output(
 
 def open_outputs(urls: Sequence[str] | None, robot: Robot) -> list[MotorOutput]:
     """Motor-drive sinks for a job's ``--output`` URLs, mapped by :func:`mapping_for` and
-    ramped at the drive within the robot's actuator limits."""
+    ramped at the drive within the robot's actuator limits (each checked by
+    :func:`check_sendable`)."""
     if not urls:
         return []
     mapping = mapping_for(robot)
-    return [open_output(u, mapping, limits=robot.limits) for u in urls]
+    sinks = [open_output(u, mapping, limits=robot.limits) for u in urls]
+    for sink in sinks:
+        check_sendable(sink, robot)
+    return sinks
+
+
+def check_sendable(sink: MotorOutput, robot: Robot) -> None:
+    """A ConfigError unless ``sink`` can send ``robot``'s park and neutral commands: else not
+    one frame of the run would be sent (each would be held), and the drive would never move.
+
+    The usual cause is a frame field that cannot carry the drive values (an unsigned field
+    for negative degrees, a 1-byte field for thousands of counts), or an ``[output]`` table
+    whose drive range leaves them out.
+    """
+    for what, q in (("park", robot.park_angles), ("neutral", robot.inverse(robot.neutral_pose))):
+        values = sink.mapping.to_drive(np.asarray(q, dtype=float))
+        shown = ", ".join(f"{v:g}" for v in values)
+        if not sink.mapping.in_range(values).all():
+            raise ConfigError(
+                f"output {sink.url!r}: the {what} command's drive values ({shown}) are outside "
+                "the [output] drive range of the geometry; no frame would be sent: widen it"
+            )
+        if sink.format.encode(values.tolist()) is None:
+            raise ConfigError(
+                f"output {sink.url!r}: the {what} command's drive values ({shown}) do not fit "
+                f"the frame format {sink.format.describe()!r}; no frame would be sent: use "
+                "fields that hold them (signed ones for negative values: i16, {1:d}), or map "
+                "them into the fields' range with an [output] table in the geometry (unit = "
+                '"range", range_lo, range_hi)'
+            )
 
 
 def mapping_for(robot: Robot) -> OutputMapping:
