@@ -408,6 +408,8 @@ def test_bad_host_or_port_says_which(tmp_path, run_cli):
         (["stream", "--mavlink", f"udpout:{bad_host}:14550", *out], ("does not resolve",)),
         (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (0..65535)",)),
         (["stream", "--mavlink", "udpout:127.0.0.1:0", *out], ("port 0 is out of range",)),
+        (["stream", "--mavlink", "udpin:127.0.0.1:-1", *out], ("port -1 is out of range",)),
+        (["stream", "--live", "-5", *out], ("port -5 is out of range",)),
         (["stream", "--mavlink", f"udp:{bad_host}:99999", *out], ("out of range", "resolve")),
         (["stream", "--mavlink", f"tcp:{bad_host}:5760", *out], ("does not resolve",)),
         (["teleop", "--input", f"udp:{bad_host}:99999"], ("out of range", "does not resolve")),

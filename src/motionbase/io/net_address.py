@@ -41,7 +41,8 @@ def check_host_port(what: str, host: str, port: str, *, bind: bool = False) -> t
     """
     problems = []
     lowest = 0 if bind else 1
-    number = int(port) if port.isdigit() else None
+    digits = port.removeprefix("-")  # a negative port is a number, out of range
+    number = int(port) if digits.isascii() and digits.isdigit() else None
     if number is None:
         problems.append(f"port {port!r} is not a number")
     elif not lowest <= number <= 65535:
