@@ -406,13 +406,25 @@ def test_bad_host_or_port_says_which(tmp_path, run_cli):
         ([*replay, "--output", "udp:127.0.0.1:99999", *out], ("port 99999 is out of range",)),
         ([*replay, "--output", f"udp:{bad_host}:4000", *out], (f"{bad_host}' does not resolve",)),
         (["stream", "--mavlink", f"udpout:{bad_host}:14550", *out], ("does not resolve",)),
-        (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (0..65535)",)),
+        (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (1..65535)",)),
         (["stream", "--mavlink", "udpout:127.0.0.1:0", *out], ("port 0 is out of range",)),
         (["stream", "--mavlink", "udpin:127.0.0.1:-1", *out], ("port -1 is out of range",)),
         (["stream", "--live", "-5", *out], ("port -5 is out of range",)),
         (["stream", "--mavlink", f"udp:{bad_host}:99999", *out], ("out of range", "resolve")),
         (["stream", "--mavlink", f"tcp:{bad_host}:5760", *out], ("does not resolve",)),
         (["teleop", "--input", f"udp:{bad_host}:99999"], ("out of range", "does not resolve")),
+        # a port 0 to listen on would be a free port shown nowhere: nothing could send to it
+        *(
+            (["stream", *source, "--duration", "1", *out], ("port 0 is out of range (1..65535)",))
+            for source in (
+                ["--mavlink", "udpin:127.0.0.1:0"],
+                ["--source", "fgnative:udp:127.0.0.1:0"],
+                ["--source", "xplane:127.0.0.1:49000?listen=0"],
+                ["--source", "xplane:127.0.0.1:49000?listen=127.0.0.1:0"],
+            )
+        ),
+        (["stream", "--source", "fgnative:udp:127.0.0.1:70000", *out], ("(1..65535)",)),
+        (["stream", "--live", "70000", *out], ("(1..65535, or 0 for any free port)",)),
     ]
     for args, needles in cases:
         code, stdout, err = run_cli(*args)

@@ -975,6 +975,7 @@ def _stream(
         realtime=realtime,
         busy_wait=busy_wait,
         stale_timeout_s=config.stale_timeout_s,
+        free_port=False,  # a port picked at random is shown nowhere: nothing could send to it
     )
     extra = [PlanarServoOutput(serial)] if serial else []
     with source:

@@ -255,8 +255,9 @@ _NET_PREFIXES = {
 }
 
 
-def _check_link_address(url: str) -> None:
-    """A port out of range or a host that does not resolve, in one line (ConfigError)."""
+def _check_link_address(url: str, free_port: bool) -> None:
+    """A port out of range (0 only to listen, with ``free_port``) or a host that does not
+    resolve, in one line (ConfigError)."""
     for prefix, bind in _NET_PREFIXES.items():
         if url.startswith(prefix):
             host, colon, port = url[len(prefix) :].rpartition(":")
@@ -264,7 +265,7 @@ def _check_link_address(url: str) -> None:
                 raise ConfigError(
                     f"mavlink {url}: expected {prefix}HOST:PORT, e.g. {prefix}127.0.0.1:14550"
                 )
-            check_host_port(f"mavlink {url}", host, port, bind=bind)
+            check_host_port(f"mavlink {url}", host, port, free_port=bind and free_port)
             return
 
 
@@ -372,9 +373,9 @@ class MavlinkSource(SampleHoldSource):
     ----------
     url : str
         A pymavlink connection string: ``udpin:HOST:PORT`` (listen; port 0
-        picks a free port, see :attr:`local_address`), ``udpout:HOST:PORT``,
-        ``tcp:HOST:PORT``, a serial device (``/dev/ttyACM0``, 115200 baud), or a
-        ``.tlog`` / ``.bin`` log file. The default listens on loopback only;
+        picks a free port with ``free_port``, see :attr:`local_address`),
+        ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, a serial device (``/dev/ttyACM0``,
+        115200 baud), or a ``.tlog`` / ``.bin`` log file. The default listens on loopback only;
         listening on every interface needs an explicit ``udpin:0.0.0.0:PORT``.
     rate_hz : float
         Fixed output rate, Hz (> 0). Also the rate asked of the vehicle.
@@ -414,6 +415,10 @@ class MavlinkSource(SampleHoldSource):
         (``time_boot_ms``/``time_usec``, evenly spaced as sampled; default) or
         by the ground station's receive time stamped in the log (bursty when
         the radio link was). DataFlash logs always use the vehicle clock.
+    free_port : bool
+        A ``udpin:`` (``udp:``, ``tcpin:``) URL may listen on port 0, any free
+        port (see :attr:`local_address`); False refuses it, as ``motionbase
+        stream`` does: nobody could send to a port it does not show.
 
     Attributes
     ----------
@@ -463,6 +468,7 @@ class MavlinkSource(SampleHoldSource):
         stale_timeout_s: float = 0.5,
         request_timeout_s: float = 3.0,
         log_clock: str = "vehicle",
+        free_port: bool = True,
     ) -> None:
         if not isinstance(url, str) or not url.strip():
             raise ConfigError("mavlink url: empty; give e.g. udpin:127.0.0.1:14550 or a .tlog path")
@@ -483,6 +489,7 @@ class MavlinkSource(SampleHoldSource):
         self.sysid = sysid
         self.compid = compid
         self.realtime = bool(realtime)
+        self.free_port = bool(free_port)
         self.request_streams = bool(request_streams)
         if log_clock not in ("vehicle", "receive"):
             raise ConfigError(f"mavlink log_clock: 'vehicle' or 'receive', got {log_clock!r}")
@@ -534,14 +541,15 @@ class MavlinkSource(SampleHoldSource):
         SourceError
             The log file does not exist, or the port cannot be opened.
         ConfigError
-            A network URL's port is out of range or its host name does not resolve.
+            A network URL's port is out of range (0 without ``free_port``) or its host
+            name does not resolve.
         """
         if self._conn is not None:
             return
         if self.is_log and not Path(self.url).is_file():
             raise SourceError(f"mavlink log {self.url}: no such file (check the path)")
         if not self.is_log:
-            _check_link_address(self.url)
+            _check_link_address(self.url, self.free_port)
         self._reset_state()
         try:
             with _quiet(fds=self.is_log):

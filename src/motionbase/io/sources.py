@@ -31,6 +31,7 @@ def open_live_source(
     realtime: bool = True,
     busy_wait: bool = False,
     stale_timeout_s: float = 0.5,
+    free_port: bool = True,
     **mavlink_options: Any,
 ) -> Any:
     """The source for a URL, not yet entered (use it in a ``with`` block).
@@ -52,6 +53,9 @@ def open_live_source(
         Wait for each tick by busy-waiting (see :mod:`motionbase.pacing`).
     stale_timeout_s : float
         The watchdog's timeout, s.
+    free_port : bool
+        A source that listens may do so on port 0, any free port (read back from its
+        ``local_address``); False refuses port 0, as ``motionbase stream`` does.
     **mavlink_options
         ``sysid``, ``compid``, ``signing_key``: MAVLink only.
 
@@ -71,6 +75,7 @@ def open_live_source(
             realtime=realtime,
             busy_wait=busy_wait,
             stale_timeout_s=stale_timeout_s,
+            free_port=free_port,
             **mavlink_options,
         )
     if not isinstance(url, str) or not url.strip():
@@ -95,6 +100,7 @@ def open_live_source(
         duration_s=duration_s,
         busy_wait=busy_wait,
         stale_timeout_s=stale_timeout_s,
+        free_port=free_port,
     )
     if scheme == "fgnative":
         from motionbase.io.fgnative_source import FgNativeSource
