@@ -294,6 +294,23 @@ def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
     assert stdout == ""
 
 
+def test_a_mavlink_link_of_no_known_kind_is_one_line(tmp_path, run_cli):
+    """An unknown ``KIND:`` once said "invalid literal for int()"; an ordinary file ran as a
+    serial port that never spoke, until killed."""
+    notes = tmp_path / "empty.toml"
+    notes.write_text("")
+    out = tmp_path / "x.mcap"
+    cases = [
+        (["--mavlink", "foo:bar"], ("unknown kind of link 'foo'", "udpin:HOST:PORT", "serial")),
+        (["--mavlink", notes, "--fast"], ("empty.toml", ".tlog", ".bin", "character device")),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
+        assert code == 2, args
+        one_line(err, *needles)
+    assert not out.exists()
+
+
 def _closed_port() -> int:
     s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     s.bind(("127.0.0.1", 0))

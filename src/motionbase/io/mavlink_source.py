@@ -70,6 +70,7 @@ import contextlib
 import logging
 import math
 import os
+import stat
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -253,6 +254,37 @@ _NET_PREFIXES = {
     "udpbcast:": False,
     "tcp:": False,
 }
+
+
+# Every kind of pymavlink connection string (mavutil.mavlink_connection), by its prefix.
+_KINDS = frozenset("udpin udpout udp udpbcast tcp tcpin mcast uds unix ws wss wsserver csv".split())
+_FORMS = (
+    "udpin:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, a serial device "
+    "(e.g. /dev/ttyACM0) or a log file (.tlog, .bin)"
+)
+
+
+def _check_link_kind(url: str) -> None:
+    """A live link's string names a kind of connection pymavlink knows, or a serial device
+    (a character device): one line (ConfigError) for an unknown ``KIND:`` prefix, or for an
+    ordinary file that is not named as a log (pymavlink would open it as a serial port)."""
+    kind, colon, _ = url.partition(":")
+    if colon and kind in _KINDS:
+        return
+    try:
+        mode = os.stat(url).st_mode
+    except (OSError, ValueError):  # no such path (a device that is not plugged in)
+        if colon:
+            raise ConfigError(
+                f"mavlink {url}: unknown kind of link {kind!r}; give {_FORMS}"
+            ) from None
+        return
+    if not stat.S_ISCHR(mode):
+        raise ConfigError(
+            f"mavlink {url}: neither a MAVLink log (a file whose name ends in "
+            f"{', '.join(_LOG_SUFFIXES)}) nor a serial device (a character device, "
+            "e.g. /dev/ttyUSB0)"
+        )
 
 
 def _check_link_address(url: str, free_port: bool) -> None:
@@ -495,6 +527,8 @@ class MavlinkSource(SampleHoldSource):
             raise ConfigError(f"mavlink log_clock: 'vehicle' or 'receive', got {log_clock!r}")
         self.log_clock = log_clock
         self.is_log = _is_log_url(self.url)
+        if not self.is_log:
+            _check_link_kind(self.url)
         self._signing_key_path = None if signing_key is None else str(signing_key)
         self._key: bytes | None = None
         if signing_key is not None:
