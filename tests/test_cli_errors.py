@@ -311,6 +311,22 @@ def test_a_mavlink_link_of_no_known_kind_is_one_line(tmp_path, run_cli):
     assert not out.exists()
 
 
+def test_one_source_at_a_time_and_fast_for_logs_only(tmp_path, run_cli):
+    """--mavlink was silently ignored beside --source; --fast on a live link was taken and
+    meant nothing (with --source it was already refused, in these words)."""
+    out = tmp_path / "x.mcap"
+    link = "udpin:127.0.0.1:14552"
+    cases = [
+        (["--mavlink", link, "--source", "xplane:127.0.0.1:49000"], ("one source at a time",)),
+        (["--mavlink", link, "--fast"], (f"--fast replays MAVLink log files; {link} is live",)),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
+        assert code == 2, args
+        one_line(err, *needles)
+    assert not out.exists()
+
+
 def _closed_port() -> int:
     s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     s.bind(("127.0.0.1", 0))
