@@ -445,6 +445,8 @@ def test_bad_host_or_port_says_which(tmp_path, run_cli):
         (["stream", "--live", "-5", *out], ("port -5 is out of range",)),
         (["stream", "--mavlink", f"udp:{bad_host}:99999", *out], ("out of range", "resolve")),
         (["stream", "--mavlink", f"tcp:{bad_host}:5760", *out], ("does not resolve",)),
+        # not preceded by a warning that it listens on 0.0.0.0 to hear that host
+        (["stream", "--source", f"xplane:{bad_host}:49000", *out], ("does not resolve",)),
         (["teleop", "--input", f"udp:{bad_host}:99999"], ("out of range", "does not resolve")),
         # a port 0 to listen on would be a free port shown nowhere: nothing could send to it
         *(

@@ -349,6 +349,7 @@ def test_datagrams_from_another_host_are_refused(xplane):
         "xplane:127.0.0.1:49000?listen=abc",
         "xplane:127.0.0.1:49000?colour=red",
         "xplane:127.0.0.1:49000?listen=70000",
+        "xplane:notahost.invalid:49000",
         "x-plane:127.0.0.1:49000",
     ],
 )

@@ -92,7 +92,7 @@ from motionbase.io.live_source import (
     split_host_port,
     wrap_pi,
 )
-from motionbase.io.net_address import check_port
+from motionbase.io.net_address import check_host_port, check_port
 from motionbase.physics import MAX_ANGULAR_VELOCITY, MAX_SPECIFIC_FORCE, STANDARD_GRAVITY
 
 __all__ = ["DATAREFS", "DEFAULT_LISTEN_PORT", "XPlaneSource", "parse_xplane_url"]
@@ -146,7 +146,8 @@ def parse_xplane_url(url: str, *, free_port: bool = True) -> tuple[str, int, str
     Raises
     ------
     ConfigError
-        One line naming what is wrong, with an example.
+        One line naming what is wrong, with an example (X-Plane's host name that does not
+        resolve, too).
     """
     example = "e.g. xplane:127.0.0.1:49000 or xplane:192.168.1.20:49000?listen=49005"
     text = url.strip()
@@ -154,6 +155,7 @@ def parse_xplane_url(url: str, *, free_port: bool = True) -> tuple[str, int, str
         raise ConfigError(f"xplane URL {url!r}: must start with xplane: ({example})")
     addr, _, query = text[len("xplane:") :].partition("?")
     host, port = split_host_port(addr, f"xplane URL {url!r}", example, free_port=False)
+    check_host_port(f"xplane URL {url!r}", host, str(port))  # resolves, before anything listens
     listen_host = "127.0.0.1" if is_loopback(host) else "0.0.0.0"
     listen_port = DEFAULT_LISTEN_PORT
     version: int | None = None
