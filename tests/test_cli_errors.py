@@ -327,6 +327,15 @@ def test_one_source_at_a_time_and_fast_for_logs_only(tmp_path, run_cli):
     assert not out.exists()
 
 
+def test_a_component_id_out_of_range_says_what_to_type(tmp_path, run_cli):
+    """It said "1..255 or None": None is what the library takes, not what one types."""
+    out = tmp_path / "x.mcap"
+    code, stdout, err = run_cli("stream", "--compid", "300", "--duration", "1", "--out", out)
+    assert code == 2
+    line = one_line(err, "compid", "1..255, got 300", "leave it out")
+    assert "None" not in line and not out.exists()
+
+
 def _closed_port() -> int:
     s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     s.bind(("127.0.0.1", 0))

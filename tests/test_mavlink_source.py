@@ -602,6 +602,8 @@ def test_clear_errors_for_misuse(tmp_path: Path) -> None:
         MavlinkSource(rate_hz=0)
     with pytest.raises(ConfigError, match="sysid"):
         MavlinkSource(sysid=0)
+    with pytest.raises(ConfigError, match="compid: must be a component id 1..255, got 300; leave"):
+        MavlinkSource(compid=300)
     with pytest.raises(ConfigError, match="stale_timeout_s"):
         MavlinkSource(stale_timeout_s=math.nan)
     with pytest.raises(SourceError, match="no such file"):

@@ -514,7 +514,10 @@ class MavlinkSource(SampleHoldSource):
         if not (isinstance(sysid, int) and 1 <= sysid <= 255):
             raise ConfigError(f"mavlink sysid: must be an integer 1..255, got {sysid!r}")
         if compid is not None and not (isinstance(compid, int) and 1 <= compid <= 255):
-            raise ConfigError(f"mavlink compid: must be an integer 1..255 or None, got {compid!r}")
+            raise ConfigError(
+                f"mavlink compid: must be a component id 1..255, got {compid!r}; leave it out "
+                "to accept every component"
+            )
         self.request_timeout_s = positive_number(
             self.kind, "request_timeout_s", request_timeout_s, "s"
         )
