@@ -468,6 +468,11 @@ def test_signing_key_file_errors(tmp_path: Path) -> None:
     assert load_signing_key(hex_file) == bytes(range(32))
     with pytest.raises(ConfigError, match="live links only"):
         MavlinkSource(str(TLOG), signing_key=hex_file)
+    # 64 characters, a newline: once "got 65 bytes", as if the length were wrong
+    not_hex = tmp_path / "not_hex.key"
+    not_hex.write_text("0123456789abcdef" * 2 + "zz" + "0" * 30 + "\n")
+    with pytest.raises(ConfigError, match=r"'z' \(character 33\) is not a hexadecimal digit"):
+        load_signing_key(not_hex)
 
 
 # --------------------------------------------------------------------------- stream requests

@@ -71,6 +71,7 @@ import logging
 import math
 import os
 import stat
+import string
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -234,14 +235,18 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
     if len(data) == 32:
         return data
     text = data.strip()
-    if len(text) == 64:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
+    make = "(make one with: head -c 32 /dev/urandom > key.bin)"
+    if len(text) == 64 and text.isascii():
+        chars = text.decode("ascii")
+        bad = next((i for i, c in enumerate(chars) if c not in string.hexdigits), None)
+        if bad is None:
+            return bytes.fromhex(chars)
+        raise ConfigError(
+            f"signing key {p}: 64 characters, but {chars[bad]!r} (character {bad + 1}) is "
+            f"not a hexadecimal digit (0-9, a-f); give 64 hex digits or 32 raw bytes {make}"
+        )
     raise ConfigError(
-        f"signing key {p}: expected 32 raw bytes or 64 hex digits, got {len(data)} bytes "
-        "(make one with: head -c 32 /dev/urandom > key.bin)"
+        f"signing key {p}: expected 32 raw bytes or 64 hex digits, got {len(data)} bytes {make}"
     )
 
 
