@@ -294,6 +294,48 @@ def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
     assert stdout == ""
 
 
+def test_a_mavlink_link_of_no_known_kind_is_one_line(tmp_path, run_cli):
+    """An unknown ``KIND:`` once said "invalid literal for int()"; an ordinary file ran as a
+    serial port that never spoke, until killed."""
+    notes = tmp_path / "empty.toml"
+    notes.write_text("")
+    out = tmp_path / "x.mcap"
+    cases = [
+        (["--mavlink", "foo:bar"], ("unknown kind of link 'foo'", "udpin:HOST:PORT", "serial")),
+        (["--mavlink", notes, "--fast"], ("empty.toml", ".tlog", ".bin", "character device")),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
+        assert code == 2, args
+        one_line(err, *needles)
+    assert not out.exists()
+
+
+def test_one_source_at_a_time_and_fast_for_logs_only(tmp_path, run_cli):
+    """--mavlink was silently ignored beside --source; --fast on a live link was taken and
+    meant nothing (with --source it was already refused, in these words)."""
+    out = tmp_path / "x.mcap"
+    link = "udpin:127.0.0.1:14552"
+    cases = [
+        (["--mavlink", link, "--source", "xplane:127.0.0.1:49000"], ("one source at a time",)),
+        (["--mavlink", link, "--fast"], (f"--fast replays MAVLink log files; {link} is live",)),
+    ]
+    for args, needles in cases:
+        code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
+        assert code == 2, args
+        one_line(err, *needles)
+    assert not out.exists()
+
+
+def test_a_component_id_out_of_range_says_what_to_type(tmp_path, run_cli):
+    """It said "1..255 or None": None is what the library takes, not what one types."""
+    out = tmp_path / "x.mcap"
+    code, stdout, err = run_cli("stream", "--compid", "300", "--duration", "1", "--out", out)
+    assert code == 2
+    line = one_line(err, "compid", "1..255, got 300", "leave it out")
+    assert "None" not in line and not out.exists()
+
+
 def _closed_port() -> int:
     s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     s.bind(("127.0.0.1", 0))
@@ -406,11 +448,27 @@ def test_bad_host_or_port_says_which(tmp_path, run_cli):
         ([*replay, "--output", "udp:127.0.0.1:99999", *out], ("port 99999 is out of range",)),
         ([*replay, "--output", f"udp:{bad_host}:4000", *out], (f"{bad_host}' does not resolve",)),
         (["stream", "--mavlink", f"udpout:{bad_host}:14550", *out], ("does not resolve",)),
-        (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (0..65535)",)),
+        (["stream", "--mavlink", "udpin:127.0.0.1:99999", *out], ("out of range (1..65535)",)),
         (["stream", "--mavlink", "udpout:127.0.0.1:0", *out], ("port 0 is out of range",)),
+        (["stream", "--mavlink", "udpin:127.0.0.1:-1", *out], ("port -1 is out of range",)),
+        (["stream", "--live", "-5", *out], ("port -5 is out of range",)),
         (["stream", "--mavlink", f"udp:{bad_host}:99999", *out], ("out of range", "resolve")),
         (["stream", "--mavlink", f"tcp:{bad_host}:5760", *out], ("does not resolve",)),
+        # not preceded by a warning that it listens on 0.0.0.0 to hear that host
+        (["stream", "--source", f"xplane:{bad_host}:49000", *out], ("does not resolve",)),
         (["teleop", "--input", f"udp:{bad_host}:99999"], ("out of range", "does not resolve")),
+        # a port 0 to listen on would be a free port shown nowhere: nothing could send to it
+        *(
+            (["stream", *source, "--duration", "1", *out], ("port 0 is out of range (1..65535)",))
+            for source in (
+                ["--mavlink", "udpin:127.0.0.1:0"],
+                ["--source", "fgnative:udp:127.0.0.1:0"],
+                ["--source", "xplane:127.0.0.1:49000?listen=0"],
+                ["--source", "xplane:127.0.0.1:49000?listen=127.0.0.1:0"],
+            )
+        ),
+        (["stream", "--source", "fgnative:udp:127.0.0.1:70000", *out], ("(1..65535)",)),
+        (["stream", "--live", "70000", *out], ("(1..65535, or 0 for any free port)",)),
     ]
     for args, needles in cases:
         code, stdout, err = run_cli(*args)

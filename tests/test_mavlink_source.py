@@ -468,6 +468,11 @@ def test_signing_key_file_errors(tmp_path: Path) -> None:
     assert load_signing_key(hex_file) == bytes(range(32))
     with pytest.raises(ConfigError, match="live links only"):
         MavlinkSource(str(TLOG), signing_key=hex_file)
+    # 64 characters, a newline: once "got 65 bytes", as if the length were wrong
+    not_hex = tmp_path / "not_hex.key"
+    not_hex.write_text("0123456789abcdef" * 2 + "zz" + "0" * 30 + "\n")
+    with pytest.raises(ConfigError, match=r"'z' \(character 33\) is not a hexadecimal digit"):
+        load_signing_key(not_hex)
 
 
 # --------------------------------------------------------------------------- stream requests
@@ -602,6 +607,8 @@ def test_clear_errors_for_misuse(tmp_path: Path) -> None:
         MavlinkSource(rate_hz=0)
     with pytest.raises(ConfigError, match="sysid"):
         MavlinkSource(sysid=0)
+    with pytest.raises(ConfigError, match="compid: must be a component id 1..255, got 300; leave"):
+        MavlinkSource(compid=300)
     with pytest.raises(ConfigError, match="stale_timeout_s"):
         MavlinkSource(stale_timeout_s=math.nan)
     with pytest.raises(SourceError, match="no such file"):
@@ -611,3 +618,43 @@ def test_clear_errors_for_misuse(tmp_path: Path) -> None:
     d = MavlinkSource().describe()
     assert d["url"] == "udpin:127.0.0.1:14550" and d["signing"] is False
     assert d["mavlink_version"] == "2.0"
+
+
+def test_a_serial_device_is_a_character_device(tmp_path: Path) -> None:
+    """A real pseudo-terminal opens as a serial link and its messages are used; an ordinary
+    file not named as a log (once opened as a serial port: nothing, forever) is refused, and
+    so is a string of an unknown kind (once a ValueError from pymavlink's UDP parser)."""
+    import os
+    import pty
+
+    master, slave = pty.openpty()
+    stop = threading.Event()
+
+    class Pty:
+        def write(self, data: bytes) -> None:
+            os.write(master, data)
+
+    mav = ML.MAVLink(Pty(), srcSystem=1, srcComponent=1)
+    try:
+        with MavlinkSource(
+            os.ttyname(slave), rate_hz=50.0, duration_s=1.0, request_streams=False
+        ) as src:
+            th = threading.Thread(target=send_loop, args=(mav, send_good, [], 50.0, None, stop))
+            th.start()
+            try:
+                fresh = [src.fresh for _ in src]
+            finally:
+                stop.set()
+                th.join(timeout=5)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert sum(fresh) > 10 and src.stats.used > 20 and src.stats.rejected == 0
+
+    notes = tmp_path / "empty.toml"
+    notes.write_text("")
+    with pytest.raises(ConfigError, match=r"empty\.toml: neither a MAVLink log") as err:
+        MavlinkSource(str(notes))
+    assert ".tlog" in str(err.value) and "character device" in str(err.value)
+    with pytest.raises(ConfigError, match=r"foo:bar: unknown kind of link 'foo'; give udpin:"):
+        MavlinkSource("foo:bar")

@@ -349,6 +349,7 @@ def test_datagrams_from_another_host_are_refused(xplane):
         "xplane:127.0.0.1:49000?listen=abc",
         "xplane:127.0.0.1:49000?colour=red",
         "xplane:127.0.0.1:49000?listen=70000",
+        "xplane:notahost.invalid:49000",
         "x-plane:127.0.0.1:49000",
     ],
 )
@@ -368,7 +369,10 @@ def test_default_listen_address_follows_xplane_host():
 def test_stream_command_takes_an_xplane_url(xplane, tmp_path, capsys):
     xp = xplane(TURN)
     out = tmp_path / "xp.mcap"
-    url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:0"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # the command refuses port 0
+        s.bind(("127.0.0.1", 0))
+        listen = s.getsockname()[1]
+    url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:{listen}"
     code = main(["stream", "--source", url, "--duration", "1.5", "--out", str(out)])
     assert code == 0
     states = [m for m in read_messages(out)["/aircraft/state"] if m["fresh"]]
@@ -383,3 +387,12 @@ def test_stream_command_takes_an_xplane_url(xplane, tmp_path, capsys):
     while xp.unsubscribed() != set(TURN) and time.monotonic() - t0 < 2.0:
         time.sleep(0.01)
     assert xp.unsubscribed() == set(TURN)  # the command unsubscribed on its way out
+
+
+def test_a_listen_port_of_0_is_for_programs_only():
+    """Port 0 listens on a free port that a program reads back from ``local_address``; the
+    command line passes ``free_port=False``: nobody could send to a port it does not show."""
+    url = "xplane:127.0.0.1:49000?listen=0"
+    assert XPlaneSource(url).listen_port == 0
+    with pytest.raises(ConfigError, match=r"port 0 is out of range \(1\.\.65535\)"):
+        XPlaneSource(url, free_port=False)

@@ -867,7 +867,7 @@ class PlanarServoOutput:
 
 
 def stream(
-    mavlink: str = "udpin:127.0.0.1:14550",
+    mavlink: str | None = None,
     *,
     sysid: int = 1,
     compid: int | None = None,
@@ -893,9 +893,10 @@ def stream(
 
     Parameters
     ----------
-    mavlink : str
-        A pymavlink connection string (``udpin:127.0.0.1:14550``, ``udpout:``, ``tcp:``,
-        a serial device) or a ``.tlog``/``.bin`` log file.
+    mavlink : str, optional
+        A pymavlink connection string (default ``udpin:127.0.0.1:14550``; ``udpout:``,
+        ``tcp:``, a serial device) or a ``.tlog``/``.bin`` log file; not with
+        ``source_url``.
     sysid, compid : int
         Accept messages from this system (and component) only.
     signing_key : path, optional
@@ -913,7 +914,8 @@ def stream(
     out : path, optional
         MCAP log; default ``stream-<UTC time>.mcap`` in :func:`user_recordings_dir`.
     realtime : bool
-        For log files: replay at the recorded timing (True) or as fast as possible.
+        For log files: replay at the recorded timing (True) or as fast as possible (False,
+        refused for a live source).
     busy_wait : bool
         Wait for each tick by busy-waiting instead of sleeping (see :func:`fly`).
     outputs : list of str, optional
@@ -944,7 +946,7 @@ def stream(
 
 
 def _stream(
-    mavlink: str,
+    mavlink: str | None,
     *,
     sysid: int,
     compid: int | None,
@@ -993,13 +995,14 @@ def _stream(
         realtime=realtime,
         busy_wait=busy_wait,
         stale_timeout_s=config.stale_timeout_s,
+        free_port=False,  # a port picked at random is shown nowhere: nothing could send to it
     )
     extra = [PlanarServoOutput(serial)] if serial else []
     with source:
         status = StatusLine(source) if progress else None
         try:
             result = _drive(
-                f"streamed {source_url or mavlink}",
+                f"streamed {source.url}",
                 config,
                 source,
                 Path(out),

@@ -402,7 +402,6 @@ def run_teleop(args: argparse.Namespace) -> int:
 def _args_stream(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--mavlink",
-        default="udpin:127.0.0.1:14550",
         metavar="URL",
         help="pymavlink connection string or .tlog/.bin file "
         "(default udpin:127.0.0.1:14550, loopback only)",

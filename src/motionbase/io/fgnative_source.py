@@ -126,8 +126,9 @@ def decode_fgnetfdm(data: bytes) -> tuple[int, tuple[float, ...] | None]:
     )
 
 
-def parse_fgnative_url(url: str) -> tuple[str, int]:
-    """(host, port) to listen on from ``fgnative:udp:HOST:PORT``, or a one-line ConfigError."""
+def parse_fgnative_url(url: str, *, free_port: bool = True) -> tuple[str, int]:
+    """(host, port) to listen on from ``fgnative:udp:HOST:PORT``, or a one-line ConfigError
+    (port 0, any free port, only with ``free_port``)."""
     example = "e.g. fgnative:udp:0.0.0.0:5500"
     text = url.strip()
     if not text.lower().startswith("fgnative:"):
@@ -138,7 +139,7 @@ def parse_fgnative_url(url: str) -> tuple[str, int]:
         raise ConfigError(
             f"fgnative URL {url!r}: only UDP is supported, as fgnative:udp:HOST:PORT ({example})"
         )
-    return split_host_port(addr, f"fgnative URL {url!r}", example)
+    return split_host_port(addr, f"fgnative URL {url!r}", example, free_port=free_port)
 
 
 class FgNativeSource(UdpLiveSource):
@@ -149,8 +150,8 @@ class FgNativeSource(UdpLiveSource):
     url : str, optional
         ``fgnative:udp:HOST:PORT``: listen on HOST:PORT (``127.0.0.1`` for a
         simulator on this machine, ``0.0.0.0`` for one on another PC; port 0 picks
-        a free port). Default ``fgnative:udp:127.0.0.1:5500``.
-    rate_hz, duration_s, busy_wait, stale_timeout_s
+        a free port, unless ``free_port`` is False). Default ``fgnative:udp:127.0.0.1:5500``.
+    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port
         See :class:`~motionbase.io.live_source.UdpLiveSource`.
 
     Examples
@@ -166,7 +167,7 @@ class FgNativeSource(UdpLiveSource):
     default_url = "fgnative:udp:127.0.0.1:5500"
 
     def _parse_url(self, url: str) -> None:
-        self.host, self.port = parse_fgnative_url(url)
+        self.host, self.port = parse_fgnative_url(url, free_port=self.free_port)
 
     def _reset_state(self) -> None:
         super()._reset_state()

@@ -42,6 +42,7 @@ from types import MappingProxyType
 from typing import Any, Self
 
 from motionbase.errors import ConfigError, SourceError
+from motionbase.io.net_address import check_port
 from motionbase.pacing import wait_until
 from motionbase.physics import STANDARD_GRAVITY
 from motionbase.state import AircraftState
@@ -170,7 +171,9 @@ class LiveStats(TickStats):
         return self.rejected_invalid + self.bad_data
 
 
-def split_host_port(text: str, what: str, example: str) -> tuple[str, int]:
+def split_host_port(
+    text: str, what: str, example: str, *, free_port: bool = True
+) -> tuple[str, int]:
     """``HOST:PORT`` (or ``[IPv6]:PORT``) as (host, port), or a one-line ConfigError.
 
     Parameters
@@ -181,15 +184,16 @@ def split_host_port(text: str, what: str, example: str) -> tuple[str, int]:
         Name of the thing in the error message, e.g. ``"fgnative URL"``.
     example : str
         A correct example for the error message.
+    free_port : bool
+        Port 0 (listen on any free port) is allowed; False refuses it (see
+        :func:`~motionbase.io.net_address.check_host_port`).
     """
     host, sep, port_s = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
-    if not sep or not host or not port_s.isdigit() or not 0 <= int(port_s) <= 65535:
-        raise ConfigError(
-            f"{what}: expected HOST:PORT with a port 0..65535, got {text!r} ({example})"
-        )
-    return host, int(port_s)
+    if not sep or not host:
+        raise ConfigError(f"{what}: expected HOST:PORT, got {text!r} ({example})")
+    return host, check_port(what, port_s, free_port=free_port, example=example)
 
 
 def finite_within(values: Any, limit: float) -> bool:
@@ -496,6 +500,10 @@ class UdpLiveSource(SampleHoldSource):
         The source URL, parsed by :meth:`_parse_url`; None takes :attr:`default_url`.
     rate_hz, duration_s, busy_wait, stale_timeout_s
         See :class:`SampleHoldSource`.
+    free_port : bool
+        The URL may listen on port 0, any free port (see :attr:`local_address`); False
+        refuses it, as ``motionbase stream`` does: nobody could send to a port it does
+        not show.
 
     Notes
     -----
@@ -523,11 +531,13 @@ class UdpLiveSource(SampleHoldSource):
         duration_s: float | None = None,
         busy_wait: bool = False,
         stale_timeout_s: float = 0.5,
+        free_port: bool = True,
     ) -> None:
         if url is None:
             url = self.default_url
         if not isinstance(url, str):
             raise ConfigError(f"{self.kind} URL: expected a string, got {url!r}")
+        self.free_port = bool(free_port)
         self._parse_url(url)
         super().__init__(
             url.strip(),
@@ -542,7 +552,8 @@ class UdpLiveSource(SampleHoldSource):
     # ------------------------------------------------------------------ subclass hooks
 
     def _parse_url(self, url: str) -> None:
-        """Read the URL into attributes, or raise a one-line ConfigError."""
+        """Read the URL into attributes, or raise a one-line ConfigError (port 0 to listen
+        on only with :attr:`free_port`)."""
         raise NotImplementedError
 
     def _bind_address(self) -> tuple[str, int]:

@@ -70,6 +70,8 @@ import contextlib
 import logging
 import math
 import os
+import stat
+import string
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -233,14 +235,18 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
     if len(data) == 32:
         return data
     text = data.strip()
-    if len(text) == 64:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
+    make = "(make one with: head -c 32 /dev/urandom > key.bin)"
+    if len(text) == 64 and text.isascii():
+        chars = text.decode("ascii")
+        bad = next((i for i, c in enumerate(chars) if c not in string.hexdigits), None)
+        if bad is None:
+            return bytes.fromhex(chars)
+        raise ConfigError(
+            f"signing key {p}: 64 characters, but {chars[bad]!r} (character {bad + 1}) is "
+            f"not a hexadecimal digit (0-9, a-f); give 64 hex digits or 32 raw bytes {make}"
+        )
     raise ConfigError(
-        f"signing key {p}: expected 32 raw bytes or 64 hex digits, got {len(data)} bytes "
-        "(make one with: head -c 32 /dev/urandom > key.bin)"
+        f"signing key {p}: expected 32 raw bytes or 64 hex digits, got {len(data)} bytes {make}"
     )
 
 
@@ -255,8 +261,40 @@ _NET_PREFIXES = {
 }
 
 
-def _check_link_address(url: str) -> None:
-    """A port out of range or a host that does not resolve, in one line (ConfigError)."""
+# Every kind of pymavlink connection string (mavutil.mavlink_connection), by its prefix.
+_KINDS = frozenset("udpin udpout udp udpbcast tcp tcpin mcast uds unix ws wss wsserver csv".split())
+_FORMS = (
+    "udpin:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, a serial device "
+    "(e.g. /dev/ttyACM0) or a log file (.tlog, .bin)"
+)
+
+
+def _check_link_kind(url: str) -> None:
+    """A live link's string names a kind of connection pymavlink knows, or a serial device
+    (a character device): one line (ConfigError) for an unknown ``KIND:`` prefix, or for an
+    ordinary file that is not named as a log (pymavlink would open it as a serial port)."""
+    kind, colon, _ = url.partition(":")
+    if colon and kind in _KINDS:
+        return
+    try:
+        mode = os.stat(url).st_mode
+    except (OSError, ValueError):  # no such path (a device that is not plugged in)
+        if colon:
+            raise ConfigError(
+                f"mavlink {url}: unknown kind of link {kind!r}; give {_FORMS}"
+            ) from None
+        return
+    if not stat.S_ISCHR(mode):
+        raise ConfigError(
+            f"mavlink {url}: neither a MAVLink log (a file whose name ends in "
+            f"{', '.join(_LOG_SUFFIXES)}) nor a serial device (a character device, "
+            "e.g. /dev/ttyUSB0)"
+        )
+
+
+def _check_link_address(url: str, free_port: bool) -> None:
+    """A port out of range (0 only to listen, with ``free_port``) or a host that does not
+    resolve, in one line (ConfigError)."""
     for prefix, bind in _NET_PREFIXES.items():
         if url.startswith(prefix):
             host, colon, port = url[len(prefix) :].rpartition(":")
@@ -264,7 +302,7 @@ def _check_link_address(url: str) -> None:
                 raise ConfigError(
                     f"mavlink {url}: expected {prefix}HOST:PORT, e.g. {prefix}127.0.0.1:14550"
                 )
-            check_host_port(f"mavlink {url}", host, port, bind=bind)
+            check_host_port(f"mavlink {url}", host, port, free_port=bind and free_port)
             return
 
 
@@ -372,9 +410,9 @@ class MavlinkSource(SampleHoldSource):
     ----------
     url : str
         A pymavlink connection string: ``udpin:HOST:PORT`` (listen; port 0
-        picks a free port, see :attr:`local_address`), ``udpout:HOST:PORT``,
-        ``tcp:HOST:PORT``, a serial device (``/dev/ttyACM0``, 115200 baud), or a
-        ``.tlog`` / ``.bin`` log file. The default listens on loopback only;
+        picks a free port with ``free_port``, see :attr:`local_address`),
+        ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, a serial device (``/dev/ttyACM0``,
+        115200 baud), or a ``.tlog`` / ``.bin`` log file. The default listens on loopback only;
         listening on every interface needs an explicit ``udpin:0.0.0.0:PORT``.
     rate_hz : float
         Fixed output rate, Hz (> 0). Also the rate asked of the vehicle.
@@ -414,6 +452,10 @@ class MavlinkSource(SampleHoldSource):
         (``time_boot_ms``/``time_usec``, evenly spaced as sampled; default) or
         by the ground station's receive time stamped in the log (bursty when
         the radio link was). DataFlash logs always use the vehicle clock.
+    free_port : bool
+        A ``udpin:`` (``udp:``, ``tcpin:``) URL may listen on port 0, any free
+        port (see :attr:`local_address`); False refuses it, as ``motionbase
+        stream`` does: nobody could send to a port it does not show.
 
     Attributes
     ----------
@@ -463,6 +505,7 @@ class MavlinkSource(SampleHoldSource):
         stale_timeout_s: float = 0.5,
         request_timeout_s: float = 3.0,
         log_clock: str = "vehicle",
+        free_port: bool = True,
     ) -> None:
         if not isinstance(url, str) or not url.strip():
             raise ConfigError("mavlink url: empty; give e.g. udpin:127.0.0.1:14550 or a .tlog path")
@@ -476,18 +519,24 @@ class MavlinkSource(SampleHoldSource):
         if not (isinstance(sysid, int) and 1 <= sysid <= 255):
             raise ConfigError(f"mavlink sysid: must be an integer 1..255, got {sysid!r}")
         if compid is not None and not (isinstance(compid, int) and 1 <= compid <= 255):
-            raise ConfigError(f"mavlink compid: must be an integer 1..255 or None, got {compid!r}")
+            raise ConfigError(
+                f"mavlink compid: must be a component id 1..255, got {compid!r}; leave it out "
+                "to accept every component"
+            )
         self.request_timeout_s = positive_number(
             self.kind, "request_timeout_s", request_timeout_s, "s"
         )
         self.sysid = sysid
         self.compid = compid
         self.realtime = bool(realtime)
+        self.free_port = bool(free_port)
         self.request_streams = bool(request_streams)
         if log_clock not in ("vehicle", "receive"):
             raise ConfigError(f"mavlink log_clock: 'vehicle' or 'receive', got {log_clock!r}")
         self.log_clock = log_clock
         self.is_log = _is_log_url(self.url)
+        if not self.is_log:
+            _check_link_kind(self.url)
         self._signing_key_path = None if signing_key is None else str(signing_key)
         self._key: bytes | None = None
         if signing_key is not None:
@@ -534,14 +583,15 @@ class MavlinkSource(SampleHoldSource):
         SourceError
             The log file does not exist, or the port cannot be opened.
         ConfigError
-            A network URL's port is out of range or its host name does not resolve.
+            A network URL's port is out of range (0 without ``free_port``) or its host
+            name does not resolve.
         """
         if self._conn is not None:
             return
         if self.is_log and not Path(self.url).is_file():
             raise SourceError(f"mavlink log {self.url}: no such file (check the path)")
         if not self.is_log:
-            _check_link_address(self.url)
+            _check_link_address(self.url, self.free_port)
         self._reset_state()
         try:
             with _quiet(fds=self.is_log):

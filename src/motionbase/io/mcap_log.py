@@ -192,7 +192,7 @@ class LiveAddress:
         if not sep:
             host = LIVE_DEFAULT_HOST
         host = host.removeprefix("[").removesuffix("]")
-        return cls(*check_host_port(f"--live {text!r}", host, port, bind=True))
+        return cls(*check_host_port(f"--live {text!r}", host, port, free_port=True))
 
     def url(self, port: int | None = None) -> str:
         """``ws://host:port`` for Foxglove's "Open connection" dialog."""

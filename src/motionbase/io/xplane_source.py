@@ -92,6 +92,7 @@ from motionbase.io.live_source import (
     split_host_port,
     wrap_pi,
 )
+from motionbase.io.net_address import check_host_port, check_port
 from motionbase.physics import MAX_ANGULAR_VELOCITY, MAX_SPECIFIC_FORCE, STANDARD_GRAVITY
 
 __all__ = ["DATAREFS", "DEFAULT_LISTEN_PORT", "XPlaneSource", "parse_xplane_url"]
@@ -127,8 +128,11 @@ _RAD = math.pi / 180.0
 _G_SCALE = -STANDARD_GRAVITY  # g-load (X-Plane sign) -> specific force FRD, m/s^2
 
 
-def parse_xplane_url(url: str) -> tuple[str, int, str, int, int | None]:
+def parse_xplane_url(url: str, *, free_port: bool = True) -> tuple[str, int, str, int, int | None]:
     """Parse ``xplane:HOST:PORT[?listen=[ADDR:]PORT][&version=11|12]``.
+
+    ``listen`` may give port 0 (any free port) only with ``free_port``; X-Plane's port
+    is never 0.
 
     Returns
     -------
@@ -142,16 +146,16 @@ def parse_xplane_url(url: str) -> tuple[str, int, str, int, int | None]:
     Raises
     ------
     ConfigError
-        One line naming what is wrong, with an example.
+        One line naming what is wrong, with an example (X-Plane's host name that does not
+        resolve, too).
     """
     example = "e.g. xplane:127.0.0.1:49000 or xplane:192.168.1.20:49000?listen=49005"
     text = url.strip()
     if not text.lower().startswith("xplane:"):
         raise ConfigError(f"xplane URL {url!r}: must start with xplane: ({example})")
     addr, _, query = text[len("xplane:") :].partition("?")
-    host, port = split_host_port(addr, f"xplane URL {url!r}", example)
-    if port == 0:
-        raise ConfigError(f"xplane URL {url!r}: X-Plane's port cannot be 0 ({example})")
+    host, port = split_host_port(addr, f"xplane URL {url!r}", example, free_port=False)
+    check_host_port(f"xplane URL {url!r}", host, str(port))  # resolves, before anything listens
     listen_host = "127.0.0.1" if is_loopback(host) else "0.0.0.0"
     listen_port = DEFAULT_LISTEN_PORT
     version: int | None = None
@@ -164,14 +168,13 @@ def parse_xplane_url(url: str) -> tuple[str, int, str, int, int | None]:
     for key, values in params.items():
         value = values[-1]
         if key == "listen":
-            if value.isdigit():
-                listen_port = int(value)
-                if listen_port > 65535:
-                    raise ConfigError(f"xplane URL {url!r}: listen port must be 0..65535")
-            else:
+            what, listen_example = f"xplane URL {url!r}: listen", "e.g. listen=0.0.0.0:49005"
+            if ":" in value:
                 listen_host, listen_port = split_host_port(
-                    value, f"xplane URL {url!r}: listen", "e.g. listen=0.0.0.0:49005"
+                    value, what, listen_example, free_port=free_port
                 )
+            else:
+                listen_port = check_port(what, value, free_port=free_port, example=listen_example)
         elif key == "version":
             if value not in ("11", "12"):
                 raise ConfigError(
@@ -197,7 +200,7 @@ class XPlaneSource(UdpLiveSource):
     url : str, optional
         ``xplane:HOST:PORT[?listen=[ADDR:]PORT][&version=11|12]`` (see the module
         docstring). Default ``xplane:127.0.0.1:49000``.
-    rate_hz, duration_s, busy_wait, stale_timeout_s
+    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port
         See :class:`~motionbase.io.live_source.UdpLiveSource`. The datarefs are
         requested at ``rate_hz`` answers per second (X-Plane sends at most one
         per frame).
@@ -220,7 +223,7 @@ class XPlaneSource(UdpLiveSource):
             self.listen_host,
             self.listen_port,
             self.version_given,
-        ) = parse_xplane_url(url)
+        ) = parse_xplane_url(url, free_port=self.free_port)
 
     @property
     def freq(self) -> int:
