@@ -90,7 +90,7 @@ def test_quiet_and_leaves_the_working_directory_alone(tmp_path: Path, monkeypatc
     assert out == "" and err == ""
 
 
-def test_bad_script_name_says_how_to_find_names() -> None:
+def test_bad_script_name_says_how_to_find_names(tmp_path: Path) -> None:
     with pytest.raises(SourceError) as err:
         JsbsimSource("c17233")
     msg = str(err.value)
@@ -98,6 +98,10 @@ def test_bad_script_name_says_how_to_find_names() -> None:
     assert "c1723" in available_scripts()
     with pytest.raises(SourceError, match="not found"):
         JsbsimSource("/no/such/script.xml")
+    folder = tmp_path / "scripts.xml"
+    folder.mkdir()
+    with pytest.raises(SourceError, match="a folder, not a JSBSim script"):
+        JsbsimSource(str(folder))
 
 
 def test_bad_rate_and_duration_are_config_errors() -> None:

@@ -235,6 +235,8 @@ class JsbsimSource:
         s = str(script)
         if s.endswith(".xml") or "/" in s or "\\" in s:
             path = Path(s)
+            if path.is_dir():
+                raise SourceError(f"{path}: a folder, not a JSBSim script (give its .xml file)")
             if not path.is_file():
                 raise SourceError(f"{path}: JSBSim script not found (check the path)")
             return path.resolve()
