@@ -5,14 +5,16 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.opcode import Opcode
 from mcap.writer import Writer
 
 from motionbase.errors import LogFormatError, SourceError
-from motionbase.io.mcap_log import McapLogger
+from motionbase.io.mcap_log import MCAP_MAGIC, McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages, read_metadata
 from motionbase.state import AircraftState
 
@@ -393,3 +395,103 @@ def test_rate_from_metadata_must_be_finite(tmp_path):
             writer.add_message(cid, ns, json.dumps(_good_message(k / 50)).encode(), ns)
         writer.finish()
     assert McapSource(path).rate_hz == pytest.approx(50.0)  # from the spacing, not inf
+
+
+# --------------------------------------------------------------------------- damaged files
+# A file cut short (a crash while writing) is read up to the cut, with a warning; damage
+# inside a file (a CRC that does not match, a record that cannot be read) is an error.
+
+RECORDING = Path(__file__).parents[1] / "recordings" / "c1723_30s.mcap"
+
+
+def _damage(data: bytes, offset: int, junk: bytes = b"\xde\xad\xbe\xef\x01\x02\x03\x04") -> bytes:
+    damaged = bytearray(data)
+    damaged[offset : offset + len(junk)] = junk
+    assert damaged != data
+    return bytes(damaged)
+
+
+def _assert_damaged(path: Path, chunk_at: int | None = None) -> None:
+    """Every reader refuses ``path`` in one line naming it, the damage, where (the chunk
+    holding byte ``chunk_at`` when given) and what to do."""
+    for reader in (McapSource, read_messages, read_metadata):
+        with pytest.raises(LogFormatError) as err:
+            reader(path)
+        msg = str(err.value)
+        assert str(path) in msg and "\n" not in msg, msg
+        assert "damaged, not cut short" in msg and "re-record it, or copy it again" in msg
+        where = re.search(r"at byte (\d+)|bytes (\d+) to (\d+)", msg)
+        assert where is not None, msg
+        if chunk_at is not None:
+            assert "the chunk at byte" in msg, msg
+            assert chunk_at - 200_000 < int(where.group(1)) <= chunk_at, msg
+
+
+def test_a_damaged_recording_is_an_error_not_a_truncated_file(tmp_path, capsys, monkeypatch):
+    """The audit's case: 8 bytes overwritten at byte 1,000,000 of a real recording were read
+    as a cut (a quarter of the data, exit 0)."""
+    from motionbase import cli
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    bad = tmp_path / "damaged.mcap"
+    bad.write_bytes(_damage(RECORDING.read_bytes(), 1_000_000))
+    _assert_damaged(bad, chunk_at=1_000_000)
+    for args in (["replay", str(bad)], ["report", str(bad), "--out", str(tmp_path / "rep")]):
+        assert cli.main(args) == 2
+        captured = capsys.readouterr()
+        lines = captured.err.strip().splitlines()
+        assert len(lines) == 1 and "damaged, not cut short" in lines[0], captured.err
+        assert "truncated" not in captured.err and "Traceback" not in captured.err
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("fraction", [0.05, 0.3, 0.5, 0.7, 0.9, 0.97, 0.995, 0.9995])
+def test_damage_anywhere_in_a_finished_file_is_an_error(recording, tmp_path, fraction) -> None:
+    """Chunks, message indexes, the summary and the footer: each is covered by a CRC or
+    framed so that the damage shows."""
+    path, _ = recording
+    data = path.read_bytes()
+    bad = tmp_path / "bad.mcap"
+    offset = int(len(data) * fraction)
+    bad.write_bytes(_damage(data, offset))
+    _assert_damaged(bad)
+
+
+@pytest.mark.parametrize(
+    ("where", "junk"),
+    [
+        ("length of a chunk", b"\x7f"),  # a length of terabytes, past the end
+        ("kind of a chunk", b"\x7f"),  # a record kind readers skip
+        ("kind of the data end", b"\x7f"),
+        ("closing magic", b"\x00"),
+    ],
+)
+def test_damaged_framing_of_a_finished_file_is_not_a_cut(recording, tmp_path, where, junk):
+    """Damage to what frames the records, in a file that ends with the MCAP magic (a
+    finished file, which a cut never is)."""
+    path, _ = recording
+    data = path.read_bytes()
+    starts = {}  # the first record of each kind: opcode -> byte
+    at = len(MCAP_MAGIC)
+    while at < len(data) - len(MCAP_MAGIC):
+        starts.setdefault(data[at], at)
+        at += 9 + int.from_bytes(data[at + 1 : at + 9], "little")
+    offset = {
+        "length of a chunk": starts[Opcode.CHUNK] + 5,
+        "kind of a chunk": starts[Opcode.CHUNK],
+        "kind of the data end": starts[Opcode.DATA_END],
+        "closing magic": len(data) - 3,
+    }[where]
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(_damage(data, offset, junk))
+    _assert_damaged(bad)
+
+
+def test_damage_before_a_cut_is_still_damage(recording, tmp_path) -> None:
+    path, _ = recording
+    data = path.read_bytes()
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(_damage(data, len(data) // 4)[: int(len(data) * 0.8)])
+    _assert_damaged(bad, chunk_at=len(data) // 4)

@@ -1,12 +1,18 @@
 """Read MCAP recordings back: aircraft states for a replay, every topic for a check.
 
-The reader goes through the file from the start, record by record (the
-``mcap`` library's :class:`~mcap.stream_reader.StreamReader`, chunk CRCs
-checked), so it also reads files that were cut short: a run that crashed or
-was killed leaves every complete chunk readable. Such a file yields the
-messages written before the cut, sets ``truncated`` and logs a warning on the
-``motionbase`` logger. A file that is not MCAP raises
-:class:`~motionbase.errors.LogFormatError` with a one-line message naming it.
+The reader goes through the file from the start, record by record: it frames
+each record itself (opcode, length) and has the ``mcap`` library parse it,
+checking each chunk's CRC and those of the data and summary sections. So it
+also reads files that were cut short: a run that crashed or was killed leaves
+every complete chunk readable, and its file ends inside a record (or lacks its
+footer). Such a file yields the messages written before the cut, sets
+``truncated`` and logs a warning on the ``motionbase`` logger. Damage is not a
+cut: a CRC that does not match, a record that lies wholly in the file but
+cannot be read, or a length that runs past the end of a file that ends with the
+MCAP magic (as only a finished file does) raises
+:class:`~motionbase.errors.LogFormatError`, one line naming the file, the byte
+where the damaged record or section starts and what to do. A file that is not
+MCAP raises it too.
 
 A malformed aircraft state (not JSON, not UTF-8, a missing field, a string or a bool
 for a number, a list of the wrong length, ``null``, a negative time) never stops a
@@ -25,14 +31,18 @@ import logging
 import math
 import os
 import re
+import zlib
 from collections.abc import Callable, Iterator
+from io import BytesIO
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
 import numpy as np
-from mcap.records import Channel, Footer, Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.exceptions import UnsupportedCompressionError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord, Message, Metadata
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from motionbase.errors import LogFormatError, SourceError
 from motionbase.io.mcap_log import MCAP_MAGIC, METADATA_NAME
@@ -96,15 +106,51 @@ def _open(path: Path) -> IO[bytes]:
         raise SourceError(f"{path}: cannot open: {exc.strerror or exc}") from None
 
 
+_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
+
+
+def _damaged(path: Path, what: str) -> LogFormatError:
+    return LogFormatError(
+        f"{path}: the file is damaged, not cut short: {what}; re-record it, or copy it again "
+        "from where it was recorded"
+    )
+
+
+def _written_whole(fh: IO[bytes], size: int) -> bool:
+    """Whether the file ends as a finished MCAP file does, with the magic after its footer
+    (a file cut short ends there by a 1 in 2**64 chance)."""
+    if size < 2 * len(MCAP_MAGIC):
+        return False
+    fh.seek(size - len(MCAP_MAGIC))
+    return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def _record_name(opcode: int) -> str:
+    return Opcode(opcode).name.lower().replace("_", " ")
+
+
 def _scan(
     path: Path,
     on_metadata: Callable[[Metadata], None],
     on_channel: Callable[[Channel], None],
     on_message: Callable[[Message], None],
 ) -> bool:
-    """Walk every record of an MCAP file; return True when the file was cut short."""
+    """Walk every record of an MCAP file; return True when the file was cut short.
+
+    The walk frames the records itself (opcode, length) so that it knows where each one
+    starts and whether it lies wholly in the file: a record that runs past the end of a file
+    without its footer is the cut of an interrupted run (the records before it are read); a
+    record that lies wholly in the file and cannot be read, a chunk whose CRC does not match,
+    or a data section whose CRC does not match, is damage.
+
+    Raises
+    ------
+    LogFormatError
+        The file is not MCAP, or is damaged (the message says where).
+    """
     fh = _open(path)
     try:
+        size = os.fstat(fh.fileno()).st_size
         magic = fh.read(len(MCAP_MAGIC))
         if magic != MCAP_MAGIC:
             what = "empty file" if not magic else "wrong magic bytes"
@@ -112,24 +158,93 @@ def _scan(
                 f"{path}: not an MCAP file ({what}); expected a recording made by "
                 "motionbase or another MCAP writer"
             )
-        records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
-        try:
-            for rec in records:
-                if isinstance(rec, Message):
-                    on_message(rec)
-                elif isinstance(rec, Channel):
-                    on_channel(rec)
-                elif isinstance(rec, Metadata):
-                    on_metadata(rec)
-                elif isinstance(rec, Footer):
-                    return False
-        except LogFormatError:
-            raise
-        except Exception:  # noqa: BLE001 - any failure past the header is a cut
-            return True
-        return True  # ran out of records before the footer
+        crc = zlib.crc32(magic)  # of the data section, then of the summary section
+        summary_start = 0  # where the summary section starts: after the Data End record
+        start = len(MCAP_MAGIC)
+        while True:
+            head = fh.read(9)
+            end = start + 9 + int.from_bytes(head[1:], "little") if len(head) == 9 else None
+            if end is None or end > size:
+                if not _written_whole(fh, size):
+                    return True  # the cut: this record was being written
+                raise _damaged(
+                    path,
+                    f"the record at byte {start} runs past the end of the file, which ends as "
+                    "a finished recording does (a damaged length)",
+                )
+            body = fh.read(end - start - 9)
+            rec = _read_record(path, start, head, body) if head[0] in _KNOWN_OPCODES else None
+            if isinstance(rec, Message):
+                on_message(rec)
+            elif isinstance(rec, Channel):
+                on_channel(rec)
+            elif isinstance(rec, Metadata):
+                on_metadata(rec)
+            elif isinstance(rec, Chunk):
+                for inner in _open_chunk(path, start, rec):
+                    if isinstance(inner, Message):
+                        on_message(inner)
+                    elif isinstance(inner, Channel):
+                        on_channel(inner)
+            elif isinstance(rec, DataEnd):
+                if rec.data_section_crc not in (0, crc):
+                    raise _damaged(
+                        path, f"the data section (bytes 0 to {start}) fails its CRC check"
+                    )
+                crc, summary_start, start = 0, end, end
+                continue
+            elif isinstance(rec, Footer):
+                if not summary_start:  # every MCAP writer ends its data with a Data End
+                    raise _damaged(path, f"no data end record before the footer at byte {start}")
+                # the summary's CRC runs to the footer's summary_offset_start field
+                crc = zlib.crc32(body[:16], zlib.crc32(head, crc))
+                if rec.summary_crc not in (0, crc):
+                    raise _damaged(
+                        path,
+                        f"the summary section (bytes {summary_start} to {start}) fails its "
+                        "CRC check",
+                    )
+                closing = fh.read(len(MCAP_MAGIC))
+                if not MCAP_MAGIC.startswith(closing):  # (a prefix: cut in the magic)
+                    raise _damaged(
+                        path, f"the footer at byte {start} is not followed by the MCAP magic"
+                    )
+                return False
+            crc = zlib.crc32(body, zlib.crc32(head, crc))
+            start = end
     finally:
         fh.close()
+
+
+def _read_record(path: Path, start: int, head: bytes, body: bytes) -> McapRecord:
+    """The record framed at byte ``start``, which lies wholly in the file."""
+    try:
+        return next(StreamReader(BytesIO(head + body), skip_magic=True, emit_chunks=True).records)
+    except Exception as exc:  # noqa: BLE001 - whatever the parser trips on, it is damage
+        raise _damaged(
+            path,
+            f"the {_record_name(head[0])} record at byte {start} cannot be read "
+            f"({_short_reason(exc) or type(exc).__name__})",
+        ) from None
+
+
+def _open_chunk(path: Path, start: int, chunk: Chunk) -> list[McapRecord]:
+    """The records in the chunk at byte ``start``, its CRC checked."""
+    try:
+        return breakup_chunk(chunk, validate_crc=True)
+    except UnsupportedCompressionError:
+        raise LogFormatError(
+            f"{path}: its chunks are {chunk.compression}-compressed, which this Python cannot "
+            f"read (install the {'zstandard' if chunk.compression == 'zstd' else 'lz4'} package)"
+        ) from None
+    except CRCValidationError:
+        raise _damaged(path, f"the chunk at byte {start} fails its CRC check") from None
+    except Exception as exc:  # noqa: BLE001 - a decompressor's or the parser's error
+        raise _damaged(
+            path,
+            f"the chunk at byte {start} cannot be read "
+            f"({_short_reason(exc) or type(exc).__name__})",
+        ) from None
 
 
 def _warn_truncated(path: Path, what: str) -> None:
@@ -162,7 +277,7 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
     SourceError
         The file is missing or unreadable.
     LogFormatError
-        The file is not MCAP, or a channel is not JSON-encoded.
+        The file is not MCAP, is damaged (not cut short), or a channel is not JSON-encoded.
     """
     p = Path(path)
     topics: dict[int, str] = {}
@@ -178,11 +293,16 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
         out.setdefault(ch.topic, [])
 
     skipped: list[str] = []
+    # the first message on a channel never defined: refused after the walk, so that damage
+    # (which may have taken the channel's record) is reported as such
+    orphans: list[int] = []
 
     def on_message(msg: Message) -> None:
         topic = topics.get(msg.channel_id)
         if topic is None:
-            raise LogFormatError(f"{p}: message on unknown channel {msg.channel_id}")
+            if not orphans:
+                orphans.append(msg.channel_id)
+            return
         try:
             out[topic].append(decode_message(msg.data))
         except ValueError as exc:
@@ -198,6 +318,8 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
     finally:
         if collecting:
             gc.enable()
+    if orphans:
+        raise LogFormatError(f"{p}: message on unknown channel {orphans[0]}")
     if truncated:
         _warn_truncated(p, f"{sum(len(v) for v in out.values())} messages")
     if skipped:
@@ -321,7 +443,7 @@ class McapSource:
     SourceError
         The file is missing or unreadable.
     LogFormatError
-        The file is not MCAP, or holds no message on ``topic``.
+        The file is not MCAP, is damaged (not cut short), or holds no message on ``topic``.
     """
 
     def __init__(
