@@ -495,3 +495,32 @@ def test_damage_before_a_cut_is_still_damage(recording, tmp_path) -> None:
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(_damage(data, len(data) // 4)[: int(len(data) * 0.8)])
     _assert_damaged(bad, chunk_at=len(data) // 4)
+
+
+def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
+    recording, tmp_path, caplog, capsys, monkeypatch
+):
+    """They used to be ignored without a word; the recording itself is whole, so it is read."""
+    from motionbase import cli
+
+    path, states = recording
+    appended = tmp_path / "appended.mcap"
+    junk = b"garbage after the footer\n" * 4
+    appended.write_bytes(path.read_bytes() + junk)
+    said = f"{appended}: {len(junk)} bytes follow the end of the recording"
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        assert read_messages(appended) == read_messages(path)
+        source = McapSource(appended)
+    assert not source.truncated and source.count == len(states)
+    assert [r.getMessage().startswith(said) for r in caplog.records] == [True, True]
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    assert cli.main(["replay", str(appended)]) == 0
+    captured = capsys.readouterr()
+    assert [ln for ln in captured.err.splitlines() if "WARNING" in ln] == [
+        f"motionbase: WARNING: {said} (its footer and closing magic); ignored, the recording "
+        "itself is whole"
+    ]
+    assert "truncated" not in captured.err + captured.out

@@ -11,8 +11,9 @@ cut: a CRC that does not match, a record that lies wholly in the file but
 cannot be read, or a length that runs past the end of a file that ends with the
 MCAP magic (as only a finished file does) raises
 :class:`~motionbase.errors.LogFormatError`, one line naming the file, the byte
-where the damaged record or section starts and what to do. A file that is not
-MCAP raises it too.
+where the damaged record or section starts and what to do. Bytes after the end
+of a finished file (something appended to it) are ignored, with a warning: the
+recording itself is whole. A file that is not MCAP raises LogFormatError too.
 
 A malformed aircraft state (not JSON, not UTF-8, a missing field, a string or a bool
 for a number, a list of the wrong length, ``null``, a negative time) never stops a
@@ -36,7 +37,7 @@ from collections.abc import Callable, Iterator
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import numpy as np
 from mcap.exceptions import UnsupportedCompressionError
@@ -129,13 +130,21 @@ def _record_name(opcode: int) -> str:
     return Opcode(opcode).name.lower().replace("_", " ")
 
 
+class _Ending(NamedTuple):
+    """How a scanned file ends."""
+
+    truncated: bool  # cut short: the records before the cut were read
+    trailing: int = 0  # bytes after the closing magic (something appended to a whole file)
+
+
 def _scan(
     path: Path,
     on_metadata: Callable[[Metadata], None],
     on_channel: Callable[[Channel], None],
     on_message: Callable[[Message], None],
-) -> bool:
-    """Walk every record of an MCAP file; return True when the file was cut short.
+) -> _Ending:
+    """Walk every record of an MCAP file; say whether it was cut short or has bytes after
+    its end.
 
     The walk frames the records itself (opcode, length) so that it knows where each one
     starts and whether it lies wholly in the file: a record that runs past the end of a file
@@ -166,7 +175,7 @@ def _scan(
             end = start + 9 + int.from_bytes(head[1:], "little") if len(head) == 9 else None
             if end is None or end > size:
                 if not _written_whole(fh, size):
-                    return True  # the cut: this record was being written
+                    return _Ending(truncated=True)  # the cut: this record was being written
                 raise _damaged(
                     path,
                     f"the record at byte {start} runs past the end of the file, which ends as "
@@ -209,7 +218,7 @@ def _scan(
                     raise _damaged(
                         path, f"the footer at byte {start} is not followed by the MCAP magic"
                     )
-                return False
+                return _Ending(truncated=False, trailing=max(0, size - end - len(MCAP_MAGIC)))
             crc = zlib.crc32(body, zlib.crc32(head, crc))
             start = end
     finally:
@@ -247,12 +256,21 @@ def _open_chunk(path: Path, start: int, chunk: Chunk) -> list[McapRecord]:
         ) from None
 
 
-def _warn_truncated(path: Path, what: str) -> None:
-    log.warning(
-        "%s: recording is truncated (the run was interrupted); read %s written before the cut",
-        path,
-        what,
-    )
+def _warn_ending(path: Path, ending: _Ending, what: str) -> None:
+    """Warn of a file cut short (``what`` was read before the cut) or with bytes after it."""
+    if ending.truncated:
+        log.warning(
+            "%s: recording is truncated (the run was interrupted); read %s written before the cut",
+            path,
+            what,
+        )
+    if ending.trailing:
+        log.warning(
+            "%s: %d bytes follow the end of the recording (its footer and closing magic); "
+            "ignored, the recording itself is whole",
+            path,
+            ending.trailing,
+        )
 
 
 def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
@@ -314,14 +332,13 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
     collecting = gc.isenabled()
     gc.disable()
     try:
-        truncated = _scan(p, lambda m: None, on_channel, on_message)
+        ending = _scan(p, lambda m: None, on_channel, on_message)
     finally:
         if collecting:
             gc.enable()
     if orphans:
         raise LogFormatError(f"{p}: message on unknown channel {orphans[0]}")
-    if truncated:
-        _warn_truncated(p, f"{sum(len(v) for v in out.values())} messages")
+    _warn_ending(p, ending, f"{sum(len(v) for v in out.values())} messages")
     if skipped:
         log.warning(
             "%s: skipped %d messages that are not JSON (first: %s)", p, len(skipped), skipped[0]
@@ -494,7 +511,8 @@ class McapSource:
         if not _scan_messages:
             self.truncated = _scan_metadata_only(self.path, on_metadata)
             return
-        self.truncated = _scan(self.path, on_metadata, on_channel, on_message)
+        ending = _scan(self.path, on_metadata, on_channel, on_message)
+        self.truncated = ending.truncated
         if not times:
             present = ", ".join(sorted(self._topics)) or "none"
             raise LogFormatError(
@@ -504,8 +522,7 @@ class McapSource:
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
-        if self.truncated:
-            _warn_truncated(self.path, f"{self.count} aircraft states")
+        _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
 
     def _check_clock(self, data: bytes) -> None:
@@ -623,7 +640,7 @@ class McapSource:
 
 
 def _scan_metadata_only(path: Path, on_metadata: Callable[[Metadata], None]) -> bool:
-    return _scan(path, on_metadata, lambda c: None, lambda m: None)
+    return _scan(path, on_metadata, lambda c: None, lambda m: None).truncated
 
 
 __all__ = ["McapSource", "decode_message", "read_messages", "read_metadata"]
