@@ -524,3 +524,43 @@ def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
         "itself is whole"
     ]
     assert "truncated" not in captured.err + captured.out
+
+
+@pytest.mark.parametrize(
+    ("config", "needle"),
+    [
+        ("[1, 2, 3]", "is a JSON array, not an object"),
+        ('"ceart"', "is a JSON string, not an object"),
+        ("42", "is a JSON number, not an object"),
+        ("null", "is JSON null, not an object"),
+        ("{not json", "is not valid JSON"),  # refused before; the others were read as none
+    ],
+)
+def test_a_config_that_is_not_a_json_object_is_refused(
+    tmp_path, capsys, monkeypatch, config, needle
+):
+    from motionbase import cli
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    path = tmp_path / "bad_config.mcap"
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": config})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        for k in range(1, 121):
+            ns = round(k / RATE * 1e9)
+            writer.add_message(cid, ns, json.dumps(_good_message(k / RATE)).encode(), ns)
+        writer.finish()
+    for reader in (McapSource, read_metadata):
+        with pytest.raises(LogFormatError, match=needle) as err:
+            reader(path)
+        assert str(path) in str(err.value) and "metadata 'config'" in str(err.value)
+    assert cli.main(["replay", str(path)]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and str(path) in lines[0], captured.err
+    assert "no recorded configuration" not in captured.out

@@ -281,7 +281,14 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
         value = json.loads(raw)
     except json.JSONDecodeError:
         raise LogFormatError(f"{path}: metadata 'config' is not valid JSON") from None
-    return _restore_nonfinite(value) if isinstance(value, dict) else {}
+    if not isinstance(value, dict):
+        kinds = {list: "a JSON array", str: "a JSON string", bool: "a JSON boolean"}
+        kind = "JSON null" if value is None else kinds.get(type(value), "a JSON number")
+        raise LogFormatError(
+            f"{path}: metadata 'config' is {kind}, not an object (motionbase records its "
+            "configuration as one; re-record the file)"
+        )
+    return _restore_nonfinite(value)
 
 
 def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]]]:
