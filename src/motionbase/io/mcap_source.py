@@ -33,7 +33,7 @@ import math
 import os
 import re
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
@@ -291,18 +291,42 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
     return _restore_nonfinite(value)
 
 
-def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]]]:
+def _no_messages(path: Path, topic: str, present: Iterable[str], truncated: bool) -> LogFormatError:
+    """The error for a recording without a message on ``topic`` (cut short before one?)."""
+    listed = ", ".join(sorted(present)) or "none"
+    if truncated:
+        return LogFormatError(
+            f"{path}: no {topic} messages: the recording was cut short before the first one "
+            f"(the run was interrupted; topics present: {listed})"
+        )
+    return LogFormatError(
+        f"{path}: no {topic} messages in the recording (topics present: {listed})"
+    )
+
+
+def read_messages(
+    path: str | os.PathLike[str], *, require: str | None = None
+) -> dict[str, list[dict[str, Any]]]:
     """Every JSON message of a recording, by topic, in file order.
 
-    For ``motionbase replay --check``. A truncated file gives the messages
-    before the cut and logs a warning.
+    For ``motionbase replay --check`` and ``report``. A truncated file gives the
+    messages before the cut and logs a warning.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording.
+    require : str, optional
+        A topic the caller cannot do without: a recording with no message on it
+        raises, before any warning (a file with nothing usable gives one line).
 
     Raises
     ------
     SourceError
         The file is missing or unreadable.
     LogFormatError
-        The file is not MCAP, is damaged (not cut short), or a channel is not JSON-encoded.
+        The file is not MCAP, is damaged (not cut short), a channel is not JSON-encoded,
+        or there is no message on ``require``.
     """
     p = Path(path)
     topics: dict[int, str] = {}
@@ -345,6 +369,8 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
             gc.enable()
     if orphans:
         raise LogFormatError(f"{p}: message on unknown channel {orphans[0]}")
+    if require is not None and not out.get(require):
+        raise _no_messages(p, require, (t for t, msgs in out.items() if msgs), ending.truncated)
     _warn_ending(p, ending, f"{sum(len(v) for v in out.values())} messages")
     if skipped:
         log.warning(
@@ -521,10 +547,7 @@ class McapSource:
         ending = _scan(self.path, on_metadata, on_channel, on_message)
         self.truncated = ending.truncated
         if not times:
-            present = ", ".join(sorted(self._topics)) or "none"
-            raise LogFormatError(
-                f"{self.path}: no {topic} messages in the recording (topics present: {present})"
-            )
+            raise _no_messages(self.path, topic, self._topics, ending.truncated)
         self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
