@@ -564,3 +564,34 @@ def test_a_config_that_is_not_a_json_object_is_refused(
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and str(path) in lines[0], captured.err
     assert "no recorded configuration" not in captured.out
+
+
+def test_check_of_a_cut_recording_says_the_message_counts_differ(tmp_path, capsys, monkeypatch):
+    """``replay --check`` of a cut file said "DIFF ... largest difference 0" for topics whose
+    counts differ: the count is the difference, and the line now says so."""
+    from motionbase import cli
+    from motionbase.app import CheckReport
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    data = (RECORDING.parent / "c1723_planar_15s.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.4)])
+    assert cli.main(["replay", str(cut), "--check"]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    rows = [ln.split() for ln in lines[lines.index("check: DIFFERS from the recording") + 1 :]]
+    counted = [r for r in rows if "recorded," in r]
+    assert counted and all(r[0] == "DIFF" for r in counted)
+    for r in counted:  # DIFF TOPIC N messages recorded, M replayed; the first N are identical
+        recorded, replayed = int(r[2]), int(r[5])
+        assert recorded != replayed and "difference" not in r
+        assert r[7:] == ["the", "first", str(min(recorded, replayed)), "are", "identical"], r
+    assert ["ok", "/aircraft/state"] == rows[0][:2]  # the cut's states are replayed as recorded
+
+    report = CheckReport({"/a": (3, 5, 0.25), "/b": (0, 4, 0.0), "/c": (2, 2, 0.0)})
+    assert report.lines()[1:] == [
+        f"  DIFF {'/a':<22} 3 messages recorded, 5 replayed; the first 3 differ by up to 0.25",
+        f"  DIFF {'/b':<22} 0 messages recorded, 4 replayed",
+        f"  ok   {'/c':<22} messages 2 vs 2, largest difference 0",
+    ]
