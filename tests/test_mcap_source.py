@@ -5,14 +5,16 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.opcode import Opcode
 from mcap.writer import Writer
 
 from motionbase.errors import LogFormatError, SourceError
-from motionbase.io.mcap_log import McapLogger
+from motionbase.io.mcap_log import MCAP_MAGIC, McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages, read_metadata
 from motionbase.state import AircraftState
 
@@ -393,3 +395,203 @@ def test_rate_from_metadata_must_be_finite(tmp_path):
             writer.add_message(cid, ns, json.dumps(_good_message(k / 50)).encode(), ns)
         writer.finish()
     assert McapSource(path).rate_hz == pytest.approx(50.0)  # from the spacing, not inf
+
+
+# --------------------------------------------------------------------------- damaged files
+# A file cut short (a crash while writing) is read up to the cut, with a warning; damage
+# inside a file (a CRC that does not match, a record that cannot be read) is an error.
+
+RECORDING = Path(__file__).parents[1] / "recordings" / "c1723_30s.mcap"
+
+
+def _damage(data: bytes, offset: int, junk: bytes = b"\xde\xad\xbe\xef\x01\x02\x03\x04") -> bytes:
+    damaged = bytearray(data)
+    damaged[offset : offset + len(junk)] = junk
+    assert damaged != data
+    return bytes(damaged)
+
+
+def _assert_damaged(path: Path, chunk_at: int | None = None) -> None:
+    """Every reader refuses ``path`` in one line naming it, the damage, where (the chunk
+    holding byte ``chunk_at`` when given) and what to do."""
+    for reader in (McapSource, read_messages, read_metadata):
+        with pytest.raises(LogFormatError) as err:
+            reader(path)
+        msg = str(err.value)
+        assert str(path) in msg and "\n" not in msg, msg
+        assert "damaged, not cut short" in msg and "re-record it, or copy it again" in msg
+        where = re.search(r"at byte (\d+)|bytes (\d+) to (\d+)", msg)
+        assert where is not None, msg
+        if chunk_at is not None:
+            assert "the chunk at byte" in msg, msg
+            assert chunk_at - 200_000 < int(where.group(1)) <= chunk_at, msg
+
+
+def test_a_damaged_recording_is_an_error_not_a_truncated_file(tmp_path, capsys, monkeypatch):
+    """The audit's case: 8 bytes overwritten at byte 1,000,000 of a real recording were read
+    as a cut (a quarter of the data, exit 0)."""
+    from motionbase import cli
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    bad = tmp_path / "damaged.mcap"
+    bad.write_bytes(_damage(RECORDING.read_bytes(), 1_000_000))
+    _assert_damaged(bad, chunk_at=1_000_000)
+    for args in (["replay", str(bad)], ["report", str(bad), "--out", str(tmp_path / "rep")]):
+        assert cli.main(args) == 2
+        captured = capsys.readouterr()
+        lines = captured.err.strip().splitlines()
+        assert len(lines) == 1 and "damaged, not cut short" in lines[0], captured.err
+        assert "truncated" not in captured.err and "Traceback" not in captured.err
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("fraction", [0.05, 0.3, 0.5, 0.7, 0.9, 0.97, 0.995, 0.9995])
+def test_damage_anywhere_in_a_finished_file_is_an_error(recording, tmp_path, fraction) -> None:
+    """Chunks, message indexes, the summary and the footer: each is covered by a CRC or
+    framed so that the damage shows."""
+    path, _ = recording
+    data = path.read_bytes()
+    bad = tmp_path / "bad.mcap"
+    offset = int(len(data) * fraction)
+    bad.write_bytes(_damage(data, offset))
+    _assert_damaged(bad)
+
+
+@pytest.mark.parametrize(
+    ("where", "junk"),
+    [
+        ("length of a chunk", b"\x7f"),  # a length of terabytes, past the end
+        ("kind of a chunk", b"\x7f"),  # a record kind readers skip
+        ("kind of the data end", b"\x7f"),
+        ("closing magic", b"\x00"),
+    ],
+)
+def test_damaged_framing_of_a_finished_file_is_not_a_cut(recording, tmp_path, where, junk):
+    """Damage to what frames the records, in a file that ends with the MCAP magic (a
+    finished file, which a cut never is)."""
+    path, _ = recording
+    data = path.read_bytes()
+    starts = {}  # the first record of each kind: opcode -> byte
+    at = len(MCAP_MAGIC)
+    while at < len(data) - len(MCAP_MAGIC):
+        starts.setdefault(data[at], at)
+        at += 9 + int.from_bytes(data[at + 1 : at + 9], "little")
+    offset = {
+        "length of a chunk": starts[Opcode.CHUNK] + 5,
+        "kind of a chunk": starts[Opcode.CHUNK],
+        "kind of the data end": starts[Opcode.DATA_END],
+        "closing magic": len(data) - 3,
+    }[where]
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(_damage(data, offset, junk))
+    _assert_damaged(bad)
+
+
+def test_damage_before_a_cut_is_still_damage(recording, tmp_path) -> None:
+    path, _ = recording
+    data = path.read_bytes()
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(_damage(data, len(data) // 4)[: int(len(data) * 0.8)])
+    _assert_damaged(bad, chunk_at=len(data) // 4)
+
+
+def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
+    recording, tmp_path, caplog, capsys, monkeypatch
+):
+    """They used to be ignored without a word; the recording itself is whole, so it is read."""
+    from motionbase import cli
+
+    path, states = recording
+    appended = tmp_path / "appended.mcap"
+    junk = b"garbage after the footer\n" * 4
+    appended.write_bytes(path.read_bytes() + junk)
+    said = f"{appended}: {len(junk)} bytes follow the end of the recording"
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        assert read_messages(appended) == read_messages(path)
+        source = McapSource(appended)
+    assert not source.truncated and source.count == len(states)
+    assert [r.getMessage().startswith(said) for r in caplog.records] == [True, True]
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    assert cli.main(["replay", str(appended)]) == 0
+    captured = capsys.readouterr()
+    assert [ln for ln in captured.err.splitlines() if "WARNING" in ln] == [
+        f"motionbase: WARNING: {said} (its footer and closing magic); ignored, the recording "
+        "itself is whole"
+    ]
+    assert "truncated" not in captured.err + captured.out
+
+
+@pytest.mark.parametrize(
+    ("config", "needle"),
+    [
+        ("[1, 2, 3]", "is a JSON array, not an object"),
+        ('"ceart"', "is a JSON string, not an object"),
+        ("42", "is a JSON number, not an object"),
+        ("null", "is JSON null, not an object"),
+        ("{not json", "is not valid JSON"),  # refused before; the others were read as none
+    ],
+)
+def test_a_config_that_is_not_a_json_object_is_refused(
+    tmp_path, capsys, monkeypatch, config, needle
+):
+    from motionbase import cli
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    path = tmp_path / "bad_config.mcap"
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": config})
+        sid = writer.register_schema("state", "jsonschema", b"{}")
+        cid = writer.register_channel("/aircraft/state", "json", sid)
+        for k in range(1, 121):
+            ns = round(k / RATE * 1e9)
+            writer.add_message(cid, ns, json.dumps(_good_message(k / RATE)).encode(), ns)
+        writer.finish()
+    for reader in (McapSource, read_metadata):
+        with pytest.raises(LogFormatError, match=needle) as err:
+            reader(path)
+        assert str(path) in str(err.value) and "metadata 'config'" in str(err.value)
+    assert cli.main(["replay", str(path)]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and str(path) in lines[0], captured.err
+    assert "no recorded configuration" not in captured.out
+
+
+def test_check_of_a_cut_recording_says_the_message_counts_differ(tmp_path, capsys, monkeypatch):
+    """``replay --check`` of a cut file said "DIFF ... largest difference 0" for topics whose
+    counts differ: the count is the difference, and the line now says so."""
+    from motionbase import cli
+    from motionbase.app import CheckReport
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    data = (RECORDING.parent / "c1723_planar_15s.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.4)])
+    assert cli.main(["replay", str(cut), "--check"]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    rows = [ln.split() for ln in lines[lines.index("check: DIFFERS from the recording") + 1 :]]
+    counted = [r for r in rows if "recorded," in r]
+    assert counted and all(r[0] == "DIFF" for r in counted)
+    for r in counted:  # DIFF TOPIC N messages recorded, M replayed; the first N are identical
+        recorded, replayed = int(r[2]), int(r[5])
+        assert recorded != replayed and "difference" not in r
+        assert r[7:] == ["the", "first", str(min(recorded, replayed)), "are", "identical"], r
+    assert ["ok", "/aircraft/state"] == rows[0][:2]  # the cut's states are replayed as recorded
+
+    report = CheckReport({"/a": (3, 5, 0.25), "/b": (0, 4, 0.0), "/c": (2, 2, 0.0)})
+    assert report.lines()[1:] == [
+        f"  DIFF {'/a':<22} 3 messages recorded, 5 replayed; the first 3 differ by up to 0.25",
+        f"  DIFF {'/b':<22} 0 messages recorded, 4 replayed",
+        f"  ok   {'/c':<22} messages 2 vs 2, largest difference 0",
+    ]

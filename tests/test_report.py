@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 
@@ -314,3 +315,29 @@ def test_planar_pose_plot_draws_the_realised_pose_through_the_stop(planar_flight
         t, cm = _line(_axis(fig, name), "realised")
         np.testing.assert_array_equal(t, t_all)  # every tick, the stop phase included
         np.testing.assert_allclose(cm, 100.0 * xy[:, col], atol=1e-9)
+
+
+def test_a_recording_cut_before_any_state_is_one_line_without_a_warning(
+    rus6_flight, tmp_path, capsys, monkeypatch
+):
+    """Cut to 10 bytes (or before the first chunk), a file gave a 'truncated' WARNING line
+    and then the error; nothing usable was read, so the error alone is said."""
+    log = logging.getLogger("motionbase")  # cli.main puts its handler on this test's stderr
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    data = rus6_flight.read_bytes()
+    for size in (10, 200):
+        cut = tmp_path / f"cut{size}.mcap"
+        cut.write_bytes(data[:size])
+        assert main(["report", str(cut), "--out", str(tmp_path / "rep")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "WARNING" not in err, err
+        assert str(cut) in err and "no /aircraft/state messages" in err and "cut short" in err
+        assert not (tmp_path / "rep").exists()
+    # with states before the cut, they are read, and the warning says so
+    cut = tmp_path / "half.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    messages = read_messages(cut, require="/aircraft/state")
+    assert messages["/aircraft/state"]
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "WARNING" in err and "truncated" in err, err

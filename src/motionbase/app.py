@@ -1039,7 +1039,8 @@ _DRAWN = {"/platform/scene"}
 
 @dataclass
 class CheckReport:
-    """Largest difference per topic between two recordings."""
+    """Largest difference per topic between two recordings: a recording (a) and its
+    replay (b)."""
 
     per_topic: dict[str, tuple[int, int, float]]  # topic -> (count a, count b, max |diff|)
 
@@ -1053,7 +1054,14 @@ class CheckReport:
             + ("identical to the recording" if self.identical else "DIFFERS from the recording")
         ]
         for topic, (a, b, d) in sorted(self.per_topic.items()):
-            mark = "ok" if a == b and d == 0.0 else "DIFF"
+            if a != b:  # compared over the first min(a, b) messages only
+                line = f"  DIFF {topic:<22} {a} messages recorded, {b} replayed"
+                if min(a, b):
+                    same = "are identical" if d == 0.0 else f"differ by up to {d:.3g}"
+                    line += f"; the first {min(a, b)} {same}"
+                out.append(line)
+                continue
+            mark = "ok" if d == 0.0 else "DIFF"
             out.append(f"  {mark:4} {topic:<22} messages {a} vs {b}, largest difference {d:.3g}")
         return out
 

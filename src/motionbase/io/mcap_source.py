@@ -1,12 +1,19 @@
 """Read MCAP recordings back: aircraft states for a replay, every topic for a check.
 
-The reader goes through the file from the start, record by record (the
-``mcap`` library's :class:`~mcap.stream_reader.StreamReader`, chunk CRCs
-checked), so it also reads files that were cut short: a run that crashed or
-was killed leaves every complete chunk readable. Such a file yields the
-messages written before the cut, sets ``truncated`` and logs a warning on the
-``motionbase`` logger. A file that is not MCAP raises
-:class:`~motionbase.errors.LogFormatError` with a one-line message naming it.
+The reader goes through the file from the start, record by record: it frames
+each record itself (opcode, length) and has the ``mcap`` library parse it,
+checking each chunk's CRC and those of the data and summary sections. So it
+also reads files that were cut short: a run that crashed or was killed leaves
+every complete chunk readable, and its file ends inside a record (or lacks its
+footer). Such a file yields the messages written before the cut, sets
+``truncated`` and logs a warning on the ``motionbase`` logger. Damage is not a
+cut: a CRC that does not match, a record that lies wholly in the file but
+cannot be read, or a length that runs past the end of a file that ends with the
+MCAP magic (as only a finished file does) raises
+:class:`~motionbase.errors.LogFormatError`, one line naming the file, the byte
+where the damaged record or section starts and what to do. Bytes after the end
+of a finished file (something appended to it) are ignored, with a warning: the
+recording itself is whole. A file that is not MCAP raises LogFormatError too.
 
 A malformed aircraft state (not JSON, not UTF-8, a missing field, a string or a bool
 for a number, a list of the wrong length, ``null``, a negative time) never stops a
@@ -25,14 +32,18 @@ import logging
 import math
 import os
 import re
-from collections.abc import Callable, Iterator
+import zlib
+from collections.abc import Callable, Iterable, Iterator
+from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import numpy as np
-from mcap.records import Channel, Footer, Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.exceptions import UnsupportedCompressionError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord, Message, Metadata
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from motionbase.errors import LogFormatError, SourceError
 from motionbase.io.mcap_log import MCAP_MAGIC, METADATA_NAME
@@ -96,15 +107,59 @@ def _open(path: Path) -> IO[bytes]:
         raise SourceError(f"{path}: cannot open: {exc.strerror or exc}") from None
 
 
+_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
+
+
+def _damaged(path: Path, what: str) -> LogFormatError:
+    return LogFormatError(
+        f"{path}: the file is damaged, not cut short: {what}; re-record it, or copy it again "
+        "from where it was recorded"
+    )
+
+
+def _written_whole(fh: IO[bytes], size: int) -> bool:
+    """Whether the file ends as a finished MCAP file does, with the magic after its footer
+    (a file cut short ends there by a 1 in 2**64 chance)."""
+    if size < 2 * len(MCAP_MAGIC):
+        return False
+    fh.seek(size - len(MCAP_MAGIC))
+    return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def _record_name(opcode: int) -> str:
+    return Opcode(opcode).name.lower().replace("_", " ")
+
+
+class _Ending(NamedTuple):
+    """How a scanned file ends."""
+
+    truncated: bool  # cut short: the records before the cut were read
+    trailing: int = 0  # bytes after the closing magic (something appended to a whole file)
+
+
 def _scan(
     path: Path,
     on_metadata: Callable[[Metadata], None],
     on_channel: Callable[[Channel], None],
     on_message: Callable[[Message], None],
-) -> bool:
-    """Walk every record of an MCAP file; return True when the file was cut short."""
+) -> _Ending:
+    """Walk every record of an MCAP file; say whether it was cut short or has bytes after
+    its end.
+
+    The walk frames the records itself (opcode, length) so that it knows where each one
+    starts and whether it lies wholly in the file: a record that runs past the end of a file
+    without its footer is the cut of an interrupted run (the records before it are read); a
+    record that lies wholly in the file and cannot be read, a chunk whose CRC does not match,
+    or a data section whose CRC does not match, is damage.
+
+    Raises
+    ------
+    LogFormatError
+        The file is not MCAP, or is damaged (the message says where).
+    """
     fh = _open(path)
     try:
+        size = os.fstat(fh.fileno()).st_size
         magic = fh.read(len(MCAP_MAGIC))
         if magic != MCAP_MAGIC:
             what = "empty file" if not magic else "wrong magic bytes"
@@ -112,32 +167,110 @@ def _scan(
                 f"{path}: not an MCAP file ({what}); expected a recording made by "
                 "motionbase or another MCAP writer"
             )
-        records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
-        try:
-            for rec in records:
-                if isinstance(rec, Message):
-                    on_message(rec)
-                elif isinstance(rec, Channel):
-                    on_channel(rec)
-                elif isinstance(rec, Metadata):
-                    on_metadata(rec)
-                elif isinstance(rec, Footer):
-                    return False
-        except LogFormatError:
-            raise
-        except Exception:  # noqa: BLE001 - any failure past the header is a cut
-            return True
-        return True  # ran out of records before the footer
+        crc = zlib.crc32(magic)  # of the data section, then of the summary section
+        summary_start = 0  # where the summary section starts: after the Data End record
+        start = len(MCAP_MAGIC)
+        while True:
+            head = fh.read(9)
+            end = start + 9 + int.from_bytes(head[1:], "little") if len(head) == 9 else None
+            if end is None or end > size:
+                if not _written_whole(fh, size):
+                    return _Ending(truncated=True)  # the cut: this record was being written
+                raise _damaged(
+                    path,
+                    f"the record at byte {start} runs past the end of the file, which ends as "
+                    "a finished recording does (a damaged length)",
+                )
+            body = fh.read(end - start - 9)
+            rec = _read_record(path, start, head, body) if head[0] in _KNOWN_OPCODES else None
+            if isinstance(rec, Message):
+                on_message(rec)
+            elif isinstance(rec, Channel):
+                on_channel(rec)
+            elif isinstance(rec, Metadata):
+                on_metadata(rec)
+            elif isinstance(rec, Chunk):
+                for inner in _open_chunk(path, start, rec):
+                    if isinstance(inner, Message):
+                        on_message(inner)
+                    elif isinstance(inner, Channel):
+                        on_channel(inner)
+            elif isinstance(rec, DataEnd):
+                if rec.data_section_crc not in (0, crc):
+                    raise _damaged(
+                        path, f"the data section (bytes 0 to {start}) fails its CRC check"
+                    )
+                crc, summary_start, start = 0, end, end
+                continue
+            elif isinstance(rec, Footer):
+                if not summary_start:  # every MCAP writer ends its data with a Data End
+                    raise _damaged(path, f"no data end record before the footer at byte {start}")
+                # the summary's CRC runs to the footer's summary_offset_start field
+                crc = zlib.crc32(body[:16], zlib.crc32(head, crc))
+                if rec.summary_crc not in (0, crc):
+                    raise _damaged(
+                        path,
+                        f"the summary section (bytes {summary_start} to {start}) fails its "
+                        "CRC check",
+                    )
+                closing = fh.read(len(MCAP_MAGIC))
+                if not MCAP_MAGIC.startswith(closing):  # (a prefix: cut in the magic)
+                    raise _damaged(
+                        path, f"the footer at byte {start} is not followed by the MCAP magic"
+                    )
+                return _Ending(truncated=False, trailing=max(0, size - end - len(MCAP_MAGIC)))
+            crc = zlib.crc32(body, zlib.crc32(head, crc))
+            start = end
     finally:
         fh.close()
 
 
-def _warn_truncated(path: Path, what: str) -> None:
-    log.warning(
-        "%s: recording is truncated (the run was interrupted); read %s written before the cut",
-        path,
-        what,
-    )
+def _read_record(path: Path, start: int, head: bytes, body: bytes) -> McapRecord:
+    """The record framed at byte ``start``, which lies wholly in the file."""
+    try:
+        return next(StreamReader(BytesIO(head + body), skip_magic=True, emit_chunks=True).records)
+    except Exception as exc:  # noqa: BLE001 - whatever the parser trips on, it is damage
+        raise _damaged(
+            path,
+            f"the {_record_name(head[0])} record at byte {start} cannot be read "
+            f"({_short_reason(exc) or type(exc).__name__})",
+        ) from None
+
+
+def _open_chunk(path: Path, start: int, chunk: Chunk) -> list[McapRecord]:
+    """The records in the chunk at byte ``start``, its CRC checked."""
+    try:
+        return breakup_chunk(chunk, validate_crc=True)
+    except UnsupportedCompressionError:
+        raise LogFormatError(
+            f"{path}: its chunks are {chunk.compression}-compressed, which this Python cannot "
+            f"read (install the {'zstandard' if chunk.compression == 'zstd' else 'lz4'} package)"
+        ) from None
+    except CRCValidationError:
+        raise _damaged(path, f"the chunk at byte {start} fails its CRC check") from None
+    except Exception as exc:  # noqa: BLE001 - a decompressor's or the parser's error
+        raise _damaged(
+            path,
+            f"the chunk at byte {start} cannot be read "
+            f"({_short_reason(exc) or type(exc).__name__})",
+        ) from None
+
+
+def _warn_ending(path: Path, ending: _Ending, what: str) -> None:
+    """Warn of a file cut short (``what`` was read before the cut) or with bytes after it."""
+    if ending.truncated:
+        log.warning(
+            "%s: recording is truncated (the run was interrupted); read %s written before the cut",
+            path,
+            what,
+        )
+    if ending.trailing:
+        log.warning(
+            "%s: %d bytes follow the end of the recording (its footer and closing magic); "
+            "ignored, the recording itself is whole",
+            path,
+            ending.trailing,
+        )
 
 
 def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
@@ -148,21 +281,52 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
         value = json.loads(raw)
     except json.JSONDecodeError:
         raise LogFormatError(f"{path}: metadata 'config' is not valid JSON") from None
-    return _restore_nonfinite(value) if isinstance(value, dict) else {}
+    if not isinstance(value, dict):
+        kinds = {list: "a JSON array", str: "a JSON string", bool: "a JSON boolean"}
+        kind = "JSON null" if value is None else kinds.get(type(value), "a JSON number")
+        raise LogFormatError(
+            f"{path}: metadata 'config' is {kind}, not an object (motionbase records its "
+            "configuration as one; re-record the file)"
+        )
+    return _restore_nonfinite(value)
 
 
-def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]]]:
+def _no_messages(path: Path, topic: str, present: Iterable[str], truncated: bool) -> LogFormatError:
+    """The error for a recording without a message on ``topic`` (cut short before one?)."""
+    listed = ", ".join(sorted(present)) or "none"
+    if truncated:
+        return LogFormatError(
+            f"{path}: no {topic} messages: the recording was cut short before the first one "
+            f"(the run was interrupted; topics present: {listed})"
+        )
+    return LogFormatError(
+        f"{path}: no {topic} messages in the recording (topics present: {listed})"
+    )
+
+
+def read_messages(
+    path: str | os.PathLike[str], *, require: str | None = None
+) -> dict[str, list[dict[str, Any]]]:
     """Every JSON message of a recording, by topic, in file order.
 
-    For ``motionbase replay --check``. A truncated file gives the messages
-    before the cut and logs a warning.
+    For ``motionbase replay --check`` and ``report``. A truncated file gives the
+    messages before the cut and logs a warning.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording.
+    require : str, optional
+        A topic the caller cannot do without: a recording with no message on it
+        raises, before any warning (a file with nothing usable gives one line).
 
     Raises
     ------
     SourceError
         The file is missing or unreadable.
     LogFormatError
-        The file is not MCAP, or a channel is not JSON-encoded.
+        The file is not MCAP, is damaged (not cut short), a channel is not JSON-encoded,
+        or there is no message on ``require``.
     """
     p = Path(path)
     topics: dict[int, str] = {}
@@ -178,11 +342,16 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
         out.setdefault(ch.topic, [])
 
     skipped: list[str] = []
+    # the first message on a channel never defined: refused after the walk, so that damage
+    # (which may have taken the channel's record) is reported as such
+    orphans: list[int] = []
 
     def on_message(msg: Message) -> None:
         topic = topics.get(msg.channel_id)
         if topic is None:
-            raise LogFormatError(f"{p}: message on unknown channel {msg.channel_id}")
+            if not orphans:
+                orphans.append(msg.channel_id)
+            return
         try:
             out[topic].append(decode_message(msg.data))
         except ValueError as exc:
@@ -194,12 +363,15 @@ def read_messages(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]
     collecting = gc.isenabled()
     gc.disable()
     try:
-        truncated = _scan(p, lambda m: None, on_channel, on_message)
+        ending = _scan(p, lambda m: None, on_channel, on_message)
     finally:
         if collecting:
             gc.enable()
-    if truncated:
-        _warn_truncated(p, f"{sum(len(v) for v in out.values())} messages")
+    if orphans:
+        raise LogFormatError(f"{p}: message on unknown channel {orphans[0]}")
+    if require is not None and not out.get(require):
+        raise _no_messages(p, require, (t for t, msgs in out.items() if msgs), ending.truncated)
+    _warn_ending(p, ending, f"{sum(len(v) for v in out.values())} messages")
     if skipped:
         log.warning(
             "%s: skipped %d messages that are not JSON (first: %s)", p, len(skipped), skipped[0]
@@ -321,7 +493,7 @@ class McapSource:
     SourceError
         The file is missing or unreadable.
     LogFormatError
-        The file is not MCAP, or holds no message on ``topic``.
+        The file is not MCAP, is damaged (not cut short), or holds no message on ``topic``.
     """
 
     def __init__(
@@ -372,18 +544,15 @@ class McapSource:
         if not _scan_messages:
             self.truncated = _scan_metadata_only(self.path, on_metadata)
             return
-        self.truncated = _scan(self.path, on_metadata, on_channel, on_message)
+        ending = _scan(self.path, on_metadata, on_channel, on_message)
+        self.truncated = ending.truncated
         if not times:
-            present = ", ".join(sorted(self._topics)) or "none"
-            raise LogFormatError(
-                f"{self.path}: no {topic} messages in the recording (topics present: {present})"
-            )
+            raise _no_messages(self.path, topic, self._topics, ending.truncated)
         self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
-        if self.truncated:
-            _warn_truncated(self.path, f"{self.count} aircraft states")
+        _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
 
     def _check_clock(self, data: bytes) -> None:
@@ -501,7 +670,7 @@ class McapSource:
 
 
 def _scan_metadata_only(path: Path, on_metadata: Callable[[Metadata], None]) -> bool:
-    return _scan(path, on_metadata, lambda c: None, lambda m: None)
+    return _scan(path, on_metadata, lambda c: None, lambda m: None).truncated
 
 
 __all__ = ["McapSource", "decode_message", "read_messages", "read_metadata"]

@@ -100,7 +100,8 @@ def write_report(
     from motionbase.io.mcap_source import read_messages, read_metadata
 
     src = Path(recording)
-    messages = read_messages(src)
+    # nothing to report: the error alone, without a warning that the file is cut short
+    messages = read_messages(src, require="/aircraft/state")
     metadata = read_metadata(src)
     report = build_report(messages, metadata, name=src.name)
     out_dir = Path(out) if out is not None else default_report_dir(src)
