@@ -341,3 +341,28 @@ def test_a_recording_cut_before_any_state_is_one_line_without_a_warning(
     assert messages["/aircraft/state"]
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "WARNING" in err and "truncated" in err, err
+
+
+def test_a_recording_cut_anywhere_after_its_first_states_gives_a_report(rus6_flight, tmp_path):
+    """A killed run's file can end between a tick's aircraft state and its pose (every
+    message of a tick is written together, but a cut falls anywhere): the report leaves the
+    last states without a pose out. It used to fail on most cuts ("1 /aircraft/state
+    messages have no /platform/pose at the same time")."""
+    data = rus6_flight.read_bytes()
+    messages = read_messages(rus6_flight)
+    whole_ticks = len(messages["/platform/pose"])
+    reported = 0
+    for share in np.linspace(0.3, 0.95, 14):
+        cut = tmp_path / f"cut{share:.3f}.mcap"
+        cut.write_bytes(data[: int(share * len(data))])
+        got = read_messages(cut)
+        if not got.get("/aircraft/state"):
+            continue  # cut before the first chunk of states: the one-line error above
+        report = build_report(got, read_metadata(cut), name=cut.name)
+        n_air = len(got["/aircraft/state"])
+        poses = {float(m["t"]) for m in got["/platform/pose"]}
+        kept = sum(float(m["t"]) in poses for m in got["/aircraft/state"])
+        assert report.t.size == kept and kept >= n_air - 1 and kept <= whole_ticks
+        assert np.isfinite(report.metrics.rmse_specific_force).all()
+        reported += 1
+    assert reported >= 10

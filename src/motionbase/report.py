@@ -385,6 +385,12 @@ def build_report(
 
     # ticks with an aircraft state --------------------------------------------------
     t_air = _times(air_msgs, "/aircraft/state")
+    # a recording cut short (a killed run) can end between a tick's aircraft state and its
+    # pose: those last states have no tick, and are left out
+    whole = t_air.size
+    while whole > 1 and t_air[whole - 1] > tick_t.max():
+        whole -= 1
+    air_msgs, t_air = air_msgs[:whole], t_air[:whole]
     tick_index = {float(x): i for i, x in enumerate(tick_t)}
     rows = np.array([tick_index.get(float(x), -1) for x in t_air])
     if (rows < 0).any():
