@@ -325,6 +325,14 @@ class OutputMapping:
                 # Default drive range: the crank range's image, through a provisional mapping.
                 probe = cls(**{**kw, "drive_min": np.zeros(n), "drive_max": np.ones(n)})
                 v1, v2 = probe.to_drive(qmin), probe.to_drive(qmax)
+                flat = ~(np.abs(v1 - v2) > 0) & (np.isnan(dmin) | np.isnan(dmax))
+                if flat.any():
+                    i = int(np.flatnonzero(flat)[0])
+                    raise ConfigError(
+                        f"output mapping: motor {i + 1}'s crank range maps to one drive value "
+                        f"({v1[i]:g}): check its zero_offset and gear_ratio (the offset "
+                        "swamps the crank's motion), or give drive_min/drive_max"
+                    )
                 dmin = np.where(np.isnan(dmin), np.minimum(v1, v2), dmin)
                 dmax = np.where(np.isnan(dmax), np.maximum(v1, v2), dmax)
             kw["drive_min"], kw["drive_max"] = dmin, dmax
