@@ -294,36 +294,30 @@ def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
     assert stdout == ""
 
 
-def test_a_mavlink_link_of_no_known_kind_is_one_line(tmp_path, run_cli):
-    """An unknown ``KIND:`` once said "invalid literal for int()"; an ordinary file ran as a
-    serial port that never spoke, until killed."""
+LINK = "udpin:127.0.0.1:14552"
+
+
+@pytest.mark.parametrize(
+    ("args", "needles"),
+    [
+        # an unknown KIND: once said "invalid literal for int()"
+        (["--mavlink", "foo:bar"], ("unknown kind of link 'foo'", "udpin:HOST:PORT", "serial")),
+        # an ordinary file ran as a serial port that never spoke, until killed
+        (["--mavlink", "NOTES", "--fast"], ("empty.toml", ".tlog", ".bin", "character device")),
+        # --mavlink was silently ignored beside --source
+        (["--mavlink", LINK, "--source", "xplane:127.0.0.1:49000"], ("one source at a time",)),
+        # --fast on a live link was taken and meant nothing (refused with --source already)
+        (["--mavlink", LINK, "--fast"], (f"--fast replays MAVLink log files; {LINK} is live",)),
+    ],
+)
+def test_stream_source_mistakes_are_one_line(args, needles, tmp_path, run_cli):
     notes = tmp_path / "empty.toml"
     notes.write_text("")
     out = tmp_path / "x.mcap"
-    cases = [
-        (["--mavlink", "foo:bar"], ("unknown kind of link 'foo'", "udpin:HOST:PORT", "serial")),
-        (["--mavlink", notes, "--fast"], ("empty.toml", ".tlog", ".bin", "character device")),
-    ]
-    for args, needles in cases:
-        code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
-        assert code == 2, args
-        one_line(err, *needles)
-    assert not out.exists()
-
-
-def test_one_source_at_a_time_and_fast_for_logs_only(tmp_path, run_cli):
-    """--mavlink was silently ignored beside --source; --fast on a live link was taken and
-    meant nothing (with --source it was already refused, in these words)."""
-    out = tmp_path / "x.mcap"
-    link = "udpin:127.0.0.1:14552"
-    cases = [
-        (["--mavlink", link, "--source", "xplane:127.0.0.1:49000"], ("one source at a time",)),
-        (["--mavlink", link, "--fast"], (f"--fast replays MAVLink log files; {link} is live",)),
-    ]
-    for args, needles in cases:
-        code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
-        assert code == 2, args
-        one_line(err, *needles)
+    args = [str(notes) if a == "NOTES" else a for a in args]
+    code, stdout, err = run_cli("stream", *args, "--duration", "1", "--out", out)
+    assert code == 2, args
+    one_line(err, *needles)
     assert not out.exists()
 
 

@@ -123,8 +123,11 @@ def test_values_beyond_the_crank_limits_or_nan_are_out_of_range():
         ({"unit": "counts", "counts_per_rev": "4096"}, r"'counts_per_rev'.*expected a number"),
         ({"unit": "range", "range_lo": 0, "range_hi": True}, r"integer 'range_hi'"),
         # an offset that swamps the crank's motion (it blamed drive_min/drive_max, unwritten)
-        ({"unit": "deg", "zero_offset_deg": 1e300}, r"x.toml: \[output\]: motor 1's crank range "
-         r"maps to one drive value .*zero_offset and gear_ratio"),  # fmt: skip
+        (
+            {"unit": "deg", "zero_offset_deg": 1e300},
+            r"x.toml: \[output\]: motor 1's crank range "
+            r"maps to one drive value .*zero_offset and gear_ratio",
+        ),  # fmt: skip
     ],
 )
 def test_validation_names_the_field(table, match):

@@ -42,6 +42,21 @@ print(code, compiled)
 """
 
 
+def test_python_dash_m_motionbase_is_the_command():
+    """``python -m motionbase`` runs the command line, as the ``motionbase`` script does: its
+    version, and a user mistake's one line and exit 2."""
+    ok = subprocess.run(
+        [sys.executable, "-m", "motionbase", "--version"], capture_output=True, text=True
+    )
+    assert ok.returncode == 0 and ok.stdout.startswith("motionbase "), ok.stderr
+    bad = subprocess.run(
+        [sys.executable, "-m", "motionbase", "fly", "no_such_script"],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+
+
 @pytest.mark.parametrize("robot", [[], ["--planar"], ["--platform", "stewart6"]])
 def test_a_second_process_compiles_nothing(tmp_path, robot):
     # Every compiled function of a flight comes from numba's on-disk cache once a first
