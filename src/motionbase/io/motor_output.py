@@ -116,6 +116,12 @@ log = logging.getLogger(__name__)
 
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
 DEFAULT_RATE_HZ = 100.0
+#: Seconds without a send error before a link that was down counts as back (UDP reports a
+#: refused datagram on a later send).
+LINK_PROBATION_S = 1.0
+#: Seconds :meth:`MotorOutput.close` waits for a drive whose link is down to come back, so
+#: that it can still be brought to the park command.
+RETURN_WAIT_S = 2.0
 DEFAULT_BAUD = 115200
 #: Widest text field (width or precision), characters: a 64-bit number in binary fits.
 MAX_FIELD_WIDTH = 64
@@ -600,8 +606,8 @@ class MotorOutput:
         close the link. Idempotent.
 
         With ``limits``, the drive is ramped the rest of the way within them, for at most the
-        time the limits need to cross the whole range (it gives up at once on a link that
-        is down: nothing would arrive).
+        time the limits need to cross the whole range; a drive whose link is down is waited
+        for (:data:`RETURN_WAIT_S`, then its probation) and ramped when it returns.
         """
         if not self._opened:
             return
@@ -731,22 +737,39 @@ class MotorOutput:
         return None if ramp_frame is None else (q, v, ramp_frame)
 
     def _finish_ramp(self) -> None:
-        """After the sender stopped: ramp the drive to the latest command, then send it again."""
+        """After the sender stopped: ramp the drive to the latest command (the park command
+        at the end of a run), then send it again.
+
+        A link that is down, or back for less than its probation (:data:`LINK_PROBATION_S`:
+        a refused datagram shows on a later send), is given that probation and the time a
+        ramp across the whole range takes: a drive that returns in the last moments of a run
+        is still parked. When it is not there in that time, a warning says the drive may
+        not be at the last command.
+        """
         lim = self.limits
         period = 1.0 / self.rate_hz
         span = lim.upper - lim.lower
         bound = float(np.max(span / lim.max_speed + 2.0 * lim.max_speed / lim.max_accel)) + 0.5
-        now = time.monotonic()
+        start = now = time.monotonic()
         end = now + bound
         nxt = now
-        while self.link_up and now < end and not self._tick(now):
+        there = False
+        while now < end and not (there := self._tick(now)):
+            if not self.link_up:  # time for the probation and the ramp after the last error
+                end = max(end, self._last_error + LINK_PROBATION_S + bound)
+                end = min(end, start + RETURN_WAIT_S + LINK_PROBATION_S + bound)
             nxt += period
             time.sleep(max(0.0, nxt - time.monotonic()))
             now = time.monotonic()
-        if not self.link_up:
-            self._tick(time.monotonic())  # one last try from where the drive last was
-        elif self._last_sent is not None:
+        if there and self._last_sent is not None:
             self._send(self._last_sent, time.monotonic(), final=True)
+        else:
+            log.warning(
+                "output %s: the drive may not be at the last command (park at the end of a "
+                "run): its link was down or it could not get there within %.1f s",
+                self.label,
+                bound,
+            )
 
     def _send(self, frame: bytes, now: float, final: bool = False) -> bool:
         """Put ``frame`` on the wire; False when it could not be sent."""
@@ -779,7 +802,7 @@ class MotorOutput:
         self._last_sent = frame
         # UDP reports a refused datagram on a later send: call the link back only after a
         # second without errors.
-        if not self.link_up and now - self._last_error >= 1.0:
+        if not self.link_up and now - self._last_error >= LINK_PROBATION_S:
             self.link_up = True
             log.warning("output %s: link back, sending again", self.label)
         return True
