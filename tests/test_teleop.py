@@ -455,6 +455,46 @@ def test_no_time_left_to_go_home_still_comes_to_rest_within_the_limits(tmp_path)
     assert not np.allclose(log.m["/planar/pose"][-1][1]["pose"], rrr3.home, atol=1e-3)
 
 
+@pytest.mark.parametrize("after_s", [0.2, 0.5, 0.9])
+def test_a_sigterm_while_teleop_starts_stops_it_cleanly(tmp_path, after_s):
+    """A SIGTERM while the command still imports the teleoperation code (about a second):
+    it used to kill the process (status -15, no log); now the stop is routed from the start,
+    as for the other jobs: exit 0, "stopped by SIGTERM", and the board got at most the home
+    command."""
+    import signal
+    import subprocess
+    import sys
+
+    write_csv(tmp_path / "fast.csv", duration=60.0, omega=8.0)
+    write_calibration(tmp_path / "cal.toml")
+    cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input"]
+    cmd += [f"file:{tmp_path / 'fast.csv'}", "--calibration", str(tmp_path / "cal.toml")]
+    cmd += ["--rrr3", "udesc", "--out", str(tmp_path / "t.mcap")]
+    board = Board()
+    proc = None
+    try:
+        proc = subprocess.Popen(
+            cmd + ["--serial", board.path], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        threading.Event().wait(after_s)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+        threading.Event().wait(0.1)  # the last bytes
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        board.close()
+    assert proc.returncode == 0, (proc.returncode, stderr)
+    assert "stopped by SIGTERM" in stdout and not stderr.strip(), stderr
+    got = decode(bytes(board.data))
+    frames = [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)]
+    robot = Rrr3(Rrr3Geometry.preset("udesc"))
+    home = tuple(int(round(v)) for v in robot.to_servo(robot.inverse(robot.home)))
+    assert not frames or frames[-1] == home, frames[-3:]
+
+
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
 def test_every_stop_signal_to_a_teleop_process_parks_within_the_limits(tmp_path, sig):
     import signal

@@ -384,13 +384,14 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
 def run_teleop(args: argparse.Namespace) -> int:
-    from motionbase.teleop import teleop_job
+    with stop_on_signals() as stop:  # before the slow imports: a stop then is one park tick
+        from motionbase.teleop import teleop_job
 
-    stats = teleop_job(
-        args.input, serial_url=args.serial, calibration_path=args.calibration,
-        rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
-        clamp=not args.no_clamp, live=args.live,
-    )  # fmt: skip
+        stats = teleop_job(
+            args.input, serial_url=args.serial, calibration_path=args.calibration,
+            rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
+            clamp=not args.no_clamp, live=args.live, stop=stop,
+        )  # fmt: skip
     print(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
         f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input, "
