@@ -24,7 +24,7 @@ import pytest
 
 from motionbase.cli import main
 from motionbase.errors import ConfigError, SourceError
-from motionbase.io.fgnative_source import FgNativeSource
+from motionbase.io.fgnative_source import FgNativeSource, decode_fgnetfdm
 from motionbase.io.jsbsim_source import JsbsimSource
 from motionbase.io.mcap_source import McapSource, read_messages
 
@@ -247,6 +247,39 @@ def test_unknown_version_refused_with_one_warning(sender, caplog):
     assert state.specific_force[2] == pytest.approx(-G0)  # the neutral hold, not the packet
     warnings = [r for r in caplog.records if "version 23" in r.getMessage()]
     assert len(warnings) == 1 and "\n" not in warnings[0].getMessage()
+
+
+def test_garbage_of_many_versions_is_reported_three_times_at_most(sender, caplog):
+    """Garbage on the port reads as a new protocol version in almost every datagram: the
+    first three are warned of (the third says the rest are only counted), then silence;
+    it was one warning per datagram, without end."""
+    packet = bytearray(fgnetfdm_packet(24, A_Z_pilot=-32.0))
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=100) as src:
+            for version in range(100, 140):
+                struct.pack_into(">I", packet, 0, version)
+                sender.sendto(bytes(packet), src.local_address)
+            it = iter(src)
+            for _ in range(20):
+                next(it)
+            stats = src.stats
+    assert stats.bad_data == 40
+    warned = [r.getMessage() for r in caplog.records if "FGNetFDM version" in r.getMessage()]
+    assert len(warned) == 3 and "further unknown versions" in warned[-1]
+    assert stats.extra["refused versions"] == "100/101/102"
+
+
+def test_nan_and_infinite_angles_decode_without_numpy_warnings():
+    """Non-finite angles are refused after decoding; decoding them printed numpy's two-line
+    RuntimeWarnings (their source lines too) on every such datagram."""
+    import warnings
+
+    for bad in (math.nan, math.inf):
+        packet = fgnetfdm_packet(24, A_Z_pilot=-32.0, phi=bad, theta=bad)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            version, values = decode_fgnetfdm(packet)
+        assert version == 24 and values is not None and not math.isfinite(values[3])
 
 
 def test_wrong_size_and_garbage_are_not_used(sender):

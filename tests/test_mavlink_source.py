@@ -553,6 +553,41 @@ def test_stream_request_to_a_silent_vehicle(ack: bool, caplog: pytest.LogCapture
         assert not any(t.fresh for _, t in ticks)
 
 
+def test_a_vehicle_that_refuses_again_and_again_is_reported_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A vehicle that answers the stream request with a refusal, and keeps sending
+    refusals (hundreds a second): one warning, not one per acknowledgement."""
+    caplog.set_level(logging.WARNING, logger="motionbase")
+    stop = threading.Event()
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=1.5, request_timeout_s=0.3
+    ) as src:
+        conn = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{src.local_address[1]}", source_system=1, source_component=1
+        )
+
+        def vehicle() -> None:
+            while not stop.is_set():
+                conn.mav.heartbeat_send(
+                    ML.MAV_TYPE_FIXED_WING, ML.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0
+                )
+                for _ in range(5):
+                    conn.mav.command_ack_send(ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAV_RESULT_DENIED)
+                stop.wait(0.01)
+
+        th = threading.Thread(target=vehicle, daemon=True)
+        th.start()
+        try:
+            run_live(src)
+        finally:
+            stop.set()
+            th.join(timeout=5)
+            conn.close()
+    refused = [r for r in caplog.records if "refused MAV_CMD_SET_MESSAGE_INTERVAL" in r.message]
+    assert len(refused) == 1, len(refused)
+
+
 # --------------------------------------------------------------------------- real logs
 
 

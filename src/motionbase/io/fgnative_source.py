@@ -38,8 +38,8 @@ Fields used, and the conversions at this edge:
   gravity term the same way.
 
 An unknown version is refused: its datagrams are counted as ``bad_data`` and
-one warning per distinct version number is logged (the run goes on: the
-watchdog holds the platform at neutral while nothing valid arrives). A datagram
+one warning per distinct version number is logged, for the first three (the run goes on:
+the watchdog holds the platform at neutral while nothing valid arrives). A datagram
 of the wrong size, or with a NaN, infinite or absurd value (a specific force or
 a body rate beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`:
 150 m/s^2, 20 rad/s; an angle out of range), is rejected whole and counted.
@@ -50,6 +50,8 @@ from __future__ import annotations
 import logging
 import struct
 from typing import Any
+
+import numpy as np
 
 from motionbase.errors import ConfigError
 from motionbase.io.live_source import (
@@ -85,6 +87,9 @@ FG_NET_FDM_SIZES: dict[int, int] = {24: struct.calcsize(_V24), 25: struct.calcsi
 _HEAD = struct.Struct(">II 3d 6f 11f 3f")  # version .. A_Z_pilot: 112 bytes, same in 24 and 25
 _VERSION = struct.Struct(">I")
 
+#: Distinct unknown protocol versions warned of (garbage on the port would give one each).
+MAX_VERSION_WARNINGS = 3
+
 
 def decode_fgnetfdm(data: bytes) -> tuple[int, tuple[float, ...] | None]:
     """The protocol version and the nine values of one ``FGNetFDM`` datagram.
@@ -112,7 +117,8 @@ def decode_fgnetfdm(data: bytes) -> tuple[int, tuple[float, ...] | None]:
     # h: 0 version, 1 padding, 2-4 lon lat alt, 5 agl, 6 phi, 7 theta, 8 psi, 9 alpha,
     # 10 beta, 11 phidot, 12 thetadot, 13 psidot, 14-21 vcas..v_body_w, 22-24 A_*_pilot
     phi, theta, psi = h[6], h[7], h[8]
-    p, q, r = body_rates_from_euler_rates(phi, theta, h[11], h[12], h[13])
+    with np.errstate(all="ignore"):  # NaN or inf angles: the caller refuses the values
+        p, q, r = body_rates_from_euler_rates(phi, theta, h[11], h[12], h[13])
     return version, (
         h[22] * FT_TO_M,
         h[23] * FT_TO_M,
@@ -186,13 +192,20 @@ class FgNativeSource(UdpLiveSource):
             c["bad_bytes"] += len(data)
             if version in FG_NET_FDM_SIZES:
                 self._bad_size += 1
-            elif version not in self._warned_versions:
+            elif (
+                version not in self._warned_versions
+                and len(self._warned_versions) < MAX_VERSION_WARNINGS
+            ):
                 self._warned_versions.add(version)
+                last = len(self._warned_versions) == MAX_VERSION_WARNINGS
                 _log.warning(
                     "FlightGear: refusing datagrams of FGNetFDM version %d from %s "
-                    "(supported: 24 and 25, the native-fdm protocol of FlightGear and JSBSim)",
+                    "(supported: 24 and 25, the native-fdm protocol of FlightGear and JSBSim)%s",
                     version,
                     addr[0] if isinstance(addr, tuple) else addr,
+                    "; further unknown versions are counted as bad data, not reported"
+                    if last
+                    else "",
                 )
             return
         if not (

@@ -1001,7 +1001,7 @@ class MavlinkSource(SampleHoldSource):
         if msg.result == ml.MAV_RESULT_ACCEPTED:
             if self._req_state == "sent":
                 self._req_state = "acknowledged"
-        else:
+        elif self._req_state != "rejected":  # said once: a vehicle may repeat its refusal
             name = ml.enums["MAV_RESULT"].get(msg.result)
             label = name.name if name is not None else str(msg.result)
             _log.warning(
