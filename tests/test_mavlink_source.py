@@ -12,6 +12,7 @@ import json
 import logging
 import math
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -28,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.mavlink_source import (
+    MAX_LOG_GAP_S,
     MavlinkSource,
     MavlinkStats,
     load_signing_key,
@@ -586,6 +588,73 @@ def test_a_vehicle_that_refuses_again_and_again_is_reported_once(
             conn.close()
     refused = [r for r in caplog.records if "refused MAV_CMD_SET_MESSAGE_INTERVAL" in r.message]
     assert len(refused) == 1, len(refused)
+
+
+def _crafted_tlog(path: Path, boot_ms_of: Callable[[int], int], n: int = 600) -> Path:
+    """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
+    vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``."""
+
+    class Capture:
+        def __init__(self) -> None:
+            self.frames: list[bytes] = []
+
+        def write(self, data: bytes) -> None:
+            self.frames.append(bytes(data))
+
+    cap = Capture()
+    mav = ML.MAVLink(cap, srcSystem=1, srcComponent=1)
+    rx0_us = 1_700_000_000 * 10**6
+    with open(path, "wb") as fh:
+        for i in range(n):
+            boot_ms = boot_ms_of(i)
+            f, w = imu_values(i)
+            cap.frames.clear()
+            mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
+            mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
+            for frame in cap.frames:
+                fh.write(struct.pack(">Q", rx0_us + i * 10_000) + frame)
+    return path
+
+
+def _replay_times(path: Path) -> tuple[list[float], int]:
+    with MavlinkSource(str(path), rate_hz=100.0, realtime=False) as src:
+        times, fresh = [], 0
+        for state in src:
+            times.append(state.t)
+            fresh += src.fresh
+    return times, fresh
+
+
+def test_a_log_whose_vehicle_clock_jumps_hours_ahead_holds_the_gap_briefly(tmp_path, caplog):
+    """A 6 s log whose boot time jumps 5 hours ahead halfway: the replay held the gap for
+    5 hours in real time (with --fast it computed every stale tick of it: 146 MB of log in
+    25 s). The gap is held for MAX_LOG_GAP_S, the platform fading to neutral, and a warning
+    says so."""
+    log = _crafted_tlog(
+        tmp_path / "jump.tlog", lambda i: i * 10 + (5 * 3600 * 1000 if i >= 300 else 0)
+    )
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        times, fresh = _replay_times(log)
+    span = times[-1] - times[0]
+    assert 6.0 + MAX_LOG_GAP_S - 0.1 < span < 6.0 + MAX_LOG_GAP_S + 0.1, span
+    assert 580 <= fresh <= 600 + 50 + 5  # the samples, and holds up to the 0.5 s timeout
+    assert any("jumps ahead by more than" in r.getMessage() for r in caplog.records)
+
+
+def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path):
+    """One pair in fifty 3 s behind (a glitch): each was taken for a reboot, which shifted
+    the rest of the log 3 s later and stalled it (a 6 s log ran over 25 s, most of it
+    stale). A real reboot (the boot time going back and on from there) still re-anchors."""
+    glitch = _crafted_tlog(
+        tmp_path / "glitch.tlog", lambda i: max(0, i * 10 - 3000) if i % 50 == 25 else i * 10
+    )
+    times, fresh = _replay_times(glitch)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
+    reboot = _crafted_tlog(  # boots again at pair 300: its clock starts over from 0
+        tmp_path / "reboot.tlog", lambda i: i * 10 if i < 300 else (i - 300) * 10
+    )
+    times, fresh = _replay_times(reboot)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
 
 
 # --------------------------------------------------------------------------- real logs

@@ -365,6 +365,12 @@ def _quat_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float
     return euler_zyx_from_quaternion(x, y, z, w)
 
 
+#: The longest gap a telemetry log's vehicle clock may leave between two samples, s: a
+#: longer one (a clock glitch, or hours without telemetry) is shortened to it, so a replay
+#: holds it stale (the platform fades to neutral) for this long, not for hours.
+MAX_LOG_GAP_S = 10.0
+
+
 class _VehicleClock:
     """Sample times of a telemetry log from the vehicle's own clock, s.
 
@@ -373,13 +379,18 @@ class _VehicleClock:
     ``time_boot_ms`` / ``time_usec`` fields give the true, evenly spaced sample
     times. Messages without them (HEARTBEAT), or from other systems, keep the
     last time. The result never goes backwards: a reboot (boot time jumping
-    back) re-anchors the clock where it was.
+    back, and the next sample going on from there) re-anchors the clock where it
+    was; one sample behind the clock with the next one back on it is an outlier,
+    given the clock's time. A jump ahead of more than :data:`MAX_LOG_GAP_S` is
+    shortened to it (``gaps_shortened`` counts them).
     """
 
     def __init__(self, sysid: int) -> None:
         self.sysid = sysid
         self.last = -math.inf
         self.offset = 0.0
+        self.gaps_shortened = 0
+        self._behind: float | None = None  # a sample behind the clock, not yet a reboot
 
     def __call__(self, msg: Any) -> float:
         t = None
@@ -396,9 +407,17 @@ class _VehicleClock:
         if not math.isfinite(self.last):
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
         t += self.offset
-        if t < self.last - 1.0:  # reboot or clock reset
-            self.offset += self.last - t
+        if t < self.last - 1.0:  # a reboot or clock reset, or one bad sample
+            behind, self._behind = self._behind, t
+            if behind is None or not behind < t:
+                return self.last  # not yet a reboot: hold the clock's time
+            self.offset += self.last - t  # a second, later sample behind: a reboot
             t = self.last
+        self._behind = None
+        if t > self.last + MAX_LOG_GAP_S and math.isfinite(self.last):
+            self.offset -= t - (self.last + MAX_LOG_GAP_S)
+            t = self.last + MAX_LOG_GAP_S
+            self.gaps_shortened += 1
         self.last = max(t, self.last)
         return self.last
 
@@ -753,7 +772,19 @@ class MavlinkSource(SampleHoldSource):
                 msg = conn.recv_match(type=types)
             if msg is None:
                 return None, math.inf
-            return msg, (msg._timestamp if clock is None else clock(msg))
+            if clock is None:
+                return msg, msg._timestamp
+            shortened = clock.gaps_shortened
+            t = clock(msg)
+            if clock.gaps_shortened == 1 and not shortened:
+                _log.warning(
+                    "mavlink log %s: its vehicle clock jumps ahead by more than %g s; such a "
+                    "gap is held for %g s (the platform fades to neutral), not replayed in full",
+                    self.url,
+                    MAX_LOG_GAP_S,
+                    MAX_LOG_GAP_S,
+                )
+            return msg, t
 
         self._iterating = True
         try:
