@@ -741,12 +741,22 @@ class MavlinkSource(SampleHoldSource):
     def _reader(self, conn: Any) -> tuple[Callable[[], bool], Any]:
         recv_msg = conn.recv_msg
         handle = self._handle
+        # Over UDP a frame never spans two datagrams, but pymavlink parses them as one byte
+        # stream: the bytes of a frame cut short by its datagram would swallow the next
+        # datagram's frames. They are dropped before the next datagram is parsed.
+        datagrams = isinstance(conn, mavutil.mavudp)
+        parser = conn.mav
+        starved = False  # the last call found no whole frame in what had arrived
 
         def read_one() -> bool:
+            nonlocal starved
+            if datagrams and starved and parser.buf_len():
+                parser.buf, parser.buf_index = bytearray(), 0  # (as parse_char empties it)
             try:
                 msg = recv_msg()
             except OSError as exc:
                 raise SourceError(f"mavlink {self.url}: link failed ({exc})") from None
+            starved = msg is None
             if msg is None:
                 return False
             handle(msg, time.monotonic())
