@@ -559,6 +559,25 @@ def test_the_drive_is_ramped_within_its_limits_whatever_the_commands_do():
     assert sink.ramped > 0 and "frames ramped at the drive" in sink.stats_line()
 
 
+def _manoeuvring(duration_s: float, dt: float) -> list[AircraftState]:
+    """Strong manoeuvring: the cranks work at their limits."""
+    states = []
+    for k in range(int(duration_s / dt)):
+        s = math.sin(2 * math.pi * 0.7 * k * dt)
+        states.append(AircraftState(k * dt, [25 * s, 20 * s, -9.80665 + 10 * s], [3 * s] * 3))
+    return states
+
+
+def _flight(pipeline: Pipeline, states, sink, progress) -> threading.Thread:
+    """A paced run of ``states`` into ``sink`` (entered and closed by it), in a thread."""
+
+    def flight() -> None:
+        with sink:
+            run(pipeline, states, [sink], paced=True, progress=progress)
+
+    return threading.Thread(target=flight, daemon=True)
+
+
 def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):
     """The drive vanishes in full motion (its port refuses: send errors) and returns 1.5 s of
     motion later: its first frame after the outage is within one frame's travel of the last
@@ -568,10 +587,6 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
     pipeline = Pipeline(config)
     limits = pipeline.robot.limits
     dt = config.dt
-    states = []
-    for k in range(int(6.0 / dt)):  # strong manoeuvring: the cranks work at their limits
-        s = math.sin(2 * math.pi * 0.7 * k * dt)
-        states.append(AircraftState(k * dt, [25 * s, 20 * s, -9.80665 + 10 * s], [3 * s] * 3))
     drive = UdpDrive()
     rate = 100.0
     sink = open_output(drive.url(rate), mapping_for(Pipeline(config).robot), limits=limits)
@@ -580,11 +595,7 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
     def count(_out) -> None:
         ticks[0] += 1
 
-    def flight() -> None:
-        with sink:
-            run(pipeline, states, [sink], paced=True, progress=count)
-
-    runner = threading.Thread(target=flight, daemon=True)
+    runner = _flight(pipeline, _manoeuvring(6.0, dt), sink, count)
     with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
         runner.start()
         try:
@@ -627,11 +638,6 @@ def test_a_drive_that_drops_out_while_the_run_parks_is_still_parked(outage_s, ca
     pipeline = Pipeline(config)
     limits = pipeline.robot.limits
     park = pipeline.robot.park_angles
-    dt = config.dt
-    states = []
-    for k in range(int(2.5 / dt)):
-        s = math.sin(2 * math.pi * 0.7 * k * dt)
-        states.append(AircraftState(k * dt, [25 * s, 20 * s, -9.80665 + 10 * s], [3 * s] * 3))
     drive = UdpDrive()
     sink = open_output(drive.url(100.0), mapping_for(pipeline.robot), limits=limits)
     parking = threading.Event()
@@ -640,11 +646,7 @@ def test_a_drive_that_drops_out_while_the_run_parks_is_still_parked(outage_s, ca
         if out.phase == "stopping":
             parking.set()
 
-    def flight() -> None:
-        with sink:
-            run(pipeline, states, [sink], paced=True, progress=watch)
-
-    runner = threading.Thread(target=flight, daemon=True)
+    runner = _flight(pipeline, _manoeuvring(2.5, config.dt), sink, watch)
     with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
         runner.start()
         try:

@@ -7,6 +7,7 @@ import math
 import select
 import socket
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -455,48 +456,10 @@ def test_no_time_left_to_go_home_still_comes_to_rest_within_the_limits(tmp_path)
     assert not np.allclose(log.m["/planar/pose"][-1][1]["pose"], rrr3.home, atol=1e-3)
 
 
-@pytest.mark.parametrize("after_s", [0.2, 0.5, 0.9])
-def test_a_sigterm_while_teleop_starts_stops_it_cleanly(tmp_path, after_s):
-    """A SIGTERM while the command still imports the teleoperation code (about a second):
-    it used to kill the process (status -15, no log); now the stop is routed from the start,
-    as for the other jobs: exit 0, "stopped by SIGTERM", and the board got at most the home
-    command."""
-    import signal
-    import subprocess
-    import sys
-
-    write_csv(tmp_path / "fast.csv", duration=60.0, omega=8.0)
-    write_calibration(tmp_path / "cal.toml")
-    cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input"]
-    cmd += [f"file:{tmp_path / 'fast.csv'}", "--calibration", str(tmp_path / "cal.toml")]
-    cmd += ["--rrr3", "udesc", "--out", str(tmp_path / "t.mcap")]
-    board = Board()
-    proc = None
-    try:
-        proc = subprocess.Popen(
-            cmd + ["--serial", board.path], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            text=True,
-        )  # fmt: skip
-        threading.Event().wait(after_s)
-        proc.send_signal(signal.SIGTERM)
-        stdout, stderr = proc.communicate(timeout=60)
-        threading.Event().wait(0.1)  # the last bytes
-    finally:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        board.close()
-    assert proc.returncode == 0, (proc.returncode, stderr)
-    assert "stopped by SIGTERM" in stdout and not stderr.strip(), stderr
-    got = decode(bytes(board.data))
-    frames = [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)]
-    robot = Rrr3(Rrr3Geometry.preset("udesc"))
-    home = tuple(int(round(v)) for v in robot.to_servo(robot.inverse(robot.home)))
-    assert not frames or frames[-1] == home, frames[-3:]
-
-
-@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
-def test_every_stop_signal_to_a_teleop_process_parks_within_the_limits(tmp_path, sig):
+def _signalled_teleop(tmp_path, sig: str, ready) -> tuple[int, str, str, list, Path]:
+    """Run ``motionbase teleop`` (a fast cursor file, a pseudo-terminal board) in a process
+    of its own, call ``ready(proc, board)``, send ``sig``; return its exit status, stdout,
+    stderr, the servo frames the board got and the log's path."""
     import signal
     import subprocess
     import sys
@@ -514,11 +477,7 @@ def test_every_stop_signal_to_a_teleop_process_parks_within_the_limits(tmp_path,
             cmd + ["--serial", board.path], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
             text=True,
         )  # fmt: skip
-        for _ in range(3000):  # until about a second of motion reached the board
-            if len(board.data) > 50 * 12 or proc.poll() is not None:
-                break
-            threading.Event().wait(0.01)
-        assert proc.poll() is None, proc.communicate()
+        ready(proc, board)
         proc.send_signal(getattr(signal, sig))
         stdout, stderr = proc.communicate(timeout=60)
         threading.Event().wait(0.1)  # the last bytes
@@ -527,10 +486,39 @@ def test_every_stop_signal_to_a_teleop_process_parks_within_the_limits(tmp_path,
             proc.kill()
             proc.wait()
         board.close()
-    assert proc.returncode == 0, (proc.returncode, stderr)
-    assert f"stopped by {sig}" in stdout
     got = decode(bytes(board.data))
     frames = [tuple(v for _, v in got[i : i + 3]) for i in range(0, len(got), 3)]
+    return proc.returncode, stdout, stderr, frames, out
+
+
+@pytest.mark.parametrize("after_s", [0.2, 0.5, 0.9])
+def test_a_sigterm_while_teleop_starts_stops_it_cleanly(tmp_path, after_s):
+    """A SIGTERM while the command still imports the teleoperation code (about a second):
+    it used to kill the process (status -15, no log); now the stop is routed from the start,
+    as for the other jobs: exit 0, "stopped by SIGTERM", and the board got at most the home
+    command."""
+    status, stdout, stderr, frames, _ = _signalled_teleop(
+        tmp_path, "SIGTERM", lambda proc, board: threading.Event().wait(after_s)
+    )
+    assert status == 0, (status, stderr)
+    assert "stopped by SIGTERM" in stdout and not stderr.strip(), stderr
+    robot = Rrr3(Rrr3Geometry.preset("udesc"))
+    home = tuple(int(round(v)) for v in robot.to_servo(robot.inverse(robot.home)))
+    assert not frames or frames[-1] == home, frames[-3:]
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
+def test_every_stop_signal_to_a_teleop_process_parks_within_the_limits(tmp_path, sig):
+    def moving(proc, board) -> None:
+        for _ in range(3000):  # until about a second of motion reached the board
+            if len(board.data) > 50 * 12 or proc.poll() is not None:
+                break
+            threading.Event().wait(0.01)
+        assert proc.poll() is None, proc.communicate()
+
+    status, stdout, stderr, frames, out = _signalled_teleop(tmp_path, sig, moving)
+    assert status == 0, (status, stderr)
+    assert f"stopped by {sig}" in stdout
     log = read_messages(out)
     geometry = Rrr3Geometry.preset("udesc")
     q = np.array([m["angles"] for m in log["/planar/actuators"]])
