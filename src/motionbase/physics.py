@@ -126,6 +126,7 @@ def track_toward(
     vmax: float,
     u: float,
     k: float,
+    ub: float,
 ) -> tuple[float, bool]:
     """One tick of a position toward a moving target within speed, acceleration and position
     limits: the rule of the safety limiter, the washout's tilt tracker and its cue limiter.
@@ -152,6 +153,12 @@ def track_toward(
         Speed change allowed per tick, unit/s (``a_max dt``; inf: no acceleration limit).
     k : float
         The glide's ``a_max / v_max``, 1/s (0: the braking curve alone).
+    ub : float
+        The speed change per tick that the braking curves count on, unit/s (``0 < ub <=
+        u``): ``u`` for a fixed tick. A caller whose ticks vary passes less: braking that
+        is sized for this tick overshoots when a later tick is shorter, because a shorter
+        tick allows less speed change for the distance already covered. With ``ub = r u``
+        no tick shorter than ``r`` times the previous one makes it overshoot.
 
     Returns
     -------
@@ -160,9 +167,9 @@ def track_toward(
     """
     vt = min(max((target - target_prev) / dt, -vmax), vmax)
     e = target - q0 - vt * dt
-    cap = stop_speed(abs(e), u, dt, k)
-    v_hi = stop_speed(upper - q0, u, dt, k)
-    v_lo = -stop_speed(q0 - lower, u, dt, k)
+    cap = stop_speed(abs(e), ub, dt, k)
+    v_hi = stop_speed(upper - q0, ub, dt, k)
+    v_lo = -stop_speed(q0 - lower, ub, dt, k)
     v_full = (target - q0) / dt
     if (
         abs(e) / dt <= cap

@@ -74,10 +74,14 @@ class ActuatorLimits:
 
 
 @numba.njit(cache=True)
-def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
+def limit_kernel(
+    q_prev, v_prev, target_prev, target, dt, brake, lower, upper, vmax, amax, q_out, v_out
+):
     """The compiled limiter: :func:`limit_command` on arrays, writing ``q_out`` and ``v_out``.
 
-    ``lower``, ``upper``, ``vmax``, ``amax`` are :class:`ActuatorLimits`'s arrays; returns
+    ``brake`` is :func:`limit_command`'s share of the acceleration limit that braking counts
+    on (1 for a fixed tick); ``lower``, ``upper``, ``vmax``, ``amax`` are
+    :class:`ActuatorLimits`'s arrays; returns
     the status bits (``OK``, ``RATE_LIMITED``, ``UNSAFE_TARGET``). Each actuator's inputs
     are read before its outputs are written, so ``q_out`` may be ``q_prev`` and ``v_out``
     ``v_prev`` (updated in place). Called by
@@ -96,7 +100,8 @@ def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, am
         tgt = q_i if status == 2 else target[i]
         was = q_i if status == 2 else target_prev[i]
         lo, hi = lower[i], upper[i]
-        q, limited = track_toward(q_i, v_prev[i], was, tgt, dt, lo, hi, vmax[i], amax[i] * dt, 0.0)
+        u = amax[i] * dt
+        q, limited = track_toward(q_i, v_prev[i], was, tgt, dt, lo, hi, vmax[i], u, 0.0, brake * u)
         if limited and status != 2:
             status = 1
         v_out[i] = (q - q_i) / dt
@@ -111,6 +116,7 @@ def limit_command(
     target: np.ndarray,
     dt: float,
     limits: ActuatorLimits,
+    brake: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Next safe actuator command toward ``target``.
 
@@ -129,6 +135,13 @@ def limit_command(
     dt : float
         Time step, s (> 0).
     limits : ActuatorLimits
+    brake : float
+        The share of ``max_accel`` that the braking curves count on, in (0, 1]: 1 for a
+        fixed ``dt`` (the pipeline). A caller whose ``dt`` varies from call to call passes
+        the smallest ratio of one step to the step before it: braking sized for the
+        acceleration of a longer step would overshoot the target after a shorter one
+        (:func:`motionbase.physics.track_toward`'s ``ub``). Speeds and accelerations keep
+        their limits either way.
 
     Returns
     -------
@@ -147,6 +160,7 @@ def limit_command(
         target_prev,
         np.asarray(target, dtype=float),
         float(dt),
+        float(brake),
         limits.lower,
         limits.upper,
         limits.max_speed,

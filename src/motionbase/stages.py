@@ -339,6 +339,7 @@ def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
         s.wanted[:n],
         wanted,
         p.dt,
+        1.0,  # a fixed tick: braking counts on the whole acceleration limit
         p.lower[:n],
         p.upper[:n],
         p.max_speed[:n],

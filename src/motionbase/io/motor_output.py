@@ -122,6 +122,14 @@ LINK_PROBATION_S = 1.0
 #: Seconds :meth:`MotorOutput.close` waits for a drive whose link is down to come back, so
 #: that it can still be brought to the park command.
 RETURN_WAIT_S = 2.0
+#: Shortest step of the drive-side ramp, in periods: a frame due sooner after the last one
+#: (the sender catching up after a late tick) waits for the sender's next tick. The longest
+#: step that continues a motion is two periods (after a longer gap the ramp starts from rest).
+MIN_STEP_PERIODS = 0.5
+#: So one step is at least a quarter of the step before it, and the ramp's braking counts
+#: on that share of the acceleration limit (:func:`motionbase.safety.limit_command`'s
+#: ``brake``): braking sized for a longer step overshoots the target after a shorter one.
+DRIVE_BRAKE = MIN_STEP_PERIODS / 2.0
 DEFAULT_BAUD = 115200
 #: Widest text field (width or precision), characters: a 64-bit number in binary fits.
 MAX_FIELD_WIDTH = 64
@@ -713,7 +721,10 @@ class MotorOutput:
         """The next frame toward ``target``, within the limits since the drive's last frame.
 
         A drive that got its last frame more than two periods ago stood still at it (a
-        sender stall, a link that was down): the ramp starts again from there, at rest.
+        sender stall, a link that was down): the ramp starts again from there, at rest. A
+        step shorter than :data:`MIN_STEP_PERIODS` is not taken (None), and braking counts
+        on :data:`DRIVE_BRAKE` of the acceleration limit, so that the steps' varying
+        lengths never carry the drive past its target.
         """
         q0 = self._drive_q
         if q0 is None:  # nothing received yet: the run starts where its first command is
@@ -722,13 +733,13 @@ class MotorOutput:
             return target, self._drive_v, frame
         period = 1.0 / self.rate_hz
         elapsed = now - self._drive_t
-        if elapsed <= 1e-6:
+        if elapsed < MIN_STEP_PERIODS * period:
             return None
         if elapsed > 2.0 * period:
             dt, v0, previous = period, np.zeros_like(q0), target  # from rest, no feed-forward
         else:
             dt, v0, previous = elapsed, self._drive_v, self._drive_target
-        q, v, status = limit_command(q0, v0, previous, target, dt, self.limits)
+        q, v, status = limit_command(q0, v0, previous, target, dt, self.limits, DRIVE_BRAKE)
         if np.array_equal(q, target):
             return target, v, frame
         if status & RATE_LIMITED:
@@ -749,7 +760,8 @@ class MotorOutput:
         lim = self.limits
         period = 1.0 / self.rate_hz
         span = lim.upper - lim.lower
-        bound = float(np.max(span / lim.max_speed + 2.0 * lim.max_speed / lim.max_accel)) + 0.5
+        speed_up_and_brake = (1.0 + 1.0 / DRIVE_BRAKE) * lim.max_speed / lim.max_accel
+        bound = float(np.max(span / lim.max_speed + speed_up_and_brake)) + 0.5
         start = now = time.monotonic()
         end = now + bound
         nxt = now
