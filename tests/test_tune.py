@@ -384,7 +384,7 @@ def test_same_seed_same_result_other_seed_other_path(kick, ceart):
 
 
 def test_tune_writes_a_washout_file_that_loads_and_flies(tmp_path, capsys):
-    out = tmp_path / "tuned.toml"
+    out = tmp_path / "new" / "tuned.toml"  # its folder is made, as fly --out makes one
     code = cli.main(
         [
             "tune",
@@ -462,6 +462,7 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
     [
         (["--cueing", "fancy"], "invalid choice"),
         (["--out", "x.txt"], "name it *.toml"),
+        (["--out", "/dev/null/o.toml"], "/dev/null is not a folder"),  # before the tuning
         (["--scripts", "no_such_script"], "unknown JSBSim script"),
         (["--scripts", "c1721@20:30"], "the script is shorter"),
         (["--scripts", "c1723@5:x"], "two numbers"),

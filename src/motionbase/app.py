@@ -1229,6 +1229,23 @@ class TuneResult:
         )
 
 
+def _writable_folder(path: Path) -> None:
+    """Create ``path``'s folder (as ``fly --out`` does) and check that a file can be written
+    there: a run that takes minutes must not fail at its end for want of a folder."""
+    folder = path.parent
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"--out {path}: {folder} is not a folder (choose another --out path)")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(
+            f"--out {path}: cannot create the folder {folder}: {exc.strerror or exc} "
+            "(choose another --out path)"
+        ) from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"--out {path}: the folder {folder} is not writable (choose another)")
+
+
 def tune(
     *,
     out: str | Path,
@@ -1315,6 +1332,7 @@ def tune(
         raise ConfigError(f"--out {out}: the result is a washout TOML file; name it *.toml")
     if out_path.is_dir():
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
+    _writable_folder(out_path)  # before the tuning's minutes, not after them
     platform_name = platform or DEFAULT_RUS6
     if platform_name in ROBOTS and ROBOTS[platform_name].planar:
         raise ConfigError(
