@@ -7,6 +7,7 @@ few evaluations, so that the whole file runs in well under a minute.
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 import signal
 import threading
@@ -413,6 +414,37 @@ def test_tune_writes_a_washout_file_that_loads_and_flies(tmp_path, capsys):
         "c172_elevator_doublet", washout=str(out), duration_s=4.0, out=tmp_path / "f.mcap"
     )
     assert not result.failed and result.summary.samples > 400
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_reaches_a_log_file_now_and_then_and_a_terminal_in_place():
+    """Off a terminal (CI, a journal) a long tuning run prints a whole line every so often,
+    a short one nothing; on a terminal the line is redrawn in place and ended once."""
+    log = io.StringIO()
+    every = app.EvaluationProgress(log, every_s=0.0)
+    every(1, 10, 5.0)
+    every(6, 10, 4.0)
+    every.close()
+    lines = log.getvalue().splitlines()
+    assert "\r" not in log.getvalue() and len(lines) == 2
+    assert lines[1].startswith("tune: 6 / 10 evaluations  best 4.0000 (start 5.0000), ")
+    short = io.StringIO()
+    rare = app.EvaluationProgress(short, every_s=3600.0)
+    rare(1, 10, 5.0)
+    rare.close()
+    assert short.getvalue() == ""
+    tty = _Terminal()
+    bar = app.EvaluationProgress(tty, every_s=3600.0)
+    bar(1, 10, 5.0)
+    bar(10, 10, 4.0)
+    bar.close()
+    text = tty.getvalue()
+    assert text.count("\r") == 2 and text.endswith("\n") and text.count("\n") == 1
+    assert "10 / 10 evaluations" in text.rsplit("\r", 1)[1]
 
 
 def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):

@@ -226,6 +226,41 @@ class ProgressBar:
             self.stream.flush()
 
 
+class JobProgress:
+    """The progress of a batch job (``tune``, ``omct``) on ``stream`` (stderr).
+
+    On a terminal the line is redrawn in place at every :meth:`show`. Elsewhere (a log file,
+    CI, a service manager's journal) a long job would otherwise print nothing for minutes:
+    there a whole line is written at most every ``every_s`` seconds, the first one
+    ``every_s`` after the start, so a short job stays silent and a long one is seen to be alive.
+    """
+
+    def __init__(self, stream=None, every_s: float = 30.0) -> None:
+        self.stream = stream or sys.stderr
+        self.terminal = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.every_s = every_s
+        self._next = time.monotonic() + every_s
+        self._width = 0
+
+    def show(self, text: str) -> None:
+        if self.terminal:
+            self.stream.write("\r" + text.ljust(self._width))
+            self._width = len(text)
+        else:
+            now = time.monotonic()
+            if now < self._next:
+                return
+            self._next = now + self.every_s
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self, *, erase: bool = False) -> None:
+        """End the line on a terminal: ``erase`` it, or keep it and go to the next line."""
+        if self.terminal and self._width:
+            self.stream.write("\r" + " " * self._width + "\r" if erase else "\n")
+            self.stream.flush()
+
+
 # --------------------------------------------------------------------------- jobs
 
 
@@ -1149,18 +1184,17 @@ def omct(
         (f"--scale {scale:g}", scale != 1.0),
     ]
     command = " ".join(["motionbase omct", *(o for o, on in options if on), f"--out {out}"])
-    show = progress and sys.stderr.isatty()
+    line = JobProgress() if progress else None
 
     def tick(done: int, total: int, axis: str, w: float) -> None:
-        if show:
-            sys.stderr.write(f"\romct: {done}/{total} runs ({axis} at {w:.3g} rad/s)   ")
-            sys.stderr.flush()
+        if line is not None:
+            line.show(f"omct: {done}/{total} runs ({axis} at {w:.3g} rad/s)")
 
     try:
         result = run_omct(config, amplitudes=amplitudes, progress=tick, command=command)
     finally:
-        if show:
-            sys.stderr.write("\r" + " " * 60 + "\r")
+        if line is not None:
+            line.close(erase=True)
     return write_omct(result, out)
 
 
@@ -1168,33 +1202,29 @@ def omct(
 
 
 class EvaluationProgress:
-    """A one-line progress bar of a tuning run (evaluations / budget, best cost); terminal only."""
+    """The progress of a tuning run (evaluations / budget, best cost), as a :class:`JobProgress`."""
 
-    def __init__(self, stream=None) -> None:
-        self.stream = stream or sys.stderr
-        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+    def __init__(self, stream=None, every_s: float = 30.0) -> None:
+        self.line = JobProgress(stream, every_s=every_s)
         self._t0 = time.monotonic()
         self._start: float | None = None
 
     def __call__(self, done: int, budget: int, best: float) -> None:
         if self._start is None:
             self._start = best
-        if not self.enabled:
-            return
-        frac = min(1.0, done / budget)
-        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
         elapsed = time.monotonic() - self._t0
         eta = elapsed * (budget - done) / done if done else 0.0
-        self.stream.write(
-            f"\r[{bar}] {done:5d} / {budget} evaluations  best {best:.4f} "
-            f"(start {self._start:.4f})  {elapsed:5.0f} s, about {eta:4.0f} s to go"
-        )
-        self.stream.flush()
+        counts = f"{done:5d} / {budget} evaluations  best {best:.4f} (start {self._start:.4f})"
+        times = f"{elapsed:5.0f} s, about {eta:4.0f} s to go"
+        if self.line.terminal:
+            frac = min(1.0, done / budget)
+            bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+            self.line.show(f"[{bar}] {counts}  {times}")
+        else:
+            self.line.show(f"tune: {counts.strip()}, {times.strip()}")
 
     def close(self) -> None:
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
+        self.line.close()
 
 
 @dataclass
