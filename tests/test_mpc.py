@@ -210,6 +210,30 @@ def test_preview_uses_the_future(ceart):
     assert pv_cue.preview and "preview" in repr(pv_cue)
 
 
+def test_a_decaying_reference_is_planned_as_its_recorded_future(ceart):
+    # real time with [reference] decay_s = T predicts d(t + tau) = d(t) exp(-tau / T); on a
+    # reference that really decays so, that is its future, which the preview mode reads
+    # from the recording (its own look-up of the samples ahead): the same plans
+    T, n = 0.6, 150
+    p = dataclasses.replace(ceart, eps_abs=1e-10, eps_rel=1e-10, max_iter=100000, time_limit_ms=0.0)
+    t = np.arange(n + 200) * DT
+    u = np.zeros((len(t), 6))
+    u[:, :3] = [1.2, -0.8, 0.5]
+    u[:, 3:] = np.radians([6.0, -4.0, 5.0])
+    u *= np.exp(-t / T)[:, None]
+    u[:, 2] -= G
+    decaying = _run(MpcCueing(dataclasses.replace(p, reference_decay_s=T), DT), u[:n])
+    pv_cue = MpcCueing(p, DT)
+    pv_cue.set_preview(u[:, :3], u[:, 3:])
+    previewed = _run(pv_cue, u[:n])
+    held = _run(MpcCueing(p, DT), u[:n])
+    np.testing.assert_allclose(decaying, previewed, rtol=0, atol=1e-9)
+    assert np.abs(held - previewed).max() > 1e-3  # holding the sample plans another motion
+    assert MpcParams.from_dict(dataclasses.replace(p, reference_decay_s=T).to_dict()) == (
+        dataclasses.replace(p, reference_decay_s=T)
+    )
+
+
 def test_streaming_equals_batch(ceart):
     p = dataclasses.replace(ceart, time_limit_ms=0.0)  # no wall-clock budget: deterministic
     cfg = PipelineConfig(

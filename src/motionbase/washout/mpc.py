@@ -48,7 +48,8 @@ The reference over the horizon
 The reference is the aircraft's specific-force deviation from level flight and its body
 rates, each limited and scaled per axis (``[reference]``: a force no platform renders
 would otherwise hold the platform at its limit for a gain too small to feel). Real-time
-mode (the default): the current sample, held over the horizon.
+mode (the default): the current sample, held over the horizon, or decaying toward level
+flight with the time constant ``[reference] decay_s``.
 Preview mode (offline, :meth:`MpcCueing.set_preview`): the recorded future of the
 reference, sample ``k + round(tau / dt)`` for a step starting ``tau`` s ahead.
 
@@ -353,8 +354,11 @@ class MpcCueing(Cueing):
         self.fallback = ClassicalWashout(WashoutParams.load(params.fallback), dt)
         N = params.steps
         self._N = N
-        self._Fd_hold = m.Fd @ np.tile(np.eye(NE), (N, 1))
         self._offsets = np.concatenate([[0.0], np.cumsum(m.h[:-1])])
+        # real-time mode: the current sample over the steps, held or decaying
+        tau = params.reference_decay_s
+        ahead = np.ones(N) if tau == 0.0 else np.exp(-self._offsets / tau)
+        self._Fd_hold = m.Fd @ np.kron(ahead[:, None], np.eye(NE))
         self._osqp = osqp
         self.robot = None
         self._legs: _LegConstraint | None = None

@@ -38,6 +38,8 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     specific_force_limit = [3.0, 3.0, 1.0]        # m/s^2, on f - (0, 0, -g)
     angular_velocity_gain = [1.0, 1.0, 1.0]
     angular_velocity_limit_deg_s = [30, 30, 30]
+    decay_s = 0.0                      # real-time mode: the sample decays over the horizon
+                                       # with this time constant, s (0: held)
 
     [robot]                            # optional: with a robot bound (the pipeline binds it)
     actuator_margin = 0.02             # share of each actuator's range kept free
@@ -121,6 +123,7 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("reference", "specific_force_limit", "specific_force_limit", 3, True, False),
     ("reference", "angular_velocity_gain", "angular_velocity_gain", 3, False, False),
     ("reference", "angular_velocity_limit_deg_s", "angular_velocity_limit_deg_s", 3, True, False),
+    ("reference", "decay_s", "reference_decay_s", 0, False, False),
     ("robot", "actuator_margin", "actuator_margin", 0, False, False),
     ("robot", "speed_share", "speed_share", 0, True, False),
     ("robot", "accel_share", "accel_share", 0, True, False),
@@ -146,6 +149,7 @@ _REFERENCE_DEFAULTS: dict[str, Any] = {
     "specific_force_limit": [1000.0, 1000.0, 1000.0],
     "angular_velocity_gain": [1.0, 1.0, 1.0],
     "angular_velocity_limit_deg_s": [1000.0, 1000.0, 1000.0],
+    "decay_s": 0.0,
 }
 _ROBOT_DEFAULTS: dict[str, Any] = {
     "actuator_margin": 0.02,
@@ -197,6 +201,12 @@ class MpcParams:
         limit for a gain too small to feel.
     angular_velocity_gain, angular_velocity_limit_deg_s : (3,) float
         The same for the body rates (deg/s).
+    reference_decay_s : float
+        Real-time mode: how the MPC predicts the reference over its horizon. 0 (the
+        default): the current sample, held. Otherwise the current sample decaying toward
+        level flight, ``d(tau) = d(0) exp(-tau / reference_decay_s)`` for a step ``tau``
+        seconds ahead (s): a transient (a doublet, a gust) is not planned for as if it
+        lasted the whole horizon. Preview mode uses the recorded future instead.
     actuator_margin : float
         With a robot bound (:meth:`~motionbase.washout.mpc.MpcCueing.bind_robot`): the
         share of each actuator's range kept free of the linearised constraint, in [0, 0.5).
@@ -251,6 +261,7 @@ class MpcParams:
     specific_force_limit: Vec3 = (1000.0, 1000.0, 1000.0)
     angular_velocity_gain: Vec3 = (1.0, 1.0, 1.0)
     angular_velocity_limit_deg_s: Vec3 = (1000.0, 1000.0, 1000.0)
+    reference_decay_s: float = 0.0
     actuator_margin: float = 0.02
     speed_share: float = 0.9
     accel_share: float = 0.9
