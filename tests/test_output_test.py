@@ -139,13 +139,15 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
     np.testing.assert_allclose(q, np.full_like(q, GEOMETRY.park_angle), atol=math.radians(1e-4))
 
 
-def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too():
+@pytest.mark.parametrize("platform", ["rrr3", "udesc_symmetric"])  # the robot, or its preset
+def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform):
     """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
     geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
-    arriving there, the frames within the servos' limits, the last frame home (its park)."""
+    arriving there, the frames within the servos' limits, the last frame home (its park).
+    A 3-RRR geometry preset names the planar robot as well (``output`` has no --planar)."""
     from motionbase.platform import Rrr3, Rrr3Geometry
 
-    args = ["--platform", "rrr3", "--speed-deg-s", "60", "--rate", "200"]
+    args = ["--platform", platform, "--speed-deg-s", "60", "--rate", "200"]
     proc, _, q = sweep_at_the_drive(args, n=3)
     stdout = proc.stdout
     assert [f"motor {i}:" in stdout for i in (1, 2, 3)] == [True] * 3

@@ -505,6 +505,7 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--profile", "taxi"], "--profile taxi: unknown"),
         (["--cueing", "mpc", "--profile", "air"], "no flight-phase profiles"),
         (["--platform", "rrr3"], "tune scores 6-DOF platforms"),
+        (["--platform", "udesc"], "tune scores 6-DOF platforms"),  # a 3-RRR preset
         (["--seed", "4294967295"], "--seed must be a whole number from 0 to 4294967294"),
         (["--workers", "1000"], "--workers 1000: this process may use"),
     ],

@@ -475,7 +475,7 @@ def output_test(
     """
     from motionbase.commanding import CommandPipeline, SweepSource
     from motionbase.io.motor_output import check_sendable, mapping_for, open_output
-    from motionbase.platform.robot import ROBOTS, Robot, load_geometry, robot_spec
+    from motionbase.platform.robot import Robot, load_geometry, names_planar_robot, robot_spec
 
     echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
     lines: list[str] = []
@@ -487,9 +487,8 @@ def output_test(
     with stop_on_signals(stop) as stop:  # first: a stop during start-up parks too
         if isinstance(platform, Robot):
             robot = platform
-        else:  # a planar robot's name: its default geometry
-            planar = platform in ROBOTS and ROBOTS[platform].planar
-            name, geometry = load_geometry(None if planar else platform, planar=planar)
+        else:  # a robot, preset or file of either mode: output has no --planar
+            name, geometry = load_geometry(platform, planar=names_planar_robot(platform))
             robot = robot_spec(name).make(geometry)
         linear = robot.actuator_unit == "m"
         unit, scale = ("mm", 1e-3) if linear else ("deg", math.radians(1.0))
@@ -1344,7 +1343,7 @@ def tune(
         load_spec,
         write_washout,
     )
-    from motionbase.platform.robot import ROBOTS, load_geometry, robot_spec
+    from motionbase.platform.robot import load_geometry, names_planar_robot, robot_spec
     from motionbase.report import robot_reach
     from motionbase.stopping import raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
@@ -1364,7 +1363,7 @@ def tune(
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
     _writable_folder(out_path)  # before the tuning's minutes, not after them
     platform_name = platform or DEFAULT_RUS6
-    if platform_name in ROBOTS and ROBOTS[platform_name].planar:
+    if names_planar_robot(platform_name):
         raise ConfigError(
             f"--platform {platform_name}: tune scores 6-DOF platforms; give a 6-RUS or a "
             "Stewart platform (rus6, stewart6, a preset or a TOML path)"

@@ -256,6 +256,22 @@ def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     return None
 
 
+def names_planar_robot(name_or_path: str | None) -> bool:
+    """True when a ``--platform`` value names a planar robot: the robot's name, one of its
+    geometry presets or a TOML file of its geometry (for the commands that take either mode
+    from the value alone, having no ``--planar``)."""
+    if name_or_path is None:
+        return False
+    text = str(name_or_path)
+    if text in ROBOTS:
+        robot = text
+    elif text.endswith(".toml") or "/" in text or Path(text).is_file():
+        robot = _robot_of_file(text)
+    else:
+        robot = _robot_of_preset(text, list(ROBOTS))
+    return robot is not None and ROBOTS[robot].planar
+
+
 def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[str, Any]:
     """The robot and geometry a ``--platform`` value names.
 
