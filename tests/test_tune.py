@@ -406,6 +406,7 @@ def test_tune_writes_a_washout_file_that_loads_and_flies(tmp_path, capsys):
     text = capsys.readouterr().out
     assert code == 0
     assert "tuning set" in text and "held out" in text and "c172_cross_wind@0.5:5" in text
+    assert "  mean of 1 (workspace: largest)" in text  # that column is no mean
     head = out.read_text().splitlines()[0]
     assert head.startswith("# Washout parameters made by `motionbase tune`")
     params = WashoutParams.from_toml(out)

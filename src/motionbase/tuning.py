@@ -875,7 +875,8 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         the relative change of the means, and the sizing under saturated inputs.
     """
     names = [s.name for _, b, _ in sections for s in b.scores]
-    name_w = max([24, *(len(n) + 4 for n in names)])
+    means = {id(b): f"  mean of {len(b.scores)} (workspace: largest)" for _, b, _ in sections}
+    name_w = max([24, *(len(n) + 4 for n in names), *(len(m) + 2 for m in means.values())])
     cell = 16
     lines = [
         " " * name_w + "".join(f"{c[0]:>{cell}}" for c in _COLUMNS),
@@ -893,7 +894,7 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         lines.append(title)
         for sb, sa in zip(before.scores, after.scores, strict=True):
             lines.append(row(f"  {sb.name}", sb, sa))
-        lines.append(row(f"  mean of {len(before.scores)}", before, after))
+        lines.append(row(means[id(before)], before, after))
         changes = ", ".join(
             f"{title_} {_pct_change(getattr(before, attr), getattr(after, attr))}"
             for title_, attr, _, _ in (_COLUMNS[0], _COLUMNS[1], _COLUMNS[5])
