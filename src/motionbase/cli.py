@@ -212,8 +212,9 @@ def _add_cueing(
         metavar="PRESET|FILE.toml",
         help="override the recorded cueing parameters"
         if recorded
-        else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart; "
-        "unless given: tuned_ceart on the ceart platform, else default; stream: telemetry) or "
+        else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart, "
+        "tuned_seat, profiles_example; unless given: the set tuned for the platform, "
+        "tuned_ceart on ceart and tuned_seat on seat, else default; stream: telemetry) or "
         "TOML path",
     )
     if not preview:
@@ -661,8 +662,9 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--profile",
         metavar="ground|air",
-        help="tune this flight-phase profile of the start file (its [profile.NAME] table) "
-        "instead of the file's own values; the manoeuvres' flight phase decides where it runs",
+        help="tune this flight-phase profile of the start file (its [profile.NAME] table, "
+        "made when the file has none) instead of the file's own values; the manoeuvres' "
+        "flight phase decides where it runs",
     )
     p.add_argument(
         "--out", required=True, metavar="FILE.toml", help="cueing parameters TOML to write"
