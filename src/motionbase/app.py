@@ -166,7 +166,8 @@ class JobResult:
 
             if s.running_samples:
                 lines.append(
-                    f"flight ({s.running_samples} samples at full motion), per actuator: "
+                    f"flight ({s.running_samples} sample{'s' * (s.running_samples != 1)} at "
+                    "full motion), per actuator: "
                     f"peak |{what}| {unit} (limits), peak speed {unit}/s (limit)"
                 )
                 for i in range(len(s.peak_angle)):
