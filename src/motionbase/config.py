@@ -76,12 +76,18 @@ def preset_path(kind: str, name: str) -> Path:
     return candidate
 
 
+def names_a_file(name_or_path: str | Path) -> bool:
+    """True when a preset-or-path value is a path (``my.toml``, ``dir/x``, an existing file),
+    not a preset name (``ceart``)."""
+    s = str(name_or_path)
+    return s.endswith(".toml") or "/" in s or Path(s).is_file()
+
+
 def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
     """A preset name (``ceart``) or a path to a TOML file (``my.toml``)."""
-    s = str(name_or_path)
-    if s.endswith(".toml") or "/" in s or Path(s).is_file():
-        return Path(s)
-    return preset_path(kind, s)
+    if names_a_file(name_or_path):
+        return Path(name_or_path)
+    return preset_path(kind, str(name_or_path))
 
 
 def check_keys(

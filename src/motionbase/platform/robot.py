@@ -30,13 +30,12 @@ from __future__ import annotations
 import pkgutil
 from abc import ABC
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, ClassVar
 
 import numba
 import numpy as np
 
-from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, names_a_file
 from motionbase.errors import ConfigError
 from motionbase.safety import ActuatorLimits
 
@@ -265,7 +264,7 @@ def names_planar_robot(name_or_path: str | None) -> bool:
     text = str(name_or_path)
     if text in ROBOTS:
         robot = text
-    elif text.endswith(".toml") or "/" in text or Path(text).is_file():
+    elif names_a_file(text):
         robot = _robot_of_file(text)
     else:
         robot = _robot_of_preset(text, list(ROBOTS))
@@ -316,7 +315,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
         robot, value = value, None
     elif value is not None:
         text = str(value)
-        if text.endswith(".toml") or "/" in text or Path(text).is_file():
+        if names_a_file(text):
             found = _robot_of_file(text)
             if found is not None and ROBOTS[found].planar == planar:
                 robot = found
