@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+import re
 import signal
 import threading
 import time
@@ -576,6 +577,39 @@ def test_a_stop_cancels_the_evaluations_not_yet_started(workers, kick, ceart):
     assert stopped.value.exit_status == 128 + signal.SIGTERM
 
 
+def test_a_stopped_tuning_hands_back_the_best_set_of_the_batches_it_finished(kick, ceart):
+    """A stop during the third batch of CMA-ES candidates: :func:`tuning.tune` raises
+    ``TuningStopped`` carrying the best of the start and the two batches whose scores came
+    back (the third is lost), counted as such."""
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    stop = StopRequest()
+    seen: list[tuple[WashoutParams, float]] = []  # every set scored, and its cost
+    batches = 0
+    with open_evaluator(problem, workers=1, stop=stop) as evaluate_many:
+
+        def evaluate_until_the_third_batch(candidates):
+            nonlocal batches
+            batches += 1
+            if batches == 4:  # the start, two generations, then Ctrl-C
+                stop.set("SIGINT")
+            scores = evaluate_many(candidates)
+            seen.extend((c, s.cost) for c, s in zip(candidates, scores, strict=True))
+            return scores
+
+        with pytest.raises(tuning.TuningStopped) as stopped:
+            tuning.tune(_bad_start(), evaluate_until_the_third_batch, budget=200, seed=3)
+    found = stopped.value.found
+    assert stopped.value.reason == "SIGINT" and stopped.value.exit_status == 130
+    assert batches == 4 and found.generations == 2
+    popsize = 4 + int(3 * math.log(len(tuning.KNOBS)))  # CMA-ES's default population
+    assert found.evaluations == len(seen) == 1 + 2 * popsize
+    best_params, best_cost = min(seen, key=lambda pair: pair[1])
+    assert found.best_score.cost == best_cost < found.start_score.cost == seen[0][1]
+    assert found.best == best_params
+    assert problem.evaluate(found.best).cost == best_cost  # the set handed back is that one
+
+
 def _workers_of(pid: int) -> list[int]:
     """Pool workers (``spawn_main`` processes) whose parent is ``pid``, from /proc."""
     out = []
@@ -629,6 +663,45 @@ def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
     assert err.strip() == f"motionbase tune: interrupted{said}"
     assert status == 128 + sig, err[-2000:]
     assert not (tmp_path / "o.toml").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
+def test_a_stopped_tune_keeps_the_best_set_it_found(tmp_path):
+    """SIGTERM seconds into a tuning of the SIMONA set (which CMA-ES soon beats on the
+    rudder kick): the best set so far is written, its header saying so, and the one line
+    on stderr names the file. The file is a washout that scores what it claims."""
+    out = tmp_path / "kept.toml"
+    args = ["tune", "--washout", "default", "--scripts", "rudder_kick@0:6", "--holdout",
+            "none", "--budget", "100000", "--workers", "2", "--out", str(out)]  # fmt: skip
+
+    def evaluating(proc) -> None:
+        deadline = time.monotonic() + 60
+        while len(_workers_of(proc.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(6.0)  # a few hundred evaluations
+
+    status, err = signalled(args, evaluating, signal.SIGTERM)
+    assert status == 128 + signal.SIGTERM, err[-2000:]
+    match = re.fullmatch(
+        r"motionbase tune: interrupted \(SIGTERM\); kept the best set of (\d+) evaluations "
+        r"in (.+) \(cost ([0-9.]+) -> ([0-9.]+)\)",
+        err.strip(),
+    )
+    assert match, err[-2000:]
+    n, path, before, after = match.groups()
+    assert Path(path) == out and float(after) < float(before)
+    text = out.read_text()
+    assert f"# Interrupted (SIGTERM) after {n} of 100000 evaluations: the best set so far" in text
+    assert not list(tmp_path.glob(".*.part"))  # written whole, nothing left beside it
+    kept = WashoutParams.load(out)
+    problem = tuning.TuningProblem(
+        Rus6Geometry.preset("ceart"), (load_script("rudder_kick@0:6"),),
+        rus6_reach(Rus6Geometry.preset("ceart")),
+    )  # fmt: skip
+    assert problem.evaluate(kept).cost == pytest.approx(float(after), rel=1e-3)
+    assert problem.evaluate(WashoutParams.preset("default")).cost == pytest.approx(
+        float(before), rel=1e-3
+    )
 
 
 @pytest.mark.parametrize("after_s", [0.5, 1.5, 3.0])

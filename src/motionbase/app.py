@@ -1328,8 +1328,10 @@ def tune(
         Progress bar on stderr (a terminal only).
     stop : StopRequest, optional
         Watched between manoeuvres and evaluations: once set, the evaluations not yet
-        started are cancelled, nothing is written and
-        :class:`~motionbase.stopping.Stopped` is raised.
+        started are cancelled and :class:`~motionbase.stopping.Stopped` is raised. When
+        the generations completed found a set better than the start, it is written first,
+        its header saying "Interrupted" (the exception's ``kept`` names the file);
+        otherwise nothing is written.
     profile : str, optional
         Tune this flight-phase profile of the start file (``ground``, ``air``; written as
         the profile's overrides) instead of the file's own values (classical washout).
@@ -1346,7 +1348,7 @@ def tune(
     )
     from motionbase.platform.robot import load_geometry, names_planar_robot, robot_spec
     from motionbase.report import robot_reach
-    from motionbase.stopping import raise_if_stopped
+    from motionbase.stopping import Stopped, raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
 
     spec = cueing_spec(cueing)
@@ -1410,6 +1412,7 @@ def tune(
     )
     bar = EvaluationProgress() if progress else None
     t0 = time.monotonic()
+    stopped_by = ""  # the reason of a stop after the start set was scored
     try:
         with open_evaluator(
             problem, workers=workers, scheduler=scheduler, stop=stop
@@ -1423,6 +1426,8 @@ def tune(
                 on_progress=bar,
                 profile=profile,
             )
+    except tuning.TuningStopped as exc:  # (a stop before the start was scored passes on)
+        result, stopped_by = exc.found, exc.reason
     finally:
         if bar is not None:
             bar.close()
@@ -1432,11 +1437,23 @@ def tune(
             geometry, tuple(held), reach, cueing=cueing, robot=robot_name
         )
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
-    raise_if_stopped(stop)  # also one during the held-out scoring: nothing is written
+    if stop and not stopped_by:  # the budget was spent; the stop came in the held-out scoring
+        stopped_by, holdout_scores = stop.reason, None
+    improved = result.best is not result.start
+    if stopped_by and not improved:
+        raise Stopped(stopped_by)  # nothing worth keeping: nothing is written
     wall = time.monotonic() - t0
     description, header = tuning.describe_result(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
+    if stopped_by:
+        n = result.evaluations
+        interrupted = f"interrupted ({stopped_by}) after {n} of {budget} evaluations"
+        description += f"; {interrupted}"
+        header[:0] = [
+            f"I{interrupted[1:]}: the best set so far"
+            + (", not scored on the held-out manoeuvres." if held else ".")
+        ]
     best = replace(result.best, description=description)
     which = " --washout" if cueing == "classical" else f" --cueing {cueing} --params"
     command = [f"motionbase tune --platform {platform_name}{which} {start_name}"]
@@ -1450,5 +1467,10 @@ def tune(
         f"{' '.join(command)} --out {out_path.name}",
     ]
     write_washout(out_path, best, header)
-    improved = result.best is not result.start
+    if stopped_by:
+        raise Stopped(
+            stopped_by,
+            kept=f"kept the best set of {result.evaluations} evaluations in {out_path} "
+            f"(cost {result.start_score.cost:.4g} -> {result.best_score.cost:.4g})",
+        )
     return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved, cueing)

@@ -108,7 +108,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except Stopped as exc:  # a job that moves nothing, stopped by a signal (tune)
         by = "" if exc.reason == "SIGINT" else f" ({exc.reason})"
-        print(f"motionbase {args.command}: interrupted{by}", file=sys.stderr)
+        kept = f"; {exc.kept}" if exc.kept else ""
+        print(f"motionbase {args.command}: interrupted{by}{kept}", file=sys.stderr)
         return exc.exit_status
     except Exception as exc:
         if not _raised_by_ctrl_c(exc):
@@ -689,7 +690,7 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     _args_tune,
 )
 def run_tune(args: argparse.Namespace) -> int:
-    with stop_on_signals() as stop:  # a stop cancels the evaluations, writes nothing
+    with stop_on_signals() as stop:  # a stop cancels the evaluations, keeps the best so far
         from motionbase import app
 
         result = app.tune(

@@ -99,11 +99,15 @@ class Stopped(Exception):
     ----------
     reason : str
         :attr:`StopRequest.reason` (``"SIGINT"``, ``"SIGTERM"``, ...).
+    kept : str
+        What the job kept of its work, said after "interrupted" (``"kept the best set of
+        37 evaluations in o.toml"``); empty when it kept nothing.
     """
 
-    def __init__(self, reason: str) -> None:
+    def __init__(self, reason: str, kept: str = "") -> None:
         super().__init__(reason)
         self.reason = reason
+        self.kept = kept
 
     @property
     def exit_status(self) -> int:

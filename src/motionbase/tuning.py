@@ -127,6 +127,7 @@ import numpy as np
 from motionbase import stages
 from motionbase.errors import ConfigError
 from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.stopping import Stopped
 from motionbase.washout.params import WashoutParams
 from motionbase.washout.perception import cueing_metrics
 
@@ -154,6 +155,7 @@ __all__ = [
     "SetScore",
     "TuningProblem",
     "TuningResult",
+    "TuningStopped",
     "crank_range",
     "decode",
     "describe_result",
@@ -732,6 +734,27 @@ class TuningResult:
     knobs: tuple[Knob, ...] = KNOBS
 
 
+class TuningStopped(Stopped):
+    """A tuning asked to stop before its budget ran out; ``found`` is what it had found.
+
+    Raised by :func:`tune` when ``evaluate_many`` raises
+    :class:`~motionbase.stopping.Stopped` after the start set was scored (a stop before
+    that raises the plain :class:`~motionbase.stopping.Stopped`: nothing was found).
+
+    Parameters
+    ----------
+    reason : str
+        The stop request's reason (``"SIGINT"``, ...).
+    found : TuningResult
+        The start, the best set of the generations completed and their scores;
+        ``evaluations`` counts only the evaluations whose scores came back.
+    """
+
+    def __init__(self, reason: str, found: TuningResult) -> None:
+        super().__init__(reason)
+        self.found = found
+
+
 #: Evaluates parameter sets in order: ``evaluate_many([p1, p2, ...]) -> [score1, ...]``.
 EvaluateMany = Callable[[list[WashoutParams]], list[SetScore]]
 
@@ -775,6 +798,12 @@ def tune(
         written as the profile's overrides, :meth:`WashoutParams.with_profile`) instead of
         the file's own values; the rest of the file is kept. The manoeuvres' flight phase
         decides where each profile runs.
+
+    Raises
+    ------
+    TuningStopped
+        ``evaluate_many`` raised :class:`~motionbase.stopping.Stopped` after the start
+        set was scored: the exception carries the best set found so far.
     """
     import cma
 
@@ -804,6 +833,20 @@ def tune(
     }
     if popsize is not None:
         options["popsize"] = int(popsize)
+
+    def found() -> TuningResult:
+        return TuningResult(
+            start=start,
+            best=best,
+            start_score=start_score,
+            best_score=best_score,
+            evaluations=evaluations,
+            generations=generations,
+            history=tuple(history),
+            seed=seed,
+            knobs=knobs,
+        )
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         es = cma.CMAEvolutionStrategy(encode(tuned, knobs).tolist(), sigma0, options)
@@ -813,7 +856,10 @@ def tune(
             whole = len(xs) <= remaining
             xs = xs if whole else xs[:remaining]
             candidates = [candidate(x) for x in xs]
-            scores = evaluate_many(candidates)
+            try:
+                scores = evaluate_many(candidates)
+            except Stopped as exc:  # this batch is lost; the generations before it are not
+                raise TuningStopped(exc.reason, found()) from None
             evaluations += len(candidates)
             for cand, score in zip(candidates, scores, strict=True):
                 if score.cost < best_score.cost:
@@ -824,17 +870,7 @@ def tune(
             history.append(best_score.cost)
             if on_progress is not None:
                 on_progress(evaluations, budget, best_score.cost)
-    return TuningResult(
-        start=start,
-        best=best,
-        start_score=start_score,
-        best_score=best_score,
-        evaluations=evaluations,
-        generations=generations,
-        history=tuple(history),
-        seed=seed,
-        knobs=knobs,
-    )
+    return found()
 
 
 # --------------------------------------------------------------------------- tables

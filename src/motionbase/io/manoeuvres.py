@@ -24,6 +24,7 @@ header saying how it was made.
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -280,10 +281,15 @@ def write_washout(path: str | Path, params: WashoutParams, header: list[str]) ->
         lambda m: "[" + ", ".join(x.strip().rstrip(",") for x in m.group(1).splitlines()) + "]",
         tomli_w.dumps(params.to_dict()),
     )
+    # whole or not at all: a second Ctrl-C while a stopped tuning writes leaves no half file
+    part = p.with_name(f".{p.name}.{os.getpid()}.part")
     try:
-        p.write_text(comments + body, encoding="utf-8")
+        part.write_text(comments + body, encoding="utf-8")
+        os.replace(part, p)
     except OSError as exc:
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
+    finally:
+        part.unlink(missing_ok=True)
 
 
 def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:
