@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from motionbase import pipeline, state
-from motionbase.io.base import LiveSource, SelfPacedSource, Sink, Source, StaleMarkingSource
+from motionbase.io.base import (
+    EndingSource,
+    LiveSource,
+    SelfPacedSource,
+    Sink,
+    Source,
+    StaleMarkingSource,
+)
 
 RECORDING = Path(__file__).parents[1] / "recordings" / "c1723_30s.mcap"
 
@@ -21,20 +28,21 @@ def _sources():
     from motionbase.io.xplane_source import XPlaneSource
 
     return {
-        # name: (make one, marks stale holds, paces itself)
-        "jsbsim": (lambda: JsbsimSource("c1723"), False, False),  # the loop paces a flight
-        "mcap": (lambda: McapSource(RECORDING), True, False),
-        "mavlink": (lambda: MavlinkSource("udpin:127.0.0.1:0"), True, True),
-        "flightgear": (lambda: FgNativeSource("fgnative:udp:127.0.0.1:0"), True, True),
-        "xplane": (lambda: XPlaneSource("xplane:127.0.0.1:49000"), True, True),
+        # name: (make one, marks stale holds, paces itself, says why it ended)
+        "jsbsim": (lambda: JsbsimSource("c1723"), False, False, True),  # the loop paces it
+        "mcap": (lambda: McapSource(RECORDING), True, False, False),  # (no --duration)
+        "mavlink": (lambda: MavlinkSource("udpin:127.0.0.1:0"), True, True, True),
+        "flightgear": (lambda: FgNativeSource("fgnative:udp:127.0.0.1:0"), True, True, True),
+        "xplane": (lambda: XPlaneSource("xplane:127.0.0.1:49000"), True, True, True),
     }
 
 
 @pytest.mark.parametrize("name", ["jsbsim", "mcap", "mavlink", "flightgear", "xplane"])
 def test_every_source_is_a_source_with_its_capabilities(name: str) -> None:
-    make, stale, paced = _sources()[name]
+    make, stale, paced, ending = _sources()[name]
     src = make()
     assert isinstance(src, Source)
+    assert isinstance(src, EndingSource) == ending
     assert isinstance(src, StaleMarkingSource) == stale
     assert isinstance(src, SelfPacedSource) == paced
     assert isinstance(src, LiveSource) == (stale and paced)

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from motionbase.app import load_config
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.base import Source
 from motionbase.io.jsbsim_source import JsbsimSource, available_scripts
+from motionbase.pipeline import Pipeline, run
 
 G = 9.80665
 
@@ -120,6 +123,22 @@ def test_script_by_path_and_describe(tmp_path: Path) -> None:
     assert desc["rate_hz"] == 120.0 and desc["duration_s"] == 0.5
     assert json.dumps(desc)
     assert len(list(by_path)) == 60  # iterating opens and closes the source itself
+
+
+def test_says_when_its_duration_cut_the_script_short(tmp_path: Path) -> None:
+    """``ended`` (what the run's summary says stopped it): "duration" when ``duration_s``
+    ends the flight before the script does, nothing when the script's own end does."""
+    cut = JsbsimSource("c1723", duration_s=0.5)
+    assert cut.ended == "" and len(list(cut)) == 60 and cut.ended == "duration"
+    script = Path(JsbsimSource("c1723").describe()["path"]).read_text()
+    short = re.sub(r'(<run[^>]*\bend=")[^"]*"', r'\g<1>0.5"', script, count=1)
+    assert short != script
+    (tmp_path / "short.xml").write_text(short)
+    whole = JsbsimSource(str(tmp_path / "short.xml"), duration_s=10.0)  # longer than it
+    assert whole.duration_s == 0.5 and len(list(whole)) == 60 and whole.ended == ""
+    with JsbsimSource("c1723", duration_s=0.5) as source:
+        summary = run(Pipeline(load_config(rate_hz=source.rate_hz)), source)
+    assert summary.stopped_by == "duration"
 
 
 def test_from_aircraft_applies_initial_conditions(capfd) -> None:

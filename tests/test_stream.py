@@ -63,6 +63,7 @@ def test_logged_states_are_what_the_sender_sent(tmp_path):
         assert abs(a_table[tuple(m["attitude"])] - i) <= 1
     check_actuators_safe(out)
     assert "0 rejected" in "\n".join(result.notes)
+    assert result.summary.stopped_by == "duration"  # not "end of source": the link is live
 
 
 def test_silent_sender_fades_to_neutral_and_resumes_without_a_jump(tmp_path):
@@ -153,6 +154,7 @@ def test_a_log_streamed_in_real_time_is_paced_by_the_loop(flight_data, tmp_path)
     config = PipelineConfig.from_dict(McapSource(out).metadata["pipeline_config"])
     assert wall >= (result.summary.samples - 1) * config.dt >= 2.0
     assert McapSource(out).metadata["source"]["realtime"] is True
+    assert result.summary.stopped_by == "duration"  # the log goes on beyond the 2 s
     check_actuators_safe(out)
 
 

@@ -716,7 +716,8 @@ class RunSummary:
         Speed limits, rad/s.
     health : Health
     stopped_by : str
-        What ended the run (``"end of source"``, ``"SIGINT"``, ``"sink failure"``, ...).
+        What ended the run (``"end of source"``, ``"duration"``, ``"SIGINT"``, ``"sink
+        failure"``, ...; a source's :attr:`~motionbase.io.base.EndingSource.ended`).
     """
 
     samples: int = 0
@@ -940,6 +941,7 @@ def run(
             try:
                 state = next(iterator)
             except StopIteration:
+                summary.stopped_by = getattr(source, "ended", "") or summary.stopped_by
                 break
             except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
                 fail(exc, "source")

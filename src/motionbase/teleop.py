@@ -312,9 +312,7 @@ def run_teleop(
         home = np.array_equal(pipeline.command, robot.park_angles) and not pipeline.speed.any()
         where = "parked at home" if home else "stopped at rest"
         raise type(cause)(f"{cause} (the robot was {where})") from cause
-    stopped_by = summary.stopped_by
-    if stopped_by == "end of source":
-        stopped_by = commands.ended or "end of input"
+    stopped_by = summary.stopped_by  # the commands' end: "duration" or "end of input"
     asked = bool(stop) and stopped_by.startswith(stop.reason) and "failure" not in stop.reason
     result = TeleopStats.of(
         pipeline, frames_sent=servo.frames_sent if servo is not None else 0,

@@ -8,7 +8,7 @@ A *source* is a context manager and an iterator of
             ...
 
 :func:`motionbase.pipeline.run` takes an entered :class:`Source` (or, in tests, any
-iterable of states). Besides the states it reads two optional capabilities, each its own
+iterable of states). Besides the states it reads three optional capabilities, each its own
 protocol so that a source declares it by having the attributes:
 
 * :class:`StaleMarkingSource`: ``fresh``, False while the state just yielded is a stale
@@ -19,6 +19,8 @@ protocol so that a source declares it by having the attributes:
   loop then does not pace the ticks; a JSBSim flight or a log never waits, the loop paces
   it), and ``due_time``, when the state just yielded was due (s on
   :func:`time.monotonic`), from which the loop counts late commands.
+* :class:`EndingSource`: ``ended``, why its states ran out (``"duration"`` when
+  ``duration_s`` cut it short), said in the run's summary instead of "end of source".
 
 The live links (MAVLink, FlightGear, X-Plane) have both: :class:`LiveSource`.
 
@@ -37,7 +39,14 @@ from typing import Any, Protocol, Self, runtime_checkable
 
 from motionbase.state import AircraftState, PipelineOutput
 
-__all__ = ["LiveSource", "SelfPacedSource", "Sink", "Source", "StaleMarkingSource"]
+__all__ = [
+    "EndingSource",
+    "LiveSource",
+    "SelfPacedSource",
+    "Sink",
+    "Source",
+    "StaleMarkingSource",
+]
 
 
 @runtime_checkable
@@ -79,6 +88,21 @@ class StaleMarkingSource(Source, Protocol):
     """
 
     fresh: bool
+
+
+@runtime_checkable
+class EndingSource(Source, Protocol):
+    """A source that says why it ended (read by the pipeline's loop at the end of input).
+
+    Attributes
+    ----------
+    ended : str
+        Set when the source's states run out: ``"duration"`` when its ``duration_s``
+        cut it short, ``"end of input"`` when its input ended; empty when it has nothing
+        to add (the run's summary then says "end of source").
+    """
+
+    ended: str
 
 
 @runtime_checkable

@@ -280,6 +280,10 @@ class JsbsimSource:
             ):
                 raise ConfigError(f"duration_s must be > 0 s, got {duration_s!r}")
             duration = min(float(duration_s), length)
+        #: why the states ran out (:class:`~motionbase.io.base.EndingSource`): "duration"
+        #: once ``duration_s`` cut the script short, else empty (the script's end)
+        self.ended = ""
+        self._cut_short = duration < length
         self.duration_s = float(duration)
         # samples to yield: every `decimation` steps up to the duration (tolerate rounding)
         self._samples = int(math.floor(self.duration_s * self.rate_hz + 1e-6))
@@ -421,6 +425,7 @@ class JsbsimSource:
         array = np.array
         decimation = self._decimation
         steps = range(decimation)
+        self.ended = ""
         for _ in range(self._samples):
             try:
                 if decimation == 1:
@@ -455,6 +460,8 @@ class JsbsimSource:
                 None if wow is None else wow() > 0.5,
             )
             yield state
+        if self._cut_short:
+            self.ended = "duration"
 
     def describe(self) -> dict[str, Any]:
         """Plain-data description of the source for the log's metadata."""

@@ -294,6 +294,8 @@ class SampleHoldSource:
         ):
             raise ConfigError(f"{k} duration_s: must be > 0 s or None, got {duration_s!r}")
         self.duration_s: float | None = None if duration_s is None else float(duration_s)
+        #: "duration" once ``duration_s`` ended the ticks (io.base.EndingSource)
+        self.ended = ""
         self.busy_wait = bool(busy_wait)
         self._iterating = False
         self.due_time: float | None = None  # when the last tick was due, monotonic s
@@ -400,6 +402,7 @@ class SampleHoldSource:
             start = time.monotonic()
             self._live_start = start
             k = 0
+            self.ended = ""
             while n_max is None or k < n_max:
                 deadline = start + k * period
                 self._pump_until(deadline)
@@ -413,6 +416,7 @@ class SampleHoldSource:
                 self.due_time = deadline  # (the pipeline counts a late command from it)
                 yield self._make_state(k, now)
                 k += 1
+            self.ended = "duration"
         finally:
             self._iterating = False
 

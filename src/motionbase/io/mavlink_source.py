@@ -806,6 +806,7 @@ class MavlinkSource(SampleHoldSource):
                 )
             t0 = t_pending
             k = 0
+            self.ended = ""
             while n_max is None or k < n_max:
                 t_tick = t0 + k * period
                 while t_pending <= t_tick:
@@ -816,6 +817,7 @@ class MavlinkSource(SampleHoldSource):
                 k += 1
                 if pending is None:
                     return
+            self.ended = "duration"
         finally:
             self._iterating = False
 
