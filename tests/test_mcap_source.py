@@ -382,6 +382,24 @@ def test_replay_and_check_of_a_malformed_recording_through_the_cli(
     assert _health(out)["rejected_inputs"] == 0
 
 
+def test_replaying_a_truncated_recording_warns_once(tmp_path, capsys, monkeypatch):
+    """The shipped recording cut at a third: the replay runs on what was written before the
+    cut and says so once, on stderr (the source's warning, which report and tune share)."""
+    from motionbase import cli
+
+    log = logging.getLogger("motionbase")  # as above: cli.main's own warning handler
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    shipped = Path(__file__).parents[1] / "recordings" / "c1723_30s.mcap"
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(shipped.read_bytes()[: shipped.stat().st_size // 3])
+    code = cli.main(["replay", str(cut), "--out", str(tmp_path / "out.mcap")])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    said = (captured.out + captured.err).count("is truncated")  # (the folder says it too)
+    assert said == 1 and "is truncated" in captured.err, captured.out + captured.err
+
+
 def test_rate_from_metadata_must_be_finite(tmp_path):
     path = tmp_path / "inf.mcap"
     with open(path, "wb") as fh:

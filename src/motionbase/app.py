@@ -796,8 +796,7 @@ def _replay(
         notes = []
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")
-        if getattr(source, "truncated", False):
-            notes.append(f"warning: {src_path} is truncated; replayed the messages before the cut")
+        # (a truncated recording: the source itself warns, for every command that reads it)
         tmp = None
         out_path = Path(out) if out is not None else None
         if (check or live_at is not None) and out_path is None:  # a live view needs a log
