@@ -314,6 +314,19 @@ def test_bad_input_is_one_line_and_exit_2(argv, words, capsys, tmp_path, monkeyp
     assert not (tmp_path / "D").exists()
 
 
+def test_the_command_refuses_an_out_that_is_a_file_before_it_runs(tmp_path, capsys):
+    """Said at once, before the minutes of the test (not "File exists" at their end)."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["omct", "--rate", "30", "--out", str(blocker / "sub")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"motionbase omct: error: --out {blocker / 'sub'}: {blocker} is not a folder "
+        "(choose another --out path)"
+    )
+    assert blocker.read_text() == "x"
+
+
 def test_out_that_is_a_file_is_one_line(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -140,8 +140,9 @@ def test_plot_writes_png(tmp_path):
 
 
 def test_cli_workspace(tmp_path, capsys):
-    png = tmp_path / "slices.png"
+    png = tmp_path / "new" / "slices.png"  # its folder is made, as fly --out makes one
     assert main(["workspace", "--platform", "ceart", "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     out = capsys.readouterr().out
     assert "surge" in out and "yaw" in out and str(png) in out
     # the printed table gives DESIGN.md's reach (m and deg), within 3 %

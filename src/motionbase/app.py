@@ -1174,6 +1174,7 @@ def omct(
         planar=planar, platform=platform, washout=washout, cueing=cueing, rate_hz=rate_hz
     )
     amplitudes = Amplitudes().scaled(scale)
+    _writable_folder(Path(out), Path(out))  # before the test's minutes, not after them
     options = [
         ("--planar", planar),
         (f"--platform {platform}", platform),
@@ -1258,21 +1259,20 @@ class TuneResult:
         )
 
 
-def _writable_folder(path: Path) -> None:
-    """Create ``path``'s folder (as ``fly --out`` does) and check that a file can be written
-    there: a run that takes minutes must not fail at its end for want of a folder."""
-    folder = path.parent
-    if folder.exists() and not folder.is_dir():
-        raise ConfigError(f"--out {path}: {folder} is not a folder (choose another --out path)")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
+def _writable_folder(folder: Path, given: Path) -> None:
+    """Check, creating nothing yet, that ``folder`` is a folder files can be written in, or
+    can be made one (the writer creates it, as ``fly --out`` does): a run that takes
+    minutes must not fail at its end for want of a folder, and a mistake found later must
+    not leave an empty one. ``given``: the ``--out`` value the messages name."""
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent  # the nearest part of the path that is there
+    if not existing.is_dir():
+        raise ConfigError(f"--out {given}: {existing} is not a folder (choose another --out path)")
+    if not os.access(existing, os.W_OK | os.X_OK):
         raise ConfigError(
-            f"--out {path}: cannot create the folder {folder}: {exc.strerror or exc} "
-            "(choose another --out path)"
-        ) from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise ConfigError(f"--out {path}: the folder {folder} is not writable (choose another)")
+            f"--out {given}: the folder {existing} is not writable (choose another --out path)"
+        )
 
 
 def tune(
@@ -1363,7 +1363,7 @@ def tune(
         raise ConfigError(f"--out {out}: the result is a washout TOML file; name it *.toml")
     if out_path.is_dir():
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
-    _writable_folder(out_path)  # before the tuning's minutes, not after them
+    _writable_folder(out_path.parent, out_path)  # before the tuning's minutes, not after them
     platform_name = platform or DEFAULT_RUS6
     if names_planar_robot(platform_name):
         raise ConfigError(

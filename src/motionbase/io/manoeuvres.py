@@ -23,6 +23,7 @@ header saying how it was made.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
@@ -267,7 +268,8 @@ def load_spec(spec: str) -> Manoeuvre:
 
 
 def write_washout(path: str | Path, params: WashoutParams, header: list[str]) -> None:
-    """Write ``params`` as a washout TOML file, ``header`` lines first as ``#`` comments.
+    """Write ``params`` as a washout TOML file (its folder created), ``header`` lines first
+    as ``#`` comments.
 
     Raises
     ------
@@ -284,12 +286,14 @@ def write_washout(path: str | Path, params: WashoutParams, header: list[str]) ->
     # whole or not at all: a second Ctrl-C while a stopped tuning writes leaves no half file
     part = p.with_name(f".{p.name}.{os.getpid()}.part")
     try:
+        p.parent.mkdir(parents=True, exist_ok=True)
         part.write_text(comments + body, encoding="utf-8")
         os.replace(part, p)
     except OSError as exc:
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
     finally:
-        part.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # (gone once renamed; never there if mkdir failed)
+            part.unlink()
 
 
 def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -44,10 +44,14 @@ def plot_format(path: str | Path) -> str:
 
 
 def save_figure(fig: Any, path: str | Path) -> Path:
-    """Write a figure in the format its extension names; a failing write is a SinkError."""
+    """Write a figure in the format its extension names, into its folder (created, as
+    ``fly --out`` creates its log's); a failing write is a SinkError."""
     p = Path(path)
     fmt = plot_format(p)
+    if p.parent.exists() and not p.parent.is_dir():
+        raise SinkError(f"{p}: cannot write the plot: {p.parent} is not a folder")
     try:
+        p.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(p, format=fmt)
     except OSError as exc:
         raise SinkError(f"{p}: cannot write the plot: {exc.strerror or exc}") from None
