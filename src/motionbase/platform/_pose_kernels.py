@@ -3,7 +3,8 @@
 Compiled (numba) pieces: the Z-Y-X rotation :func:`rotation` (from
 :func:`motionbase.physics.rotation_terms`, its nine entries as scalars, which kernels that
 keep them in registers call directly), the angle wrap
-:func:`wrap` and the 6x6 linear solver :func:`solve6`. Python pieces: the argument checks
+:func:`wrap`, the 6x6 linear solver :func:`solve6` and the forward kinematics of a
+platform on six legs, :func:`close_legs_batch` (damped Newton). Python pieces: the argument checks
 and batch plumbing every 6-DOF kinematics class uses (:func:`as_poses`, :func:`run_inverse`,
 :func:`run_reachable`, :func:`run_clamp`, :func:`run_forward`). The numpy rotation matrix
 is :func:`motionbase.physics.rotation_matrix`.
@@ -31,6 +32,8 @@ from motionbase.physics import rotation_terms
 
 __all__ = [
     "as_poses",
+    "close_legs_batch",
+    "leg_closure",
     "rotation",
     "run_clamp",
     "run_forward",
@@ -93,6 +96,137 @@ def solve6(A, b, x):
             s -= A[r, j] * x[j]
         x[r] = s / A[r, r]
     return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def leg_closure(x, base, length, local, origin, R, jac, res, omega=False):
+    """Leg-closure equations ``g_i = |O_i + p + R q_i - b_i|^2 - l_i^2`` (m^2) of pose ``x``
+    into ``res`` (6,), their analytic Jacobian into ``jac`` (6, 6), the worst length error.
+
+    ``jac[i, :3] = 2 e_i`` (so ``e_i`` is ``jac[i, :3] / 2``, exactly) and
+    ``jac[i, 3 + k] = 2 ((R q_i) x e_i) . a_k`` with ``e_i = O_i + p + R q_i - b_i`` and
+    ``a_k`` the angular velocity (base axes) per unit rate of Euler angle k: roll ->
+    Rz Ry e_x, pitch -> Rz e_y, yaw -> e_z; with ``omega``, per unit angular velocity in
+    base axes (``a_k = e_k``). Returns the worst length error, m (``|g_i| / (2 l_i)``, to
+    first order ``| |e_i| - l_i |``; a NaN is the worst).
+    """
+    rotation(x[3], x[4], x[5], R)
+    cp, sp = math.cos(x[4]), math.sin(x[4])
+    cy, sy = math.cos(x[5]), math.sin(x[5])
+    a0x, a0y, a0z = cy * cp, sy * cp, -sp
+    a1x, a1y, a1z = -sy, cy, 0.0
+    worst = 0.0
+    for i in range(6):
+        qx, qy, qz = local[i, 0], local[i, 1], local[i, 2]
+        rqx = R[0, 0] * qx + R[0, 1] * qy + R[0, 2] * qz
+        rqy = R[1, 0] * qx + R[1, 1] * qy + R[1, 2] * qz
+        rqz = R[2, 0] * qx + R[2, 1] * qy + R[2, 2] * qz
+        ex = origin[i, 0] + x[0] + rqx - base[i, 0]
+        ey = origin[i, 1] + x[1] + rqy - base[i, 1]
+        ez = origin[i, 2] + x[2] + rqz - base[i, 2]
+        res[i] = ex * ex + ey * ey + ez * ez - length[i] * length[i]
+        jac[i, 0] = 2.0 * ex
+        jac[i, 1] = 2.0 * ey
+        jac[i, 2] = 2.0 * ez
+        # d(Rq)/d(angle_k) = a_k x Rq; dg = 2 e . (a_k x Rq) = 2 (Rq x e) . a_k
+        cx_ = rqy * ez - rqz * ey
+        cy_ = rqz * ex - rqx * ez
+        cz_ = rqx * ey - rqy * ex
+        if omega:
+            jac[i, 3] = 2.0 * cx_
+            jac[i, 4] = 2.0 * cy_
+        else:
+            jac[i, 3] = 2.0 * (cx_ * a0x + cy_ * a0y + cz_ * a0z)
+            jac[i, 4] = 2.0 * (cx_ * a1x + cy_ * a1y + cz_ * a1z)
+        jac[i, 5] = 2.0 * cz_
+        err = abs(res[i]) / (2.0 * length[i])
+        if not err <= worst:  # NaN becomes the worst
+            worst = err
+    return worst
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def close_legs_batch(base, length, local, origin, guesses, tol, max_iter, out, iters):
+    """Forward kinematics of a platform held by six legs of known length: damped Newton.
+
+    Row ``k`` is the pose ``x = [x, y, z, roll, pitch, yaw]`` (m, rad) that puts each
+    platform joint ``O_i + p + R q_i`` at the distance ``length[k, i]`` (m) from the
+    base-side point ``base[k, i]`` (m, base axes), found from ``guesses[k]``. The robots
+    differ only in those two: the 6-RUS's base-side points are its crank tips and its
+    lengths the rods; the Stewart platform's are its base joints and actuator lengths.
+
+    Parameters
+    ----------
+    base : ndarray, shape (k, 6, 3)
+    length : ndarray, shape (k, 6)
+    local : ndarray, shape (6, 3)
+        Platform joints ``q_i`` in platform axes, m.
+    origin : ndarray, shape (6, 3)
+        The platform frame's origin ``O_i`` (base axes, m) of each leg's joint at the zero pose.
+    guesses : ndarray, shape (k, 6)
+    tol : float
+        Converged when the Newton step is below ``tol`` (m, rad) and every length error
+        is below ``tol`` (m).
+    max_iter : int
+    out : ndarray, shape (k, 6)
+        The poses; NaN rows where Newton did not converge or an input was not finite (or a
+        length not positive).
+    iters : ndarray of int64, shape (k,)
+        Iterations per row; -1 for a failure.
+    """
+    R = np.empty((3, 3))
+    jac = np.empty((6, 6))
+    res = np.empty(6)
+    rhs = np.empty(6)
+    dx = np.empty(6)
+    x = np.empty(6)
+    trial = np.empty(6)
+    for k in range(guesses.shape[0]):
+        b, ln = base[k], length[k]
+        ok = True
+        for j in range(6):
+            x[j] = guesses[k, j]
+            finite = math.isfinite(b[j, 0]) and math.isfinite(b[j, 1]) and math.isfinite(b[j, 2])
+            if not (finite and math.isfinite(ln[j]) and ln[j] > 0.0 and math.isfinite(x[j])):
+                ok = False
+        converged = False
+        n = 0
+        if ok:
+            err = leg_closure(x, b, ln, local, origin, R, jac, res)
+            while n < max_iter and math.isfinite(err):
+                n += 1
+                for i in range(6):
+                    rhs[i] = -res[i]
+                if not solve6(jac, rhs, dx):
+                    break
+                step = 0.0
+                for j in range(6):
+                    if abs(dx[j]) > step:
+                        step = abs(dx[j])
+                # backtracking: accept the first step length that lowers the error
+                t = 1.0
+                new_err = err
+                for _ in range(30):
+                    for j in range(6):
+                        trial[j] = x[j] + t * dx[j]
+                    new_err = leg_closure(trial, b, ln, local, origin, R, jac, res)
+                    if new_err < err or new_err <= tol:
+                        break
+                    t *= 0.5
+                for j in range(6):
+                    x[j] = trial[j]
+                err = new_err
+                if step * t <= tol and err <= tol:
+                    converged = True
+                    break
+        if converged:
+            for j in range(6):
+                out[k, j] = x[j]
+            iters[k] = n
+        else:
+            for j in range(6):
+                out[k, j] = np.nan
+            iters[k] = -1
 
 
 # --------------------------------------------------------------------------- batch plumbing

@@ -4,8 +4,8 @@ All kernels take the geometry packed into one array ``G`` of shape (6, NG) (see
 :func:`pack_geometry`) and work on rows of poses ``[x, y, z, roll, pitch, yaw]``.
 They compile lazily on first call and are cached on disk (``cache=True``). No fastmath:
 NaN must propagate and comparisons with NaN must stay false. The rotation, the angle wrap
-and the 6x6 solver are shared with the Stewart platform (:mod:`._pose_kernels`; after
-changing them there, delete this module's numba cache).
+and the forward kinematics' damped Newton are shared with the Stewart platform
+(:mod:`._pose_kernels`; after changing them there, delete this module's numba cache).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from motionbase.physics import rotation_terms
-from motionbase.platform._pose_kernels import rotation, solve6, wrap
+from motionbase.platform._pose_kernels import close_legs_batch, leg_closure, wrap
 
 # Columns of the packed geometry array.
 AX, AY, AZ, CX, CY, PX, PY, PZ, RC, RR, LO, HI, OX, OY, OZ = range(15)
@@ -243,46 +243,33 @@ def clamp_inverse_one(p, G, out_pose, out_angles):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _constraint_jacobian(p, theta, G, R, jx, jq, resid, omega=False):
+def _crank_tips(theta, G, tips, rods):
+    """Crank tips (6, 3) (base axes, m) of the crank angles ``theta`` (6,), and the rod
+    lengths (6,): the base-side ends of the legs that :func:`._pose_kernels.leg_closure`
+    closes onto the platform."""
+    for i in range(6):
+        c, s = math.cos(theta[i]), math.sin(theta[i])
+        rc = G[i, RC]
+        tips[i, 0] = G[i, AX] + rc * c * G[i, CX]
+        tips[i, 1] = G[i, AY] + rc * c * G[i, CY]
+        tips[i, 2] = G[i, AZ] - rc * s  # up is -z (FRD)
+        rods[i] = G[i, RR]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _constraint_jacobian(p, theta, G, R, tips, rods, jx, jq, resid, omega=False):
     """Leg-closure constraints g_i = |P_i - B_i|^2 - R_i^2 and their derivatives.
 
     jx[i, :] = dg_i/d(pose rate): columns 3..5 per unit Euler-angle rate (omega=False) or per
     unit angular velocity in base axes (omega=True); jq[i] = dg_i/dtheta_i; resid[i] = g_i (m^2).
+    ``tips`` (6, 3) and ``rods`` (6,): scratch.
     """
-    rotation(p[3], p[4], p[5], R)
-    cp, sp = math.cos(p[4]), math.sin(p[4])
-    cy, sy = math.cos(p[5]), math.sin(p[5])
-    # angular velocity (base axes) per unit Euler rate: roll -> Rz Ry ex, pitch -> Rz ey, yaw -> ez
-    a0x, a0y, a0z = cy * cp, sy * cp, -sp
-    a1x, a1y, a1z = -sy, cy, 0.0
+    _crank_tips(theta, G, tips, rods)
+    leg_closure(p, tips, rods, G[:, PX : PZ + 1], G[:, OX : OZ + 1], R, jx, resid, omega)
     for i in range(6):
-        px, py, pz = G[i, PX], G[i, PY], G[i, PZ]
-        rpx = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz
-        rpy = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz
-        rpz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
         rc = G[i, RC]
         ct, st = math.cos(theta[i]), math.sin(theta[i])
-        bx = G[i, AX] + rc * ct * G[i, CX]
-        by = G[i, AY] + rc * ct * G[i, CY]
-        bz = G[i, AZ] - rc * st
-        ex = G[i, OX] + p[0] + rpx - bx
-        ey = G[i, OY] + p[1] + rpy - by
-        ez = G[i, OZ] + p[2] + rpz - bz
-        resid[i] = ex * ex + ey * ey + ez * ez - G[i, RR] * G[i, RR]
-        jx[i, 0] = 2.0 * ex
-        jx[i, 1] = 2.0 * ey
-        jx[i, 2] = 2.0 * ez
-        # d(Rp)/d(angle_k) = a_k x Rp; dg = 2 e . (a_k x Rp) = 2 (Rp x e) . a_k
-        cx_ = rpy * ez - rpz * ey
-        cy_ = rpz * ex - rpx * ez
-        cz_ = rpx * ey - rpy * ex
-        if omega:
-            jx[i, 3] = 2.0 * cx_
-            jx[i, 4] = 2.0 * cy_
-        else:
-            jx[i, 3] = 2.0 * (cx_ * a0x + cy_ * a0y + cz_ * a0z)
-            jx[i, 4] = 2.0 * (cx_ * a1x + cy_ * a1y + cz_ * a1z)
-        jx[i, 5] = 2.0 * cz_
+        ex, ey, ez = 0.5 * jx[i, 0], 0.5 * jx[i, 1], 0.5 * jx[i, 2]
         # dB/dtheta = r (-sin c + cos up), up = (0, 0, -1)
         dbx = -rc * st * G[i, CX]
         dby = -rc * st * G[i, CY]
@@ -301,6 +288,8 @@ def jacobian_batch(poses, G, omega, out, lines, jqs):
     """
     theta = np.empty(6)
     R = np.empty((3, 3))
+    tips = np.empty((6, 3))
+    rods = np.empty(6)
     jx = np.empty((6, 6))
     jq = np.empty(6)
     res = np.empty(6)
@@ -311,92 +300,31 @@ def jacobian_batch(poses, G, omega, out, lines, jqs):
             lines[k, :, :] = np.nan
             jqs[k, :] = np.nan
             continue
-        _constraint_jacobian(p, theta, G, R, jx, jq, res, True)
+        _constraint_jacobian(p, theta, G, R, tips, rods, jx, jq, res, True)
         for i in range(6):
             jqs[k, i] = jq[i]
             for j in range(6):
                 lines[k, i, j] = jx[i, j]
         if not omega:
-            _constraint_jacobian(p, theta, G, R, jx, jq, res, False)
+            _constraint_jacobian(p, theta, G, R, tips, rods, jx, jq, res, False)
         for i in range(6):
             for j in range(6):
                 out[k, i, j] = -jx[i, j] / jq[i]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _residual_norm(p, theta, G, R, jx, jq, res):
-    _constraint_jacobian(p, theta, G, R, jx, jq, res)
-    m = 0.0
-    for i in range(6):
-        # rod length error in metres: g / (|e| + R) ~ g / (2 R)
-        v = abs(res[i]) / (2.0 * G[i, RR])
-        if v > m:
-            m = v
-    return m
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def forward_batch(angles, guesses, G, tol, max_iter, out, iters):
-    """Forward kinematics by damped Newton on the leg-closure constraints.
-
-    Converged when the Newton step is below ``tol`` (m, rad) and every rod length error is
-    below ``tol`` (m). Rows that do not converge (or have non-finite input) become NaN;
-    ``iters[k]`` is the iteration count (-1 for a failure).
-    """
-    R = np.empty((3, 3))
-    jx = np.empty((6, 6))
-    jq = np.empty(6)
-    res = np.empty(6)
-    rhs = np.empty(6)
-    dx = np.empty(6)
-    x = np.empty(6)
-    trial = np.empty(6)
-    for k in range(angles.shape[0]):
-        th = angles[k]
-        ok = True
-        for j in range(6):
-            x[j] = guesses[k, j]
-            if not (math.isfinite(th[j]) and math.isfinite(x[j])):
-                ok = False
-        converged = False
-        n = 0
-        if ok:
-            err = _residual_norm(x, th, G, R, jx, jq, res)
-            while n < max_iter:
-                n += 1
-                for i in range(6):
-                    rhs[i] = -res[i]
-                if not solve6(jx, rhs, dx):
-                    break
-                step = 0.0
-                for j in range(6):
-                    if abs(dx[j]) > step:
-                        step = abs(dx[j])
-                # backtracking: accept the first step length that lowers the error
-                t = 1.0
-                for _ in range(30):
-                    for j in range(6):
-                        trial[j] = x[j] + t * dx[j]
-                    new_err = _residual_norm(trial, th, G, R, jx, jq, res)
-                    if new_err < err or new_err <= tol:
-                        break
-                    t *= 0.5
-                for j in range(6):
-                    x[j] = trial[j]
-                err = new_err
-                if not math.isfinite(err):
-                    break
-                if step * t <= tol and err <= tol:
-                    converged = True
-                    break
-        if converged:
-            for j in range(6):
-                out[k, j] = x[j]
-            iters[k] = n
-        else:
-            for j in range(6):
-                out[k, j] = np.nan
-            iters[k] = -1
+    """Forward kinematics: the crank tips of the angles (k, 6), then the rods closed onto
+    the platform by the shared damped Newton (:func:`._pose_kernels.close_legs_batch`: its
+    convergence rule, NaN rows for a failure or a non-finite angle, ``iters``)."""
+    n = angles.shape[0]
+    tips = np.empty((n, 6, 3))
+    rods = np.empty((n, 6))
+    for k in range(n):
+        _crank_tips(angles[k], G, tips[k], rods[k])
+    close_legs_batch(
+        tips, rods, G[:, PX : PZ + 1], G[:, OX : OZ + 1], guesses, tol, max_iter, out, iters
+    )
 
 
 @njit(

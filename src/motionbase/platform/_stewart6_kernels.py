@@ -4,9 +4,10 @@ All kernels take the geometry packed into one array ``G`` of shape (6, NG) (see
 :func:`pack_geometry`) and work on rows of poses ``[x, y, z, roll, pitch, yaw]`` (m, rad; FRD
 base axes; ``R = Rz(yaw) Ry(pitch) Rx(roll)``). Leg ``i`` joins the base joint ``B_i`` to the
 platform joint ``P_i = O + p + R q_i``; its actuator length is ``|P_i - B_i|``. This module is
-the one definition of that formula: the class, the clamp and the forward kinematics all call
-:func:`_platform_joints`. The rotation, the angle wrap and the 6x6 solver are shared with the
-6-RUS (``_pose_kernels``); :func:`solve` is the robot plug-in's kernel.
+the one definition of that formula for the class and the clamp (:func:`_platform_joints`).
+The rotation, the angle wrap and the forward kinematics (damped Newton on the leg
+lengths) are shared with the 6-RUS (``_pose_kernels``); :func:`solve` is the robot
+plug-in's kernel.
 
 They compile lazily on first call and are cached on disk (``cache=True``). No fastmath: NaN
 must propagate and comparisons with NaN must stay false. numba's on-disk cache keys a kernel
@@ -21,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from motionbase.platform._pose_kernels import rotation, solve6, wrap
+from motionbase.platform._pose_kernels import close_legs_batch, rotation, wrap
 
 # Columns of the packed geometry array.
 BX, BY, BZ, QX, QY, QZ, OX, OY, OZ, LO, HI = range(11)
@@ -185,104 +186,20 @@ def clamp_inverse_one(p, G, out_pose, out_lengths):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _residual(x, lengths, G, R, J, jac, res):
-    """Leg equations ``g_i = |P_i - B_i|^2 - L_i^2`` (m^2) and their analytic Jacobian.
-
-    ``jac[i, :3] = 2 e_i`` and ``jac[i, 3 + k] = 2 ((R q_i) x e_i) . a_k`` with
-    ``e_i = P_i - B_i`` and ``a_k`` the angular velocity (base axes) per unit rate of Euler
-    angle k: roll -> Rz Ry e_x, pitch -> Rz e_y, yaw -> e_z. Returns the worst length error,
-    m (``|g_i| / (2 L_i)``, to first order ``| |e_i| - L_i |``).
-    """
-    _platform_joints(x, G, R, J)
-    cp, sp = math.cos(x[4]), math.sin(x[4])
-    cy, sy = math.cos(x[5]), math.sin(x[5])
-    a0x, a0y, a0z = cy * cp, sy * cp, -sp
-    a1x, a1y = -sy, cy
-    worst = 0.0
-    for i in range(6):
-        ex = J[i, 0] - G[i, BX]
-        ey = J[i, 1] - G[i, BY]
-        ez = J[i, 2] - G[i, BZ]
-        rqx = J[i, 0] - G[i, OX] - x[0]
-        rqy = J[i, 1] - G[i, OY] - x[1]
-        rqz = J[i, 2] - G[i, OZ] - x[2]
-        res[i] = ex * ex + ey * ey + ez * ez - lengths[i] * lengths[i]
-        jac[i, 0] = 2.0 * ex
-        jac[i, 1] = 2.0 * ey
-        jac[i, 2] = 2.0 * ez
-        cx_ = rqy * ez - rqz * ey
-        cy_ = rqz * ex - rqx * ez
-        cz_ = rqx * ey - rqy * ex
-        jac[i, 3] = 2.0 * (cx_ * a0x + cy_ * a0y + cz_ * a0z)
-        jac[i, 4] = 2.0 * (cx_ * a1x + cy_ * a1y)
-        jac[i, 5] = 2.0 * cz_
-        err = abs(res[i]) / (2.0 * lengths[i])
-        if not err <= worst:  # NaN becomes the worst
-            worst = err
-    return worst
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def forward_batch(lengths, guesses, G, tol, max_iter, out, iters):
-    """Forward kinematics by damped Newton on the leg-length equations.
-
-    Converged when the Newton step is below ``tol`` (m, rad) and every length error is below
-    ``tol`` (m). Rows that do not converge (or have non-finite or non-positive lengths, or a
-    non-finite guess) become NaN; ``iters[k]`` is the iteration count (-1 for a failure).
-    """
-    R = np.empty((3, 3))
-    J = np.empty((6, 3))
-    jac = np.empty((6, 6))
-    res = np.empty(6)
-    rhs = np.empty(6)
-    dx = np.empty(6)
-    x = np.empty(6)
-    trial = np.empty(6)
-    for k in range(lengths.shape[0]):
-        ln = lengths[k]
-        ok = True
-        for j in range(6):
-            x[j] = guesses[k, j]
-            if not (math.isfinite(ln[j]) and ln[j] > 0.0 and math.isfinite(x[j])):
-                ok = False
-        converged = False
-        n = 0
-        if ok:
-            err = _residual(x, ln, G, R, J, jac, res)
-            while n < max_iter and math.isfinite(err):
-                n += 1
-                for i in range(6):
-                    rhs[i] = -res[i]
-                if not solve6(jac, rhs, dx):
-                    break
-                step = 0.0
-                for j in range(6):
-                    if abs(dx[j]) > step:
-                        step = abs(dx[j])
-                # backtracking: accept the first step length that lowers the error
-                t = 1.0
-                new_err = err
-                for _ in range(30):
-                    for j in range(6):
-                        trial[j] = x[j] + t * dx[j]
-                    new_err = _residual(trial, ln, G, R, J, jac, res)
-                    if new_err < err or new_err <= tol:
-                        break
-                    t *= 0.5
-                for j in range(6):
-                    x[j] = trial[j]
-                err = new_err
-                if step * t <= tol and err <= tol:
-                    converged = True
-                    break
-        if converged:
-            for j in range(6):
-                out[k, j] = x[j]
-            iters[k] = n
-        else:
-            for j in range(6):
-                out[k, j] = np.nan
-            iters[k] = -1
+    """Forward kinematics from actuator lengths (k, 6): the shared damped Newton
+    (:func:`._pose_kernels.close_legs_batch`: its convergence rule, NaN rows for a failure
+    or a non-finite or non-positive length, ``iters``) from the base joints."""
+    n = lengths.shape[0]
+    base = np.empty((n, 6, 3))
+    for k in range(n):
+        for i in range(6):
+            base[k, i, 0] = G[i, BX]
+            base[k, i, 1] = G[i, BY]
+            base[k, i, 2] = G[i, BZ]
+    close_legs_batch(
+        base, lengths, G[:, QX : QZ + 1], G[:, OX : OZ + 1], guesses, tol, max_iter, out, iters
+    )
 
 
 @njit(
