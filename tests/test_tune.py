@@ -382,6 +382,76 @@ def test_same_seed_same_result_other_seed_other_path(kick, ceart):
     assert c.history != a.history
 
 
+class _EvaluationClock:
+    """Time that passes only while parameter sets are scored: ``cost_s`` per set."""
+
+    def __init__(self, problem, cost_s: float) -> None:
+        self.now, self.problem, self.cost_s = 0.0, problem, cost_s
+
+    def __call__(self) -> float:
+        return self.now
+
+    def evaluate_many(self, candidates):
+        self.now += self.cost_s * len(candidates)
+        return [self.problem.evaluate(p) for p in candidates]
+
+
+def test_a_time_budget_starts_no_generation_that_would_end_after_it(kick, ceart):
+    """Each set scored takes 1 s (of a test's clock): with 30 s, the start (1 s) and two
+    generations of 13 (to 27 s) fit; a third would end at 40 s, so it does not start."""
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    popsize = 4 + int(3 * math.log(len(tuning.KNOBS)))  # CMA-ES's default population
+    clock = _EvaluationClock(problem, 1.0)
+    timed = tuning.tune(
+        _bad_start(), clock.evaluate_many, budget=None, seed=4, time_budget_s=30.0, clock=clock
+    )
+    assert timed.ended_by == "time" and clock.now <= 30.0
+    assert timed.generations == 2 and timed.evaluations == 1 + 2 * popsize == clock.now
+    # the same seed with an evaluation budget of those 27: the same search, ended by it
+    counted = tuning.tune(
+        _bad_start(), _EvaluationClock(problem, 1.0).evaluate_many, budget=27, seed=4
+    )
+    assert counted.ended_by == "budget" and counted.history == timed.history
+    assert counted.best == timed.best
+    # both budgets: the sooner ends it
+    both = _EvaluationClock(problem, 1.0)
+    sooner = tuning.tune(
+        _bad_start(), both.evaluate_many, budget=14, seed=4, time_budget_s=30.0, clock=both
+    )
+    assert sooner.ended_by == "budget" and sooner.evaluations == 14
+    with pytest.raises(ValueError, match="budget of evaluations, of time, or both"):
+        tuning.tune(_bad_start(), both.evaluate_many, budget=None, seed=4)
+
+
+def test_tune_with_only_a_time_budget_says_so_in_its_file(tmp_path):
+    """``--time-budget`` alone: no limit on evaluations; the time ends the tuning, and the
+    file's header says so and how to run it again."""
+    out = tmp_path / "timed.toml"
+    res = app.tune(
+        out=out, washout="default", scripts=["rudder_kick@0:6"], holdout=[], workers=1,
+        time_budget_s=4.0, progress=False,
+    )  # fmt: skip
+    assert res.result.ended_by == "time" and res.result.evaluations > 1
+    assert "ended by the time budget (4s)" in res.summary_text().splitlines()[0]
+    head = out.read_text().splitlines()
+    assert "--holdout none --time-budget 4s --seed 0 --out timed.toml" in head[1]
+    assert "--budget" not in head[1]
+    assert head[2].startswith(
+        f"# The time budget (4s) ended the tuning after {res.result.evaluations}"
+    )
+    assert WashoutParams.from_toml(out) == res.result.best
+
+
+@pytest.mark.parametrize(
+    ("text", "seconds"), [("90", 90.0), ("90s", 90.0), ("30m", 1800.0), ("1.5h", 5400.0)]
+)
+def test_time_budget_durations(text, seconds):
+    args = cli.build_parser().parse_args(["tune", "--time-budget", text, "--out", "o.toml"])
+    assert args.time_budget == seconds and args.budget is None
+    assert app.duration_text(seconds) == {"90": "90s", "1.5h": "90m"}.get(text, text)
+
+
 # --------------------------------------------------------------------------- the job and its file
 
 
@@ -447,6 +517,14 @@ def test_progress_reaches_a_log_file_now_and_then_and_a_terminal_in_place():
     text = tty.getvalue()
     assert text.count("\r") == 2 and text.endswith("\n") and text.count("\n") == 1
     assert "10 / 10 evaluations" in text.rsplit("\r", 1)[1]
+    # a time budget alone: no count to reach; the time to go is the time left
+    timed_log = io.StringIO()
+    timed = app.EvaluationProgress(timed_log, every_s=0.0, time_budget_s=3600.0)
+    timed(3, None, 5.0)
+    timed.close()
+    line = timed_log.getvalue().strip()
+    assert re.fullmatch(r"tune: 3 evaluations  best 5\.0000 \(start 5\.0000\), +\d+ s, "
+                        r"about 3[56]\d\d s to go", line), line  # fmt: skip
 
 
 def test_tune_result_in_the_file_is_the_best_scored(tmp_path, kick, ceart):
@@ -503,6 +581,8 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--scripts", "c1723@0:5", "--holdout", "c1723@0:5"], "also in the tuning set"),
         (["--scheduler", "localhost:8786"], "tcp://HOST:PORT"),
         (["--budget", "0"], "expected a whole number >= 1"),
+        (["--time-budget", "soon"], "expected a duration such as 90s, 30m or 8h"),
+        (["--time-budget", "0s"], "expected a duration such as 90s, 30m or 8h"),
         (["--recordings", "notes.txt"], "MCAP file"),
         (["--profile", "taxi"], "--profile taxi: unknown"),
         (["--cueing", "mpc", "--profile", "air"], "no flight-phase profiles"),

@@ -1200,24 +1200,39 @@ def omct(
 
 # --------------------------------------------------------------------------- tune
 
+#: Evaluations of a tuning when neither budget is given (``tune --budget``).
+DEFAULT_TUNE_BUDGET = 200
+
 
 class EvaluationProgress:
-    """The progress of a tuning run (evaluations / budget, best cost), as a :class:`JobProgress`."""
+    """The progress of a tuning run (evaluations / budget, best cost), as a :class:`JobProgress`.
 
-    def __init__(self, stream=None, every_s: float = 30.0) -> None:
+    ``time_budget_s``: the run's time budget, s, if it has one (the time to go is then the
+    sooner of the two ends)."""
+
+    def __init__(
+        self, stream=None, every_s: float = 30.0, time_budget_s: float | None = None
+    ) -> None:
         self.line = JobProgress(stream, every_s=every_s)
         self._t0 = time.monotonic()
         self._start: float | None = None
+        self._time_budget_s = time_budget_s
 
-    def __call__(self, done: int, budget: int, best: float) -> None:
+    def __call__(self, done: int, budget: int | None, best: float) -> None:
         if self._start is None:
             self._start = best
         elapsed = time.monotonic() - self._t0
-        eta = elapsed * (budget - done) / done if done else 0.0
-        counts = f"{done:5d} / {budget} evaluations  best {best:.4f} (start {self._start:.4f})"
+        ends = []  # seconds to go, and the share done, by each budget
+        if budget is not None:
+            ends.append((elapsed * (budget - done) / done if done else 0.0, done / budget))
+        if self._time_budget_s is not None:
+            ends.append((max(0.0, self._time_budget_s - elapsed), elapsed / self._time_budget_s))
+        eta, frac = min(ends)
+        of = f" / {budget}" if budget is not None else ""
+        counts = f"{done:5d}{of} evaluations  best {best:.4f} (start {self._start:.4f})"
         times = f"{elapsed:5.0f} s, about {eta:4.0f} s to go"
         if self.line.terminal:
-            frac = min(1.0, done / budget)
+            frac = min(1.0, frac)
             bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
             self.line.show(f"[{bar}] {counts}  {times}")
         else:
@@ -1237,6 +1252,7 @@ class TuneResult:
     wall_time_s: float
     improved: bool
     cueing: str = "classical"
+    time_budget_s: float | None = None
 
     def summary_text(self) -> str:
         from motionbase.tuning import format_table
@@ -1246,10 +1262,14 @@ class TuneResult:
         if self.holdout is not None:
             sections.append(("held out (not tuned on)", *self.holdout))
         found = "tuned" if self.improved else "nothing beat the start set (written as it was)"
+        ended = {
+            "time": f", ended by the time budget ({duration_text(self.time_budget_s or 0.0)})",
+            "converged": ", ended by CMA-ES's own stopping rules",
+        }.get(r.ended_by, "")
         return "\n".join(
             [
                 f"tune: {r.evaluations} evaluations ({r.generations} CMA-ES generations) in "
-                f"{self.wall_time_s:.0f} s, seed {r.seed}: {found}; score terms in "
+                f"{self.wall_time_s:.0f} s{ended}, seed {r.seed}: {found}; score terms in "
                 "motionbase.tuning",
                 format_table(sections),
                 f"wrote {self.out} (motionbase fly"
@@ -1257,6 +1277,14 @@ class TuneResult:
                 + f" --params {self.out})",
             ]
         )
+
+
+def duration_text(seconds: float) -> str:
+    """``seconds`` as ``--time-budget`` takes it: ``"8h"``, ``"30m"``, ``"90s"``."""
+    for unit, size in (("h", 3600.0), ("m", 60.0)):
+        if seconds >= size and seconds % size == 0:
+            return f"{seconds / size:g}{unit}"
+    return f"{seconds:g}s"
 
 
 def _writable_folder(folder: Path, given: Path) -> None:
@@ -1284,13 +1312,14 @@ def tune(
     scripts: list[str] | None = None,
     recordings: list[str] | None = None,
     holdout: list[str] | None = None,
-    budget: int = 200,
+    budget: int | None = None,
     seed: int = 0,
     workers: int | None = None,
     scheduler: str | None = None,
     progress: bool = True,
     stop: StopRequest | None = None,
     profile: str | None = None,
+    time_budget_s: float | None = None,
 ) -> TuneResult:
     """Tune the washout for a platform over manoeuvres (:mod:`motionbase.tuning`); write it.
 
@@ -1315,8 +1344,9 @@ def tune(
     holdout : list of str, optional
         Scripts or recordings scored before and after but not tuned on; default
         :data:`~motionbase.io.manoeuvres.DEFAULT_HOLDOUT` (an empty list: none).
-    budget : int
-        Evaluations of one parameter set over the whole manoeuvre set (>= 1).
+    budget : int, optional
+        Evaluations of one parameter set over the whole manoeuvre set (>= 1); default
+        200, or no limit when ``time_budget_s`` is given.
     seed : int
         CMA-ES seed (>= 0); the same seed and inputs give the same result.
     workers : int, optional
@@ -1334,6 +1364,10 @@ def tune(
     profile : str, optional
         Tune this flight-phase profile of the start file (``ground``, ``air``; written as
         the profile's overrides) instead of the file's own values (classical washout).
+    time_budget_s : float, optional
+        Seconds the tuning may take, from this call (the manoeuvres' loading counted, the
+        held-out scoring at the end not): no generation starts that the last one's
+        duration says would end after it. With ``budget`` too, the sooner end ends it.
     """
     from motionbase import tuning
     from motionbase.io.executors import open_evaluator
@@ -1350,10 +1384,19 @@ def tune(
     from motionbase.stopping import Stopped, raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
 
+    called = time.monotonic()  # the time budget counts from here
     spec = cueing_spec(cueing)
     knobs = tuning.knobs_for(cueing)
-    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+    if budget is None and time_budget_s is None:
+        budget = DEFAULT_TUNE_BUDGET
+    if budget is not None and (
+        isinstance(budget, bool) or not isinstance(budget, int) or budget < 1
+    ):
         raise ConfigError(f"--budget must be a whole number of evaluations >= 1, got {budget!r}")
+    if time_budget_s is not None and not (
+        isinstance(time_budget_s, int | float) and 0 < time_budget_s < math.inf
+    ):
+        raise ConfigError(f"--time-budget must be a positive duration, got {time_budget_s!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= tuning.MAX_SEED:
         raise ConfigError(
             f"--seed must be a whole number from 0 to {tuning.MAX_SEED}, got {seed!r}"
@@ -1409,7 +1452,10 @@ def tune(
     problem = tuning.TuningProblem(
         geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name
     )
-    bar = EvaluationProgress() if progress else None
+    time_left_s = (  # after the loading
+        None if time_budget_s is None else max(1e-9, time_budget_s - (time.monotonic() - called))
+    )
+    bar = EvaluationProgress(time_budget_s=time_left_s) if progress else None
     t0 = time.monotonic()
     stopped_by = ""  # the reason of a stop after the start set was scored
     try:
@@ -1424,6 +1470,7 @@ def tune(
                 knobs=knobs,
                 on_progress=bar,
                 profile=profile,
+                time_budget_s=time_left_s,
             )
     except tuning.TuningStopped as exc:  # (a stop before the start was scored passes on)
         result, stopped_by = exc.found, exc.reason
@@ -1446,8 +1493,8 @@ def tune(
         result, platform=platform_name, start=start_name, holdout=holdout_scores
     )
     if stopped_by:
-        n = result.evaluations
-        interrupted = f"interrupted ({stopped_by}) after {n} of {budget} evaluations"
+        of = f" of {budget}" if budget is not None else ""
+        interrupted = f"interrupted ({stopped_by}) after {result.evaluations}{of} evaluations"
         description += f"; {interrupted}"
         header[:0] = [
             f"I{interrupted[1:]}: the best set so far"
@@ -1458,8 +1505,17 @@ def tune(
     command = [f"motionbase tune --platform {platform_name}{which} {start_name}"]
     command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")
     command += [f"--recordings {' '.join(recordings)}"] if recordings else []
-    command.append(f"--holdout {','.join(holdout) or 'none'} --budget {budget} --seed {seed}")
+    command.append(f"--holdout {','.join(holdout) or 'none'}")
+    command += [f"--budget {budget}"] if budget is not None else []
+    command += [f"--time-budget {duration_text(time_budget_s)}"] if time_budget_s else []
+    command.append(f"--seed {seed}")
     command += [f"--profile {profile}"] if profile else []
+    if result.ended_by == "time" and not stopped_by:
+        header[:0] = [
+            f"The time budget ({duration_text(time_budget_s or 0.0)}) ended the tuning after "
+            f"{result.evaluations} evaluations: the same command on another machine may find "
+            "another set."
+        ]
     header[:0] = [
         f"{'Washout' if cueing == 'classical' else cueing.upper() + ' cueing'} parameters "
         f"made by `motionbase tune` (motionbase {__version__}):",
@@ -1472,4 +1528,6 @@ def tune(
             kept=f"kept the best set of {result.evaluations} evaluations in {out_path} "
             f"(cost {result.start_score.cost:.4g} -> {result.best_score.cost:.4g})",
         )
-    return TuneResult(replace(result, best=best), holdout_scores, out_path, wall, improved, cueing)
+    return TuneResult(
+        replace(result, best=best), holdout_scores, out_path, wall, improved, cueing, time_budget_s
+    )

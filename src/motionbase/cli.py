@@ -23,6 +23,7 @@ try:  # numpy and the rest take a few tenths of a second to import
     import argparse
     import logging
     import os
+    import re
     from collections.abc import Callable, Sequence
 
     from motionbase import __version__
@@ -610,6 +611,18 @@ def _whole(minimum: int) -> Callable[[str], int]:
     return parse
 
 
+def _duration(text: str) -> float:
+    """``90``, ``90s``, ``30m``, ``1.5h`` -> seconds."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(s|m|min|h)?\s*", text)
+    value = float(match.group(1)) if match else 0.0
+    if not value > 0:
+        raise argparse.ArgumentTypeError(
+            f"expected a duration such as 90s, 30m or 8h, got {text!r}"
+        )
+    unit = match.group(2) if match else None
+    return value * {"m": 60.0, "min": 60.0, "h": 3600.0}.get(unit or "s", 1.0)
+
+
 def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--platform",
@@ -655,9 +668,16 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--budget",
         type=_whole(1),
-        default=200,
         metavar="N",
-        help="evaluations of one parameter set over all the manoeuvres (default 200)",
+        help="evaluations of one parameter set over all the manoeuvres (default 200; no "
+        "limit when only --time-budget is given)",
+    )
+    p.add_argument(
+        "--time-budget",
+        type=_duration,
+        metavar="DURATION",
+        help="time the tuning may take, e.g. 90s, 30m, 8h (no generation starts that would "
+        "end after it; with --budget, the sooner end ends it)",
     )
     p.add_argument("--seed", type=_whole(0), default=0, metavar="S", help="seed (default 0)")
     p.add_argument(
@@ -707,6 +727,7 @@ def run_tune(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             stop=stop,
             profile=args.profile,
+            time_budget_s=args.time_budget,
         )
     print(result.summary_text())
     return 0

@@ -111,12 +111,16 @@ tuning set. Whole generations are told to CMA-ES; when the budget ends inside a
 generation, its first candidates are still evaluated and may win. The seed ``S`` seeds
 ``cma``'s sampler (with ``S + 1``: ``cma`` reads 0 as "from the clock"); the same seed,
 manoeuvres, platform and start give the same result, whatever runs the evaluations
-(they are collected in order).
+(they are collected in order). A time budget may end the search sooner (no generation
+starts that the last one's duration says would end after it); what it finds then
+depends on the machine's speed too.
 """
 
 from __future__ import annotations
 
 import math
+import sys
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -721,6 +725,10 @@ class TuningResult:
         Best cost so far after the start and after each generation.
     seed : int
     knobs : tuple of Knob
+    ended_by : str
+        What ended the search: ``"budget"`` (the evaluations), ``"time"`` (the time
+        budget: the next generation would have ended after it), ``"converged"`` (CMA-ES's
+        own stopping rules) or ``"stop"`` (a stop request; :class:`TuningStopped`).
     """
 
     start: WashoutParams
@@ -732,6 +740,7 @@ class TuningResult:
     history: tuple[float, ...]
     seed: int
     knobs: tuple[Knob, ...] = KNOBS
+    ended_by: str = "budget"
 
 
 class TuningStopped(Stopped):
@@ -763,15 +772,18 @@ def tune(
     start: WashoutParams,
     evaluate_many: EvaluateMany,
     *,
-    budget: int,
+    budget: int | None,
     seed: int,
     popsize: int | None = None,
     sigma0: float = SIGMA0,
     knobs: Sequence[Knob] = KNOBS,
-    on_progress: Callable[[int, int, float], None] | None = None,
+    on_progress: Callable[[int, int | None, float], None] | None = None,
     profile: str | None = None,
+    time_budget_s: float | None = None,
+    clock: Callable[[], float] = time.monotonic,
 ) -> TuningResult:
-    """CMA-ES over ``knobs`` from ``start``, within ``budget`` evaluations.
+    """CMA-ES over ``knobs`` from ``start``, within ``budget`` evaluations and
+    ``time_budget_s`` seconds.
 
     Parameters
     ----------
@@ -780,9 +792,9 @@ def tune(
     evaluate_many : callable
         Scores a list of parameter sets, results in the same order (locally, in a
         process pool or on a cluster: :mod:`motionbase.io.executors`).
-    budget : int
+    budget : int or None
         Evaluations of one parameter set over the whole manoeuvre set, >= 1 (the
-        start is the first).
+        start is the first); None: no limit (``time_budget_s`` must then be given).
     seed : int
         Seeds CMA-ES (>= 0).
     popsize : int, optional
@@ -793,6 +805,13 @@ def tune(
         The parameters tuned.
     on_progress : callable, optional
         ``on_progress(evaluations, budget, best_cost)`` after each batch.
+    time_budget_s : float, optional
+        Seconds on ``clock`` from the call, the start set's evaluation included: no
+        generation is started that would end after it, judged by the last generation's
+        duration (the first starts if any time is left). The result then depends on the
+        machine's speed, not only on the seed.
+    clock : callable
+        Seconds, monotonic (:func:`time.monotonic`; a test's own clock).
     profile : str, optional
         Tune this flight-phase profile of ``start`` (``"ground"``, ``"air"``: its values,
         written as the profile's overrides, :meth:`WashoutParams.with_profile`) instead of
@@ -807,8 +826,12 @@ def tune(
     """
     import cma
 
-    if budget < 1:
+    if budget is None and time_budget_s is None:
+        raise ValueError("tune: give a budget of evaluations, of time, or both")
+    if budget is not None and budget < 1:
         raise ValueError(f"tune: budget must be >= 1 evaluation, got {budget}")
+    if time_budget_s is not None and not time_budget_s > 0:
+        raise ValueError(f"tune: time budget must be > 0 s, got {time_budget_s}")
     if not 0 <= seed <= MAX_SEED:
         raise ValueError(f"tune: seed must be from 0 to {MAX_SEED}, got {seed}")
     knobs = tuple(knobs)
@@ -818,9 +841,14 @@ def tune(
         values = decode(x, tuned, knobs)
         return values if profile is None else start.with_profile(profile, values)
 
+    t0 = clock()
+    deadline = math.inf if time_budget_s is None else t0 + time_budget_s
+    cap = budget if budget is not None else sys.maxsize
     start_score = evaluate_many([start])[0]
     best, best_score = start, start_score
     evaluations, generations = 1, 0
+    ended_by = "budget"
+    last_generation_s = 0.0
     history = [start_score.cost]
     if on_progress is not None:
         on_progress(evaluations, budget, best_score.cost)
@@ -845,21 +873,31 @@ def tune(
             history=tuple(history),
             seed=seed,
             knobs=knobs,
+            ended_by=ended_by,
         )
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         es = cma.CMAEvolutionStrategy(encode(tuned, knobs).tolist(), sigma0, options)
-        while evaluations < budget and not es.stop():
+        while evaluations < cap:
+            if es.stop():
+                ended_by = "converged"
+                break
+            began = clock()
+            if began + last_generation_s >= deadline:  # it would end after the deadline
+                ended_by = "time"
+                break
             xs = es.ask()
-            remaining = budget - evaluations
+            remaining = cap - evaluations
             whole = len(xs) <= remaining
             xs = xs if whole else xs[:remaining]
             candidates = [candidate(x) for x in xs]
             try:
                 scores = evaluate_many(candidates)
             except Stopped as exc:  # this batch is lost; the generations before it are not
+                ended_by = "stop"
                 raise TuningStopped(exc.reason, found()) from None
+            last_generation_s = clock() - began
             evaluations += len(candidates)
             for cand, score in zip(candidates, scores, strict=True):
                 if score.cost < best_score.cost:
