@@ -14,6 +14,7 @@ from motionbase.errors import ConfigError, SourceError
 from motionbase.io.base import Source
 from motionbase.io.jsbsim_source import JsbsimSource, available_scripts
 from motionbase.pipeline import Pipeline, run
+from motionbase.stopping import StopRequest
 
 G = 9.80665
 
@@ -139,6 +140,19 @@ def test_says_when_its_duration_cut_the_script_short(tmp_path: Path) -> None:
     with JsbsimSource("c1723", duration_s=0.5) as source:
         summary = run(Pipeline(load_config(rate_hz=source.rate_hz)), source)
     assert summary.stopped_by == "duration"
+    # a stop in full motion, 0.5 s before the duration runs out: the way back to park (2 s)
+    # outlasts the flight, whose end then comes; the stop is what stopped the run
+    stop = StopRequest()
+
+    def ask_at_2_5_s(out) -> None:
+        if out.t >= 2.5 and out.phase == "running":
+            stop.set("test")
+
+    with JsbsimSource("c1723", duration_s=3.0) as source:
+        pipeline = Pipeline(load_config(rate_hz=source.rate_hz))
+        summary = run(pipeline, source, stop=stop, progress=ask_at_2_5_s)
+    assert source.ended == "duration"  # (the flight did end meanwhile)
+    assert summary.stopped_by == "test" and pipeline.parked
 
 
 def test_from_aircraft_applies_initial_conditions(capfd) -> None:

@@ -941,7 +941,8 @@ def run(
             try:
                 state = next(iterator)
             except StopIteration:
-                summary.stopped_by = getattr(source, "ended", "") or summary.stopped_by
+                if not (stopping_requested or stop_raised()):  # a stop or failure says more
+                    summary.stopped_by = getattr(source, "ended", "") or summary.stopped_by
                 break
             except Exception as exc:  # noqa: BLE001 - the source failed: park on held samples
                 fail(exc, "source")
