@@ -796,12 +796,17 @@ def test_a_signal_while_tune_starts_ends_it_cleanly(after_s, tmp_path):
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
-@pytest.mark.parametrize("after_s", [1.5, None])
-def test_a_sigterm_to_the_whole_process_group_ends_tune_cleanly(after_s, tmp_path):
-    """``timeout`` and service managers signal the whole process group, the workers too,
-    while they start or while they evaluate (None: once both are running): one line, exit
-    128 + 15, nothing written, no worker left. (A worker killed while it started used to
-    surface as a BrokenProcessPool traceback.)"""
+@pytest.mark.parametrize(
+    ("after_s", "sig"),
+    [(1.5, signal.SIGTERM), (None, signal.SIGTERM), (None, signal.SIGHUP), (None, signal.SIGQUIT)],
+)
+def test_a_sigterm_to_the_whole_process_group_ends_tune_cleanly(after_s, sig, tmp_path):
+    """``timeout`` and service managers signal the whole process group (a closed terminal
+    sends SIGHUP to it), the workers too, while they start or while they evaluate (None:
+    once both are running): one line, exit 128 + the signal, nothing written, no worker
+    left. (A worker killed while it started used to surface as a BrokenProcessPool
+    traceback; a SIGHUP or SIGQUIT killed multiprocessing's resource tracker, whose
+    tracebacks followed the line.)"""
     workers: list[int] = []
 
     def ready(proc) -> None:
@@ -814,9 +819,9 @@ def test_a_sigterm_to_the_whole_process_group_ends_tune_cleanly(after_s, tmp_pat
             workers[:] = _workers_of(proc.pid)
         assert len(workers) == 2, "the pool did not start"
 
-    status, err = signalled(_tune_args(tmp_path), ready, signal.SIGTERM, group=True)
-    assert err.strip() == "motionbase tune: interrupted (SIGTERM)", err[-2000:]
-    assert status == 128 + signal.SIGTERM
+    status, err = signalled(_tune_args(tmp_path), ready, sig, group=True)
+    assert err.strip() == f"motionbase tune: interrupted ({sig.name})", err[-2000:]
+    assert status == 128 + sig
     assert not (tmp_path / "o.toml").exists()
     deadline = time.monotonic() + 15
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:

@@ -128,6 +128,7 @@ def open_evaluator(
 
         yield evaluate_here
         return
+    _start_resource_tracker()
     pool = ProcessPoolExecutor(
         max_workers=n,
         mp_context=get_context("spawn"),
@@ -177,6 +178,24 @@ def _start_workers(pool: ProcessPoolExecutor, n: int) -> None:
     before = signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS)) if block else None
     try:
         list(pool.map(_worker_pid, range(n)))
+    finally:
+        if before is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (the pool's locks register with it) with
+    every stop signal blocked, which it inherits: it ignores SIGINT and SIGTERM itself, but
+    a SIGHUP or SIGQUIT sent to the whole group (a closed terminal) would kill it, and the
+    pool would then print its tracebacks while it shuts down."""
+    from multiprocessing import resource_tracker
+
+    block = threading.current_thread() is threading.main_thread() and hasattr(
+        signal, "pthread_sigmask"
+    )
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS)) if block else None
+    try:
+        resource_tracker.ensure_running()
     finally:
         if before is not None:
             signal.pthread_sigmask(signal.SIG_SETMASK, before)
