@@ -334,5 +334,5 @@ def test_out_that_is_a_file_is_one_line(tmp_path, capsys):
     result = omct.run_omct(config, frequencies=[5.0], tests=["yaw"])
     from motionbase.errors import SinkError
 
-    with pytest.raises(SinkError, match="cannot create"):
+    with pytest.raises(SinkError, match="is not a folder"):
         write_omct(result, blocker)

@@ -1292,15 +1292,11 @@ def _writable_folder(folder: Path, given: Path) -> None:
     can be made one (the writer creates it, as ``fly --out`` does): a run that takes
     minutes must not fail at its end for want of a folder, and a mistake found later must
     not leave an empty one. ``given``: the ``--out`` value the messages name."""
-    existing = folder
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent  # the nearest part of the path that is there
-    if not existing.is_dir():
-        raise ConfigError(f"--out {given}: {existing} is not a folder (choose another --out path)")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ConfigError(
-            f"--out {given}: the folder {existing} is not writable (choose another --out path)"
-        )
+    from motionbase.io.whole_files import folder_problem
+
+    problem = folder_problem(folder)
+    if problem:
+        raise ConfigError(f"--out {given}: {problem} (choose another --out path)")
 
 
 def tune(

@@ -23,9 +23,7 @@ header saying how it was made.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +33,7 @@ import numpy as np
 import tomli_w
 
 from motionbase.errors import ConfigError
+from motionbase.io.whole_files import whole_file
 from motionbase.state import AircraftState
 from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams
 
@@ -283,17 +282,13 @@ def write_washout(path: str | Path, params: WashoutParams, header: list[str]) ->
         lambda m: "[" + ", ".join(x.strip().rstrip(",") for x in m.group(1).splitlines()) + "]",
         tomli_w.dumps(params.to_dict()),
     )
-    # whole or not at all: a second Ctrl-C while a stopped tuning writes leaves no half file
-    part = p.with_name(f".{p.name}.{os.getpid()}.part")
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
-        part.write_text(comments + body, encoding="utf-8")
-        os.replace(part, p)
+        # whole or not at all: a second Ctrl-C while a stopped tuning writes leaves no half file
+        with whole_file(p) as part:
+            part.write_text(comments + body, encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
-    finally:
-        with contextlib.suppress(OSError):  # (gone once renamed; never there if mkdir failed)
-            part.unlink()
 
 
 def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from motionbase.errors import SinkError
+from motionbase.io.whole_files import folder_problem, whole_folder
 
 if TYPE_CHECKING:  # the result carries its numbers: no import of the pipeline here
     from motionbase.omct import OmctResult, TestResult
@@ -66,7 +67,9 @@ def _file_stem(name: str) -> str:
 
 
 def write_omct(result: OmctResult, out: str | os.PathLike[str]) -> OmctFiles:
-    """Write the test's JSON file, tables and Bode plots into the folder ``out`` (created).
+    """Write the test's JSON file, tables and Bode plots into the folder ``out`` (created),
+    all of them or none (:func:`~motionbase.io.whole_files.whole_folder`: a stop while the
+    plots are drawn leaves the folder as it was).
 
     Raises
     ------
@@ -74,32 +77,23 @@ def write_omct(result: OmctResult, out: str | os.PathLike[str]) -> OmctFiles:
         The folder or a file cannot be written.
     """
     out_dir = Path(out)
+    problem = folder_problem(out_dir)
+    if problem:
+        raise SinkError(f"{out_dir}: cannot write the test's files: {problem}")
+    names = ["omct.json", "table.md", "table.txt"]
+    names += [f"{_file_stem(r.test.name)}.png" for r in result.results]
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        with whole_folder(out_dir) as staging:
+            (staging / "omct.json").write_text(
+                json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8"
+            )
+            (staging / "table.md").write_text(result.markdown(), encoding="utf-8")
+            (staging / "table.txt").write_text(result.table_text() + "\n", encoding="utf-8")
+            for r, name in zip(result.results, names[3:], strict=True):
+                bode_figure(result, r).savefig(staging / name)
     except OSError as exc:
-        raise SinkError(f"{out_dir}: cannot create the output folder: {exc.strerror}") from None
-    files = [
-        _write_text(out_dir / "omct.json", json.dumps(result.to_dict(), indent=1) + "\n"),
-        _write_text(out_dir / "table.md", result.markdown()),
-        _write_text(out_dir / "table.txt", result.table_text() + "\n"),
-    ]
-    for r in result.results:
-        fig = bode_figure(result, r)
-        path = out_dir / f"{_file_stem(r.test.name)}.png"
-        try:
-            fig.savefig(path)
-        except OSError as exc:
-            raise SinkError(f"{path}: cannot write: {exc.strerror}") from None
-        files.append(path)
-    return OmctFiles(result, out_dir, tuple(files))
-
-
-def _write_text(path: Path, text: str) -> Path:
-    try:
-        path.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise SinkError(f"{path}: cannot write: {exc.strerror}") from None
-    return path
+        raise SinkError(f"{out_dir}: cannot write the test's files: {exc.strerror}") from None
+    return OmctFiles(result, out_dir, tuple(out_dir / name for name in names))
 
 
 def _wrapped_line(z: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from motionbase.errors import SinkError
+from motionbase.io.whole_files import folder_problem, whole_folder
 from motionbase.report import AXES6, PHASES, Report, build_report
 
 __all__ = ["ReportFiles", "default_report_dir", "plot_report", "report_figures", "write_report"]
@@ -105,17 +106,16 @@ def write_report(
     metadata = read_metadata(src)
     report = build_report(messages, metadata, name=src.name)
     out_dir = Path(out) if out is not None else default_report_dir(src)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
+    problem = folder_problem(out_dir)
+    if problem:
+        raise SinkError(f"{out_dir}: cannot write the report: {problem}")
+    try:  # all of the report or none of it (a stop while the plots are drawn)
+        with whole_folder(out_dir) as staging:
+            plots = [out_dir / p.name for p in plot_report(report, staging)]
+            (staging / "summary.txt").write_text(report.text, encoding="utf-8")
     except OSError as exc:
-        raise SinkError(f"{out_dir}: cannot create the report folder: {exc.strerror}") from None
-    plots = plot_report(report, out_dir)
-    summary = out_dir / "summary.txt"
-    try:
-        summary.write_text(report.text, encoding="utf-8")
-    except OSError as exc:
-        raise SinkError(f"{summary}: cannot write: {exc.strerror}") from None
-    return ReportFiles(report, out_dir, tuple(plots), summary)
+        raise SinkError(f"{out_dir}: cannot write the report: {exc.strerror}") from None
+    return ReportFiles(report, out_dir, tuple(plots), out_dir / "summary.txt")
 
 
 # --------------------------------------------------------------------------- drawing

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from motionbase.errors import ConfigError, SinkError
+from motionbase.io.whole_files import folder_problem, whole_file
 from motionbase.platform.rus6_workspace import AxisReach, WorkspaceSlices
 
 __all__ = [
@@ -44,15 +45,17 @@ def plot_format(path: str | Path) -> str:
 
 
 def save_figure(fig: Any, path: str | Path) -> Path:
-    """Write a figure in the format its extension names, into its folder (created, as
-    ``fly --out`` creates its log's); a failing write is a SinkError."""
+    """Write a figure in the format its extension names, whole or not at all, into its
+    folder (created, as ``fly --out`` creates its log's); a failing write is a SinkError."""
     p = Path(path)
     fmt = plot_format(p)
-    if p.parent.exists() and not p.parent.is_dir():
-        raise SinkError(f"{p}: cannot write the plot: {p.parent} is not a folder")
+    problem = folder_problem(p.parent)
+    if problem:
+        raise SinkError(f"{p}: cannot write the plot: {problem}")
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(p, format=fmt)
+        with whole_file(p) as part:  # a stop while it writes leaves no cut-off plot
+            fig.savefig(part, format=fmt)
     except OSError as exc:
         raise SinkError(f"{p}: cannot write the plot: {exc.strerror or exc}") from None
     return p
