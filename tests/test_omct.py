@@ -298,6 +298,7 @@ def test_params_is_the_washout_file_option():
     "argv, words",
     [
         (["omct"], "--out"),
+        (["omct", "--out", ""], "--out: empty"),  # an unset $DIR: not the current folder
         (["omct", "--out", "D", "--washout", "nonexistent"], "nonexistent"),
         (["omct", "--out", "D", "--rate", "15"], "too low"),
         (["omct", "--out", "D", "--scale", "-1"], "--scale"),

@@ -136,7 +136,8 @@ class JobResult:
         h = s.health
         speedup = s.sim_time_s / s.wall_time_s if s.wall_time_s > 0 else float("inf")
         lines = [
-            f"{self.title}: {s.samples} samples, {s.sim_time_s:.1f} s simulated in "
+            f"{self.title}: {s.samples} sample{'s' * (s.samples != 1)}, {s.sim_time_s:.1f} s "
+            "simulated in "
             f"{s.wall_time_s:.1f} s wall ({speedup:.1f}x real time), stopped by {s.stopped_by}",
             f"clamped {100 * s.clamped_share:.1f} % of samples; "
             f"rejected inputs {h.rejected_inputs}; "
@@ -1170,6 +1171,8 @@ def omct(
     from motionbase.io.omct_plots import write_omct
     from motionbase.omct import Amplitudes, run_omct
 
+    if not str(out).strip():
+        raise ConfigError("--out: empty; give the folder for the test's files (--out omct_ceart)")
     config = load_config(
         planar=planar, platform=platform, washout=washout, cueing=cueing, rate_hz=rate_hz
     )
@@ -1490,7 +1493,13 @@ def tune(
     )
     if stopped_by:
         of = f" of {budget}" if budget is not None else ""
-        interrupted = f"interrupted ({stopped_by}) after {result.evaluations}{of} evaluations"
+        n = result.evaluations
+        interrupted = (
+            f"interrupted ({stopped_by}) while the held-out manoeuvres were scored, after all "
+            f"{n} evaluations"
+            if budget is not None and n >= budget
+            else f"interrupted ({stopped_by}) after {n}{of} evaluations"
+        )
         description += f"; {interrupted}"
         header[:0] = [
             f"I{interrupted[1:]}: the best set so far"
