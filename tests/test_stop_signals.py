@@ -52,6 +52,24 @@ def test_ctrl_c_during_a_measurement_is_one_line_and_exit_130(after_s, tmp_path)
     assert status == 130
 
 
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+@pytest.mark.parametrize("after_s", [1.0, 4.0])
+def test_a_sigterm_ends_a_measurement_as_ctrl_c_does_and_leaves_no_part_file(
+    sig, after_s, tmp_path
+):
+    """SIGTERM or SIGHUP (a closed terminal) to ``omct`` while it computes or draws: one
+    line naming the signal, exit 128 + its number, and no folder or temporary file left
+    (its default action used to kill it without a word, a staging folder left behind)."""
+    args = ["omct", "--rate", "30", "--out", str(tmp_path / "o")]
+    status, err = signalled(args, lambda _: time.sleep(after_s), sig)
+    if status == 0:  # it finished first (a fast machine): the whole folder is there
+        assert len(list((tmp_path / "o").iterdir())) == 13
+        return
+    assert err.strip() == f"motionbase omct: interrupted ({sig.name})"
+    assert status == 128 + sig
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(tmp_path):
     """A Ctrl-C that lands while the command still imports numpy (a few tenths of a second
     after it starts; before, a traceback): made to land there every time by raising the

@@ -21,15 +21,24 @@ def _interrupted_at_start(argv: Sequence[str] | None = None) -> int:
 
 try:  # numpy and the rest take a few tenths of a second to import
     import argparse
+    import functools
     import logging
     import os
     import re
+    import signal
     from collections.abc import Callable, Sequence
 
     from motionbase import __version__
     from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
     from motionbase.errors import ConfigError, MotionbaseError
-    from motionbase.stopping import Stopped, insistent_ctrl_c, quiet_finalizers, stop_on_signals
+    from motionbase.stopping import (
+        Stopped,
+        insistent_ctrl_c,
+        interrupting_signal,
+        other_signals_as_ctrl_c,
+        quiet_finalizers,
+        stop_on_signals,
+    )
 except KeyboardInterrupt:
     sys.exit(_interrupted_at_start())
 
@@ -104,9 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"motionbase {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        quiet_finalizers()
-        print(f"motionbase {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted(args.command)
     except Stopped as exc:  # a job that moves nothing, stopped by a signal (tune)
         by = "" if exc.reason == "SIGINT" else f" ({exc.reason})"
         kept = f"; {exc.kept}" if exc.kept else ""
@@ -115,9 +122,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if not _raised_by_ctrl_c(exc):
             raise  # a bug: its traceback is what a bug report needs
-        quiet_finalizers()
-        print(f"motionbase {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted(args.command)
+
+
+def _interrupted(command: str) -> int:
+    """One line for a command a Ctrl-C ended (or a SIGTERM turned into one); its status."""
+    quiet_finalizers()
+    sig = interrupting_signal()
+    by = "" if sig == signal.SIGINT else f" ({sig.name})"
+    print(f"motionbase {command}: interrupted{by}", file=sys.stderr)
+    return 128 + int(sig)
+
+
+def _moves_nothing(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """A command that moves nothing (a measurement, a plot): SIGTERM, SIGHUP and SIGQUIT
+    end it as Ctrl-C does (:func:`~motionbase.stopping.other_signals_as_ctrl_c`)."""
+
+    @functools.wraps(run)
+    def wrapped(args: argparse.Namespace) -> int:
+        with other_signals_as_ctrl_c():
+            return run(args)
+
+    return wrapped
 
 
 def _raised_by_ctrl_c(exc: BaseException) -> bool:
@@ -329,6 +355,7 @@ def _args_workspace(p: argparse.ArgumentParser) -> None:
     "print the platform's single-axis reach and plot its workspace slices",
     _args_workspace,
 )
+@_moves_nothing
 def run_workspace(args: argparse.Namespace) -> int:
     if args.planar:
         from motionbase.io.planar_plots import planar_workspace_report
@@ -475,6 +502,7 @@ def _args_report(p: argparse.ArgumentParser) -> None:
     "plot a recording's cueing (aircraft vs platform, perceived motion, actuators) with metrics",
     _args_report,
 )
+@_moves_nothing
 def run_report(args: argparse.Namespace) -> int:
     from motionbase.io.report_plots import write_report
 
@@ -515,6 +543,7 @@ def _args_omct(p: argparse.ArgumentParser) -> None:
     "against the classical washout's linear response (table, JSON, Bode plots)",
     _args_omct,
 )
+@_moves_nothing
 def run_omct(args: argparse.Namespace) -> int:
     from motionbase import app
 

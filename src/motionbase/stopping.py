@@ -32,6 +32,8 @@ __all__ = [
     "Stopped",
     "insistent_ctrl_c",
     "install_signal_stop",
+    "interrupting_signal",
+    "other_signals_as_ctrl_c",
     "raise_if_stopped",
     "stop_on_signals",
 ]
@@ -250,6 +252,49 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
             _forget_escaped_ctrl_c()
         signal.signal(signal.SIGINT, signal.default_int_handler)
         sys.unraisablehook = previous_hook
+
+
+#: The signal an :func:`other_signals_as_ctrl_c` block turned into a Ctrl-C, if one did.
+_INTERRUPTED_BY: list[int] = []
+
+
+def interrupting_signal() -> signal.Signals:
+    """The signal a ``KeyboardInterrupt`` came from: SIGINT, unless a block of
+    :func:`other_signals_as_ctrl_c` turned another stop signal into it."""
+    return signal.Signals(_INTERRUPTED_BY[0] if _INTERRUPTED_BY else signal.SIGINT)
+
+
+@contextmanager
+def other_signals_as_ctrl_c() -> Iterator[None]:
+    """SIGTERM, SIGHUP and SIGQUIT end the block as a Ctrl-C does, for commands that move
+    nothing (``omct``, ``report``, ``workspace``): their clean-up runs (no temporary file
+    left by a writer that was cut short) and the command line says "interrupted (SIGTERM)"
+    and exits with 128 + the signal's number (:func:`interrupting_signal`), where the
+    signal's default action would kill the process without a word. Signals whose handler
+    is not the default (a host program's) are left alone; a no-op outside the main thread.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    others = [s for s in STOP_SIGNALS if s != signal.SIGINT]
+    old = {s: signal.getsignal(s) for s in others}
+
+    def handler(signum: int, frame: Any) -> None:
+        if not _INTERRUPTED_BY:
+            _INTERRUPTED_BY.append(signum)
+        ctrl_c = signal.getsignal(signal.SIGINT)  # insistent_ctrl_c's, or Python's own
+        if callable(ctrl_c):
+            ctrl_c(signal.SIGINT, frame)
+        raise KeyboardInterrupt
+
+    mine = [s for s in others if old[s] is signal.SIG_DFL]
+    for sig in mine:
+        signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig in mine:
+            signal.signal(sig, old[sig])
 
 
 def quiet_finalizers() -> None:
