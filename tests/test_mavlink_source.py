@@ -742,6 +742,19 @@ def test_log_duration_and_tick_clock(flight_data: Path) -> None:
     np.testing.assert_allclose(ts, np.arange(200) / 40.0)
 
 
+def test_a_log_cut_to_its_first_bytes_is_a_clear_error(flight_data: Path, tmp_path: Path) -> None:
+    """The first 100 bytes of a real .tlog (a copy cut short): pymavlink fails inside its
+    parser; the message says the file is not a whole log, not "check the connection string"."""
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes((flight_data / TLOG).read_bytes()[:100])
+    with pytest.raises(SourceError) as err:
+        MavlinkSource(str(cut)).open()
+    message = str(err.value)
+    assert message.startswith(f"mavlink log {cut}: cannot read it as a MAVLink log (")
+    assert message.endswith("is it a whole telemetry .tlog or DataFlash .bin?")
+    assert "connection string" not in message and "\n" not in message
+
+
 # --------------------------------------------------------------------------- misuse
 
 

@@ -629,6 +629,11 @@ class MavlinkSource(SampleHoldSource):
                 "vehicle or SITL first, or check the address)"
             ) from None
         except Exception as exc:  # pymavlink raises many types (OSError, SerialException, ...)
+            if self.is_log:  # the file is there (checked above): its content is not a log
+                raise SourceError(
+                    f"mavlink log {self.url}: cannot read it as a MAVLink log ({exc}); is it "
+                    "a whole telemetry .tlog or DataFlash .bin?"
+                ) from None
             raise SourceError(
                 f"mavlink {self.url}: cannot open ({exc}); check the connection string "
                 "(udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device or a log file)"
