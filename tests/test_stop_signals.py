@@ -52,8 +52,9 @@ def test_ctrl_c_during_a_measurement_is_one_line_and_exit_130(after_s, tmp_path)
     assert status == 130
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
-@pytest.mark.parametrize("after_s", [1.0, 4.0])
+@pytest.mark.parametrize(
+    ("sig", "after_s"), [(signal.SIGTERM, 1.0), (signal.SIGHUP, 4.0)], ids=["SIGTERM", "SIGHUP"]
+)
 def test_a_sigterm_ends_a_measurement_as_ctrl_c_does_and_leaves_no_part_file(
     sig, after_s, tmp_path
 ):
