@@ -276,6 +276,7 @@ def other_signals_as_ctrl_c() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _INTERRUPTED_BY.clear()  # (kept after the block: the command line reads it then)
     others = [s for s in STOP_SIGNALS if s != signal.SIGINT]
     old = {s: signal.getsignal(s) for s in others}
 
