@@ -28,11 +28,11 @@ the inverse kinematics about the current plan, weights each axis's mean square e
 ``1 / rmse`` (or ``mu / rmse``) of the current plan (which bounds the sum of RMS errors
 from above and touches it there), and solves that quadratic programme within a trust
 region around the plan; a step is kept when the measured objective falls and every pose
-is reachable (the region then widens), else the region is halved. The matrices are banded and sparse: each
-model's difference equation (its bilinear design, as ``perceive`` filters) and each
-difference operator are equality constraints, every coefficient near 1. Clarabel (an
-interior-point solver) solves them: the cost is nearly flat along slow drifts of the
-pose, where OSQP's first-order iterations did not converge.
+is reachable (the region then widens), else the region is halved. The matrices are banded
+and sparse: each model's difference equation (its bilinear design, as ``perceive``
+filters) and each difference operator are equality constraints, every coefficient near
+1. Clarabel (an interior-point solver) solves them: the cost is nearly flat along slow
+drifts of the pose, where OSQP's first-order iterations did not converge.
 
 The start: the models take a motion's first sample as what came before it, forever; left
 free, a plan starts with a jolt of 100 m/s^2 that sets the otolith's history to its
