@@ -149,6 +149,22 @@ def test_plans_keep_the_limits_and_the_start_and_never_lose(ceart) -> None:
     assert plan.objective < before[:3].sum() + 20.0 * before[3:].sum()
 
 
+def test_a_start_at_the_edge_of_the_reach_is_planned_from(ceart) -> None:
+    """A washout that stood pitched up to 99.5 % of the reach, a crank at the end of its
+    range (inside the planner's margin): the plan still starts there, and improves on it."""
+    robot, reach, rate, acc = ceart
+    n = 150
+    start = np.zeros((n, 6))
+    start[:, 4] = 0.995 * reach[1, 4]
+    planner_ = make_planner(ceart, level(n), np.zeros((n, 3)), start)
+    plan = planner_.plan(20.0, steps=3)
+    assert plan.kept >= 1  # (level flight: standing pitched up is a false cue to undo)
+    assert np.all(robot.reachable(plan.pose))
+    before = planner_.measured(start)
+    assert plan.objective < before[:3].sum() + 20.0 * before[3:].sum()
+    assert plan.pose[-1, 4] < start[-1, 4]
+
+
 def test_a_step_equals_osqps_solution_of_the_same_problem(ceart) -> None:
     """An independent solution of one convex step: the same linearised problem written over
     the poses alone, each model as the matrix of the scoring's own filter (perceive applied

@@ -83,7 +83,8 @@ SMOOTHING = 1e-3
 HELD = 3
 #: Smallest RMS error a reweighting divides by: force (m/s^2), rates (rad/s).
 RMSE_FLOOR = np.array([1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
-#: Share of each actuator's range kept free at both ends (the linearisation's margin).
+#: Share of each actuator's range kept free at both ends (the linearisation's margin), except
+#: where the start motion itself went into it.
 ACTUATOR_MARGIN = 0.02
 
 
@@ -242,8 +243,11 @@ class ForesightPlanner:
         self._felt = np.column_stack([felt_f, perceived_angular_velocity(w, dt)])
         lim = robot.limits
         span = np.asarray(lim.upper) - np.asarray(lim.lower)
-        self._q_lo = np.asarray(lim.lower) + ACTUATOR_MARGIN * span
-        self._q_hi = np.asarray(lim.upper) - ACTUATOR_MARGIN * span
+        # the actuators' bounds at each sample: the limits less the margin, widened to the
+        # start's own positions where it went into the margin (it must stay feasible)
+        q_start = np.asarray(robot.inverse(self.start), dtype=float)
+        self._q_lo = np.minimum(np.asarray(lim.lower) + ACTUATOR_MARGIN * span, q_start)
+        self._q_hi = np.maximum(np.asarray(lim.upper) - ACTUATOR_MARGIN * span, q_start)
         self._settings = clarabel.DefaultSettings()
         self._settings.verbose = False
         for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
@@ -362,7 +366,7 @@ class ForesightPlanner:
             lin = {("pose", j): sp.diags(J[:, k, j]) for j in range(6)}
             offset = q0[:, k] - np.einsum("nj,nj->n", J[:, k, :], pose)
             rows += [row(lin), row({b: -m for b, m in lin.items()})]
-            rhs += [self._q_hi[k] - offset, offset - self._q_lo[k]]
+            rhs += [self._q_hi[:, k] - offset, offset - self._q_lo[:, k]]
         A = sp.vstack(rows, format="csc")
         b = np.concatenate(rhs)
         cones = [clarabel.ZeroConeT(equations), clarabel.NonnegativeConeT(len(b) - equations)]
