@@ -32,7 +32,6 @@ import numpy as np
 
 from motionbase import stages, tuning
 from motionbase.io.manoeuvres import DEFAULT_MANOEUVRES, load_spec
-from motionbase.physics import STANDARD_GRAVITY
 from motionbase.pipeline import Pipeline
 from motionbase.platform.robot import load_geometry, robot_spec
 from motionbase.report import robot_reach
@@ -48,16 +47,6 @@ def pose_limits(robot) -> tuple[np.ndarray, np.ndarray]:
     rate = np.concatenate([lim["velocity_m_s"], np.radians(lim["angular_velocity_deg_s"])])
     acc = np.concatenate([lim["acceleration_m_s2"], np.radians(lim["angular_acceleration_deg_s2"])])
     return rate, acc
-
-
-def scored_window(m, run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The samples the tuner scores (running phase; rejected samples held): sel, f, w."""
-    sel = np.flatnonzero(run.running)
-    n = len(m)
-    last = np.maximum.accumulate(np.where(run.accepted, np.arange(n), -1))
-    f = np.vstack([[0.0, 0.0, -STANDARD_GRAVITY], m.specific_force])[last + 1]
-    w = np.vstack([[0.0, 0.0, 0.0], m.angular_velocity])[last + 1]
-    return sel, f[sel], w[sel]
 
 
 class Playback(Cueing):
@@ -116,7 +105,7 @@ def plan_manoeuvre(platform: str, spec: str, mu: float, steps: int) -> dict:
     )
     running = batch.phases == stages.RUNNING
     run = tuning.ChainRun(batch.poses, batch.clamped, batch.limited, running, batch.accepted)
-    sel, f, w = scored_window(m, run)
+    sel, f, w = tuning.scored_samples(m, run, tuned.gravity)
     planner_ = ForesightPlanner(f, w, m.dt, robot, reach, rate, acc, run.pose[sel])
     plan = planner_.plan(mu, steps=steps)
     pose = np.zeros((len(m), 6))

@@ -476,6 +476,32 @@ class ManoeuvreScore:
         )
 
 
+def scored_samples(
+    manoeuvre: Manoeuvre, run: ChainRun, g: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples :func:`score_motion` scores: the running ticks' indices (the soft start
+    left out), and the aircraft's specific force and body rates there, each sample the
+    pipeline rejected replaced by the last one it accepted (level flight before any), as
+    the pipeline held them: ``(sel, f, w)``, f and w of shape (len(sel), 3).
+
+    Raises
+    ------
+    ValueError
+        Fewer than three running ticks (a manoeuvre shorter than the soft start).
+    """
+    sel = np.flatnonzero(run.running)
+    if sel.size < 3:
+        raise ValueError(
+            f"manoeuvre {manoeuvre.name}: fewer than 3 ticks after the soft start; "
+            "give a longer window"
+        )
+    n = len(manoeuvre)
+    last = np.maximum.accumulate(np.where(run.accepted, np.arange(n), -1))
+    f = np.vstack([[0.0, 0.0, -g], manoeuvre.specific_force])[last + 1]
+    w = np.vstack([[0.0, 0.0, 0.0], manoeuvre.angular_velocity])[last + 1]
+    return sel, f[sel], w[sel]
+
+
 def score_motion(
     manoeuvre: Manoeuvre,
     run: ChainRun,
@@ -508,19 +534,8 @@ def score_motion(
     ValueError
         Fewer than three running ticks (a manoeuvre shorter than the soft start).
     """
-    sel = np.flatnonzero(run.running)
-    if sel.size < 3:
-        raise ValueError(
-            f"manoeuvre {manoeuvre.name}: fewer than 3 ticks after the soft start; "
-            "give a longer window"
-        )
-    n = len(manoeuvre)
-    last = np.maximum.accumulate(np.where(run.accepted, np.arange(n), -1))
-    f = np.vstack([[0.0, 0.0, -g], manoeuvre.specific_force])[last + 1]
-    w = np.vstack([[0.0, 0.0, 0.0], manoeuvre.angular_velocity])[last + 1]
-    m = cueing_metrics(
-        manoeuvre.t[sel], f[sel], w[sel], run.pose[sel], manoeuvre.dt, reach=reach, g=g
-    )
+    sel, f, w = scored_samples(manoeuvre, run, g)
+    m = cueing_metrics(manoeuvre.t[sel], f, w, run.pose[sel], manoeuvre.dt, reach=reach, g=g)
     cranks = np.zeros(6)
     if crank_range is not None and run.angles is not None:
         d = run.angles[sel] - crank_range[0]
