@@ -30,15 +30,22 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from motionbase import stages, tuning
+from motionbase import app, stages, tuning
 from motionbase.io.manoeuvres import DEFAULT_MANOEUVRES, load_spec
 from motionbase.pipeline import Pipeline
 from motionbase.platform.robot import load_geometry, robot_spec
 from motionbase.report import robot_reach
 from motionbase.washout import WashoutParams
-from motionbase.washout.cueing import Cueing
+from motionbase.washout.cueing import Cueing, cueing_spec
 from motionbase.washout.foresight import ForesightPlanner
 from motionbase.washout.mpc_params import MpcParams, limits_from_robot
+
+
+def tuned_washout(robot: str, geometry) -> WashoutParams:
+    """The classical washout the platform flies by default: its tuned preset (``tuned_ceart``,
+    ``tuned_seat``) where it has one (:func:`motionbase.app.tuned_preset`), else ``default``."""
+    preset = app.tuned_preset(cueing_spec("classical"), robot, geometry)
+    return WashoutParams.preset(preset or "default")
 
 
 def pose_limits(robot) -> tuple[np.ndarray, np.ndarray]:
@@ -98,7 +105,7 @@ def plan_manoeuvre(platform: str, spec: str, mu: float, steps: int) -> dict:
     rate, acc = pose_limits(robot)
     m = load_spec(spec)
     problem = tuning.TuningProblem(geometry, (m,), reach, robot=name)
-    tuned = WashoutParams.preset("tuned_ceart" if platform == "ceart" else "default")
+    tuned = tuned_washout(name, geometry)
     # the tuned washout's cue and realised poses: the plan starts where it stood
     batch = Pipeline(problem.config(tuned, m)).run_batch(
         m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh
@@ -146,7 +153,7 @@ def main() -> None:
     manoeuvres = tuple(load_spec(s) for s in specs)
     problem = tuning.TuningProblem(geometry, manoeuvres, reach, robot=name)
     default = WashoutParams.preset("default")
-    tuned = WashoutParams.preset("tuned_ceart") if args.platform == "ceart" else default
+    tuned = tuned_washout(name, geometry)
     sets = {
         "classical default": problem.evaluate(default),
         "classical tuned": problem.evaluate(tuned),
