@@ -165,7 +165,7 @@ class ForesightPlan:
 
 
 class ForesightPlanner:
-    """The best platform motion for one flight known in advance.
+    """A platform motion planned for one flight known in advance (a local optimum).
 
     Parameters
     ----------
