@@ -83,7 +83,7 @@ def test_the_linearisation_is_first_order(ceart) -> None:
     )  # fmt: skip
     planner_ = make_planner(ceart, level(n), np.zeros((n, 3)))
     K, r = planner_._linearise(pose)
-    q0, J = planner_._jacobian(pose)
+    q0, J = planner_.robot.actuator_jacobian(pose)
     # smooth directions (random ones would be all acceleration): 1 cm and 0.02 rad
     phase = np.random.default_rng(6).uniform(0, 2 * np.pi, 6)
     direction = np.sin(1.3 * t[:, None] + phase) * [0.01, 0.01, 0.01, 0.02, 0.02, 0.02]
@@ -184,7 +184,7 @@ def test_a_step_equals_osqps_solution_of_the_same_problem(ceart) -> None:
     planned = planner_._step(pose0, weights, trust)
 
     K, r = planner_._linearise(pose0)
-    q0, J = planner_._jacobian(pose0)
+    q0, J = planner_.robot.actuator_jacobian(pose0)
     D1, D2 = (D.toarray() for D in foresight.difference_operators(n, DT))
     felt = np.column_stack(
         [perceived_specific_force(f, DT, normalized=True), perceived_angular_velocity(w, DT)]

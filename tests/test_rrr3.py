@@ -345,3 +345,24 @@ def test_servo_range_bit_agrees_with_servo_mapping():
     assert (R.status(only_servo) == 0).all()  # the full 0..180 range accepts them
     _, ok_valid = narrow.to_servo_masked(narrow.inverse(poses[st_ == 0]))
     assert ok_valid.all()
+
+
+def test_actuator_jacobian_is_by_the_cue_pose() -> None:
+    """The planar robot's ``actuator_jacobian`` differentiates by the *cue* pose: the
+    kinematics' own Jacobian ``Jq^-1 Jx`` times the planar mapping (surge, sway and yaw
+    scaled; heave, roll and pitch not rendered, so their columns are zero)."""
+    from motionbase.platform.robot import robot_spec
+
+    robot = robot_spec("rrr3").make(GEOM)
+    rng = np.random.default_rng(5)
+    cues = rng.uniform(-1, 1, (30, 6)) * [0.1, 0.1, 0.3, 0.3, 0.3, 0.3]
+    poses = robot.pose_from_cue(cues)
+    keep = R.reachable(poses)
+    assert keep.sum() >= 10
+    q, J = robot.actuator_jacobian(cues[keep])
+    for pose, q_i, J_i in zip(poses[keep], q, J, strict=True):
+        Jx, Jq = R.jacobians(pose)
+        mapping = np.zeros((3, 6))
+        mapping[[0, 1, 2], [0, 1, 5]] = robot.scale
+        np.testing.assert_allclose(J_i, np.linalg.solve(Jq, Jx) @ mapping, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(np.exp(1j * q_i), np.exp(1j * R.inverse(pose)), atol=1e-12)

@@ -494,3 +494,33 @@ def test_constructor_is_as_strict_as_the_file():
         Stewart6Geometry(**kw, max_speed=0.3, max_accel=np.array([True] * 6))
     with pytest.raises(TypeError):
         Stewart6Geometry(**kw)  # the limits have no defaults
+
+
+def test_actuator_jacobian_is_the_legs_velocity_relation() -> None:
+    """``Robot.actuator_jacobian`` (central differences through the inverse kinematics)
+    against the legs' velocity relation written out here: a leg lengthens at
+    ``u_i . (p_dot + omega x R q_i)`` (``u_i`` its unit vector from the base joint), with
+    ``omega = E(roll, pitch, yaw) [roll, pitch, yaw]_dot`` for ``R = Rz Ry Rx``."""
+    from motionbase.platform.robot import robot_spec
+
+    robot = robot_spec("stewart6").make(GEOMETRY)
+    rng = np.random.default_rng(11)
+    poses = rng.uniform(-1, 1, (40, 6)) * [0.06, 0.06, 0.05, 0.12, 0.12, 0.25]
+    poses = np.array([p for p in poses if _within(p, L_MIN + 0.01, L_MAX - 0.01)])
+    assert len(poses) >= 20
+    q, J = robot.actuator_jacobian(poses)
+    assert q.shape == (len(poses), 6) and J.shape == (len(poses), 6, 6)
+    for pose, q_i, J_i in zip(poses, q, J, strict=True):
+        roll, pitch, yaw = pose[3:]
+        arm = LOCAL @ _rot(roll, pitch, yaw).T  # R q_i
+        leg = ORIGIN + pose[:3] + arm - BASE
+        u = leg / np.linalg.norm(leg, axis=1, keepdims=True)
+        cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+        E = np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+        # u . (omega x r) = omega . (r x u)
+        expected = np.hstack([u, np.cross(arm, u) @ E])
+        np.testing.assert_allclose(q_i, _lengths(pose), atol=1e-12)
+        np.testing.assert_allclose(J_i, expected, rtol=1e-6, atol=1e-7)
+    one_q, one_J = robot.actuator_jacobian(poses[0])  # one pose: no batch axis
+    np.testing.assert_array_equal(one_q, q[0])
+    np.testing.assert_array_equal(one_J, J[0])

@@ -119,6 +119,42 @@ class Robot(ABC):
         """The cue pose a robot pose realises; axes the robot lacks keep ``cue``'s."""
         return np.array(pose, dtype=float)
 
+    def actuator_jacobian(
+        self, cue: np.ndarray, step: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Actuator positions of cue poses and their derivatives by the cue pose.
+
+        Central differences of ``inverse(pose_from_cue(cue))``, all poses and probes in one
+        batched call of the inverse kinematics (the MPC linearises its legs with it every
+        tick, the foresight planner a whole flight at once).
+
+        Parameters
+        ----------
+        cue : ndarray, shape (M, 6) or (6,)
+            Cue poses ``[x, y, z, roll, pitch, yaw]``, m and rad.
+        step : float
+            Difference step on each axis, m or rad.
+
+        Returns
+        -------
+        q : ndarray, shape (M, n) or (n,)
+            Actuator positions (rad or m; NaN where the pose has no solution).
+        J : ndarray, shape (M, n, 6) or (n, 6)
+            ``dq / dcue`` (actuator unit per m or rad); NaN where a probe ``step`` away on
+            that axis has no solution.
+        """
+        cue = np.asarray(cue, dtype=float)
+        poses = cue.reshape(-1, 6)
+        steps = np.eye(6) * step
+        probes = np.concatenate([np.zeros((1, 6)), steps, -steps])  # (13, 6)
+        at = (poses[:, None, :] + probes[None]).reshape(-1, 6)
+        q = np.asarray(self.inverse(self.pose_from_cue(at)), dtype=float)
+        q = q.reshape(len(poses), len(probes), -1)
+        J = ((q[:, 1:7] - q[:, 7:13]) / (2.0 * step)).transpose(0, 2, 1)
+        if cue.ndim == 1:
+            return q[0, 0], J[0]
+        return q[:, 0], J
+
     def joint_points(self, pose: np.ndarray) -> Any:
         """The robot drawn at a robot pose ``(m,)``: its chains' points, ``k >= 2`` arrays of
         shape ``(n, 3)`` (``(n, 2)`` for a planar robot), m; the first are the base joints, the

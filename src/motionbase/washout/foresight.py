@@ -300,19 +300,6 @@ class ForesightPlanner:
         r = np.column_stack([base[:, i] - sum(c * x[b] for b, c in K[i].items()) for i in range(6)])
         return K, r
 
-    def _jacobian(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Actuator positions (N, n) and their derivatives by the pose (N, n, 6)."""
-        h = 1e-6
-        q = np.asarray(self.robot.inverse(pose), dtype=float)
-        J = np.empty(q.shape + (6,))
-        for j in range(6):
-            step = np.zeros(6)
-            step[j] = h
-            up = np.asarray(self.robot.inverse(pose + step), dtype=float)
-            down = np.asarray(self.robot.inverse(pose - step), dtype=float)
-            J[:, :, j] = (up - down) / (2 * h)
-        return q, J
-
     # -- one convex programme ------------------------------------------------------------
     def _step(self, pose: np.ndarray, weights: np.ndarray, trust: np.ndarray) -> np.ndarray:
         """Minimise ``sum_i weights_i mean(e_i^2)`` with the models linearised about
@@ -327,7 +314,7 @@ class ForesightPlanner:
 
         n, dt = self.n, self.dt
         K, r = self._linearise(pose)
-        q0, J = self._jacobian(pose)
+        q0, J = self.robot.actuator_jacobian(pose)
         blocks = [(kind, j) for j in range(6) for kind in ("pose", "rate", "acc")]
         blocks += [("error", i) for i in range(6)]
         at = {b: k for k, b in enumerate(blocks)}

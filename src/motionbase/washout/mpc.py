@@ -613,8 +613,9 @@ class _LegConstraint:
 
     At step ``k`` the last plan (applied from the current state) predicts the pose
     ``pbar_k``; there the actuator positions are ``q_k = q(pbar_k)`` and their Jacobian
-    ``J_k = dq/dpose`` (central differences of ``robot.inverse(robot.pose_from_cue(.))``,
-    one batched call for every step). The constraints, on the QP's accelerations ``U``::
+    ``J_k = dq/dpose`` (central differences, one batched call for every step:
+    :meth:`motionbase.platform.robot.Robot.actuator_jacobian`). The constraints, on the
+    QP's accelerations ``U``::
 
         lower + margin <= q_k + J_k (p_k(U) - pbar_k) + b_k J_k v_k(U) <= upper - margin
         |J_k v_k(U)| <= speed_share * max_speed
@@ -677,9 +678,7 @@ class _LegConstraint:
         ca = np.abs(self.Ta).sum(axis=1) > 0
         mask = np.vstack([np.repeat(c, n, axis=0) for c in (cp, cv, ca)])
         self.pattern = sp.csc_matrix(mask.astype(float))
-        self._h = 1e-6
-        steps = np.eye(6) * self._h
-        self._probe = np.concatenate([np.zeros((1, 6)), steps, -steps])  # (13, 6)
+        self._h = 1e-6  # the Jacobian's difference step, m and rad
         self.ax_idx = np.empty(0, dtype=np.int64)
         self._rows = self._cols = np.empty(0, dtype=np.int64)
         self.clamped_points = 0
@@ -703,22 +702,15 @@ class _LegConstraint:
         """Actuator positions (M, n) and Jacobians (M, n, 6) of cue poses (M, 6); a pose
         out of reach is replaced by its clamp."""
         robot = self.robot
-        M = len(poses)
-        cue = (poses[:, None, :] + self._probe[None]).reshape(-1, 6)
-        q = np.asarray(robot.inverse(robot.pose_from_cue(cue)), dtype=float).reshape(M, 13, -1)
-        bad = ~np.isfinite(q).all(axis=(1, 2))
+        q, J = robot.actuator_jacobian(poses, self._h)
+        bad = ~(np.isfinite(q).all(axis=1) & np.isfinite(J).all(axis=(1, 2)))
         if bad.any():
             self.clamped_points += int(bad.sum())
-            rpose = robot.pose_from_cue(poses[bad])
-            cl, _ = robot.clamp(rpose)
+            cl, _ = robot.clamp(robot.pose_from_cue(poses[bad]))
             pairs = zip(cl, poses[bad], strict=True)
             back = np.array([robot.cue_from_pose(c, p) for c, p in pairs])
-            cue = (back[:, None, :] + self._probe[None]).reshape(-1, 6)
-            qb = np.asarray(robot.inverse(robot.pose_from_cue(cue)), dtype=float)
-            q[bad] = qb.reshape(len(back), 13, -1)
-        J = (q[:, 1:7] - q[:, 7:13]) / (2.0 * self._h)  # (M, 6, n): d q / d pose_i
-        J = np.nan_to_num(J).transpose(0, 2, 1)
-        return np.nan_to_num(q[:, 0]), J
+            q[bad], J[bad] = robot.actuator_jacobian(back, self._h)
+        return np.nan_to_num(q), np.nan_to_num(J)
 
     def linearise(self, z: np.ndarray, plan: np.ndarray) -> tuple[np.ndarray, ...]:
         """The leg rows' values (in :attr:`ax_idx` order) and bounds for state ``z`` and

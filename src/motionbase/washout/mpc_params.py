@@ -487,13 +487,7 @@ def limits_from_robot(
     env = single_axis_envelope(robot, tol=1e-6)
     lower = np.array([-a.negative for a in env]) * margin
     upper = np.array([a.positive for a in env]) * margin
-    h = 1e-6
-    neutral = np.asarray(robot.neutral_pose, dtype=float)
-    J = np.empty((robot.n, 6))
-    for i in range(6):
-        dp = np.zeros(6)
-        dp[i] = h
-        J[:, i] = (robot.inverse(neutral + dp) - robot.inverse(neutral - dp)) / (2 * h)
+    _, J = robot.actuator_jacobian(np.zeros(6))  # at the zero cue pose: neutral
     aJ = np.abs(J)
     vel = rate_margin * np.min(np.asarray(robot.limits.max_speed)[:, None] / aJ, axis=0)
     acc = rate_margin * np.min(np.asarray(robot.limits.max_accel)[:, None] / aJ, axis=0)
