@@ -28,10 +28,10 @@ park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the 
 * Approach (far jumps): a parallel robot's actuators must move together, or the mechanism
   leaves its assembly during a large jump. When the limiter cannot reach the target in one
   tick, the target it is given is the point of the straight pose segment from the current
-  pose toward the goal whose actuators lie one planned step away (max norm, by bisection:
-  the inverse kinematics is not linear), the step planned by the limiter's own law on one
-  virtual axis at 80 % of the limits (:func:`path_step`). The limits themselves are
-  enforced by the limiter alone, which every command passes.
+  pose toward the goal whose actuators lie one planned step away, the step planned by the
+  limiter's own law on one virtual axis at 80 % of the limits
+  (:func:`motionbase.stages.approach_stage`). The limits themselves are enforced by the
+  limiter alone, which every command passes.
 * Stopping (a stop or an E-stop, the end of the input): brake to rest where the robot is,
   then go home (the park pose) along the approach above, then parked. Home, not where the
   input left it: the next run starts there. When home is not reached within
@@ -55,10 +55,10 @@ from motionbase.errors import ConfigError
 from motionbase.pipeline import Health, PipelineCore, PipelineOutput, check_rate
 from motionbase.platform.output_map import sweep_profile
 from motionbase.platform.robot import SOLVE_SIGNATURE, Robot
-from motionbase.safety import ActuatorLimits, limit_command
+from motionbase.safety import ActuatorLimits
 from motionbase.stopping import StopRequest
 
-__all__ = ["MODES", "Command", "CommandPipeline", "SweepSource", "path_step"]
+__all__ = ["MODES", "Command", "CommandPipeline", "SweepSource"]
 
 MODES = ("actuators", "poses")
 
@@ -356,73 +356,18 @@ class CommandPipeline(PipelineCore):
     def _approach(
         self, goal: np.ndarray, q: np.ndarray, counted: bool
     ) -> tuple[int, np.ndarray | None]:
-        """Limiter toward ``goal`` (a valid pose), shaped into the coordinated approach
-        when the goal is out of one tick's reach; returns (limiter bits, the pose the
-        command realises or None when it is not the one asked)."""
-        P, S, n = self.params, self.state, self._n
-        s = S[0]
-        goal_q = np.asarray(self.robot.inverse(goal), dtype=float)
-        q_prev = s["q"][:n].copy()
-        v_prev = s["v"][:n].copy()
-        saved = S.copy()
-        flags = stages.limit_stage(P, S, goal_q, q)
-        new_pose: np.ndarray | None = goal
-        wanted = goal_q
-        if flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
-            self.health.unsafe_commands += counted
-            new_pose = None
-        elif flags & stages.RATE_LIMITED:
+        """:func:`motionbase.stages.approach_stage` toward ``goal`` (a valid pose), counted
+        in the health while running; returns (limiter bits, the pose the command realises
+        or None when it is not the one asked)."""
+        P, S = self.params, self.state
+        done = stages.approach_stage(P, S, self.robot, goal, q, self._path_limits)
+        if done.limited:
             self.health.rate_limited += counted
-            dist = float(np.max(np.abs(goal_q - q_prev)))
-            step = path_step(dist, float(np.max(np.abs(v_prev))), self.dt, self._path_limits)
-            if 0.0 < step < dist:  # else braking or overshooting: the limiter's own output
-                found = self._along(self._pose, goal, q_prev, step)
-                if found is not None:
-                    new_pose, wanted = found
-                    S[0] = saved[0]
-                    s["wanted"][:n] = q_prev  # from the current command: no feed-forward
-                    flags = stages.limit_stage(P, S, wanted, q)
-                # else the segment leaves the valid region: the limiter's own approach
-            if flags:
+            if done.flags:  # the limiter changed the approach's command too
                 self.trims += counted
-        if not flags & stages.HELD:
-            s["wanted"][:n] = goal_q  # the goal's own speed is fed forward next tick
-        if not np.array_equal(q, wanted):
-            new_pose = None
-        return flags, new_pose
-
-    def _valid(self, pose: np.ndarray) -> np.ndarray | None:
-        """Actuator positions of a pose, or None when it is not reachable."""
-        if not bool(self.robot.reachable(pose)):
-            return None
-        q = np.asarray(self.robot.inverse(pose), dtype=float)
-        return q if np.isfinite(q).all() else None
-
-    def _along(
-        self, pose: np.ndarray, goal: np.ndarray, q: np.ndarray, step: float, n_iter: int = 16
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The point of the pose segment ``pose -> goal`` whose actuators lie ``step`` (max
-        norm) from ``q``, by bisection on the fraction; ``(pose, actuators)`` or None."""
-        lo, hi = 0.0, 1.0
-        best = None
-        for _ in range(n_iter):
-            f = 0.5 * (lo + hi)
-            cand = pose + f * (goal - pose)
-            qc = self._valid(cand)
-            if qc is not None and float(np.max(np.abs(qc - q))) <= step:
-                lo, best = f, (cand, qc)
-            else:
-                hi = f
-        return best
-
-
-def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) -> float:
-    """Progress allowed this tick toward a fixed target ``distance`` away on one virtual
-    axis moving at ``speed`` (the limiter's own law, :func:`motionbase.safety.limit_command`,
-    with ``limits`` of one axis): the approach stage's plan, not a limit."""
-    d = np.array([distance])
-    s, _, _ = limit_command(np.zeros(1), np.array([speed]), d, d, dt, limits)
-    return float(s[0])
+        elif done.flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
+            self.health.unsafe_commands += counted
+        return done.flags, done.pose
 
 
 # --------------------------------------------------------------------------- the sweep

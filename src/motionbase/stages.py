@@ -5,6 +5,10 @@ The tick (:meth:`motionbase.pipeline.Pipeline.step`) is::
     input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve_kernel -> limit_stage)
                 -> cueing.track (when the clamp acted while running)
 
+Commands that are robot poses (teleoperation, :mod:`motionbase.commanding`) go through
+:func:`approach_stage` (Python: it calls the robot's inverse kinematics) or
+:func:`brake_stage`, each ending in :func:`limit_stage`.
+
 The cueing and the robot are plug-ins (:mod:`motionbase.washout.cueing`,
 :mod:`motionbase.platform.robot`); everything else is here. Every function works like
 ``scipy.signal.sosfilt``'s ``zi -> zf``: the state goes in and comes out changed, nothing
@@ -22,13 +26,15 @@ of actuator values have room for 6; the first ``n`` (the robot's) are used.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 from numba import types
 
 from motionbase.physics import STANDARD_GRAVITY, smoothstep
 from motionbase.platform.robot import SOLVE_SIGNATURE
-from motionbase.safety import input_code, limit_kernel
+from motionbase.safety import ActuatorLimits, input_code, limit_command, limit_kernel
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
 
 #: Phases of the soft start and stop (``STATE.phase``), by code.
@@ -380,6 +386,113 @@ def brake_stage(P, S, q):  # pragma: no cover - compiled
     for i in range(n):
         s.wanted[i] = q[i]
     return flags
+
+
+class Approach(NamedTuple):
+    """What :func:`approach_stage` did this tick.
+
+    Attributes
+    ----------
+    flags : int
+        :func:`limit_stage`'s bits for the command sent.
+    limited : bool
+        The goal was out of one tick's reach (the limiter cut the direct command).
+    pose : ndarray or None
+        The robot pose (m,) the command realises; None when it is not a pose the stage
+        asked for (the limiter changed the command: forward kinematics tells).
+    """
+
+    flags: int
+    limited: bool
+    pose: np.ndarray | None
+
+
+def approach_stage(P, S, robot, goal, q, path_limits) -> Approach:
+    """The limiter toward a reachable robot pose, shaped into a coordinated approach when
+    the pose is out of one tick's reach (teleoperation's far jumps, the way home).
+
+    A parallel robot's actuators must move together, or the mechanism leaves its assembly
+    during a large jump. When the limiter cannot reach ``goal`` in one tick, the command it
+    is given is the point of the straight pose segment from the state's pose toward the
+    goal whose actuators lie one planned step away (max norm, by bisection: the inverse
+    kinematics is not linear), the step planned by the limiter's own law on one virtual
+    axis (:func:`path_step` with ``path_limits``). The limits themselves are enforced by
+    :func:`limit_stage` alone, which every command passes.
+
+    Python, not compiled: it calls the robot's inverse kinematics.
+
+    Parameters
+    ----------
+    P, S : ndarray
+        The :data:`PARAMS` and :data:`STATE` records. Read: the state's command ``q``, its
+        speed ``v`` and the robot pose ``pose`` (first m) the last command realises; ``q``,
+        ``v`` and ``wanted`` are updated as by :func:`limit_stage` (``wanted`` becomes the
+        goal's actuators, fed forward next tick, unless the command was held).
+    robot : Robot
+        ``inverse`` and ``reachable`` (robot coordinates).
+    goal : ndarray, shape (m,)
+        A reachable robot pose.
+    q : ndarray, shape (n,)
+        Receives the command (rad or m).
+    path_limits : ActuatorLimits
+        One virtual axis: the approach's planned speed and acceleration, in actuator units
+        (max norm) per s and s^2.
+    """
+    p = P[0]
+    s = S[0]
+    n, m = int(p["n"]), int(p["m"])
+    goal_q = np.asarray(robot.inverse(goal), dtype=float)
+    q_prev = s["q"][:n].copy()
+    v_prev = s["v"][:n].copy()
+    saved = S.copy()
+    flags = limit_stage(P, S, goal_q, q)
+    limited = not flags & HELD and bool(flags & RATE_LIMITED)
+    pose: np.ndarray | None = None if flags & HELD else goal
+    wanted = goal_q
+    if limited:
+        dist = float(np.max(np.abs(goal_q - q_prev)))
+        step = path_step(dist, float(np.max(np.abs(v_prev))), float(p["dt"]), path_limits)
+        if 0.0 < step < dist:  # else braking or overshooting: the limiter's own output
+            found = _point_along(robot, s["pose"][:m].copy(), goal, q_prev, step)
+            if found is not None:
+                pose, wanted = found
+                S[0] = saved[0]
+                s["wanted"][:n] = q_prev  # from the current command: no feed-forward
+                flags = limit_stage(P, S, wanted, q)
+            # else the segment leaves the valid region: the limiter's own approach
+    if not flags & HELD:
+        s["wanted"][:n] = goal_q  # the goal's own speed is fed forward next tick
+    if not np.array_equal(q, wanted):
+        pose = None
+    return Approach(int(flags), limited, pose)
+
+
+def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) -> float:
+    """Progress allowed this tick toward a fixed target ``distance`` away on one virtual
+    axis moving at ``speed`` (the limiter's own law, :func:`motionbase.safety.limit_command`,
+    with ``limits`` of one axis): the approach stage's plan, not a limit."""
+    d = np.array([distance])
+    step, _, _ = limit_command(np.zeros(1), np.array([speed]), d, d, dt, limits)
+    return float(step[0])
+
+
+def _point_along(
+    robot, pose: np.ndarray, goal: np.ndarray, q: np.ndarray, step: float, n_iter: int = 16
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The point of the pose segment ``pose -> goal`` whose actuators lie ``step`` (max
+    norm) from ``q``, by bisection on the fraction; ``(pose, actuators)`` or None."""
+    lo, hi = 0.0, 1.0
+    best = None
+    for _ in range(n_iter):
+        f = 0.5 * (lo + hi)
+        candidate = pose + f * (goal - pose)
+        if bool(robot.reachable(candidate)):
+            qc = np.asarray(robot.inverse(candidate), dtype=float)
+            if np.isfinite(qc).all() and float(np.max(np.abs(qc - q))) <= step:
+                lo, best = f, (candidate, qc)
+                continue
+        hi = f
+    return best
 
 
 @numba.njit(cache=True)
