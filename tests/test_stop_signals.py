@@ -92,6 +92,63 @@ def test_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def _signalled_at_numpy(module: str, args: list[str], sig: int) -> subprocess.CompletedProcess:
+    """``python -m MODULE ARGS`` with ``sig`` sent to itself while it imports numpy (a few
+    tenths of a second after it starts, before any job has routed the stop signals)."""
+    code = (
+        "import builtins, os, runpy, sys\n"
+        "real = builtins.__import__\n"
+        "def signal_at_numpy(name, *args, **kwargs):\n"
+        "    if name == 'numpy' and 'numpy' not in sys.modules:\n"
+        f"        os.kill(os.getpid(), {int(sig)})\n"
+        "    return real(name, *args, **kwargs)\n"
+        "builtins.__import__ = signal_at_numpy\n"
+        f"sys.argv = ['motionbase', *{args!r}]\n"
+        f"runpy.run_module({module!r}, run_name='__main__')\n"
+    )
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    ("module", "sig"),
+    [
+        ("motionbase.cli", signal.SIGTERM),
+        ("motionbase", signal.SIGTERM),
+        ("motionbase", signal.SIGINT),
+    ],
+)
+def test_a_stop_signal_while_the_command_imports_ends_a_measurement_as_ctrl_c_does(
+    module, sig, tmp_path
+):
+    """SIGTERM while the command still imports (its default action would kill the process
+    without a word), or Ctrl-C: remembered, and the job that moves nothing then ends at once
+    as Ctrl-C ends it, one line naming the signal, exit 128 + its number (``python -m
+    motionbase.cli``, and ``python -m motionbase``, the ``motionbase`` command's entry)."""
+    done = _signalled_at_numpy(module, ["omct", "--out", str(tmp_path / "o")], sig)
+    by = "" if sig == signal.SIGINT else f" ({sig.name})"
+    assert done.stderr.strip() == f"motionbase omct: interrupted{by}"
+    assert done.returncode == 128 + sig
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGINT], ids=lambda s: s.name)
+def test_a_stop_signal_while_the_command_imports_stops_a_flight_before_it_moves(sig, tmp_path):
+    """SIGHUP (a closed terminal) or Ctrl-C while ``fly`` still imports: the flight is
+    stopped before its first tick, as a stop signal a moment later stops it: exit 0,
+    "stopped by SIGHUP", and the log holds the one park tick."""
+    from mcap.reader import make_reader
+
+    out = tmp_path / "f.mcap"
+    args = ["fly", "c1723", "--duration", "5", "--out", str(out)]
+    done = _signalled_at_numpy("motionbase", args, sig)
+    assert done.returncode == 0, done.stderr
+    assert f"stopped by {sig.name}" in done.stdout and "Traceback" not in done.stderr
+    with out.open("rb") as f:
+        topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
+    assert "/aircraft/state" not in topics  # the source was never read
+    assert topics.count("/platform/pose") == 1
+
+
 def test_a_finalizer_that_fails_after_ctrl_c_adds_nothing_to_the_one_line():
     """A Ctrl-C that lands inside a library's constructor (llvmlite's, while numba compiles)
     leaves a half-built object whose finalizer fails when the process exits; Python would

@@ -20,6 +20,10 @@ def _interrupted_at_start(argv: Sequence[str] | None = None) -> int:
 
 
 try:  # numpy and the rest take a few tenths of a second to import
+    if __name__ == "__main__":  # python -m motionbase.cli (the command: motionbase.__main__)
+        from motionbase.stopping import catch_early_stops  # (the standard library only)
+
+        catch_early_stops()  # a SIGTERM while starting stops the job, not the process
     import argparse
     import functools
     import logging

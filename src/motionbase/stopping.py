@@ -30,6 +30,7 @@ __all__ = [
     "STOP_SIGNALS",
     "StopRequest",
     "Stopped",
+    "catch_early_stops",
     "insistent_ctrl_c",
     "install_signal_stop",
     "interrupting_signal",
@@ -125,6 +126,53 @@ def raise_if_stopped(stop: StopRequest | None) -> None:
         raise Stopped(stop.reason)
 
 
+#: Stop signals that came while the command line was starting, before a job routed the
+#: signals (:func:`catch_early_stops`); the first job to route them takes them.
+_EARLY: list[int] = []
+
+
+def _remember(signum: int, _frame: object) -> None:
+    _EARLY.append(signum)
+
+
+def _default(sig: int) -> Any:
+    """The handler a signal has in a Python process that did not change it."""
+    return signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL
+
+
+def catch_early_stops() -> None:
+    """The stop signals are remembered, not acted on, until a job routes them.
+
+    For the command line's first line: its imports take a few tenths of a second (more on
+    a loaded machine), and meanwhile SIGTERM, SIGHUP or SIGQUIT would kill the process
+    without a word and Ctrl-C cut an import short. The job that then routes the signals
+    takes one that came meanwhile as if it came at that moment:
+    :func:`install_signal_stop` (a job that moves the platform: a stop before the first
+    tick moves nothing) or :func:`other_signals_as_ctrl_c` (a job that moves nothing: it
+    is "interrupted"). Signals whose handler is not Python's default are left alone; a
+    no-op outside the main thread.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in STOP_SIGNALS:
+        if signal.getsignal(sig) is _default(sig):
+            signal.signal(sig, _remember)
+
+
+def _handlers(sigs: Iterable[int]) -> dict[int, Any]:
+    """The signals' handlers now, :func:`catch_early_stops`' counted as the default (a job
+    that routes the signals hands them back to the default when it ends)."""
+    now = {sig: signal.getsignal(sig) for sig in sigs}
+    return {sig: _default(sig) if h is _remember else h for sig, h in now.items()}
+
+
+def _taken_early() -> list[int]:
+    """The signals :func:`catch_early_stops` remembered, in order; forgotten here."""
+    taken = list(_EARLY)
+    _EARLY.clear()
+    return taken
+
+
 def install_signal_stop(
     stop: StopRequest, signals: Iterable[int] | None = None
 ) -> Callable[[], None]:
@@ -145,7 +193,7 @@ def install_signal_stop(
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
     sigs = tuple(STOP_SIGNALS if signals is None else signals)
-    old = {sig: signal.getsignal(sig) for sig in sigs}
+    old = _handlers(sigs)
 
     def handler(signum: int, _frame: object) -> None:
         name = signal.Signals(signum).name
@@ -156,6 +204,8 @@ def install_signal_stop(
 
     for sig in sigs:
         signal.signal(sig, handler)
+    for signum in _taken_early():  # came while the command line was starting
+        handler(signum, None)
 
     def restore() -> None:
         for sig, h in old.items():
@@ -211,9 +261,10 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
     period_s : float
         Seconds between two raises, > 0.
     """
-    if (
-        threading.current_thread() is not threading.main_thread()
-        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ctrl_c = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or ctrl_c not in (
+        signal.default_int_handler,
+        _remember,  # (the command line's, while it starts: still Python's default)
     ):
         yield
         return
@@ -278,7 +329,7 @@ def other_signals_as_ctrl_c() -> Iterator[None]:
         return
     _INTERRUPTED_BY.clear()  # (kept after the block: the command line reads it then)
     others = [s for s in STOP_SIGNALS if s != signal.SIGINT]
-    old = {s: signal.getsignal(s) for s in others}
+    old = _handlers(others)
 
     def handler(signum: int, frame: Any) -> None:
         if not _INTERRUPTED_BY:
@@ -292,6 +343,9 @@ def other_signals_as_ctrl_c() -> Iterator[None]:
     for sig in mine:
         signal.signal(sig, handler)
     try:
+        early = _taken_early()  # came while the command line was starting
+        if early:
+            handler(early[0], None)
         yield
     finally:
         for sig in mine:
