@@ -349,14 +349,25 @@ class BatchResult(NamedTuple):
 
 
 class PipelineCore(ABC):
-    """What :func:`run` reads of a pipeline, the same for :class:`Pipeline` and
-    :class:`motionbase.commanding.CommandPipeline`: both keep their state in the record
-    :attr:`state` (:data:`~motionbase.stages.STATE`) and say when they are :attr:`parked`.
+    """What :func:`run` drives: :class:`Pipeline` (aircraft states) and
+    :class:`motionbase.commanding.CommandPipeline` (robot poses or actuator positions).
+    Both keep their state in the record :attr:`state` (:data:`~motionbase.stages.STATE`),
+    tick every :attr:`dt` seconds and say when they are :attr:`parked`.
     """
 
     robot: Robot
     health: Health
     state: np.ndarray
+    dt: float
+
+    @abstractmethod
+    def step(self, sample: Any, fresh: bool = True) -> PipelineOutput:
+        """One tick with the source's sample (None: none, e.g. after its end); ``fresh``
+        False when the source marks it a stale hold."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Head for park at the soft-start pace (the end of the input, a stop request)."""
 
     def warm_up(self) -> None:
         """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
@@ -751,8 +762,8 @@ def _sink_name(sink: Any) -> str:
 
 
 def run(
-    pipeline: Pipeline,
-    source: Source | Iterable[AircraftState],
+    pipeline: PipelineCore,
+    source: Source | Iterable[Any],
     sinks: Sequence[Sink] = (),
     *,
     paced: bool = False,
@@ -777,10 +788,10 @@ def run(
 
     Parameters
     ----------
-    pipeline : Pipeline
-        Or a :class:`motionbase.commanding.CommandPipeline` (teleop, the wiring check),
-        whose source yields commands instead of aircraft states.
-    source : Source or iterable of AircraftState
+    pipeline : PipelineCore
+        A :class:`Pipeline`, or a :class:`motionbase.commanding.CommandPipeline` (teleop,
+        the wiring check), whose source yields commands instead of aircraft states.
+    source : Source, or an iterable of what ``pipeline.step`` takes
         Already entered (``with source:``). A source may mark stale holds (``fresh``,
         :class:`~motionbase.io.base.StaleMarkingSource`) and hand its samples over in
         real time itself (``paces_itself`` and ``due_time``,

@@ -7,9 +7,11 @@ A *source* is a context manager and an iterator of
         for state in source:
             ...
 
-:func:`motionbase.pipeline.run` takes an entered :class:`Source` (or, in tests, any
-iterable of states). Besides the states it reads three optional capabilities, each its own
-protocol so that a source declares it by having the attributes:
+:func:`motionbase.pipeline.run` takes an entered :class:`Source` (or any iterable of
+states; the command pipeline's sources, a cursor or the wiring check's sweep, yield
+:class:`motionbase.commanding.Command` instead). Besides the states it reads three
+optional capabilities, each its own protocol so that a source declares it by having the
+attributes:
 
 * :class:`StaleMarkingSource`: ``fresh``, False while the state just yielded is a stale
   hold (the pipeline's watchdog then fades the cue to level flight). A source without it
