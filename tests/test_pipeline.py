@@ -129,6 +129,20 @@ def test_replay_check_reports_a_difference(flight, tmp_path):
     assert "DIFF" in text and "/washout/pose" in text
 
 
+def test_a_stopped_replay_check_says_it_was_not_made(flight):
+    """A replay with ``--check`` that a stop signal ends early has replayed a part of the
+    recording: the check fails, saying why, instead of listing differences."""
+    from motionbase.stopping import StopRequest
+
+    path, _ = flight
+    stop = StopRequest()
+    stop.set("SIGTERM")
+    result = app.replay(path, check=True, progress=False, stop=stop)
+    assert result.failed
+    assert "check: not made, the replay was stopped (SIGTERM)" in result.notes
+    assert not any("DIFF" in note for note in result.notes)
+
+
 @pytest.mark.parametrize("recording", RECORDINGS, ids=[p.name for p in RECORDINGS])
 def test_every_recording_replays_identically(recording):
     result = app.replay(recording, check=True, progress=False)

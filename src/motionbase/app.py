@@ -702,7 +702,8 @@ def replay(
         Write the replay's own log here.
     check : bool
         Compare every output with the recording; the result is ``failed`` with a
-        report of the largest difference per topic when they differ.
+        report of the largest difference per topic when they differ, and when a stop
+        ended the replay early (nothing was compared).
     platform, washout, cueing, planar : optional
         Override the recorded configuration (the cueing then defaults to ``classical``).
     outputs : list of str, optional
@@ -822,7 +823,10 @@ def _replay(
                     f"warning: {src_path}: {source.malformed} malformed aircraft states rejected "
                     f"and held (first: {source.first_malformed})"
                 )
-            if check:
+            if check and stop:  # a part of the recording only: nothing to compare it with
+                result.notes.append(f"check: not made, the replay was stopped ({stop.reason})")
+                result.failed = True
+            elif check:
                 report = compare_recordings(read_messages(src_path), read_messages(out_path))
                 result.notes.extend(report.lines())
                 result.failed = not report.identical
