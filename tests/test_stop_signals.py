@@ -94,9 +94,13 @@ def test_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(tmp_path):
 
 def _signalled_at_numpy(module: str, args: list[str], sig: int) -> subprocess.CompletedProcess:
     """``python -m MODULE ARGS`` with ``sig`` sent to itself while it imports numpy (a few
-    tenths of a second after it starts, before any job has routed the stop signals)."""
+    tenths of a second after it starts, before any job has routed the stop signals). The
+    signal's handler is first made Python's default, as a terminal's shell starts a command
+    (under ``nohup`` or in a background job, SIGHUP or SIGINT come ignored, and stay so)."""
+    default = "signal.default_int_handler" if sig == signal.SIGINT else "signal.SIG_DFL"
     code = (
-        "import builtins, os, runpy, sys\n"
+        "import builtins, os, runpy, signal, sys\n"
+        f"signal.signal({int(sig)}, {default})\n"
         "real = builtins.__import__\n"
         "def signal_at_numpy(name, *args, **kwargs):\n"
         "    if name == 'numpy' and 'numpy' not in sys.modules:\n"
