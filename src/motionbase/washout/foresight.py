@@ -27,8 +27,11 @@ Sequential convex programming: each step linearises the cab's motion (the rotati
 the inverse kinematics about the current plan, weights each axis's mean square error by
 ``1 / rmse`` (or ``mu / rmse``) of the current plan (which bounds the sum of RMS errors
 from above and touches it there), and solves that quadratic programme within a trust
-region around the plan; a step is kept when the measured objective falls and every pose
-is reachable (the region then widens), else the region is halved. The matrices are banded
+region around the plan. A step is kept when the measured objective falls and every pose
+is reachable (the region then widens); else half of it, or a quarter, is tried (a
+backtracking line search: the linearised actuators hold better nearer the plan, and the
+speed, acceleration and box limits, being linear, hold anywhere between the two); when
+none is kept the region is halved. The matrices are banded
 and sparse: each model's difference equation (its bilinear design, as ``perceive``
 filters) and each difference operator are equality constraints, every coefficient near
 1. Clarabel (an interior-point solver) solves them: the cost is nearly flat along slow
@@ -83,6 +86,9 @@ SMOOTHING = 1e-3
 HELD = 3
 #: Smallest RMS error a reweighting divides by: force (m/s^2), rates (rad/s).
 RMSE_FLOOR = np.array([1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
+#: Shares of a convex step tried in turn, until one lowers the measured objective with
+#: every pose reachable (a step that leaves the workspace somewhere often does not in part).
+BACKTRACK = (1.0, 0.5, 0.25)
 #: Share of each actuator's range kept free at both ends (the linearisation's margin), except
 #: where the start motion itself went into it.
 ACTUATOR_MARGIN = 0.02
@@ -394,7 +400,8 @@ class ForesightPlanner:
             Convex programmes at most.
         trust : (float, float)
             First half-width of the trust region: translations (m), rotations (rad). A
-            kept step widens it by half (up to four times this), a step not kept halves it.
+            step kept whole widens it by half (up to four times this), a step kept in part
+            (:data:`BACKTRACK`) leaves it, a step not kept halves it.
         """
         if not (np.isfinite(mu) and mu > 0):
             raise ConfigError(f"foresight plan: mu must be > 0, got {mu!r}")
@@ -413,11 +420,16 @@ class ForesightPlanner:
             except MotionbaseError:
                 region = region / 2
                 continue
-            new = self.measured(candidate)
-            better = _objective(new, mu) < _objective(rmse, mu)
-            if better and np.all(self.robot.reachable(candidate)):
-                pose, rmse, kept = candidate, new, kept + 1
-                region = np.minimum(region * 1.5, cap)
+            for share in BACKTRACK:
+                trial = candidate if share == 1.0 else pose + share * (candidate - pose)
+                new = self.measured(trial)
+                if _objective(new, mu) < _objective(rmse, mu) and np.all(
+                    self.robot.reachable(trial)
+                ):
+                    pose, rmse, kept = trial, new, kept + 1
+                    if share == 1.0:
+                        region = np.minimum(region * 1.5, cap)
+                    break
             else:
                 region = region / 2
         return ForesightPlan(pose, rmse, float(mu), done, kept)
