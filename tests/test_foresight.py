@@ -123,6 +123,25 @@ def test_a_gentle_surge_is_rendered_almost_perfectly(ceart) -> None:
     assert np.allclose(plan.rmse, planner_.measured(plan.pose))
 
 
+def test_a_step_that_leaves_the_workspace_is_kept_in_part(ceart, monkeypatch) -> None:
+    """A convex step twice as long as a good one, so that it leaves the workspace: the
+    plan keeps half of it, which is the good plan, instead of throwing it all away."""
+    robot = ceart[0]
+    n = 600
+    t = np.arange(n) * DT
+    f = level(n)
+    f[:, 0] = 0.5 * np.sin(2.0 * t) * np.sin(np.pi * t / (n * DT)) ** 2
+    planner_ = make_planner(ceart, f, np.zeros((n, 3)))
+    good = planner_.plan(20.0, steps=4, trust=(0.2, 0.05)).pose
+    start = planner_.start
+    too_far = start + 2.0 * (good - start)
+    assert not np.all(robot.reachable(too_far))  # (what the test is about)
+    monkeypatch.setattr(planner_, "_step", lambda pose, weights, trust: too_far)
+    plan = planner_.plan(20.0, steps=1)
+    assert plan.kept == 1
+    np.testing.assert_allclose(plan.pose, good, atol=1e-12)
+
+
 def test_plans_keep_the_limits_and_the_start_and_never_lose(ceart) -> None:
     """A hard flight (a 4 g pull, a sustained sway force, a fast roll) from a washout-like
     start: every pose reachable, every axis's speed and acceleration within its limits, the
