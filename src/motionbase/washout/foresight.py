@@ -31,11 +31,11 @@ region around the plan. A step is kept when the measured objective falls and eve
 is reachable (the region then widens); else half of it, or a quarter, is tried (a
 backtracking line search: the linearised actuators hold better nearer the plan, and the
 speed, acceleration and box limits, being linear, hold anywhere between the two); when
-none is kept the region is halved. The matrices are banded
-and sparse: each model's difference equation (its bilinear design, as ``perceive``
-filters) and each difference operator are equality constraints, every coefficient near
-1. Clarabel (an interior-point solver) solves them: the cost is nearly flat along slow
-drifts of the pose, where OSQP's first-order iterations did not converge.
+none is kept the region is halved. The matrices are banded and sparse: each model's
+difference equation (its bilinear design, as ``perceive`` filters) and each difference
+operator are equality constraints, every coefficient near 1. Clarabel (an interior-point
+solver) solves them: the cost is nearly flat along slow drifts of the pose, where OSQP's
+first-order iterations did not converge.
 
 The start: the models take a motion's first sample as what came before it, forever; left
 free, a plan starts with a jolt of 100 m/s^2 that sets the otolith's history to its
