@@ -601,6 +601,36 @@ def test_tune_mpc_tiny_budget(tmp_path):
     assert "--cueing mpc" in out.read_text()
 
 
+def test_tune_preview_scores_the_mpc_that_sees_the_future(tmp_path):
+    """``tune --preview`` scores every set as ``fly --preview`` flies it: its start's score is
+    the preview MPC's, not the real-time one's, and the file it writes says so."""
+    from motionbase import app, tuning
+    from motionbase.io.manoeuvres import load_spec
+    from motionbase.report import rus6_reach
+
+    out = tmp_path / "mpc_p.toml"
+    spec = "c172_cross_wind@0:6"
+    res = app.tune(
+        out=out,
+        cueing="mpc",
+        scripts=[spec],
+        holdout=[],
+        budget=1,
+        workers=1,
+        progress=False,
+        preview=True,
+    )
+    geometry = Rus6Geometry.preset("ceart")
+    scores = {
+        preview: tuning.TuningProblem(
+            geometry, (load_spec(spec),), rus6_reach(geometry), cueing="mpc", preview=preview
+        ).evaluate(res.result.start)
+        for preview in (True, False)
+    }
+    assert res.result.start_score.cost == scores[True].cost != scores[False].cost
+    assert "--preview" in out.read_text()
+
+
 @pytest.mark.parametrize("preset", ["tuned_ceart", "ceart"])
 def test_the_presets_never_amplify_specific_force(preset):
     """A platform should not make the pilot feel more specific force than the aircraft: in the

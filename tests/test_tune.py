@@ -586,6 +586,7 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--recordings", "notes.txt"], "MCAP file"),
         (["--profile", "taxi"], "--profile taxi: unknown"),
         (["--cueing", "mpc", "--profile", "air"], "no flight-phase profiles"),
+        (["--preview"], "--preview: the classical cueing does not use the flight's future"),
         (["--platform", "rrr3"], "tune scores 6-DOF platforms"),
         (["--platform", "udesc"], "tune scores 6-DOF platforms"),  # a 3-RRR preset
         (["--seed", "4294967295"], "--seed must be a whole number from 0 to 4294967294"),

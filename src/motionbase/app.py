@@ -409,13 +409,13 @@ def _drive_stoppable(
     )
 
 
-def _check_preview(config: PipelineConfig) -> None:
-    """A ConfigError unless the configured cueing can use a preview."""
+def _check_preview(cueing: str) -> None:
+    """A ConfigError unless the cueing of this name can use a preview."""
     from motionbase.washout.cueing import cueing_spec
 
-    if not hasattr(cueing_spec(config.cueing).cueing_type, "set_preview"):
+    if not hasattr(cueing_spec(cueing).cueing_type, "set_preview"):
         raise ConfigError(
-            f"--preview: the {config.cueing} cueing does not use the flight's future; "
+            f"--preview: the {cueing} cueing does not use the flight's future; "
             "choose one that does (--cueing mpc) or drop --preview"
         )
 
@@ -659,7 +659,7 @@ def fly(
             if preview:
                 from motionbase.io.manoeuvres import preview_reference
 
-                _check_preview(config)
+                _check_preview(config.cueing)
                 with JsbsimSource(script, duration_s=duration_s) as ahead:
                     reference = preview_reference(ahead)
             return _drive(
@@ -792,7 +792,7 @@ def _replay(
         if preview:
             from motionbase.io.manoeuvres import preview_reference
 
-            _check_preview(config)
+            _check_preview(config.cueing)
             with McapSource(src_path) as ahead:
                 reference = preview_reference(ahead)
         notes = []
@@ -1323,6 +1323,7 @@ def tune(
     stop: StopRequest | None = None,
     profile: str | None = None,
     time_budget_s: float | None = None,
+    preview: bool = False,
 ) -> TuneResult:
     """Tune the washout for a platform over manoeuvres (:mod:`motionbase.tuning`); write it.
 
@@ -1371,6 +1372,10 @@ def tune(
         Seconds the tuning may take, from this call (the manoeuvres' loading counted, the
         held-out scoring at the end not): no generation starts that the last one's
         duration says would end after it. With ``budget`` too, the sooner end ends it.
+    preview : bool
+        Tune for offline runs: the cueing sees each manoeuvre's future (``--preview``; a
+        cueing with ``set_preview`` only, the MPC). The set written is for ``fly --preview``
+        and ``replay --preview``, not for real-time runs.
     """
     from motionbase import tuning
     from motionbase.io.executors import open_evaluator
@@ -1390,6 +1395,8 @@ def tune(
     called = time.monotonic()  # the time budget counts from here
     spec = cueing_spec(cueing)
     knobs = tuning.knobs_for(cueing)
+    if preview:
+        _check_preview(cueing)
     if budget is None and time_budget_s is None:
         budget = DEFAULT_TUNE_BUDGET
     if budget is not None and (
@@ -1453,7 +1460,7 @@ def tune(
             )
     reach = robot_reach(robot_spec(robot_name).make(geometry))
     problem = tuning.TuningProblem(
-        geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name
+        geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name, preview=preview
     )
     time_left_s = (  # after the loading
         None if time_budget_s is None else max(1e-9, time_budget_s - (time.monotonic() - called))
@@ -1483,7 +1490,7 @@ def tune(
     holdout_scores = None
     if held and not stop:
         held_problem = tuning.TuningProblem(
-            geometry, tuple(held), reach, cueing=cueing, robot=robot_name
+            geometry, tuple(held), reach, cueing=cueing, robot=robot_name, preview=preview
         )
         holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
     if stop and not stopped_by:  # the budget was spent; the stop came in the held-out scoring
@@ -1519,6 +1526,7 @@ def tune(
     command += [f"--time-budget {duration_text(time_budget_s)}"] if time_budget_s else []
     command.append(f"--seed {seed}")
     command += [f"--profile {profile}"] if profile else []
+    command += ["--preview"] if preview else []
     if result.ended_by == "time" and not stopped_by:
         header[:0] = [
             f"The time budget ({duration_text(time_budget_s or 0.0)}) ended the tuning after "

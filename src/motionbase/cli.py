@@ -714,6 +714,12 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seed", type=_whole(0), default=0, metavar="S", help="seed (default 0)")
     p.add_argument(
+        "--preview",
+        action="store_true",
+        help="tune for offline runs, the cueing seeing each manoeuvre's future (mpc only; "
+        "the set is for fly --preview and replay --preview)",
+    )
+    p.add_argument(
         "--profile",
         metavar="ground|air",
         help="tune this flight-phase profile of the start file (its [profile.NAME] table, "
@@ -761,6 +767,7 @@ def run_tune(args: argparse.Namespace) -> int:
             stop=stop,
             profile=args.profile,
             time_budget_s=args.time_budget,
+            preview=args.preview,
         )
     print(result.summary_text())
     return 0

@@ -376,12 +376,17 @@ class ChainRun(NamedTuple):
     angles: np.ndarray | None = None
 
 
-def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre) -> ChainRun:
+def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre, preview: bool = False) -> ChainRun:
     """Run a manoeuvre through the whole pipeline from park, one tick per sample (the
     pipeline's batch path), with its flight phase (a profiled cueing runs the profile of
-    the phase); the one place the tuner runs the chain."""
+    the phase); the one place the tuner runs the chain. With ``preview`` the cueing sees
+    the manoeuvre's whole reference first (``set_preview``: offline cueing, an MPC's
+    ``--preview``)."""
     m = manoeuvre
-    result = Pipeline(config).run_batch(
+    pipeline = Pipeline(config)
+    if preview:
+        pipeline.cueing.set_preview(m.specific_force, m.angular_velocity)  # type: ignore[attr-defined]
+    result = pipeline.run_batch(
         m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh, on_ground=m.on_ground
     )
     return ChainRun(
@@ -632,6 +637,8 @@ class TuningProblem:
     robot : str
         The robot ``geometry`` is for (a 6-DOF name of
         :data:`~motionbase.platform.robot.ROBOTS`: ``rus6``, ``stewart6``).
+    preview : bool
+        The cueing sees each manoeuvre's future (:func:`run_chain`; offline cueing only).
     cranks : ndarray, shape (3, 6)
         Set from ``geometry``: the actuators' neutral, lower and upper positions (rad or m,
         :func:`crank_range`).
@@ -643,6 +650,7 @@ class TuningProblem:
     weights: Weights = Weights()
     cueing: str = "classical"
     robot: str = "rus6"
+    preview: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cranks", crank_range(self.geometry, self.robot))
@@ -663,7 +671,7 @@ class TuningProblem:
             tuple(
                 score_motion(
                     m,
-                    run_chain(self.config(params, m), m),
+                    run_chain(self.config(params, m), m, self.preview),
                     self.reach,
                     params.gravity,
                     self.weights,
