@@ -14,7 +14,7 @@
     tuned classical, angular RMSE no worse, false cues no more frequent.
 
 Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc tuned_ceart|ceart|PATH] [--platform ceart]
-     [--no-preview] [--no-quality] [--no-time]
+     [--preview-mpc PRESET|PATH] [--no-preview] [--no-quality] [--no-time]
 """
 
 from __future__ import annotations
@@ -157,6 +157,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mpc", default="tuned_ceart", help="MPC preset or TOML path")
     ap.add_argument("--platform", default="ceart")
+    ap.add_argument(
+        "--preview-mpc",
+        metavar="PRESET",
+        help="MPC preset or TOML path of the preview-mode rows (default: --mpc's)",
+    )
     ap.add_argument("--no-preview", action="store_true", help="skip the preview-mode rows")
     ap.add_argument("--no-quality", action="store_true")
     ap.add_argument("--no-time", action="store_true")
@@ -168,6 +173,8 @@ def main() -> None:
         f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; one core pinned"
     )
     mpc = MpcParams.load(args.mpc)
+    preview_mpc = MpcParams.load(args.preview_mpc) if args.preview_mpc else mpc
+    print(f"MPC: {args.mpc}; preview rows: {args.preview_mpc or args.mpc}")
     geometry = Rus6Geometry.preset(args.platform)
     tuning_set = tuple(load_spec(s) for s in DEFAULT_MANOEUVRES)
 
@@ -207,7 +214,7 @@ def main() -> None:
         t_rt = time.perf_counter() - t0
         rows.append(("mpc real-time", s_rt, fb_rt))
         if not args.no_preview:
-            s_pv, fb_pv = score_set(problem, "mpc", mpc, preview=True)
+            s_pv, fb_pv = score_set(problem, "mpc", preview_mpc, preview=True)
             rows.append(("mpc preview", s_pv, fb_pv))
         print()
         _table(f"{title} ({t_rt:.1f} s for the real-time MPC runs)", rows)
