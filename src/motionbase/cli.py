@@ -246,8 +246,8 @@ def _add_cueing(
         if recorded
         else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart, "
         "tuned_seat, profiles_example; unless given: the set tuned for the platform, "
-        "tuned_ceart on ceart and tuned_seat on seat, else default; stream: telemetry) or "
-        "TOML path",
+        "tuned_ceart on ceart and tuned_seat on seat, else default; stream: telemetry; mpc: "
+        "tuned_ceart, the default, ceart, preview_ceart for --preview) or TOML path",
     )
     if not preview:
         return
@@ -674,7 +674,7 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
         dest="washout",
         metavar="START.toml",
         help="the start set: the cueing's preset or TOML path (default: classical default, "
-        "mpc ceart)",
+        "mpc tuned_ceart)",
     )
     p.add_argument(
         "--scripts",
