@@ -443,7 +443,7 @@ def test_bound_robot_keeps_the_actuator_accelerations(ceart, robot):
         angular_acceleration_deg_s2=tuple(20 * np.asarray(ceart.angular_acceleration_deg_s2)),
         w_jerk=np.full(6, 1e-5),
     )
-    u = _inputs(1500)
+    u = _inputs(750)
     a_max = np.asarray(robot.limits.max_accel)
 
     def crank_accel(rows: bool) -> np.ndarray:
