@@ -292,6 +292,13 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
         robot="rus6", geometry=Rus6Geometry.preset("ceart"), cueing="mpc", cueing_params=ceart
     )
     assert PipelineConfig.from_dict(cfg.to_dict()).cueing_params == ceart
+    # the mode a set was tuned for: real time unless the file says preview; nothing else
+    assert ceart.mode == "real-time" and "mode" not in ceart.to_dict()
+    offline = MpcParams.load("preview_ceart")
+    assert offline.mode == "preview" and MpcParams.from_dict(offline.to_dict()) == offline
+    bad_mode = ceart.to_dict() | {"mode": "offline"}
+    with pytest.raises(ConfigError, match=r"m\.toml: field 'mode': .*'preview'.*'offline'"):
+        MpcParams.from_dict(bad_mode, source="m.toml")
 
 
 def test_non_finite_input_changes_nothing(ceart):
@@ -629,6 +636,26 @@ def test_tune_preview_scores_the_mpc_that_sees_the_future(tmp_path):
     }
     assert res.result.start_score.cost == scores[True].cost != scores[False].cost
     assert "--preview" in out.read_text()
+    assert MpcParams.from_toml(out).mode == "preview"  # so a real-time run can warn
+
+
+def test_a_preview_set_flown_without_preview_warns(tmp_path):
+    """A set tuned for ``--preview`` plans on the current sample alone without it: the run
+    goes on (nothing unsafe: the limits hold) but says so; with ``--preview`` it does not."""
+    import subprocess
+    import sys
+
+    base = [sys.executable, "-m", "motionbase.cli", "fly", "c172_cross_wind", "--duration"]
+    base += ["0.3", "--cueing", "mpc", "--out", str(tmp_path / "f.mcap"), "--params"]
+    for args, warned in (
+        (["preview_ceart"], True),
+        (["preview_ceart", "--preview"], False),
+        (["tuned_ceart"], False),
+    ):
+        run = subprocess.run([*base, *args], capture_output=True, text=True, timeout=120)
+        assert run.returncode == 0, run.stderr
+        assert ("tuned for offline runs with --preview" in run.stderr) == warned, run.stderr
+        assert ("warning" in run.stderr.lower()) == warned, run.stderr
 
 
 @pytest.mark.parametrize("preset", ["tuned_ceart", "ceart"])

@@ -7,6 +7,7 @@ functions; tests call them directly too. Each returns a :class:`JobResult` whose
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import sys
@@ -31,6 +32,8 @@ from motionbase.pipeline import (
     run,
 )
 from motionbase.stopping import stop_on_signals
+
+_log = logging.getLogger("motionbase")
 
 RECORDINGS = Path("recordings")
 
@@ -339,6 +342,13 @@ def _drive_stoppable(
     if preview is not None:
         pipeline.cueing.set_preview(*preview)  # type: ignore[attr-defined]
         metadata["preview"] = True
+    elif getattr(pipeline.cueing, "made_for_preview", False):
+        _log.warning(
+            "the %s parameters were tuned for offline runs with --preview; without it they "
+            "plan on the current sample alone: add --preview (fly, replay) or give a set "
+            "tuned for real time (e.g. --params tuned_ceart)",
+            pipeline.cueing.name,
+        )
     drives = open_outputs(outputs, pipeline.robot)
     if drives:  # which drives the log's commands went to, in what units and frames
         metadata["outputs"] = [drive.describe() for drive in drives]
@@ -1517,6 +1527,8 @@ def tune(
             + (", not scored on the held-out manoeuvres." if held else ".")
         ]
     best = replace(result.best, description=description)
+    if hasattr(best, "mode"):  # an MPC set says which mode it was tuned in
+        best = replace(best, mode="preview" if preview else "real-time")
     which = " --washout" if cueing == "classical" else f" --cueing {cueing} --params"
     command = [f"motionbase tune --platform {platform_name}{which} {start_name}"]
     command.append(f"--scripts {','.join(scripts)}" if scripts else "--scripts none")

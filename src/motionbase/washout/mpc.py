@@ -482,6 +482,11 @@ class MpcCueing(Cueing):
         """True in preview (offline) mode."""
         return self._preview is not None
 
+    @property
+    def made_for_preview(self) -> bool:
+        """True when the parameters were tuned for preview mode (``mode = "preview"``)."""
+        return self.params.mode == "preview"
+
     # -- one tick ----------------------------------------------------------------------
     def advance(self, u: np.ndarray, out: np.ndarray) -> bool:
         """One sample ``u = [f, w]`` to the pose in ``out`` (see :class:`Cueing`)."""

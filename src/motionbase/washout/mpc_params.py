@@ -4,6 +4,8 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
 
     description = "..."                # optional free text
     g = 9.80665                        # m/s^2, optional
+    mode = "real-time"                 # optional: what the set was tuned for, "real-time"
+                                       # or "preview" (offline runs with --preview)
 
     [horizon]
     steps = 15                         # prediction steps (the first is one tick long)
@@ -59,8 +61,8 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     fallback = "tuned_ceart"           # classical washout preset (or TOML path) to fall back on
 
 Every table is required but for ``[reference]`` (gains 1, no limits), ``[robot]``, ``[solver]``
-(defaults as above) and ``description`` and
-``g``. The dataclass fields mirror the file one to one, so ``from_dict(p.to_dict()) == p``.
+(defaults as above), ``description``, ``g`` and ``mode``. The dataclass fields mirror the
+file one to one, so ``from_dict(p.to_dict()) == p``.
 The pose box, speed and acceleration limits of ``[limits]`` are the robot's, written by
 :func:`limits_from_robot` when the preset is made for a platform (the ``ceart`` preset's
 header says how); they hold with or without a robot. When the pipeline binds its robot
@@ -160,7 +162,9 @@ _ROBOT_DEFAULTS: dict[str, Any] = {
     "violation_weight": 1e5,
 }
 _SECTIONS = ("horizon", "weights", "tilt", "limits", "reference", "robot", "solver")
-_TOP = ("description", "g", *_SECTIONS)
+_TOP = ("description", "g", "mode", *_SECTIONS)
+#: What a set can be made for (``mode``): a live run, or an offline one that sees the future.
+MODES = ("real-time", "preview")
 
 
 @dataclass(frozen=True)
@@ -235,6 +239,13 @@ class MpcParams:
     g : float
         Gravity, m/s^2.
     description : str
+    mode : str
+        What the set was tuned for: ``"real-time"`` (the default), or ``"preview"``, for
+        offline runs that see the reference's future (``fly --preview``,
+        ``replay --preview``; ``tune --preview`` writes it). A preview set flown without
+        the preview plans on the current sample alone, as the real-time mode does, with
+        weights not tuned for that: :meth:`motionbase.washout.mpc.MpcCueing.made_for_preview`
+        lets a command warn.
     """
 
     steps: int
@@ -276,6 +287,7 @@ class MpcParams:
     fallback: str = "tuned_ceart"
     g: float = STANDARD_GRAVITY
     description: str = ""
+    mode: str = "real-time"
 
     def __post_init__(self) -> None:
         validated = _validate(self.to_dict(), "MpcParams")
@@ -372,12 +384,15 @@ class MpcParams:
             d["robot"].setdefault(key, value)
         d.setdefault("g", STANDARD_GRAVITY)
         d.setdefault("description", "")
+        d.setdefault("mode", "real-time")
         return cls(**_validate(d, source))
 
     def to_dict(self) -> dict[str, Any]:
         """Nested plain mapping (the TOML layout); :meth:`from_dict` rebuilds it exactly.
         A tilt limit equal for roll and pitch is one number."""
         out: dict[str, Any] = {"description": self.description, "g": self.g}
+        if self.mode != "real-time":  # the default stays out of the file
+            out["mode"] = self.mode
         for section, key, name, length, *_ in _SCHEMA:
             value = getattr(self, name)
             if section == "tilt" and value[0] == value[1]:
@@ -452,6 +467,12 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
     if not isinstance(d["description"], str):
         raise ConfigError(f"{source}: field 'description': expected text, got {d['description']!r}")
     out["description"] = d["description"]
+    mode = d.get("mode", "real-time")
+    if mode not in MODES:
+        raise ConfigError(
+            f"{source}: field 'mode': expected one of {', '.join(map(repr, MODES))}, got {mode!r}"
+        )
+    out["mode"] = mode
     return out
 
 
