@@ -29,7 +29,7 @@ import numpy as np
 
 from motionbase import tuning
 from motionbase.io.manoeuvres import DEFAULT_HOLDOUT, DEFAULT_MANOEUVRES, load_spec
-from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.pipeline import PipelineConfig
 from motionbase.platform import Rus6Geometry
 from motionbase.report import rus6_reach
 from motionbase.washout import WashoutParams
@@ -39,7 +39,7 @@ from motionbase.washout.mpc_params import MpcParams
 
 def score_set(problem: tuning.TuningProblem, cueing: str, params, preview: bool = False):
     """The tuner's score of one cueing over the problem's manoeuvres (no sizing term: the
-    sizing rule is the classical washout's)."""
+    sizing rule is the classical washout's) and the ticks the MPC fell back on."""
     scores = []
     fallbacks = 0
     for m in problem.manoeuvres:
@@ -50,24 +50,8 @@ def score_set(problem: tuning.TuningProblem, cueing: str, params, preview: bool 
             cueing_params=params,
             rate_hz=m.rate_hz,
         )
-        pipe = Pipeline(config)
-        if preview:
-            pipe.cueing.set_preview(m.specific_force, m.angular_velocity)
-        if cueing == "mpc":
-            before = pipe.cueing.counts["fallbacks"]
-        r = pipe.run_batch(
-            *(np.array(a) for a in (m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh))
-        )
-        if cueing == "mpc":
-            fallbacks += pipe.cueing.counts["fallbacks"] - before
-        run = tuning.ChainRun(
-            r.poses,
-            r.clamped,
-            r.limited,
-            r.phases == tuning.stages.RUNNING,
-            r.accepted,
-            r.commands,
-        )
+        run = tuning.run_chain(config, m, preview)
+        fallbacks += run.cueing_counts.get("fallbacks", 0)
         scores.append(
             tuning.score_motion(m, run, problem.reach, 9.80665, problem.weights, problem.cranks)
         )

@@ -672,3 +672,22 @@ def test_the_presets_never_amplify_specific_force(preset):
     for test in result.results:
         gains = np.abs(test.response)
         assert np.isfinite(gains).all() and gains.max() < 1.0, (test.test.name, gains)
+
+
+def test_the_tuners_chain_run_counts_the_mpcs_fallbacks():
+    """``tuning.run_chain`` hands back what the cueing counted during that run alone: a solver
+    allowed one iteration falls back on every tick it is asked; a classical washout counts
+    nothing."""
+    from motionbase import tuning
+    from motionbase.io.manoeuvres import load_spec
+
+    m = load_spec("rudder_kick@0:2")
+    geometry = Rus6Geometry.preset("ceart")
+    failing = dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1)
+    config = PipelineConfig(robot="rus6", geometry=geometry, cueing="mpc", cueing_params=failing)
+    counts = tuning.run_chain(config, m).cueing_counts
+    assert counts["ticks"] == len(m.t) and counts["solved"] == 0
+    assert counts["fallbacks"] == counts["ticks"]
+    washout = WashoutParams.preset("tuned_ceart")
+    classical = PipelineConfig(robot="rus6", geometry=geometry, cueing_params=washout)
+    assert tuning.run_chain(classical, m).cueing_counts == {}

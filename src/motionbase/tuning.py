@@ -366,6 +366,9 @@ class ChainRun(NamedTuple):
         Samples the pipeline's validation accepted.
     angles : ndarray, shape (N, 6), optional
         The crank angles commanded (after safety), rad.
+    cueing_counts : dict of str to int
+        What the cueing counted during the run, for a cueing that counts (an MPC's
+        ``ticks``, ``solved`` and ``fallbacks``); empty otherwise.
     """
 
     pose: np.ndarray
@@ -374,6 +377,7 @@ class ChainRun(NamedTuple):
     running: np.ndarray
     accepted: np.ndarray
     angles: np.ndarray | None = None
+    cueing_counts: dict[str, int] = field(default_factory=dict)
 
 
 def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre, preview: bool = False) -> ChainRun:
@@ -386,9 +390,11 @@ def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre, preview: bool = Fals
     pipeline = Pipeline(config)
     if preview:
         pipeline.cueing.set_preview(m.specific_force, m.angular_velocity)  # type: ignore[attr-defined]
+    before = dict(getattr(pipeline.cueing, "counts", {}))
     result = pipeline.run_batch(
         m.t, m.specific_force, m.angular_velocity, m.attitude, m.fresh, on_ground=m.on_ground
     )
+    after = getattr(pipeline.cueing, "counts", {})
     return ChainRun(
         result.poses,
         result.clamped,
@@ -396,6 +402,7 @@ def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre, preview: bool = Fals
         result.phases == stages.RUNNING,
         result.accepted,
         result.commands,
+        {key: n - before.get(key, 0) for key, n in after.items()},
     )
 
 
