@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+import os
 import re
 import signal
 import threading
@@ -691,6 +692,15 @@ def test_a_stopped_tuning_hands_back_the_best_set_of_the_batches_it_finished(kic
     assert problem.evaluate(found.best).cost == best_cost  # the set handed back is that one
 
 
+def _cpu_seconds(pid: int) -> float:
+    """Processor time (user and system) a process has used so far, s; 0 once it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _workers_of(pid: int) -> list[int]:
     """Pool workers (``spawn_main`` processes) whose parent is ``pid``, from /proc."""
     out = []
@@ -756,10 +766,13 @@ def test_a_stopped_tune_keeps_the_best_set_it_found(tmp_path):
             "none", "--budget", "100000", "--workers", "2", "--out", str(out)]  # fmt: skip
 
     def evaluating(proc) -> None:
-        deadline = time.monotonic() + 60
-        while len(_workers_of(proc.pid)) < 2 and time.monotonic() < deadline:
+        # a few hundred evaluations: 8 s of the workers' processor time, not of the clock,
+        # so that a busy machine (another test beside this one) does not stop it too soon
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if sum(_cpu_seconds(w) for w in _workers_of(proc.pid)) >= 8.0:
+                return
             time.sleep(0.2)
-        time.sleep(6.0)  # a few hundred evaluations
 
     status, err = signalled(args, evaluating, signal.SIGTERM)
     assert status == 128 + signal.SIGTERM, err[-2000:]
