@@ -573,6 +573,7 @@ def test_preview_refused_for_live_sources_and_cueings_without_it(tmp_path, capsy
     for args in (
         ["stream", "--cueing", "mpc", "--preview"],
         ["fly", "--preview", "--duration", "1", "--out", str(tmp_path / "y.mcap")],
+        ["omct", "--preview", "--out", str(tmp_path / "omct")],
     ):
         try:
             code = cli.main(args)
@@ -581,6 +582,7 @@ def test_preview_refused_for_live_sources_and_cueings_without_it(tmp_path, capsy
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and "--preview" in err[0], (args, err)
     assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "y.mcap").exists()
+    assert not (tmp_path / "omct").exists()
 
 
 def test_tune_mpc_tiny_budget(tmp_path):
@@ -703,3 +705,24 @@ def test_the_tuners_chain_run_counts_the_mpcs_fallbacks():
     washout = WashoutParams.preset("tuned_ceart")
     classical = PipelineConfig(robot="rus6", geometry=geometry, cueing_params=washout)
     assert tuning.run_chain(classical, m).cueing_counts == {}
+
+
+def test_the_omct_in_preview_mode_takes_the_lag_out(tmp_path):
+    """A sinusoid is foreseeable: in preview mode (``omct --preview``) the MPC sees each run's
+    input whole and need not lag it as a plan on the current sample alone does. At 2.5 rad/s
+    the real-time surge response lags by tens of degrees; the preview's far less."""
+    from motionbase.app import load_config
+    from motionbase.omct import run_omct
+
+    config = load_config(cueing="mpc", washout="tuned_ceart")
+    phase = {}
+    for preview in (False, True):
+        result = run_omct(
+            config, frequencies=[2.5], tests=["surge"], cueing_name="mpc", settle_s=4.0,
+            preview=preview,
+        )  # fmt: skip
+        assert result.preview == preview and result.to_dict()["preview"] == preview
+        assert ("preview mode" in result.method_text()) == preview
+        phase[preview] = float(result["surge"].phase_deg[0])
+    assert phase[False] < -30.0  # the real-time plan lags
+    assert abs(phase[True]) < abs(phase[False]) - 20.0, phase

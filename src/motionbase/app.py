@@ -1162,6 +1162,7 @@ def omct(
     rate_hz: float = 120.0,
     scale: float = 1.0,
     progress: bool = True,
+    preview: bool = False,
 ) -> Any:
     """The objective motion cueing test (``motionbase omct``) into the folder ``out``.
 
@@ -1176,6 +1177,9 @@ def omct(
     scale : float
         Every input amplitude times this (1: amplitudes that keep the default cueing on
         ``ceart`` linear, :class:`motionbase.omct.Amplitudes`).
+    preview : bool
+        Offline mode (``--preview``): the cueing sees each run's whole input first, as
+        ``fly --preview`` runs it. Refused (a ConfigError) for a cueing without it.
 
     Returns
     -------
@@ -1190,6 +1194,8 @@ def omct(
     config = load_config(
         planar=planar, platform=platform, washout=washout, cueing=cueing, rate_hz=rate_hz
     )
+    if preview:
+        _check_preview(cueing)
     amplitudes = Amplitudes().scaled(scale)
     _writable_folder(Path(out), Path(out))  # before the test's minutes, not after them
     options = [
@@ -1199,6 +1205,7 @@ def omct(
         (f"--params {washout}", washout),
         (f"--rate {rate_hz:g}", rate_hz != 120.0),
         (f"--scale {scale:g}", scale != 1.0),
+        ("--preview", preview),
     ]
     command = " ".join(["motionbase omct", *(o for o, on in options if on), f"--out {out}"])
     line = JobProgress() if progress else None
@@ -1208,7 +1215,9 @@ def omct(
             line.show(f"omct: {done}/{total} runs ({axis} at {w:.3g} rad/s)")
 
     try:
-        result = run_omct(config, amplitudes=amplitudes, progress=tick, command=command)
+        result = run_omct(
+            config, amplitudes=amplitudes, progress=tick, command=command, preview=preview
+        )
     finally:
         if line is not None:
             line.close(erase=True)

@@ -525,6 +525,12 @@ def _args_omct(p: argparse.ArgumentParser) -> None:
     )
     _add_cueing(p, preview=False)
     p.add_argument(
+        "--preview",
+        action="store_true",
+        help="the cueing's offline mode: it sees each run's whole input first, as fly "
+        "--preview runs it (mpc only)",
+    )
+    p.add_argument(
         "--planar", action="store_true", help="the planar 3-RRR robot (surge, sway, yaw tests)"
     )
     p.add_argument(
@@ -554,7 +560,7 @@ def run_omct(args: argparse.Namespace) -> int:
     files = app.omct(
         args.out, platform=args.platform, washout=args.washout, cueing=args.cueing,
         planar=args.planar,
-        rate_hz=args.rate, scale=args.scale,
+        rate_hz=args.rate, scale=args.scale, preview=args.preview,
     )  # fmt: skip
     print(files.summary_text())
     return 0

@@ -372,6 +372,7 @@ def simulate(
     att: np.ndarray,
     *,
     cueing: Any | None = None,
+    preview: bool = False,
 ) -> Simulated:
     """Run aircraft samples through a new pipeline; the one place the OMCT runs the chain.
 
@@ -387,6 +388,8 @@ def simulate(
     cueing : Cueing, optional
         A cueing plug-in object to run instead of the one ``config`` names (a test
         cueing that is not registered).
+    preview : bool
+        Hand the cueing the whole input first (``set_preview``: an MPC's offline mode).
 
     Raises
     ------
@@ -394,6 +397,8 @@ def simulate(
         The pipeline rejected a sample (an amplitude beyond its input bounds).
     """
     pipeline = Pipeline(config, cueing=cueing)
+    if preview:
+        pipeline.cueing.set_preview(f, w)
     result = pipeline.run_batch(t, f, w, att)
     if not result.accepted.all():
         k = int(np.flatnonzero(~result.accepted)[0])
@@ -700,6 +705,8 @@ class OmctResult:
         Periods discarded and measured at each frequency.
     cueing : str
         ``"classical"``, or the name of the substituted cueing.
+    preview : bool
+        The cueing saw each run's whole input first (offline mode, ``omct --preview``).
     """
 
     results: tuple[TestResult, ...]
@@ -711,6 +718,7 @@ class OmctResult:
     measure_periods: np.ndarray
     cueing: str = "classical"
     command: str = field(default="", compare=False)
+    preview: bool = False
 
     def __getitem__(self, name: str) -> TestResult:
         for r in self.results:
@@ -750,7 +758,9 @@ class OmctResult:
         """How the numbers were made, in one paragraph."""
         f = self.results[0].frequencies if self.results else FREQUENCIES
         return (
-            f"OMCT of the {self.cueing} cueing on {self.robot_label} at "
+            f"OMCT of the {self.cueing} cueing"
+            f"{' in preview mode (each run seen whole first)' if self.preview else ''} on "
+            f"{self.robot_label} at "
             f"{self.config.rate_hz:g} Hz; inputs: {self.amplitudes.describe()}; "
             f"transient discarded: >= {self.settle_s:.1f} s "
             f"({int(self.discard_periods.min())}-{int(self.discard_periods.max())} periods), "
@@ -831,6 +841,7 @@ class OmctResult:
             "motionbase": __version__,
             "command": self.command,
             "cueing": self.cueing,
+            "preview": self.preview,
             "robot": self.config.robot,
             "geometry": getattr(self.config.geometry, "name", ""),
             "rate_hz": self.config.rate_hz,
@@ -872,6 +883,7 @@ def run_omct(
     settle_s: float | None = None,
     progress: Callable[[int, int, str, float], None] | None = None,
     command: str = "",
+    preview: bool = False,
 ) -> OmctResult:
     """Run the OMCT through the whole chain.
 
@@ -897,6 +909,10 @@ def run_omct(
         ``progress(done, total, axis, w)`` after each simulation.
     command : str
         The command line that asked for it (recorded in the tables and the JSON).
+    preview : bool
+        Offline mode: the cueing sees each run's whole input first (``set_preview``; a
+        cueing that can, such as the MPC). A sinusoid is foreseeable, so this is the
+        response of the cueing as ``fly --preview`` runs it, not as a live run does.
     """
     freqs = np.asarray(frequencies, dtype=float).reshape(-1)
     if freqs.size == 0 or not (np.isfinite(freqs).all() and (freqs > 0).all()):
@@ -948,7 +964,9 @@ def run_omct(
             n = lo + n_win + 1  # one tick more: the central difference at the last one
             t = np.arange(n) * dt
             f_in, w_in, att_in = excitation(axis, float(w), a, t, t0, g)
-            sim = simulate(config, t, f_in, w_in, att_in, cueing=cueing() if cueing else None)
+            sim = simulate(
+                config, t, f_in, w_in, att_in, cueing=cueing() if cueing else None, preview=preview
+            )
             win = slice(lo, lo + n_win)
             # the motion one tick either side of the window, for the central differences
             motion = achieved_motion(config, sim.angles[lo - 1 :], sim.poses[lo - 1 :])
@@ -1000,4 +1018,5 @@ def run_omct(
         measure_periods=measure,
         cueing=cueing_name if cueing is not None else config.cueing,
         command=command,
+        preview=preview,
     )
