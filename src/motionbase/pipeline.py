@@ -547,7 +547,7 @@ class Pipeline(PipelineCore):
         self.flags = flags
         if flags & stages.RUNNING_CLAMP:
             self.cueing.track(cue_out)  # anti-windup: the pose the platform got
-        if flags & _RARE:
+        if flags & stages.RARE:
             self.health.count(flags)
             if flags & (stages.HELD | stages.RATE_LIMITED):
                 # the actuators realise another pose than the one asked: say which
@@ -652,7 +652,7 @@ class Pipeline(PipelineCore):
         )
         self.health.samples += done
         ran = out.flags[: done + (done < N)]
-        for bits in ran[(ran & _RARE) != 0]:
+        for bits in ran[(ran & stages.RARE) != 0]:
             self.health.count(int(bits))
         limited = np.flatnonzero(out.limited[:done])
         if len(limited):  # the pose the limited commands realise, as the tick reports it
@@ -664,17 +664,6 @@ class Pipeline(PipelineCore):
                 f"{cueing.name} cueing: non-finite input at sample {done} (t = {t[done]:.6g} s)"
             )
         return out
-
-
-#: Status bits that need the health counters or the forward kinematics.
-_RARE = (
-    stages.PROBLEM
-    | stages.TIME_JUMP
-    | stages.FADE_START
-    | stages.CLAMPED
-    | stages.HELD
-    | stages.RATE_LIMITED
-)
 
 
 # --------------------------------------------------------------------------- loop

@@ -99,6 +99,8 @@ HELD = 1 << 8
 CUEING_ERROR = 1 << 9
 RUNNING_CLAMP = 1 << 10  # clamped while running: the cueing is to be told (anti-windup)
 PHASE_SHIFT = 12  # two bits: the output phase (PHASES)
+#: The bits the health counts (and where the limiter acted, the pose to find): rare.
+RARE = PROBLEM | TIME_JUMP | FADE_START | CLAMPED | RATE_LIMITED | HELD
 
 _STATE_T = numba.from_dtype(STATE)[::1]
 _PARAMS_T = numba.from_dtype(PARAMS)[::1]
