@@ -160,7 +160,7 @@ class CommandPipeline(PipelineCore):
             park_cue=robot.park_angles if actuators else np.zeros(6),
             park_pose=robot.park_angles if actuators else robot.park_pose,
         )
-        self.state = stages.new_state()
+        self.state = np.zeros(1, dtype=stages.STATE)  # (reset below)
         self._max_home_ticks = int(round(max_home_s / self.dt))
         lim = robot.limits
         # the approach's virtual axis: progress along the path in actuator units (max
@@ -185,7 +185,7 @@ class CommandPipeline(PipelineCore):
     # -- lifecycle -------------------------------------------------------------
     def reset(self) -> None:
         """Parked, at rest, no command seen; counters kept."""
-        stages.reset_state(self.state, self.params, self.params[0]["park_pose"][: self._m])
+        stages.reset_state(self.state, self.params)
         self._cue[:] = 0.0
         self._cue[: self._n] = self.robot.park_angles
         self._pose = np.array(self.robot.park_pose, dtype=float)

@@ -454,7 +454,7 @@ class Pipeline(PipelineCore):
             fade_s=config.fade_s,
             input_limits=config.input_limits,
         )
-        self.state = stages.new_state()
+        self.state = np.zeros(1, dtype=stages.STATE)  # (reset below)
         n, m = self.robot.n, len(self.robot.park_pose)
         self._solve = stages.kernel_list(self.robot.solve_kernel, stages.SOLVE_LIST)
         self._G = self.robot.kernel_params
@@ -490,7 +490,7 @@ class Pipeline(PipelineCore):
     def reset(self) -> None:
         """Back to parked, filters at rest, counters kept."""
         self.cueing.reset()
-        stages.reset_state(self.state, self.params, self.robot.park_pose)
+        stages.reset_state(self.state, self.params)
 
     def _warm_ticks(self) -> None:
         level = np.array([0.0, 0.0, -STANDARD_GRAVITY])

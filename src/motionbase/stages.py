@@ -214,18 +214,13 @@ def new_params(
     return P
 
 
-def new_state() -> np.ndarray:
-    """A zeroed :data:`STATE` record (call :func:`reset_state` before use)."""
-    return np.zeros(1, dtype=STATE)
-
-
-def reset_state(S: np.ndarray, P: np.ndarray, park_pose: np.ndarray) -> None:
+def reset_state(S: np.ndarray, P: np.ndarray) -> None:
     """Parked, at rest, no sample seen; the fade full (nothing stale yet)."""
     S[0] = np.zeros((), dtype=STATE)
     s = S[0]
     s["q"] = P[0]["park_q"]
     s["wanted"] = P[0]["park_q"]
-    s["pose"][: len(park_pose)] = park_pose
+    s["pose"] = P[0]["park_pose"]
     s["phase"] = STARTING
     s["fade"] = 1.0
 
