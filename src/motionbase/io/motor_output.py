@@ -433,9 +433,8 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
             raise ConfigError(f"{path}: field {key!r}: expected a string, got {data[key]!r}")
         if "rate_hz" in extra:
             as_float(path, "rate_hz", extra["rate_hz"], min_value=0.0, strict_min=True, unit="Hz")
-        if key == "text":
-            return TextFormat(data[key], n_axes), extra
-        return BinaryFormat(data[key], n_axes), extra
+        frame_format = TextFormat if key == "text" else BinaryFormat
+        return frame_format(data[key], n_axes), extra
     return TextFormat(text, n_axes), {}
 
 
@@ -496,9 +495,6 @@ class _UdpTransport:
             ) from None
         self.sock = sock
 
-    def reopen(self) -> bool:
-        return self.sock is not None
-
     def send(self, frame: bytes) -> None:
         self.sock.send(frame)  # type: ignore[union-attr]
 
@@ -517,8 +513,9 @@ class MotorOutput:
     Parameters
     ----------
     transport : object
-        ``open()``, ``send(bytes)`` (raises OSError), ``reopen() -> bool``, ``close()`` and a
-        ``label`` (made by :func:`open_output`).
+        ``open()``, ``send(bytes)`` (raises OSError), ``close()``, a ``label`` and
+        ``reopen_on_error``: True when a send error breaks the link, to be mended by
+        ``reopen() -> bool`` (made by :func:`open_output`).
     frame_format : TextFormat or BinaryFormat
     mapping : OutputMapping
     rate_hz : float
@@ -847,18 +844,6 @@ class MotorOutput:
 # --------------------------------------------------------------------------- opening
 
 
-def _split_query(rest: str) -> tuple[str, dict[str, str], list[tuple[str, str]]]:
-    base, _, query = rest.partition("?")  # (no "?": an empty query, no keys)
-    ours: dict[str, str] = {}
-    other: list[tuple[str, str]] = []
-    for k, v in parse_qsl(query, keep_blank_values=True):
-        if k in ("format", "rate", "baud"):
-            ours[k] = v
-        else:
-            other.append((k, v))
-    return base, ours, other
-
-
 def open_output(
     url: str,
     mapping: OutputMapping,
@@ -885,7 +870,10 @@ def open_output(
         raise ConfigError(
             f"output {url!r}: expected serial:DEVICE_OR_PYSERIAL_URL?... or udp:HOST:PORT?..."
         )
-    base, ours, other = _split_query(rest)
+    base, _, query = rest.partition("?")  # (no "?": an empty query, no keys)
+    pairs = parse_qsl(query, keep_blank_values=True)
+    ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
+    other = [(k, v) for k, v in pairs if k not in ours]
     fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
     if rate_hz is not None:
         rate = float(rate_hz)
