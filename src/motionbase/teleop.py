@@ -33,6 +33,7 @@ paced (``realtime=True``: the pipeline's loop paces it on the wall clock).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 from collections.abc import Iterator
@@ -358,10 +359,10 @@ def teleop_job(
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
     live_at = None if live is None else LiveAddress.parse(live)
     stop = stop if stop is not None else StopRequest()
-    restore = install_signal_stop(stop)  # first: a stop during start-up parks too
     sink = None
     logger = None
-    try:
+    with contextlib.ExitStack() as cleanup:  # (undone in reverse: the log, the link, the signals)
+        cleanup.callback(install_signal_stop(stop))  # first: a stop during start-up parks too
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
         source = open_cursor_source(input_spec, rrr3)
@@ -378,6 +379,7 @@ def teleop_job(
                 from motionbase.io.serial_link import ServoSerialSink
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()
+                cleanup.callback(sink.close)
             if out is not None:
                 logger = McapLogger(
                     out,
@@ -393,6 +395,7 @@ def teleop_job(
                     },
                     live=live_at,
                 ).start()
+                cleanup.callback(logger.finish)
                 if live_at is not None:
                     print(live_at.banner(logger.live_port), file=sys.stderr, flush=True)
             return run_teleop(
@@ -400,11 +403,3 @@ def teleop_job(
                 duration_s=duration_s, realtime=realtime, clamp=clamp, stop=stop,
                 stale_timeout_s=stale_timeout_s, pipeline=pipeline,
             )  # fmt: skip
-    finally:
-        try:
-            if logger is not None:
-                logger.finish()
-        finally:
-            if sink is not None:
-                sink.close()
-            restore()
