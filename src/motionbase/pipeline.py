@@ -920,12 +920,6 @@ def run(
                 if after_tick is not None:
                     after_tick()  # (the garbage collector: the command is out)
 
-        def apply_stop() -> None:
-            if pipeline.phase in ("starting", "running"):
-                pipeline.estop() if stop.estop else pipeline.stop()
-            elif stop.estop and not pipeline.estopped:
-                pipeline.estop()
-
         stopping_requested = False
         iterator = iter(source)
         # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
@@ -953,7 +947,10 @@ def run(
                 if not stopping_requested:
                     summary.stopped_by = stop.reason
                 stopping_requested = True
-                apply_stop()
+                if stop.estop and not pipeline.estopped:  # (an E-stop sets the phase stopping)
+                    pipeline.estop()
+                elif pipeline.phase in ("starting", "running"):
+                    pipeline.stop()
             out = step(state, bool(source.fresh) if has_fresh else True)
             emit(out)
             if out.phase == "parked":
