@@ -205,12 +205,11 @@ class CommandPipeline(PipelineCore):
         """Head for park: actuator mode, the blend back over ``soft_start_s``; pose mode,
         brake to rest, then home."""
         s = self.state[0]
-        if s["phase"] in (stages.STARTING, stages.RUNNING):
-            s["phase"] = stages.STOPPING
-            if self.mode == "poses":
-                s["blend"] = 0.0
-                self._sub = _BRAKE
-                self._deadline = self._ticks + self._max_home_ticks
+        if self.mode == "poses" and s["phase"] in (stages.STARTING, stages.RUNNING):
+            s["blend"] = 0.0
+            self._sub = _BRAKE
+            self._deadline = self._ticks + self._max_home_ticks
+        super().stop()
 
     def estop(self) -> None:
         """Emergency stop: actuator mode, head for park at once within the limits; pose
@@ -222,7 +221,7 @@ class CommandPipeline(PipelineCore):
     @property
     def parked(self) -> bool:
         """Stopped at park and at rest (pose mode: or at rest where home was given up)."""
-        if stages.at_park(self.params, self.state):
+        if super().parked:
             return True
         return (
             self.mode == "poses"

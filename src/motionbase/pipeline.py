@@ -357,6 +357,7 @@ class PipelineCore(ABC):
 
     robot: Robot
     health: Health
+    params: np.ndarray
     state: np.ndarray
     dt: float
 
@@ -365,9 +366,14 @@ class PipelineCore(ABC):
         """One tick with the source's sample (None: none, e.g. after its end); ``fresh``
         False when the source marks it a stale hold."""
 
-    @abstractmethod
     def stop(self) -> None:
-        """Head for park at the soft-start pace (the end of the input, a stop request)."""
+        """Head for park at the soft-start pace (the end of the input, a stop signal: SIGINT,
+        SIGTERM, SIGHUP, SIGQUIT; a failing source or sink): the phase becomes stopping (for
+        :class:`Pipeline`, the blend from the live pose to park runs back over
+        ``soft_start_s``)."""
+        s = self.state[0]
+        if s["phase"] in (stages.STARTING, stages.RUNNING):
+            s["phase"] = stages.STOPPING
 
     def warm_up(self) -> None:
         """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
@@ -387,9 +393,9 @@ class PipelineCore(ABC):
         """Back to parked, at rest; counters kept."""
 
     @property
-    @abstractmethod
     def parked(self) -> bool:
-        """Stopped, at rest, where the run may end."""
+        """Stopped with the actuators at park and at rest, where the run may end."""
+        return bool(stages.at_park(self.params, self.state))
 
     def estop(self) -> None:
         """Emergency stop: head for park at once, as fast as the actuators' speed and
@@ -498,19 +504,6 @@ class Pipeline(PipelineCore):
         self.step(None)
         # as a rate-limited tick calls it (writable arrays: numba compiles per array kind)
         self.robot.forward(np.array(self.robot.park_angles), guess=np.array(self.robot.park_pose))
-
-    def stop(self) -> None:
-        """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
-        back over ``soft_start_s`` (the end of the input, a stop signal: SIGINT, SIGTERM,
-        SIGHUP, SIGQUIT; a failing source or sink)."""
-        s = self.state[0]
-        if s["phase"] in (stages.STARTING, stages.RUNNING):
-            s["phase"] = stages.STOPPING
-
-    @property
-    def parked(self) -> bool:
-        """True once stopped with the actuators at park and at rest."""
-        return bool(stages.at_park(self.params, self.state))
 
     # -- one tick --------------------------------------------------------------
     def step(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
