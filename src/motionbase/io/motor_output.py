@@ -250,11 +250,11 @@ class TextFormat:
         m = _SPEC_RE.match(spec)
         if m is None:
             raise ConfigError(f"{where}: {spec!r} is not a format spec (e.g. 04x, .2f, d)")
-        typ = m.group("type") or "d"
-        if typ not in _INT_TYPES + _FLOAT_TYPES:
-            raise ConfigError(f"{where}: unsupported type {typ!r} (use d, x, X, o, b, f, e, g)")
         if not m.group("type"):
             spec += "d"
+        typ = spec[-1]  # (the type ends a spec)
+        if typ not in _INT_TYPES + _FLOAT_TYPES:
+            raise ConfigError(f"{where}: unsupported type {typ!r} (use d, x, X, o, b, f, e, g)")
         integer = typ in _INT_TYPES
         if integer and m.group("prec"):
             raise ConfigError(f"{where}: an integer type takes no precision")
@@ -586,8 +586,7 @@ class MotorOutput:
         self._drive_target: np.ndarray | None = None
         self._last_sent: bytes | None = None
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._opened = False
+        self._thread: threading.Thread | None = None  # the sender, while open
         self._holding = False
         self._next_retry = 0.0
         self._last_error = -math.inf
@@ -596,10 +595,9 @@ class MotorOutput:
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> MotorOutput:
-        if self._opened:
+        if self._thread is not None:
             return self
         self.transport.open()
-        self._opened = True
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"output {self.url}", daemon=True)
         self._thread.start()
@@ -614,11 +612,10 @@ class MotorOutput:
         time the limits need to cross the whole range; a drive whose link is down is waited
         for (:data:`RETURN_WAIT_S`, then its probation) and ramped when it returns.
         """
-        if not self._opened:
+        if self._thread is None:
             return
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
+        self._thread.join(5.0)
         command = self._command
         if command is not None:
             if self.limits is None:
@@ -626,7 +623,7 @@ class MotorOutput:
             else:
                 self._finish_ramp()
         self.transport.close()
-        self._opened = False
+        self._thread = None
 
     def __enter__(self) -> MotorOutput:
         return self.open()
