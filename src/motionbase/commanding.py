@@ -151,7 +151,6 @@ class CommandPipeline(PipelineCore):
         n = robot.n
         # actuator mode: the blend runs in actuator space and the "pose" is the actuators
         actuators = mode == "actuators"
-        self._n = n
         self._m = n if actuators else len(robot.park_pose)
         self.params = stages.new_params(
             robot,
@@ -187,7 +186,7 @@ class CommandPipeline(PipelineCore):
         """Parked, at rest, no command seen; counters kept."""
         stages.reset_state(self.state, self.params)
         self._cue[:] = 0.0
-        self._cue[: self._n] = self.robot.park_angles
+        self._cue[: self.robot.n] = self.robot.park_angles
         self._pose = np.array(self.robot.park_pose, dtype=float)
         self._sub = _BRAKE
         self._ticks = 0
@@ -242,15 +241,6 @@ class CommandPipeline(PipelineCore):
             return None, True
         return x, False
 
-    def _time(self, cmd: Command | None) -> float:
-        s = self.state[0]
-        last = float(s["t"]) if s["has_t"] else -self.dt
-        t = last + self.dt
-        if cmd is not None and math.isfinite(cmd.t) and cmd.t > last:
-            t = float(cmd.t)
-        s["t"], s["has_t"] = t, True
-        return t
-
     def step(self, cmd: Command | None, fresh: bool = True) -> PipelineOutput:
         """Advance one tick with the source's command (None: none, e.g. after its end).
 
@@ -262,13 +252,18 @@ class CommandPipeline(PipelineCore):
         """
         self.health.samples += 1
         self._ticks += 1
-        t = self._time(cmd)
+        s = self.state[0]  # the time: the command's, unless it does not advance (then + dt)
+        last = float(s["t"]) if s["has_t"] else -self.dt
+        t = last + self.dt
+        if cmd is not None and math.isfinite(cmd.t) and cmd.t > last:
+            t = float(cmd.t)
+        s["t"], s["has_t"] = t, True
         if self.mode == "actuators":
             return self._step_actuators(cmd, t)
         return self._step_poses(cmd, t, fresh)
 
     def _step_actuators(self, cmd: Command | None, t: float) -> PipelineOutput:
-        n = self._n
+        n = self.robot.n
         x, rejected = self._usable(cmd, n)
         if x is not None:
             self._cue[:n] = x
@@ -291,7 +286,7 @@ class CommandPipeline(PipelineCore):
     def _step_poses(self, cmd: Command | None, t: float, fresh: bool) -> PipelineOutput:
         P, S, robot, health = self.params, self.state, self.robot, self.health
         s = S[0]
-        n, m = self._n, self._m
+        n, m = robot.n, self._m
         if s["phase"] == stages.STARTING:
             s["phase"] = stages.RUNNING  # no blend: the approach and the limiter pace it
         running = s["phase"] == stages.RUNNING
