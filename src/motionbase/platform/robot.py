@@ -280,15 +280,9 @@ def _robot_of_file(path: str) -> str | None:
 
 def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     """The first of ``robots`` that ships a geometry preset ``name``, or None."""
-    from motionbase.config import preset_path
+    from motionbase.config import preset_names
 
-    for robot in robots:
-        try:
-            preset_path(robot, name)
-        except ConfigError:
-            continue
-        return robot
-    return None
+    return next((robot for robot in robots if name in preset_names(robot)), None)
 
 
 def names_planar_robot(name_or_path: str | None) -> bool:
