@@ -461,16 +461,15 @@ class Pipeline(PipelineCore):
             input_limits=config.input_limits,
         )
         self.state = np.zeros(1, dtype=stages.STATE)  # (reset below)
-        n, m = self.robot.n, len(self.robot.park_pose)
+        self._m = m = len(self.robot.park_pose)  # the size of a robot pose
         self._solve = stages.kernel_list(self.robot.solve_kernel, stages.SOLVE_LIST)
         self._G = self.robot.kernel_params
         self._u = np.empty(6)
         self._target = np.empty(6)
         self._cue_out = np.empty(6)
-        self._wanted = np.empty(n)
+        self._wanted = np.empty(self.robot.n)
         self._zero3 = np.zeros(3)
         self._zero3.flags.writeable = False  # as a sample's fields (AircraftState)
-        self._m = m
         # the stages, compiled for these buffers' types (a sample's fields are read-only
         # float vectors of 3, checked by AircraftState), and live views of the state record
         z, u, P, S = self._zero3, self._u, self.params, self.state
@@ -533,13 +532,12 @@ class Pipeline(PipelineCore):
             )
         pose = np.empty(self._m)
         q = np.empty(self.robot.n)
-        cue_out = self._cue_out
         flags |= self._after_cueing(
-            P, S, self._solve, self._G, cue, self._target, cue_out, pose, self._wanted, q
+            P, S, self._solve, self._G, cue, self._target, self._cue_out, pose, self._wanted, q
         )
         self.flags = flags
         if flags & stages.RUNNING_CLAMP:
-            self.cueing.track(cue_out)  # anti-windup: the pose the platform got
+            self.cueing.track(self._cue_out)  # anti-windup: the pose the platform got
         if flags & stages.RARE:
             self.health.count(flags)
             if flags & (stages.HELD | stages.RATE_LIMITED):
@@ -727,11 +725,7 @@ class RunSummary:
 
 def _sink_name(sink: Any) -> str:
     """How a sink is named in a message: its URL or file, else its type."""
-    for attr in ("label", "path"):
-        name = getattr(sink, attr, None)
-        if name:
-            return str(name)
-    return type(sink).__name__
+    return str(getattr(sink, "label", None) or getattr(sink, "path", None) or type(sink).__name__)
 
 
 def run(
