@@ -172,7 +172,7 @@ class CommandPipeline(PipelineCore):
         )
         self._solve = stages.kernel_list(_as_given, stages.SOLVE_LIST)
         self._G = np.array([float(n)])
-        self._cue = np.zeros(6)  # actuator mode: the held target, padded to 6
+        self._cue = np.zeros(6)  # actuator mode: the held target, padded to 6 (with zeros)
         self._target = np.empty(6)
         self._cue_out = np.empty(6)
         self._wanted = np.empty(n)
@@ -185,7 +185,6 @@ class CommandPipeline(PipelineCore):
     def reset(self) -> None:
         """Parked, at rest, no command seen; counters kept."""
         stages.reset_state(self.state, self.params)
-        self._cue[:] = 0.0
         self._cue[: self.robot.n] = self.robot.park_angles
         self._pose = np.array(self.robot.park_pose, dtype=float)
         self._sub = _BRAKE
@@ -339,11 +338,10 @@ class CommandPipeline(PipelineCore):
             new_pose = achieved if np.isfinite(achieved).all() else before
         self._pose = np.array(new_pose, dtype=float)
         s["pose"][:m] = self._pose
-        phase = self.phase
         return PipelineOutput(
             t, cmd, bool(fresh), cmd is not None and not rejected, self._no_cue, self._pose,
             clamped, q, robot.servo(q), bool(flags & stages.RATE_LIMITED),
-            refused or self._stale and running or bool(flags & stages.HELD), phase,
+            refused or self._stale and running or bool(flags & stages.HELD), self.phase,
             0.0 if self._stale and running else 1.0,
         )  # fmt: skip
 
