@@ -204,11 +204,9 @@ class Writer:
             )
         except RuntimeError as exc:  # the SDK's FoxgloveError: "Failed to bind port: ..."
             reason = str(exc).removeprefix("FoxgloveError: ")
-            hint = (
-                "another program uses that port: choose another"
-                if "in use" in reason
-                else "check the address"
-            )
+            hint = "check the address"
+            if "in use" in reason:
+                hint = "another program uses that port: choose another"
             raise WriterFailed(
                 f"--live {host}:{port}: cannot serve Foxglove there: {reason} ({hint})", "config"
             ) from None
