@@ -234,10 +234,8 @@ class TextFormat:
         literals.append(literal)
         if not fields:
             raise ConfigError(f"text format {template!r}: no placeholder like {{1}} (add one)")
-        try:
-            (src.encode("latin-1"))
-        except UnicodeEncodeError:
-            raise ConfigError(f"text format {template!r}: only 8-bit characters") from None
+        if any(ord(c) > 0xFF for c in src):  # (frames are encoded as latin-1)
+            raise ConfigError(f"text format {template!r}: only 8-bit characters")
         self.fields = tuple(fields)
         self._literals = literals
         self.axes = sorted({f.axis for f in fields})
