@@ -439,9 +439,8 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> Approach:
     s = S[0]
     n, m = int(p["n"]), int(p["m"])
     goal_q = np.asarray(robot.inverse(goal), dtype=float)
-    q_prev = s["q"][:n].copy()
-    v_prev = s["v"][:n].copy()
-    saved = S.copy()
+    saved = S.copy()  # the state before: its command and speed
+    q_prev, v_prev = saved[0]["q"][:n], saved[0]["v"][:n]
     flags = limit_stage(P, S, goal_q, q)
     limited = not flags & HELD and bool(flags & RATE_LIMITED)
     pose: np.ndarray | None = None if flags & HELD else goal
