@@ -410,11 +410,10 @@ class SweepSource(Iterator[Command]):
         self.speed = min(float(speed), float(lim.max_speed.min()))
         self.accel = 0.5 * float(lim.max_accel.min())
         self.dt = 1.0 / rate_hz
-        park = np.asarray(robot.park_angles, dtype=float)
         self.neutral = np.asarray(robot.inverse(robot.neutral_pose), dtype=float)
         targets, motor = sweep_profile(
-            park, self.neutral, lim.lower, lim.upper, range_rad=range_, speed=self.speed,
-            accel=self.accel, dt=self.dt, dwell_s=0.2,
+            robot.park_angles, self.neutral, lim.lower, lim.upper, range_rad=range_,
+            speed=self.speed, accel=self.accel, dt=self.dt, dwell_s=0.2,
         )  # fmt: skip
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))
