@@ -481,11 +481,10 @@ class Pipeline(PipelineCore):
         # a cueing with a compiled step: that step on its live vectors, as the batch path
         # runs it (the same as its advance), bound like the stages; else its advance
         cueing, kernel = self.cueing, self.cueing.step_kernel
-        self._cue_step = (
-            (lambda _p, _s, u, out: cueing.advance(u, out))
-            if kernel is None
-            else stages.bind(kernel, cueing.kernel_params, cueing.kernel_state, u, u)
-        )
+        if kernel is None:
+            self._cue_step = lambda _p, _s, u, out: cueing.advance(u, out)
+        else:
+            self._cue_step = stages.bind(kernel, cueing.kernel_params, cueing.kernel_state, u, u)
         #: The last tick's status bits (:mod:`motionbase.stages`).
         self.flags = 0
         self.reset()
