@@ -94,7 +94,6 @@ LOG_FORMAT = "1"
 
 _COMPRESSIONS = ("lz4", "zstd", "none")
 _HEADER = log_writer.HEADER
-_WRITER_SCRIPT = log_writer.__file__
 #: pending records are written to the writer process once they are this long (a few ticks)
 _SEND_BYTES = 16 * 1024
 _SEND_NS = 100_000_000  # ... or once they span 0.1 s of source time
@@ -288,7 +287,6 @@ class McapLogger:
         self.live = live
         self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
         self._index = {topic: i for i, topic in enumerate(self.topics)}
-        self._tf = self._index["/tf"]
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
         self._live_period_ns = round(1e9 / live_rate_hz)
@@ -356,7 +354,7 @@ class McapLogger:
             fcntl.fcntl(data_w, fcntl.F_SETPIPE_SZ, _PIPE_BYTES)
         try:
             self._process = subprocess.Popen(
-                [sys.executable, "-P", _WRITER_SCRIPT, str(data_r), str(reply_w)],
+                [sys.executable, "-P", log_writer.__file__, str(data_r), str(reply_w)],
                 pass_fds=(data_r, reply_w),
                 stdin=subprocess.DEVNULL,
                 start_new_session=True,  # the terminal's signals go to the pipeline only
@@ -453,7 +451,7 @@ class McapLogger:
             p = np.asarray(transform, dtype=float).tolist()
             if len(p) != 6 or not math.isfinite(sum(p)):
                 raise SinkError(f"add_transform: pose must be 6 finite numbers, got {p}")
-            batch.append((self._tf, FLAG_POSE, p))
+            batch.append((self._index["/tf"], FLAG_POSE, p))
         self._queue_batch(t, batch)
 
     def add_scene(self, t: float, parts: list[Any]) -> None:
