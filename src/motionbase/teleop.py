@@ -320,8 +320,7 @@ def run_teleop(
         estops=int(asked), stopped_by=stopped_by,
     )  # fmt: skip
     if logger is not None and not log.failed:
-        t_end = float(pipeline.state[0]["t"])
-        logger.add("/health", max(0.0, t_end), result.as_health())
+        logger.add("/health", max(0.0, float(pipeline.state[0]["t"])), result.as_health())
     return result
 
 
