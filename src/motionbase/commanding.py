@@ -289,7 +289,6 @@ class CommandPipeline(PipelineCore):
         if s["phase"] == stages.STARTING:
             s["phase"] = stages.RUNNING  # no blend: the approach and the limiter pace it
         running = s["phase"] == stages.RUNNING
-        at_rest = not self.speed.any()
         goal: np.ndarray | None = None
         clamped = refused = False
         x, rejected = self._usable(cmd, m)
@@ -298,7 +297,6 @@ class CommandPipeline(PipelineCore):
                 self.no_input += 1
             elif x is None:
                 refused = True
-                health.unsafe_commands += 1
             else:
                 pose = x
                 if self.clamp:
@@ -306,20 +304,18 @@ class CommandPipeline(PipelineCore):
                     pose = np.asarray(pose, dtype=float)
                     clamped = bool(moved)
                     health.clamps += clamped
-                if bool(robot.reachable(pose)):
-                    goal = pose
-                else:
-                    refused = True
-                    health.unsafe_commands += 1
+                refused = not robot.reachable(pose)
+                goal = None if refused else pose
                 if not fresh and not self._stale:
                     health.watchdog_fades += 1
                 self._stale = not fresh
                 if self._stale:
                     self.stale_ticks += 1
                     goal = None
+            health.unsafe_commands += refused
         else:
             self.park_ticks += 1
-            if self._sub == _BRAKE and at_rest:
+            if self._sub == _BRAKE and not self.speed.any():  # at rest
                 self._sub = _HOME if self._ticks <= self._deadline else _DONE
             if self._sub == _HOME and self._ticks > self._deadline:
                 self._sub = _BRAKE_LAST  # home not reached in time: to rest where it is
