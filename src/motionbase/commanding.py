@@ -219,9 +219,7 @@ class CommandPipeline(PipelineCore):
     @property
     def parked(self) -> bool:
         """Stopped at park and at rest (pose mode: or at rest where home was given up)."""
-        if super().parked:
-            return True
-        return (
+        return super().parked or (
             self.mode == "poses"
             and self._sub in (_BRAKE_LAST, _DONE)
             and self.state[0]["phase"] == stages.STOPPING
