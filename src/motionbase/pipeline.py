@@ -815,8 +815,8 @@ def run(
         n = robot.n
         run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
         ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
-        start_speed, stop_speed = np.zeros(n), np.zeros(n)
-        ticks = {"starting": 0, "stopping": 0}
+        ramp_speed = {"starting": np.zeros(n), "stopping": np.zeros(n)}  # the ramps' peak speeds
+        ticks = dict.fromkeys(ramp_speed, 0)  # and lengths
         wall0 = time.perf_counter()
         t_first: float | None = None
         t_last = 0.0
@@ -875,8 +875,7 @@ def run(
             else:
                 ramp = "starting" if phase == "starting" else "stopping"
                 ticks[ramp] += 1
-                ramp_speed = start_speed if ramp == "starting" else stop_speed
-                _track_peaks(ramp_angle, ramp_speed, out.angles, speeds)
+                _track_peaks(ramp_angle, ramp_speed[ramp], out.angles, speeds)
             if t_first is None:
                 t_first = out.t
             t_last = out.t
@@ -968,8 +967,8 @@ def run(
         summary.peak_speed = run_speed
         summary.start_s = ticks["starting"] * dt
         summary.stop_s = ticks["stopping"] * dt
-        summary.start_peak_speed = start_speed
-        summary.stop_peak_speed = stop_speed
+        summary.start_peak_speed = ramp_speed["starting"]
+        summary.stop_peak_speed = ramp_speed["stopping"]
         summary.angle_limits = (robot.limits.lower, robot.limits.upper)
         summary.max_speed = robot.limits.max_speed
         return summary
