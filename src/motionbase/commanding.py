@@ -151,7 +151,6 @@ class CommandPipeline(PipelineCore):
         n = robot.n
         # actuator mode: the blend runs in actuator space and the "pose" is the actuators
         actuators = mode == "actuators"
-        self._n = n
         self._m = n if actuators else len(robot.park_pose)
         self.params = stages.new_params(
             robot,
@@ -160,7 +159,7 @@ class CommandPipeline(PipelineCore):
             park_cue=robot.park_angles if actuators else np.zeros(6),
             park_pose=robot.park_angles if actuators else robot.park_pose,
         )
-        self.state = stages.new_state()
+        self.state = np.zeros(1, dtype=stages.STATE)  # (reset below)
         self._max_home_ticks = int(round(max_home_s / self.dt))
         lim = robot.limits
         # the approach's virtual axis: progress along the path in actuator units (max
@@ -173,7 +172,7 @@ class CommandPipeline(PipelineCore):
         )
         self._solve = stages.kernel_list(_as_given, stages.SOLVE_LIST)
         self._G = np.array([float(n)])
-        self._cue = np.zeros(6)  # actuator mode: the held target, padded to 6
+        self._cue = np.zeros(6)  # actuator mode: the held target, padded to 6 (with zeros)
         self._target = np.empty(6)
         self._cue_out = np.empty(6)
         self._wanted = np.empty(n)
@@ -185,9 +184,8 @@ class CommandPipeline(PipelineCore):
     # -- lifecycle -------------------------------------------------------------
     def reset(self) -> None:
         """Parked, at rest, no command seen; counters kept."""
-        stages.reset_state(self.state, self.params, self.params[0]["park_pose"][: self._m])
-        self._cue[:] = 0.0
-        self._cue[: self._n] = self.robot.park_angles
+        stages.reset_state(self.state, self.params)
+        self._cue[: self.robot.n] = self.robot.park_angles
         self._pose = np.array(self.robot.park_pose, dtype=float)
         self._sub = _BRAKE
         self._ticks = 0
@@ -205,12 +203,11 @@ class CommandPipeline(PipelineCore):
         """Head for park: actuator mode, the blend back over ``soft_start_s``; pose mode,
         brake to rest, then home."""
         s = self.state[0]
-        if s["phase"] in (stages.STARTING, stages.RUNNING):
-            s["phase"] = stages.STOPPING
-            if self.mode == "poses":
-                s["blend"] = 0.0
-                self._sub = _BRAKE
-                self._deadline = self._ticks + self._max_home_ticks
+        if self.mode == "poses" and s["phase"] in (stages.STARTING, stages.RUNNING):
+            s["blend"] = 0.0
+            self._sub = _BRAKE
+            self._deadline = self._ticks + self._max_home_ticks
+        super().stop()
 
     def estop(self) -> None:
         """Emergency stop: actuator mode, head for park at once within the limits; pose
@@ -222,9 +219,7 @@ class CommandPipeline(PipelineCore):
     @property
     def parked(self) -> bool:
         """Stopped at park and at rest (pose mode: or at rest where home was given up)."""
-        if stages.at_park(self.params, self.state):
-            return True
-        return (
+        return super().parked or (
             self.mode == "poses"
             and self._sub in (_BRAKE_LAST, _DONE)
             and self.state[0]["phase"] == stages.STOPPING
@@ -243,15 +238,6 @@ class CommandPipeline(PipelineCore):
             return None, True
         return x, False
 
-    def _time(self, cmd: Command | None) -> float:
-        s = self.state[0]
-        last = float(s["t"]) if s["has_t"] else -self.dt
-        t = last + self.dt
-        if cmd is not None and math.isfinite(cmd.t) and cmd.t > last:
-            t = float(cmd.t)
-        s["t"], s["has_t"] = t, True
-        return t
-
     def step(self, cmd: Command | None, fresh: bool = True) -> PipelineOutput:
         """Advance one tick with the source's command (None: none, e.g. after its end).
 
@@ -263,13 +249,18 @@ class CommandPipeline(PipelineCore):
         """
         self.health.samples += 1
         self._ticks += 1
-        t = self._time(cmd)
+        s = self.state[0]  # the time: the command's, unless it does not advance (then + dt)
+        last = float(s["t"]) if s["has_t"] else -self.dt
+        t = last + self.dt
+        if cmd is not None and math.isfinite(cmd.t) and cmd.t > last:
+            t = float(cmd.t)
+        s["t"], s["has_t"] = t, True
         if self.mode == "actuators":
             return self._step_actuators(cmd, t)
         return self._step_poses(cmd, t, fresh)
 
     def _step_actuators(self, cmd: Command | None, t: float) -> PipelineOutput:
-        n = self._n
+        n = self.robot.n
         x, rejected = self._usable(cmd, n)
         if x is not None:
             self._cue[:n] = x
@@ -292,11 +283,10 @@ class CommandPipeline(PipelineCore):
     def _step_poses(self, cmd: Command | None, t: float, fresh: bool) -> PipelineOutput:
         P, S, robot, health = self.params, self.state, self.robot, self.health
         s = S[0]
-        n, m = self._n, self._m
+        n, m = robot.n, self._m
         if s["phase"] == stages.STARTING:
             s["phase"] = stages.RUNNING  # no blend: the approach and the limiter pace it
         running = s["phase"] == stages.RUNNING
-        at_rest = not self.speed.any()
         goal: np.ndarray | None = None
         clamped = refused = False
         x, rejected = self._usable(cmd, m)
@@ -305,7 +295,6 @@ class CommandPipeline(PipelineCore):
                 self.no_input += 1
             elif x is None:
                 refused = True
-                health.unsafe_commands += 1
             else:
                 pose = x
                 if self.clamp:
@@ -313,20 +302,18 @@ class CommandPipeline(PipelineCore):
                     pose = np.asarray(pose, dtype=float)
                     clamped = bool(moved)
                     health.clamps += clamped
-                if bool(robot.reachable(pose)):
-                    goal = pose
-                else:
-                    refused = True
-                    health.unsafe_commands += 1
+                refused = not robot.reachable(pose)
+                goal = None if refused else pose
                 if not fresh and not self._stale:
                     health.watchdog_fades += 1
                 self._stale = not fresh
                 if self._stale:
                     self.stale_ticks += 1
                     goal = None
+            health.unsafe_commands += refused
         else:
             self.park_ticks += 1
-            if self._sub == _BRAKE and at_rest:
+            if self._sub == _BRAKE and not self.speed.any():  # at rest
                 self._sub = _HOME if self._ticks <= self._deadline else _DONE
             if self._sub == _HOME and self._ticks > self._deadline:
                 self._sub = _BRAKE_LAST  # home not reached in time: to rest where it is
@@ -345,11 +332,10 @@ class CommandPipeline(PipelineCore):
             new_pose = achieved if np.isfinite(achieved).all() else before
         self._pose = np.array(new_pose, dtype=float)
         s["pose"][:m] = self._pose
-        phase = self.phase
         return PipelineOutput(
             t, cmd, bool(fresh), cmd is not None and not rejected, self._no_cue, self._pose,
             clamped, q, robot.servo(q), bool(flags & stages.RATE_LIMITED),
-            refused or self._stale and running or bool(flags & stages.HELD), phase,
+            refused or self._stale and running or bool(flags & stages.HELD), self.phase,
             0.0 if self._stale and running else 1.0,
         )  # fmt: skip
 
@@ -418,11 +404,10 @@ class SweepSource(Iterator[Command]):
         self.speed = min(float(speed), float(lim.max_speed.min()))
         self.accel = 0.5 * float(lim.max_accel.min())
         self.dt = 1.0 / rate_hz
-        park = np.asarray(robot.park_angles, dtype=float)
         self.neutral = np.asarray(robot.inverse(robot.neutral_pose), dtype=float)
         targets, motor = sweep_profile(
-            park, self.neutral, lim.lower, lim.upper, range_rad=range_, speed=self.speed,
-            accel=self.accel, dt=self.dt, dwell_s=0.2,
+            robot.park_angles, self.neutral, lim.lower, lim.upper, range_rad=range_,
+            speed=self.speed, accel=self.accel, dt=self.dt, dwell_s=0.2,
         )  # fmt: skip
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))

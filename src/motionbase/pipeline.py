@@ -357,6 +357,7 @@ class PipelineCore(ABC):
 
     robot: Robot
     health: Health
+    params: np.ndarray
     state: np.ndarray
     dt: float
 
@@ -365,9 +366,14 @@ class PipelineCore(ABC):
         """One tick with the source's sample (None: none, e.g. after its end); ``fresh``
         False when the source marks it a stale hold."""
 
-    @abstractmethod
     def stop(self) -> None:
-        """Head for park at the soft-start pace (the end of the input, a stop request)."""
+        """Head for park at the soft-start pace (the end of the input, a stop signal: SIGINT,
+        SIGTERM, SIGHUP, SIGQUIT; a failing source or sink): the phase becomes stopping (for
+        :class:`Pipeline`, the blend from the live pose to park runs back over
+        ``soft_start_s``)."""
+        s = self.state[0]
+        if s["phase"] in (stages.STARTING, stages.RUNNING):
+            s["phase"] = stages.STOPPING
 
     def warm_up(self) -> None:
         """Load every compiled kernel now (numba's on-disk cache), so the first live tick is on
@@ -387,9 +393,9 @@ class PipelineCore(ABC):
         """Back to parked, at rest; counters kept."""
 
     @property
-    @abstractmethod
     def parked(self) -> bool:
-        """Stopped, at rest, where the run may end."""
+        """Stopped with the actuators at park and at rest, where the run may end."""
+        return bool(stages.at_park(self.params, self.state))
 
     def estop(self) -> None:
         """Emergency stop: head for park at once, as fast as the actuators' speed and
@@ -454,17 +460,16 @@ class Pipeline(PipelineCore):
             fade_s=config.fade_s,
             input_limits=config.input_limits,
         )
-        self.state = stages.new_state()
-        n, m = self.robot.n, len(self.robot.park_pose)
+        self.state = np.zeros(1, dtype=stages.STATE)  # (reset below)
+        self._m = m = len(self.robot.park_pose)  # the size of a robot pose
         self._solve = stages.kernel_list(self.robot.solve_kernel, stages.SOLVE_LIST)
         self._G = self.robot.kernel_params
         self._u = np.empty(6)
         self._target = np.empty(6)
         self._cue_out = np.empty(6)
-        self._wanted = np.empty(n)
+        self._wanted = np.empty(self.robot.n)
         self._zero3 = np.zeros(3)
         self._zero3.flags.writeable = False  # as a sample's fields (AircraftState)
-        self._m = m
         # the stages, compiled for these buffers' types (a sample's fields are read-only
         # float vectors of 3, checked by AircraftState), and live views of the state record
         z, u, P, S = self._zero3, self._u, self.params, self.state
@@ -476,11 +481,10 @@ class Pipeline(PipelineCore):
         # a cueing with a compiled step: that step on its live vectors, as the batch path
         # runs it (the same as its advance), bound like the stages; else its advance
         cueing, kernel = self.cueing, self.cueing.step_kernel
-        self._cue_step = (
-            (lambda _p, _s, u, out: cueing.advance(u, out))
-            if kernel is None
-            else stages.bind(kernel, cueing.kernel_params, cueing.kernel_state, u, u)
-        )
+        if kernel is None:
+            self._cue_step = lambda _p, _s, u, out: cueing.advance(u, out)
+        else:
+            self._cue_step = stages.bind(kernel, cueing.kernel_params, cueing.kernel_state, u, u)
         #: The last tick's status bits (:mod:`motionbase.stages`).
         self.flags = 0
         self.reset()
@@ -490,7 +494,7 @@ class Pipeline(PipelineCore):
     def reset(self) -> None:
         """Back to parked, filters at rest, counters kept."""
         self.cueing.reset()
-        stages.reset_state(self.state, self.params, self.robot.park_pose)
+        stages.reset_state(self.state, self.params)
 
     def _warm_ticks(self) -> None:
         level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
@@ -498,19 +502,6 @@ class Pipeline(PipelineCore):
         self.step(None)
         # as a rate-limited tick calls it (writable arrays: numba compiles per array kind)
         self.robot.forward(np.array(self.robot.park_angles), guess=np.array(self.robot.park_pose))
-
-    def stop(self) -> None:
-        """Ramp back to park at the soft-start pace: the blend from the live pose to park runs
-        back over ``soft_start_s`` (the end of the input, a stop signal: SIGINT, SIGTERM,
-        SIGHUP, SIGQUIT; a failing source or sink)."""
-        s = self.state[0]
-        if s["phase"] in (stages.STARTING, stages.RUNNING):
-            s["phase"] = stages.STOPPING
-
-    @property
-    def parked(self) -> bool:
-        """True once stopped with the actuators at park and at rest."""
-        return bool(stages.at_park(self.params, self.state))
 
     # -- one tick --------------------------------------------------------------
     def step(self, state: AircraftState | None, fresh: bool = True) -> PipelineOutput:
@@ -540,14 +531,13 @@ class Pipeline(PipelineCore):
             )
         pose = np.empty(self._m)
         q = np.empty(self.robot.n)
-        cue_out = self._cue_out
         flags |= self._after_cueing(
-            P, S, self._solve, self._G, cue, self._target, cue_out, pose, self._wanted, q
+            P, S, self._solve, self._G, cue, self._target, self._cue_out, pose, self._wanted, q
         )
         self.flags = flags
         if flags & stages.RUNNING_CLAMP:
-            self.cueing.track(cue_out)  # anti-windup: the pose the platform got
-        if flags & _RARE:
+            self.cueing.track(self._cue_out)  # anti-windup: the pose the platform got
+        if flags & stages.RARE:
             self.health.count(flags)
             if flags & (stages.HELD | stages.RATE_LIMITED):
                 # the actuators realise another pose than the one asked: say which
@@ -634,25 +624,16 @@ class Pipeline(PipelineCore):
                 out.commands[k] = o.angles
                 out.flags[k] = self.flags
             return out
+        # (named as stages.run_batch names them)
+        P, S, cp, cs = self.params, self.state, cueing.kernel_params, cueing.kernel_state
+        step = stages.kernel_list(cueing.step_kernel, stages.STEP_LIST)
+        track = stages.kernel_list(cueing.track_kernel, stages.TRACK_LIST)
         done = stages.run_batch(
-            self.params,
-            self.state,
-            stages.kernel_list(cueing.step_kernel, stages.STEP_LIST),
-            stages.kernel_list(cueing.track_kernel, stages.TRACK_LIST),
-            cueing.kernel_params,
-            cueing.kernel_state,
-            self._solve,
-            self._G,
-            t,
-            f,
-            w,
-            att,
-            fresh,
-            *out,
+            P, S, step, track, cp, cs, self._solve, self._G, t, f, w, att, fresh, *out
         )
         self.health.samples += done
         ran = out.flags[: done + (done < N)]
-        for bits in ran[(ran & _RARE) != 0]:
+        for bits in ran[(ran & stages.RARE) != 0]:
             self.health.count(int(bits))
         limited = np.flatnonzero(out.limited[:done])
         if len(limited):  # the pose the limited commands realise, as the tick reports it
@@ -664,17 +645,6 @@ class Pipeline(PipelineCore):
                 f"{cueing.name} cueing: non-finite input at sample {done} (t = {t[done]:.6g} s)"
             )
         return out
-
-
-#: Status bits that need the health counters or the forward kinematics.
-_RARE = (
-    stages.PROBLEM
-    | stages.TIME_JUMP
-    | stages.FADE_START
-    | stages.CLAMPED
-    | stages.HELD
-    | stages.RATE_LIMITED
-)
 
 
 # --------------------------------------------------------------------------- loop
@@ -754,11 +724,7 @@ class RunSummary:
 
 def _sink_name(sink: Any) -> str:
     """How a sink is named in a message: its URL or file, else its type."""
-    for attr in ("label", "path"):
-        name = getattr(sink, attr, None)
-        if name:
-            return str(name)
-    return type(sink).__name__
+    return str(getattr(sink, "label", None) or getattr(sink, "path", None) or type(sink).__name__)
 
 
 def run(
@@ -849,8 +815,8 @@ def run(
         n = robot.n
         run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
         ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
-        start_speed, stop_speed = np.zeros(n), np.zeros(n)
-        ticks = {"starting": 0, "stopping": 0}
+        ramp_speed = {"starting": np.zeros(n), "stopping": np.zeros(n)}  # the ramps' peak speeds
+        ticks = dict.fromkeys(ramp_speed, 0)  # and lengths
         wall0 = time.perf_counter()
         t_first: float | None = None
         t_last = 0.0
@@ -909,8 +875,7 @@ def run(
             else:
                 ramp = "starting" if phase == "starting" else "stopping"
                 ticks[ramp] += 1
-                ramp_speed = start_speed if ramp == "starting" else stop_speed
-                _track_peaks(ramp_angle, ramp_speed, out.angles, speeds)
+                _track_peaks(ramp_angle, ramp_speed[ramp], out.angles, speeds)
             if t_first is None:
                 t_first = out.t
             t_last = out.t
@@ -930,12 +895,6 @@ def run(
                     health.worst_late_s = max(health.worst_late_s, late)
                 if after_tick is not None:
                     after_tick()  # (the garbage collector: the command is out)
-
-        def apply_stop() -> None:
-            if pipeline.phase in ("starting", "running"):
-                pipeline.estop() if stop.estop else pipeline.stop()
-            elif stop.estop and not pipeline.estopped:
-                pipeline.estop()
 
         stopping_requested = False
         iterator = iter(source)
@@ -964,7 +923,10 @@ def run(
                 if not stopping_requested:
                     summary.stopped_by = stop.reason
                 stopping_requested = True
-                apply_stop()
+                if stop.estop and not pipeline.estopped:  # (an E-stop sets the phase stopping)
+                    pipeline.estop()
+                elif pipeline.phase in ("starting", "running"):
+                    pipeline.stop()
             out = step(state, bool(source.fresh) if has_fresh else True)
             emit(out)
             if out.phase == "parked":
@@ -1005,8 +967,8 @@ def run(
         summary.peak_speed = run_speed
         summary.start_s = ticks["starting"] * dt
         summary.stop_s = ticks["stopping"] * dt
-        summary.start_peak_speed = start_speed
-        summary.stop_peak_speed = stop_speed
+        summary.start_peak_speed = ramp_speed["starting"]
+        summary.stop_peak_speed = ramp_speed["stopping"]
         summary.angle_limits = (robot.limits.lower, robot.limits.upper)
         summary.max_speed = robot.limits.max_speed
         return summary

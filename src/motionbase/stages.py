@@ -99,6 +99,8 @@ HELD = 1 << 8
 CUEING_ERROR = 1 << 9
 RUNNING_CLAMP = 1 << 10  # clamped while running: the cueing is to be told (anti-windup)
 PHASE_SHIFT = 12  # two bits: the output phase (PHASES)
+#: The bits the health counts (and where the limiter acted, the pose to find): rare.
+RARE = PROBLEM | TIME_JUMP | FADE_START | CLAMPED | RATE_LIMITED | HELD
 
 _STATE_T = numba.from_dtype(STATE)[::1]
 _PARAMS_T = numba.from_dtype(PARAMS)[::1]
@@ -212,18 +214,13 @@ def new_params(
     return P
 
 
-def new_state() -> np.ndarray:
-    """A zeroed :data:`STATE` record (call :func:`reset_state` before use)."""
-    return np.zeros(1, dtype=STATE)
-
-
-def reset_state(S: np.ndarray, P: np.ndarray, park_pose: np.ndarray) -> None:
+def reset_state(S: np.ndarray, P: np.ndarray) -> None:
     """Parked, at rest, no sample seen; the fade full (nothing stale yet)."""
     S[0] = np.zeros((), dtype=STATE)
     s = S[0]
     s["q"] = P[0]["park_q"]
     s["wanted"] = P[0]["park_q"]
-    s["pose"][: len(park_pose)] = park_pose
+    s["pose"] = P[0]["park_pose"]
     s["phase"] = STARTING
     s["fade"] = 1.0
 
@@ -442,9 +439,8 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> Approach:
     s = S[0]
     n, m = int(p["n"]), int(p["m"])
     goal_q = np.asarray(robot.inverse(goal), dtype=float)
-    q_prev = s["q"][:n].copy()
-    v_prev = s["v"][:n].copy()
-    saved = S.copy()
+    saved = S.copy()  # the state before: its command and speed
+    q_prev, v_prev = saved[0]["q"][:n], saved[0]["v"][:n]
     flags = limit_stage(P, S, goal_q, q)
     limited = not flags & HELD and bool(flags & RATE_LIMITED)
     pose: np.ndarray | None = None if flags & HELD else goal

@@ -33,6 +33,7 @@ paced (``realtime=True``: the pipeline's loop paces it on the wall clock).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 from collections.abc import Iterator
@@ -319,8 +320,7 @@ def run_teleop(
         estops=int(asked), stopped_by=stopped_by,
     )  # fmt: skip
     if logger is not None and not log.failed:
-        t_end = float(pipeline.state[0]["t"])
-        logger.add("/health", max(0.0, t_end), result.as_health())
+        logger.add("/health", max(0.0, float(pipeline.state[0]["t"])), result.as_health())
     return result
 
 
@@ -358,10 +358,10 @@ def teleop_job(
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
     live_at = None if live is None else LiveAddress.parse(live)
     stop = stop if stop is not None else StopRequest()
-    restore = install_signal_stop(stop)  # first: a stop during start-up parks too
     sink = None
     logger = None
-    try:
+    with contextlib.ExitStack() as cleanup:  # (undone in reverse: the log, the link, the signals)
+        cleanup.callback(install_signal_stop(stop))  # first: a stop during start-up parks too
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
         source = open_cursor_source(input_spec, rrr3)
@@ -378,6 +378,7 @@ def teleop_job(
                 from motionbase.io.serial_link import ServoSerialSink
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()
+                cleanup.callback(sink.close)
             if out is not None:
                 logger = McapLogger(
                     out,
@@ -393,6 +394,7 @@ def teleop_job(
                     },
                     live=live_at,
                 ).start()
+                cleanup.callback(logger.finish)
                 if live_at is not None:
                     print(live_at.banner(logger.live_port), file=sys.stderr, flush=True)
             return run_teleop(
@@ -400,11 +402,3 @@ def teleop_job(
                 duration_s=duration_s, realtime=realtime, clamp=clamp, stop=stop,
                 stale_timeout_s=stale_timeout_s, pipeline=pipeline,
             )  # fmt: skip
-    finally:
-        try:
-            if logger is not None:
-                logger.finish()
-        finally:
-            if sink is not None:
-                sink.close()
-            restore()

@@ -82,8 +82,10 @@ class LogFile:
         if self.error is None:
             try:
                 return self._fh.write(data)
-            except OSError as exc:  # nothing of `data` was written
-                self._failed(exc)
+            except OSError as exc:  # nothing of `data` was written: count on from here
+                self.error = exc
+                self._pos = self._fh.tell()
+                self._end = self._fh.seek(0, os.SEEK_END)
         self._pos += len(data)
         self._end = max(self._end, self._pos)
         return len(data)
@@ -96,11 +98,6 @@ class LogFile:
 
     def flush(self) -> None:
         """Nothing to do: the file is unbuffered (the SDK's writer calls it as it flushes)."""
-
-    def _failed(self, exc: OSError) -> None:
-        self.error = exc
-        self._pos = self._fh.tell()
-        self._end = self._fh.seek(0, os.SEEK_END)
 
     def close(self) -> None:
         self._fh.close()  # unbuffered: nothing left to write
@@ -207,11 +204,9 @@ class Writer:
             )
         except RuntimeError as exc:  # the SDK's FoxgloveError: "Failed to bind port: ..."
             reason = str(exc).removeprefix("FoxgloveError: ")
-            hint = (
-                "another program uses that port: choose another"
-                if "in use" in reason
-                else "check the address"
-            )
+            hint = "check the address"
+            if "in use" in reason:
+                hint = "another program uses that port: choose another"
             raise WriterFailed(
                 f"--live {host}:{port}: cannot serve Foxglove there: {reason} ({hint})", "config"
             ) from None
@@ -356,11 +351,10 @@ def serve(data_fd: int, reply_fd: int) -> int:
         answer(error=failure, kind="sink")
         data.close()  # the front's next write fails at once and reads the line above
     trouble = writer.close()
-    if failure is None:
-        if trouble is None:
-            answer(ok=True)
-        else:
-            answer(error=trouble, kind="sink")
+    if failure is None and trouble is None:
+        answer(ok=True)
+    elif failure is None:
+        answer(error=trouble, kind="sink")
     return 0
 
 

@@ -94,7 +94,6 @@ LOG_FORMAT = "1"
 
 _COMPRESSIONS = ("lz4", "zstd", "none")
 _HEADER = log_writer.HEADER
-_WRITER_SCRIPT = log_writer.__file__
 #: pending records are written to the writer process once they are this long (a few ticks)
 _SEND_BYTES = 16 * 1024
 _SEND_NS = 100_000_000  # ... or once they span 0.1 s of source time
@@ -288,7 +287,6 @@ class McapLogger:
         self.live = live
         self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
         self._index = {topic: i for i, topic in enumerate(self.topics)}
-        self._tf = self._index["/tf"]
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
         self._live_period_ns = round(1e9 / live_rate_hz)
@@ -341,10 +339,7 @@ class McapLogger:
         self._spawn()
         self._state = "open"
         try:
-            payload = json.dumps(config).encode()
-            self._pending += _HEADER.pack(OP_START, len(payload), 0) + payload
-            self._send()
-            self._port = self._answer().get("port")
+            self._port = self._request(OP_START, json.dumps(config).encode()).get("port")
         except BaseException:
             self._state = "failed"  # reported by this exception, not again by finish()
             self.finish()
@@ -359,7 +354,7 @@ class McapLogger:
             fcntl.fcntl(data_w, fcntl.F_SETPIPE_SZ, _PIPE_BYTES)
         try:
             self._process = subprocess.Popen(
-                [sys.executable, "-P", _WRITER_SCRIPT, str(data_r), str(reply_w)],
+                [sys.executable, "-P", log_writer.__file__, str(data_r), str(reply_w)],
                 pass_fds=(data_r, reply_w),
                 stdin=subprocess.DEVNULL,
                 start_new_session=True,  # the terminal's signals go to the pipeline only
@@ -385,12 +380,9 @@ class McapLogger:
         if self._state in ("new", "finished"):
             self._state = "finished"
             return
-        failed = self._state == "failed"
         try:
-            if not failed:
-                self._pending += _HEADER.pack(OP_CLOSE, 0, 0)
-                self._send()
-                self._answer()
+            if self._state != "failed":
+                self._request(OP_CLOSE)
         finally:
             self._state = "finished"
             if self._data_fd >= 0:
@@ -459,7 +451,7 @@ class McapLogger:
             p = np.asarray(transform, dtype=float).tolist()
             if len(p) != 6 or not math.isfinite(sum(p)):
                 raise SinkError(f"add_transform: pose must be 6 finite numbers, got {p}")
-            batch.append((self._tf, FLAG_POSE, p))
+            batch.append((self._index["/tf"], FLAG_POSE, p))
         self._queue_batch(t, batch)
 
     def add_scene(self, t: float, parts: list[Any]) -> None:
@@ -476,7 +468,11 @@ class McapLogger:
         data = encode_message(batch)
         self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
         self._pending += data
-        self._queued(ns)
+        # written to the writer process once they reach 16 KiB or span 0.1 s of source time
+        if self._pending_ns < 0:
+            self._pending_ns = ns
+        if len(self._pending) >= _SEND_BYTES or abs(ns - self._pending_ns) >= _SEND_NS:
+            self._send()
 
     def _unknown(self, topic: str) -> None:
         raise SinkError(f"unknown MCAP topic {topic!r}: known topics are {', '.join(self.topics)}")
@@ -510,15 +506,17 @@ class McapLogger:
         """Finish the chunk in progress and hand it to the OS now (e.g. before a risky
         step); returns when the writer process has."""
         if self._state == "open":
-            self._pending += _HEADER.pack(OP_FLUSH, 0, 0)
-            self._send()
-            self._answer()
+            self._request(OP_FLUSH)
 
     # ------------------------------------------------------------------ internals
     def _ns(self, t: float) -> int:
         """Log time of ``t`` s, ns; checks the logger is open and the time fits MCAP."""
         if self._state != "open":
-            self._not_open()
+            if self._state == "new":
+                raise SinkError(f"{self.path}: MCAP logger not started: call start() before add()")
+            if self._state == "failed":
+                raise SinkError(self._failure)
+            raise SinkError(f"{self.path}: MCAP logger already finished")
         x = float(t) * 1e9
         if not 0.0 <= x < _MAX_NS:  # also NaN; a double below 2**64 rounds below it
             raise SinkError(
@@ -527,20 +525,11 @@ class McapLogger:
             )
         return round(x)
 
-    def _not_open(self) -> None:
-        if self._state == "new":
-            raise SinkError(f"{self.path}: MCAP logger not started: call start() before add()")
-        if self._state == "failed":
-            raise SinkError(self._failure)
-        raise SinkError(f"{self.path}: MCAP logger already finished")
-
-    def _queued(self, ns: int) -> None:
-        """Records of log time ``ns`` were added: write the pending ones when they reach
-        16 KiB or span 0.1 s of source time."""
-        if self._pending_ns < 0:
-            self._pending_ns = ns
-        if len(self._pending) >= _SEND_BYTES or abs(ns - self._pending_ns) >= _SEND_NS:
-            self._send()
+    def _request(self, op: int, payload: bytes = b"") -> dict[str, Any]:
+        """Send a control record (after the records pending); the writer process's answer."""
+        self._pending += _HEADER.pack(op, len(payload), 0) + payload
+        self._send()
+        return self._answer()
 
     def _send(self) -> None:
         """Write the pending records to the writer process (all of them: a signal can cut a

@@ -234,10 +234,8 @@ class TextFormat:
         literals.append(literal)
         if not fields:
             raise ConfigError(f"text format {template!r}: no placeholder like {{1}} (add one)")
-        try:
-            (src.encode("latin-1"))
-        except UnicodeEncodeError:
-            raise ConfigError(f"text format {template!r}: only 8-bit characters") from None
+        if any(ord(c) > 0xFF for c in src):  # (frames are encoded as latin-1)
+            raise ConfigError(f"text format {template!r}: only 8-bit characters")
         self.fields = tuple(fields)
         self._literals = literals
         self.axes = sorted({f.axis for f in fields})
@@ -250,11 +248,11 @@ class TextFormat:
         m = _SPEC_RE.match(spec)
         if m is None:
             raise ConfigError(f"{where}: {spec!r} is not a format spec (e.g. 04x, .2f, d)")
-        typ = m.group("type") or "d"
-        if typ not in _INT_TYPES + _FLOAT_TYPES:
-            raise ConfigError(f"{where}: unsupported type {typ!r} (use d, x, X, o, b, f, e, g)")
         if not m.group("type"):
             spec += "d"
+        typ = spec[-1]  # (the type ends a spec)
+        if typ not in _INT_TYPES + _FLOAT_TYPES:
+            raise ConfigError(f"{where}: unsupported type {typ!r} (use d, x, X, o, b, f, e, g)")
         integer = typ in _INT_TYPES
         if integer and m.group("prec"):
             raise ConfigError(f"{where}: an integer type takes no precision")
@@ -433,9 +431,8 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
             raise ConfigError(f"{path}: field {key!r}: expected a string, got {data[key]!r}")
         if "rate_hz" in extra:
             as_float(path, "rate_hz", extra["rate_hz"], min_value=0.0, strict_min=True, unit="Hz")
-        if key == "text":
-            return TextFormat(data[key], n_axes), extra
-        return BinaryFormat(data[key], n_axes), extra
+        frame_format = TextFormat if key == "text" else BinaryFormat
+        return frame_format(data[key], n_axes), extra
     return TextFormat(text, n_axes), {}
 
 
@@ -496,9 +493,6 @@ class _UdpTransport:
             ) from None
         self.sock = sock
 
-    def reopen(self) -> bool:
-        return self.sock is not None
-
     def send(self, frame: bytes) -> None:
         self.sock.send(frame)  # type: ignore[union-attr]
 
@@ -517,8 +511,9 @@ class MotorOutput:
     Parameters
     ----------
     transport : object
-        ``open()``, ``send(bytes)`` (raises OSError), ``reopen() -> bool``, ``close()`` and a
-        ``label`` (made by :func:`open_output`).
+        ``open()``, ``send(bytes)`` (raises OSError), ``close()``, a ``label`` and
+        ``reopen_on_error``: True when a send error breaks the link, to be mended by
+        ``reopen() -> bool`` (made by :func:`open_output`).
     frame_format : TextFormat or BinaryFormat
     mapping : OutputMapping
     rate_hz : float
@@ -589,8 +584,7 @@ class MotorOutput:
         self._drive_target: np.ndarray | None = None
         self._last_sent: bytes | None = None
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._opened = False
+        self._thread: threading.Thread | None = None  # the sender, while open
         self._holding = False
         self._next_retry = 0.0
         self._last_error = -math.inf
@@ -599,10 +593,9 @@ class MotorOutput:
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> MotorOutput:
-        if self._opened:
+        if self._thread is not None:
             return self
         self.transport.open()
-        self._opened = True
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"output {self.url}", daemon=True)
         self._thread.start()
@@ -617,11 +610,10 @@ class MotorOutput:
         time the limits need to cross the whole range; a drive whose link is down is waited
         for (:data:`RETURN_WAIT_S`, then its probation) and ramped when it returns.
         """
-        if not self._opened:
+        if self._thread is None:
             return
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
+        self._thread.join(5.0)
         command = self._command
         if command is not None:
             if self.limits is None:
@@ -629,7 +621,7 @@ class MotorOutput:
             else:
                 self._finish_ramp()
         self.transport.close()
-        self._opened = False
+        self._thread = None
 
     def __enter__(self) -> MotorOutput:
         return self.open()
@@ -847,18 +839,6 @@ class MotorOutput:
 # --------------------------------------------------------------------------- opening
 
 
-def _split_query(rest: str) -> tuple[str, dict[str, str], list[tuple[str, str]]]:
-    base, _, query = rest.partition("?")  # (no "?": an empty query, no keys)
-    ours: dict[str, str] = {}
-    other: list[tuple[str, str]] = []
-    for k, v in parse_qsl(query, keep_blank_values=True):
-        if k in ("format", "rate", "baud"):
-            ours[k] = v
-        else:
-            other.append((k, v))
-    return base, ours, other
-
-
 def open_output(
     url: str,
     mapping: OutputMapping,
@@ -885,7 +865,10 @@ def open_output(
         raise ConfigError(
             f"output {url!r}: expected serial:DEVICE_OR_PYSERIAL_URL?... or udp:HOST:PORT?..."
         )
-    base, ours, other = _split_query(rest)
+    base, _, query = rest.partition("?")  # (no "?": an empty query, no keys)
+    pairs = parse_qsl(query, keep_blank_values=True)
+    ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
+    other = [(k, v) for k, v in pairs if k not in ours]
     fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
     if rate_hz is not None:
         rate = float(rate_hz)

@@ -135,12 +135,9 @@ class PipelineLog:
         #: the cueing whose diagnostics go on ``/cueing/<name>`` (None: it has no schema)
         self._cueing = cueing if schema is not None else None
         self._cueing_topic = f"/cueing/{cueing.name}" if schema is not None else ""
+        topics = {self._cueing_topic: schema} if schema is not None else None
         self._logger: McapLogger | None = McapLogger(
-            self.path,
-            metadata,
-            live=live,
-            live_rate_hz=live_rate_hz,
-            topics={self._cueing_topic: schema} if schema is not None else None,
+            self.path, metadata, live=live, live_rate_hz=live_rate_hz, topics=topics
         )
         self._scene = SceneBuilder(robot) if robot is not None else None
         self._scene_period = 1.0 / SCENE_RATE_HZ

@@ -280,15 +280,9 @@ def _robot_of_file(path: str) -> str | None:
 
 def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     """The first of ``robots`` that ships a geometry preset ``name``, or None."""
-    from motionbase.config import preset_path
+    from motionbase.config import preset_names
 
-    for robot in robots:
-        try:
-            preset_path(robot, name)
-        except ConfigError:
-            continue
-        return robot
-    return None
+    return next((robot for robot in robots if name in preset_names(robot)), None)
 
 
 def names_planar_robot(name_or_path: str | None) -> bool:
@@ -305,6 +299,13 @@ def names_planar_robot(name_or_path: str | None) -> bool:
     else:
         robot = _robot_of_preset(text, list(ROBOTS))
     return robot is not None and ROBOTS[robot].planar
+
+
+def _other_mode(value: str, what: str, planar: bool) -> ConfigError:
+    """The error for a ``--platform`` value that names a robot of the other mode: ``what``
+    it names, that robot's mode, and the flag to change."""
+    mode, flag = ("not a planar", "drop --planar") if planar else ("a planar", "add --planar")
+    return ConfigError(f"--platform {value}: {what} {mode} robot ({flag})")
 
 
 def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[str, Any]:
@@ -343,11 +344,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     value = name_or_path
     if value in ROBOTS:
         if ROBOTS[value].planar != planar:
-            flag = "drop --planar" if planar else "add --planar"
-            raise ConfigError(
-                f"--platform {value}: the {ROBOTS[value].description} is "
-                f"{'a planar' if ROBOTS[value].planar else 'not a planar'} robot ({flag})"
-            )
+            raise _other_mode(value, f"the {ROBOTS[value].description} is", planar)
         robot, value = value, None
     elif value is not None:
         text = str(value)
@@ -360,12 +357,8 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
             other = [name for name, spec in ROBOTS.items() if spec.planar != planar]
             elsewhere = None if found is not None else _robot_of_preset(text, other)
             if elsewhere is not None:
-                flag = "drop --planar" if planar else "add --planar"
-                raise ConfigError(
-                    f"--platform {text}: a preset of the {ROBOTS[elsewhere].description}, "
-                    f"{'a planar' if ROBOTS[elsewhere].planar else 'not a planar'} robot "
-                    f"({flag})"
-                )
+                what = f"a preset of the {ROBOTS[elsewhere].description},"
+                raise _other_mode(text, what, planar)
             if found is None:
                 names = sorted({name for r in candidates for name in preset_names(r)})
                 raise ConfigError(
