@@ -624,12 +624,21 @@ class Pipeline(PipelineCore):
                 out.commands[k] = o.angles
                 out.flags[k] = self.flags
             return out
-        # (named as stages.run_batch names them)
-        P, S, cp, cs = self.params, self.state, cueing.kernel_params, cueing.kernel_state
-        step = stages.kernel_list(cueing.step_kernel, stages.STEP_LIST)
-        track = stages.kernel_list(cueing.track_kernel, stages.TRACK_LIST)
         done = stages.run_batch(
-            P, S, step, track, cp, cs, self._solve, self._G, t, f, w, att, fresh, *out
+            self.params,
+            self.state,
+            stages.kernel_list(cueing.step_kernel, stages.STEP_LIST),
+            stages.kernel_list(cueing.track_kernel, stages.TRACK_LIST),
+            cueing.kernel_params,
+            cueing.kernel_state,
+            self._solve,
+            self._G,
+            t,
+            f,
+            w,
+            att,
+            fresh,
+            *out,
         )
         self.health.samples += done
         ran = out.flags[: done + (done < N)]
