@@ -704,7 +704,9 @@ def test_the_tuners_chain_run_counts_the_mpcs_fallbacks():
     assert counts["fallbacks"] == counts["ticks"]
     washout = WashoutParams.preset("tuned_ceart")
     classical = PipelineConfig(robot="rus6", geometry=geometry, cueing_params=washout)
-    assert tuning.run_chain(classical, m).cueing_counts == {}
+    run = tuning.run_chain(classical, m)
+    assert run.cueing_counts == {}
+    assert dict(tuning.ChainRun(*run[:5]).cueing_counts) == {}  # the default: none counted
 
 
 def test_the_omct_in_preview_mode_takes_the_lag_out(tmp_path):

@@ -122,8 +122,9 @@ import math
 import sys
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -366,7 +367,7 @@ class ChainRun(NamedTuple):
         Samples the pipeline's validation accepted.
     angles : ndarray, shape (N, 6), optional
         The crank angles commanded (after safety), rad.
-    cueing_counts : dict of str to int
+    cueing_counts : mapping of str to int
         What the cueing counted during the run, for a cueing that counts (an MPC's
         ``ticks``, ``solved`` and ``fallbacks``); empty otherwise.
     """
@@ -377,7 +378,7 @@ class ChainRun(NamedTuple):
     running: np.ndarray
     accepted: np.ndarray
     angles: np.ndarray | None = None
-    cueing_counts: dict[str, int] = field(default_factory=dict)
+    cueing_counts: Mapping[str, int] = MappingProxyType({})
 
 
 def run_chain(config: PipelineConfig, manoeuvre: Manoeuvre, preview: bool = False) -> ChainRun:
