@@ -53,6 +53,19 @@ flight with the time constant ``[reference] decay_s``.
 Preview mode (offline, :meth:`MpcCueing.set_preview`): the recorded future of the
 reference, sample ``k + round(tau / dt)`` for a step starting ``tau`` s ahead.
 
+False cues (``[weights] false_cue`` > 0)
+---------------------------------------
+The perceived platform motion at step ``k``, ``y_k = C (Phi_k w + Gam_k U)`` with ``w = z -
+z_air`` (the model's state less that of the same model driven by the aircraft alone, so the
+aircraft's part cancels), is held by soft constraints, one slack ``s`` per step and axis:
+``y <= thr + s`` unless the aircraft's predicted perceived motion ``y_air`` is above ``thr``,
+and ``y >= -thr - s`` unless it is below ``-thr`` (``thr``: the perception thresholds of
+:mod:`motionbase.washout.perception`). Cost ``false_cue * h_k * s^2``. A cue beyond the
+threshold where the aircraft gives none, or against the aircraft's, is a false cue, as the
+tuner counts them; a stronger cue in the aircraft's direction is not. ``y_air`` is the
+reference over the horizon through the same filters: its recorded future in preview mode,
+the held (or decaying) sample in real time.
+
 Failure and lateness
 --------------------
 The solver has ``max_iter`` iterations and ``time_limit_ms`` per tick. A classical washout
@@ -83,7 +96,14 @@ import scipy.sparse as sp
 from motionbase.physics import smoothstep
 from motionbase.washout.cueing import Cueing
 from motionbase.washout.mpc_params import MpcParams
-from motionbase.washout.perception import CANAL_TAU_L, OTOLITH_K, canal_tf, otolith_tf
+from motionbase.washout.perception import (
+    CANAL_TAU_L,
+    OTOLITH_K,
+    THRESHOLD_ANGULAR_VELOCITY,
+    THRESHOLD_SPECIFIC_FORCE,
+    canal_tf,
+    otolith_tf,
+)
 
 __all__ = ["MpcCueing", "MpcInfo", "MpcModel", "build_model"]
 
@@ -362,7 +382,15 @@ class MpcCueing(Cueing):
         self._osqp = osqp
         self.robot = None
         self._legs: _LegConstraint | None = None
-        self._setup_solver(sp.csc_matrix(m.A_con), m.lo.copy(), m.hi.copy())
+        # false cues: the perceived signals of every step, from the state and the inputs
+        self._nf = 6 * N if params.w_false_cue > 0.0 else 0
+        if self._nf:
+            Cbar = scipy.linalg.block_diag(*[m.C] * N)
+            self._Cz, self._Cu, self._Cd = Cbar @ m.Phi, Cbar @ m.Gam, Cbar @ m.Lam
+            self._Cd_hold = self._Cd @ np.kron(ahead[:, None], np.eye(NE))
+            thresholds = np.concatenate([THRESHOLD_SPECIFIC_FORCE, THRESHOLD_ANGULAR_VELOCITY])
+            self._thr = np.tile(thresholds, N)
+        self._assemble()
         self._ref_gain = np.array([*params.specific_force_gain, *params.angular_velocity_gain])
         self._ref_limit = np.array(
             [*params.specific_force_limit, *np.radians(params.angular_velocity_limit_deg_s)]
@@ -377,11 +405,45 @@ class MpcCueing(Cueing):
         self._fb_pose = np.zeros(6)
         self.reset()
 
-    def _setup_solver(
-        self, A: sp.csc_matrix, lo: np.ndarray, hi: np.ndarray, P: Any = None
-    ) -> None:
+    def _assemble(self) -> None:
+        """Set OSQP up on the whole problem. Variables: the accelerations ``U``, the false
+        cues' slacks, the actuator rows' slacks; rows: the model's constraints, the false
+        cues' (above, below, slack >= 0), the actuators' (last: :meth:`_LegConstraint.locate`
+        finds them)."""
+        m, N, nf, legs = self.model, self._N, self._nf, self._legs
+        nl = legs.rows if legs is not None else 0
+        nu = N * NU
+        blocks = [[sp.csc_matrix(m.A_con), None, None]]
+        lo, hi = [m.lo], [m.hi]
+        weights = [sp.csc_matrix(m.P)]
+        if nf:
+            Cu, eye = sp.csc_matrix(self._Cu), sp.identity(nf, format="csc")
+            blocks += [[Cu, -eye, None], [Cu, eye, None], [None, eye, None]]
+            free = np.full(nf, np.inf)  # (the bounds of each tick: _false_cue_bounds)
+            lo += [-free, -free, np.zeros(nf)]
+            hi += [free, free, free]
+            weights.append(sp.diags(self.params.w_false_cue * np.repeat(m.h, 6)))
+        else:
+            blocks = [[b[0]] for b in blocks]
+        if legs is not None:
+            width = len(blocks[0])
+            blocks = [[*b, None] for b in blocks]
+            blocks.append([legs.pattern, *([None] * (width - 1)), -sp.identity(nl)])
+            # (per row, not per second: the first step, one tick long, is the pose sent)
+            weights.append(sp.diags(np.full(nl, self.params.violation_weight)))
+        A = sp.bmat(blocks, format="csc")
+        A.sort_indices()
+        if legs is not None:
+            legs.locate(A, A.shape[0] - nl, nu)
+            # set up at the neutral pose's values (OSQP scales the problem from them)
+            A.data[legs.ax_idx], l_leg, u_leg = legs.linearise(np.zeros(NX), np.zeros(nu))
+            lo.append(l_leg)
+            hi.append(u_leg)
+        P = sp.block_diag(weights, format="csc")
+        self._setup_solver(A, np.concatenate(lo), np.concatenate(hi), P)
+
+    def _setup_solver(self, A: sp.csc_matrix, lo: np.ndarray, hi: np.ndarray, P: Any) -> None:
         p = self.params
-        P = sp.csc_matrix(self.model.P) if P is None else P
         self._slack = np.zeros(P.shape[0] - self._N * NU)
         budget = {"time_limit": p.time_limit_ms * 1e-3} if p.time_limit_ms > 0 else {}
         self._solver = self._osqp.OSQP()
@@ -414,30 +476,18 @@ class MpcCueing(Cueing):
         if robot is None or robot.n < 1:
             return
         self.robot = robot
-        legs = _LegConstraint(robot, self.model, self.params)
-        m = self.model
-        self._legs = legs
         # soft: each leg row has a slack (free, cost violation_weight * slack^2): a state
         # the new linearisation puts past a limit (a tick cannot undo it) leaves the
         # problem feasible, and the plan returns within the limits
-        k = legs.rows
-        A = sp.bmat([[sp.csc_matrix(m.A_con), None], [legs.pattern, -sp.identity(k)]], format="csc")
-        A.sort_indices()
-        legs.locate(A, m.A_con.shape[0], self._N * NU)
-        # (per row, not per second: the first step, one tick long, is the pose sent)
-        w = np.full(k, self.params.violation_weight)
-        P = sp.block_diag([sp.csc_matrix(m.P), sp.diags(w)], format="csc")
-        # set up at the neutral pose's values (OSQP scales the problem from them)
-        Ax, l_leg, u_leg = legs.linearise(np.zeros(NX), np.zeros(self._N * NU))
-        A.data[legs.ax_idx] = Ax
-        lo, hi = np.concatenate([m.lo, l_leg]), np.concatenate([m.hi, u_leg])
-        self._setup_solver(A, lo, hi, P)
+        self._legs = _LegConstraint(robot, self.model, self.params)
+        self._assemble()
         self.reset()
 
     # -- lifecycle ---------------------------------------------------------------------
     def reset(self) -> None:
         """Back to rest at the neutral pose (model, plan, blend and fallback)."""
         self.z = np.zeros(NX)
+        self._z_air = np.zeros(NX)  # the model driven by the aircraft alone (false cues)
         self._a_prev = np.zeros(NU)
         self._plan = np.zeros((self._N, NU))
         self._plan_age = 0.0
@@ -499,6 +549,8 @@ class MpcCueing(Cueing):
         a0 = self._solve(d)
         m = self.model
         self.z = m.Ad @ self.z + m.Bd @ a0 + m.Ed @ d
+        if self._nf:
+            self._z_air = m.Ad @ self._z_air + m.Ed @ d
         # the model's pose stays in its box (OSQP's tolerance): never an out-of-box pose
         z = self.z
         tot = np.zeros(12)
@@ -535,19 +587,27 @@ class MpcCueing(Cueing):
     def _solve(self, d: np.ndarray) -> np.ndarray:
         m, z = self.model, self.z
         t0 = time.perf_counter()
-        if self._preview is None:
+        D = None if self._preview is None else self._reference(d)
+        if D is None:
             q = m.Fz @ z + self._Fd_hold @ d + m.Fu @ self._a_prev
         else:
-            q = m.Fz @ z + m.Fd @ self._reference(d) + m.Fu @ self._a_prev
+            q = m.Fz @ z + m.Fd @ D + m.Fu @ self._a_prev
         s = m.Sz @ z
+        lo, hi = [m.lo - s], [m.hi - s]
+        if self._nf:
+            lo_f, hi_f = self._false_cue_bounds(d, D)
+            lo += [np.full(self._nf, -np.inf), lo_f, np.zeros(self._nf)]
+            hi += [hi_f, np.full(self._nf, np.inf), np.full(self._nf, np.inf)]
+        if self._slack.size:
+            q = np.concatenate([q, self._slack])
         if self._legs is None:
-            self._solver.update(q=q, l=m.lo - s, u=m.hi - s)
+            self._solver.update(q=q, l=np.concatenate(lo), u=np.concatenate(hi))
         else:
             Ax, l_leg, u_leg = self._legs.linearise(z, self._plan.reshape(-1))
             self._solver.update(
-                q=np.concatenate([q, self._slack]),
-                l=np.concatenate([m.lo - s, l_leg]),
-                u=np.concatenate([m.hi - s, u_leg]),
+                q=q,
+                l=np.concatenate([*lo, l_leg]),
+                u=np.concatenate([*hi, u_leg]),
                 Ax=Ax,
                 Ax_idx=self._legs.ax_idx,
             )
@@ -564,7 +624,8 @@ class MpcCueing(Cueing):
             self.counts["solved"] += 1
             info.fallback = False
             self._plan = x[: self._N * NU].reshape(self._N, NU)
-            info.violation = float(np.max(np.abs(x[self._N * NU :]), initial=0.0))
+            legs = x[self._N * NU + self._nf :]  # (the actuator rows' slacks)
+            info.violation = float(np.max(np.abs(legs), initial=0.0))
             self._plan_age = 0.0
             self._blend = min(1.0, self._blend + step)
         else:
@@ -573,6 +634,25 @@ class MpcCueing(Cueing):
             self._plan_age += self.dt
             self._blend = max(0.0, self._blend - step)
         return self._planned(self._plan_age)
+
+    def _false_cue_bounds(
+        self, d: np.ndarray, D: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The false-cue rows' bounds on ``C Gam U`` (``y - s >= lo``, ``y + s <= hi`` in
+        the model's docstring, the state's part moved to the right): the aircraft's
+        predicted perceived motion ``y_air`` decides, per step and axis, which side of the
+        threshold a platform cue may not cross."""
+        za = self._z_air
+        # the model driven by the aircraft alone perceives (0 - aircraft): y_air = -that
+        if D is None:
+            y_air = -(self._Cz @ za + self._Cd_hold @ d)
+        else:
+            y_air = -(self._Cz @ za + self._Cd @ D)
+        base = self._Cz @ (self.z - za)
+        thr = self._thr
+        hi = np.where(y_air > thr, np.inf, thr) - base
+        lo = np.where(y_air < -thr, -np.inf, -thr) - base
+        return lo, hi
 
     def _planned(self, age: float) -> np.ndarray:
         """The last plan's acceleration ``age`` s after it was made; past its end, a brake

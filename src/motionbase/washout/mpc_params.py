@@ -19,6 +19,8 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     acceleration = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]
     jerk = [1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4]
     tilt = [0.1, 0.0, 0.01, 1e-4]      # the tilt's angle, rate, acceleration, jerk
+    false_cue = 0.0                    # optional: perceived platform motion past the
+                                       # threshold where the aircraft's is not, per unit^2
 
     [tilt]                             # perception thresholds, hard constraints on the tilt
     rate_limit_deg_s = 3.0             # each one number, or [roll, pitch]
@@ -110,6 +112,7 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("weights", "acceleration", "w_acceleration", 6, False, False),
     ("weights", "jerk", "w_jerk", 6, False, False),
     ("weights", "tilt", "w_tilt", 4, False, False),
+    ("weights", "false_cue", "w_false_cue", 0, False, False),
     ("tilt", "rate_limit_deg_s", "tilt_rate_limit_deg_s", 2, True, False),
     ("tilt", "accel_limit_deg_s2", "tilt_accel_limit_deg_s2", 2, True, False),
     ("tilt", "angle_limit_deg", "tilt_angle_limit_deg", 2, False, False),
@@ -187,6 +190,11 @@ class MpcParams:
         per axis x, y, z, roll, pitch, yaw.
     w_tilt : (4,) float
         Cost weights of the tilt angle, rate, acceleration and jerk (roll and pitch alike).
+    w_false_cue : float
+        Cost weight of false cues (0: none, the default): at each step and axis, the
+        perceived platform specific force (m/s^2) or rate (rad/s) beyond the perception
+        threshold where the aircraft's perceived one is below it or of the other sign, per
+        unit^2 s (soft constraints with a slack each; see :mod:`motionbase.washout.mpc`).
     tilt_rate_limit_deg_s, tilt_accel_limit_deg_s2, tilt_angle_limit_deg : (2,) float
         Hard limits of the tilt (the perception thresholds of rotation) per tilt axis
         (roll, pitch), deg/s, deg/s^2, deg. The file may give one number for both.
@@ -268,6 +276,7 @@ class MpcParams:
     angular_velocity_deg_s: Vec3
     acceleration_m_s2: Vec3
     angular_acceleration_deg_s2: Vec3
+    w_false_cue: float = 0.0
     specific_force_gain: Vec3 = (1.0, 1.0, 1.0)
     specific_force_limit: Vec3 = (1000.0, 1000.0, 1000.0)
     angular_velocity_gain: Vec3 = (1.0, 1.0, 1.0)
@@ -374,6 +383,10 @@ class MpcParams:
                 check_keys(f"{source} [solver]", d[section], keys)
             elif section in ("reference", "robot"):
                 check_keys(f"{source} [{section}]", d[section], keys)
+            elif section == "weights":  # (false_cue is optional: 0, none)
+                required = [k for k in keys if k != "false_cue"]
+                check_keys(f"{source} [weights]", d[section], keys, required=required)
+                d[section].setdefault("false_cue", 0.0)
             else:
                 check_keys(f"{source} [{section}]", d[section], keys, required=keys)
         for key, value in _SOLVER_DEFAULTS.items():
