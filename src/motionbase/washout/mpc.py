@@ -638,7 +638,7 @@ class MpcCueing(Cueing):
     def _false_cue_bounds(
         self, d: np.ndarray, D: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The false-cue rows' bounds on ``C Gam U`` (``y - s >= lo``, ``y + s <= hi`` in
+        """The false-cue rows' bounds on ``C Gam U`` (``y - s <= hi``, ``y + s >= lo`` in
         the model's docstring, the state's part moved to the right): the aircraft's
         predicted perceived motion ``y_air`` decides, per step and axis, which side of the
         threshold a platform cue may not cross."""
