@@ -141,28 +141,33 @@ _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("solver", "eps_rel", "eps_rel", 0, False, False),
     ("solver", "blend_s", "blend_s", 0, True, False),
 )
-_SOLVER_DEFAULTS: dict[str, Any] = {
-    "max_iter": 400,
-    "time_limit_ms": 4.0,
-    "eps_abs": 1e-4,
-    "eps_rel": 1e-4,
-    "blend_s": 0.5,
-    "fallback": "tuned_ceart",
-}
-_REFERENCE_DEFAULTS: dict[str, Any] = {
-    "specific_force_gain": [1.0, 1.0, 1.0],
-    "specific_force_limit": [1000.0, 1000.0, 1000.0],
-    "angular_velocity_gain": [1.0, 1.0, 1.0],
-    "angular_velocity_limit_deg_s": [1000.0, 1000.0, 1000.0],
-    "decay_s": 0.0,
-}
-_ROBOT_DEFAULTS: dict[str, Any] = {
-    "actuator_margin": 0.02,
-    "speed_share": 0.9,
-    "accel_share": 0.9,
-    "steps": 7,
-    "speed_steps": 2,
-    "violation_weight": 1e5,
+#: The optional fields and their values when left out, per section; every other field of
+#: ``_SCHEMA`` is required (a section whose fields are all optional may be left out whole).
+_DEFAULTS: dict[str, dict[str, Any]] = {
+    "weights": {"false_cue": 0.0},
+    "reference": {
+        "specific_force_gain": [1.0, 1.0, 1.0],
+        "specific_force_limit": [1000.0, 1000.0, 1000.0],
+        "angular_velocity_gain": [1.0, 1.0, 1.0],
+        "angular_velocity_limit_deg_s": [1000.0, 1000.0, 1000.0],
+        "decay_s": 0.0,
+    },
+    "robot": {
+        "actuator_margin": 0.02,
+        "speed_share": 0.9,
+        "accel_share": 0.9,
+        "steps": 7,
+        "speed_steps": 2,
+        "violation_weight": 1e5,
+    },
+    "solver": {
+        "max_iter": 400,
+        "time_limit_ms": 4.0,
+        "eps_abs": 1e-4,
+        "eps_rel": 1e-4,
+        "blend_s": 0.5,
+        "fallback": "tuned_ceart",
+    },
 }
 _SECTIONS = ("horizon", "weights", "tilt", "limits", "reference", "robot", "solver")
 _TOP = ("description", "g", "mode", *_SECTIONS)
@@ -377,24 +382,13 @@ class MpcParams:
         for section in _SECTIONS:
             if not isinstance(d[section], dict):
                 raise ConfigError(f"{source}: [{section}] must be a table, got {d[section]!r}")
+            defaults = _DEFAULTS.get(section, {})
             keys = [k for s, k, *_ in _SCHEMA if s == section]
-            if section == "solver":
-                keys.append("fallback")
-                check_keys(f"{source} [solver]", d[section], keys)
-            elif section in ("reference", "robot"):
-                check_keys(f"{source} [{section}]", d[section], keys)
-            elif section == "weights":  # (false_cue is optional: 0, none)
-                required = [k for k in keys if k != "false_cue"]
-                check_keys(f"{source} [weights]", d[section], keys, required=required)
-                d[section].setdefault("false_cue", 0.0)
-            else:
-                check_keys(f"{source} [{section}]", d[section], keys, required=keys)
-        for key, value in _SOLVER_DEFAULTS.items():
-            d["solver"].setdefault(key, value)
-        for key, value in _REFERENCE_DEFAULTS.items():
-            d["reference"].setdefault(key, value)
-        for key, value in _ROBOT_DEFAULTS.items():
-            d["robot"].setdefault(key, value)
+            keys += [k for k in defaults if k not in keys]  # (the solver's fallback)
+            required = [k for k in keys if k not in defaults]
+            check_keys(f"{source} [{section}]", d[section], keys, required=required)
+            for key, value in defaults.items():
+                d[section].setdefault(key, value)
         d.setdefault("g", STANDARD_GRAVITY)
         d.setdefault("description", "")
         d.setdefault("mode", "real-time")
