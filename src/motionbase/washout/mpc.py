@@ -642,13 +642,10 @@ class MpcCueing(Cueing):
         the model's docstring, the state's part moved to the right): the aircraft's
         predicted perceived motion ``y_air`` decides, per step and axis, which side of the
         threshold a platform cue may not cross."""
-        za = self._z_air
+        air = self._Cz @ self._z_air
         # the model driven by the aircraft alone perceives (0 - aircraft): y_air = -that
-        if D is None:
-            y_air = -(self._Cz @ za + self._Cd_hold @ d)
-        else:
-            y_air = -(self._Cz @ za + self._Cd @ D)
-        base = self._Cz @ (self.z - za)
+        y_air = -(air + (self._Cd_hold @ d if D is None else self._Cd @ D))
+        base = self._Cz @ self.z - air
         thr = self._thr
         hi = np.where(y_air > thr, np.inf, thr) - base
         lo = np.where(y_air < -thr, -np.inf, -thr) - base
