@@ -87,11 +87,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """A handler writing to ``sys.stderr`` as it is at each message, not as it was when the
+    handler was made (a caller of ``main`` may have swapped it, and closed the old one)."""
+
+    stream = property(lambda self: sys.stderr, lambda self, value: None)  # type: ignore[assignment]
+
+
 def _setup_logging() -> None:
     """Warnings of the library (a truncated file, a stale link) as one plain line each."""
     log = logging.getLogger("motionbase")
     if not log.handlers:
-        handler = logging.StreamHandler(sys.stderr)
+        handler = _StderrHandler()
         handler.setFormatter(logging.Formatter("motionbase: %(levelname)s: %(message)s"))
         log.addHandler(handler)
         log.setLevel(logging.WARNING)
