@@ -521,6 +521,11 @@ def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
     """They used to be ignored without a word; the recording itself is whole, so it is read."""
     from motionbase import cli
 
+    # the logger as a fresh process has it (an earlier test's cli.main gave it a handler,
+    # which would print this test's first two warnings too)
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
     path, states = recording
     appended = tmp_path / "appended.mcap"
     junk = b"garbage after the footer\n" * 4
@@ -532,9 +537,6 @@ def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
     assert not source.truncated and source.count == len(states)
     assert [r.getMessage().startswith(said) for r in caplog.records] == [True, True]
 
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
     assert cli.main(["replay", str(appended)]) == 0
     captured = capsys.readouterr()
     assert [ln for ln in captured.err.splitlines() if "WARNING" in ln] == [

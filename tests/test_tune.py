@@ -757,6 +757,42 @@ def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
+def test_a_stop_does_not_wait_for_the_evaluation_under_way(tmp_path):
+    """An evaluation can take minutes (here the MPC with a 5 s horizon of 100 steps, in
+    preview mode: several minutes of processor time for the start set alone; the first
+    evaluation after installing compiles the pipeline for up to a minute). A stop kills the
+    workers instead of waiting for it: the run ends within ``signalled``'s minute, nothing
+    written, no worker left. (It used to wait for the evaluation to end.)"""
+    text = (preset_path("mpc", "preview_ceart")).read_text()
+    text = text.replace("steps = 25", "steps = 100").replace("step_s = 0.1", "step_s = 0.05")
+    start = tmp_path / "long_horizon.toml"
+    start.write_text(text)
+    out = tmp_path / "o.toml"
+    args = ["tune", "--cueing", "mpc", "--preview", "--params", str(start), "--scripts",
+            "c1723@0:40", "--holdout", "none", "--budget", "10", "--workers", "2",
+            "--out", str(out)]  # fmt: skip
+    workers: list[int] = []
+
+    def evaluating(proc) -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            workers[:] = _workers_of(proc.pid)
+            if sum(_cpu_seconds(w) for w in workers) >= 5.0:
+                return
+            time.sleep(0.2)
+        raise AssertionError("the workers did not start evaluating")
+
+    status, err = signalled(args, evaluating, signal.SIGINT)
+    assert err.strip() == "motionbase tune: interrupted", err[-2000:]
+    assert status == 128 + signal.SIGINT
+    assert not out.exists()
+    deadline = time.monotonic() + 15
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
 def test_a_stopped_tune_keeps_the_best_set_it_found(tmp_path):
     """SIGTERM seconds into a tuning of the SIMONA set (which CMA-ES soon beats on the
     rudder kick): the best set so far is written, its header saying so, and the one line

@@ -15,10 +15,11 @@ order of the candidates, whatever finishes first), the function
   More than four per processor is refused: the evaluations are CPU bound. The workers
   leave the stop signals (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT, also when they are sent to the
   whole process group, as ``timeout`` and service managers do) to the main process, which
-  cancels what is queued and waits for the evaluations under way, a fraction of a second;
-  they exit on their own when the main process dies (a kill), instead of waiting for work
-  forever. A worker that dies anyway (killed, out of memory) ends the run with a one-line
-  error;
+  cancels what is queued and kills the workers (what they were evaluating is thrown away,
+  and an evaluation can take a minute: the first one in a fresh installation compiles the
+  pipeline, an MPC one solves thousands of programmes); they exit on their own when the
+  main process dies (a kill), instead of waiting for work forever. A worker that dies
+  anyway (killed, out of memory) ends the run with a one-line error;
 - ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler, through the
   ``concurrent.futures`` interface of its client (``Client.get_executor``); the problem
   is scattered to every worker once and each evaluation refers to it. The workers need
@@ -36,7 +37,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
-from multiprocessing import get_context, parent_process
+from multiprocessing import active_children, get_context, parent_process
 from multiprocessing.connection import wait
 from typing import TYPE_CHECKING
 
@@ -129,6 +130,7 @@ def open_evaluator(
         yield evaluate_here
         return
     _start_resource_tracker()
+    others = set(active_children())  # (processes this one had started before the pool)
     pool = ProcessPoolExecutor(
         max_workers=n,
         mp_context=get_context("spawn"),
@@ -147,7 +149,9 @@ def open_evaluator(
             "tune: a worker process died (killed, or out of memory); nothing was written; "
             "run again, with fewer --workers if memory is short"
         ) from None
-    except BaseException:
+    except BaseException:  # a stop, or an error here: the evaluations under way are not wanted
+        for worker in set(active_children()) - others:
+            worker.kill()
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
@@ -155,7 +159,7 @@ def open_evaluator(
 
 def _results(futures: list[Future], stop: StopRequest | None) -> list[SetScore]:
     """The futures' results in order; on a stop, cancel those not started and raise
-    :class:`~motionbase.stopping.Stopped` (the caller's shutdown waits for the others)."""
+    :class:`~motionbase.stopping.Stopped` (the caller then kills the workers)."""
     pending = set(futures)
     while pending:
         if stop:
