@@ -187,3 +187,60 @@ def test_the_logs_first_scene_loads_no_compiled_code(robot, tmp_path):
         before = _overload_counts()
         log.write(out)
         assert _overload_counts() == before
+
+
+def _stderr_at_a_terminal(code: str) -> tuple[str, str]:
+    """Run ``python -c code`` with stderr on a pseudo-terminal; (stdout, what it wrote there)."""
+    import os
+    import pty
+
+    leader, follower = pty.openpty()
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", code],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=follower,
+            text=True,
+            timeout=120,
+        )
+    finally:
+        os.close(follower)
+    seen = b""
+    while True:
+        try:
+            chunk = os.read(leader, 4096)
+        except OSError:  # the terminal's other end is closed: all was read
+            break
+        if not chunk:
+            break
+        seen += chunk
+    os.close(leader)
+    return proc.stdout, seen.decode()
+
+
+#: Two functions that numba compiles in this process (no cache), after the CLI's notice is set.
+_COMPILE_TWO = """
+import numba
+from motionbase import cli
+cli._notice_compiling()
+numba.njit(lambda x: x + 1)(1)
+numba.njit(lambda x: x * 2.0)(2.0)
+print("compiled")
+"""
+
+
+def test_compiling_is_said_once_at_a_terminal_and_never_into_a_pipe():
+    """A fresh installation's first run compiles for half a minute or more; at a terminal it
+    says so, once however many functions it compiles. Into a pipe (a log, a test) it says
+    nothing, and a process that compiles nothing (the cache filled: the test above) never
+    triggers it."""
+    from motionbase.cli import COMPILING_NOTICE
+
+    out, seen = _stderr_at_a_terminal(_COMPILE_TWO)
+    assert out.strip() == "compiled"
+    assert seen.count(COMPILING_NOTICE) == 1 and seen.strip() == COMPILING_NOTICE, seen
+    piped = subprocess.run(
+        [sys.executable, "-c", _COMPILE_TWO], capture_output=True, text=True, check=True
+    )
+    assert piped.stdout.strip() == "compiled" and piped.stderr == ""

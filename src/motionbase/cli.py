@@ -119,6 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         with insistent_ctrl_c():  # jobs that move the platform route the signals to a stop
+            _notice_compiling()
             return int(args._run(args) or 0)
     except MotionbaseError as exc:
         print(f"motionbase {args.command}: error: {exc}", file=sys.stderr)
@@ -134,6 +135,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not _raised_by_ctrl_c(exc):
             raise  # a bug: its traceback is what a bug report needs
         return _interrupted(args.command)
+
+
+#: Said at a terminal when numba starts compiling (:func:`_notice_compiling`).
+COMPILING_NOTICE = (
+    "motionbase: compiling for this processor, as the first runs after installing do "
+    "(up to a minute); later runs load what they compiled"
+)
+
+
+def _notice_compiling() -> None:
+    """At a terminal, one line when numba starts compiling. A fresh installation's first
+    runs fill numba's cache, which takes half a minute or more and was silent; later runs
+    load it and compile nothing (``tests/test_startup.py``), so they say nothing. Not said
+    when stderr is a file or a pipe (a log, a test): there it would only be noise."""
+    if not sys.stderr.isatty():
+        return
+    from numba.core import event
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, _event: event.Event) -> None:
+            if not self.said:
+                self.said = True
+                print(COMPILING_NOTICE, file=sys.stderr, flush=True)
+
+        def on_end(self, _event: event.Event) -> None:
+            pass
+
+    event.register("numba:compile", Notice())
 
 
 def _interrupted(command: str) -> int:
