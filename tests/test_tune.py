@@ -726,6 +726,14 @@ def _alive(pid: int) -> bool:
     return state != "Z"  # a zombie has exited
 
 
+def _assert_gone(workers: list[int]) -> None:
+    """Every pid of ``workers`` exits within 15 s."""
+    deadline = time.monotonic() + 15
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
+
+
 def _tune_args(tmp_path: Path) -> list[str]:
     """A tuning that would run for hours: it only ends when stopped."""
     return ["tune", "--scripts", "c1723@0:20", "--holdout", "none", "--budget", "100000",
@@ -746,10 +754,7 @@ def test_stopping_tune_leaves_no_worker_behind(sig, tmp_path):
         time.sleep(1.0)  # evaluations under way
 
     status, err = signalled(_tune_args(tmp_path), evaluating, sig)
-    deadline = time.monotonic() + 15
-    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
+    _assert_gone(workers)
     said = "" if sig == signal.SIGINT else f" ({sig.name})"
     assert err.strip() == f"motionbase tune: interrupted{said}"
     assert status == 128 + sig, err[-2000:]
@@ -786,10 +791,7 @@ def test_a_stop_does_not_wait_for_the_evaluation_under_way(tmp_path):
     assert err.strip() == "motionbase tune: interrupted", err[-2000:]
     assert status == 128 + signal.SIGINT
     assert not out.exists()
-    deadline = time.monotonic() + 15
-    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
+    _assert_gone(workers)
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads workers from /proc")
@@ -873,10 +875,7 @@ def test_a_sigterm_to_the_whole_process_group_ends_tune_cleanly(after_s, sig, tm
     assert err.strip() == f"motionbase tune: interrupted ({sig.name})", err[-2000:]
     assert status == 128 + sig
     assert not (tmp_path / "o.toml").exists()
-    deadline = time.monotonic() + 15
-    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not any(_alive(w) for w in workers), "a worker outlived motionbase tune"
+    _assert_gone(workers)
 
 
 def test_the_ceart_default_is_the_washout_tuned_for_it(tmp_path):
