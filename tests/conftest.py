@@ -106,3 +106,16 @@ def display_tools() -> dict[str, str]:
             pytest.fail(f"{reason}; {REQUIRE_DISPLAY_ENV} is set, so this machine must run it")
         pytest.skip(reason)
     return {name: str(path) for name, path in tools.items()}
+
+
+@pytest.fixture
+def fresh_logger(monkeypatch):
+    """The library's logger as a fresh process has it: no handler, propagating (pytest's
+    capture sees its records). ``cli.main`` then installs its own warning handler on the
+    stderr of the moment, this test's; an earlier test's ``cli.main`` left one otherwise."""
+    import logging
+
+    log = logging.getLogger("motionbase")
+    monkeypatch.setattr(log, "handlers", [])
+    monkeypatch.setattr(log, "propagate", True)
+    return log

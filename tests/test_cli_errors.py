@@ -30,14 +30,10 @@ RATE = 120.0
 
 
 @pytest.fixture
-def run_cli(capfd, monkeypatch):
-    """``run_cli(*args) -> (exit status, stdout, stderr)``, warnings included in stderr, and
-    what C code wrote to the file descriptors too."""
-    # cli.main installs its warning handler (on the stderr of the moment: this test's) when
-    # the logger has none; pytest attaches its own to loggers that do not propagate
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
+def run_cli(capfd, fresh_logger):
+    """``run_cli(*args) -> (exit status, stdout, stderr)``, warnings included in stderr (the
+    logger as a fresh process has it: ``fresh_logger``), and what C code wrote to the file
+    descriptors too."""
 
     def run(*args: str) -> tuple[int, str, str]:
         try:

@@ -336,15 +336,9 @@ def _health(path: Path) -> dict:
 
 @pytest.mark.parametrize("kind", ["string for a number", "non-UTF-8 bytes", "null message"])
 def test_replay_and_check_of_a_malformed_recording_through_the_cli(
-    tmp_path, capsys, monkeypatch, kind
+    tmp_path, capsys, fresh_logger, kind
 ):
     from motionbase import cli
-
-    # cli.main installs its warning handler (on the stderr of the moment: this test's) when
-    # the logger has none; pytest attaches its own to loggers that do not propagate
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
 
     src = tmp_path / "bad.mcap"
     payloads = _recording_with(src, MALFORMED[kind])
@@ -382,14 +376,11 @@ def test_replay_and_check_of_a_malformed_recording_through_the_cli(
     assert _health(out)["rejected_inputs"] == 0
 
 
-def test_replaying_a_truncated_recording_warns_once(tmp_path, capsys, monkeypatch):
+def test_replaying_a_truncated_recording_warns_once(tmp_path, capsys, fresh_logger):
     """The shipped recording cut at a third: the replay runs on what was written before the
     cut and says so once, on stderr (the source's warning, which report and tune share)."""
     from motionbase import cli
 
-    log = logging.getLogger("motionbase")  # as above: cli.main's own warning handler
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
     shipped = Path(__file__).parents[1] / "recordings" / "c1723_30s.mcap"
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(shipped.read_bytes()[: shipped.stat().st_size // 3])
@@ -445,14 +436,11 @@ def _assert_damaged(path: Path, chunk_at: int | None = None) -> None:
             assert chunk_at - 200_000 < int(where.group(1)) <= chunk_at, msg
 
 
-def test_a_damaged_recording_is_an_error_not_a_truncated_file(tmp_path, capsys, monkeypatch):
+def test_a_damaged_recording_is_an_error_not_a_truncated_file(tmp_path, capsys, fresh_logger):
     """The audit's case: 8 bytes overwritten at byte 1,000,000 of a real recording were read
     as a cut (a quarter of the data, exit 0)."""
     from motionbase import cli
 
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
     bad = tmp_path / "damaged.mcap"
     bad.write_bytes(_damage(RECORDING.read_bytes(), 1_000_000))
     _assert_damaged(bad, chunk_at=1_000_000)
@@ -516,16 +504,11 @@ def test_damage_before_a_cut_is_still_damage(recording, tmp_path) -> None:
 
 
 def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
-    recording, tmp_path, caplog, capsys, monkeypatch
+    recording, tmp_path, caplog, capsys, fresh_logger
 ):
     """They used to be ignored without a word; the recording itself is whole, so it is read."""
     from motionbase import cli
 
-    # the logger as a fresh process has it (an earlier test's cli.main gave it a handler,
-    # which would print this test's first two warnings too)
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
     path, states = recording
     appended = tmp_path / "appended.mcap"
     junk = b"garbage after the footer\n" * 4
@@ -557,13 +540,10 @@ def test_bytes_after_the_end_of_a_finished_file_are_a_warning(
     ],
 )
 def test_a_config_that_is_not_a_json_object_is_refused(
-    tmp_path, capsys, monkeypatch, config, needle
+    tmp_path, capsys, fresh_logger, config, needle
 ):
     from motionbase import cli
 
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
     path = tmp_path / "bad_config.mcap"
     with open(path, "wb") as fh:
         writer = Writer(fh)
@@ -586,15 +566,12 @@ def test_a_config_that_is_not_a_json_object_is_refused(
     assert "no recorded configuration" not in captured.out
 
 
-def test_check_of_a_cut_recording_says_the_message_counts_differ(tmp_path, capsys, monkeypatch):
+def test_check_of_a_cut_recording_says_the_message_counts_differ(tmp_path, capsys, fresh_logger):
     """``replay --check`` of a cut file said "DIFF ... largest difference 0" for topics whose
     counts differ: the count is the difference, and the line now says so."""
     from motionbase import cli
     from motionbase.app import CheckReport
 
-    log = logging.getLogger("motionbase")
-    monkeypatch.setattr(log, "handlers", [])
-    monkeypatch.setattr(log, "propagate", True)
     data = (RECORDING.parent / "c1723_planar_15s.mcap").read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: int(len(data) * 0.4)])
