@@ -576,12 +576,12 @@ class MpcCueing(Cueing):
         return True
 
     def _reference(self, d: np.ndarray) -> np.ndarray:
-        """Exogenous inputs per step (N * 6)."""
+        """Preview mode's exogenous inputs per step (N * 6): the current sample ``d``, then
+        the recorded future (its last sample held past its end)."""
         D = np.tile(d, self._N)
-        if self._preview is not None:
-            n = len(self._preview)
-            idx = self._tick + np.rint(self._offsets[1:] / self.dt).astype(int)
-            D[NE:] = self._preview[np.minimum(idx, n - 1)].reshape(-1)
+        n = len(self._preview)
+        idx = self._tick + np.rint(self._offsets[1:] / self.dt).astype(int)
+        D[NE:] = self._preview[np.minimum(idx, n - 1)].reshape(-1)
         return D
 
     def _solve(self, d: np.ndarray) -> np.ndarray:
