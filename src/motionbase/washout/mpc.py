@@ -397,6 +397,7 @@ class MpcCueing(Cueing):
         )
         self._lo_box = np.concatenate([params.pose_lower, -params.velocity_limit])
         self._hi_box = np.concatenate([params.pose_upper, params.velocity_limit])
+        self._tilt_limits = params.tilt_limits
         self._preview: np.ndarray | None = None
         self.info = MpcInfo()
         self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
@@ -551,8 +552,19 @@ class MpcCueing(Cueing):
         self.z = m.Ad @ self.z + m.Bd @ a0 + m.Ed @ d
         if self._nf:
             self._z_air = m.Ad @ self._z_air + m.Ed @ d
-        # the model's pose stays in its box (OSQP's tolerance): never an out-of-box pose
         z = self.z
+        # the tilt in its own limits (first: the pose box below moves the rotational part).
+        # A tilt past its angle limit by the solver's tolerance cannot come back within the
+        # next tick (its acceleration limit is a perception threshold): every programme
+        # after it was infeasible, until the old plan brought it back
+        for j, dof in enumerate(_TILT):
+            limit, rate_limit = self._tilt_limits[0, j], self._tilt_limits[1, j]
+            if abs(z[dof]) > limit:
+                if z[ND + dof] * z[dof] > 0.0:
+                    z[ND + dof] = 0.0
+                z[dof] = math.copysign(limit, z[dof])
+            z[ND + dof] = min(max(z[ND + dof], -rate_limit), rate_limit)
+        # the model's pose stays in its box (OSQP's tolerance): never an out-of-box pose
         tot = np.zeros(12)
         np.add.at(tot, np.concatenate([_POSE_OF, 6 + _POSE_OF]), z[: 2 * ND])
         over = np.clip(tot, self._lo_box, self._hi_box) - tot
