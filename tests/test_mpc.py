@@ -163,8 +163,9 @@ def test_a_tilt_past_its_limit_by_the_tolerance_leaves_the_next_programmes_feasi
     """The solver's tolerance can leave the model's tilt a little past its angle limit
     (0.4 mrad was seen in preview runs). The tilt acceleration limit (a perception
     threshold) cannot bring it back within one tick, so the next programmes' first steps
-    were infeasible: OSQP stopped at its iteration cap with the tilt further out, or fell
-    back, for ten ticks or more. Each tick now ends with the tilt in its limits."""
+    were infeasible: OSQP stopped at its iteration cap tick after tick, or fell back, with
+    the tilt still outside (nine ticks here). Each tick now ends with the tilt in its
+    limits."""
     p = dataclasses.replace(ceart, time_limit_ms=0.0, tilt_angle_limit_deg=(8.0, 8.0))
     cue = MpcCueing(p, DT)
     u = np.zeros((730, 6))
