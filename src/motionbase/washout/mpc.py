@@ -76,6 +76,11 @@ it solves again the pose blends back. :attr:`MpcCueing.info` holds the last tick
 status, iterations and solve time; :attr:`MpcCueing.counts` the ticks solved and fallen
 back.
 
+The solver's tolerance can leave the model a hair outside a limit. Each tick therefore ends
+with the model's tilt inside its angle and rate limits and its pose inside the box: a tilt
+outside, which its acceleration limit (a perception threshold) cannot bring back within a
+tick, made every later programme infeasible until the old plan brought it back.
+
 Anti-windup: :meth:`MpcCueing.track` moves the model's pose to the one the platform got
 (roll and pitch differences into the rotational part), stops the rates pointing further
 out, and tells the fallback washout the same.
