@@ -400,8 +400,6 @@ class MpcCueing(Cueing):
         self._ref_limit = np.array(
             [*params.specific_force_limit, *np.radians(params.angular_velocity_limit_deg_s)]
         )
-        self._lo_box = np.concatenate([params.pose_lower, -params.velocity_limit])
-        self._hi_box = np.concatenate([params.pose_upper, params.velocity_limit])
         self._tilt_limits = params.tilt_limits
         self._preview: np.ndarray | None = None
         self.info = MpcInfo()
@@ -570,16 +568,10 @@ class MpcCueing(Cueing):
                 z[dof] = math.copysign(limit, z[dof])
             z[ND + dof] = min(max(z[ND + dof], -rate_limit), rate_limit)
         # the model's pose stays in its box (OSQP's tolerance): never an out-of-box pose
-        tot = np.zeros(12)
-        np.add.at(tot, np.concatenate([_POSE_OF, 6 + _POSE_OF]), z[: 2 * ND])
-        over = np.clip(tot, self._lo_box, self._hi_box) - tot
-        if over[:6].any():
-            for k in range(6):
-                if over[k]:  # onto the box, and the rates of this axis going out stop
-                    z[_rot_dof(k)] += over[k]
-                    for j in np.flatnonzero(_POSE_OF == k):
-                        if z[ND + j] * over[k] < 0.0:
-                            z[ND + j] = 0.0
+        pose = _pose_of(z)
+        over = np.clip(pose, self.params.pose_lower, self.params.pose_upper) - pose
+        for k in np.flatnonzero(over):
+            _shift_axis(z, k, over[k])
         self._a_prev = a0
         self._mpc_pose[:] = _pose_of(z)
         wgt = smoothstep(self._blend)
@@ -689,17 +681,11 @@ class MpcCueing(Cueing):
         self.fallback.track(ach)
         diff = ach - self._pose
         z = self.z
-        for k in range(6):
-            if diff[k] != 0.0:
-                dof = _rot_dof(k)
-                z[dof] += diff[k]
-                lo, hi = self.params.pose_lower[k], self.params.pose_upper[k]
-                tot = _pose_of(z)[k]
-                z[dof] += np.clip(tot, lo, hi) - tot
-                # rates of this axis pointing further out stop
-                for j in np.flatnonzero(_POSE_OF == k):
-                    if z[ND + j] * diff[k] < 0.0:
-                        z[ND + j] = 0.0
+        for k in np.flatnonzero(diff):
+            _shift_axis(z, k, diff[k])
+            lo, hi = self.params.pose_lower[k], self.params.pose_upper[k]
+            tot = _pose_of(z)[k]
+            z[_rot_dof(k)] += np.clip(tot, lo, hi) - tot
         self._pose[:] = ach
 
     def __repr__(self) -> str:
@@ -874,6 +860,15 @@ def constrained_steps(steps: int, count: int) -> np.ndarray:
 def _rot_dof(axis: int) -> int:
     """The dof that takes a correction of pose axis ``axis`` (the rotational part)."""
     return (0, 1, 2, 5, 6, 7)[axis]
+
+
+def _shift_axis(z: np.ndarray, k: int, shift: float) -> None:
+    """Move the model's pose axis ``k`` by ``shift`` (through its rotational dof for roll
+    and pitch) and stop that axis's rates that point against the shift (further out)."""
+    z[_rot_dof(k)] += shift
+    for j in np.flatnonzero(_POSE_OF == k):
+        if z[ND + j] * shift < 0.0:
+            z[ND + j] = 0.0
 
 
 def _pose_of(z: np.ndarray) -> np.ndarray:
