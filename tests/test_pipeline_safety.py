@@ -344,6 +344,51 @@ def test_stop_and_estop_from_full_motion_park_within_limits_in_bounded_time(plan
     assert pipeline.health.estops == (kind == "estop")
 
 
+def _level(pipeline: Pipeline, ticks: int) -> list:
+    return [pipeline.step(AircraftState(i * pipeline.dt, *LEVEL)) for i in range(ticks)]
+
+
+def _accelerations(pipeline: Pipeline, angles: list[np.ndarray]) -> np.ndarray:
+    park = pipeline.robot.park_angles
+    q = np.array([park, park, *angles])  # at rest at park before the first tick
+    return np.diff(q, n=2, axis=0) / pipeline.dt**2
+
+
+@pytest.mark.parametrize("platform", ["rus6", "stewart6"])
+@pytest.mark.parametrize("share", [0.05, 0.3, 0.5, 0.8, 0.97])
+def test_a_stop_during_the_soft_start_turns_back_as_gently_as_it_started(platform, share):
+    """A stop that comes while the platform is still rising from park (the end of a short
+    flight, a signal in the first seconds) must not reverse at once: the blend is then at
+    up to 1.5 times its mean rate, and turning it in one tick made the safety limiter
+    stop the actuators at their full acceleration limit (30 rad/s^2 on ceart, against 3.4
+    for the start). The way back must need no limiter and be no harsher than the start."""
+    pipeline = Pipeline(load_config(platform=platform, rate_hz=120.0))
+    dt, soft = pipeline.dt, pipeline.config.soft_start_s
+    start = _level(pipeline, int(soft / dt) + 30)
+    assert start[-1].phase == "running"
+    assert np.abs(start[-1].angles - pipeline.robot.park_angles).max() > 0.1  # it rose
+    start_peak = np.abs(_accelerations(pipeline, [o.angles for o in start])).max()
+
+    pipeline.reset()
+    n = int(round(share * soft / dt))
+    out = _level(pipeline, n)
+    assert out[-1].phase == "starting"
+    pipeline.stop()
+    back = []
+    t = out[-1].t
+    for _ in range(int(2 * soft / dt)):
+        if pipeline.parked:
+            break
+        t += dt
+        back.append(pipeline.step(AircraftState(t, *LEVEL)))
+    assert pipeline.parked, "not parked within twice the soft-start time"
+    assert not any(o.rate_limited for o in back), "the limiter had to act on the way back"
+    check_commands(pipeline, [o.angles for o in out + back])
+    peak = np.abs(_accelerations(pipeline, [o.angles for o in out + back])[n:]).max()
+    # the blend's own acceleration is the start's; the kinematics' curvature may add a little
+    assert peak <= 1.25 * start_peak, f"way back {peak:.2f} rad/s^2 against {start_peak:.2f}"
+
+
 @pytest.mark.parametrize("planar", [False, True], ids=["rus6", "rrr3"])
 def test_estop_during_a_soft_stop_and_a_second_estop_still_park(planar):
     pipeline = Pipeline(CONFIGS[(planar, 120.0)])

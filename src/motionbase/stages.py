@@ -32,7 +32,7 @@ import numba
 import numpy as np
 from numba import types
 
-from motionbase.physics import STANDARD_GRAVITY, smoothstep
+from motionbase.physics import STANDARD_GRAVITY, smoothstep, track_toward
 from motionbase.platform.robot import SOLVE_SIGNATURE
 from motionbase.safety import ActuatorLimits, input_code, limit_command, limit_kernel
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
@@ -54,7 +54,10 @@ STATE = np.dtype(
         ("stale", "?"),  # the input is stale (marked so, or nothing accepted lately)
         # soft start / stop
         ("phase", "i8"),  # STARTING, RUNNING or STOPPING
-        ("blend", "f8"),  # 0 = park, 1 = the live pose
+        ("blend", "f8"),  # the ramp's progress in [0, 1]; the live pose's share is
+        # smoothstep(blend), or blend itself while turning
+        ("blend_speed", "f8"),  # the share's rate, 1/s (> 0 only while starting)
+        ("turning", "?"),  # a stop came during the start: the share brakes back to 0
         ("estop", "?"),  # an E-stop: park at the actuators' limits, no blend
         # safety limiter (actuator units)
         ("q", "f8", (6,)),  # last command
@@ -305,20 +308,38 @@ def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - co
 def blend_stage(P, S, cue, target):  # pragma: no cover - compiled
     """Soft start and stop: the cue pose blended from park (``target``, shape (6,)).
 
-    Starting, the blend rises from 0 to 1 over ``soft_start_s`` and the phase becomes
-    running; stopping, it falls back (at once on an E-stop: the limiter then paces the
-    way to park). Returns True when the target is park itself (stopping, blend 0): the
-    park command is then sent by its actuator positions exactly.
+    The live pose's share of the target rises from 0 to 1 along a smoothstep over
+    ``soft_start_s`` and the phase becomes running; stopping, it falls back the same way
+    (at once on an E-stop: the limiter then paces the way to park). A stop during the
+    start cannot retrace the smoothstep (the share is moving out, at up to 1.5 times its
+    mean rate): the share then brakes, turns and lands on 0 within the smoothstep's own
+    peak rate and acceleration (``1.5 / soft_start_s``, ``6 / soft_start_s^2``), by
+    :func:`~motionbase.physics.track_toward`. Returns True when the target is park itself
+    (stopping, share 0): the park command is then sent by its actuator positions exactly.
     """
     p = P[0]
     s = S[0]
     if s.phase == STARTING:
+        b0 = smoothstep(s.blend)
         s.blend = min(1.0, s.blend + p.blend_step)
+        s.blend_speed = (smoothstep(s.blend) - b0) / p.dt
         if s.blend >= 1.0:
             s.phase = RUNNING
+            s.blend_speed = 0.0
     elif s.phase == STOPPING and not s.estop:
-        s.blend = max(0.0, s.blend - p.blend_step)
-    b = smoothstep(s.blend)
+        if s.blend_speed > 0.0 and not s.turning:
+            s.turning = True
+            s.blend = smoothstep(s.blend)  # from now on the share itself
+        if s.turning:
+            # the smoothstep's peak speed and acceleration: 1.5 and 6 over soft_start_s (^2)
+            vmax = 1.5 * p.blend_step / p.dt
+            u = 6.0 * p.blend_step * p.blend_step / p.dt
+            b1, _ = track_toward(s.blend, s.blend_speed, 0.0, 0.0, p.dt, 0.0, 1.0, vmax, u, 0.0, u)
+            s.blend_speed = (b1 - s.blend) / p.dt
+            s.blend = b1
+        else:
+            s.blend = max(0.0, s.blend - p.blend_step)
+    b = s.blend if s.turning else smoothstep(s.blend)
     for i in range(6):
         target[i] = cue[i] if b >= 1.0 else p.park_cue[i] + b * (cue[i] - p.park_cue[i])
     return s.phase == STOPPING and b == 0.0
