@@ -29,10 +29,11 @@ from motionbase.errors import SinkError, SourceError
 from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import McapSource, read_messages
 from motionbase.io.serial_link import ServoSerialSink
-from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.pipeline import Pipeline, PipelineConfig, run
 from motionbase.platform import Rus6Geometry
 from motionbase.safety import MAX_SAMPLE_TIME_S
 from motionbase.state import AircraftState
+from motionbase.washout.classical import ClassicalWashout
 
 G = 9.80665
 SPEED_TOL = 1e-9  # rad/s, rounding only
@@ -140,6 +141,63 @@ def test_a_source_bug_parks_then_propagates_unchanged(tmp_path):
         app._drive("test", app.load_config(), source, out, paced=False, progress=False)
     config, q, _ = check_logged_commands(out)
     assert np.array_equal(q[-1], park_angles(config))
+
+
+class BuggyCue(ClassicalWashout):
+    """A cueing plug-in with a bug: the classical washout for ``n`` ticks, then it raises
+    on every call, as a plug-in's bug would."""
+
+    name = "test_buggy"
+    step_kernel = None  # the pipeline calls advance (a Python plug-in)
+
+    def __init__(self, params, dt: float, n: int) -> None:
+        super().__init__(params, dt)
+        self.n = n
+        self.calls = 0
+
+    def advance(self, u: np.ndarray, out: np.ndarray) -> bool:
+        self.calls += 1
+        if self.calls > self.n:
+            out[:] = np.nan  # half-written, as a failing computation may leave it
+            raise ZeroDivisionError("a bug in a cueing plug-in")
+        return super().advance(u, out)
+
+
+@pytest.mark.parametrize("when", ["start", "flight"])
+def test_a_cueing_bug_parks_softly_without_calling_it_again_then_propagates(when):
+    """The pipeline's own step raising (here its cueing plug-in) ends the run like a
+    failing source: the platform goes back to park at the soft-start pace from the last
+    cue pose, through the remaining stages (the plug-in is not called again), and then
+    the exception propagates unchanged."""
+    config = app.load_config()
+    n = 120 if when == "start" else 600  # 1 s into the 2 s soft start, or in full motion
+    cue = BuggyCue(config.make_cueing().params, config.dt, n)
+    pipeline = Pipeline(config, cueing=cue)
+    outputs = []
+
+    class ListSink:
+        def write(self, out):
+            outputs.append(out)
+
+    with pytest.raises(ZeroDivisionError):
+        run(pipeline, FailingSource(2 * n, RuntimeError("unreached")), [ListSink()])
+    assert cue.calls == n + 1  # the park ramp did not call it again
+    q = np.array([o.angles for o in outputs])
+    lim = pipeline.robot.limits
+    park = pipeline.robot.park_angles
+    assert np.isfinite(q).all() and (q >= lim.lower).all() and (q <= lim.upper).all()
+    assert np.array_equal(q[-1], park) and outputs[-1].phase == "parked"
+    after = outputs[n:]
+    assert len(after) * config.dt >= 0.5 * config.soft_start_s  # a soft ramp, not a jump
+    # the held cue stops at once, so the limiter brakes the motion it had (at most the
+    # time to stop from full speed); after that the blend alone paces the way to park
+    brake_ticks = math.ceil(float(np.max(lim.max_speed / lim.max_accel)) / config.dt) + 1
+    limited = [i for i, o in enumerate(after) if o.rate_limited]
+    assert max(limited, default=0) < brake_ticks, limited
+    v = np.diff(np.vstack([park, park, q]), axis=0) / config.dt
+    assert (np.abs(v) - lim.max_speed).max() <= SPEED_TOL
+    a = np.diff(v, axis=0) / config.dt
+    assert (np.abs(a) - lim.max_accel).max() <= ACCEL_TOL
 
 
 # --------------------------------------------------------------------------- serial port

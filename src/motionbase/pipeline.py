@@ -34,7 +34,8 @@ Stages of one tick
 3. *Cueing*: the cueing plug-in (default: the classical washout,
    :class:`~motionbase.washout.ClassicalWashout`) -> cue pose.
 4. *Soft start / stop*: the commanded pose blends from the park pose to the live
-   pose over ``soft_start_s`` (and back on stop).
+   pose over ``soft_start_s`` (and back on stop; a stop during the start brakes the
+   blend and turns it within the start's own peak rate and acceleration).
 5. *Clamp*: the robot's workspace clamp scales the whole pose toward neutral;
    when it acts while running the washout is told (anti-windup).
 6. *Inverse kinematics* -> actuator angles.
@@ -56,6 +57,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
+from functools import partial
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numba
@@ -384,6 +386,12 @@ class PipelineCore(ABC):
         self.reset()
         self.health = health
 
+    def park_step(self) -> PipelineOutput:
+        """A tick toward park for after :meth:`step` raised: here an E-stop and a tick
+        without input; a pipeline whose step calls a plug-in overrides it to call none."""
+        self.estop()
+        return self.step(None)
+
     @abstractmethod
     def _warm_ticks(self) -> None:
         """A few ticks that call every compiled kernel (:meth:`warm_up` resets after them)."""
@@ -495,6 +503,7 @@ class Pipeline(PipelineCore):
         """Back to parked, filters at rest, counters kept."""
         self.cueing.reset()
         stages.reset_state(self.state, self.params)
+        self._last_cue = np.array(self.params[0]["park_cue"])  # (what park_step holds)
 
     def _warm_ticks(self) -> None:
         level = np.array([0.0, 0.0, -STANDARD_GRAVITY])
@@ -529,11 +538,34 @@ class Pipeline(PipelineCore):
             raise CueingInputError(
                 f"{self.cueing.name} cueing: non-finite input {u} (reject the sample first)"
             )
+        self._last_cue = cue
+        return self._robot_side(state, fresh, flags, cue, self.cueing.status)
+
+    def park_step(self) -> PipelineOutput:
+        """A tick toward park that calls no cueing, for after :meth:`step` raised (a
+        cueing plug-in's bug): the last cue pose is held and the blend runs back to park
+        at the soft-start pace (at the actuators' limits after an E-stop)."""
+        self.stop()
+        self.health.samples += 1
+        P, S, u, z = self.params, self.state, self._u, self._zero3
+        flags = self._input_stage(P, S, False, 0.0, z, z, z, False, u)
+        return self._robot_side(None, False, flags, self._last_cue, None)
+
+    def _robot_side(
+        self,
+        state: AircraftState | None,
+        fresh: bool,
+        flags: int,
+        cue: np.ndarray,
+        cue_status: dict[str, Any] | None,
+    ) -> PipelineOutput:
+        """The tick after the cueing: blend, clamp, inverse kinematics, limiter, output."""
         pose = np.empty(self._m)
         q = np.empty(self.robot.n)
         flags |= self._after_cueing(
-            P, S, self._solve, self._G, cue, self._target, self._cue_out, pose, self._wanted, q
-        )
+            self.params, self.state, self._solve, self._G, cue, self._target, self._cue_out,
+            pose, self._wanted, q,
+        )  # fmt: skip
         self.flags = flags
         if flags & stages.RUNNING_CLAMP:
             self.cueing.track(self._cue_out)  # anti-windup: the pose the platform got
@@ -560,7 +592,7 @@ class Pipeline(PipelineCore):
             bool(flags & stages.HELD),
             stages.PHASES[flags >> stages.PHASE_SHIFT],
             float(self._fade[0]),
-            self.cueing.status,
+            cue_status,
         )
 
     # -- a whole flight ----------------------------------------------------------
@@ -759,7 +791,10 @@ def run(
     :class:`~motionbase.errors.MotionbaseError` with "the platform was parked" added
     to its message; a sink's other exception as a
     :class:`~motionbase.errors.SinkError` naming the sink (one line; the original
-    is its ``__cause__``); a source's other exception unchanged (a bug).
+    is its ``__cause__``); a source's other exception unchanged (a bug). When the
+    pipeline's own step raises (a plug-in's bug), the ramp to park calls no plug-in
+    (:meth:`PipelineCore.park_step`: the last cue pose held), and the exception then
+    propagates in the same way.
 
     Parameters
     ----------
@@ -906,6 +941,7 @@ def run(
                     after_tick()  # (the garbage collector: the command is out)
 
         stopping_requested = False
+        park_tick = partial(pipeline.step, None)  # the ticks after the flight
         iterator = iter(source)
         # per-tick lookups done once: the live speed vector, the stop flag, the fresh mark
         speeds = pipeline.speed
@@ -936,7 +972,12 @@ def run(
                     pipeline.estop()
                 elif pipeline.phase in ("starting", "running"):
                     pipeline.stop()
-            out = step(state, bool(source.fresh) if has_fresh else True)
+            try:
+                out = step(state, bool(source.fresh) if has_fresh else True)
+            except Exception as exc:  # noqa: BLE001 - a plug-in's bug: park without it
+                fail(exc, "pipeline")
+                park_tick = pipeline.park_step
+                break
             emit(out)
             if out.phase == "parked":
                 break
@@ -953,7 +994,7 @@ def run(
                     pipeline.estop()
                 if paced:
                     pace(True)
-                emit(pipeline.step(None))
+                emit(park_tick())
         if stop.estop and stop.estop_reason and stop.estop_reason != summary.stopped_by:
             summary.stopped_by += f", then an E-stop ({stop.estop_reason})"
         if failure is not None:
