@@ -172,6 +172,29 @@ def check_wire_limits(t: np.ndarray, q: np.ndarray, vmax, amax, what: str = "") 
     return speed, accel
 
 
+def sweep_holds(q: np.ndarray, neutral, half_range: float, atol: float) -> np.ndarray:
+    """Where a wiring check's sweep (``motionbase output --test``) holds at the drive: for
+    each motor ``i`` (0-based) and side (``+half_range``, then ``-half_range``), the index of
+    the first frame with motor ``i`` there and every other motor at ``neutral`` (to
+    ``atol``), -1 when no frame is. Shape (n, 2).
+
+    The sweep rests at each end of a motor's move, and the drive-side ramp lands exactly on
+    a command it holds: these frames are exactly the sweep's. In between, where the sender's
+    frames slip against the pipeline's ticks, the ramp lags or passes the moving command by
+    a fraction of a degree (it keeps the limits), so the shape of a move is not exact there.
+    """
+    dev = np.asarray(q, dtype=float) - np.asarray(neutral, dtype=float)
+    n = dev.shape[1]
+    first = np.full((n, 2), -1)
+    for i in range(n):
+        others = np.all(np.abs(np.delete(dev, i, axis=1)) <= atol, axis=1)
+        for j, side in enumerate((1.0, -1.0)):
+            hit = np.flatnonzero(others & (np.abs(dev[:, i] - side * half_range) <= atol))
+            if hit.size:
+                first[i, j] = hit[0]
+    return first
+
+
 def read_complete_log(path) -> dict[str, list[dict]]:
     """Every message of a finished MCAP log by topic, read by the ``mcap`` library's indexed
     reader, which needs the summary and footer that only a properly closed log has."""

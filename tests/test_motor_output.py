@@ -19,7 +19,7 @@ from urllib.parse import quote
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_wire_limits
+from drive_wire import UdpDrive, check_wire_limits, sweep_holds
 from pty_board import Board
 
 from motionbase.app import fly, load_config
@@ -515,18 +515,13 @@ def test_output_test_sweeps_each_motor_in_turn_through_a_pty(tmp_path, capsys):
     park = GEOMETRY.park_angle
     np.testing.assert_allclose(angles[0], park, atol=tol)
     np.testing.assert_allclose(angles[-1], park, atol=tol)
-    # at neutral (0 deg) every motor sits mid-range; then one motor at a time leaves it
-    dev = np.abs(angles) > 2 * tol
-    moving = [int(np.flatnonzero(d)[0]) + 1 for d in dev if d.sum() == 1]
-    order = list(dict.fromkeys(moving))
-    assert order == [1, 2, 3, 4, 5, 6]
-    for i in range(6):
-        only_i = angles[dev.sum(axis=1) == 1][:, i]
-        assert only_i.max() == pytest.approx(math.radians(5), abs=tol)
-        assert only_i.min() == pytest.approx(math.radians(-5), abs=tol)
-    # a mirrored motor's drive value falls as its crank rises
-    seg2 = values[(dev.sum(axis=1) == 1) & dev[:, 1]]
-    assert seg2[:, 1].min() < 2047 < seg2[:, 0].max() + 1
+    # at neutral (0 deg) every motor sits mid-range; motor 1 goes to +5 deg and -5 deg, the
+    # others at neutral, then motor 2, ... (to the 12-bit range's unit)
+    holds = sweep_holds(angles, np.zeros(6), math.radians(5), atol=tol)
+    assert np.all(holds >= 0), holds
+    assert np.all(np.diff(holds.ravel()) > 0), holds
+    # a mirrored motor's drive value falls as its crank rises (motor 2), a plain one's rises
+    assert values[holds[1, 0], 1] < 2047 < values[holds[0, 0], 0]
 
 
 # --------------------------------------------------------------------------- ramped at the drive

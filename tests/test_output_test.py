@@ -8,6 +8,7 @@ mapping of a geometry without an ``[output]`` table) turned into radians.
 from __future__ import annotations
 
 import math
+import re
 import signal
 import socket
 import subprocess
@@ -16,11 +17,13 @@ import time
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive
+from drive_wire import UdpDrive, check_wire_limits, sweep_holds
 
 from motionbase.platform import Rus6Geometry
+from motionbase.platform.robot import robot_spec
 
 GEOMETRY = Rus6Geometry.preset("ceart")  # the command's default --platform
+ROBOT = robot_spec("rus6").make(GEOMETRY)
 
 
 def windowed_rates(t: np.ndarray, q: np.ndarray, window_s: float):
@@ -45,9 +48,9 @@ def sweep_at_the_drive(args: list[str], n: int, rate_hz: float = 200.0, attempts
 
     A gap of more than 10 periods between frames means the machine stalled the sender (a
     virtual machine's host took its processor while the pipeline's went on): the drive is then
-    ramped from where it stood toward the latest command (``test_motor_output.py``) and may
-    cut a sweep's corner. Such a run is made again, up to ``attempts`` times; the one returned
-    had no gap.
+    ramped from where it stood toward the latest command (``test_motor_output.py``; the
+    sweep's own drive: the outage test below) and may cut a sweep's corner. Such a run is
+    made again, up to ``attempts`` times; the one returned had no gap.
     """
     for _ in range(attempts):
         rx = UdpDrive(n=n)
@@ -117,6 +120,67 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
     assert np.abs(v).max() > 0.5
 
 
+@pytest.mark.parametrize("returns", [True, False], ids=["returns", "never returns"])
+def test_a_drive_that_vanishes_mid_sweep_is_ramped_as_a_flight_s_drive_is(returns):
+    """The drive vanishes (its port refuses: send errors) while the cranks rise from park
+    toward neutral, where the sweep's commands run furthest (55 deg): half a second of the
+    sweep later it returns, or never does. As with ``fly --output``: the first frame after
+    its return is within one frame's travel of the last one it got (at most two frames at
+    full speed, plus a first step from rest), and from there the frames keep the speed and
+    acceleration limits and end on park; a drive that never returns is waited for, then
+    said not to be parked. The wiring check's drive used to get the latest command as it
+    was: 30 deg and more in one frame on its return, and no word when it never came back."""
+    rate = 100.0
+    drive = UdpDrive()
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", drive.url(rate)]
+    proc = subprocess.Popen(
+        [*cmd, "--speed-deg-s", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    park = np.full(6, GEOMETRY.park_angle)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # the cranks on their way up from park
+            assert proc.poll() is None, proc.communicate()
+            n = drive.count()
+            if n and np.all(drive.angles(n - 1)[1][-1] - park > math.radians(3.0)):
+                break
+            time.sleep(0.002)
+        else:
+            pytest.fail("the cranks never left park")
+        drive.vanish()
+        n_before = drive.count()
+        time.sleep(0.5)  # the sweep goes on: 30 deg at 60 deg/s
+        if returns:
+            drive.come_back()
+        stdout, stderr = proc.communicate(timeout=120)
+        drive.drain()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        drive.close()
+    assert proc.returncode == 0, stderr
+    assert "Traceback" not in stderr
+    assert "link is down" in stderr and re.search(r"[1-9]\d* send errors", stdout), stdout
+    parked = "may not be at the last command"
+    t, q = drive.angles()
+    if not returns:
+        assert len(t) == n_before and parked in stderr, stderr
+        return
+    assert parked not in stderr, stderr
+    lim = ROBOT.limits
+    period = 1.0 / rate
+    last_before, first_after = q[n_before - 1], q[n_before]
+    reach = 2 * lim.max_speed * period + lim.max_accel * period**2
+    assert np.all(np.abs(first_after - last_before) <= reach), np.degrees(first_after - last_before)
+    after_t = np.r_[t[n_before - 1], t[n_before:]]
+    after_q = np.vstack([last_before, q[n_before:]])
+    check_wire_limits(after_t, after_q, lim.max_speed, lim.max_accel, "after the outage")
+    np.testing.assert_allclose(q[-1], park, atol=math.radians(1e-4))
+    # not vacuous: the sweep had gone on without the drive, far from where it was left
+    assert np.degrees(np.abs(q[n_before:] - last_before).max()) > 20.0
+
+
 def test_a_stop_before_the_sweep_starts_sends_only_park():
     from motionbase.app import output_test
     from motionbase.pipeline import StopRequest
@@ -143,12 +207,14 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
 def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform):
     """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
     geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
-    arriving there, the frames within the servos' limits, the last frame home (its park).
-    A 3-RRR geometry preset names the planar robot as well (``output`` has no --planar)."""
+    arriving there with the others at home (:func:`drive_wire.sweep_holds`), the frames
+    within the servos' angle, speed and acceleration limits, the last frame home (its
+    park). A 3-RRR geometry preset names the planar robot as well (``output`` has no
+    --planar)."""
     from motionbase.platform import Rrr3, Rrr3Geometry
 
     args = ["--platform", platform, "--speed-deg-s", "60", "--rate", "200"]
-    proc, _, q = sweep_at_the_drive(args, n=3)
+    proc, t, q = sweep_at_the_drive(args, n=3)
     stdout = proc.stdout
     assert [f"motor {i}:" in stdout for i in (1, 2, 3)] == [True] * 3
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))  # the planar default
@@ -156,41 +222,37 @@ def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform
     home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
     np.testing.assert_allclose(q[-1], home, atol=math.radians(1e-4))
     assert np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)
-    away = np.abs(q - home) > math.radians(0.01)
-    assert away.sum(axis=1).max() == 1  # never two servos away from home at once
-    for i in range(3):
-        dev = np.degrees(q[away[:, i], i] - home[i])
-        assert dev.max() == pytest.approx(5.0, abs=1e-3)
-        assert dev.min() == pytest.approx(-5.0, abs=1e-3)
-    order = [int(np.flatnonzero(a)[0]) for a in away if a.any()]
-    assert list(dict.fromkeys(order)) == [0, 1, 2]
+    lim = robot_spec("rrr3").make(Rrr3Geometry.preset("udesc_symmetric")).limits
+    check_wire_limits(t, q, lim.max_speed, lim.max_accel, "the 3-RRR's sweep")
+    # motor 1 to +5 deg and -5 deg, then motor 2, then motor 3, the others at home
+    holds = sweep_holds(q, home, math.radians(5.0), atol=math.radians(1e-3))
+    assert np.all(holds >= 0), holds
+    assert np.all(np.diff(holds.ravel()) > 0), holds
 
 
 def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
     """``output --test --platform stewart6``: each of the Stewart platform's linear actuators
     (millimetres, the default mapping for linear actuators) is swept by +-10 mm about its
-    length at the neutral pose, one at a time, within the stroke; the last frame is park."""
+    length at the neutral pose, one at a time, within the stroke and the speed and
+    acceleration limits; the last frame is park."""
     from motionbase.platform import Stewart6Geometry
     from motionbase.platform.robot import robot_spec
 
     robot = robot_spec("stewart6").make(Stewart6Geometry.preset("seat"))
     args = ["--platform", "stewart6", "--range-mm", "10", "--speed-mm-s", "150", "--rate", "200"]
-    _, _, q = sweep_at_the_drive(args, n=6)
+    _, t, q = sweep_at_the_drive(args, n=6)
     mm = np.degrees(q)  # the drive's parser reads degrees into radians: undo it
     neutral = 1000.0 * robot.inverse(np.zeros(6))
     park = 1000.0 * robot.park_angles
     np.testing.assert_allclose(mm[-1], park, atol=1e-3)
-    lo, hi = 1000.0 * robot.limits.lower, 1000.0 * robot.limits.upper
+    lim = robot.limits
+    lo, hi = 1000.0 * lim.lower, 1000.0 * lim.upper
     assert np.all(mm >= lo - 1e-3) and np.all(mm <= hi + 1e-3)
-    # away from the neutral lengths one actuator at a time, by +-10 mm each
-    at_neutral = np.flatnonzero(np.all(np.abs(mm - neutral) < 1e-3, axis=1))
-    swept = mm[at_neutral[0] : at_neutral[-1] + 1]  # from neutral, the sweeps, back to it
-    away = np.abs(swept - neutral) > 0.01
-    assert away.sum(axis=1).max() == 1
-    for i in range(6):
-        dev = swept[away[:, i], i] - neutral[i]
-        assert dev.max() == pytest.approx(10.0, abs=1e-3)
-        assert dev.min() == pytest.approx(-10.0, abs=1e-3)
+    check_wire_limits(t, mm / 1000.0, lim.max_speed, lim.max_accel, "the Stewart sweep")
+    # to +10 mm and -10 mm one actuator at a time, in turn, the others at neutral
+    holds = sweep_holds(mm, neutral, 10.0, atol=1e-3)
+    assert np.all(holds >= 0), holds
+    assert np.all(np.diff(holds.ravel()) > 0), holds
 
 
 @pytest.mark.parametrize(

@@ -543,7 +543,10 @@ def output_test(
                 why = stop.reason or "a stop request"
                 say(f"output test stopped by {why}: moving back to park")
 
-        sink = open_output(url, mapping, rate_hz=rate_hz)  # (the pipeline limits the commands)
+        # ramped at the drive within the robot's limits, as fly --output's drives are: a
+        # drive back from an outage moves on from its last frame, one gone for good is
+        # waited for at the end and said not to be parked
+        sink = open_output(url, mapping, rate_hz=rate_hz, limits=robot.limits)
         check_sendable(sink, robot)
         say(f"output test on {sink.label}: {mapping.describe()}")
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")

@@ -51,15 +51,15 @@ Behaviour
   command not sent before the next one is replaced).
 * Sinks never wait: ``write`` returns at once. In a real-time run only the pipeline's loop keeps
   time (:func:`motionbase.pipeline.run`), on the wall clock, never on the samples' own times.
-* Ramped at the drive (``limits``, which ``motionbase fly/replay/stream --output`` always
-  give: the geometry's): the sender keeps what the drive last received, its speed and when,
-  and each frame moves the drive toward the latest command no faster than the speed and
-  acceleration limits allow over the wall-clock time since that frame
-  (:func:`motionbase.safety.limit_command`, the pipeline's own safety stage). So the limits
-  hold at the drive whatever the ticks did (late ticks, a burst after a stall, timestamps
-  squeezed in a recording): a frame the limiter changed is counted in ``ramped``. A drive
-  whose last frame is more than two periods old (a link that was down, a sender stall) is
-  taken to stand at that frame and is ramped from there, from rest.
+* Ramped at the drive (``limits``, which ``motionbase fly/replay/stream --output`` and
+  ``motionbase output --test`` always give: the geometry's): the sender keeps what the drive
+  last received, its speed and when, and each frame moves the drive toward the latest
+  command no faster than the speed and acceleration limits allow over the wall-clock time
+  since that frame (:func:`motionbase.safety.limit_command`, the pipeline's own safety
+  stage). So the limits hold at the drive whatever the ticks did (late ticks, a burst after
+  a stall, timestamps squeezed in a recording): a frame the limiter changed is counted in
+  ``ramped``. A drive whose last frame is more than two periods old (a link that was down,
+  a sender stall) is taken to stand at that frame and is ramped from there, from rest.
 * ``close()`` stops the sender, ramps the drive the rest of the way to the latest command and
   sends it once more: the pipeline ramps to park before the sinks close, so the last frame on
   the wire is the park command.
@@ -524,8 +524,9 @@ class MotorOutput:
         the drive last received and when, and moves it toward the latest command no faster
         than these limits allow over the wall-clock time elapsed
         (:func:`motionbase.safety.limit_command`), whatever the pipeline's ticks did (see
-        the module docstring). None: frames carry the latest command as it is (a wiring
-        check that does its own limiting).
+        the module docstring). None: frames carry the latest command as it is, and
+        ``close()`` sends it once (the sender alone; every ``motionbase`` command that drives
+        motors gives the limits).
     url : str
         The URL it was opened from (messages and metadata).
 
