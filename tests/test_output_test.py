@@ -7,13 +7,18 @@ mapping of a geometry without an ``[output]`` table) turned into radians.
 
 from __future__ import annotations
 
+import fcntl
 import math
+import os
+import pty
 import re
 import signal
 import socket
 import subprocess
 import sys
+import termios
 import time
+from subprocess import PIPE
 
 import numpy as np
 import pytest
@@ -179,6 +184,93 @@ def test_a_drive_that_vanishes_mid_sweep_is_ramped_as_a_flight_s_drive_is(return
     np.testing.assert_allclose(q[-1], park, atol=math.radians(1e-4))
     # not vacuous: the sweep had gone on without the drive, far from where it was left
     assert np.degrees(np.abs(q[n_before:] - last_before).max()) > 20.0
+
+
+def test_a_reader_that_goes_away_neither_stops_nor_crashes_the_sweep():
+    """``motionbase output --test URL | head -2``: the reader of the output goes away after
+    two lines, so the next line meets a broken pipe. Printing progress is no part of the
+    sweep: it runs to its end (every motor to +5 deg and -5 deg, the others at neutral)
+    and parks, and the command exits 0 without a word on stderr. The line used to be printed
+    from inside the sweep's source, so the broken pipe ended the sweep as a failing source:
+    parked, then a traceback and exit status 1."""
+    drive = UdpDrive()
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", drive.url()]
+    proc = subprocess.Popen([*cmd, "--speed-deg-s", "60"], stdout=PIPE, stderr=PIPE)
+    try:
+        assert proc.stdout is not None and proc.stderr is not None
+        head = [proc.stdout.readline() for _ in range(2)]
+        proc.stdout.close()  # `head -2` has what it wanted
+        err = proc.stderr.read().decode()
+        proc.wait(timeout=120)
+        drive.drain()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        drive.close()
+    assert head[0].startswith(b"output test on ") and head[1].startswith(b"moving from park")
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    _, q = drive.angles()
+    neutral = np.asarray(GEOMETRY.neutral_angle, dtype=float)
+    assert np.all(sweep_holds(q, neutral, math.radians(5), atol=math.radians(1e-3)) >= 0)
+    np.testing.assert_allclose(q[-1], np.full(6, GEOMETRY.park_angle), atol=math.radians(1e-4))
+
+
+def _own_terminal() -> None:
+    """In the child: a session of its own whose controlling terminal is its stdin, so that
+    closing the terminal's other end hangs the session up (SIGHUP), as closing a terminal
+    window does."""
+    os.setsid()
+    fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+
+def test_a_terminal_closed_mid_sweep_parks_the_drive_and_exits_0():
+    """The terminal of ``motionbase output --test`` closes mid-sweep: the kernel sends
+    SIGHUP, which stops the sweep, and every line printed after it meets an I/O error. The
+    drive is parked, and the command exits 0 without a traceback (stderr is a pipe here, to
+    see that). The run's last line used to raise ``OSError: [Errno 5]`` after the park, so
+    the command ended with a traceback and exit status 1."""
+    drive = UdpDrive()
+    master, slave = pty.openpty()
+    cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", drive.url()]
+    proc = subprocess.Popen(
+        [*cmd, "--speed-deg-s", "60"],
+        stdin=slave,
+        stdout=slave,
+        stderr=PIPE,
+        preexec_fn=_own_terminal,
+    )
+    os.close(slave)
+    park = np.full(6, GEOMETRY.park_angle)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # the cranks on their way up from park
+            assert proc.poll() is None, proc.communicate()
+            n = drive.count()
+            if n and np.all(drive.angles(n - 1)[1][-1] - park > math.radians(3.0)):
+                break
+            time.sleep(0.002)
+        else:
+            pytest.fail("the cranks never left park")
+        os.close(master)  # the terminal closes
+        master = -1
+        _, err = proc.communicate(timeout=120)
+        drive.drain()
+    finally:
+        if master >= 0:
+            os.close(master)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        drive.close()
+    assert proc.returncode == 0, err
+    assert b"Traceback" not in err and b"Exception ignored" not in err, err
+    _, q = drive.angles()
+    np.testing.assert_allclose(q[-1], park, atol=math.radians(1e-4))
+    # stopped by the hang-up: the sweep never reached motor 6
+    neutral = np.asarray(GEOMETRY.neutral_angle, dtype=float)
+    assert np.all(sweep_holds(q, neutral, math.radians(5), atol=math.radians(1e-3))[5] < 0)
 
 
 def test_a_stop_before_the_sweep_starts_sends_only_park():

@@ -486,10 +486,11 @@ def output_test(
         The lines printed.
     """
     from motionbase.commanding import CommandPipeline, SweepSource
+    from motionbase.console import tell
     from motionbase.io.motor_output import check_sendable, mapping_for, open_output
     from motionbase.platform.robot import Robot, load_geometry, names_planar_robot, robot_spec
 
-    echo = echo or (lambda s: print(s, file=sys.stdout, flush=True))
+    echo = echo or tell  # (a closed terminal or pipe neither stops nor crashes the test)
     lines: list[str] = []
 
     def say(s: str) -> None:
@@ -524,20 +525,24 @@ def output_test(
         pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
         mapping = mapping_for(robot)
 
-        def on_motor(motor: int) -> None:
-            if motor:
-                say(_sweep_line(mapping, sweep.neutral, motor - 1, rng, unit, scale, linear))
-            else:
-                say("moving from neutral back to park")
-
         sweep = SweepSource(
             robot, range_=rng * scale, speed=speed * scale, rate_hz=rate_hz,
-            lead_s=pipeline.soft_start_s, stop=stop, on_motor=on_motor,
+            lead_s=pipeline.soft_start_s, stop=stop,
         )  # fmt: skip
         told = False
+        moving = 0  # the motor being swept (0: none, on the way from or to park)
 
         def on_tick(out: PipelineOutput) -> None:
-            nonlocal told
+            # The lines are the loop's progress display, never the source's business: one
+            # that cannot be printed does not stop the sweep (run() drops a failing display)
+            nonlocal told, moving
+            motor = getattr(out.state, "info", None)  # (None: held after a stop, or parking)
+            if motor is not None and motor != moving:
+                moving = motor
+                if motor:
+                    say(_sweep_line(mapping, sweep.neutral, motor - 1, rng, unit, scale, linear))
+                else:
+                    say("moving from neutral back to park")
             if not told and stop and out.phase in ("stopping", "parked"):
                 told = True
                 why = stop.reason or "a stop request"

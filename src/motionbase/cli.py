@@ -27,7 +27,6 @@ try:  # numpy and the rest take a few tenths of a second to import
     import argparse
     import functools
     import logging
-    import os
     import re
     import signal
     from collections.abc import Callable, Sequence
@@ -217,10 +216,9 @@ def _positive_float(text: str) -> float:
 
 
 def _print_result(result) -> int:
-    try:
-        print(result.summary_text(), flush=True)
-    except OSError:  # the terminal is gone (SIGHUP): the run itself ended properly
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing more to say
+    from motionbase.console import tell
+
+    tell(result.summary_text())  # (a closed terminal: the run itself ended properly)
     return 1 if result.failed else 0
 
 

@@ -44,7 +44,7 @@ park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numba
@@ -364,7 +364,10 @@ class SweepSource(Iterator[Command]):
     neutral, take each actuator in turn through ``+range, -range`` about neutral and back,
     return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`).
 
-    Once ``stop`` is raised it holds its current target (the pipeline then ramps to park).
+    Each command's ``info`` is the actuator being moved (1-based; 0 on the way from or to
+    park): a display can say which (``motionbase output --test`` prints a line when it
+    changes); the source itself prints nothing. Once ``stop`` is raised it holds its current
+    target, with ``info`` None (the pipeline then ramps to park).
 
     Parameters
     ----------
@@ -379,9 +382,6 @@ class SweepSource(Iterator[Command]):
         Rest at park first, s (give the pipeline's soft start: the sweep then starts
         when the blend from park is complete, so it is not scaled down).
     stop : StopRequest, optional
-    on_motor : callable, optional
-        Called with the actuator (1-based; 0 on the way to or from park) when the one
-        being moved changes.
 
     Attributes
     ----------
@@ -398,7 +398,6 @@ class SweepSource(Iterator[Command]):
         rate_hz: float,
         lead_s: float,
         stop: StopRequest | None = None,
-        on_motor: Callable[[int], None] | None = None,
     ) -> None:
         lim = robot.limits
         self.speed = min(float(speed), float(lim.max_speed.min()))
@@ -414,9 +413,7 @@ class SweepSource(Iterator[Command]):
         self.targets = np.pad(targets, ((lead, rest), (0, 0)), mode="edge")  # rest at both ends
         self.motor = np.pad(motor, (lead, rest))  # (motor 0: none)
         self.stop = stop
-        self.on_motor = on_motor
         self._k = 0
-        self._current = 0
         self._held: int | None = None
 
     def __next__(self) -> Command:
@@ -428,10 +425,5 @@ class SweepSource(Iterator[Command]):
             return Command(k * self.dt, self.targets[self._held])
         if k >= len(self.targets):
             raise StopIteration
-        motor = int(self.motor[k])
-        if motor != self._current:
-            self._current = motor
-            if self.on_motor is not None:
-                self.on_motor(motor)
         self._k += 1
-        return Command(k * self.dt, self.targets[k])
+        return Command(k * self.dt, self.targets[k], int(self.motor[k]))
