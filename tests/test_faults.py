@@ -11,6 +11,7 @@ import math
 import os
 import re
 import resource
+import shutil
 import signal
 import struct
 import subprocess
@@ -379,6 +380,47 @@ def test_a_vanished_log_writer_parks_through_the_drives_then_one_clear_error(tmp
         states = list(src)
         assert src.truncated
     assert len(states) < 360  # (how much is on disk depends on how far the writer had got)
+
+
+def test_a_log_whose_folder_vanishes_mid_run_is_said_to_be_gone_and_exits_1(tmp_path):
+    """``fly --output URL --out FOLDER/x.mcap`` with FOLDER removed mid-flight: the writer
+    goes on writing a file that no longer has a name, so nothing of the run is kept. The
+    flight goes on and parks the drive within the limits, then one warning line says the
+    log is gone, the summary does not give it a size, and the exit status is 1 (the run was
+    fine, its log was lost). The summary used to say ``log: .../x.mcap (0.00 MB)`` and the
+    command exited 0."""
+    folder = tmp_path / "gone"
+    out = folder / "x.mcap"
+    drive = UdpDrive()
+    cmd = [sys.executable, "-m", "motionbase.cli", "fly", "c1723", "--duration", "4"]
+    cmd += ["--output", drive.url(), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while drive.count() < 300:  # 3 s of frames at 100 Hz: flying, the log being written
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the drive got no frames"
+            time.sleep(0.01)
+        assert out.exists()
+        shutil.rmtree(folder)
+        stdout, stderr = proc.communicate(timeout=120)
+        drive.drain()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        drive.close()
+    assert proc.returncode == 1, (proc.returncode, stdout, stderr)
+    line = assert_one_line_error(stderr, "WARNING", str(out), "gone")
+    assert "parked" in line
+    (log_line,) = [ln for ln in stdout.splitlines() if ln.startswith("log: ")]
+    assert str(out) in log_line and "gone" in log_line and "MB" not in log_line, log_line
+    assert "stopped by duration" in stdout  # the flight itself ran to its end
+    config = app.load_config()
+    t, q = drive.angles()
+    np.testing.assert_allclose(q[-1], park_angles(config), atol=math.radians(1e-4))
+    check_wire_limits(t, q, config.geometry.max_speed, config.geometry.max_accel)
+    assert not folder.exists()
 
 
 def test_dev_full_and_an_uncreatable_folder_are_one_line_errors(tmp_path):

@@ -125,7 +125,11 @@ def run_metadata(config: PipelineConfig, source: Any) -> dict[str, Any]:
 
 @dataclass
 class JobResult:
-    """What a job did: the run summary, where the log went, and what to tell the user."""
+    """What a job did: the run summary, where the log went, and what to tell the user.
+
+    ``failed``: the command exits with status 1 although the run itself ended as usual
+    (``replay --check`` found a difference or could not compare; the log is gone).
+    """
 
     title: str
     summary: RunSummary
@@ -189,8 +193,11 @@ class JobResult:
                 f"{unit}/s); speed limit {deg(float(np.min(s.max_speed))):.1f} {unit}/s"
             )
         if self.out is not None:
-            size = self.out.stat().st_size if self.out.exists() else 0
-            lines.append(f"log: {self.out} ({size / 1e6:.2f} MB)")
+            try:
+                what = f"({self.out.stat().st_size / 1e6:.2f} MB)"
+            except OSError:  # (as Path.exists() says False)
+                what = "is gone: removed during the run, nothing of it was kept"
+            lines.append(f"log: {self.out} {what}")
         lines.extend(self.notes)
         return "\n".join(lines)
 
@@ -402,10 +409,20 @@ def _drive_stoppable(
                 bar.close()
             except OSError:  # a closed terminal
                 pass
+    # a log removed while it was written (its folder deleted): the writer went on writing a
+    # file without a name, so nothing of the run was kept
+    log_gone = out is not None and not out.exists()
+    if log_gone:
+        _log.warning(
+            "log %s is gone: it or its folder was removed during the run, so nothing of the "
+            "run was kept (the run itself ended as usual, parked)",
+            out,
+        )
     return JobResult(
         title,
         summary,
         out,
+        failed=log_gone,
         notes=[d.stats_line() for d in drives]
         + (
             [
