@@ -72,30 +72,39 @@ def sweep_at_the_drive(args: list[str], n: int, rate_hz: float = 200.0, attempts
     pytest.fail(f"the machine stalled the sender in each of {attempts} runs (frame gaps)")
 
 
-@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
-def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
-    rx = UdpDrive()
+def start_mid_sweep(rx: UdpDrive) -> subprocess.Popen:
+    """``motionbase output --test`` to the drive ``rx`` at 60 deg/s, returned once motor 1 is
+    on its way up with the others at neutral: mid-sweep."""
     cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", rx.url()]
     cmd += ["--speed-deg-s", "60", "--range-deg", "5"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     neutral = np.asarray(GEOMETRY.neutral_angle, dtype=float)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            pytest.fail(f"the test ended before motor 1 moved: {proc.communicate()}")
+        if rx.count():
+            dev = np.degrees(rx.angles(rx.count() - 1)[1][-1] - neutral)
+            if 1.0 < dev[0] < 4.0 and np.all(np.abs(dev[1:]) < 1e-3):
+                return proc
+        time.sleep(0.002)
+    proc.kill()
+    proc.wait()
+    pytest.fail("the sweep never reached motor 1")
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"])
+def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
+    rx = UdpDrive()
+    neutral = np.asarray(GEOMETRY.neutral_angle, dtype=float)
+    proc = None
     try:
-        deadline = time.monotonic() + 60
-        # wait until motor 1 is on its way up, the others at neutral: mid-sweep
-        while time.monotonic() < deadline:
-            assert proc.poll() is None, proc.communicate()
-            if rx.count():
-                dev = np.degrees(rx.angles(rx.count() - 1)[1][-1] - neutral)
-                if 1.0 < dev[0] < 4.0 and np.all(np.abs(dev[1:]) < 1e-3):
-                    break
-            time.sleep(0.002)
-        else:
-            pytest.fail("the sweep never reached motor 1")
+        proc = start_mid_sweep(rx)
         proc.send_signal(getattr(signal, sig))
         stdout, stderr = proc.communicate(timeout=60)
         rx.drain()  # the last datagrams
     finally:
-        if proc.poll() is None:
+        if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
         rx.close()
@@ -123,6 +132,42 @@ def test_a_stop_mid_sweep_ramps_back_to_park_within_the_limits_and_exits_0(sig):
     assert np.all(np.abs(a) <= 1.1 * np.asarray(GEOMETRY.max_accel))
     # and it did move: the test is not vacuous
     assert np.abs(v).max() > 0.5
+
+
+def test_a_second_signal_mid_sweep_is_an_e_stop_said_as_fly_says_it():
+    """Ctrl-C twice mid-sweep: the first stops the sweep (back to park at the soft-start
+    pace), the second, while it parks, is an E-stop, said in the words of ``fly``'s summary
+    ("stopped by SIGINT, then an E-stop (SIGINT while stopping)"; ``test_signals.py``); the
+    drive parks within the limits and the command exits 0. It used to say only "stopped by
+    SIGINT"."""
+    rx = UdpDrive()
+    proc = None
+    try:
+        proc = start_mid_sweep(rx)
+        proc.send_signal(signal.SIGINT)
+        n = rx.count()
+        while rx.count() < n + 20:  # (0.2 s of parking)
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.002)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+        rx.drain()
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        rx.close()
+    assert proc.returncode == 0, (proc.returncode, stderr)
+    assert "Traceback" not in stderr
+    stopped = [line for line in stdout.splitlines() if "stopped" in line]
+    assert stopped[0] == "output test stopped by SIGINT: moving back to park", stdout
+    assert stopped[-1].startswith(
+        "output test stopped by SIGINT, then an E-stop (SIGINT while stopping): "
+    ), stdout
+    assert len(stopped) == 2, stdout
+    t, q = rx.angles()
+    np.testing.assert_allclose(q[-1], np.full(6, GEOMETRY.park_angle), atol=math.radians(1e-4))
+    check_wire_limits(t, q, ROBOT.limits.max_speed, ROBOT.limits.max_accel, "an E-stop")
 
 
 @pytest.mark.parametrize("returns", [True, False], ids=["returns", "never returns"])

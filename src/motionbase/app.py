@@ -31,7 +31,7 @@ from motionbase.pipeline import (
     StopRequest,
     run,
 )
-from motionbase.stopping import stop_on_signals
+from motionbase.stopping import stop_on_signals, stopped_by
 
 _log = logging.getLogger("motionbase")
 
@@ -473,8 +473,11 @@ def output_test(
     A stop (SIGINT, SIGTERM, SIGHUP or SIGQUIT, or ``stop`` raised by the caller) at any
     moment, start-up included, ends the sweep as it ends a flight: one line says so, the
     sweep holds where it is and the pipeline blends back to park over its soft-start time
-    (a second signal: an E-stop, to park at once within the limits); the last frame is the
-    park command and the function returns normally.
+    (a second signal: an E-stop, to park at once within the limits, said in a second line
+    in the words of a flight's summary, :func:`motionbase.stopping.stopped_by`); the last
+    frame is the park command and the function returns normally. The lines are the loop's
+    display (``echo``, by default :func:`motionbase.console.tell`): a terminal or pipe that
+    goes away loses them, never the sweep.
 
     Parameters
     ----------
@@ -546,7 +549,7 @@ def output_test(
             robot, range_=rng * scale, speed=speed * scale, rate_hz=rate_hz,
             lead_s=pipeline.soft_start_s, stop=stop,
         )  # fmt: skip
-        told = False
+        told = ""  # the stop said so far
         moving = 0  # the motor being swept (0: none, on the way from or to park)
 
         def on_tick(out: PipelineOutput) -> None:
@@ -560,10 +563,14 @@ def output_test(
                     say(_sweep_line(mapping, sweep.neutral, motor - 1, rng, unit, scale, linear))
                 else:
                     say("moving from neutral back to park")
-            if not told and stop and out.phase in ("stopping", "parked"):
-                told = True
-                why = stop.reason or "a stop request"
-                say(f"output test stopped by {why}: moving back to park")
+            if stop and out.phase in ("stopping", "parked"):
+                why = stopped_by(stop.reason or "a stop request", stop)  # (fly's words)
+                if why != told:  # the stop, then an E-stop if one comes
+                    told = why
+                    how = "moving back to park"
+                    if stop.estop:
+                        how = "heading for park at once, within the limits"
+                    say(f"output test stopped by {why}: {how}")
 
         # ramped at the drive within the robot's limits, as fly --output's drives are: a
         # drive back from an outage moves on from its last frame, one gone for good is

@@ -71,7 +71,11 @@ from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
 from motionbase.state import AircraftState, PipelineOutput  # (re-exported)
-from motionbase.stopping import StopRequest, install_signal_stop  # noqa: F401 - re-exported
+from motionbase.stopping import (
+    StopRequest,
+    install_signal_stop,  # noqa: F401 - re-exported
+    stopped_by,
+)
 from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
 
 if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
@@ -995,8 +999,7 @@ def run(
                 if paced:
                     pace(True)
                 emit(park_tick())
-        if stop.estop and stop.estop_reason and stop.estop_reason != summary.stopped_by:
-            summary.stopped_by += f", then an E-stop ({stop.estop_reason})"
+        summary.stopped_by = stopped_by(summary.stopped_by, stop)  # (then an E-stop, if any)
         if failure is not None:
             # parked first; then the failure in one line (a source's bug propagates as is)
             if isinstance(failure, MotionbaseError):

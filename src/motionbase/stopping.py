@@ -37,6 +37,7 @@ __all__ = [
     "other_signals_as_ctrl_c",
     "raise_if_stopped",
     "stop_on_signals",
+    "stopped_by",
 ]
 
 #: The signals that stop a run: Ctrl-C, ``kill``, a closed terminal, Ctrl-\.
@@ -89,6 +90,24 @@ class StopRequest:
 
     def __bool__(self) -> bool:
         return self._event.is_set()
+
+
+def stopped_by(first: str, stop: Any) -> str:
+    """What ended a run, in its words: ``first`` (what asked it to stop first: a signal,
+    the end of the input, a failure), then the E-stop ``stop`` was asked for after it,
+    if any. ``"SIGINT, then an E-stop (SIGINT while stopping)"``: ``fly``'s summary
+    (:func:`motionbase.pipeline.run`'s ``stopped_by``) and ``output --test``'s line.
+
+    Parameters
+    ----------
+    first : str
+        The first reason.
+    stop : StopRequest
+        The run's stop request (or an object with its ``estop`` and ``estop_reason``).
+    """
+    if stop.estop and stop.estop_reason and stop.estop_reason != first:
+        return f"{first}, then an E-stop ({stop.estop_reason})"
+    return first
 
 
 class Stopped(Exception):
