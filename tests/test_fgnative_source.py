@@ -26,6 +26,7 @@ from motionbase.cli import main
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.fgnative_source import FgNativeSource, decode_fgnetfdm
 from motionbase.io.jsbsim_source import JsbsimSource
+from motionbase.io.live_source import MIN_READS
 from motionbase.io.mcap_source import McapSource, read_messages
 
 G0 = 9.80665
@@ -343,6 +344,30 @@ def test_stale_watchdog_holds_the_last_state_and_marks_it(sender):
         np.testing.assert_array_equal(s.attitude, first.attitude)
     ts = [s.t for s in [first, *states]]
     np.testing.assert_allclose(np.diff(ts), 0.01)  # ticks keep their rate while stale
+
+
+def test_a_tick_stops_reading_when_its_drain_budget_is_spent(sender):
+    """A flood cannot hold a tick back: once the tick is due and its drain budget spent, the
+    source stops reading and the datagrams still queued wait for the next ticks (it read up to
+    10,000 per pass first, 0.1-0.9 s). With a budget of 0 the first tick, due at once, reads
+    the least a pass reads (MIN_READS) and holds the last of them; none of the rest is lost."""
+    n = 2 * MIN_READS + 5
+    packets = [fgnetfdm_packet(24, A_Z_pilot=-32.0, psi=0.01 * i) for i in range(n)]
+    with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=100, drain_budget_s=0.0) as src:
+        for p in packets:
+            sender.sendto(p, src.local_address)
+        it = iter(src)
+        first = next(it)
+        read_by_first_tick = src.stats.received
+        while src.stats.received < n and src.stats.ticks < 100:
+            next(it)
+        stats = src.stats
+    assert read_by_first_tick == MIN_READS
+    assert first.attitude[2] == pytest.approx(0.01 * (MIN_READS - 1))
+    assert stats.received == n and stats.accepted == n
+    for bad in (-0.001, math.nan, math.inf, "1"):
+        with pytest.raises(ConfigError, match="drain_budget_s"):
+            FgNativeSource("fgnative:udp:127.0.0.1:0", drain_budget_s=bad)
 
 
 @pytest.mark.parametrize(

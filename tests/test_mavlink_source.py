@@ -28,6 +28,7 @@ from mavlink_sender import att_values, imu_values, send_good, send_loop
 from scipy.spatial.transform import Rotation
 
 from motionbase.errors import ConfigError, SourceError
+from motionbase.io.live_source import MIN_READS
 from motionbase.io.mavlink_source import (
     MAX_LOG_GAP_S,
     MavlinkSource,
@@ -635,6 +636,35 @@ def test_a_datagram_cut_short_does_not_swallow_the_next_ones() -> None:
     fresh = sum(tick.fresh for _, tick in ticks)
     assert fresh >= 0.9 * len(ticks), (fresh, len(ticks))
     assert stats.accepted >= 1.5 * len(sent), (stats.accepted, len(sent))  # both of each pair
+
+
+def test_a_tick_stops_reading_when_its_drain_budget_is_spent() -> None:
+    """The same drain as the simulators' (a flood of messages held a tick back for up to
+    10,000 of them, about 0.85 s): with a budget of 0 the first tick, due at once, decodes
+    MIN_READS messages and holds the last; the rest wait in the socket, none lost."""
+    n = 2 * MIN_READS + 5
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=100.0, request_streams=False, drain_budget_s=0.0
+    ) as src:
+        port = src.local_address[1]
+        conn = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=1, source_component=1
+        )
+        try:
+            for i in range(n):
+                f, w = imu_values(i)
+                conn.mav.highres_imu_send(i, *f, *w, 0, 0, 0, 1013.0, 0, 0, 20.0, 0x3F)
+        finally:
+            conn.close()
+        it = iter(src)
+        first = next(it)
+        read_by_first_tick = src.stats.received
+        while src.stats.received < n and src.stats.ticks < 100:
+            next(it)
+        stats = src.stats
+    assert read_by_first_tick == MIN_READS
+    np.testing.assert_array_equal(first.specific_force, f32(imu_values(MIN_READS - 1)[0]))
+    assert stats.received == n and stats.per_type["HIGHRES_IMU"] == n
 
 
 def _crafted_tlog(path: Path, boot_ms_of: Callable[[int], int], n: int = 600) -> Path:

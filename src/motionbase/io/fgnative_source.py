@@ -157,7 +157,7 @@ class FgNativeSource(UdpLiveSource):
         ``fgnative:udp:HOST:PORT``: listen on HOST:PORT (``127.0.0.1`` for a
         simulator on this machine, ``0.0.0.0`` for one on another PC; port 0 picks
         a free port, unless ``free_port`` is False). Default ``fgnative:udp:127.0.0.1:5500``.
-    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port
+    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port, drain_budget_s
         See :class:`~motionbase.io.live_source.UdpLiveSource`.
 
     Examples

@@ -475,6 +475,10 @@ class MavlinkSource(SampleHoldSource):
         A ``udpin:`` (``udp:``, ``tcpin:``) URL may listen on port 0, any free
         port (see :attr:`local_address`); False refuses it, as ``motionbase
         stream`` does: nobody could send to a port it does not show.
+    drain_budget_s : float, optional
+        On a live link: how long a tick may go on reading messages past its due
+        time, s (>= 0); None: a tenth of a period. The rest waits for the next tick
+        (see :class:`~motionbase.io.live_source.SampleHoldSource`).
 
     Attributes
     ----------
@@ -525,6 +529,7 @@ class MavlinkSource(SampleHoldSource):
         request_timeout_s: float = 3.0,
         log_clock: str = "vehicle",
         free_port: bool = True,
+        drain_budget_s: float | None = None,
     ) -> None:
         if not isinstance(url, str) or not url.strip():
             raise ConfigError("mavlink url: empty; give e.g. udpin:127.0.0.1:14550 or a .tlog path")
@@ -534,6 +539,7 @@ class MavlinkSource(SampleHoldSource):
             duration_s=duration_s,
             busy_wait=busy_wait,
             stale_timeout_s=stale_timeout_s,
+            drain_budget_s=drain_budget_s,
         )
         if not (isinstance(sysid, int) and 1 <= sysid <= 255):
             raise ConfigError(f"mavlink sysid: must be an integer 1..255, got {sysid!r}")
