@@ -442,6 +442,9 @@ def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
         (["--source", "udpin:127.0.0.1:14550"], "--mavlink"),
         (["--source", "xplane:127.0.0.1:49000", "--fast"], "--fast"),
         (["--source", "fgnative:udp:127.0.0.1:0", "--signing-key", "k.bin"], "--signing-key"),
+        # it was ignored (exit 0): the command line's default, 1, hid it from the check
+        (["--source", "fgnative:udp:127.0.0.1:5500", "--sysid", "7"], "--sysid"),
+        (["--source", "xplane:127.0.0.1:49000", "--sysid", "1"], "--sysid"),
     ],
 )
 def test_stream_command_bad_source_is_one_line_and_exit_2(tmp_path, capsys, args, words):
