@@ -270,6 +270,35 @@ def test_garbage_of_many_versions_is_reported_three_times_at_most(sender, caplog
     assert stats.extra["refused versions"] == "100/101/102"
 
 
+def test_datagrams_too_short_to_be_fgnetfdm_are_named_so_and_leave_the_version_warnings(
+    sender, caplog
+):
+    """A datagram shorter than any FGNetFDM (an empty one, a stray byte, a word of text)
+    was refused as "FGNetFDM version -1" (or the version its first four bytes spell), and
+    each used up one of the three version warnings. It gets one warning of its own."""
+    packet = bytearray(fgnetfdm_packet(24, A_Z_pilot=-32.0))
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=100) as src:
+            for short in (b"", b"\x18", b"hello", bytes(407)):
+                sender.sendto(short, src.local_address)
+            for version in (100, 101, 102, 103):
+                struct.pack_into(">I", packet, 0, version)
+                sender.sendto(bytes(packet), src.local_address)
+            it = iter(src)
+            for _ in range(3):
+                next(it)
+            stats = src.stats
+    assert stats.bad_data == 8 and stats.bad_bytes == 0 + 1 + 5 + 407 + 4 * 408
+    assert stats.extra["too short"] == 4
+    assert stats.extra["refused versions"] == "100/101/102"
+    messages = [r.getMessage() for r in caplog.records]
+    short = [m for m in messages if "too short" in m]
+    assert len(short) == 1 and "0 bytes" in short[0] and "\n" not in short[0]
+    assert "version" not in short[0].split("(")[0]  # (it names the sizes of the versions)
+    versions = [m for m in messages if "FGNetFDM version" in m]
+    assert len(versions) == 3 and "version 100 " in versions[0]
+
+
 def test_nan_and_infinite_angles_decode_without_numpy_warnings():
     """Non-finite angles are refused after decoding; decoding them printed numpy's two-line
     RuntimeWarnings (their source lines too) on every such datagram."""
