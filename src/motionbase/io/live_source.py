@@ -76,8 +76,9 @@ _ANGLE_TOL = 1e-3  # rad, on the limits of roll, pitch and yaw
 
 _POLL_S = 1e-4  # busy-wait: how often the socket is polled between ticks, s
 #: Datagrams (MAVLink: messages) a pass over the link reads before it looks at the clock:
-#: a tick that starts late still reads this many, however late it is.
-MIN_READS = 16
+#: a tick that starts late still reads this many, however late it is. Few: at 1 kHz four
+#: MAVLink messages (about 0.1 ms each) already take a good part of a period.
+MIN_READS = 4
 #: How long a tick may go on reading past its due time, in periods (``drain_budget_s``).
 DRAIN_BUDGET_PERIODS = 0.1
 _RECV_BYTES = 65536
