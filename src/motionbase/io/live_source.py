@@ -7,11 +7,11 @@ address and decodes its packets.
 
 * One UDP socket, non-blocking, bound at :meth:`UdpLiveSource.open`.
 * Ticks at ``rate_hz`` on the wall clock (:func:`time.monotonic`), tick ``k``
-  due at ``start + k / rate_hz``. Between ticks every datagram that arrives is
-  read and handed to the subclass, which stores the values it accepts in nine
-  slots (specific force, body rates, attitude) with their arrival time. Each
-  tick yields the latest value of every slot, never extrapolated (a hold), with
-  ``t = k / rate_hz``.
+  due at ``start + k / rate_hz``. Between ticks the datagrams that arrive are
+  read (see Draining below) and handed to the subclass, which stores the values
+  it accepts in nine slots (specific force, body rates, attitude) with their
+  arrival time. Each tick yields the latest value of every slot, never
+  extrapolated (a hold), with ``t = k / rate_hz``.
 * Stale watchdog: a tick is *fresh* when the oldest slot is at most
   ``stale_timeout_s`` old. Before any sample the held state is the neutral one,
   ``f = (0, 0, -g)``. Stale ticks keep coming at the pipeline rate, marked
@@ -27,13 +27,13 @@ address and decodes its packets.
   by default), whatever arrives: a flood of datagrams (anyone who can reach the
   port can send one) cannot hold a tick back. What is still queued then waits
   in the socket for the next tick (or the kernel drops it when the socket's
-  buffer is full). Each pass still reads up to :data:`MIN_READS` datagrams
-  (messages) whatever the clock says, so a late tick reads something.
+  buffer is full). Each pass reads :data:`MIN_READS` datagrams (messages), when
+  there are that many, whatever the clock says, so a late tick reads something.
 
 The ticking, the held sample, the watchdog and the counters are
 :class:`SampleHoldSource`, which :class:`~motionbase.io.mavlink_source.MavlinkSource`
 shares: it reads through pymavlink rather than a socket of its own, so it
-supplies its own reader (``conn.recv_msg`` instead of ``recvfrom``).
+supplies its own reader (pymavlink's ``recv_msg`` instead of ``recvfrom``).
 """
 
 from __future__ import annotations
