@@ -456,8 +456,7 @@ class SampleHoldSource:
 
         Reading stops at ``deadline + drain_budget_s`` even while datagrams keep
         coming (after :data:`MIN_READS` reads in the pass at least): the rest stays
-        queued in the socket for the next tick. The source never sleeps to keep
-        time here beyond waiting for the deadline itself.
+        queued in the socket for the next tick.
         """
         link = self._link()
         if link is None:
