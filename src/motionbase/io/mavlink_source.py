@@ -495,7 +495,7 @@ class _FrameReader:
         self._in_garbage = False  # the bytes consumed last were garbage
 
     def read(self) -> tuple[bool, Any]:
-        """Read the link (one datagram at most) and parse the next message.
+        """Read the link (over UDP, one datagram at most) and parse the next message.
 
         Returns
         -------
