@@ -1,6 +1,7 @@
 """FlightGear and X-Plane sources: packet-to-command latency at 100 Hz input.
 
-Run: ``python benchmarks/bench_sims.py [--seconds 10] [--rates 100,1000] [--busy-wait]``
+Run: ``python benchmarks/bench_sims.py [--seconds 10] [--rates 100,1000] [--busy-wait]
+[--flood]``
 
 As ``bench_stream.py`` does for MAVLink: a sender in another *process* sends
 100 packets/s over loopback UDP, and the pipeline runs on them exactly as
@@ -21,6 +22,18 @@ The source holds the latest packet until its next tick, so a packet waits for
 that tick: up to one pipeline period (10 ms at 100 Hz, 1 ms at 1 kHz) plus the
 tick's own work. At a pipeline rate equal to the input rate the wait is the
 phase between the two clocks, fixed within a run and random between runs.
+
+``--flood`` measures something else: how late commands get while a flood of
+datagrams hits the port (anyone who can reach it can send one). Good samples
+come at 100 per second from one process while another sends junk as fast as it
+can (FlightGear: NaN packets, rejected; MAVLink, the same drain through
+pymavlink: HIGHRES_IMU frames from another system id) for ``--seconds``; a stop
+is asked half a second before the flood ends. Prints, from the flood's start to
+the end of the run (the stop ramp included), the worst and 99th-percentile delay
+from a tick's due time to its command being out (more than one period is a late
+command), how many were late, and how long the stop took to reach the platform
+(the first tick of the stop ramp). On a machine shared with other work, the
+delays include the time other processes held the processor.
 """
 
 from __future__ import annotations
@@ -40,7 +53,7 @@ import numpy as np
 from motionbase import app
 from motionbase.io.pipeline_log import PipelineLog
 from motionbase.io.sources import open_live_source
-from motionbase.pipeline import Pipeline, run
+from motionbase.pipeline import Pipeline, StopRequest, run
 
 INPUT_HZ = 100.0
 RING = 3600  # send times kept by sequence number modulo RING (36 s at 100 packets/s)
@@ -195,14 +208,140 @@ def bench(kind: str, rate_hz: float, seconds: float, busy_wait: bool) -> dict[st
     }
 
 
+def _junk(kind: str) -> bytes:
+    """One datagram of the flood: work for the source, nothing it may use."""
+    if kind == "fgnative":
+        packet = bytearray(_fg_packet(0))
+        struct.pack_into(">f", packet, 36, math.nan)  # phi (net_fdm.hxx): refused
+        return bytes(packet)
+    from motionbase.io.mavlink_source import mavutil
+
+    mav = mavutil.mavlink.MAVLink(None, srcSystem=7, srcComponent=1)  # another system
+    msg = mav.highres_imu_encode(0, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0, 0, 0, 0x3F)
+    return bytes(msg.pack(mav))
+
+
+def _send_flood(port: int, kind: str, start_s: float, seconds: float, count) -> None:
+    """From ``start_s`` after the start, send junk datagrams as fast as possible for
+    ``seconds``; the number sent goes in ``count``."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    pkt, addr = _junk(kind), ("127.0.0.1", port)
+    time.sleep(start_s)
+    t0 = time.monotonic()
+    n = 0
+    while time.monotonic() - t0 < seconds:
+        for _ in range(100):
+            try:
+                sock.sendto(pkt, addr)
+            except OSError:  # (a full buffer: the kernel drops, the flood goes on)
+                pass
+            n += 1
+    count.value = n
+    sock.close()
+
+
+def bench_flood(kind: str, rate_hz: float, seconds: float) -> dict[str, float]:
+    """Command delays while ``kind``'s port is flooded (see the module docstring)."""
+    from bench_mavlink import _send as _send_mavlink
+
+    warmup = 1.5
+    ctx = mp.get_context("spawn")
+    config = app.load_config(rate_hz=rate_hz)
+    pipeline = Pipeline(config)
+    if kind == "fgnative":
+        source = open_live_source(
+            "fgnative:udp:127.0.0.1:0", rate_hz=rate_hz, stale_timeout_s=config.stale_timeout_s
+        )
+    else:
+        source = open_live_source(
+            None,
+            mavlink="udpin:127.0.0.1:0",
+            rate_hz=rate_hz,
+            stale_timeout_s=config.stale_timeout_s,
+            request_streams=False,
+        )
+    stop = StopRequest()
+    count = ctx.Value("q", 0)
+    delays: list[float] = []
+    mark: dict[str, float] = {}
+    dt = 1.0 / rate_hz
+    with tempfile.TemporaryDirectory() as tmp, source:
+        port = source.local_address[1]
+        total = warmup + seconds + 2.0
+        if kind == "fgnative":
+            good = ctx.Process(
+                target=_send_fg, args=(port, total, ctx.Array("d", RING, lock=False))
+            )
+        else:
+            good = ctx.Process(target=_send_mavlink, args=(port, 2 * INPUT_HZ, total))
+        flood = ctx.Process(target=_send_flood, args=(port, kind, warmup, seconds, count))
+        good.start()
+        flood.start()
+        t0 = time.monotonic()
+        flood_from, flood_to = t0 + warmup + 0.2, t0 + warmup + seconds
+        stop_at = flood_to - 0.5
+
+        def on_tick(out) -> None:
+            now = time.monotonic()  # every sink has written this tick: the command is out
+            # from the flood's start to the end of the run (a tick held back by the flood
+            # comes out after the flood has ended)
+            if now >= flood_from and source.due_time is not None:
+                delays.append(now - source.due_time)
+            if now >= stop_at and not stop:
+                stop.set("benchmark")
+                mark["stop"] = now
+            if "stop" in mark and "stopping" not in mark and out.phase != "running":
+                mark["stopping"] = now
+
+        meta = app.run_metadata(config, source)
+        health = pipeline.health.as_dict
+        with PipelineLog(Path(tmp) / "s.mcap", meta, health=health) as log:
+            run(pipeline, source, [log], paced=True, stop=stop, progress=on_tick)
+        stats = source.stats
+    good.join(timeout=30)
+    flood.join(timeout=30)
+    d_ms = np.array(delays) * 1e3
+    return {
+        "flood": count.value,
+        "ticks": len(delays),
+        "worst": float(d_ms.max()),
+        "p99": float(np.percentile(d_ms, 99)),
+        "late": int(np.sum(d_ms > 1e3 * dt)),
+        "stop_ms": 1e3 * (mark.get("stopping", math.nan) - mark.get("stop", math.nan)),
+        "received": stats.received,
+        "stale": stats.stale_ticks,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="measurement time per run, s")
     ap.add_argument("--rates", default="100,1000", help="pipeline rates to run, Hz (comma list)")
     ap.add_argument("--busy-wait", action="store_true", help="busy-wait between ticks")
+    ap.add_argument(
+        "--flood", action="store_true", help="command delays under a flood of datagrams instead"
+    )
     args = ap.parse_args()
     logging.getLogger("motionbase").setLevel(logging.ERROR)  # the senders' end is not news
     rates = [float(r) for r in args.rates.split(",")]
+    if args.flood:
+        print(
+            f"flood: junk datagrams as fast as one process sends them for {args.seconds:.0f} s, "
+            f"good samples at {INPUT_HZ:.0f}/s; delay from a tick's due time to its command "
+            "(late: more than one period)"
+        )
+        for kind in ("fgnative", "mavlink"):
+            for rate in rates:
+                r = bench_flood(kind, rate, args.seconds)
+                print(
+                    f"  {kind:8} pipeline {rate:6.0f} Hz (period {1e3 / rate:.0f} ms): "
+                    f"worst {r['worst']:7.2f} ms  p99 {r['p99']:7.2f} ms  "
+                    f"late commands {r['late']} of {r['ticks']}"
+                    f"  stop reached the platform after {r['stop_ms']:.1f} ms"
+                    f"  ({r['flood']} junk datagrams sent, {r['received']} read; "
+                    f"{r['stale']} stale ticks)"
+                )
+        return
     print(
         f"packet -> logged command, sender at {INPUT_HZ:.0f} packets/s in another process, "
         f"6-RUS with MCAP log, {args.seconds:.0f} s per run"

@@ -26,6 +26,7 @@ from motionbase.cli import main
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.fgnative_source import FgNativeSource, decode_fgnetfdm
 from motionbase.io.jsbsim_source import JsbsimSource
+from motionbase.io.live_source import MIN_READS
 from motionbase.io.mcap_source import McapSource, read_messages
 
 G0 = 9.80665
@@ -269,6 +270,35 @@ def test_garbage_of_many_versions_is_reported_three_times_at_most(sender, caplog
     assert stats.extra["refused versions"] == "100/101/102"
 
 
+def test_datagrams_too_short_to_be_fgnetfdm_are_named_so_and_leave_the_version_warnings(
+    sender, caplog
+):
+    """A datagram shorter than any FGNetFDM (an empty one, a stray byte, a word of text)
+    was refused as "FGNetFDM version -1" (or the version its first four bytes spell), and
+    each used up one of the three version warnings. It gets one warning of its own."""
+    packet = bytearray(fgnetfdm_packet(24, A_Z_pilot=-32.0))
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=100) as src:
+            for short in (b"", b"\x18", b"hello", bytes(407)):
+                sender.sendto(short, src.local_address)
+            for version in (100, 101, 102, 103):
+                struct.pack_into(">I", packet, 0, version)
+                sender.sendto(bytes(packet), src.local_address)
+            it = iter(src)
+            for _ in range(3):
+                next(it)
+            stats = src.stats
+    assert stats.bad_data == 8 and stats.bad_bytes == 0 + 1 + 5 + 407 + 4 * 408
+    assert stats.extra["too short"] == 4
+    assert stats.extra["refused versions"] == "100/101/102"
+    messages = [r.getMessage() for r in caplog.records]
+    short = [m for m in messages if "too short" in m]
+    assert len(short) == 1 and "0 bytes" in short[0] and "\n" not in short[0]
+    assert "version" not in short[0].split("(")[0]  # (it names the sizes of the versions)
+    versions = [m for m in messages if "FGNetFDM version" in m]
+    assert len(versions) == 3 and "version 100 " in versions[0]
+
+
 def test_nan_and_infinite_angles_decode_without_numpy_warnings():
     """Non-finite angles are refused after decoding; decoding them printed numpy's two-line
     RuntimeWarnings (their source lines too) on every such datagram."""
@@ -345,6 +375,30 @@ def test_stale_watchdog_holds_the_last_state_and_marks_it(sender):
     np.testing.assert_allclose(np.diff(ts), 0.01)  # ticks keep their rate while stale
 
 
+def test_a_tick_stops_reading_when_its_drain_budget_is_spent(sender):
+    """A flood cannot hold a tick back: once the tick is due and its drain budget spent, the
+    source stops reading and the datagrams still queued wait for the next ticks (it read up to
+    10,000 per pass first, 0.1-0.9 s). With a budget of 0 the first tick, due at once, reads
+    the least a pass reads (MIN_READS) and holds the last of them; none of the rest is lost."""
+    n = 2 * MIN_READS + 5
+    packets = [fgnetfdm_packet(24, A_Z_pilot=-32.0, psi=0.01 * i) for i in range(n)]
+    with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=100, drain_budget_s=0.0) as src:
+        for p in packets:
+            sender.sendto(p, src.local_address)
+        it = iter(src)
+        first = next(it)
+        read_by_first_tick = src.stats.received
+        while src.stats.received < n and src.stats.ticks < 100:
+            next(it)
+        stats = src.stats
+    assert read_by_first_tick == MIN_READS
+    assert first.attitude[2] == pytest.approx(0.01 * (MIN_READS - 1))
+    assert stats.received == n and stats.accepted == n
+    for bad in (-0.001, math.nan, math.inf, "1"):
+        with pytest.raises(ConfigError, match="drain_budget_s"):
+            FgNativeSource("fgnative:udp:127.0.0.1:0", drain_budget_s=bad)
+
+
 @pytest.mark.parametrize(
     "url",
     [
@@ -417,6 +471,9 @@ def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
         (["--source", "udpin:127.0.0.1:14550"], "--mavlink"),
         (["--source", "xplane:127.0.0.1:49000", "--fast"], "--fast"),
         (["--source", "fgnative:udp:127.0.0.1:0", "--signing-key", "k.bin"], "--signing-key"),
+        # it was ignored (exit 0): the command line's default, 1, hid it from the check
+        (["--source", "fgnative:udp:127.0.0.1:5500", "--sysid", "7"], "--sysid"),
+        (["--source", "xplane:127.0.0.1:49000", "--sysid", "1"], "--sysid"),
     ],
 )
 def test_stream_command_bad_source_is_one_line_and_exit_2(tmp_path, capsys, args, words):

@@ -950,7 +950,7 @@ class PlanarServoOutput:
 def stream(
     mavlink: str | None = None,
     *,
-    sysid: int = 1,
+    sysid: int | None = None,
     compid: int | None = None,
     signing_key: str | Path | None = None,
     rate_hz: float = 100.0,
@@ -978,8 +978,9 @@ def stream(
         A pymavlink connection string (default ``udpin:127.0.0.1:14550``; ``udpout:``,
         ``tcp:``, a serial device) or a ``.tlog``/``.bin`` log file; not with
         ``source_url``.
-    sysid, compid : int
-        Accept messages from this system (and component) only.
+    sysid, compid : int, optional
+        MAVLink: accept messages from this system (default 1) and component (default:
+        every one) only. Refused with ``source_url``.
     signing_key : path, optional
         MAVLink 2 signing key file; unsigned or badly signed messages are rejected.
     rate_hz : float
@@ -1029,7 +1030,7 @@ def stream(
 def _stream(
     mavlink: str | None,
     *,
-    sysid: int,
+    sysid: int | None,
     compid: int | None,
     signing_key: str | Path | None,
     rate_hz: float,

@@ -483,7 +483,7 @@ def _args_stream(p: argparse.ArgumentParser) -> None:
         help="a simulator instead of MAVLink: fgnative:udp:HOST:PORT (FlightGear) "
         "or xplane:HOST:PORT (X-Plane)",
     )
-    p.add_argument("--sysid", type=int, default=1, help="accept this system id only (default 1)")
+    p.add_argument("--sysid", type=int, help="MAVLink: accept this system id only (default 1)")
     p.add_argument("--compid", type=int, help="accept this component id only")
     p.add_argument(
         "--signing-key", metavar="FILE", help="MAVLink 2 signing key (32 bytes or 64 hex)"

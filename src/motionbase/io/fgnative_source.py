@@ -40,6 +40,8 @@ Fields used, and the conversions at this edge:
 An unknown version is refused: its datagrams are counted as ``bad_data`` and
 one warning per distinct version number is logged, for the first three (the run goes on:
 the watchdog holds the platform at neutral while nothing valid arrives). A datagram
+shorter than the smallest FGNetFDM (408 bytes) and of no known version is not taken for
+a new version: it is counted as too short, with one warning for the first. A datagram
 of the wrong size, or with a NaN, infinite or absurd value (a specific force or
 a body rate beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`:
 150 m/s^2, 20 rad/s; an angle out of range), is rejected whole and counted.
@@ -89,6 +91,8 @@ _VERSION = struct.Struct(">I")
 
 #: Distinct unknown protocol versions warned of (garbage on the port would give one each).
 MAX_VERSION_WARNINGS = 3
+_MIN_SIZE = min(FG_NET_FDM_SIZES.values())  # a shorter datagram of no known version: not FGNetFDM
+_SIZES = " and ".join(f"{v} is {n} bytes" for v, n in sorted(FG_NET_FDM_SIZES.items()))
 
 
 def decode_fgnetfdm(data: bytes) -> tuple[int, tuple[float, ...] | None]:
@@ -157,7 +161,7 @@ class FgNativeSource(UdpLiveSource):
         ``fgnative:udp:HOST:PORT``: listen on HOST:PORT (``127.0.0.1`` for a
         simulator on this machine, ``0.0.0.0`` for one on another PC; port 0 picks
         a free port, unless ``free_port`` is False). Default ``fgnative:udp:127.0.0.1:5500``.
-    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port
+    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port, drain_budget_s
         See :class:`~motionbase.io.live_source.UdpLiveSource`.
 
     Examples
@@ -180,6 +184,7 @@ class FgNativeSource(UdpLiveSource):
         self._versions: dict[int, int] = {}  # accepted datagrams per protocol version
         self._warned_versions: set[int] = set()
         self._bad_size = 0
+        self._too_short = 0
 
     def _bind_address(self) -> tuple[str, int]:
         return self.host, self.port
@@ -192,6 +197,17 @@ class FgNativeSource(UdpLiveSource):
             c["bad_bytes"] += len(data)
             if version in FG_NET_FDM_SIZES:
                 self._bad_size += 1
+            elif len(data) < _MIN_SIZE:  # garbage, not a new version: keep those warnings
+                self._too_short += 1
+                if self._too_short == 1:
+                    _log.warning(
+                        "FlightGear: refusing a datagram of %d bytes from %s, too short to be "
+                        "FGNetFDM (version %s); further ones are counted as bad data, not "
+                        "reported",
+                        len(data),
+                        addr[0] if isinstance(addr, tuple) else addr,
+                        _SIZES,
+                    )
             elif (
                 version not in self._warned_versions
                 and len(self._warned_versions) < MAX_VERSION_WARNINGS
@@ -227,6 +243,8 @@ class FgNativeSource(UdpLiveSource):
             out["refused versions"] = "/".join(str(v) for v in sorted(self._warned_versions))
         if self._bad_size:
             out["wrong size"] = self._bad_size
+        if self._too_short:
+            out["too short"] = self._too_short
         return out
 
     def describe(self) -> dict[str, Any]:

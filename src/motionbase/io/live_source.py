@@ -7,11 +7,11 @@ address and decodes its packets.
 
 * One UDP socket, non-blocking, bound at :meth:`UdpLiveSource.open`.
 * Ticks at ``rate_hz`` on the wall clock (:func:`time.monotonic`), tick ``k``
-  due at ``start + k / rate_hz``. Between ticks every datagram that arrives is
-  read and handed to the subclass, which stores the values it accepts in nine
-  slots (specific force, body rates, attitude) with their arrival time. Each
-  tick yields the latest value of every slot, never extrapolated (a hold), with
-  ``t = k / rate_hz``.
+  due at ``start + k / rate_hz``. Between ticks the datagrams that arrive are
+  read (see Draining below) and handed to the subclass, which stores the values
+  it accepts in nine slots (specific force, body rates, attitude) with their
+  arrival time. Each tick yields the latest value of every slot, never
+  extrapolated (a hold), with ``t = k / rate_hz``.
 * Stale watchdog: a tick is *fresh* when the oldest slot is at most
   ``stale_timeout_s`` old. Before any sample the held state is the neutral one,
   ``f = (0, 0, -g)``. Stale ticks keep coming at the pipeline rate, marked
@@ -22,11 +22,18 @@ address and decodes its packets.
 * Pacing: :func:`motionbase.pacing.wait_until` polls the socket every 0.1 ms when
   busy-waiting, otherwise the loop sleeps in :func:`select.select` until a
   datagram or the tick is due.
+* Draining: between ticks the link is read as datagrams arrive. Reading never
+  goes on past the tick's due time plus ``drain_budget_s`` (a tenth of a period
+  by default), whatever arrives: a flood of datagrams (anyone who can reach the
+  port can send one) cannot hold a tick back. What is still queued then waits
+  in the socket for the next tick (or the kernel drops it when the socket's
+  buffer is full). Each pass reads :data:`MIN_READS` datagrams (messages), when
+  there are that many, whatever the clock says, so a late tick reads something.
 
 The ticking, the held sample, the watchdog and the counters are
 :class:`SampleHoldSource`, which :class:`~motionbase.io.mavlink_source.MavlinkSource`
 shares: it reads through pymavlink rather than a socket of its own, so it
-supplies its own reader (``conn.recv_msg`` instead of ``recvfrom``).
+supplies its own reader (pymavlink's ``recv_msg`` instead of ``recvfrom``).
 """
 
 from __future__ import annotations
@@ -48,6 +55,8 @@ from motionbase.physics import STANDARD_GRAVITY
 from motionbase.state import AircraftState
 
 __all__ = [
+    "DRAIN_BUDGET_PERIODS",
+    "MIN_READS",
     "LiveStats",
     "LiveTick",
     "SampleHoldSource",
@@ -66,7 +75,12 @@ _log = logging.getLogger("motionbase")
 _ANGLE_TOL = 1e-3  # rad, on the limits of roll, pitch and yaw
 
 _POLL_S = 1e-4  # busy-wait: how often the socket is polled between ticks, s
-_MAX_DRAIN = 10000  # datagrams (messages) read per pass, so a flood cannot starve the ticks
+#: Datagrams (MAVLink: messages) a pass over the link reads before it looks at the clock:
+#: a tick that starts late still reads this many, however late it is. Few: at 1 kHz four
+#: MAVLink messages (about 0.1 ms each) already take a good part of a period.
+MIN_READS = 4
+#: How long a tick may go on reading past its due time, in periods (``drain_budget_s``).
+DRAIN_BUDGET_PERIODS = 0.1
 _RECV_BYTES = 65536
 
 #: slot order of the held sample: specific force (3), body rates (3), attitude (3)
@@ -262,6 +276,10 @@ class SampleHoldSource:
         instead of sleeping in ``select`` (see :mod:`motionbase.pacing`).
     stale_timeout_s : float
         A tick is stale when its oldest part is older than this, s (> 0).
+    drain_budget_s : float, optional
+        How long a tick may go on reading the link past its due time, s (>= 0);
+        None: :data:`DRAIN_BUDGET_PERIODS` of a period. Whatever is still queued
+        then waits for the next tick (see :meth:`_pump_until`).
 
     Notes
     -----
@@ -284,11 +302,24 @@ class SampleHoldSource:
         duration_s: float | None = None,
         busy_wait: bool = False,
         stale_timeout_s: float = 0.5,
+        drain_budget_s: float | None = None,
     ) -> None:
         k = self.kind
         self.url = url
         self.rate_hz = positive_number(k, "rate_hz", rate_hz, "Hz")
         self.stale_timeout_s = positive_number(k, "stale_timeout_s", stale_timeout_s, "s")
+        if drain_budget_s is None:
+            drain_budget_s = DRAIN_BUDGET_PERIODS / self.rate_hz
+        elif not (
+            isinstance(drain_budget_s, int | float)
+            and math.isfinite(drain_budget_s)
+            and drain_budget_s >= 0
+        ):
+            raise ConfigError(
+                f"{k} drain_budget_s: must be a finite number >= 0 s or None, "
+                f"got {drain_budget_s!r}"
+            )
+        self.drain_budget_s = float(drain_budget_s)
         if duration_s is not None and not (
             isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0
         ):
@@ -421,17 +452,25 @@ class SampleHoldSource:
             self._iterating = False
 
     def _pump_until(self, deadline: float) -> None:
-        """Read everything that arrives until ``deadline`` (monotonic s), then return."""
+        """Read what arrives until ``deadline`` (monotonic s), then return.
+
+        Reading stops at ``deadline + drain_budget_s`` even while datagrams keep
+        coming (after :data:`MIN_READS` reads in the pass at least): the rest stays
+        queued in the socket for the next tick.
+        """
         link = self._link()
         if link is None:
             raise SourceError(f"{self.kind} {self.url}: the source was closed while running")
         read_one, waitable = self._reader(link)
         busy = self.busy_wait
         clock = time.monotonic
+        stop_reading = deadline + self.drain_budget_s
         while True:
-            for _ in range(_MAX_DRAIN):
-                if not read_one():
-                    break
+            n = 0
+            while read_one():
+                n += 1
+                if n >= MIN_READS and clock() >= stop_reading:
+                    return  # the budget is spent: what is still queued waits for the next tick
             now = clock()
             remaining = deadline - now
             if remaining <= 0.0:
@@ -502,7 +541,7 @@ class UdpLiveSource(SampleHoldSource):
     ----------
     url : str, optional
         The source URL, parsed by :meth:`_parse_url`; None takes :attr:`default_url`.
-    rate_hz, duration_s, busy_wait, stale_timeout_s
+    rate_hz, duration_s, busy_wait, stale_timeout_s, drain_budget_s
         See :class:`SampleHoldSource`.
     free_port : bool
         The URL may listen on port 0, any free port (see :attr:`local_address`); False
@@ -536,6 +575,7 @@ class UdpLiveSource(SampleHoldSource):
         busy_wait: bool = False,
         stale_timeout_s: float = 0.5,
         free_port: bool = True,
+        drain_budget_s: float | None = None,
     ) -> None:
         if url is None:
             url = self.default_url
@@ -549,6 +589,7 @@ class UdpLiveSource(SampleHoldSource):
             duration_s=duration_s,
             busy_wait=busy_wait,
             stale_timeout_s=stale_timeout_s,
+            drain_budget_s=drain_budget_s,
         )
         self._sock: socket.socket | None = None
         self._reset_state()

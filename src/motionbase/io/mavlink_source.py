@@ -51,7 +51,10 @@ Filtering and safety
 Only messages from ``sysid`` (and ``compid`` when given) are used
 (``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter).
 With a signing key, unsigned and badly signed messages are rejected. Bytes that
-do not parse are counted as ``bad_data``. Values that are NaN, infinite or
+do not parse are counted as ``bad_data`` (runs of them) and ``bad_bytes``; they
+never take good frames down with them (see :class:`_FrameReader`: a frame may
+span datagrams, as a serial-to-UDP bridge sends it, and parsing resynchronises
+on the next frame start after a frame that fails). Values that are NaN, infinite or
 physically absurd (beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`)
 are rejected and counted. Nothing rejected reaches the state.
 
@@ -134,6 +137,15 @@ _LANDED: dict[int, bool] = {
     mavutil.mavlink.MAV_LANDED_STATE_LANDING: False,
 }
 _LOG_SUFFIXES = (".tlog", ".bin", ".mavlink", ".log", ".raw", ".px4log")
+
+#: The longest MAVLink frame, bytes: a MAVLink 2 header (10), 255 bytes of payload, the
+#: checksum (2) and a signature (13).
+MAX_FRAME_BYTES = 280
+#: How long the first bytes of a frame wait for the rest by default, s (``partial_timeout_s``):
+#: a bridge sends the rest within a few ms (a whole 280-byte frame takes 49 ms at 57600 baud,
+#: 290 ms at 9600).
+PARTIAL_TIMEOUT_S = 0.5
+_FRAME_STARTS = (mavutil.mavlink.PROTOCOL_MARKER_V2, mavutil.mavlink.PROTOCOL_MARKER_V1)
 
 _REQUEST_AFTER_S = 1.0  # silence on a live link before asking for streams
 _MAX_REQUESTS = 3
@@ -422,6 +434,178 @@ class _VehicleClock:
         return self.last
 
 
+def _next_frame_start(data: bytes, lo: int, hi: int) -> int:
+    """Index of the first start-of-frame byte (0xFD or 0xFE) in ``data[lo:hi]``, or -1."""
+    found = [i for i in (data.find(m, lo, hi) for m in _FRAME_STARTS) if i >= 0]
+    return min(found) if found else -1
+
+
+class _FrameReader:
+    """The messages of a live link, read through pymavlink's parser without letting bad
+    bytes take good frames down with them.
+
+    pymavlink parses a link as one stream of bytes, UDP datagrams included. That is right
+    for a serial-to-UDP bridge (socat, ser2net), which cuts the stream into datagrams
+    anywhere: the start of a frame waits in the parser for the rest. But the parser takes
+    the length a frame's header announces on trust: a frame cut short, or garbage holding a
+    start-of-frame byte, takes that many bytes, the good frames behind it included, and
+    drops them all when its checksum fails (or returns them as one message of an unknown
+    type), or holds them while it waits for bytes that may never come. This reader keeps
+    pymavlink's parser and undoes that:
+
+    * a candidate frame that fails (checksum, header flags) is garbage for its first byte
+      only: the rest goes back into the parser, which resumes at the next start-of-frame
+      byte (0xFD, MAVLink 2; 0xFE, MAVLink 1);
+    * a candidate of a message type the dialect does not know (its checksum cannot be
+      checked without the type's CRC_EXTRA) yields to a whole frame starting inside it
+      that passes its checksum;
+    * a candidate still waiting for bytes yields to a whole frame behind it that passes its
+      checksum (it is overtaken);
+    * the start of a frame waits at most ``partial_timeout_s`` for the rest, then it is
+      garbage, so it never joins bytes that come much later. While it waits it is shorter
+      than the frame its header announces (:data:`MAX_FRAME_BYTES` at most): more bytes
+      would complete it.
+
+    Whether a frame passes its checksum is asked of a second pymavlink parser, on a copy;
+    signatures are checked only by the link's own parser, once.
+
+    Parameters
+    ----------
+    conn : Any
+        The open live link (a ``mavutil.mavfile``).
+    counters : dict of str to int
+        The source's counters: garbage goes into ``bad_data`` (one per run of consecutive
+        bad bytes) and ``bad_bytes``.
+    partial_timeout_s : float
+        How long the start of a frame waits for the rest, s.
+    """
+
+    def __init__(self, conn: Any, counters: dict[str, int], partial_timeout_s: float) -> None:
+        ml = mavutil.mavlink
+        self._conn = conn
+        self._c = counters
+        self._timeout = partial_timeout_s
+        self._bad = ml.MAVLink_bad_data
+        self._unknown = ml.MAVLink_unknown
+        self._check = ml.MAVLink(None)  # framing and checksums of copies
+        self._check.robust_parsing = True
+        self._check_expect = ml.HEADER_LEN_V1 + 2  # (the parser's initial expectation)
+        self._waiting_since: float | None = None  # since when the parser holds a frame start
+        self._scanned = b""  # the waiting bytes last searched for a whole frame
+        self._in_garbage = False  # the bytes consumed last were garbage
+
+    def read(self) -> tuple[bool, Any]:
+        """Read the link (over UDP, one datagram at most) and parse the next message.
+
+        Returns
+        -------
+        progress : bool
+            False when nothing was there to read or parse (the link is drained for now).
+        message : Any
+            The next message, or None (garbage consumed, the start of a frame kept, or
+            nothing). A message refused for its signature comes as pymavlink's
+            ``BAD_DATA`` with the reason "Invalid signature".
+
+        Raises
+        ------
+        OSError
+            The link failed.
+        """
+        conn = self._conn
+        parser = conn.mav
+        if (
+            self._waiting_since is not None
+            and parser.buf_len()
+            and time.monotonic() - self._waiting_since > self._timeout
+        ):
+            self._garbage(parser.buf_len())
+            parser.buf, parser.buf_index = bytearray(), 0
+            self._waiting_since = None
+        msg = None
+        if parser.buf_len():  # whole frames already in the parser go before new bytes
+            msg = parser.parse_char(b"")
+            if msg is not None:
+                conn.post_message(msg)
+        if msg is None:
+            before = parser.total_bytes_received
+            msg = conn.recv_msg()
+            if msg is None:
+                arrived = parser.total_bytes_received != before
+                if not parser.buf_len():
+                    self._waiting_since = None
+                    return arrived, None
+                if self._overtaken(parser):
+                    return True, None
+                if self._waiting_since is None:
+                    self._waiting_since = time.monotonic()
+                return arrived, None
+        self._waiting_since = None
+        if isinstance(msg, self._bad):
+            reason = msg.reason
+            if reason == "Invalid signature":  # a whole frame: the source counts it
+                self._in_garbage = False
+                return True, msg
+            if reason == "Bad prefix":  # the bytes up to the next frame start
+                self._garbage(len(msg.data))
+            else:  # a candidate frame that failed: only its first byte is known to be bad
+                self._put_back(parser, msg.data, 1)
+            return True, None
+        if isinstance(msg, self._unknown):
+            data = bytes(msg.data)
+            after = parser.buf[parser.buf_index : parser.buf_index + MAX_FRAME_BYTES]
+            inside = self._whole_frame(data + bytes(after), 1, len(data))
+            if inside is not None:
+                self._put_back(parser, data, inside)
+                return True, None
+        self._in_garbage = False
+        return True, msg
+
+    def _garbage(self, n: int) -> None:
+        """Count ``n`` bad bytes (a new run unless the last bytes were bad too)."""
+        if not self._in_garbage:
+            self._c["bad_data"] += 1
+            self._in_garbage = True
+        self._c["bad_bytes"] += n
+
+    def _put_back(self, parser: Any, data: bytes | bytearray, skip: int) -> None:
+        """Give a consumed candidate frame ``data`` back to the parser, all but its first
+        ``skip`` bytes (garbage), in front of what it still holds."""
+        self._garbage(skip)
+        rest = parser.buf[parser.buf_index :]
+        parser.buf = bytearray(data[skip:])
+        parser.buf += rest
+        parser.buf_index = 0
+
+    def _overtaken(self, parser: Any) -> bool:
+        """Drop the frame start the parser waits on when a whole frame that passes its
+        checksum lies behind it; True when it did."""
+        waiting = bytes(parser.buf[parser.buf_index :])
+        if waiting == self._scanned:  # searched already, nothing came since
+            return False
+        self._scanned = waiting
+        at = self._whole_frame(waiting, 1, len(waiting))
+        if at is None:
+            return False
+        self._garbage(at)
+        parser.buf_index += at
+        return True
+
+    def _whole_frame(self, data: bytes, lo: int, hi: int) -> int | None:
+        """The first index in ``data[lo:hi]`` where a whole frame starts that passes its
+        checksum (a message type of the dialect), or None."""
+        check = self._check
+        at = lo
+        while (at := _next_frame_start(data, at, hi)) >= 0:
+            check.buf = bytearray(data[at : at + MAX_FRAME_BYTES])
+            check.buf_index = 0
+            check.expected_length = self._check_expect
+            msg = check.parse_char(b"")
+            if msg is not None and not isinstance(msg, self._bad | self._unknown):
+                return at
+            at += 1
+        return None
+
+
 class MavlinkSource(SampleHoldSource):
     """Aircraft states from MAVLink telemetry or a log, at a fixed rate.
 
@@ -475,6 +659,14 @@ class MavlinkSource(SampleHoldSource):
         A ``udpin:`` (``udp:``, ``tcpin:``) URL may listen on port 0, any free
         port (see :attr:`local_address`); False refuses it, as ``motionbase
         stream`` does: nobody could send to a port it does not show.
+    drain_budget_s : float, optional
+        On a live link: how long a tick may go on reading messages past its due
+        time, s (>= 0); None: a tenth of a period. The rest waits for the next tick
+        (see :class:`~motionbase.io.live_source.SampleHoldSource`).
+    partial_timeout_s : float
+        On a live link: how long the first bytes of a frame wait for the rest, s (>= 0;
+        a serial-to-UDP bridge cuts frames across datagrams); then they are counted as bad
+        data. See :class:`_FrameReader`.
 
     Attributes
     ----------
@@ -525,6 +717,8 @@ class MavlinkSource(SampleHoldSource):
         request_timeout_s: float = 3.0,
         log_clock: str = "vehicle",
         free_port: bool = True,
+        drain_budget_s: float | None = None,
+        partial_timeout_s: float = PARTIAL_TIMEOUT_S,
     ) -> None:
         if not isinstance(url, str) or not url.strip():
             raise ConfigError("mavlink url: empty; give e.g. udpin:127.0.0.1:14550 or a .tlog path")
@@ -534,6 +728,7 @@ class MavlinkSource(SampleHoldSource):
             duration_s=duration_s,
             busy_wait=busy_wait,
             stale_timeout_s=stale_timeout_s,
+            drain_budget_s=drain_budget_s,
         )
         if not (isinstance(sysid, int) and 1 <= sysid <= 255):
             raise ConfigError(f"mavlink sysid: must be an integer 1..255, got {sysid!r}")
@@ -545,6 +740,16 @@ class MavlinkSource(SampleHoldSource):
         self.request_timeout_s = positive_number(
             self.kind, "request_timeout_s", request_timeout_s, "s"
         )
+        if not (
+            isinstance(partial_timeout_s, int | float)
+            and math.isfinite(partial_timeout_s)
+            and partial_timeout_s >= 0
+        ):
+            raise ConfigError(
+                f"mavlink partial_timeout_s: must be a finite number >= 0 s, "
+                f"got {partial_timeout_s!r}"
+            )
+        self.partial_timeout_s = float(partial_timeout_s)
         self.sysid = sysid
         self.compid = compid
         self.realtime = bool(realtime)
@@ -566,6 +771,7 @@ class MavlinkSource(SampleHoldSource):
             self._key = load_signing_key(signing_key)
 
         self._conn: Any = None
+        self._frames: _FrameReader | None = None  # a live link's reader
         self._reset_state()
 
     # ------------------------------------------------------------------ lifecycle
@@ -641,6 +847,7 @@ class MavlinkSource(SampleHoldSource):
         self._conn = conn
         if not self.is_log:
             conn.mav.robust_parsing = True
+            self._frames = _FrameReader(conn, self._c, self.partial_timeout_s)
             if self._key is not None:
                 conn.setup_signing(
                     self._key, sign_outgoing=True, allow_unsigned_callback=_reject_unsigned
@@ -652,6 +859,7 @@ class MavlinkSource(SampleHoldSource):
     def close(self) -> None:
         """Close the connection. Idempotent."""
         conn, self._conn = self._conn, None
+        self._frames = None
         if conn is not None:
             try:
                 conn.close()
@@ -744,28 +952,21 @@ class MavlinkSource(SampleHoldSource):
             self._service_requests(self._conn, now)
 
     def _reader(self, conn: Any) -> tuple[Callable[[], bool], Any]:
-        recv_msg = conn.recv_msg
+        frames = self._frames
+        if frames is None:  # (opened as a log: never iterated live)
+            raise SourceError(f"mavlink {self.url}: not a live link")
+        read = frames.read
         handle = self._handle
-        # Over UDP a frame never spans two datagrams, but pymavlink parses them as one byte
-        # stream: the bytes of a frame cut short by its datagram would swallow the next
-        # datagram's frames. They are dropped before the next datagram is parsed.
-        datagrams = isinstance(conn, mavutil.mavudp)
-        parser = conn.mav
-        starved = False  # the last call found no whole frame in what had arrived
+        clock = time.monotonic
 
         def read_one() -> bool:
-            nonlocal starved
-            if datagrams and starved and parser.buf_len():
-                parser.buf, parser.buf_index = bytearray(), 0  # (as parse_char empties it)
             try:
-                msg = recv_msg()
+                progress, msg = read()
             except OSError as exc:
                 raise SourceError(f"mavlink {self.url}: link failed ({exc})") from None
-            starved = msg is None
-            if msg is None:
-                return False
-            handle(msg, time.monotonic())
-            return True
+            if msg is not None:
+                handle(msg, clock())
+            return progress
 
         return read_one, getattr(conn, "fd", None)
 

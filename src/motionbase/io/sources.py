@@ -62,7 +62,10 @@ def open_live_source(
         A source that listens may do so on port 0, any free port (read back from its
         ``local_address``); False refuses port 0, as ``motionbase stream`` does.
     **mavlink_options
-        ``sysid``, ``compid``, ``signing_key``: MAVLink only.
+        ``sysid``, ``compid``, ``signing_key`` (and the other keywords of
+        :class:`~motionbase.io.mavlink_source.MavlinkSource`): MAVLink only. None
+        leaves one unset (``sysid`` 1, every component, no signing), and is the only
+        value allowed with ``url``.
 
     Raises
     ------
@@ -86,7 +89,7 @@ def open_live_source(
             busy_wait=busy_wait,
             stale_timeout_s=stale_timeout_s,
             free_port=free_port,
-            **mavlink_options,
+            **{k: v for k, v in mavlink_options.items() if v is not None},
         )
         if not realtime and not source.is_log:
             raise ConfigError(
@@ -104,10 +107,11 @@ def open_live_source(
             else ""
         )
         raise ConfigError(f"--source {url!r}: unknown kind {scheme!r}; give {_EXAMPLES}{hint}")
-    used = sorted(k for k, v in mavlink_options.items() if v is not None and k != "sysid")
+    used = sorted(k for k, v in mavlink_options.items() if v is not None)
     if used:
         names = ", ".join("--" + k.replace("_", "-") for k in used)
-        raise ConfigError(f"{names}: MAVLink options, not for --source {url}; drop them")
+        what, them = ("a MAVLink option", "it") if len(used) == 1 else ("MAVLink options", "them")
+        raise ConfigError(f"{names}: {what}, not for --source {url}; drop {them}")
     if not realtime:
         raise ConfigError(f"--fast replays MAVLink log files; {url} is live: drop --fast")
     options = dict(

@@ -200,7 +200,7 @@ class XPlaneSource(UdpLiveSource):
     url : str, optional
         ``xplane:HOST:PORT[?listen=[ADDR:]PORT][&version=11|12]`` (see the module
         docstring). Default ``xplane:127.0.0.1:49000``.
-    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port
+    rate_hz, duration_s, busy_wait, stale_timeout_s, free_port, drain_budget_s
         See :class:`~motionbase.io.live_source.UdpLiveSource`. The datarefs are
         requested at ``rate_hz`` answers per second (X-Plane sends at most one
         per frame).
