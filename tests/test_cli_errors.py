@@ -538,3 +538,24 @@ def test_a_format_file_with_wrong_types_is_one_line(tmp_path, run_cli):
         assert code == 2, body
         one_line(err, "drive.toml", needle)
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_mistake_said_to_a_reader_that_went_away_still_exits_2(tmp_path):
+    """The one line goes to stderr; when nobody reads it any more (its pipe's reader gone,
+    a closed terminal) the status must still be 2, not a traceback's 1."""
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # every write to the pipe now fails (EPIPE)
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "motionbase.cli", "fly", "no_such_script"],
+            cwd=tmp_path,
+            stdout=subprocess.DEVNULL,
+            stderr=write_end,
+            timeout=120,
+        )
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 2

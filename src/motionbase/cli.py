@@ -33,6 +33,7 @@ try:  # numpy and the rest take a few tenths of a second to import
 
     from motionbase import __version__
     from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6
+    from motionbase.console import tell
     from motionbase.errors import ConfigError, MotionbaseError
     from motionbase.stopping import (
         Stopped,
@@ -121,14 +122,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             _notice_compiling()
             return int(args._run(args) or 0)
     except MotionbaseError as exc:
-        print(f"motionbase {args.command}: error: {exc}", file=sys.stderr)
+        tell(f"motionbase {args.command}: error: {exc}", sys.stderr)
         return 2
     except KeyboardInterrupt:
         return _interrupted(args.command)
     except Stopped as exc:  # a job that moves nothing, stopped by a signal (tune)
         by = "" if exc.reason == "SIGINT" else f" ({exc.reason})"
         kept = f"; {exc.kept}" if exc.kept else ""
-        print(f"motionbase {args.command}: interrupted{by}{kept}", file=sys.stderr)
+        tell(f"motionbase {args.command}: interrupted{by}{kept}", sys.stderr)
         return exc.exit_status
     except Exception as exc:
         if not _raised_by_ctrl_c(exc):
@@ -216,8 +217,6 @@ def _positive_float(text: str) -> float:
 
 
 def _print_result(result) -> int:
-    from motionbase.console import tell
-
     tell(result.summary_text())  # (a closed terminal: the run itself ended properly)
     return 1 if result.failed else 0
 
@@ -462,7 +461,7 @@ def run_teleop(args: argparse.Namespace) -> int:
             rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
             clamp=not args.no_clamp, live=args.live, stop=stop,
         )  # fmt: skip
-    print(
+    tell(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
         f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input, "
         f"{stats.stale_ticks} stale, {stats.estops} E-stops (stopped by {stats.stopped_by})"
