@@ -5,6 +5,9 @@ Run: python benchmarks/bench_output.py
 Targets (issue 8): formatting + sending one frame <= 20 us; 1 kHz output with < 10 % of a core.
 Issue 13: the sender ramps each frame at the drive within the speed and acceleration limits
 (``limits``, as ``--output`` always does): its cost per frame, and 1 kHz with and without it.
+The ramp's tracking, offline (:func:`ramp_tracking`): how far behind a moving command the
+drive is, and how far past a command that comes to rest it goes, when the sender samples the
+pipeline's commands at about their own rate with jitter.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 
 from motionbase.io.motor_output import open_output
 from motionbase.platform import OutputMapping
+from motionbase.platform.output_map import sweep_profile
 from motionbase.safety import ActuatorLimits
 
 LO, HI = np.radians(np.full(6, -60.0)), np.radians(np.full(6, 60.0))
@@ -175,6 +179,115 @@ def ramp_step(n: int = 20000) -> None:
     )
 
 
+def _ramped_frames(
+    commands: np.ndarray, written: np.ndarray, frames: np.ndarray, rate_hz: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sender's ramp driven offline: ``commands`` (k, 6) rad are written at the times
+    ``written``, a frame is due at each time of ``frames`` (s); returns the times of the
+    frames it sent, the drive's angles in them and the index of the command each sampled."""
+    fmt, mkey = FORMATS["bin 6xi32le crc16"]
+    sink = open_output(
+        f"udp:127.0.0.1:9?rate={rate_hz:g}&format={fmt}", MAPPINGS[mkey], limits=LIMITS
+    )
+    k = -1
+    out_t, out_q, out_k = [], [], []
+    for now in frames:
+        while k + 1 < len(commands) and written[k + 1] <= now:
+            k += 1
+            sink.write(commands[k])
+        if k < 0:
+            continue
+        target, frame = sink._command
+        step = sink._ramp(target, frame, now)
+        if step is None:
+            continue
+        q, v, _ = step
+        sink._drive_q, sink._drive_v, sink._drive_t, sink._drive_target = q, v, now, target
+        out_t.append(now)
+        out_q.append(q)
+        out_k.append(k)
+    return np.array(out_t), np.array(out_q), np.array(out_k)
+
+
+def _past_rest(commands: np.ndarray, q: np.ndarray, sampled: np.ndarray) -> float:
+    """How far the drive went past a command that came to rest (rad, the worst): for each
+    rest (a command equal to the next one, reached by a move), the frames from the start
+    of that move to the end of the rest."""
+    worst = 0.0
+    for i in range(commands.shape[1]):
+        c = commands[:, i]
+        for k in range(1, len(c) - 1):
+            if c[k] != c[k + 1] or c[k] == c[k - 1]:
+                continue
+            side = np.sign(c[k] - c[k - 1])
+            end = k
+            while end + 1 < len(c) and c[end + 1] == c[k]:
+                end += 1
+            start = k - 1
+            while start > 0 and np.sign(c[start] - c[start - 1]) == side:
+                start -= 1
+            sel = (sampled >= start) & (sampled <= end)
+            if sel.any():
+                worst = max(worst, float(np.max((q[sel, i] - c[k]) * side)))
+    return worst
+
+
+def ramp_tracking(rate_hz: float = 200.0, jitter: float = 0.3, trials: int = 20) -> None:
+    """The drive-side ramp fed as ``motionbase output --test`` feeds it: the pipeline's
+    commands at ``rate_hz``, each written up to ``jitter`` of a period after its due time,
+    sampled by frames at ``rate_hz`` with the same jitter (seeded, ``trials`` phases).
+
+    * lag: a move at half the acceleration limit to 60 deg/s, 1 s at that speed, braking to
+      rest; in the cruise, how long after the command was at the drive's position (its due
+      time, on the pipeline's schedule) the drive is there: mean, and the worst frame. The
+      latest command's own age at the frames (what a drive that jumped to it would lag) is
+      given beside it.
+    * past rest: the wiring check's sweep (``sweep_profile``, +-5 deg at 60 deg/s) and the
+      move above, how far the drive goes past a command that comes to rest.
+    """
+    period = 1.0 / rate_hz
+    rng = np.random.default_rng(7)
+    speed, accel = np.radians(60.0), 0.5 * float(LIMITS.max_accel[0])
+    t_acc, cruise = speed / accel, 1.0
+    t = np.arange(0.0, 2 * t_acc + cruise + 0.3, period)
+    t1 = np.clip(t, 0, t_acc)
+    t2 = np.clip(t - t_acc, 0, cruise)
+    t3 = np.clip(t - t_acc - cruise, 0, t_acc)
+    x = 0.5 * accel * t1**2 + speed * t2 + speed * t3 - 0.5 * accel * t3**2 - 0.5
+    move = np.repeat(x[:, None], 6, axis=1)
+    neutral = np.zeros(6)
+    sweep, _ = sweep_profile(
+        np.full(6, np.radians(-55.0)), neutral, LO, HI, range_rad=np.radians(5.0),
+        speed=speed, accel=accel, dt=period, dwell_s=0.2,
+    )  # fmt: skip
+    lags, worst_lag, ages, past = [], [], [], []
+    due = {"move": np.arange(len(move)) * period, "sweep": np.arange(len(sweep)) * period}
+    for _ in range(trials):
+        phase = rng.uniform(0.0, period)
+        for name, commands in (("move", move), ("sweep", sweep)):
+            n = len(commands)
+            written = due[name] + rng.uniform(0.0, jitter * period, n)
+            frames = (
+                np.arange(n + 100) * period + phase + rng.uniform(0.0, jitter * period, n + 100)
+            )
+            ft, q, sampled = _ramped_frames(commands, written, frames, rate_hz)
+            past.append(_past_rest(commands, q, sampled))
+            if name == "move":
+                cruising = (ft > t_acc + 0.1) & (ft < t_acc + cruise - 0.05)
+                at = np.interp(q[cruising, 0], commands[:, 0], due[name])
+                lag = ft[cruising] - at
+                lags.append(lag.mean())
+                worst_lag.append(lag.max())
+                ages.append(np.mean(ft[cruising] - due[name][sampled[cruising]]))
+    print(
+        f"ramp at the drive, offline ({rate_hz:g} Hz commands and frames, each up to "
+        f"{jitter:g} of a period late, {trials} phases): lag at 60 deg/s mean "
+        f"{1e3 * np.mean(lags):.2f} ms, worst frame {1e3 * np.max(worst_lag):.2f} ms (the latest "
+        f"command's own age {1e3 * np.mean(ages):.2f} ms); past a command at rest: worst "
+        f"{np.degrees(np.max(past)):.4f} deg, in {sum(p > 1e-9 for p in past)} of {len(past)} runs"
+    )
+
+
 def sustained(rate_hz: float = 1000.0, seconds: float = 5.0, ramped: bool = True) -> None:
     fmt, mkey = FORMATS["bin 6xu16be sum8"]
     drain = Drain("udp")
@@ -227,5 +340,6 @@ def sustained(rate_hz: float = 1000.0, seconds: float = 5.0, ramped: bool = True
 if __name__ == "__main__":
     per_frame()
     ramp_step()
+    ramp_tracking()
     sustained(ramped=False)
     sustained(ramped=True)
