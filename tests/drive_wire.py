@@ -195,6 +195,37 @@ def sweep_holds(q: np.ndarray, neutral, half_range: float, atol: float) -> np.nd
     return first
 
 
+def past_rest(commands: np.ndarray, q: np.ndarray, sampled: np.ndarray) -> np.ndarray:
+    """How far the drive went past commands that came to rest, per motor (the worst; 0 when
+    never; in the commands' unit).
+
+    A rest is a command equal to the next one, reached by a move (steps under 1e-12 count
+    as none): the frames that sampled a command of that move or of the rest (``sampled[j]``
+    is the index in ``commands`` of the command frame ``j`` was heading for), from the
+    first on the near side of the rest on (a drive still coming back from beyond, after a
+    reversal it lagged, has not passed it), must not be beyond it.
+    """
+    commands, q = np.asarray(commands, dtype=float), np.asarray(q, dtype=float)
+    steps = np.diff(commands, axis=0)
+    steps[np.abs(steps) < 1e-12] = 0.0
+    worst = np.zeros(commands.shape[1])
+    for i in range(commands.shape[1]):
+        side = np.sign(steps[:, i])  # side[k]: the way from command k to command k + 1
+        for k in np.flatnonzero((side[1:] == 0) & (side[:-1] != 0)) + 1:
+            end = k
+            while end < len(side) and side[end] == 0:
+                end += 1
+            start = k - 1
+            while start > 0 and side[start - 1] == side[k - 1]:
+                start -= 1
+            frames = np.flatnonzero((sampled >= start) & (sampled <= end))
+            beyond = (q[frames, i] - commands[k, i]) * side[k - 1]
+            near = np.flatnonzero(beyond <= 0.0)
+            if near.size:
+                worst[i] = max(worst[i], beyond[near[0] :].max())
+    return worst
+
+
 def read_complete_log(path) -> dict[str, list[dict]]:
     """Every message of a finished MCAP log by topic, read by the ``mcap`` library's indexed
     reader, which needs the summary and footer that only a properly closed log has."""
