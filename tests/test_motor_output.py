@@ -19,7 +19,7 @@ from urllib.parse import quote
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_wire_limits, decode, past_rest, sweep_holds
+from drive_wire import UdpDrive, check_sweep, check_wire_limits, decode, past_rest
 from pty_board import Board
 
 from motionbase.app import fly, load_config
@@ -519,10 +519,9 @@ def test_output_test_sweeps_each_motor_in_turn_through_a_pty(tmp_path, capsys):
     park = GEOMETRY.park_angle
     np.testing.assert_allclose(angles[0], park, atol=tol)
     np.testing.assert_allclose(angles[-1], park, atol=tol)
-    # at neutral (0 deg) every motor sits mid-range; motor 1 goes to +5 deg and -5 deg, the
-    # others at neutral, then motor 2, ... (to the 12-bit range's unit)
-    holds = sweep_holds(angles, np.zeros(6), math.radians(5), atol=tol)
-    assert np.all(holds >= 0), holds
+    # at neutral (0 deg) every motor sits mid-range; motor 1 goes to +5 deg and -5 deg and
+    # no further, the others at neutral, then motor 2, ... (to the 12-bit range's unit)
+    holds = check_sweep(angles, np.zeros(6), math.radians(5), atol=tol)
     assert np.all(np.diff(holds.ravel()) > 0), holds
     # a mirrored motor's drive value falls as its crank rises (motor 2), a plain one's rises
     assert values[holds[1, 0], 1] < 2047 < values[holds[0, 0], 0]
@@ -715,16 +714,8 @@ def test_the_drive_never_passes_a_command_that_comes_to_rest_whatever_the_frame_
     check_wire_limits(t, q, lim.max_speed, lim.max_accel, "the sweep")
     assert np.all(q >= lim.lower - rounding) and np.all(q <= lim.upper + rounding)
     np.testing.assert_allclose(q[-1], commands[-1], atol=rounding)
-    # the sweep exactly, from the frame of its first command at neutral to that of its last:
-    # each motor in turn to +5 deg and -5 deg and back, the others at neutral
-    at_neutral = np.flatnonzero(np.all(np.abs(commands - neutral) < 1e-12, axis=1))
-    swept = (q - neutral)[(at_neutral[0] <= sampled) & (sampled <= at_neutral[-1])]
-    away = np.abs(swept) > rounding
-    assert away.sum(axis=1).max() == 1, "two motors away from neutral at once"
-    np.testing.assert_allclose(swept.max(axis=0), math.radians(5.0), atol=rounding)
-    np.testing.assert_allclose(swept.min(axis=0), -math.radians(5.0), atol=rounding)
-    order = [int(np.flatnonzero(a)[0]) for a in away if a.any()]
-    assert list(dict.fromkeys(order)) == [0, 1, 2, 3, 4, 5]
+    # the sweep exactly: each motor in turn to +5 deg and -5 deg, the others at neutral
+    check_sweep(q, neutral, math.radians(5.0), atol=rounding)
     assert sink.ramped > 0  # (not vacuous: the ramp shaped frames)
 
 
