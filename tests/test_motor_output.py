@@ -663,10 +663,12 @@ def test_the_drive_never_passes_a_command_that_comes_to_rest_whatever_the_frame_
     written up to ``jitter`` of a period after its tick, sampled by the sender's frames at
     200 Hz, each up to ``jitter`` of a period late (seeded; frames due sooner than half a
     period after the last wait for the next). The sender's own code makes each frame
-    (``MotorOutput._tick`` at the frame's time, on a clock that reads it) and a UDP drive
-    decodes it. The drive never goes past a command that comes to rest (to the wire's
-    rounding): the sweep reaches +-5 deg exactly, one motor at a time, the others at
-    neutral; the frames keep the speed, acceleration and angle limits and end on park.
+    (``MotorOutput._tick`` at the frame's time, on a clock that reads it) and sends it to a
+    UDP drive; the test reads each frame as it went on the wire with the drive's own parser
+    (:func:`drive_wire.decode`). The drive never goes past a command that comes to rest
+    (to the wire's rounding): the sweep reaches +-5 deg exactly, one motor at a time, the
+    others at neutral; the frames keep the speed, acceleration and angle limits and end on
+    park.
 
     The ramp used to feed forward the speed between the commands its frames sampled: a
     command sampled twice looked stopped, the next one twice as fast, and the drive went
@@ -687,7 +689,8 @@ def test_the_drive_never_passes_a_command_that_comes_to_rest_whatever_the_frame_
     drive = UdpDrive()  # (the peer; the frames are read as they were put on the wire)
     times, frames, sampled = [], [], []
     try:
-        sink = open_output(drive.url(rate), mapping_for(robot), limits=lim)  # (commands: 200 Hz)
+        # (the commands' tick: the sender's period, the default)
+        sink = open_output(drive.url(rate), mapping_for(robot), limits=lim)
         sink.transport.open()  # (no sender thread: the test makes each frame)
         k = -1
         for now in due:
