@@ -5,6 +5,9 @@ Run: python benchmarks/bench_output.py
 Targets (issue 8): formatting + sending one frame <= 20 us; 1 kHz output with < 10 % of a core.
 Issue 13: the sender ramps each frame at the drive within the speed and acceleration limits
 (``limits``, as ``--output`` always does): its cost per frame, and 1 kHz with and without it.
+The ramp's tracking, offline (:func:`ramp_tracking`): how far behind a moving command the
+drive is, and how far past a command that comes to rest it goes, when the sender samples the
+pipeline's commands at about their own rate with jitter.
 """
 
 from __future__ import annotations
@@ -19,8 +22,10 @@ import tty
 
 import numpy as np
 
-from motionbase.io.motor_output import open_output
+from motionbase.io import motor_output
+from motionbase.io.motor_output import Drive, DriveCommand, open_output
 from motionbase.platform import OutputMapping
+from motionbase.platform.output_map import sweep_profile
 from motionbase.safety import ActuatorLimits
 
 LO, HI = np.radians(np.full(6, -60.0)), np.radians(np.full(6, 60.0))
@@ -155,23 +160,134 @@ def ramp_step(n: int = 20000) -> None:
     fmt, mkey = FORMATS["bin 6xu16be sum8"]
     sink = open_output(f"udp:127.0.0.1:9?rate=1000&format={fmt}", MAPPINGS[mkey], limits=LIMITS)
     sink.write(np.zeros(6))
-    target, frame = sink._command
-    sink._drive_q, sink._drive_t = np.zeros(6), time.monotonic()
-    sink._drive_target = target
+    sink.write(np.full(6, 1.0))  # a far command: every frame is limited, mapped and encoded anew
+    command = sink._command
+    start = Drive(np.zeros(6), np.zeros(6), time.monotonic())
+    sink._drive = start
     t = np.empty(n)
-    far = np.full(6, 1.0)  # a far command: every frame is limited, mapped and encoded anew
     for i in range(n):
-        now = sink._drive_t + 1e-3
+        now = sink._drive.t + 1e-3
         t0 = time.perf_counter_ns()
-        q, v, _ = sink._ramp(far, frame, now)
+        q, v, _ = sink._ramp(command, now)
         t[i] = time.perf_counter_ns() - t0
-        sink._drive_q, sink._drive_v, sink._drive_t, sink._drive_target = q, v, now, far
-        if np.array_equal(q, far):
-            sink._drive_q, sink._drive_v = np.zeros(6), np.zeros(6)
+        sink._drive = Drive(q, v, now)
+        if q is command.angles:
+            sink._drive = start._replace(t=now)
     us = t / 1e3
     print(
-        f"ramp at the drive (limit_command + map + encode of a limited frame), us per frame: "
+        f"ramp at the drive (ramp_command + map + encode of a limited frame), us per frame: "
         f"median {np.median(us):.1f}, p99 {np.percentile(us, 99):.1f}"
+    )
+
+
+def _ramped_frames(
+    commands: np.ndarray, written: np.ndarray, frames: np.ndarray, rate_hz: float, tick: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sender's ramp driven offline (:func:`ramp_step`, a frame each, at ``rate_hz``):
+    ``commands`` (k, 6) rad, one a ``tick`` (s), are written at the times ``written``, a frame
+    is due at each time of ``frames`` (s); returns the times of the frames it sent, the
+    drive's angles in them and the index of the command each sampled."""
+    period = 1.0 / rate_hz
+    drive: Drive | None = None
+    command: DriveCommand | None = None
+    k = -1
+    out_t, out_q, out_k = [], [], []
+    for now in frames:
+        while k + 1 < len(commands) and written[k + 1] <= now:
+            k += 1
+            c = commands[k]
+            command = DriveCommand.at_rest(c, b"") if command is None else command.then(c, b"")
+        if command is None:
+            continue
+        step = motor_output.ramp_step(
+            drive, command, now, period=period, command_dt=tick, limits=LIMITS
+        )
+        if step is None:
+            continue
+        drive = Drive(step[0], step[1], now)
+        out_t.append(now)
+        out_q.append(drive.q)
+        out_k.append(k)
+    return np.array(out_t), np.array(out_q), np.array(out_k)
+
+
+def _past_rest(commands: np.ndarray, q: np.ndarray, sampled: np.ndarray) -> float:
+    """How far the drive went past a command that came to rest (rad, the worst): for each
+    rest (a command equal to the next one, reached by a move; steps under 1e-12 rad count
+    as none), the frames from the start of that move to the end of the rest."""
+    worst = 0.0
+    steps = np.diff(commands, axis=0)
+    steps[np.abs(steps) < 1e-12] = 0.0
+    for i in range(commands.shape[1]):
+        side = np.sign(steps[:, i])  # side[k]: the way from command k to k + 1
+        for k in np.flatnonzero((side[1:] == 0) & (side[:-1] != 0)) + 1:
+            end = k
+            while end < len(side) and side[end] == 0:
+                end += 1
+            start = k - 1
+            while start > 0 and side[start - 1] == side[k - 1]:
+                start -= 1
+            sel = (sampled >= start) & (sampled <= end)
+            if sel.any():
+                past = (q[sel, i] - commands[k, i]) * side[k - 1]
+                worst = max(worst, float(past.max()))
+    return worst
+
+
+def ramp_tracking(
+    command_hz: float = 200.0,
+    frame_hz: float = 200.0,
+    speed_deg_s: float = 60.0,
+    jitter: float = 0.3,
+    trials: int = 20,
+) -> None:
+    """The drive-side ramp fed offline as a paced run feeds it: the pipeline's commands at
+    ``command_hz``, each written up to ``jitter`` of its period after its due time, sampled
+    by frames at ``frame_hz`` with the same jitter (seeded: ``trials`` phases).
+
+    * lag: a move at half the acceleration limit to ``speed_deg_s``, 0.5 s at that speed,
+      braking to rest; in the cruise, how long after the command was at the drive's
+      position (its due time, on the pipeline's schedule) the drive is there: mean, and the
+      worst frame. The latest command's own age at the frames (what a drive that jumped to
+      it would lag) is given beside it.
+    * past rest: the wiring check's sweep (``sweep_profile``, +-5 deg at that speed) and the
+      move above: how far the drive goes past a command that comes to rest.
+    """
+    tick, period = 1.0 / command_hz, 1.0 / frame_hz
+    rng = np.random.default_rng(7)
+    speed, accel = np.radians(speed_deg_s), 0.5 * float(LIMITS.max_accel[0])
+    t_acc, cruise = speed / accel, 0.5
+    t = np.arange(0.0, 2 * t_acc + cruise + 0.3, tick)
+    t1 = np.clip(t, 0, t_acc)
+    t2 = np.clip(t - t_acc, 0, cruise)
+    t3 = np.clip(t - t_acc - cruise, 0, t_acc)
+    x = 0.5 * accel * t1**2 + speed * t2 + speed * t3 - 0.5 * accel * t3**2
+    move = np.repeat(x[:, None] - 0.5 * x[-1], 6, axis=1)
+    sweep, _ = sweep_profile(
+        np.full(6, np.radians(-55.0)), np.zeros(6), LO, HI, range_rad=np.radians(5.0),
+        speed=speed, accel=accel, dt=tick, dwell_s=0.2,
+    )  # fmt: skip
+    lags, worst_lag, ages, past = [], [], [], []
+    for _ in range(trials):
+        phase = rng.uniform(0.0, period)
+        for name, commands in (("move", move), ("sweep", sweep)):
+            due = np.arange(len(commands)) * tick
+            written = due + rng.uniform(0.0, jitter * tick, len(due))
+            n = int((due[-1] + 0.5) / period)
+            frames = np.arange(n) * period + phase + rng.uniform(0.0, jitter * period, n)
+            ft, q, sampled = _ramped_frames(commands, written, frames, frame_hz, tick)
+            past.append(_past_rest(commands, q, sampled))
+            if name == "move":
+                cruising = (ft > t_acc + 0.1) & (ft < t_acc + cruise - 0.05)
+                lag = ft[cruising] - np.interp(q[cruising, 0], commands[:, 0], due)
+                lags.append(lag.mean())
+                worst_lag.append(lag.max())
+                ages.append(np.mean(ft[cruising] - due[sampled[cruising]]))
+    print(
+        f"  {command_hz:g} Hz commands, {frame_hz:g} Hz frames, {speed_deg_s:g} deg/s: lag mean "
+        f"{1e3 * np.mean(lags):.2f} ms, worst frame {1e3 * np.max(worst_lag):.2f} ms (the "
+        f"latest command's age {1e3 * np.mean(ages):.2f} ms); past a command at rest: worst "
+        f"{np.degrees(np.max(past)):.4f} deg, in {sum(p > 1e-9 for p in past)} of {len(past)}"
     )
 
 
@@ -227,5 +343,9 @@ def sustained(rate_hz: float = 1000.0, seconds: float = 5.0, ramped: bool = True
 if __name__ == "__main__":
     per_frame()
     ramp_step()
+    print("ramp at the drive, offline (commands and frames each up to 0.3 of a period late):")
+    ramp_tracking()  # motionbase output --test --rate 200 --speed-deg-s 60
+    ramp_tracking(speed_deg_s=150.0)
+    ramp_tracking(120.0, 100.0)  # fly --output's defaults
     sustained(ramped=False)
     sustained(ramped=True)

@@ -179,9 +179,9 @@ def sweep_holds(q: np.ndarray, neutral, half_range: float, atol: float) -> np.nd
     ``atol``), -1 when no frame is. Shape (n, 2).
 
     The sweep rests at each end of a motor's move, and the drive-side ramp lands exactly on
-    a command it holds: these frames are exactly the sweep's. In between, where the sender's
-    frames slip against the pipeline's ticks, the ramp lags or passes the moving command by
-    a fraction of a degree (it keeps the limits), so the shape of a move is not exact there.
+    a command it holds: these frames are exactly the sweep's. In between the ramp runs a
+    little behind the moving command (it keeps the limits), so the shape of a move is not
+    the commands' there; :func:`check_sweep` checks a whole sweep.
     """
     dev = np.asarray(q, dtype=float) - np.asarray(neutral, dtype=float)
     n = dev.shape[1]
@@ -193,6 +193,63 @@ def sweep_holds(q: np.ndarray, neutral, half_range: float, atol: float) -> np.nd
             if hit.size:
                 first[i, j] = hit[0]
     return first
+
+
+def check_sweep(q: np.ndarray, neutral, half_range: float, atol: float) -> np.ndarray:
+    """Assert that frames ``q`` (k, n) hold a whole wiring-check sweep exactly, and return
+    :func:`sweep_holds`.
+
+    From the first frame with all motors but one at most at ``neutral`` (to ``atol``: they
+    come from park together) until they all leave it on one side (the move to park; or the
+    last frame): never two motors away from neutral at once, each motor in turn (1, 2, ...)
+    away, each reaching ``+half_range`` and ``-half_range`` and going no further (to
+    ``atol``). The drive-side ramp lands exactly on a command at rest and never passes one,
+    so ``atol`` is the wire's rounding.
+    """
+    dev = np.asarray(q, dtype=float) - np.asarray(neutral, dtype=float)
+    start = np.flatnonzero((np.abs(dev) > atol).sum(axis=1) <= 1)
+    assert start.size, "no frame with the motors at neutral"
+    together = np.flatnonzero(np.all(dev < -atol, axis=1) | np.all(dev > atol, axis=1))
+    together = together[together > start[0]]
+    swept = dev[start[0] : together[0] if together.size else len(dev)]
+    away = np.abs(swept) > atol
+    assert away.sum(axis=1).max() == 1, f"two motors away at once: {swept[away.sum(axis=1) > 1]}"
+    order = [int(np.flatnonzero(a)[0]) for a in away if a.any()]
+    assert list(dict.fromkeys(order)) == list(range(dev.shape[1])), order
+    np.testing.assert_allclose(swept.max(axis=0), half_range, rtol=0, atol=atol)
+    np.testing.assert_allclose(swept.min(axis=0), -half_range, rtol=0, atol=atol)
+    return sweep_holds(q, neutral, half_range, atol)
+
+
+def past_rest(commands: np.ndarray, q: np.ndarray, sampled: np.ndarray) -> np.ndarray:
+    """How far the drive went past commands that came to rest, per motor (the worst; 0 when
+    never; in the commands' unit).
+
+    A rest is a command equal to the next one, reached by a move (steps under 1e-12 count
+    as none): the frames that sampled a command of that move or of the rest (``sampled[j]``
+    is the index in ``commands`` of the command frame ``j`` was heading for), from the
+    first on the near side of the rest on (a drive still coming back from beyond, after a
+    reversal it lagged, has not passed it), must not be beyond it.
+    """
+    commands, q = np.asarray(commands, dtype=float), np.asarray(q, dtype=float)
+    steps = np.diff(commands, axis=0)
+    steps[np.abs(steps) < 1e-12] = 0.0
+    worst = np.zeros(commands.shape[1])
+    for i in range(commands.shape[1]):
+        side = np.sign(steps[:, i])  # side[k]: the way from command k to command k + 1
+        for k in np.flatnonzero((side[1:] == 0) & (side[:-1] != 0)) + 1:
+            end = k
+            while end < len(side) and side[end] == 0:
+                end += 1
+            start = k - 1
+            while start > 0 and side[start - 1] == side[k - 1]:
+                start -= 1
+            frames = np.flatnonzero((sampled >= start) & (sampled <= end))
+            beyond = (q[frames, i] - commands[k, i]) * side[k - 1]
+            near = np.flatnonzero(beyond <= 0.0)
+            if near.size:
+                worst[i] = max(worst[i], beyond[near[0] :].max())
+    return worst
 
 
 def read_complete_log(path) -> dict[str, list[dict]]:

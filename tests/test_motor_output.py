@@ -19,7 +19,7 @@ from urllib.parse import quote
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_wire_limits, sweep_holds
+from drive_wire import UdpDrive, check_sweep, check_wire_limits, decode, past_rest
 from pty_board import Board
 
 from motionbase.app import fly, load_config
@@ -28,14 +28,18 @@ from motionbase.config import preset_path
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.motor_output import (
+    Drive,
+    DriveCommand,
     crc16_ccitt,
     crc16_modbus,
     mapping_for,
     open_output,
     open_outputs,
+    ramp_step,
 )
 from motionbase.pipeline import Pipeline, run
 from motionbase.platform import OutputMapping, Rus6Geometry
+from motionbase.safety import UNSAFE_TARGET, limit_command
 from motionbase.state import AircraftState
 
 GEOMETRY = Rus6Geometry.preset("ceart")
@@ -515,10 +519,9 @@ def test_output_test_sweeps_each_motor_in_turn_through_a_pty(tmp_path, capsys):
     park = GEOMETRY.park_angle
     np.testing.assert_allclose(angles[0], park, atol=tol)
     np.testing.assert_allclose(angles[-1], park, atol=tol)
-    # at neutral (0 deg) every motor sits mid-range; motor 1 goes to +5 deg and -5 deg, the
-    # others at neutral, then motor 2, ... (to the 12-bit range's unit)
-    holds = sweep_holds(angles, np.zeros(6), math.radians(5), atol=tol)
-    assert np.all(holds >= 0), holds
+    # at neutral (0 deg) every motor sits mid-range; motor 1 goes to +5 deg and -5 deg and
+    # no further, the others at neutral, then motor 2, ... (to the 12-bit range's unit)
+    holds = check_sweep(angles, np.zeros(6), math.radians(5), atol=tol)
     assert np.all(np.diff(holds.ravel()) > 0), holds
     # a mirrored motor's drive value falls as its crank rises (motor 2), a plain one's rises
     assert values[holds[1, 0], 1] < 2047 < values[holds[0, 0], 0]
@@ -575,8 +578,9 @@ def test_a_ramp_with_uneven_steps_stops_on_its_target_without_passing_it(monkeyp
     """close() ramps the drive 40 deg to its last command while every other sleep of the
     sender overruns, so long and short steps alternate. Braking sized for the step it is
     given used to carry the drive past the target (the short step after a long one cannot
-    shed the speed the long one allowed) and back: a reversal in the seat. The ramp now
-    skips steps under half a period and brakes on a quarter of the acceleration limit."""
+    shed the speed the long one allowed) and back: a reversal in the seat. The ramp skips
+    steps under half a period, and its braking holds whatever the lengths of the later
+    steps (:func:`motionbase.physics.uneven_stop_speed`)."""
     from motionbase.io import motor_output
 
     clock = _OverrunningClock()
@@ -610,6 +614,184 @@ def test_a_ramp_with_uneven_steps_stops_on_its_target_without_passing_it(monkeyp
     np.testing.assert_allclose(q[-1], far, atol=math.radians(1e-4))
     passed = np.max((q - far) * np.sign(far - park), axis=0)
     assert np.all(passed <= math.radians(1e-4)), np.degrees(passed)
+
+
+class _SteppedClock:
+    """A stand-in for the ``time`` module that reads the time it is set to: each frame of the
+    sender is then taken at the time the test gives it, to the nanosecond."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+class _Commands:
+    """A sink that keeps every command of a run (the pipeline's outputs' angles)."""
+
+    def __init__(self) -> None:
+        self.angles: list[np.ndarray] = []
+
+    def write(self, output) -> None:
+        self.angles.append(np.array(output.angles))
+
+
+def _sweep_commands(rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The commands of ``motionbase output --test --speed-deg-s 60 --rate RATE_HZ`` on the
+    default 6-RUS, one a tick (its sweep through the pipeline, run unpaced), and neutral."""
+    from motionbase.commanding import CommandPipeline, SweepSource
+    from motionbase.platform.robot import robot_spec
+
+    robot = robot_spec("rus6").make(GEOMETRY)
+    pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
+    sweep = SweepSource(
+        robot, range_=math.radians(5.0), speed=math.radians(60.0), rate_hz=rate_hz,
+        lead_s=pipeline.soft_start_s,
+    )  # fmt: skip
+    out = _Commands()
+    run(pipeline, sweep, [out])
+    return np.array(out.angles), sweep.neutral
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("jitter", [0.3, 0.6])
+def test_the_drive_never_passes_a_command_that_comes_to_rest_whatever_the_frame_timing(
+    monkeypatch, seed, jitter
+):
+    """The wiring check's commands (``output --test --speed-deg-s 60 --rate 200``), each
+    written up to ``jitter`` of a period after its tick, sampled by the sender's frames at
+    200 Hz, each up to ``jitter`` of a period late (seeded; frames due sooner than half a
+    period after the last wait for the next). The sender's own code makes each frame
+    (``MotorOutput._tick`` at the frame's time, on a clock that reads it) and sends it to a
+    UDP drive; the test reads each frame as it went on the wire with the drive's own parser
+    (:func:`drive_wire.decode`). The drive never goes past a command that comes to rest
+    (to the wire's rounding): the sweep reaches +-5 deg exactly, one motor at a time, the
+    others at neutral; the frames keep the speed, acceleration and angle limits and end on
+    park.
+
+    The ramp used to feed forward the speed between the commands its frames sampled: a
+    command sampled twice looked stopped, the next one twice as fast, and the drive went
+    past the end of a move by 0.02-0.39 deg in 11 of these 12 runs."""
+    from motionbase.io import motor_output
+
+    rate = 200.0
+    period = 1.0 / rate
+    commands, neutral = _sweep_commands(rate)
+    rng = np.random.default_rng(seed)
+    written = (np.arange(len(commands)) + rng.uniform(0.0, jitter, len(commands))) * period
+    n = len(commands) + int(rate)  # and a second after the last command
+    due = (np.arange(n) + rng.uniform(0.0, 1.0) + rng.uniform(0.0, jitter, n)) * period
+    clock = _SteppedClock()
+    monkeypatch.setattr(motor_output, "time", clock)
+    robot = Pipeline(load_config()).robot
+    lim = robot.limits
+    drive = UdpDrive()  # (the peer; the frames are read as they were put on the wire)
+    times, frames, sampled = [], [], []
+    try:
+        # (the commands' tick: the sender's period, the default)
+        sink = open_output(drive.url(rate), mapping_for(robot), limits=lim)
+        sink.transport.open()  # (no sender thread: the test makes each frame)
+        k = -1
+        for now in due:
+            while k + 1 < len(commands) and written[k + 1] <= now:
+                k += 1
+                sink.write(commands[k])
+            clock.now = now
+            sent = sink.frames_sent
+            sink._tick(now)
+            if sink.frames_sent > sent:
+                times.append(now)
+                frames.append(sink.last_frame)
+                sampled.append(k)
+        sink.transport.close()
+    finally:
+        drive.close()
+    assert sink.send_errors == 0 and len(frames) > len(commands) // 2
+    t = np.array(times)
+    q = np.array([decode(f) for f in frames])
+    rounding = math.radians(0.6e-4)  # (the wire's four decimals of a degree)
+    sampled = np.array(sampled)
+    passed = past_rest(commands, q, sampled)
+    assert np.all(passed <= rounding), np.degrees(passed)
+    check_wire_limits(t, q, lim.max_speed, lim.max_accel, "the sweep")
+    assert np.all(q >= lim.lower - rounding) and np.all(q <= lim.upper + rounding)
+    np.testing.assert_allclose(q[-1], commands[-1], atol=rounding)
+    # the sweep exactly: each motor in turn to +5 deg and -5 deg, the others at neutral
+    check_sweep(q, neutral, math.radians(5.0), atol=rounding)
+    assert sink.ramped > 0  # (not vacuous: the ramp shaped frames)
+
+
+def _limited_commands(rng: np.random.Generator, tick: float, n: int, limits) -> np.ndarray:
+    """Commands a tick apart as the pipeline's limiter makes them: ``n`` toward targets that
+    jump now and then, some beyond the angle limits (held: braked to rest where it is), then
+    on toward the last one until they rest."""
+    q, v, prev = np.zeros(6), np.zeros(6), np.zeros(6)
+    target = np.zeros(6)
+    out = [q]
+    for k in range(n + int(10.0 / tick)):
+        if k < n and rng.random() < 3.0 * tick:
+            target = rng.uniform(-1.2, 1.2, 6) * (rng.random() < 0.8)
+        q, v, status = limit_command(q, v, prev, target, tick, limits)
+        prev = q.copy() if status & UNSAFE_TARGET else target
+        out.append(q)
+        if k >= n and not v.any():
+            break
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_ramp_never_passes_a_rest_of_any_commands_within_the_limits(seed):
+    """The sender's ramp, a frame at a time (:func:`ramp_step`, no sockets, no clock): the
+    commands of a limited pipeline at 50-1000 Hz toward random targets, written late by up
+    to 0.9 of a tick, the pipeline or the sender stalling now and then, sampled by frames at
+    50-1000 Hz up to 0.9 of a period late (seeded). The drive never passes a command that
+    comes to rest (to the float's rounding), each step keeps the speed and acceleration
+    limits (a step after a stall starts from rest), every frame is within the angle limits,
+    and the drive ends on the last command."""
+    rng = np.random.default_rng(seed)
+    lim = Pipeline(load_config()).robot.limits
+    tick, period = 1.0 / rng.choice([50, 120, 200, 1000]), 1.0 / rng.choice([50, 100, 200, 1000])
+    commands = _limited_commands(rng, tick, int(2.0 / tick), lim)
+    jitter = rng.choice([0.3, 0.9])
+    written = (np.arange(len(commands)) + rng.uniform(0.0, jitter, len(commands))) * tick
+    written[rng.integers(len(written)) :] += rng.uniform(0.0, 0.1)  # a pipeline stall
+    n = int((written[-1] + 1.0) / period)
+    due = (np.arange(n) + rng.uniform(0.0, 1.0) + rng.uniform(0.0, jitter, n)) * period
+    due[rng.integers(n) :] += rng.uniform(0.0, 0.05)  # a sender stall
+    drive: Drive | None = None
+    command: DriveCommand | None = None
+    k = -1
+    times, q, sampled = [], [], []
+    for now in due:
+        while k + 1 < len(commands) and written[k + 1] <= now:
+            k += 1
+            c = commands[k]
+            command = DriveCommand.at_rest(c, b"") if command is None else command.then(c, b"")
+        if command is None:
+            continue
+        step = ramp_step(drive, command, now, period=period, command_dt=tick, limits=lim)
+        if step is None:
+            continue
+        drive = Drive(step[0], step[1], now)
+        times.append(now)
+        q.append(drive.q)
+        sampled.append(k)
+    t, q = np.array(times), np.array(q)
+    passed = past_rest(commands, q, np.array(sampled))
+    assert np.all(passed <= 1e-12), np.degrees(passed)
+    assert np.all(q >= lim.lower) and np.all(q <= lim.upper)
+    # each step's speed over its time, or over a period from rest after a gap (the ramp's
+    # model of a drive that got no frame for more than two periods: it stood still)
+    dt = np.diff(t)
+    gap = dt > 2.0 * period
+    dt[gap] = period
+    v = np.diff(q, axis=0) / dt[:, None]
+    before = np.vstack([np.zeros(6), v[:-1]])
+    before[gap] = 0.0
+    assert np.all(np.abs(v) <= lim.max_speed * (1 + 1e-9))
+    assert np.all(np.abs(v - before) <= lim.max_accel * dt[:, None] * (1 + 1e-9))
+    assert np.array_equal(q[-1], commands[-1])
 
 
 def _manoeuvring(duration_s: float, dt: float) -> list[AircraftState]:

@@ -22,7 +22,7 @@ from subprocess import PIPE
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_wire_limits, sweep_holds
+from drive_wire import UdpDrive, check_sweep, check_wire_limits, sweep_holds
 
 from motionbase.platform import Rus6Geometry
 from motionbase.platform.robot import robot_spec
@@ -234,10 +234,11 @@ def test_a_drive_that_vanishes_mid_sweep_is_ramped_as_a_flight_s_drive_is(return
 def test_a_reader_that_goes_away_neither_stops_nor_crashes_the_sweep():
     """``motionbase output --test URL | head -2``: the reader of the output goes away after
     two lines, so the next line meets a broken pipe. Printing progress is no part of the
-    sweep: it runs to its end (every motor to +5 deg and -5 deg, the others at neutral)
-    and parks, and the command exits 0 without a word on stderr. The line used to be printed
-    from inside the sweep's source, so the broken pipe ended the sweep as a failing source:
-    parked, then a traceback and exit status 1."""
+    sweep: it runs to its end (every motor in turn to +5 deg and -5 deg exactly, the others
+    at neutral: :func:`drive_wire.check_sweep`) and parks, and the command exits 0 without a
+    word on stderr. The line used to be printed from inside the sweep's source, so the
+    broken pipe ended the sweep as a failing source: parked, then a traceback and exit
+    status 1."""
     drive = UdpDrive()
     cmd = [sys.executable, "-m", "motionbase.cli", "output", "--test", drive.url()]
     proc = subprocess.Popen([*cmd, "--speed-deg-s", "60"], stdout=PIPE, stderr=PIPE)
@@ -258,7 +259,7 @@ def test_a_reader_that_goes_away_neither_stops_nor_crashes_the_sweep():
     assert "Traceback" not in err and "Exception ignored" not in err, err
     _, q = drive.angles()
     neutral = np.asarray(GEOMETRY.neutral_angle, dtype=float)
-    assert np.all(sweep_holds(q, neutral, math.radians(5), atol=math.radians(1e-3)) >= 0)
+    check_sweep(q, neutral, math.radians(5), atol=math.radians(1e-4))  # (the wire's 4 decimals)
     np.testing.assert_allclose(q[-1], np.full(6, GEOMETRY.park_angle), atol=math.radians(1e-4))
 
 
@@ -344,10 +345,10 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
 def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform):
     """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
     geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
-    arriving there with the others at home (:func:`drive_wire.sweep_holds`), the frames
-    within the servos' angle, speed and acceleration limits, the last frame home (its
-    park). A 3-RRR geometry preset names the planar robot as well (``output`` has no
-    --planar)."""
+    reaching +5 deg and -5 deg exactly and going no further, never two away from home at
+    once (:func:`drive_wire.check_sweep`), the frames within the servos' angle, speed and
+    acceleration limits, the last frame home (its park). A 3-RRR geometry preset names the
+    planar robot as well (``output`` has no --planar)."""
     from motionbase.platform import Rrr3, Rrr3Geometry
 
     args = ["--platform", platform, "--speed-deg-s", "60", "--rate", "200"]
@@ -361,17 +362,17 @@ def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform
     assert np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)
     lim = robot_spec("rrr3").make(Rrr3Geometry.preset("udesc_symmetric")).limits
     check_wire_limits(t, q, lim.max_speed, lim.max_accel, "the 3-RRR's sweep")
-    # motor 1 to +5 deg and -5 deg, then motor 2, then motor 3, the others at home
-    holds = sweep_holds(q, home, math.radians(5.0), atol=math.radians(1e-3))
-    assert np.all(holds >= 0), holds
+    # motor 1 to +5 deg and -5 deg, then motor 2, then motor 3, the others at home (to the
+    # wire's four decimals of a degree)
+    holds = check_sweep(q, home, math.radians(5.0), atol=math.radians(1e-4))
     assert np.all(np.diff(holds.ravel()) > 0), holds
 
 
 def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
     """``output --test --platform stewart6``: each of the Stewart platform's linear actuators
     (millimetres, the default mapping for linear actuators) is swept by +-10 mm about its
-    length at the neutral pose, one at a time, within the stroke and the speed and
-    acceleration limits; the last frame is park."""
+    length at the neutral pose, one at a time (exactly, and no further), within the stroke and
+    the speed and acceleration limits; the last frame is park."""
     from motionbase.platform import Stewart6Geometry
     from motionbase.platform.robot import robot_spec
 
@@ -386,9 +387,9 @@ def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
     lo, hi = 1000.0 * lim.lower, 1000.0 * lim.upper
     assert np.all(mm >= lo - 1e-3) and np.all(mm <= hi + 1e-3)
     check_wire_limits(t, mm / 1000.0, lim.max_speed, lim.max_accel, "the Stewart sweep")
-    # to +10 mm and -10 mm one actuator at a time, in turn, the others at neutral
-    holds = sweep_holds(mm, neutral, 10.0, atol=1e-3)
-    assert np.all(holds >= 0), holds
+    # to +10 mm and -10 mm one actuator at a time, in turn, the others at neutral (to the
+    # wire's four decimals of a millimetre)
+    holds = check_sweep(mm, neutral, 10.0, atol=1e-4)
     assert np.all(np.diff(holds.ravel()) > 0), holds
 
 

@@ -356,7 +356,7 @@ def _drive_stoppable(
             "tuned for real time (e.g. --params tuned_ceart)",
             pipeline.cueing.name,
         )
-    drives = open_outputs(outputs, pipeline.robot)
+    drives = open_outputs(outputs, pipeline.robot, command_dt=pipeline.dt)
     if drives:  # which drives the log's commands went to, in what units and frames
         metadata["outputs"] = [drive.describe() for drive in drives]
     extra_sinks = [*(extra_sinks or []), *drives]
@@ -575,7 +575,9 @@ def output_test(
         # ramped at the drive within the robot's limits, as fly --output's drives are: a
         # drive back from an outage moves on from its last frame, one gone for good is
         # waited for at the end and said not to be parked
-        sink = open_output(url, mapping, rate_hz=rate_hz, limits=robot.limits)
+        sink = open_output(
+            url, mapping, rate_hz=rate_hz, limits=robot.limits, command_dt=pipeline.dt
+        )
         check_sendable(sink, robot)
         say(f"output test on {sink.label}: {mapping.describe()}")
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")

@@ -12,7 +12,9 @@ is meant to and nowhere else.
   beyond;
 * :func:`brake_speed`, the discrete braking curve, and :func:`track_toward`, the one-tick
   tracker built on it that the safety limiter, the washout's tilt tracker and its cue
-  limiter all run; :func:`smoothstep`, the ramp of the soft start and the watchdog fade
+  limiter all run; for steps whose lengths vary (the motor drives' wall-clock frames),
+  :func:`uneven_stop_speed`, :func:`least_travel` and :func:`ramp_toward`, the drive-side
+  ramp's tracker; :func:`smoothstep`, the ramp of the soft start and the watchdog fade
   (compiled; callable from Python and from compiled code);
 * rotations in the project's convention (Z-Y-X Euler angles, ``R = Rz(yaw) Ry(pitch)
   Rx(roll)`` maps body or platform vectors to base axes, FRD): :func:`rotation_matrix`,
@@ -49,12 +51,15 @@ __all__ = [
     "body_rates_from_euler_rates",
     "brake_speed",
     "euler_zyx_from_quaternion",
+    "least_travel",
     "quaternion_from_euler_zyx",
+    "ramp_toward",
     "rotation_matrix",
     "rotation_terms",
     "smoothstep",
     "stop_speed",
     "track_toward",
+    "uneven_stop_speed",
 ]
 
 STANDARD_GRAVITY = 9.80665
@@ -170,6 +175,148 @@ def track_toward(
     cap = stop_speed(abs(e), ub, dt, k)
     v_hi = stop_speed(upper - q0, ub, dt, k)
     v_lo = -stop_speed(q0 - lower, ub, dt, k)
+    v_full = (target - q0) / dt
+    if (
+        abs(e) / dt <= cap
+        and abs(v_full) <= vmax
+        and abs(v_full - v0) <= u
+        and v_lo <= v_full <= v_hi
+    ):
+        return target, False
+    fb = min(cap, abs(e) / dt)
+    v = vt + fb if e >= 0.0 else vt - fb
+    v = min(max(v, v_lo), v_hi)
+    v = min(max(v, v0 - u), v0 + u)
+    v = min(max(v, -vmax), vmax)
+    # safety net against rounding: never outside the limits
+    return min(max(q0 + v * dt, lower), upper), True
+
+
+@numba.njit(cache=True, inline="always")
+def uneven_stop_speed(dist: float, a: float, dt: float, dt_min: float) -> float:
+    """Largest speed for a step of ``dt`` after which an actuator still stops within ``dist``,
+    whatever the lengths of its later steps, each at least ``dt_min``.
+
+    A step of length ``h`` changes the speed by at most ``a h``. From a speed ``v`` the
+    actuator covers ``v dt`` in this step; after it, braking fully at every step covers a
+    right Riemann sum of ``v - a t``, at most ``(v - a dt_min / 2)^2 / (2 a)`` when every
+    step is at least ``dt_min`` long, and nothing when ``v <= a dt_min`` (the next step
+    stops it). The speed returned keeps ``v dt`` plus that bound within ``dist``; braking
+    fully from it at the next step, however long, keeps the next step's bound within what
+    is left, so steps that vary never carry the actuator past ``dist`` (unlike
+    :func:`brake_speed`, whose curve holds for steps of one length).
+
+    Parameters
+    ----------
+    dist : float
+        Distance left, in the actuator's unit; <= 0 gives 0.
+    a : float
+        Acceleration limit, unit/s^2 (> 0; inf: no bound).
+    dt : float
+        This step, s (>= ``dt_min``).
+    dt_min : float
+        The shortest of the later steps, s (> 0).
+
+    Returns
+    -------
+    float
+        Speed, unit/s (>= 0).
+    """
+    if dist <= 0.0:
+        return 0.0
+    if a == np.inf or dist == np.inf:
+        return np.inf
+    um = a * dt_min
+    v = min(dist / dt, um)
+    # v dt + (v - um / 2)^2 / (2 a) = dist, for v >= um / 2
+    w = np.sqrt(max(a * dt * (a * dt - um) + 2.0 * a * dist, 0.0)) - a * dt
+    if w >= 0.0:
+        v = max(v, 0.5 * um + w)
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def least_travel(step: float, du: float) -> float:
+    """How far a command that moved ``step`` on its last tick goes on at least, when its step
+    changes by at most ``du`` a tick (``a_max dt^2``: commands that keep the acceleration
+    limit, as the pipeline's do): ``sum over i >= 1 of max(step - i du, 0)``, the travel of
+    braking at once. A command can come to rest no nearer than this; 0 for ``step <= du``.
+
+    Parameters
+    ----------
+    step : float
+        The last tick's step, in the actuator's unit (>= 0).
+    du : float
+        Largest change of the step from one tick to the next, same unit (> 0).
+    """
+    if step <= du:
+        return 0.0
+    n = np.floor(step / du)
+    return n * step - du * n * (n + 1.0) / 2.0
+
+
+@numba.njit(cache=True, inline="always")
+def ramp_toward(
+    q0: float,
+    v0: float,
+    target: float,
+    vt: float,
+    lo: float,
+    hi: float,
+    dt: float,
+    dt_min: float,
+    lower: float,
+    upper: float,
+    vmax: float,
+    a: float,
+) -> tuple[float, bool]:
+    """One step of a motor drive toward its latest command, the steps' lengths varying (the
+    wall-clock frames of :class:`motionbase.io.motor_output.MotorOutput`).
+
+    As :func:`track_toward`: the command's own speed ``vt`` is fed forward, the error left is
+    closed no faster than the drive can still stop, the position never approaches ``lo``
+    or ``hi`` faster than it can stop before them, the speed changes by at most ``a dt``
+    and stays within ``vmax``, and the drive lands on the command exactly when every limit
+    allows the whole step. Every stopping distance is :func:`uneven_stop_speed`'s, which
+    holds whatever the later steps' lengths (each at least ``dt_min``). ``lo`` and ``hi``
+    are where the command could come to rest at the nearest (:func:`least_travel`; or the
+    command itself), within the angle limits: a drive that never approaches them faster
+    than it can stop never passes a command that comes to rest. They bound the speed
+    only: the acceleration limit comes first, and the result is within ``lower`` and
+    ``upper``.
+
+    Parameters
+    ----------
+    q0, v0 : float
+        Position (unit) and speed (unit/s) after the previous step.
+    target : float
+        The latest command, unit (within ``lower``, ``upper``).
+    vt : float
+        The command's own speed, unit/s (0: a command at rest).
+    lo, hi : float
+        Bounds the drive must be able to stop within, unit (``lo <= target <= hi``).
+    dt : float
+        This step, s (>= ``dt_min``).
+    dt_min : float
+        The shortest step, s.
+    lower, upper : float
+        Position limits, unit.
+    vmax : float
+        Speed limit, unit/s.
+    a : float
+        Acceleration limit, unit/s^2.
+
+    Returns
+    -------
+    (float, bool)
+        The new position, and whether a limit acted (the command was not reached).
+    """
+    u = a * dt
+    vt = min(max(vt, -vmax), vmax)
+    e = target - q0 - vt * dt
+    cap = uneven_stop_speed(abs(e), a, dt, dt_min)
+    v_hi = uneven_stop_speed(hi - q0, a, dt, dt_min)
+    v_lo = -uneven_stop_speed(q0 - lo, a, dt, dt_min)
     v_full = (target - q0) / dt
     if (
         abs(e) / dt <= cap

@@ -17,6 +17,10 @@ angles, :func:`limit_command` returns the next command so that
 Per actuator this is :func:`motionbase.physics.track_toward`, the tracker the washout's
 tilt and cue limiters run too.
 
+The motor drives' senders ramp each wall-clock frame toward the latest of these commands
+with :func:`ramp_command` (:func:`motionbase.physics.ramp_toward`): the same limits, for
+steps whose lengths vary, and never past a command that comes to rest.
+
 All angles in rad, speeds in rad/s, accelerations in rad/s^2, ``dt`` in s. Arrays
 have shape ``(n,)`` for ``n`` actuators (6 for the 6-RUS, 3 for the 3-RRR).
 """
@@ -33,6 +37,8 @@ from motionbase.physics import (
     MAX_ANGULAR_VELOCITY,
     MAX_ATTITUDE,
     MAX_SPECIFIC_FORCE,
+    least_travel,
+    ramp_toward,
     track_toward,
 )
 
@@ -168,6 +174,112 @@ def limit_command(
         q,
         v,
     )
+    return q, v, int(status)
+
+
+#: Rounding allowed in a command's steps before :func:`ramp_command` takes them for a jump:
+#: relative to the limits, and absolute (rad or m).
+STEP_ROUNDING = (1e-6, 1e-12)
+
+
+@numba.njit(cache=True)
+def ramp_kernel(
+    q_prev, v_prev, target, step, step_before, dt, dt_min, command_dt,
+    lower, upper, vmax, amax, q_out, v_out,
+):  # fmt: skip
+    """The compiled drive-side ramp: :func:`ramp_command` on arrays, writing ``q_out`` and
+    ``v_out`` (which may be ``q_prev`` and ``v_prev``); returns the status bits."""
+    n = q_prev.shape[0]
+    status = 0
+    for i in range(n):
+        x = target[i]
+        if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
+            status = 2
+    rel, eps = STEP_ROUNDING
+    for i in range(n):
+        q_i = q_prev[i]
+        c = q_i if status == 2 else target[i]
+        du = amax[i] * command_dt * command_dt
+        d = 0.0 if status == 2 else step[i]
+        if not (
+            abs(d) <= vmax[i] * command_dt * (1.0 + rel) + eps
+            and abs(d - step_before[i]) <= du * (1.0 + rel) + eps
+        ):
+            d = 0.0  # not the steps of a command within the limits: a jump, to a command at rest
+        hi = min(upper[i], c + least_travel(d, du)) if d > 0.0 else c
+        lo = max(lower[i], c - least_travel(-d, du)) if d < 0.0 else c
+        q, limited = ramp_toward(
+            q_i, v_prev[i], c, d / command_dt, lo, hi, dt, dt_min,
+            lower[i], upper[i], vmax[i], amax[i],
+        )  # fmt: skip
+        if limited and status != 2:
+            status = 1
+        v_out[i] = (q - q_i) / dt
+        q_out[i] = q
+    return status
+
+
+def ramp_command(
+    q_prev: np.ndarray,
+    v_prev: np.ndarray,
+    target: np.ndarray,
+    step: np.ndarray,
+    step_before: np.ndarray,
+    dt: float,
+    limits: ActuatorLimits,
+    *,
+    dt_min: float,
+    command_dt: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One wall-clock frame of a motor drive toward the latest command, within the limits:
+    the drive-side ramp of :class:`motionbase.io.motor_output.MotorOutput`.
+
+    The command's own speed, ``step / command_dt`` (its step from the command of the tick
+    before, on the pipeline's tick), is fed forward; never the speed between the frames
+    that happened to sample it (a command sampled twice would look stopped, the next one
+    twice as fast). Commands within the limits, as the pipeline's are, change their step
+    by at most ``a_max command_dt^2`` a tick, so one that moved ``step`` comes to rest no
+    nearer than :func:`motionbase.physics.least_travel` of it: the drive never approaches
+    that point faster than it can stop before it, whatever the lengths of its later steps
+    (each at least ``dt_min``), so it never passes a command that comes to rest. Steps
+    beyond the limits (a jump, commands that do not come from the limiter) make a command
+    at rest: the drive heads for it and stops there. A non-finite or out-of-limit target
+    holds the whole vector (the drive brakes to rest where it is), as in
+    :func:`limit_command`.
+
+    Parameters
+    ----------
+    q_prev, v_prev : ndarray, shape (n,)
+        What the drive last received, and its speed, rad and rad/s (or m, m/s).
+    target : ndarray, shape (n,)
+        The latest command.
+    step, step_before : ndarray, shape (n,)
+        Its step from the command of the tick before, and that command's own step (zeros:
+        a command at rest, or one whose ticks before are not known).
+    dt : float
+        This frame's step, s (>= ``dt_min``).
+    limits : ActuatorLimits
+    dt_min : float
+        The shortest step the sender takes, s (> 0).
+    command_dt : float
+        The commands' tick, s (the pipeline's ``dt``).
+
+    Returns
+    -------
+    q : ndarray, shape (n,)
+        The frame's command.
+    v : ndarray, shape (n,)
+        Its speed ``(q - q_prev) / dt``.
+    status : int
+        ``OK``, ``RATE_LIMITED`` or ``UNSAFE_TARGET`` (bit values).
+    """
+    q = np.empty_like(q_prev)
+    v = np.empty_like(q_prev)
+    status = ramp_kernel(
+        q_prev, v_prev, np.asarray(target, dtype=float), step, step_before, float(dt),
+        float(dt_min), float(command_dt), limits.lower, limits.upper, limits.max_speed,
+        limits.max_accel, q, v,
+    )  # fmt: skip
     return q, v, int(status)
 
 

@@ -55,14 +55,23 @@ Behaviour
   ``motionbase output --test`` always give: the geometry's): the sender keeps what the drive
   last received, its speed and when, and each frame moves the drive toward the latest
   command no faster than the speed and acceleration limits allow over the wall-clock time
-  since that frame (:func:`motionbase.safety.limit_command`, the pipeline's own safety
-  stage). So the limits hold at the drive whatever the ticks did (late ticks, a burst after
-  a stall, timestamps squeezed in a recording): a frame the limiter changed is counted in
+  since that frame (:func:`ramp_step`, :func:`motionbase.safety.ramp_command`). So the
+  limits hold at the drive whatever the ticks did (late ticks, a burst after a stall,
+  timestamps squeezed in a recording): a frame the limiter changed is counted in
   ``ramped``. A drive whose last frame is more than two periods old (a link that was down,
   a sender stall) is taken to stand at that frame and is ramped from there, from rest.
-* ``close()`` stops the sender, ramps the drive the rest of the way to the latest command and
-  sends it once more: the pipeline ramps to park before the sinks close, so the last frame on
-  the wire is the park command.
+* The ramp feeds forward each command's own speed: its step from the command of the tick
+  before, over the pipeline's tick (``command_dt``), never the speed between the frames
+  that happened to sample it (the sender samples the commands at its own rate: one
+  sampled twice would look stopped, the next one twice as fast, and the drive was carried
+  past the end of a move). It never approaches the nearest point where the command could
+  come to rest (braking within the acceleration limit from its own speed) faster than it
+  can itself stop before it, whatever its own steps' lengths: it never passes a command
+  that comes to rest within the limits, as the pipeline's do. Commands whose steps break
+  the limits (a jump) are each taken as a command at rest.
+* ``close()`` stops the sender, ramps the drive the rest of the way to the latest command (a
+  command at rest now) and sends it once more: the pipeline ramps to park before the sinks
+  close, so the last frame on the wire is the park command.
 * A peer that goes away (a closed pty, a USB port unplugged, nobody listening on UDP) gives one
   warning line; the pipeline and its log go on; a serial port is reopened once a second and
   sending resumes (``link back`` line) when it returns. Frames sent while the link is
@@ -85,7 +94,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 from urllib.parse import parse_qsl, urlencode
 
 import numpy as np
@@ -96,11 +105,13 @@ from motionbase.io.net_address import check_host_port
 from motionbase.io.serial_link import SERIAL_ERRORS, close_quietly, open_serial_port
 from motionbase.platform.output_map import OutputMapping
 from motionbase.platform.robot import Robot
-from motionbase.safety import RATE_LIMITED, ActuatorLimits, limit_command
+from motionbase.safety import RATE_LIMITED, ActuatorLimits, ramp_command
 from motionbase.state import PipelineOutput
 
 __all__ = [
     "BinaryFormat",
+    "Drive",
+    "DriveCommand",
     "MotorOutput",
     "TextFormat",
     "crc16_ccitt",
@@ -110,6 +121,7 @@ __all__ = [
     "open_output",
     "open_outputs",
     "parse_format",
+    "ramp_step",
 ]
 
 log = logging.getLogger(__name__)
@@ -123,13 +135,11 @@ LINK_PROBATION_S = 1.0
 #: that it can still be brought to the park command.
 RETURN_WAIT_S = 2.0
 #: Shortest step of the drive-side ramp, in periods: a frame due sooner after the last one
-#: (the sender catching up after a late tick) waits for the sender's next tick. The longest
-#: step that continues a motion is two periods (after a longer gap the ramp starts from rest).
+#: (the sender catching up after a late tick) waits for the sender's next tick. The ramp's
+#: braking holds for any later steps at least this long
+#: (:func:`motionbase.physics.uneven_stop_speed`). The longest step that continues a motion
+#: is two periods (after a longer gap the ramp starts from rest).
 MIN_STEP_PERIODS = 0.5
-#: So one step is at least a quarter of the step before it, and the ramp's braking counts
-#: on that share of the acceleration limit (:func:`motionbase.safety.limit_command`'s
-#: ``brake``): braking sized for a longer step overshoots the target after a shorter one.
-DRIVE_BRAKE = MIN_STEP_PERIODS / 2.0
 DEFAULT_BAUD = 115200
 #: Widest text field (width or precision), characters: a 64-bit number in binary fits.
 MAX_FIELD_WIDTH = 64
@@ -502,6 +512,108 @@ class _UdpTransport:
             self.sock = None
 
 
+# --------------------------------------------------------------------------- the ramp
+
+
+class DriveCommand(NamedTuple):
+    """A command as the sender holds it: its angles and frame, and its own steps.
+
+    Attributes
+    ----------
+    angles : ndarray, shape (n,)
+        Actuator command, rad (or m).
+    frame : bytes
+        Its frame.
+    step : ndarray, shape (n,)
+        Its step from the command of the tick before (zeros: none known).
+    step_before : ndarray, shape (n,)
+        That command's own step (zeros: none known).
+    """
+
+    angles: np.ndarray
+    frame: bytes
+    step: np.ndarray
+    step_before: np.ndarray
+
+    @classmethod
+    def at_rest(cls, angles: np.ndarray, frame: bytes) -> DriveCommand:
+        """A command whose ticks before are not known (the first, one after a held command,
+        the last once the pipeline is done): taken as a command at rest."""
+        zeros = np.zeros_like(angles)
+        return cls(angles, frame, zeros, zeros)
+
+    def then(self, angles: np.ndarray, frame: bytes) -> DriveCommand:
+        """The command of the next tick."""
+        return DriveCommand(angles, frame, angles - self.angles, self.step)
+
+
+class Drive(NamedTuple):
+    """What a drive last received: angles (rad or m), their speed (per s) and when (s, on the
+    sender's clock)."""
+
+    q: np.ndarray
+    v: np.ndarray
+    t: float
+
+
+def ramp_step(
+    drive: Drive | None,
+    command: DriveCommand,
+    now: float,
+    *,
+    period: float,
+    command_dt: float,
+    limits: ActuatorLimits,
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """The drive's next frame toward ``command`` at ``now``: the sender's ramp, one frame.
+
+    A drive that got nothing yet starts where the command is. One that got its last frame
+    more than two periods ago stood still at it (a sender stall, a link that was down): the
+    ramp starts again from there, at rest, on a step of one period. A step shorter than
+    :data:`MIN_STEP_PERIODS` is not taken (None: no frame now). Otherwise
+    :func:`motionbase.safety.ramp_command` over the time since the last frame.
+
+    Parameters
+    ----------
+    drive : Drive or None
+        What the drive last received (None: nothing).
+    command : DriveCommand
+        The latest command.
+    now : float
+        The frame's time, s (the clock of ``drive.t``).
+    period : float
+        The sender's period, s.
+    command_dt : float
+        The commands' tick, s.
+    limits : ActuatorLimits
+
+    Returns
+    -------
+    (q, v, status) or None
+        The frame's angles (``command.angles`` itself when they are the command's), their
+        speed, and :func:`motionbase.safety.ramp_command`'s status bits.
+    """
+    target = command.angles
+    if drive is None:
+        return target, np.zeros_like(target), 0
+    q0, v0, t0 = drive
+    if q0 is target and not v0.any():  # there and at rest: the common case
+        return target, v0, 0
+    elapsed = now - t0
+    if elapsed < MIN_STEP_PERIODS * period:
+        return None
+    dt = elapsed
+    if elapsed > 2.0 * period:
+        dt, v0 = period, np.zeros_like(q0)  # from rest
+    q, v, status = ramp_command(
+        q0, v0, target, command.step, command.step_before, dt, limits,
+        dt_min=MIN_STEP_PERIODS * period, command_dt=command_dt,
+    )  # fmt: skip
+    if np.array_equal(q, target):
+        return target, v, status
+    return q, v, status
+
+
 # --------------------------------------------------------------------------- the sink
 
 
@@ -522,11 +634,15 @@ class MotorOutput:
         The actuators' angle, speed and acceleration limits (rad, rad/s, rad/s^2; the
         geometry's). When given, every frame is ramped at the drive: the sender knows what
         the drive last received and when, and moves it toward the latest command no faster
-        than these limits allow over the wall-clock time elapsed
-        (:func:`motionbase.safety.limit_command`), whatever the pipeline's ticks did (see
-        the module docstring). None: frames carry the latest command as it is, and
-        ``close()`` sends it once (the sender alone; every ``motionbase`` command that drives
-        motors gives the limits).
+        than these limits allow over the wall-clock time elapsed (:func:`ramp_step`),
+        whatever the pipeline's ticks did (see the module docstring). None: frames carry the
+        latest command as it is, and ``close()`` sends it once (the sender alone; every
+        ``motionbase`` command that drives motors gives the limits).
+    command_dt : float, optional
+        The commands' own tick, s: the pipeline's ``dt`` (one :meth:`write` a tick). The
+        ramp feeds forward each command's step over it. Default: the sender's period. (A
+        longer one than the pipeline's only makes the ramp lag more; a shorter one takes
+        the pipeline's steps for faster than they are.)
     url : str
         The URL it was opened from (messages and metadata).
 
@@ -548,10 +664,14 @@ class MotorOutput:
         *,
         rate_hz: float = DEFAULT_RATE_HZ,
         limits: ActuatorLimits | None = None,
+        command_dt: float | None = None,
         url: str = "",
     ) -> None:
         if not (rate_hz > 0 and math.isfinite(rate_hz)) or rate_hz > 10_000:
             raise ConfigError(f"output {url}: rate must be in (0, 10000] Hz, got {rate_hz!r}")
+        command_dt = 1.0 / rate_hz if command_dt is None else float(command_dt)
+        if not (command_dt > 0 and math.isfinite(command_dt)):
+            raise ConfigError(f"output {url}: the commands' tick must be > 0 s, got {command_dt!r}")
         missing = [a + 1 for a in frame_format.axes if a >= mapping.n]
         if missing:
             raise ConfigError(
@@ -567,6 +687,7 @@ class MotorOutput:
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
         self.limits = limits
+        self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
         self.frames_sent = 0
@@ -575,14 +696,10 @@ class MotorOutput:
         self.send_errors = 0
         self.ramped = 0
         self.link_up = True
-        # the latest accepted command: (angles rad, its frame), replaced as one object
-        self._command: tuple[np.ndarray, bytes] | None = None
-        # what the drive last received (limits only): angles, speed, wall time (monotonic),
-        # the command it was heading for, the frame
-        self._drive_q: np.ndarray | None = None
-        self._drive_v = np.zeros(mapping.n)
-        self._drive_t = -math.inf
-        self._drive_target: np.ndarray | None = None
+        # the latest accepted command, replaced as one object
+        self._command: DriveCommand | None = None
+        # what the drive last received (limits only), on time.monotonic
+        self._drive: Drive | None = None
         self._last_sent: bytes | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None  # the sender, while open
@@ -618,7 +735,7 @@ class MotorOutput:
         command = self._command
         if command is not None:
             if self.limits is None:
-                self._send(command[1], time.monotonic(), final=True)
+                self._send(command.frame, time.monotonic(), final=True)
             else:
                 self._finish_ramp()
         self.transport.close()
@@ -650,8 +767,13 @@ class MotorOutput:
                 self._holding = True
                 log.warning("output %s: %s; holding the last frame", self.label, self._why(values))
         else:
+            before = None if self._holding else self._command  # (the tick before's, if accepted)
             self._holding = False
-            self._command = (angles, frame)
+            self._command = (
+                DriveCommand.at_rest(angles, frame)
+                if before is None
+                else before.then(angles, frame)
+            )
             self.commands += 1
         return frame is not None
 
@@ -692,49 +814,35 @@ class MotorOutput:
         command = self._command
         if command is None:
             return True
-        target, frame = command
         if self.limits is None:
-            self._send(frame, now)
+            self._send(command.frame, now)
             return True
-        step = self._ramp(target, frame, now)
+        step = self._ramp(command, now)
         if step is None:  # not sendable now: the drive stays where it is
             return False
         q, v, frame = step
         sent = time.monotonic()  # (not before ``now``: the step was sized for less time)
         if self._send(frame, sent) and self.link_up:
             # received (as far as the sender can know): the drive is there now
-            self._drive_q, self._drive_v, self._drive_t = q, v, sent
-            self._drive_target = target
-            return frame is command[1] and not v.any()
+            self._drive = Drive(q, v, sent)
+            return frame is command.frame and not v.any()
         return False
 
     def _ramp(
-        self, target: np.ndarray, frame: bytes, now: float
+        self, command: DriveCommand, now: float
     ) -> tuple[np.ndarray, np.ndarray, bytes] | None:
-        """The next frame toward ``target``, within the limits since the drive's last frame.
-
-        A drive that got its last frame more than two periods ago stood still at it (a
-        sender stall, a link that was down): the ramp starts again from there, at rest. A
-        step shorter than :data:`MIN_STEP_PERIODS` is not taken (None), and braking counts
-        on :data:`DRIVE_BRAKE` of the acceleration limit, so that the steps' varying
-        lengths never carry the drive past its target.
-        """
-        q0 = self._drive_q
-        if q0 is None:  # nothing received yet: the run starts where its first command is
-            return target, np.zeros_like(target), frame
-        if q0 is target and not self._drive_v.any():  # there and at rest: the common case
-            return target, self._drive_v, frame
-        period = 1.0 / self.rate_hz
-        elapsed = now - self._drive_t
-        if elapsed < MIN_STEP_PERIODS * period:
+        """The next frame toward ``command`` (:func:`ramp_step`), encoded; None when no frame
+        is due or the ramped one cannot be encoded."""
+        assert self.limits is not None
+        step = ramp_step(
+            self._drive, command, now,
+            period=1.0 / self.rate_hz, command_dt=self.command_dt, limits=self.limits,
+        )  # fmt: skip
+        if step is None:
             return None
-        if elapsed > 2.0 * period:
-            dt, v0, previous = period, np.zeros_like(q0), target  # from rest, no feed-forward
-        else:
-            dt, v0, previous = elapsed, self._drive_v, self._drive_target
-        q, v, status = limit_command(q0, v0, previous, target, dt, self.limits, DRIVE_BRAKE)
-        if np.array_equal(q, target):
-            return target, v, frame
+        q, v, status = step
+        if q is command.angles:
+            return q, v, command.frame
         if status & RATE_LIMITED:
             self.ramped += 1
         ramp_frame = self._encode(self.mapping.to_drive(q))
@@ -751,9 +859,13 @@ class MotorOutput:
         not be at the last command.
         """
         lim = self.limits
+        assert lim is not None
         period = 1.0 / self.rate_hz
+        command = self._command
+        if command is not None:  # the pipeline is done: its last command is at rest
+            self._command = DriveCommand.at_rest(command.angles, command.frame)
         span = lim.upper - lim.lower
-        speed_up_and_brake = (1.0 + 1.0 / DRIVE_BRAKE) * lim.max_speed / lim.max_accel
+        speed_up_and_brake = 2.0 * lim.max_speed / lim.max_accel
         bound = float(np.max(span / lim.max_speed + speed_up_and_brake)) + 0.5
         start = now = time.monotonic()
         end = now + bound
@@ -846,6 +958,7 @@ def open_output(
     *,
     rate_hz: float | None = None,
     limits: ActuatorLimits | None = None,
+    command_dt: float | None = None,
 ) -> MotorOutput:
     """A motor-drive sink for ``url`` (not yet open: use ``with`` or ``open()``).
 
@@ -860,6 +973,8 @@ def open_output(
         Overrides the URL's ``rate``.
     limits : ActuatorLimits, optional
         Ramp every frame at the drive within these limits (see :class:`MotorOutput`).
+    command_dt : float, optional
+        The commands' own tick, s (the pipeline's ``dt``; default: the output's period).
     """
     scheme, colon, rest = url.partition(":")
     if not colon or scheme not in ("serial", "udp"):
@@ -906,17 +1021,22 @@ def open_output(
             raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")
         host, port_no = check_host_port(f"output {url!r}", host.strip("[]"), port)
         transport = _UdpTransport(host, port_no)
-    return MotorOutput(transport, fmt, mapping, rate_hz=rate, limits=limits, url=url)
+    return MotorOutput(
+        transport, fmt, mapping, rate_hz=rate, limits=limits, command_dt=command_dt, url=url
+    )
 
 
-def open_outputs(urls: Sequence[str] | None, robot: Robot) -> list[MotorOutput]:
+def open_outputs(
+    urls: Sequence[str] | None, robot: Robot, command_dt: float | None = None
+) -> list[MotorOutput]:
     """Motor-drive sinks for a job's ``--output`` URLs, mapped by :func:`mapping_for` and
     ramped at the drive within the robot's actuator limits (each checked by
-    :func:`check_sendable`)."""
+    :func:`check_sendable`); ``command_dt`` is the pipeline's tick, s (see
+    :class:`MotorOutput`)."""
     if not urls:
         return []
     mapping = mapping_for(robot)
-    sinks = [open_output(u, mapping, limits=robot.limits) for u in urls]
+    sinks = [open_output(u, mapping, limits=robot.limits, command_dt=command_dt) for u in urls]
     for sink in sinks:
         check_sendable(sink, robot)
     return sinks
