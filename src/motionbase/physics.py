@@ -170,11 +170,43 @@ def track_toward(
     (float, bool)
         The new position, and whether a limit acted (the target was not reached).
     """
-    vt = min(max((target - target_prev) / dt, -vmax), vmax)
+    vt = (target - target_prev) / dt
+    return _toward(q0, v0, target, vt, dt, lower, upper, lower, upper, vmax, u, k, ub, 0.0, 0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _toward(
+    q0: float,
+    v0: float,
+    target: float,
+    vt: float,
+    dt: float,
+    lo: float,
+    hi: float,
+    lower: float,
+    upper: float,
+    vmax: float,
+    u: float,
+    k: float,
+    ub: float,
+    a: float,
+    dt_min: float,
+) -> tuple[float, bool]:
+    """The one rule of :func:`track_toward` (fixed ticks, ``dt_min = 0``: stopping distances
+    by :func:`stop_speed` of ``ub`` and ``k``) and :func:`ramp_toward` (steps of at least
+    ``dt_min``: by :func:`uneven_stop_speed` of the acceleration limit ``a``); ``lo`` and
+    ``hi`` are what the position must be able to stop within, ``lower`` and ``upper`` its
+    limits, ``u`` the speed change allowed in this step."""
+    vt = min(max(vt, -vmax), vmax)
     e = target - q0 - vt * dt
-    cap = stop_speed(abs(e), ub, dt, k)
-    v_hi = stop_speed(upper - q0, ub, dt, k)
-    v_lo = -stop_speed(q0 - lower, ub, dt, k)
+    if dt_min > 0.0:
+        cap = uneven_stop_speed(abs(e), a, dt, dt_min)
+        v_hi = uneven_stop_speed(hi - q0, a, dt, dt_min)
+        v_lo = -uneven_stop_speed(q0 - lo, a, dt, dt_min)
+    else:
+        cap = stop_speed(abs(e), ub, dt, k)
+        v_hi = stop_speed(hi - q0, ub, dt, k)
+        v_lo = -stop_speed(q0 - lo, ub, dt, k)
     v_full = (target - q0) / dt
     if (
         abs(e) / dt <= cap
@@ -311,27 +343,7 @@ def ramp_toward(
     (float, bool)
         The new position, and whether a limit acted (the command was not reached).
     """
-    u = a * dt
-    vt = min(max(vt, -vmax), vmax)
-    e = target - q0 - vt * dt
-    cap = uneven_stop_speed(abs(e), a, dt, dt_min)
-    v_hi = uneven_stop_speed(hi - q0, a, dt, dt_min)
-    v_lo = -uneven_stop_speed(q0 - lo, a, dt, dt_min)
-    v_full = (target - q0) / dt
-    if (
-        abs(e) / dt <= cap
-        and abs(v_full) <= vmax
-        and abs(v_full - v0) <= u
-        and v_lo <= v_full <= v_hi
-    ):
-        return target, False
-    fb = min(cap, abs(e) / dt)
-    v = vt + fb if e >= 0.0 else vt - fb
-    v = min(max(v, v_lo), v_hi)
-    v = min(max(v, v0 - u), v0 + u)
-    v = min(max(v, -vmax), vmax)
-    # safety net against rounding: never outside the limits
-    return min(max(q0 + v * dt, lower), upper), True
+    return _toward(q0, v0, target, vt, dt, lo, hi, lower, upper, vmax, a * dt, 0.0, 0.0, a, dt_min)
 
 
 @numba.njit(cache=True, inline="always")
