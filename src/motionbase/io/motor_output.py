@@ -75,7 +75,7 @@ Behaviour
 * A peer that goes away (a closed pty, a USB port unplugged, nobody listening on UDP) gives one
   warning line; the pipeline and its log go on; a serial port is reopened once a second and
   sending resumes (``link back`` line) when it returns. Frames sent while the link is
-  reported down (from the first failed send until a second without errors) count as not
+  reported down (from the first failed send until a second of sends without errors) count as not
   received: when it returns, the drive is ramped from the last frame sent before, within
   the limits. (UDP cannot tell whether a datagram arrived: on a network that drops frames
   without an error, the drive-side limiter still bounds each step by the time elapsed.)
@@ -128,8 +128,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
 DEFAULT_RATE_HZ = 100.0
-#: Seconds without a send error before a link that was down counts as back (UDP reports a
-#: refused datagram on a later send).
+#: Seconds of sends without an error before a link that was down counts as back (UDP reports
+#: a refused datagram on a later send).
 LINK_PROBATION_S = 1.0
 #: Seconds :meth:`MotorOutput.close` waits for a drive whose link is down to come back, so
 #: that it can still be brought to the park command.
@@ -706,6 +706,7 @@ class MotorOutput:
         self._holding = False
         self._next_retry = 0.0
         self._last_error = -math.inf
+        self._sent_ok_since = -math.inf  # the first of the sends since the last error
         self._dmin, self._dmax = mapping.drive_min, mapping.drive_max
         self._broken = False
 
@@ -902,6 +903,7 @@ class MotorOutput:
         except OSError as exc:
             self.send_errors += 1
             self._last_error = now
+            self._sent_ok_since = math.inf
             self._broken = self.transport.reopen_on_error
             self._next_retry = now + 1.0
             if self.link_up:
@@ -918,8 +920,11 @@ class MotorOutput:
         self.frames_sent += 1
         self._last_sent = frame
         # UDP reports a refused datagram on a later send: call the link back only after a
-        # second without errors.
-        if not self.link_up and now - self._last_error >= LINK_PROBATION_S:
+        # second of sends without errors (not after a second without sends: a sender that
+        # stalled for a second after an error has its next send go through, and the error
+        # shows on the one after)
+        self._sent_ok_since = min(self._sent_ok_since, now)
+        if not self.link_up and now - self._sent_ok_since >= LINK_PROBATION_S:
             self.link_up = True
             log.warning("output %s: link back, sending again", self.label)
         return True
