@@ -345,8 +345,8 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
 def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform):
     """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
     geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
-    reaching +5 deg and -5 deg exactly and going no further, never two away from home at
-    once (:func:`drive_wire.check_sweep`), the frames within the servos' angle, speed and
+    reaching +5 deg and -5 deg exactly and going no further
+    (:func:`drive_wire.check_sweep`), the frames within the servos' angle, speed and
     acceleration limits, the last frame home (its park). A 3-RRR geometry preset names the
     planar robot as well (``output`` has no --planar)."""
     from motionbase.platform import Rrr3, Rrr3Geometry
