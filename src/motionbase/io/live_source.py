@@ -237,8 +237,9 @@ def is_loopback(host: str) -> bool:
     return host in ("localhost", "::1") or host.startswith("127.")
 
 
-def positive_number(kind: str, name: str, value: Any, unit: str) -> float:
-    """``value`` as a float when it is a finite number > 0, else a one-line ConfigError.
+def positive_number(kind: str, name: str, value: Any, unit: str, *, zero_ok: bool = False) -> float:
+    """``value`` as a float when it is a finite number > 0 (>= 0 with ``zero_ok``), else a
+    one-line ConfigError.
 
     Parameters
     ----------
@@ -248,9 +249,16 @@ def positive_number(kind: str, name: str, value: Any, unit: str) -> float:
         What was given.
     unit : str
         Its unit, for the message (``"Hz"``, ``"s"``).
+    zero_ok : bool
+        0 is allowed too.
     """
-    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-        raise ConfigError(f"{kind} {name}: must be a finite number > 0 {unit}, got {value!r}")
+    if not (
+        isinstance(value, int | float)
+        and math.isfinite(value)
+        and (value >= 0 if zero_ok else value > 0)
+    ):
+        bound = ">= 0" if zero_ok else "> 0"
+        raise ConfigError(f"{kind} {name}: must be a finite number {bound} {unit}, got {value!r}")
     return float(value)
 
 
@@ -310,16 +318,9 @@ class SampleHoldSource:
         self.stale_timeout_s = positive_number(k, "stale_timeout_s", stale_timeout_s, "s")
         if drain_budget_s is None:
             drain_budget_s = DRAIN_BUDGET_PERIODS / self.rate_hz
-        elif not (
-            isinstance(drain_budget_s, int | float)
-            and math.isfinite(drain_budget_s)
-            and drain_budget_s >= 0
-        ):
-            raise ConfigError(
-                f"{k} drain_budget_s: must be a finite number >= 0 s or None, "
-                f"got {drain_budget_s!r}"
-            )
-        self.drain_budget_s = float(drain_budget_s)
+        self.drain_budget_s = positive_number(
+            k, "drain_budget_s", drain_budget_s, "s", zero_ok=True
+        )
         if duration_s is not None and not (
             isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0
         ):

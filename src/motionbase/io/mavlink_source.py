@@ -740,16 +740,9 @@ class MavlinkSource(SampleHoldSource):
         self.request_timeout_s = positive_number(
             self.kind, "request_timeout_s", request_timeout_s, "s"
         )
-        if not (
-            isinstance(partial_timeout_s, int | float)
-            and math.isfinite(partial_timeout_s)
-            and partial_timeout_s >= 0
-        ):
-            raise ConfigError(
-                f"mavlink partial_timeout_s: must be a finite number >= 0 s, "
-                f"got {partial_timeout_s!r}"
-            )
-        self.partial_timeout_s = float(partial_timeout_s)
+        self.partial_timeout_s = positive_number(
+            self.kind, "partial_timeout_s", partial_timeout_s, "s", zero_ok=True
+        )
         self.sysid = sysid
         self.compid = compid
         self.realtime = bool(realtime)
