@@ -138,7 +138,7 @@ def open_evaluator(
         initargs=(problem,),
     )
     try:
-        _start_workers(pool, n)
+        _results(_start_workers(pool, n), stop)  # (a stop while they start up ends here)
         yield lambda candidates: _results(
             [pool.submit(_evaluate_here, p) for p in candidates], stop
         )
@@ -170,18 +170,23 @@ def _results(futures: list[Future], stop: StopRequest | None) -> list[SetScore]:
     return [future.result() for future in futures]
 
 
-def _start_workers(pool: ProcessPoolExecutor, n: int) -> None:
-    """Start all ``n`` workers now (n tasks at once: each finds no idle worker), with the stop
-    signals held back meanwhile, here and in the workers until their initializer ignores
-    them (a spawned process inherits the blocked set): a signal while a worker is being
-    sent its start-up data cuts that data, and the half-started worker prints a traceback;
-    a SIGTERM sent to the whole group would kill a worker before it ignores it."""
+def _start_workers(pool: ProcessPoolExecutor, n: int) -> list[Future]:
+    """Start all ``n`` workers now (n tasks at once: each finds no idle worker); their tasks'
+    futures, done once every worker has set up.
+
+    The stop signals are held back while the workers are spawned (each is sent its start-up
+    data as it is spawned, in this thread), here and in the workers until their initializer
+    ignores them (a spawned process inherits the blocked set): a signal while a worker is
+    being sent its start-up data cuts that data, and the half-started worker prints a
+    traceback; a SIGTERM sent to the whole group would kill a worker before it ignores it.
+    They are not held back while the workers import and set up: that takes a minute or more
+    on a loaded machine whose numba cache is empty, and a stop then must not wait for it."""
     block = threading.current_thread() is threading.main_thread() and hasattr(
         signal, "pthread_sigmask"
     )
     before = signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS)) if block else None
     try:
-        list(pool.map(_worker_pid, range(n)))
+        return [pool.submit(_worker_pid, i) for i in range(n)]
     finally:
         if before is not None:
             signal.pthread_sigmask(signal.SIG_SETMASK, before)
