@@ -23,7 +23,7 @@ import tty
 import numpy as np
 
 from motionbase.io import motor_output
-from motionbase.io.motor_output import Drive, DriveCommand, open_output
+from motionbase.io.motor_output import Drive, open_output
 from motionbase.platform import OutputMapping
 from motionbase.platform.output_map import sweep_profile
 from motionbase.safety import ActuatorLimits
@@ -180,37 +180,6 @@ def ramp_step(n: int = 20000) -> None:
     )
 
 
-def _ramped_frames(
-    commands: np.ndarray, written: np.ndarray, frames: np.ndarray, rate_hz: float, tick: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The sender's ramp driven offline (:func:`ramp_step`, a frame each, at ``rate_hz``):
-    ``commands`` (k, 6) rad, one a ``tick`` (s), are written at the times ``written``, a frame
-    is due at each time of ``frames`` (s); returns the times of the frames it sent, the
-    drive's angles in them and the index of the command each sampled."""
-    period = 1.0 / rate_hz
-    drive: Drive | None = None
-    command: DriveCommand | None = None
-    k = -1
-    out_t, out_q, out_k = [], [], []
-    for now in frames:
-        while k + 1 < len(commands) and written[k + 1] <= now:
-            k += 1
-            c = commands[k]
-            command = DriveCommand.at_rest(c, b"") if command is None else command.then(c, b"")
-        if command is None:
-            continue
-        step = motor_output.ramp_step(
-            drive, command, now, period=period, command_dt=tick, limits=LIMITS
-        )
-        if step is None:
-            continue
-        drive = Drive(step[0], step[1], now)
-        out_t.append(now)
-        out_q.append(drive.q)
-        out_k.append(k)
-    return np.array(out_t), np.array(out_q), np.array(out_k)
-
-
 def _past_rest(commands: np.ndarray, q: np.ndarray, sampled: np.ndarray) -> float:
     """How far the drive went past a command that came to rest (rad, the worst): for each
     rest (a command equal to the next one, reached by a move; steps under 1e-12 rad count
@@ -275,7 +244,9 @@ def ramp_tracking(
             written = due + rng.uniform(0.0, jitter * tick, len(due))
             n = int((due[-1] + 0.5) / period)
             frames = np.arange(n) * period + phase + rng.uniform(0.0, jitter * period, n)
-            ft, q, sampled = _ramped_frames(commands, written, frames, frame_hz, tick)
+            ft, q, sampled = motor_output.ramp_offline(
+                commands, written, frames, period=1.0 / frame_hz, command_dt=tick, limits=LIMITS
+            )
             past.append(_past_rest(commands, q, sampled))
             if name == "move":
                 cruising = (ft > t_acc + 0.1) & (ft < t_acc + cruise - 0.05)

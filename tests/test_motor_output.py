@@ -28,14 +28,12 @@ from motionbase.config import preset_path
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.motor_output import (
-    Drive,
-    DriveCommand,
     crc16_ccitt,
     crc16_modbus,
     mapping_for,
     open_output,
     open_outputs,
-    ramp_step,
+    ramp_offline,
 )
 from motionbase.pipeline import Pipeline, run
 from motionbase.platform import OutputMapping, Rus6Geometry
@@ -742,7 +740,7 @@ def _limited_commands(rng: np.random.Generator, tick: float, n: int, limits) -> 
 
 @pytest.mark.parametrize("seed", range(10))
 def test_the_ramp_never_passes_a_rest_of_any_commands_within_the_limits(seed):
-    """The sender's ramp, a frame at a time (:func:`ramp_step`, no sockets, no clock): the
+    """The sender's ramp, a frame at a time (:func:`ramp_offline`, no sockets, no clock): the
     commands of a limited pipeline at 50-1000 Hz toward random targets, written late by up
     to 0.9 of a tick, the pipeline or the sender stalling now and then, sampled by frames at
     50-1000 Hz up to 0.9 of a period late (seeded). The drive never passes a command that
@@ -759,26 +757,8 @@ def test_the_ramp_never_passes_a_rest_of_any_commands_within_the_limits(seed):
     n = int((written[-1] + 1.0) / period)
     due = (np.arange(n) + rng.uniform(0.0, 1.0) + rng.uniform(0.0, jitter, n)) * period
     due[rng.integers(n) :] += rng.uniform(0.0, 0.05)  # a sender stall
-    drive: Drive | None = None
-    command: DriveCommand | None = None
-    k = -1
-    times, q, sampled = [], [], []
-    for now in due:
-        while k + 1 < len(commands) and written[k + 1] <= now:
-            k += 1
-            c = commands[k]
-            command = DriveCommand.at_rest(c, b"") if command is None else command.then(c, b"")
-        if command is None:
-            continue
-        step = ramp_step(drive, command, now, period=period, command_dt=tick, limits=lim)
-        if step is None:
-            continue
-        drive = Drive(step[0], step[1], now)
-        times.append(now)
-        q.append(drive.q)
-        sampled.append(k)
-    t, q = np.array(times), np.array(q)
-    passed = past_rest(commands, q, np.array(sampled))
+    t, q, sampled = ramp_offline(commands, written, due, period=period, command_dt=tick, limits=lim)
+    passed = past_rest(commands, q, sampled)
     assert np.all(passed <= 1e-12), np.degrees(passed)
     assert np.all(q >= lim.lower) and np.all(q <= lim.upper)
     # each step's speed over its time, or over a period from rest after a gap (the ramp's

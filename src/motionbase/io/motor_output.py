@@ -121,6 +121,7 @@ __all__ = [
     "open_output",
     "open_outputs",
     "parse_format",
+    "ramp_offline",
     "ramp_step",
 ]
 
@@ -554,6 +555,61 @@ class Drive(NamedTuple):
     q: np.ndarray
     v: np.ndarray
     t: float
+
+
+def ramp_offline(
+    commands: np.ndarray,
+    written: np.ndarray,
+    frames: np.ndarray,
+    *,
+    period: float,
+    command_dt: float,
+    limits: ActuatorLimits,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sender's ramp run offline, as :class:`MotorOutput` runs it, with no clock, thread
+    or socket: for each frame time, the latest command written by then and one
+    :func:`ramp_step` toward it (a frame each; a frame that is not due is not sent).
+
+    Parameters
+    ----------
+    commands : ndarray, shape (k, n)
+        The pipeline's commands, one a ``command_dt``.
+    written : ndarray, shape (k,)
+        When each command reached the sender, s.
+    frames : ndarray, shape (m,)
+        When a frame is due, s (the same clock, increasing).
+    period, command_dt : float
+        The sender's period and the commands' tick, s.
+    limits : ActuatorLimits
+
+    Returns
+    -------
+    times : ndarray, shape (j,)
+        The frames sent, s.
+    q : ndarray, shape (j, n)
+        The drive's angles in them.
+    sampled : ndarray of int, shape (j,)
+        The index in ``commands`` of the command each frame was heading for.
+    """
+    drive: Drive | None = None
+    command: DriveCommand | None = None
+    k = -1
+    times, q, sampled = [], [], []
+    for now in frames:
+        while k + 1 < len(commands) and written[k + 1] <= now:
+            k += 1
+            c = commands[k]
+            command = DriveCommand.at_rest(c, b"") if command is None else command.then(c, b"")
+        if command is None:
+            continue
+        step = ramp_step(drive, command, now, period=period, command_dt=command_dt, limits=limits)
+        if step is None:
+            continue
+        drive = Drive(step[0], step[1], now)
+        times.append(now)
+        q.append(drive.q)
+        sampled.append(k)
+    return np.array(times), np.array(q), np.array(sampled)
 
 
 def ramp_step(
