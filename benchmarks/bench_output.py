@@ -16,9 +16,11 @@ import os
 import pty
 import select
 import socket
+import sys
 import threading
 import time
 import tty
+from pathlib import Path
 
 import numpy as np
 
@@ -27,6 +29,10 @@ from motionbase.io.motor_output import Drive, open_output
 from motionbase.platform import OutputMapping
 from motionbase.platform.output_map import sweep_profile
 from motionbase.safety import ActuatorLimits
+
+# the tests' own measure of a drive past a command at rest, one definition for both
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from drive_wire import past_rest  # noqa: E402
 
 LO, HI = np.radians(np.full(6, -60.0)), np.radians(np.full(6, 60.0))
 MAPPINGS = {
@@ -180,29 +186,6 @@ def ramp_step(n: int = 20000) -> None:
     )
 
 
-def _past_rest(commands: np.ndarray, q: np.ndarray, sampled: np.ndarray) -> float:
-    """How far the drive went past a command that came to rest (rad, the worst): for each
-    rest (a command equal to the next one, reached by a move; steps under 1e-12 rad count
-    as none), the frames from the start of that move to the end of the rest."""
-    worst = 0.0
-    steps = np.diff(commands, axis=0)
-    steps[np.abs(steps) < 1e-12] = 0.0
-    for i in range(commands.shape[1]):
-        side = np.sign(steps[:, i])  # side[k]: the way from command k to k + 1
-        for k in np.flatnonzero((side[1:] == 0) & (side[:-1] != 0)) + 1:
-            end = k
-            while end < len(side) and side[end] == 0:
-                end += 1
-            start = k - 1
-            while start > 0 and side[start - 1] == side[k - 1]:
-                start -= 1
-            sel = (sampled >= start) & (sampled <= end)
-            if sel.any():
-                past = (q[sel, i] - commands[k, i]) * side[k - 1]
-                worst = max(worst, float(past.max()))
-    return worst
-
-
 def ramp_tracking(
     command_hz: float = 200.0,
     frame_hz: float = 200.0,
@@ -247,7 +230,7 @@ def ramp_tracking(
             ft, q, sampled = motor_output.ramp_offline(
                 commands, written, frames, period=1.0 / frame_hz, command_dt=tick, limits=LIMITS
             )
-            past.append(_past_rest(commands, q, sampled))
+            past.append(float(past_rest(commands, q, sampled).max()))
             if name == "move":
                 cruising = (ft > t_acc + 0.1) & (ft < t_acc + cruise - 0.05)
                 lag = ft[cruising] - np.interp(q[cruising, 0], commands[:, 0], due)
