@@ -124,7 +124,7 @@ def test_track_toward_keeps_every_limit_it_is_given(targets, limits, glide) -> N
     q, v, prev = 0.0, 0.0, 0.0
     path = [0.0]
     for x in clipped + [clipped[-1]] * 2000:  # then held until it settles
-        new, limited = track_toward(q, v, prev, x, dt, -bound, bound, vmax, u, k, u)
+        new, limited = track_toward(q, v, prev, x, dt, -bound, bound, vmax, u, k)
         assert math.isfinite(new) and -bound <= new <= bound
         assert limited or new == x  # not limited: on the target
         v, q, prev = (new - q) / dt, new, x

@@ -131,7 +131,6 @@ def track_toward(
     vmax: float,
     u: float,
     k: float,
-    ub: float,
 ) -> tuple[float, bool]:
     """One tick of a position toward a moving target within speed, acceleration and position
     limits: the rule of the safety limiter, the washout's tilt tracker and its cue limiter.
@@ -158,12 +157,6 @@ def track_toward(
         Speed change allowed per tick, unit/s (``a_max dt``; inf: no acceleration limit).
     k : float
         The glide's ``a_max / v_max``, 1/s (0: the braking curve alone).
-    ub : float
-        The speed change per tick that the braking curves count on, unit/s (``0 < ub <=
-        u``): ``u`` for a fixed tick. A caller whose ticks vary passes less: braking that
-        is sized for this tick overshoots when a later tick is shorter, because a shorter
-        tick allows less speed change for the distance already covered. With ``ub = r u``
-        no tick shorter than ``r`` times the previous one makes it overshoot.
 
     Returns
     -------
@@ -171,7 +164,7 @@ def track_toward(
         The new position, and whether a limit acted (the target was not reached).
     """
     vt = (target - target_prev) / dt
-    return _toward(q0, v0, target, vt, dt, lower, upper, lower, upper, vmax, u, k, ub, 0.0, 0.0)
+    return _toward(q0, v0, target, vt, dt, lower, upper, lower, upper, vmax, u, k, 0.0, 0.0)
 
 
 @numba.njit(cache=True, inline="always")
@@ -188,12 +181,11 @@ def _toward(
     vmax: float,
     u: float,
     k: float,
-    ub: float,
     a: float,
     dt_min: float,
 ) -> tuple[float, bool]:
     """The one rule of :func:`track_toward` (fixed ticks, ``dt_min = 0``: stopping distances
-    by :func:`stop_speed` of ``ub`` and ``k``) and :func:`ramp_toward` (steps of at least
+    by :func:`stop_speed` of ``u`` and ``k``) and :func:`ramp_toward` (steps of at least
     ``dt_min``: by :func:`uneven_stop_speed` of the acceleration limit ``a``); ``lo`` and
     ``hi`` are what the position must be able to stop within, ``lower`` and ``upper`` its
     limits, ``u`` the speed change allowed in this step."""
@@ -204,9 +196,9 @@ def _toward(
         v_hi = uneven_stop_speed(hi - q0, a, dt, dt_min)
         v_lo = -uneven_stop_speed(q0 - lo, a, dt, dt_min)
     else:
-        cap = stop_speed(abs(e), ub, dt, k)
-        v_hi = stop_speed(hi - q0, ub, dt, k)
-        v_lo = -stop_speed(q0 - lo, ub, dt, k)
+        cap = stop_speed(abs(e), u, dt, k)
+        v_hi = stop_speed(hi - q0, u, dt, k)
+        v_lo = -stop_speed(q0 - lo, u, dt, k)
     v_full = (target - q0) / dt
     if (
         abs(e) / dt <= cap
@@ -343,7 +335,7 @@ def ramp_toward(
     (float, bool)
         The new position, and whether a limit acted (the command was not reached).
     """
-    return _toward(q0, v0, target, vt, dt, lo, hi, lower, upper, vmax, a * dt, 0.0, 0.0, a, dt_min)
+    return _toward(q0, v0, target, vt, dt, lo, hi, lower, upper, vmax, a * dt, 0.0, a, dt_min)
 
 
 @numba.njit(cache=True, inline="always")

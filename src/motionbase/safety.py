@@ -80,14 +80,10 @@ class ActuatorLimits:
 
 
 @numba.njit(cache=True)
-def limit_kernel(
-    q_prev, v_prev, target_prev, target, dt, brake, lower, upper, vmax, amax, q_out, v_out
-):
+def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
     """The compiled limiter: :func:`limit_command` on arrays, writing ``q_out`` and ``v_out``.
 
-    ``brake`` is :func:`limit_command`'s share of the acceleration limit that braking counts
-    on (1 for a fixed tick); ``lower``, ``upper``, ``vmax``, ``amax`` are
-    :class:`ActuatorLimits`'s arrays; returns
+    ``lower``, ``upper``, ``vmax``, ``amax`` are :class:`ActuatorLimits`'s arrays; returns
     the status bits (``OK``, ``RATE_LIMITED``, ``UNSAFE_TARGET``). Each actuator's inputs
     are read before its outputs are written, so ``q_out`` may be ``q_prev`` and ``v_out``
     ``v_prev`` (updated in place). Called by
@@ -107,7 +103,7 @@ def limit_kernel(
         was = q_i if status == 2 else target_prev[i]
         lo, hi = lower[i], upper[i]
         u = amax[i] * dt
-        q, limited = track_toward(q_i, v_prev[i], was, tgt, dt, lo, hi, vmax[i], u, 0.0, brake * u)
+        q, limited = track_toward(q_i, v_prev[i], was, tgt, dt, lo, hi, vmax[i], u, 0.0)
         if limited and status != 2:
             status = 1
         v_out[i] = (q - q_i) / dt
@@ -122,7 +118,6 @@ def limit_command(
     target: np.ndarray,
     dt: float,
     limits: ActuatorLimits,
-    brake: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Next safe actuator command toward ``target``.
 
@@ -141,13 +136,6 @@ def limit_command(
     dt : float
         Time step, s (> 0).
     limits : ActuatorLimits
-    brake : float
-        The share of ``max_accel`` that the braking curves count on, in (0, 1]: 1 for a
-        fixed ``dt`` (the pipeline). A caller whose ``dt`` varies from call to call passes
-        the smallest ratio of one step to the step before it: braking sized for the
-        acceleration of a longer step would overshoot the target after a shorter one
-        (:func:`motionbase.physics.track_toward`'s ``ub``). Speeds and accelerations keep
-        their limits either way.
 
     Returns
     -------
@@ -166,7 +154,6 @@ def limit_command(
         target_prev,
         np.asarray(target, dtype=float),
         float(dt),
-        float(brake),
         limits.lower,
         limits.upper,
         limits.max_speed,

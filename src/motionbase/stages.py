@@ -334,7 +334,7 @@ def blend_stage(P, S, cue, target):  # pragma: no cover - compiled
             # the smoothstep's peak speed and acceleration: 1.5 and 6 over soft_start_s (^2)
             vmax = 1.5 * p.blend_step / p.dt
             u = 6.0 * p.blend_step * p.blend_step / p.dt
-            b1, _ = track_toward(s.blend, s.blend_speed, 0.0, 0.0, p.dt, 0.0, 1.0, vmax, u, 0.0, u)
+            b1, _ = track_toward(s.blend, s.blend_speed, 0.0, 0.0, p.dt, 0.0, 1.0, vmax, u, 0.0)
             s.blend_speed = (b1 - s.blend) / p.dt
             s.blend = b1
         else:
@@ -363,7 +363,6 @@ def limit_stage(P, S, wanted, q):  # pragma: no cover - compiled
         s.wanted[:n],
         wanted,
         p.dt,
-        1.0,  # a fixed tick: braking counts on the whole acceleration limit
         p.lower[:n],
         p.upper[:n],
         p.max_speed[:n],

@@ -191,7 +191,7 @@ def _tilt_track(cf, st, i, tgt):  # pragma: no cover - compiled
     q0 = st[_TILT + i]
     q = track_toward(
         q0, st[_TRATE + i], st[_TTGT + i], tgt, dt, -lim, lim, cf[_TVMAX + i], cf[_TU + i],
-        cf[_TK + i], cf[_TU + i],
+        cf[_TK + i],
     )[0]  # fmt: skip
     st[_TRATE + i] = (q - q0) / dt
     st[_TTGT + i] = tgt
@@ -208,8 +208,7 @@ def _cue_track(cf, st, i, tgt):  # pragma: no cover - compiled
     j = _XS + 3 * i
     q0 = st[j]
     q = track_toward(
-        q0, st[j + 1], st[j + 2], tgt, dt, -np.inf, np.inf, cf[_XV + i], cf[_XU + i], cf[_XK + i],
-        cf[_XU + i],
+        q0, st[j + 1], st[j + 2], tgt, dt, -np.inf, np.inf, cf[_XV + i], cf[_XU + i], cf[_XK + i]
     )[0]  # fmt: skip
     st[j + 1] = (q - q0) / dt
     st[j + 2] = tgt
