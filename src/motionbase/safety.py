@@ -79,6 +79,17 @@ class ActuatorLimits:
         return cls(arr(lower), arr(upper), arr(max_speed), arr(max_accel))
 
 
+@numba.njit(cache=True, inline="always")
+def _unsafe(target, lower, upper) -> bool:  # pragma: no cover - compiled
+    """Whether any of ``target`` is non-finite or outside ``[lower, upper]``: the limiter and
+    the drive-side ramp then hold the whole vector (:data:`UNSAFE_TARGET`)."""
+    for i in range(target.shape[0]):
+        x = target[i]
+        if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
+            return True
+    return False
+
+
 @numba.njit(cache=True)
 def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, amax, q_out, v_out):
     """The compiled limiter: :func:`limit_command` on arrays, writing ``q_out`` and ``v_out``.
@@ -90,12 +101,8 @@ def limit_kernel(q_prev, v_prev, target_prev, target, dt, lower, upper, vmax, am
     :func:`limit_command` and by the pipeline's limit stage (:mod:`motionbase.stages`).
     """
     n = q_prev.shape[0]
-    status = 0
     # 1. The target must be finite and inside the limits, or the whole vector is held.
-    for i in range(n):
-        x = target[i]
-        if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
-            status = 2
+    status = 2 if _unsafe(target, lower, upper) else 0
     for i in range(n):
         q_i = q_prev[i]
         # a held vector brakes to a stop where it is (a target at rest at its position)
@@ -177,11 +184,7 @@ def ramp_kernel(
     """The compiled drive-side ramp: :func:`ramp_command` on arrays, writing ``q_out`` and
     ``v_out`` (which may be ``q_prev`` and ``v_prev``); returns the status bits."""
     n = q_prev.shape[0]
-    status = 0
-    for i in range(n):
-        x = target[i]
-        if not (np.isfinite(x) and lower[i] <= x <= upper[i]):
-            status = 2
+    status = 2 if _unsafe(target, lower, upper) else 0
     rel, eps = STEP_ROUNDING
     for i in range(n):
         q_i = q_prev[i]
