@@ -2,9 +2,10 @@
 
 :class:`PipelineLog` turns each :class:`~motionbase.pipeline.PipelineOutput` into the
 topics of the README's log table. Real pipeline outputs (strong and calm stretches,
-rejected NaN and infinite samples, samples without angular acceleration, stale marks,
-the park ramp) are logged, read back with the ``mcap`` library, and compared with the
-outputs themselves, value by value (finite floats bit for bit). Also
+rejected NaN and infinite samples, samples without angular acceleration, with and without
+a flight phase, stale marks, the park ramp) are logged, read back with the ``mcap``
+library, and compared with the outputs themselves, value by value (finite floats bit for
+bit). Also
 ``AircraftState.from_vector`` against the constructor.
 """
 
@@ -29,7 +30,8 @@ G = 9.80665
 
 def _outputs(planar: bool, n: int = 900) -> list:
     """Real pipeline outputs: strong and calm stretches, NaN samples, no angular
-    acceleration on some, stale marks, then the park ramp (state None)."""
+    acceleration on some, the flight phase on some (on the ground or in the air), stale
+    marks, then the park ramp (state None)."""
     rng = np.random.default_rng(3)
     pipeline = Pipeline(load_config(planar=planar, rate_hz=120.0))
     outs = []
@@ -43,7 +45,8 @@ def _outputs(planar: bool, n: int = 900) -> list:
         if k % 131 == 9:
             w[2] = math.inf
         acc = None if k % 3 == 0 else rng.normal(size=3)
-        state = AircraftState(k / 120.0, f, w, att, angular_acceleration=acc)
+        ground = (None, True, False)[k % 5 % 3]  # (with and without acceleration)
+        state = AircraftState(k / 120.0, f, w, att, angular_acceleration=acc, on_ground=ground)
         outs.append(pipeline.step(state, fresh=(k // 40) % 9 != 4))
     pipeline.stop()
     while not pipeline.parked and len(outs) < n + 600:
@@ -121,6 +124,10 @@ def test_every_output_is_logged_exactly(tmp_path, planar):
                 assert "angular_acceleration" not in st
             else:
                 _same(st["angular_acceleration"], out.state.angular_acceleration)
+            if out.state.on_ground is None:
+                assert "on_ground" not in st
+            else:
+                assert st["on_ground"] is out.state.on_ground
         (wp,) = got["/washout/pose"]
         assert wp["t"] == out.t
         _same(wp["pose"], out.washout_pose)

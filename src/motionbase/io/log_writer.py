@@ -2,16 +2,18 @@
 
 :class:`~motionbase.io.mcap_log.McapLogger` starts this file as a script of its own
 (``python -P log_writer.py DATA_FD REPLY_FD``; it imports the standard library, ``orjson``,
-``foxglove``, :mod:`motionbase.quaternions` and :mod:`motionbase.scene_update` only, so it
-starts in about 40 ms) and sends it messages through a pipe; this process logs them with
-the SDK and, with a live view, serves them to Foxglove.
+``foxglove``, :mod:`motionbase.quaternions`, :mod:`motionbase.scene_update` and
+:mod:`motionbase.tick_record` only, so it starts in about 40 ms) and sends it messages
+through a pipe; this process logs them with the SDK and, with a live view, serves them to
+Foxglove.
 
 Why a process: the SDK's ``Channel.log`` compresses and writes on the thread that calls
 it, holding the interpreter lock (a 64 KiB lz4 block costs about 80 us, a chunk's write
 waits for the disk), so a thread would not take that work off the real-time loop; a
-process does, on the other core. The caller's thread encodes one tick's messages as one
-JSON array (one orjson call) and writes it to the pipe; this process splits it into the
-messages.
+process does, on the other core. The pipeline's tick packs its numbers into one record
+(:mod:`motionbase.tick_record`) and writes it to the pipe; this process makes the tick's
+messages from it and encodes them. Other messages come as one JSON array a call, which
+this process splits.
 
 Protocol (one machine, one version: this file and ``mcap_log.py`` change together):
 
@@ -24,7 +26,9 @@ Protocol (one machine, one version: this file and ``mcap_log.py`` change togethe
   rad) that this process logs as ``foxglove.FrameTransform`` messages, :meth:`Writer.log_pose`;
   with :data:`FLAG_SCENE` it is the arguments of
   :func:`motionbase.scene_update.scene_message`, the ``/platform/scene`` message it builds),
-  :data:`OP_FLUSH` and :data:`OP_CLOSE`.
+  :data:`OP_TICK` (one pipeline tick packed by :func:`motionbase.tick_record.pack`, whose
+  messages and platform transform this process makes with
+  :func:`motionbase.tick_record.messages`), :data:`OP_FLUSH` and :data:`OP_CLOSE`.
 * writer -> front, on the reply pipe: one JSON line per answer: ``{"ok": true, ...}`` to
   the start, a flush and the close; ``{"error": "...", "kind": "config" | "sink"}`` when
   something fails. After a failure the writer closes the data pipe (the front's next
@@ -49,10 +53,11 @@ import orjson
 
 from motionbase.quaternions import quaternion_from_euler_zyx
 from motionbase.scene_update import scene_message, timestamp
+from motionbase.tick_record import messages as tick_messages
 
 #: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
 HEADER = struct.Struct("<BIQ")  # op, payload length, log time (ns)
-OP_START, OP_BATCH, OP_FLUSH, OP_CLOSE = 1, 2, 3, 4
+OP_START, OP_BATCH, OP_FLUSH, OP_CLOSE, OP_TICK = 1, 2, 3, 4, 5
 #: a message's flag: it goes live whatever the topic's live grid says
 FLAG_ALWAYS_LIVE = 1
 #: OP_BATCH flag: the message is a platform pose, to log as transforms (Writer.log_pose)
@@ -183,6 +188,7 @@ class Writer:
         self._writer = foxglove.open_mcap(self._file, context=self._context, writer_options=options)
         self._writer.write_metadata(config["metadata_name"], config["metadata"])
         self._channels = [self._channel(t, n, s, self._context) for t, n, s in topics]
+        self._index = {t: i for i, (t, _, _) in enumerate(topics)}
         self.flush()  # the header and the configuration on disk now
 
     def _channel(self, topic: str, name: str, schema: Any, context: Any) -> Any:
@@ -245,6 +251,16 @@ class Writer:
         x, y, z, roll, pitch, yaw = pose
         q = quaternion_from_euler_zyx(roll, pitch, yaw)
         self.log(index, orjson.dumps(transform_message(ns, "base", "platform", x, y, z, q)), ns, 0)
+
+    def log_tick(self, record: bytes, ns: int) -> None:
+        """Log one pipeline tick packed by :func:`motionbase.tick_record.pack`: its messages,
+        then the platform pose on ``/tf`` (6-DOF robots)."""
+        index = self._index
+        items, pose = tick_messages(record)
+        for topic, message in items:
+            self.log(index[topic], orjson.dumps(message), ns, 0)
+        if pose is not None:
+            self.log_pose(index["/tf"], pose, ns)
 
     def _to_live(self, index: int, data: bytes, ns: int, always: bool) -> None:
         """Serve ``data`` when its topic is due on its grid (at most one message per
@@ -338,6 +354,8 @@ def serve(data_fd: int, reply_fd: int) -> int:
                         writer.log(index, orjson.dumps(scene_message(*message)), ns, 0)
                     else:
                         writer.log(index, orjson.dumps(message), ns, flags)
+            elif op == OP_TICK:
+                writer.log_tick(payload, ns)
             elif op == OP_FLUSH:
                 writer.flush()
                 answer(ok=True)

@@ -9,9 +9,10 @@ message), and the summary.
 
 The writer runs in a process of its own
     :class:`McapLogger` encodes the messages of one call (orjson, on the caller's thread)
-    as one JSON array and writes it to a pipe; a writer process
-    (:mod:`motionbase.io.log_writer`, started by ``start()`` and ended by ``finish()``)
-    splits it and logs the messages with the SDK. The SDK compresses
+    as one JSON array, or takes a pipeline tick packed as bytes (:meth:`McapLogger.add_tick`),
+    and writes it to a pipe; a writer process (:mod:`motionbase.io.log_writer`, started by
+    ``start()`` and ended by ``finish()``) splits it, or makes the tick's messages, and logs
+    the messages with the SDK. The SDK compresses
     and writes on the thread that calls it, holding the interpreter lock: in the
     pipeline's process that work (about 80 us for each 64 KiB lz4 block, and every
     wait for the disk) fell on the real-time tick, now and then, and set its 99th
@@ -80,7 +81,15 @@ from numpy.typing import ArrayLike
 
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io import log_writer
-from motionbase.io.log_writer import FLAG_POSE, FLAG_SCENE, OP_BATCH, OP_CLOSE, OP_FLUSH, OP_START
+from motionbase.io.log_writer import (
+    FLAG_POSE,
+    FLAG_SCENE,
+    OP_BATCH,
+    OP_CLOSE,
+    OP_FLUSH,
+    OP_START,
+    OP_TICK,
+)
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
 
@@ -461,12 +470,20 @@ class McapLogger:
         thread; otherwise as :meth:`add`."""
         self._queue_batch(t, [(self._index["/platform/scene"], FLAG_SCENE, parts)])
 
+    def add_tick(self, t: float, record: bytes) -> None:
+        """Log one pipeline tick packed by :func:`motionbase.tick_record.pack`: the writer
+        process makes its messages (:func:`motionbase.tick_record.messages`) and the
+        platform's ``/tf``, off the caller's thread; otherwise as :meth:`add_many`."""
+        self._queue(OP_TICK, self._ns(t), record)
+
     def _queue_batch(self, t: float, batch: list[tuple[int, int, Any]]) -> None:
         """Queue one batch record (``[topic index, flags, message]`` entries of time ``t``,
         s) for the writer process."""
-        ns = self._ns(t)
-        data = encode_message(batch)
-        self._pending += _HEADER.pack(OP_BATCH, len(data), ns)
+        self._queue(OP_BATCH, self._ns(t), encode_message(batch))
+
+    def _queue(self, op: int, ns: int, data: bytes) -> None:
+        """Queue one record for the writer process."""
+        self._pending += _HEADER.pack(op, len(data), ns)
         self._pending += data
         # written to the writer process once they reach 16 KiB or span 0.1 s of source time
         if self._pending_ns < 0:

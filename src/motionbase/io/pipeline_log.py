@@ -22,6 +22,10 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
   compiled ``joint_points``, :meth:`~motionbase.io.scene.SceneBuilder.parts`) and the log's
   writer process builds and encodes the message, as it does ``/tf``'s.
 
+The tick packs its numbers into one record (:func:`motionbase.tick_record.pack`, a few
+byte copies); the log's writer process makes these messages from it and encodes them
+(:func:`motionbase.tick_record.messages`), off the tick's thread.
+
 With ``live``, a Foxglove WebSocket server (:class:`~motionbase.io.mcap_log.McapLogger`)
 also gets every topic above, each message encoded once for both, at most 60 messages per
 second of source time per topic (the file keeps every tick).
@@ -35,28 +39,11 @@ from pathlib import Path
 from typing import Any
 
 from motionbase.errors import SinkError
-from motionbase.io.mcap_log import LIVE_RATE_HZ, LiveAddress, McapLogger
+from motionbase.io.mcap_log import LIVE_RATE_HZ, LiveAddress, McapLogger, encode_message
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
 from motionbase.io.schemas import CUEING_DIAGNOSTICS
 from motionbase.state import PipelineOutput
-
-
-def state_message(t: float, state, fresh: bool, accepted: bool) -> dict[str, Any]:
-    """The ``/aircraft/state`` message of one sample (numpy arrays; the logger encodes them)."""
-    msg: dict[str, Any] = {
-        "t": t,
-        "source_t": state.t,
-        "specific_force": state.specific_force,
-        "angular_velocity": state.angular_velocity,
-        "attitude": state.attitude,
-        "fresh": fresh,
-        "accepted": accepted,
-    }
-    if state.angular_acceleration is not None:
-        msg["angular_acceleration"] = state.angular_acceleration
-    if state.on_ground is not None:
-        msg["on_ground"] = state.on_ground
-    return msg
+from motionbase.tick_record import pack
 
 
 def cueing_schema(cueing: Any) -> tuple[str, Any] | None:
@@ -66,33 +53,6 @@ def cueing_schema(cueing: Any) -> tuple[str, Any] | None:
     if cueing is None:
         return None
     return CUEING_DIAGNOSTICS.get(cueing.name) or getattr(cueing, "diagnostics_schema", None)
-
-
-def tick_messages(out) -> list[tuple[str, dict[str, Any]]]:
-    """The ``(topic, message)`` pairs of one output, ``/tf`` and ``/health`` aside."""
-    t = out.t
-    pose_msg = {
-        "t": t,
-        "pose": out.platform_pose,
-        "clamped": out.clamped,
-        "rate_limited": out.rate_limited,
-        "held": out.held,
-        "phase": out.phase,
-        "fade": out.fade,
-    }
-    cue_msg = {"t": t, "pose": out.washout_pose}
-    if out.cue_status:  # e.g. the flight-phase profile and its blend
-        cue_msg.update(out.cue_status)
-    if out.servo_deg is None:
-        pose_topic, actuators_topic = "/platform/pose", "/platform/actuators"
-        actuators = {"t": t, "angles": out.angles}
-    else:
-        pose_topic, actuators_topic = "/planar/pose", "/planar/actuators"
-        actuators = {"t": t, "angles": out.angles, "servo_deg": out.servo_deg}
-    items = [("/washout/pose", cue_msg), (pose_topic, pose_msg), (actuators_topic, actuators)]
-    if out.state is not None:
-        items.insert(0, ("/aircraft/state", state_message(t, out.state, out.fresh, out.accepted)))
-    return items
 
 
 class PipelineLog:
@@ -189,10 +149,8 @@ class PipelineLog:
             raise SinkError(f"{self.path}: the pipeline log is closed")
         t = out.t
         self._last_t = t
-        items = tick_messages(out)
-        if self._cueing is not None and (diagnostics := self._cueing.diagnostics()) is not None:
-            items.append((self._cueing_topic, diagnostics))
-        logger.add_many(t, items, out.platform_pose if out.servo_deg is None else None)
+        diagnostics = None if self._cueing is None else self._cueing.diagnostics()
+        logger.add_tick(t, pack(out, diagnostics, self._cueing_topic, encode_message))
         if self._scene is not None:
             self._last_out = out
             if t >= self._next_scene_t - 1e-6:  # on a 30 Hz grid of source time (1 us slack)
