@@ -11,7 +11,7 @@ Standard library only, as :mod:`motionbase.scene_update`: the writer process imp
 :func:`messages` gives plain dicts, lists and numbers.
 
 Layout (little-endian): :data:`HEAD` (time, the sample's own time, the fade, the flags,
-the phase, the lengths of the platform pose and of the actuator command), then doubles:
+the phase's name, the lengths of the platform pose and of the actuator command), then doubles:
 the sample's specific force, angular velocity and attitude (and angular acceleration)
 when there is a sample, the cueing's pose (6), the platform pose, the actuator command,
 and the servos' degrees when there are any; then, when :data:`EXTRA` is set, JSON (as
@@ -27,10 +27,9 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
-#: time (s), the sample's own time (s), fade, flags, phase, platform pose length, command length
-HEAD = struct.Struct("<dddHBBB")
-PHASES = ("starting", "running", "stopping", "parked")
-_PHASE = {name: i for i, name in enumerate(PHASES)}
+#: time (s), the sample's own time (s), fade, flags, phase (ASCII), platform pose length,
+#: command length
+HEAD = struct.Struct("<dddH8sBB")
 _PLATFORM = ("/platform/pose", "/platform/actuators")
 _PLANAR = ("/planar/pose", "/planar/actuators")
 
@@ -100,7 +99,7 @@ def pack(
         s.t if s is not None else math.nan,
         out.fade,
         flags,
-        _PHASE[out.phase],
+        out.phase.encode(),
         len(pose),
         len(angles),
     )
@@ -170,7 +169,7 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
                 "clamped": bool(flags & CLAMPED),
                 "rate_limited": bool(flags & RATE_LIMITED),
                 "held": bool(flags & HELD),
-                "phase": PHASES[phase],
+                "phase": phase.rstrip(b"\0").decode(),
                 "fade": fade,
             },
         ),
