@@ -19,7 +19,9 @@ import pytest
 from mcap.reader import make_reader
 from scipy.spatial.transform import Rotation
 
+from motionbase import tick_record
 from motionbase.app import load_config
+from motionbase.io.mcap_log import encode_message
 from motionbase.io.mcap_source import decode_message
 from motionbase.io.pipeline_log import PipelineLog
 from motionbase.pipeline import Pipeline
@@ -192,3 +194,27 @@ def test_state_from_vector_refuses_what_the_compiled_stages_cannot_read(bad):
     checking them again (its stages are bound to those types): from_vector checks."""
     with pytest.raises(TypeError, match="C-contiguous float64"):
         AircraftState.from_vector(0.0, bad)
+
+
+def test_a_tick_record_carries_the_cueing_status_and_diagnostics_and_refuses_other_types():
+    """The record the tick sends the log's writer (:mod:`motionbase.tick_record`): a cue
+    status and diagnostics (numpy values, a non-finite number) come back as the cueing gave
+    them, on the diagnostics' topic with the tick's time; a record of float32 numbers
+    (another robot's arrays) is refused, not read as other numbers."""
+    out = _outputs(False, n=30)[-1]
+    status = {"profile": "air", "profile_weights": np.array([0.25, 0.75])}
+    diagnostics = {"status": "solved", "iterations": np.int64(12), "violation": math.inf}
+    out = out._replace(cue_status=status)
+    items, pose = tick_record.messages(
+        tick_record.pack(out, diagnostics, "/cueing/test", encode_message)
+    )
+    got = dict(items)
+    assert got["/washout/pose"]["profile"] == "air"
+    assert got["/washout/pose"]["profile_weights"] == [0.25, 0.75]
+    assert got["/cueing/test"] == {
+        "t": out.t, "status": "solved", "iterations": 12, "violation": "Infinity"
+    }  # fmt: skip
+    assert pose == out.platform_pose.tolist()
+    bad = out._replace(angles=out.angles.astype(np.float32))
+    with pytest.raises(ValueError, match="tick record"):
+        tick_record.messages(tick_record.pack(bad, None, "", encode_message))

@@ -1,22 +1,21 @@
 """One pipeline tick as bytes, and the log's messages made from them.
 
 The pipeline's log sends each tick to the log's writer process
-(:mod:`motionbase.io.log_writer`) as one record: :func:`pack` on the tick's thread
-(a few byte copies: the numbers as doubles, the flags as bits), :func:`messages` in the
-writer process (the topics' JSON messages, encoded there). The tick then does no
-message building and no JSON of its own: that work is on the other core.
+(:mod:`motionbase.io.log_writer`) as one record: :func:`pack` on the tick's thread (a few
+byte copies), :func:`messages` in the writer process (the topics' messages, which it
+encodes). The tick then builds no message and encodes no JSON: that work is on the
+other core.
 
 Standard library only, as :mod:`motionbase.scene_update`: the writer process imports it.
-:func:`pack` takes a :class:`~motionbase.state.PipelineOutput` (its arrays are numpy's),
-:func:`messages` gives plain dicts, lists and numbers.
+:func:`pack` takes a :class:`~motionbase.state.PipelineOutput` (its arrays are numpy's, of
+float64 but for the servo degrees), :func:`messages` gives plain dicts, lists and numbers.
 
-Layout (little-endian): :data:`HEAD` (time, the sample's own time, the fade, the flags,
-the phase's name, the lengths of the platform pose and of the actuator command), then doubles:
-the sample's specific force, angular velocity and attitude (and angular acceleration)
-when there is a sample, the cueing's pose (6), the platform pose, the actuator command,
-and the servos' degrees when there are any; then, when :data:`EXTRA` is set, JSON (as
-:func:`motionbase.io.mcap_log.encode_message` writes it) of ``[cue status, diagnostics
-topic, cueing diagnostics]``, the status or the diagnostics null when there are none.
+Layout: :data:`HEAD` (little-endian), then doubles in the machine's order (numpy's
+``tobytes``; both processes run on one machine): the sample's specific force, angular
+velocity and attitude (and angular acceleration) when the tick has a sample, the cueing's
+pose (6), the platform pose, the actuator command and the servos' degrees when there are
+any; then a JSON tail (as :func:`motionbase.io.mcap_log.encode_message` writes it) when
+the cueing has a status or diagnostics: ``[status, diagnostics topic, diagnostics]``.
 """
 
 from __future__ import annotations
@@ -27,88 +26,35 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
-#: time (s), the sample's own time (s), fade, flags, phase (ASCII), platform pose length,
-#: command length
-HEAD = struct.Struct("<dddH8sBB")
-_PLATFORM = ("/platform/pose", "/platform/actuators")
-_PLANAR = ("/planar/pose", "/planar/actuators")
-
-# flags
-STATE = 1  #: the tick has a sample (not a park tick after the source ended)
-FRESH = 2
-ACCEPTED = 4
-CLAMPED = 8
-RATE_LIMITED = 16
-HELD = 32
-ANGULAR_ACCELERATION = 64  #: the sample has angular accelerations
-ON_GROUND_KNOWN = 128  #: the sample gives its flight phase ...
-ON_GROUND = 256  #: ... and it is on the ground
-SERVO = 512  #: the command has servo degrees (planar mode)
-EXTRA = 1024  #: a JSON tail follows: [cue status, diagnostics topic, cueing diagnostics]
+#: time (s), the sample's own time (s), fade, phase (ASCII), lengths of the platform pose
+#: and of the command, fresh, accepted, clamped, rate limited, held, on the ground (-1: not
+#: given), a sample, its angular acceleration, servo degrees; the JSON tail's length
+HEAD = struct.Struct("<ddd8sBB5?b3?I")
+_STATE_KEYS = ("specific_force", "angular_velocity", "attitude")
 
 
-def pack(
-    out: Any,
-    diagnostics: dict[str, Any] | None = None,
-    diagnostics_topic: str = "",
-    encode: Callable[[Any], bytes] | None = None,
-) -> bytes:
-    """The record of one :class:`~motionbase.state.PipelineOutput`.
-
-    Parameters
-    ----------
-    out : PipelineOutput
-        The tick.
-    diagnostics : dict, optional
-        The cueing's diagnostics of the tick, logged on ``diagnostics_topic``.
-    diagnostics_topic : str
-        Their topic, ``/cueing/<name>``.
-    encode : callable
-        Encodes the JSON tail (:func:`motionbase.io.mcap_log.encode_message`, which writes
-        numpy values and non-finite numbers); needed only when the tick has a cue status
-        or diagnostics.
-    """
-    s = out.state
-    flags = (
-        out.fresh * FRESH
-        | out.accepted * ACCEPTED
-        | out.clamped * CLAMPED
-        | out.rate_limited * RATE_LIMITED
-        | out.held * HELD
-    )
-    pose, angles = out.platform_pose, out.angles
-    parts = [b""]
+def pack(out: Any, diagnostics: Any, topic: str, encode: Callable[[Any], bytes]) -> bytes:
+    """The record of one :class:`~motionbase.state.PipelineOutput`, with the cueing's
+    diagnostics of the tick (a dict, or None) for ``topic`` (``/cueing/<name>``);
+    ``encode`` writes the JSON tail (:func:`motionbase.io.mcap_log.encode_message`)."""
+    s, servo = out.state, out.servo_deg
+    arrays = [out.washout_pose, out.platform_pose, out.angles]
+    acc = ground = None
     if s is not None:
-        flags |= STATE
-        parts += (_f8(s.specific_force), _f8(s.angular_velocity), _f8(s.attitude))
-        if s.angular_acceleration is not None:
-            flags |= ANGULAR_ACCELERATION
-            parts.append(_f8(s.angular_acceleration))
-        if s.on_ground is not None:
-            flags |= ON_GROUND_KNOWN | (ON_GROUND if s.on_ground else 0)
-    parts += (_f8(out.washout_pose), _f8(pose), _f8(angles))
-    if out.servo_deg is not None:
-        flags |= SERVO
-        parts.append(_f8(out.servo_deg))
-    if out.cue_status or diagnostics is not None:
-        assert encode is not None, "a cue status or diagnostics need an encoder"
-        flags |= EXTRA
-        parts.append(encode([out.cue_status or None, diagnostics_topic, diagnostics]))
-    parts[0] = HEAD.pack(
-        out.t,
-        s.t if s is not None else math.nan,
-        out.fade,
-        flags,
-        out.phase.encode(),
-        len(pose),
-        len(angles),
-    )
-    return b"".join(parts)
-
-
-def _f8(a: Any) -> bytes:
-    """An array's values as little-endian doubles."""
-    return a.astype("<f8", copy=False).tobytes()
+        acc, ground = s.angular_acceleration, s.on_ground
+        first = (s.specific_force, s.angular_velocity, s.attitude, acc)
+        arrays[:0] = first[: 3 + (acc is not None)]
+    if servo is not None:
+        arrays.append(servo.astype(float))
+    extra = out.cue_status or diagnostics is not None
+    tail = encode([out.cue_status or None, topic, diagnostics]) if extra else b""
+    head = HEAD.pack(
+        out.t, math.nan if s is None else s.t, out.fade, out.phase.encode(),
+        len(out.platform_pose), len(out.angles), out.fresh, out.accepted, out.clamped,
+        out.rate_limited, out.held, -1 if ground is None else ground, s is not None,
+        acc is not None, servo is not None, len(tail),
+    )  # fmt: skip
+    return b"".join([head, *[a.tobytes() for a in arrays], tail])
 
 
 def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[float] | None]:
@@ -119,72 +65,56 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
     with a sample), ``/washout/pose``, ``/platform/pose`` and ``/platform/actuators`` (or
     ``/planar/pose`` and ``/planar/actuators`` for a command in servo degrees), and the
     cueing's diagnostics topic. Non-finite numbers are written as the strings ``"NaN"``,
-    ``"Infinity"`` and ``"-Infinity"``, as :func:`motionbase.io.mcap_log.json_safe` writes
-    them.
+    ``"Infinity"`` and ``"-Infinity"``, as :func:`motionbase.io.mcap_log.json_safe` does.
     """
-    t, source_t, fade, flags, phase, m, n = HEAD.unpack_from(record)
-    at = HEAD.size
+    (t, source_t, fade, phase, m, n, fresh, accepted, clamped, rate_limited, held, ground,
+     has_state, has_acc, servo, tail) = HEAD.unpack_from(record)  # fmt: skip
+    k = (9 + 3 * has_acc) * has_state + 6 + m + n + n * servo
+    if HEAD.size + 8 * k + tail != len(record):  # e.g. an array of another type than float64
+        raise ValueError(f"a tick record of {len(record)} bytes, not {HEAD.size + 8 * k + tail}")
+    values = struct.unpack_from(f"={k}d", record, HEAD.size)
+    at = 0
 
-    def take(k: int) -> list[float]:
+    def take(count: int) -> list[Any]:
         nonlocal at
-        values = list(struct.unpack_from(f"<{k}d", record, at))
-        at += 8 * k
-        return values
+        at += count
+        return _finite(values[at - count : at])
 
     items: list[tuple[str, dict[str, Any]]] = []
-    if flags & STATE:
-        state = {
-            "t": t,
-            "source_t": source_t,
-            "specific_force": _finite(take(3)),
-            "angular_velocity": _finite(take(3)),
-            "attitude": _finite(take(3)),
-            "fresh": bool(flags & FRESH),
-            "accepted": bool(flags & ACCEPTED),
-        }
-        if flags & ANGULAR_ACCELERATION:
-            state["angular_acceleration"] = _finite(take(3))
-        if flags & ON_GROUND_KNOWN:
-            state["on_ground"] = bool(flags & ON_GROUND)
+    if has_state:
+        state = {"t": t, "source_t": source_t}
+        state.update((key, take(3)) for key in _STATE_KEYS)
+        state.update(fresh=fresh, accepted=accepted)
+        if has_acc:
+            state["angular_acceleration"] = take(3)
+        if ground >= 0:
+            state["on_ground"] = bool(ground)
         items.append(("/aircraft/state", state))
-    cue = {"t": t, "pose": _finite(take(6))}
-    pose = _finite(take(m))
-    actuators: dict[str, Any] = {"t": t, "angles": _finite(take(n))}
-    planar = bool(flags & SERVO)
-    if planar:
+    cue = {"t": t, "pose": take(6)}
+    pose = take(m)
+    actuators = {"t": t, "angles": take(n)}
+    if servo:
         actuators["servo_deg"] = [int(v) for v in take(n)]
     status = diagnostics = None
-    if flags & EXTRA:
-        status, diagnostics_topic, diagnostics = json.loads(record[at:])
-    if status:
-        cue.update(status)
-    pose_topic, actuators_topic = _PLANAR if planar else _PLATFORM
+    if tail:
+        status, topic, diagnostics = json.loads(record[len(record) - tail :])
+    cue.update(status or {})
+    prefix = "/planar" if servo else "/platform"
     items += (
         ("/washout/pose", cue),
-        (
-            pose_topic,
-            {
-                "t": t,
-                "pose": pose,
-                "clamped": bool(flags & CLAMPED),
-                "rate_limited": bool(flags & RATE_LIMITED),
-                "held": bool(flags & HELD),
-                "phase": phase.rstrip(b"\0").decode(),
-                "fade": fade,
-            },
-        ),
-        (actuators_topic, actuators),
-    )
+        (f"{prefix}/pose", {"t": t, "pose": pose, "clamped": clamped, "rate_limited":
+         rate_limited, "held": held, "phase": phase.rstrip(b"\0").decode(), "fade": fade}),
+        (f"{prefix}/actuators", actuators),
+    )  # fmt: skip
     if diagnostics is not None:
-        message = diagnostics if "t" in diagnostics else {"t": t, **diagnostics}
-        items.append((diagnostics_topic, message))
-    return items, None if planar else pose
+        items.append((topic, diagnostics if "t" in diagnostics else {"t": t, **diagnostics}))
+    return items, None if servo else pose
 
 
-def _finite(values: list[float]) -> list[Any]:
+def _finite(values: tuple[float, ...]) -> list[Any]:
     """``values``, each non-finite one as the string JSON needs for it."""
     if math.isfinite(sum(values)):
-        return values
+        return list(values)
     return [
         v if math.isfinite(v) else ("NaN" if v != v else ("Infinity" if v > 0 else "-Infinity"))
         for v in values
