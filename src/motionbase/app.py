@@ -1163,7 +1163,14 @@ def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
     if a is None or b is None:
         return 0.0 if a is b else math.inf
     if isinstance(a, (int, float)) and isinstance(b, (int, float)):
-        return float(abs(a - b))
+        if a == b:  # (also the same infinity, whose difference is NaN)
+            return 0.0
+        try:
+            if math.isnan(a) or math.isnan(b):  # NaN against NaN: the same value, bit for bit
+                return 0.0 if math.isnan(a) and math.isnan(b) else math.inf
+            return float(abs(a - b))
+        except OverflowError:  # an integer beyond any float (a crafted file)
+            return math.inf
     return 0.0 if a == b else math.inf
 
 
