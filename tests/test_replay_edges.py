@@ -7,10 +7,19 @@ each test here failed on the code before its fix.
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from motionbase import app
+from motionbase.errors import SourceError
+from motionbase.io.mcap_source import McapSource, read_messages, read_metadata
 
 # --------------------------------------------------------------------------- --check's compare
 
@@ -54,3 +63,68 @@ def test_check_of_an_integer_beyond_any_float_is_a_difference_not_a_crash():
     report = app.compare_recordings({"/x": [{"n": 10**400}]}, {"/x": [{"n": 0}]})
     assert not report.identical
     assert app.compare_recordings({"/x": [{"n": 10**400}]}, {"/x": [{"n": 10**400}]}).identical
+
+
+# --------------------------------------------------------------------------- a file that changes
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "recordings" / "c1723_30s.mcap"
+ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+
+
+def test_a_recording_cut_while_it_is_read_is_a_source_error(tmp_path):
+    """The states are counted when the source opens the file and read again while the
+    pipeline runs; a file cut short in between (overwritten, truncated in place) used to end
+    the replay there as if the recording ended there: exit 0, not a word."""
+    rec = tmp_path / "rec.mcap"
+    shutil.copyfile(SHIPPED, rec)
+    with McapSource(rec) as source:
+        whole = source.count
+        with open(rec, "r+b") as fh:
+            fh.truncate(rec.stat().st_size // 3)
+        read = 0
+        with pytest.raises(SourceError, match="changed while it was replayed") as caught:
+            for _ in source:
+                read += 1
+    assert 0 < read < whole
+    assert str(rec) in str(caught.value) and f"{read} of the {whole}" in str(caught.value)
+
+
+def test_a_recording_cut_during_a_replay_parks_and_says_so_in_one_line(tmp_path):
+    """The whole command, run in real time (``--live``: paced by the loop): the recording is
+    emptied once the replay's log holds its first ticks. Exit 2, one line, and the log ends
+    parked, at rest."""
+    rec, out = tmp_path / "rec.mcap", tmp_path / "out.mcap"
+    shutil.copyfile(SHIPPED, rec)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase", "replay", str(rec), "--live", "127.0.0.1:0",
+         "--out", str(out)],
+        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        banner = proc.stderr.readline()
+        assert banner.startswith("live view:"), banner
+        # mid-run: once the log holds its first chunk (about a second of ticks)
+        size = out.stat().st_size
+        while out.stat().st_size == size and proc.poll() is None:
+            time.sleep(0.05)
+        with open(rec, "r+b") as fh:
+            fh.truncate(0)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2, stdout + stderr
+    assert "Traceback" not in stderr
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, stderr
+    assert str(rec) in lines[0] and "changed while it was replayed" in lines[0]
+    assert "parked" in lines[0]
+    # the log: from park back to park, at rest, within the geometry's limits
+    geometry = read_metadata(out)["pipeline_config"]["geometry"]
+    q = np.array([m["angles"] for m in read_messages(out)["/platform/actuators"]])
+    rate = read_metadata(out)["pipeline_config"]["pipeline"]["rate_hz"]
+    assert np.isfinite(q).all()
+    assert len(q) > 120  # (it ran a while)
+    assert np.allclose(q[-1], geometry["park_angle"], rtol=0, atol=1e-12)  # the park angle
+    assert np.array_equal(q[-1], q[-2])  # at rest
+    assert np.all(np.abs(np.diff(q, axis=0)) * rate <= np.asarray(geometry["max_speed"]) + 1e-9)

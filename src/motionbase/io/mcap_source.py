@@ -14,6 +14,10 @@ MCAP magic (as only a finished file does) raises
 where the damaged record or section starts and what to do. Bytes after the end
 of a finished file (something appended to it) are ignored, with a warning: the
 recording itself is whole. A file that is not MCAP raises LogFormatError too.
+A file that ends, while it is replayed, before the states counted when the source
+opened it (cut or overwritten meanwhile) raises :class:`~motionbase.errors.SourceError`
+from the iteration: the pipeline parks, and the replay does not end as if the
+recording ended there.
 
 A malformed aircraft state (not JSON, not UTF-8, a missing field, a string or a bool
 for a number, a list of the wrong length, ``null``, a negative time) never stops a
@@ -604,18 +608,19 @@ class McapSource:
     def __iter__(self) -> Iterator[AircraftState]:
         """The recorded states in file order (the order they were logged)."""
         fh = _open(self.path)
+        index = 0
         try:
             fh.seek(len(MCAP_MAGIC))
             records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
             ids: set[int] = set()
-            index = 0
             self.malformed = 0
             while True:
                 try:
                     rec = next(records)
                 except StopIteration:
-                    return
-                except Exception:  # noqa: BLE001 - the cut, already reported
+                    break
+                except Exception as exc:  # noqa: BLE001 - the cut, already reported
+                    self._check_whole(index, exc)
                     return
                 if isinstance(rec, Message):
                     if rec.channel_id in ids:
@@ -625,9 +630,23 @@ class McapSource:
                     if rec.topic == self.topic:
                         ids.add(rec.id)
                 elif isinstance(rec, Footer):
-                    return
+                    break
+            self._check_whole(index, None)
         finally:
             fh.close()
+
+    def _check_whole(self, read: int, exc: BaseException | None) -> None:
+        """Raise when the file ended before the states counted when it was opened: it was
+        cut, overwritten or damaged during the replay (a replay that ended there as if the
+        recording ended would say nothing of it)."""
+        if read >= self.count:
+            return
+        why = f" ({_short_reason(exc) or type(exc).__name__})" if exc is not None else ""
+        raise SourceError(
+            f"{self.path}: the recording changed while it was replayed: it ends after "
+            f"{read} of the {self.count} aircraft states it held when the replay began{why}; "
+            "replay a copy that nothing writes to"
+        )
 
     def _read_state(self, data: bytes, index: int) -> AircraftState:
         """The state in message ``index`` (1-based), or a sample of NaNs when malformed."""
