@@ -6,6 +6,7 @@ each test here failed on the code before its fix.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import shutil
@@ -16,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.writer import Writer
 
-from motionbase import app
+from motionbase import app, cli
 from motionbase.errors import SourceError
 from motionbase.io.mcap_source import McapSource, read_messages, read_metadata
 
@@ -128,3 +130,71 @@ def test_a_recording_cut_during_a_replay_parks_and_says_so_in_one_line(tmp_path)
     assert np.allclose(q[-1], geometry["park_angle"], rtol=0, atol=1e-12)  # the park angle
     assert np.array_equal(q[-1], q[-2])  # at rest
     assert np.all(np.abs(np.diff(q, axis=0)) * rate <= np.asarray(geometry["max_speed"]) + 1e-9)
+
+
+# --------------------------------------------------------------------------- crafted recordings
+
+
+def _state(t: float) -> bytes:
+    return json.dumps(
+        {
+            "t": t,
+            "specific_force": [0.3 * math.sin(t), 0.2, -9.80665],
+            "angular_velocity": [0.0, 0.05 * math.cos(t), 0.0],
+            "attitude": [0.0, 0.02, 0.1],
+        }
+    ).encode()
+
+
+def write_states(
+    path: Path, n: int = 200, *, config: dict | None = None, ns_per_s: float = 1e9
+) -> Path:
+    """``n`` aircraft states at 100 Hz made with the mcap library; ``config`` as the
+    motionbase metadata (none when None); log times ``ns_per_s`` units per second."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        if config is not None:
+            writer.add_metadata("motionbase", {"config": json.dumps(config)})
+        schema = writer.register_schema("state", "jsonschema", b"{}")
+        channel = writer.register_channel("/aircraft/state", "json", schema)
+        for k in range(n):
+            t = k / 100
+            writer.add_message(channel, round(t * ns_per_s), _state(t), round(t * ns_per_s))
+        writer.finish()
+    return path
+
+
+def _cli(capfd, *args) -> tuple[int, str, str]:
+    code = cli.main([str(a) for a in args])
+    captured = capfd.readouterr()
+    return code, captured.out, captured.err
+
+
+def _one_line(err: str) -> str:
+    assert "Traceback" not in err, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("config", "ns_per_s", "said"),
+    [
+        (None, 1e6, "log times"),  # microseconds for nanoseconds: 100 kHz
+        ({"rate_hz": 0.5}, 1e9, "rate_hz"),  # a configuration that lies
+        ({"rate_hz": 50_000}, 1e9, "rate_hz"),
+    ],
+)
+def test_a_recording_whose_rate_no_pipeline_runs_at_is_named(
+    tmp_path, capfd, fresh_logger, config, ns_per_s, said
+):
+    """The rate a replay runs at comes from the recording (its configuration, else the
+    spacing of its log times). One out of range used to be reported as if the user had
+    given it ("pipeline: rate_hz 1e+05 is above 10 kHz (lower it)"): no file, no way to."""
+    rec = write_states(tmp_path / "rec.mcap", config=config, ns_per_s=ns_per_s)
+    code, out, err = _cli(capfd, "replay", rec, "--out", tmp_path / "out.mcap")
+    assert code == 2
+    line = _one_line(err)
+    assert str(rec) in line and said in line
+    assert not (tmp_path / "out.mcap").exists()  # refused before anything ran

@@ -822,6 +822,7 @@ def _replay(
             base_planar = (spec is not None and spec.planar) if planar is None else planar
             if platform is None and spec is not None and spec.planar == base_planar:
                 platform = None if spec.planar else spec.name  # the recorded robot's default
+            _check_recorded_rate(src_path, source)
             config = load_config(
                 planar=base_planar,
                 platform=platform,
@@ -880,6 +881,27 @@ def _replay(
             if tmp is not None:
                 tmp.cleanup()
     return result
+
+
+def _check_recorded_rate(path: Path, source: Any) -> None:
+    """A ConfigError naming the recording when the rate it gives (its configuration's, or
+    its messages' spacing) is one the pipeline cannot tick at."""
+    from motionbase.pipeline import MIN_RATE_HZ, check_rate
+
+    try:
+        check_rate(source.rate_hz)
+    except ConfigError:
+        spacing = source.rate_from.startswith("the spacing")
+        raise ConfigError(
+            f"{path}: {source.rate_from} gives a pipeline rate of {source.rate_hz:g} Hz, outside "
+            f"the {MIN_RATE_HZ:g} Hz to 10 kHz a pipeline ticks at; "
+            + (
+                "MCAP log times are nanoseconds (a recording in other units, or at a few "
+                "samples a second, cannot be replayed)"
+                if spacing
+                else "the recorded rate is wrong, so the recording cannot be replayed"
+            )
+        ) from None
 
 
 def _same_file(a: Path, b: Path) -> bool:

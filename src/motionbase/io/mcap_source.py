@@ -517,6 +517,7 @@ class McapSource:
         self.first_malformed = ""
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
+        self.rate_from = ""  # where rate_hz came from, for messages
         self.duration_s: float | None = None
         self._channel_ids: set[int] = set()
         self._topics: set[str] = set()
@@ -574,7 +575,8 @@ class McapSource:
             )
 
     def _find_rate(self, times_ns: np.ndarray) -> float:
-        for table in (self.metadata, self.metadata.get("pipeline"), self.metadata.get("source")):
+        for name in ("", "pipeline", "source"):
+            table = self.metadata.get(name) if name else self.metadata
             if isinstance(table, dict):
                 rate = table.get("rate_hz")
                 if (
@@ -582,6 +584,8 @@ class McapSource:
                     and not isinstance(rate, bool)
                     and 0 < rate < math.inf
                 ):
+                    where = f"{name}." if name else ""
+                    self.rate_from = f"its recorded configuration ({where}rate_hz)"
                     return float(rate)
         steps = np.diff(times_ns)
         steps = steps[steps > 0]
@@ -590,7 +594,12 @@ class McapSource:
                 f"{self.path}: cannot tell the sample rate: fewer than two distinct times on "
                 f"{self.topic} and no rate_hz in the recorded configuration"
             )
-        return 1e9 / float(np.median(steps))
+        median = float(np.median(steps))
+        self.rate_from = (
+            f"the spacing of its {self.topic} log times (median {median:g} ns; no rate_hz in "
+            "its recorded configuration)"
+        )
+        return 1e9 / median
 
     # lifecycle -------------------------------------------------------------
     def __enter__(self) -> McapSource:
