@@ -198,3 +198,35 @@ def test_a_recording_whose_rate_no_pipeline_runs_at_is_named(
     line = _one_line(err)
     assert str(rec) in line and said in line
     assert not (tmp_path / "out.mcap").exists()  # refused before anything ran
+
+
+# --------------------------------------------------------------------------- another robot
+
+PLANAR = ROOT / "recordings" / "c1723_planar_15s.mcap"
+
+
+@pytest.mark.parametrize("platform", ["ceart", "stewart6"])
+def test_a_planar_recording_replays_on_the_6_dof_platform_it_is_given(
+    tmp_path, capfd, fresh_logger, platform
+):
+    """``--platform`` overrides the recorded robot. A planar recording given a 6-DOF
+    platform was refused with "--platform ceart: a preset of the 6-RUS, not a planar robot
+    (drop --planar)": a flag nobody gave, and replay has none to turn planar mode off."""
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", PLANAR, "--platform", platform, "--out", out)
+    assert code == 0, err
+    assert "Traceback" not in err
+    msgs = read_messages(out)
+    assert "/planar/actuators" not in msgs
+    angles = np.array([m["angles"] for m in msgs["/platform/actuators"]])
+    assert angles.shape[1] == 6 and np.isfinite(angles).all()
+    # every aircraft state of the recording went through
+    assert len(msgs["/aircraft/state"]) == len(read_messages(PLANAR)["/aircraft/state"])
+
+
+def test_planar_is_still_refused_with_a_6_dof_platform_when_asked_for(
+    tmp_path, capfd, fresh_logger
+):
+    code, _, err = _cli(capfd, "replay", PLANAR, "--planar", "--platform", "ceart")
+    assert code == 2
+    assert "drop --planar" in _one_line(err)

@@ -816,10 +816,13 @@ def _replay(
         if recorded is not None and all(x is None for x in asked):
             config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
         else:
-            from motionbase.platform.robot import ROBOTS
+            from motionbase.platform.robot import ROBOTS, robot_named
 
             spec = ROBOTS.get((recorded or {}).get("robot"))  # type: ignore[arg-type]
             base_planar = (spec is not None and spec.planar) if planar is None else planar
+            named = robot_named(platform)
+            if planar is None and named is not None:  # the robot asked for, in its own mode
+                base_planar = ROBOTS[named].planar
             if platform is None and spec is not None and spec.planar == base_planar:
                 platform = None if spec.planar else spec.name  # the recorded robot's default
             _check_recorded_rate(src_path, source)
