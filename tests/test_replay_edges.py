@@ -230,3 +230,16 @@ def test_planar_is_still_refused_with_a_6_dof_platform_when_asked_for(
     code, _, err = _cli(capfd, "replay", PLANAR, "--planar", "--platform", "ceart")
     assert code == 2
     assert "drop --planar" in _one_line(err)
+
+
+def test_a_recording_without_states_does_not_list_their_empty_topic_as_present(
+    tmp_path, capfd, fresh_logger
+):
+    """A channel with no message on it is no topic present: the error said "no
+    /aircraft/state messages in the recording (topics present: /aircraft/state)"."""
+    rec = write_states(tmp_path / "rec.mcap", n=0, config={"rate_hz": 100.0})
+    code, _, err = _cli(capfd, "replay", rec)
+    assert code == 2
+    line = _one_line(err)
+    assert str(rec) in line and "no /aircraft/state messages" in line
+    assert line.count("/aircraft/state") == 1 and "topics present: none" in line

@@ -520,7 +520,8 @@ class McapSource:
         self.rate_from = ""  # where rate_hz came from, for messages
         self.duration_s: float | None = None
         self._channel_ids: set[int] = set()
-        self._topics: set[str] = set()
+        self._topics: dict[int, str] = {}  # channel id -> topic
+        with_messages: set[int] = set()  # the channels that have messages
         times: list[int] = []
 
         def on_metadata(meta: Metadata) -> None:
@@ -529,7 +530,7 @@ class McapSource:
                 self.version = meta.metadata.get("version")
 
         def on_channel(ch: Channel) -> None:
-            self._topics.add(ch.topic)
+            self._topics[ch.id] = ch.topic
             if ch.topic == topic:
                 if ch.message_encoding != "json":
                     raise LogFormatError(
@@ -541,6 +542,7 @@ class McapSource:
         first: list[bytes] = []
 
         def on_message(msg: Message) -> None:
+            with_messages.add(msg.channel_id)
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
                 if not first:
@@ -552,7 +554,8 @@ class McapSource:
         ending = _scan(self.path, on_metadata, on_channel, on_message)
         self.truncated = ending.truncated
         if not times:
-            raise _no_messages(self.path, topic, self._topics, ending.truncated)
+            present = {self._topics[i] for i in with_messages if i in self._topics}
+            raise _no_messages(self.path, topic, present, ending.truncated)
         self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
