@@ -243,3 +243,23 @@ def test_a_recording_without_states_does_not_list_their_empty_topic_as_present(
     line = _one_line(err)
     assert str(rec) in line and "no /aircraft/state messages" in line
     assert line.count("/aircraft/state") == 1 and "topics present: none" in line
+
+
+@pytest.mark.parametrize("flag", ["--platform", "--params"])
+def test_replay_out_may_not_overwrite_the_geometry_or_washout_file(
+    tmp_path, capfd, fresh_logger, flag
+):
+    """``replay --out`` naming the ``--platform`` or ``--params`` file: the replay read it,
+    then wrote its log over it. Only the recording itself was refused."""
+    presets = ROOT / "src" / "motionbase" / "presets"
+    source = presets / ("rus6_ceart.toml" if flag == "--platform" else "washout_gentle.toml")
+    victim = tmp_path / "mine.toml"
+    shutil.copyfile(source, victim)
+    before = victim.read_bytes()
+    code, _, err = _cli(
+        capfd, "replay", SHIPPED, flag, victim, "--out", tmp_path / "." / "mine.toml"
+    )
+    assert code == 2
+    line = _one_line(err)
+    assert "--out" in line and flag in line and "destroy" in line
+    assert victim.read_bytes() == before

@@ -802,6 +802,17 @@ def _replay(
             f"--out {out} is the recording being replayed ({src_path}): writing it would destroy "
             "it; give another file"
         )
+    for flag, given in (("--platform", platform), ("--params", washout)):
+        if (
+            out is not None
+            and given is not None
+            and Path(given).is_file()
+            and _same_file(Path(given), Path(out))
+        ):
+            raise ConfigError(
+                f"--out {out} is the {flag} file ({given}): writing the log would destroy it; "
+                "give another file"
+            )
     if outputs and platform is None:
         raise ConfigError(
             "replay --output drives motors: give --platform with your own geometry (preset or "
