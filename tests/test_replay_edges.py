@@ -263,3 +263,55 @@ def test_replay_out_may_not_overwrite_the_geometry_or_washout_file(
     line = _one_line(err)
     assert "--out" in line and flag in line and "destroy" in line
     assert victim.read_bytes() == before
+
+
+# --------------------------------------------------------------------------- nesting
+
+
+def test_a_state_nested_deeply_around_a_nan_string_is_rejected_not_a_traceback(
+    tmp_path, capfd, fresh_logger
+):
+    """A message 900 lists deep holding ``"NaN"``: the parser reads it, then turning the
+    string back into a number walked it recursively and raised RecursionError, a traceback
+    from ``replay`` (and ``--check``, ``report``). Now it is a malformed state, rejected and
+    held like any."""
+    rec = tmp_path / "rec.mcap"
+    payloads = [_state(k / 100) for k in range(200)]
+    payloads[50] = b"[" * 900 + b'"NaN"' + b"]" * 900
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": 100.0})})
+        channel = writer.register_channel(
+            "/aircraft/state", "json", writer.register_schema("s", "jsonschema", b"{}")
+        )
+        for k, data in enumerate(payloads):
+            writer.add_message(channel, k * 10_000_000, data, k * 10_000_000)
+        writer.finish()
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--out", out)
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert "1 malformed aircraft states rejected" in stdout
+    assert read_messages(out)["/health"][-1]["rejected_inputs"] == 1
+
+
+@pytest.mark.parametrize(
+    "config", ["[" * 100_000 + "]" * 100_000, '{"a":' * 600 + '"NaN"' + "}" * 600]
+)
+def test_a_configuration_nested_too_deeply_is_one_line(tmp_path, capfd, fresh_logger, config):
+    rec = tmp_path / "rec.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": config})
+        channel = writer.register_channel(
+            "/aircraft/state", "json", writer.register_schema("s", "jsonschema", b"{}")
+        )
+        for k in range(100):
+            writer.add_message(channel, k * 10_000_000, _state(k / 100), k * 10_000_000)
+        writer.finish()
+    code, _, err = _cli(capfd, "replay", rec)
+    assert code == 2
+    line = _one_line(err)
+    assert str(rec) in line and "metadata 'config'" in line

@@ -96,7 +96,10 @@ def decode_message(data: bytes) -> Any:
         except ValueError as exc:
             raise ValueError(f"not JSON: {exc}") from None
     if _NONFINITE_MARKER.search(data):
-        msg = _restore_nonfinite(msg)
+        try:
+            msg = _restore_nonfinite(msg)
+        except RecursionError:  # (the parser's own depth limit is higher than this walk's)
+            raise ValueError("not JSON: nested too deeply") from None
     return msg
 
 
@@ -283,8 +286,14 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
         return {}
     try:
         value = json.loads(raw)
+        if isinstance(value, dict):
+            value = _restore_nonfinite(value)
     except json.JSONDecodeError:
         raise LogFormatError(f"{path}: metadata 'config' is not valid JSON") from None
+    except RecursionError:
+        raise LogFormatError(
+            f"{path}: metadata 'config' is nested too deeply to be a motionbase configuration"
+        ) from None
     if not isinstance(value, dict):
         kinds = {list: "a JSON array", str: "a JSON string", bool: "a JSON boolean"}
         kind = "JSON null" if value is None else kinds.get(type(value), "a JSON number")
@@ -292,7 +301,7 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
             f"{path}: metadata 'config' is {kind}, not an object (motionbase records its "
             "configuration as one; re-record the file)"
         )
-    return _restore_nonfinite(value)
+    return value
 
 
 def _no_messages(path: Path, topic: str, present: Iterable[str], truncated: bool) -> LogFormatError:
