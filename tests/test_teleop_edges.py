@@ -85,3 +85,14 @@ def test_a_log_removed_during_the_run_is_said_lost_with_exit_status_1(tmp_path):
     warnings = [ln for ln in stderr.splitlines() if ln.strip()]
     assert len(warnings) == 1 and str(out) in warnings[0] and "gone" in warnings[0], stderr
     assert "stopped by SIGINT" in stdout and "log lost" in stdout
+
+
+@pytest.mark.parametrize("rate", ["5", "20000"])
+def test_a_rate_the_loop_cannot_tick_at_names_the_option(tmp_path, capfd, fresh_logger, rate):
+    """It named an internal ("command pipeline: rate_hz 5 is below 10 Hz")."""
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    code, _, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--rate", rate)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "--rate" in lines[0] and rate in lines[0]

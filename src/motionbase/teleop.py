@@ -49,7 +49,7 @@ from motionbase.commanding import Command, CommandPipeline
 from motionbase.config import DEFAULT_RRR3
 from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
-from motionbase.pipeline import PipelineOutput, run
+from motionbase.pipeline import PipelineOutput, check_rate, run
 from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.rrr3 import Rrr3, Rrr3Robot
 from motionbase.stopping import StopRequest
@@ -380,6 +380,7 @@ def teleop_job(
 
     if live is not None and out is None:
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
+    check_rate(rate_hz, "teleop --rate")  # (the user's option, not "command pipeline")
     if out is not None:
         _refuse_out_over_an_input(
             out,
