@@ -907,8 +907,9 @@ def _check_recorded_rate(path: Path, source: Any) -> None:
     except ConfigError:
         spacing = source.rate_from.startswith("the spacing")
         raise ConfigError(
-            f"{path}: {source.rate_from} gives a pipeline rate of {source.rate_hz:g} Hz, outside "
-            f"the {MIN_RATE_HZ:g} Hz to 10 kHz a pipeline ticks at; "
+            f"{path}: {source.rate_from} gives rate_hz {source.rate_hz:g}, "
+            + (f"below {MIN_RATE_HZ:g} Hz" if source.rate_hz < MIN_RATE_HZ else "above 10 kHz")
+            + ", which no pipeline ticks at; "
             + (
                 "MCAP log times are nanoseconds (a recording in other units, or at a few "
                 "samples a second, cannot be replayed)"
