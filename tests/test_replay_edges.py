@@ -10,6 +10,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -21,7 +22,11 @@ from mcap.writer import Writer
 
 from motionbase import app, cli
 from motionbase.errors import SourceError
-from motionbase.io.mcap_source import McapSource, read_messages, read_metadata
+from motionbase.io.mcap_source import RECORDED_STOP, McapSource, read_messages, read_metadata
+from motionbase.io.pipeline_log import PipelineLog
+from motionbase.pipeline import Pipeline, run
+from motionbase.state import AircraftState
+from motionbase.stopping import StopRequest
 
 # --------------------------------------------------------------------------- --check's compare
 
@@ -315,3 +320,109 @@ def test_a_configuration_nested_too_deeply_is_one_line(tmp_path, capfd, fresh_lo
     assert code == 2
     line = _one_line(err)
     assert str(rec) in line and "metadata 'config'" in line
+
+
+# --------------------------------------------------------------------------- a recorded stop
+
+
+class _StoppedFlight:
+    """Aircraft states at 120 Hz whose run is asked to stop (as a signal does) when state
+    ``stop_at`` is handed over; the states go on, as a live source's do while it parks."""
+
+    duration_s = None
+
+    def __init__(self, stop: StopRequest, stop_at: int, estop_at: int | None = None) -> None:
+        self.stop, self.stop_at, self.estop_at = stop, stop_at, estop_at
+
+    def __iter__(self):
+        for k in range(1, 3000):
+            t = k / 120
+            if k == self.stop_at:
+                self.stop.set("SIGINT")
+            if k == self.estop_at:
+                self.stop.set("SIGINT while stopping", estop=True)
+            yield AircraftState(
+                t=t,
+                specific_force=np.array([2.0 * math.sin(1.3 * t), math.cos(0.7 * t), -9.80665]),
+                angular_velocity=np.array([0.1 * math.sin(t), 0.05, 0.0]),
+                attitude=np.array([0.0, 0.02, 0.1]),
+            )
+
+    def describe(self) -> dict:
+        return {"kind": "test"}
+
+
+def _record_stopped_flight(path: Path, stop_at: int, estop_at: int | None = None) -> None:
+    """A log of a run stopped at state ``stop_at`` (the pipeline's loop and log, as in
+    ``fly`` and ``stream``)."""
+    config = app.load_config()
+    pipeline = Pipeline(config)
+    stop = StopRequest()
+    source = _StoppedFlight(stop, stop_at, estop_at)
+    with PipelineLog(path, app.run_metadata(config, source), health=pipeline.health.as_dict,
+                     robot=pipeline.robot, cueing=pipeline.cueing) as log:  # fmt: skip
+        summary = run(pipeline, source, [log], stop=stop)
+    assert summary.stopped_by.startswith("SIGINT") and pipeline.parked
+
+
+def test_a_recording_of_a_stopped_run_replays_bit_for_bit(tmp_path):
+    """A run stopped by Ctrl-C (how every ``stream`` ends) parks while its source goes on;
+    the replay fed the same states to a pipeline that never stopped, then parked after the
+    last: ``replay --check`` said DIFFERS for every such recording. Now the replay stops at
+    the state where the recording's poses start stopping."""
+    rec = tmp_path / "stopped.mcap"
+    _record_stopped_flight(rec, stop_at=700)
+    recorded = read_messages(rec)
+    stopping = [m["phase"] for m in recorded["/platform/pose"]].index("stopping")
+    assert recorded["/aircraft/state"][stopping]["t"] == recorded["/platform/pose"][stopping]["t"]
+    assert len(recorded["/aircraft/state"]) > stopping + 100  # states went on while it parked
+
+    result = app.replay(rec, check=True, progress=False)
+    assert not result.failed, "\n".join(result.notes)
+    assert "check: identical to the recording" in result.notes
+    assert result.summary.stopped_by == RECORDED_STOP
+
+
+def test_a_recorded_e_stop_is_not_reproduced_and_the_check_says_so(tmp_path):
+    """An E-stop is not in the log tick by tick (only /health counts it, once a second):
+    the replay reproduces the stop before it, and the check's difference is explained."""
+    rec = tmp_path / "estopped.mcap"
+    _record_stopped_flight(rec, stop_at=700, estop_at=760)
+    result = app.replay(rec, check=True, progress=False)
+    assert result.failed
+    assert any("E-stop" in line for line in result.notes), result.notes
+
+
+def test_a_user_stop_during_a_replay_still_leaves_the_check_unmade(tmp_path):
+    stop = StopRequest()
+    stop.set("SIGTERM")
+    result = app.replay(SHIPPED, check=True, progress=False, stop=stop)
+    assert result.failed
+    assert "check: not made, the replay was stopped (SIGTERM)" in result.notes
+
+
+def test_a_flight_stopped_by_ctrl_c_replays_bit_for_bit(tmp_path):
+    """The same through the commands: ``fly --realtime`` stopped by a real SIGINT once its
+    log holds its first ticks, then ``replay --check`` of its log."""
+    out = tmp_path / "fly.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase", "fly", "c1723", "--realtime", "--out", str(out)],
+        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        for _ in range(12000):  # the log's first chunk: about a second of flight
+            if (out.exists() and out.stat().st_size > 20_000) or proc.poll() is not None:
+                break
+            time.sleep(0.01)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and "stopped by SIGINT" in stdout, stdout + stderr
+    check = subprocess.run(
+        [sys.executable, "-m", "motionbase", "replay", str(out), "--check"],
+        env=ENV, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert "check: identical to the recording" in check.stdout

@@ -794,7 +794,7 @@ def _replay(
     live: str | None,
     preview: bool | None = None,
 ) -> JobResult:
-    from motionbase.io.mcap_source import McapSource, read_messages
+    from motionbase.io.mcap_source import RECORDED_STOP, McapSource, read_messages
 
     src_path = Path(path)
     if out is not None and _same_file(src_path, Path(out)):
@@ -820,6 +820,7 @@ def _replay(
         )
     live_at = _live_address(live)
     with McapSource(src_path) as source:
+        source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
             raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
@@ -882,13 +883,24 @@ def _replay(
                     f"warning: {src_path}: {source.malformed} malformed aircraft states rejected "
                     f"and held (first: {source.first_malformed})"
                 )
-            if check and stop:  # a part of the recording only: nothing to compare it with
-                result.notes.append(f"check: not made, the replay was stopped ({stop.reason})")
+            # (the stop the recording holds is reproduced, and compared; a user's is not)
+            if check and stop and (stop.reason != RECORDED_STOP or stop.estop):
+                # a part of the recording only: nothing to compare it with
+                why = stop.estop_reason if stop.reason == RECORDED_STOP else stop.reason
+                result.notes.append(f"check: not made, the replay was stopped ({why})")
                 result.failed = True
             elif check:
-                report = compare_recordings(read_messages(src_path), read_messages(out_path))
+                recording = read_messages(src_path)
+                report = compare_recordings(recording, read_messages(out_path))
                 result.notes.extend(report.lines())
                 result.failed = not report.identical
+                health = (recording.get("/health") or [{}])[-1]
+                if result.failed and isinstance(health, dict) and health.get("estops"):
+                    result.notes.append(
+                        "  (the recorded run was E-stopped: a replay stops where the recording "
+                        "did, but the log does not say at which tick the E-stop came, so it is "
+                        "not reproduced)"
+                    )
             if tmp is not None:
                 result.out = None
         finally:

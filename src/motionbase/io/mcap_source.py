@@ -440,6 +440,11 @@ def _vector(msg: dict[str, Any], key: str, *, optional: bool = False) -> list[fl
     return [_number(key, v) for v in value]
 
 
+#: The reason a replay gives for the stop it reproduces (:meth:`McapSource.reproduce_stop`).
+RECORDED_STOP = "the stop in the recording"
+_POSES = frozenset({"/platform/pose", "/planar/pose"})
+_STOPPING = re.compile(rb'"phase"\s*:\s*"stopping"')
+
 _NAN3 = (math.nan, math.nan, math.nan)
 _MALFORMED_STATE = AircraftState(t=math.nan, specific_force=_NAN3, angular_velocity=_NAN3)
 
@@ -496,6 +501,12 @@ class McapSource:
         The file was cut short; the states before the cut are read.
     count : int
         Number of states.
+    recorded_stop : int or None
+        The recorded run was stopped (a stop signal, a failure) while its source still
+        gave states: the 1-based number of the state whose tick was the first one
+        stopping (its ``/platform/pose`` or ``/planar/pose`` phase). None when the run
+        went on to the end of its source. :meth:`reproduce_stop` asks a replay to stop
+        at the same state.
     malformed : int
         States read so far that were malformed (each yielded as a sample of NaNs, which
         the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
@@ -528,6 +539,8 @@ class McapSource:
         self.rate_hz = float("nan")
         self.rate_from = ""  # where rate_hz came from, for messages
         self.duration_s: float | None = None
+        self.recorded_stop: int | None = None
+        self._stop_request: Any = None
         self._channel_ids: set[int] = set()
         self._topics: dict[int, str] = {}  # channel id -> topic
         with_messages: set[int] = set()  # the channels that have messages
@@ -549,13 +562,20 @@ class McapSource:
                 self._channel_ids.add(ch.id)
 
         first: list[bytes] = []
+        # a tick logs its state (when it has one) before its poses
+        state_in_tick = [False]
 
         def on_message(msg: Message) -> None:
             with_messages.add(msg.channel_id)
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
+                state_in_tick[0] = True
                 if not first:
                     first.append(msg.data)
+            elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
+                if state_in_tick[0] and _STOPPING.search(msg.data):
+                    self.recorded_stop = len(times)
+                state_in_tick[0] = False
 
         if not _scan_messages:
             self.truncated = _scan_metadata_only(self.path, on_metadata)
@@ -571,6 +591,13 @@ class McapSource:
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
         _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
+
+    def reproduce_stop(self, stop: Any) -> None:
+        """Set ``stop`` (a :class:`~motionbase.stopping.StopRequest`) when the iteration
+        hands over the state at which the recorded run was stopped (:attr:`recorded_stop`),
+        so that a replay stops where the recording did, with :data:`RECORDED_STOP` as the
+        reason (the pipeline's loop reads the request before it steps that state)."""
+        self._stop_request = stop
 
     def _check_clock(self, data: bytes) -> None:
         """Refuse a recording whose clock starts before 0 s, naming the file: each of its
@@ -646,7 +673,10 @@ class McapSource:
                 if isinstance(rec, Message):
                     if rec.channel_id in ids:
                         index += 1
-                        yield self._read_state(rec.data, index)
+                        state = self._read_state(rec.data, index)
+                        if index == self.recorded_stop and self._stop_request is not None:
+                            self._stop_request.set(RECORDED_STOP)
+                        yield state
                 elif isinstance(rec, Channel):
                     if rec.topic == self.topic:
                         ids.add(rec.id)
@@ -713,4 +743,4 @@ def _scan_metadata_only(path: Path, on_metadata: Callable[[Metadata], None]) -> 
     return _scan(path, on_metadata, lambda c: None, lambda m: None).truncated
 
 
-__all__ = ["McapSource", "decode_message", "read_messages", "read_metadata"]
+__all__ = ["RECORDED_STOP", "McapSource", "decode_message", "read_messages", "read_metadata"]
