@@ -426,3 +426,29 @@ def test_a_flight_stopped_by_ctrl_c_replays_bit_for_bit(tmp_path):
     )  # fmt: skip
     assert check.returncode == 0, check.stdout + check.stderr
     assert "check: identical to the recording" in check.stdout
+
+
+def test_a_check_whose_log_was_removed_says_so_and_exits_1(tmp_path):
+    """The replay's log removed during a ``--check`` run: the run warned that the log is
+    gone, then the check tried to read it and failed with "file not found (check the
+    path)", exit status 2, as if the user had given a wrong path."""
+    rec = write_states(tmp_path / "rec.mcap", n=300, config={"rate_hz": 100.0})
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    out = folder / "out.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase", "replay", str(rec), "--check", "--live",
+         "127.0.0.1:0", "--out", str(out)],
+        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        banner = proc.stderr.readline()
+        assert banner.startswith("live view:"), banner
+        shutil.rmtree(folder)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, stdout + stderr
+    assert "Traceback" not in stderr and "error" not in stderr, stderr
+    assert "is gone" in stderr
+    assert "check: not made, the replay's log is gone" in stdout

@@ -889,6 +889,9 @@ def _replay(
                 why = stop.estop_reason if stop.reason == RECORDED_STOP else stop.reason
                 result.notes.append(f"check: not made, the replay was stopped ({why})")
                 result.failed = True
+            elif check and not out_path.exists():  # (the log removed during the run: warned)
+                result.notes.append("check: not made, the replay's log is gone")
+                result.failed = True
             elif check:
                 recording = read_messages(src_path)
                 report = compare_recordings(recording, read_messages(out_path))
