@@ -452,3 +452,31 @@ def test_a_check_whose_log_was_removed_says_so_and_exits_1(tmp_path):
     assert "Traceback" not in stderr and "error" not in stderr, stderr
     assert "is gone" in stderr
     assert "check: not made, the replay's log is gone" in stdout
+
+
+# --------------------------------------------------------------------------- --preview as recorded
+
+
+def test_the_command_replays_a_preview_recording_with_its_preview(tmp_path, capfd, fresh_logger):
+    """``app.replay`` previews as the recording was made unless told; the command passed
+    ``--preview``'s default, False, so ``motionbase replay REC --check`` of any recording
+    made with ``fly --preview`` said DIFFERS (the MPC planned on the current sample only)."""
+    rec = tmp_path / "preview.mcap"
+    app.fly("c1723", cueing="mpc", preview=True, duration_s=2.0, out=rec, progress=False)
+    assert read_metadata(rec).get("preview") is True
+    code, stdout, err = _cli(capfd, "replay", rec, "--check")
+    assert code == 0, stdout + err
+    assert "check: identical to the recording" in stdout
+
+
+def test_a_recording_that_claims_a_preview_its_cueing_cannot_use_is_named(
+    tmp_path, capfd, fresh_logger
+):
+    rec = tmp_path / "claims.mcap"
+    stored = read_metadata(SHIPPED)["pipeline_config"]
+    assert stored["cueing"] == "classical"
+    write_states(rec, config={"pipeline_config": stored, "preview": True})
+    code, _, err = _cli(capfd, "replay", rec)
+    assert code == 2
+    line = _one_line(err)
+    assert str(rec) in line and "preview" in line and "metadata" in line

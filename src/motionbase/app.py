@@ -845,14 +845,24 @@ def _replay(
                 cueing=cueing or "classical",
                 rate_hz=source.rate_hz,
             )
-        if preview is None:  # as recorded, unless the configuration was overridden
+        as_recorded = preview is None
+        if as_recorded:  # as recorded, unless the configuration was overridden
             same = recorded is not None and all(x is None for x in asked)
             preview = same and bool((source.metadata or {}).get("preview"))
         reference = None
         if preview:
             from motionbase.io.manoeuvres import preview_reference
 
-            _check_preview(config.cueing)
+            try:
+                _check_preview(config.cueing)
+            except ConfigError:
+                if not as_recorded:
+                    raise
+                raise ConfigError(
+                    f"{src_path}: its metadata says it was made with --preview, which its "
+                    f"{config.cueing} cueing does not use: the metadata is wrong (replay it "
+                    "with --cueing or --params given, which makes no preview)"
+                ) from None
             with McapSource(src_path) as ahead:
                 reference = preview_reference(ahead)
         notes = []

@@ -289,8 +289,10 @@ def _add_cueing(
     p.add_argument(
         "--preview",
         action="store_true",
+        # replay: None, as the recording was made (app.replay), unless given
+        default=None if recorded else False,
         help="offline runs (replay; fly without --realtime): the cueing sees the flight's "
-        "future (mpc only)",
+        "future (mpc only)" + ("; replay: as recorded unless given" if recorded else ""),
     )
 
 
