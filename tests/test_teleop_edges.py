@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from motionbase import cli
+from motionbase.io.mcap_source import read_messages
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
@@ -96,3 +97,16 @@ def test_a_rate_the_loop_cannot_tick_at_names_the_option(tmp_path, capfd, fresh_
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and "Traceback" not in err, err
     assert "--rate" in lines[0] and rate in lines[0]
+
+
+def test_a_cursor_csv_saved_by_a_spreadsheet_is_read(tmp_path, capfd, fresh_logger):
+    """ "CSV UTF-8" from a spreadsheet starts with a byte order mark: the header read as
+    '\\ufefft' and the file was refused ("line 1: expected 't,x,y' numbers")."""
+    csv = tmp_path / "cursor.csv"
+    csv.write_bytes(b"\xef\xbb\xbft,x,y\r\n0,655,357\r\n0.2,700,357\r\n")
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--out", out)
+    assert code == 0, err
+    assert "stopped by end of input" in stdout
+    pixels = [m["pixel"] for m in read_messages(out)["/cursor"]]
+    assert pixels[0] == [655.0, 357.0] and pixels[-1] == [700.0, 357.0]
