@@ -480,3 +480,43 @@ def test_a_recording_that_claims_a_preview_its_cueing_cannot_use_is_named(
     assert code == 2
     line = _one_line(err)
     assert str(rec) in line and "preview" in line and "metadata" in line
+
+
+# --------------------------------------------------------------------------- duplicated samples
+
+
+@pytest.mark.parametrize("copies", [1, 3])
+def test_a_state_sent_twice_costs_one_rejection_not_the_rest_of_the_recording(
+    tmp_path, capfd, fresh_logger, copies
+):
+    """A state recorded again right after itself (a sender that repeats, a merge): the copy
+    did not advance time and was rejected, the rejected tick moved the clock on by one
+    period, and from then on every new state tied with that clock and was rejected too:
+    146 of the 240 states after one copy, and a watchdog fade to neutral. Now only the
+    copies are rejected."""
+    payloads = [_state(k / 100) for k in range(1, 301)]
+    payloads[60:60] = [payloads[59]] * copies  # state 60 again, right after itself
+    rec = tmp_path / "rec.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": 100.0})})
+        channel = writer.register_channel(
+            "/aircraft/state", "json", writer.register_schema("s", "jsonschema", b"{}")
+        )
+        for k, data in enumerate(payloads):
+            writer.add_message(channel, k * 10_000_000, data, k * 10_000_000)
+        writer.finish()
+    out = tmp_path / "out.mcap"
+    code, _, err = _cli(capfd, "replay", rec, "--out", out)
+    assert code == 0, err
+    log = read_messages(out)
+    health = log["/health"][-1]
+    assert health["rejected_inputs"] == copies
+    assert health["watchdog_fades"] == 0
+    accepted = [m["accepted"] for m in log["/aircraft/state"]]
+    assert accepted.count(False) == copies
+    assert not any(accepted[60 : 60 + copies]) and all(accepted[60 + copies :])
+    # the tick times still increase
+    times = [m["t"] for m in log["/platform/pose"]]
+    assert all(b > a for a, b in zip(times, times[1:], strict=False))
