@@ -794,7 +794,7 @@ def _replay(
     live: str | None,
     preview: bool | None = None,
 ) -> JobResult:
-    from motionbase.io.mcap_source import McapSource, read_messages
+    from motionbase.io.mcap_source import RECORDED_STOP, McapSource, read_messages
 
     src_path = Path(path)
     if out is not None and _same_file(src_path, Path(out)):
@@ -802,6 +802,17 @@ def _replay(
             f"--out {out} is the recording being replayed ({src_path}): writing it would destroy "
             "it; give another file"
         )
+    for flag, given in (("--platform", platform), ("--params", washout)):
+        if (
+            out is not None
+            and given is not None
+            and Path(given).is_file()
+            and _same_file(Path(given), Path(out))
+        ):
+            raise ConfigError(
+                f"--out {out} is the {flag} file ({given}): writing the log would destroy it; "
+                "give another file"
+            )
     if outputs and platform is None:
         raise ConfigError(
             "replay --output drives motors: give --platform with your own geometry (preset or "
@@ -809,6 +820,7 @@ def _replay(
         )
     live_at = _live_address(live)
     with McapSource(src_path) as source:
+        source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
             raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
@@ -816,12 +828,16 @@ def _replay(
         if recorded is not None and all(x is None for x in asked):
             config = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
         else:
-            from motionbase.platform.robot import ROBOTS
+            from motionbase.platform.robot import ROBOTS, robot_named
 
             spec = ROBOTS.get((recorded or {}).get("robot"))  # type: ignore[arg-type]
             base_planar = (spec is not None and spec.planar) if planar is None else planar
+            named = robot_named(platform)
+            if planar is None and named is not None:  # the robot asked for, in its own mode
+                base_planar = ROBOTS[named].planar
             if platform is None and spec is not None and spec.planar == base_planar:
                 platform = None if spec.planar else spec.name  # the recorded robot's default
+            _check_recorded_rate(src_path, source)
             config = load_config(
                 planar=base_planar,
                 platform=platform,
@@ -829,14 +845,24 @@ def _replay(
                 cueing=cueing or "classical",
                 rate_hz=source.rate_hz,
             )
-        if preview is None:  # as recorded, unless the configuration was overridden
+        as_recorded = preview is None
+        if as_recorded:  # as recorded, unless the configuration was overridden
             same = recorded is not None and all(x is None for x in asked)
             preview = same and bool((source.metadata or {}).get("preview"))
         reference = None
         if preview:
             from motionbase.io.manoeuvres import preview_reference
 
-            _check_preview(config.cueing)
+            try:
+                _check_preview(config.cueing)
+            except ConfigError:
+                if not as_recorded:
+                    raise
+                raise ConfigError(
+                    f"{src_path}: its metadata says it was made with --preview, which its "
+                    f"{config.cueing} cueing does not use: the metadata is wrong (replay it "
+                    "with --cueing or --params given, which makes no preview)"
+                ) from None
             with McapSource(src_path) as ahead:
                 reference = preview_reference(ahead)
         notes = []
@@ -867,19 +893,55 @@ def _replay(
                     f"warning: {src_path}: {source.malformed} malformed aircraft states rejected "
                     f"and held (first: {source.first_malformed})"
                 )
-            if check and stop:  # a part of the recording only: nothing to compare it with
-                result.notes.append(f"check: not made, the replay was stopped ({stop.reason})")
+            # (the stop the recording holds is reproduced, and compared; a user's is not)
+            if check and stop and (stop.reason != RECORDED_STOP or stop.estop):
+                # a part of the recording only: nothing to compare it with
+                why = stop.estop_reason if stop.reason == RECORDED_STOP else stop.reason
+                result.notes.append(f"check: not made, the replay was stopped ({why})")
+                result.failed = True
+            elif check and not out_path.exists():  # (the log removed during the run: warned)
+                result.notes.append("check: not made, the replay's log is gone")
                 result.failed = True
             elif check:
-                report = compare_recordings(read_messages(src_path), read_messages(out_path))
+                recording = read_messages(src_path)
+                report = compare_recordings(recording, read_messages(out_path))
                 result.notes.extend(report.lines())
                 result.failed = not report.identical
+                health = (recording.get("/health") or [{}])[-1]
+                if result.failed and isinstance(health, dict) and health.get("estops"):
+                    result.notes.append(
+                        "  (the recorded run was E-stopped: a replay stops where the recording "
+                        "did, but the log does not say at which tick the E-stop came, so it is "
+                        "not reproduced)"
+                    )
             if tmp is not None:
                 result.out = None
         finally:
             if tmp is not None:
                 tmp.cleanup()
     return result
+
+
+def _check_recorded_rate(path: Path, source: Any) -> None:
+    """A ConfigError naming the recording when the rate it gives (its configuration's, or
+    its messages' spacing) is one the pipeline cannot tick at."""
+    from motionbase.pipeline import MIN_RATE_HZ, check_rate
+
+    try:
+        check_rate(source.rate_hz)
+    except ConfigError:
+        spacing = source.rate_from.startswith("the spacing")
+        raise ConfigError(
+            f"{path}: {source.rate_from} gives rate_hz {source.rate_hz:g}, "
+            + (f"below {MIN_RATE_HZ:g} Hz" if source.rate_hz < MIN_RATE_HZ else "above 10 kHz")
+            + ", which no pipeline ticks at; "
+            + (
+                "MCAP log times are nanoseconds (a recording in other units, or at a few "
+                "samples a second, cannot be replayed)"
+                if spacing
+                else "the recorded rate is wrong, so the recording cannot be replayed"
+            )
+        ) from None
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -1163,7 +1225,14 @@ def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
     if a is None or b is None:
         return 0.0 if a is b else math.inf
     if isinstance(a, (int, float)) and isinstance(b, (int, float)):
-        return float(abs(a - b))
+        if a == b:  # (also the same infinity, whose difference is NaN)
+            return 0.0
+        try:
+            if math.isnan(a) or math.isnan(b):  # NaN against NaN: the same value, bit for bit
+                return 0.0 if math.isnan(a) and math.isnan(b) else math.inf
+            return float(abs(a - b))
+        except OverflowError:  # an integer beyond any float (a crafted file)
+            return math.inf
     return 0.0 if a == b else math.inf
 
 

@@ -289,8 +289,10 @@ def _add_cueing(
     p.add_argument(
         "--preview",
         action="store_true",
+        # replay: None, as the recording was made (app.replay), unless given
+        default=None if recorded else False,
         help="offline runs (replay; fly without --realtime): the cueing sees the flight's "
-        "future (mpc only)",
+        "future (mpc only)" + ("; replay: as recorded unless given" if recorded else ""),
     )
 
 
@@ -465,8 +467,9 @@ def run_teleop(args: argparse.Namespace) -> int:
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "
         f"{stats.held} held, {stats.rate_limited} rate-limited, {stats.no_input} without input, "
         f"{stats.stale_ticks} stale, {stats.estops} E-stops (stopped by {stats.stopped_by})"
+        + ("; log lost" if stats.log_lost else "")
     )
-    return 0
+    return 1 if stats.log_lost else 0  # the run was fine, its log was lost
 
 
 def _args_stream(p: argparse.ArgumentParser) -> None:

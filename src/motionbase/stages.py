@@ -48,6 +48,8 @@ STATE = np.dtype(
         ("t", "f8"),  # time of the last tick, s (source clock)
         ("has_t", "?"),  # False before the first tick
         ("t_accepted", "f8"),  # time of the last accepted sample, s
+        ("t_tick_accepted", "f8"),  # time of the tick that accepted it, s (later when the
+        # clock of rejected ticks ran past the samples: see input_stage)
         ("has_sample", "?"),  # a sample was accepted (else the input is level flight)
         ("sample", "f8", (6,)),  # held sample: specific force (m/s^2), body rates (rad/s)
         ("fade", "f8"),  # watchdog fade in [0, 1]: share of the held sample given on
@@ -256,17 +258,25 @@ def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - co
 
     Notes
     -----
-    A rejected sample's time is the last tick's plus ``dt``, so output times always
-    increase. A forward jump longer than ``stale_timeout`` restarts the input from level
-    flight (the fade to 0) and fades it into the new samples; the cueing's filters keep
-    their state, so its pose stays continuous.
+    A sample is new when it is later than the last accepted one. A rejected sample's
+    time is the last tick's plus ``dt``, so output times always increase; when that guess
+    runs past the source's clock (a sample sent twice: the copy is rejected), the next
+    new sample is accepted, its tick's time the last tick's plus ``dt``. (Checking new
+    samples against the tick clock rejected them, each rejection moving the clock on:
+    one duplicate lost most of the rest of a recording.) A forward jump longer than
+    ``stale_timeout`` restarts the input from level flight (the fade to 0) and fades it
+    into the new samples; the cueing's filters keep their state, so its pose stays
+    continuous.
     """
     p = P[0]
     s = S[0]
     flags = 0
     accepted = False
     if present:
-        flags = input_code(t, s.t if s.has_t else -np.inf, f, w, att, p.max_f, p.max_w, p.max_att)
+        # new: later than the last accepted sample (not than the tick clock, which the
+        # rejected ticks moved on by a guess)
+        last = s.t_accepted if s.has_sample else -np.inf
+        flags = input_code(t, last, f, w, att, p.max_f, p.max_w, p.max_att)
         accepted = flags == 0
     if accepted:
         if s.has_t and t - s.t > p.stale_timeout:
@@ -276,14 +286,16 @@ def input_stage(P, S, present, t, f, w, att, fresh, u):  # pragma: no cover - co
         for i in range(3):
             s.sample[i] = f[i]
             s.sample[3 + i] = w[i]
-        s.t = t
+        # the tick's time: the sample's, unless the clock of rejected ticks is past it
+        s.t = t if not s.has_t or t > s.t else s.t + p.dt
         s.t_accepted = t
+        s.t_tick_accepted = s.t
     else:
         s.t = (s.t if s.has_t else 0.0) + p.dt
     s.has_t = True
     # stale: marked so, or no sample accepted for longer than the timeout (on the park
     # ticks after the end only a mark counts: the park ramp is in charge)
-    stale = not fresh or (present and s.t - s.t_accepted > p.stale_timeout)
+    stale = not fresh or (present and s.t - s.t_tick_accepted > p.stale_timeout)
     if stale:
         if not s.stale:
             flags |= FADE_START

@@ -34,10 +34,13 @@ paced (``realtime=True``: the pipeline's loop paces it on the wall clock).
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
+import os
 import sys
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -46,7 +49,7 @@ from motionbase.commanding import Command, CommandPipeline
 from motionbase.config import DEFAULT_RRR3
 from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
-from motionbase.pipeline import PipelineOutput, run
+from motionbase.pipeline import PipelineOutput, check_rate, run
 from motionbase.platform.calibration import CursorCalibration
 from motionbase.platform.rrr3 import Rrr3, Rrr3Robot
 from motionbase.stopping import StopRequest
@@ -77,6 +80,7 @@ class TeleopStats:
     estops: int = 0  #: stops asked by a key, a signal or the caller
     worst_overrun_s: float = 0.0
     stopped_by: str = "end of input"
+    log_lost: bool = False  #: the log (``--out``) was removed while it was written
 
     @classmethod
     def of(cls, pipeline: CommandPipeline, **more: Any) -> TeleopStats:
@@ -89,7 +93,9 @@ class TeleopStats:
         )  # fmt: skip
 
     def as_health(self) -> dict[str, Any]:
-        return {**asdict(self), "rejected_inputs": self.held}
+        health = {**asdict(self), "rejected_inputs": self.held}
+        del health["log_lost"]  # (known only once the log is closed)
+        return health
 
 
 class CursorCommands(Iterator[Command]):
@@ -324,6 +330,24 @@ def run_teleop(
     return result
 
 
+def _refuse_out_over_an_input(out: str, *given: tuple[str, str | None]) -> None:
+    """A ConfigError when ``--out`` names a file the run reads (``(flag, path)`` pairs):
+    the log would overwrite it (a preset's name is no file and is never refused)."""
+    target = Path(out)
+    for flag, path in given:
+        if path is None or not Path(path).is_file():
+            continue
+        try:
+            same = Path(path).resolve() == target.resolve() or os.path.samefile(path, target)
+        except OSError:  # --out is not there yet
+            same = False
+        if same:
+            raise ConfigError(
+                f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
+                "give another file"
+            )
+
+
 def teleop_job(
     input_spec: str = "mouse",
     *,
@@ -356,6 +380,14 @@ def teleop_job(
 
     if live is not None and out is None:
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
+    check_rate(rate_hz, "teleop --rate")  # (the user's option, not "command pipeline")
+    if out is not None:
+        _refuse_out_over_an_input(
+            out,
+            ("--input", input_spec[5:] if input_spec.startswith("file:") else None),
+            ("--calibration", calibration_path),
+            ("--rrr3", geometry),
+        )
     live_at = None if live is None else LiveAddress.parse(live)
     stop = stop if stop is not None else StopRequest()
     sink = None
@@ -397,8 +429,18 @@ def teleop_job(
                 cleanup.callback(logger.finish)
                 if live_at is not None:
                     print(live_at.banner(logger.live_port), file=sys.stderr, flush=True)
-            return run_teleop(
+            stats = run_teleop(
                 source, rrr3, cal, sink=sink, logger=logger, rate_hz=rate_hz,
                 duration_s=duration_s, realtime=realtime, clamp=clamp, stop=stop,
                 stale_timeout_s=stale_timeout_s, pipeline=pipeline,
             )  # fmt: skip
+    # a log removed while it was written (its folder deleted): the writer went on into a
+    # file without a name, so nothing of the run was kept (as fly, replay and stream say)
+    if out is not None and not Path(out).exists():
+        stats.log_lost = True
+        logging.getLogger("motionbase").warning(
+            "log %s is gone: it or its folder was removed during the run, so nothing of the "
+            "run was kept (the run itself ended as usual, at home)",
+            out,
+        )
+    return stats

@@ -83,7 +83,8 @@ class FileCursor(_Base):
         self.size_px = size_px
         rows: list[tuple[float, float, float]] = []
         try:
-            with self.path.open(newline="") as fh:
+            # UTF-8, with or without the byte order mark spreadsheets write ("CSV UTF-8")
+            with self.path.open(newline="", encoding="utf-8-sig") as fh:
                 for n, rec in enumerate(csv.reader(fh), start=1):
                     if not rec or not "".join(rec).strip() or rec[0].lstrip().startswith("#"):
                         continue

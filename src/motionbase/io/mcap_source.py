@@ -14,6 +14,10 @@ MCAP magic (as only a finished file does) raises
 where the damaged record or section starts and what to do. Bytes after the end
 of a finished file (something appended to it) are ignored, with a warning: the
 recording itself is whole. A file that is not MCAP raises LogFormatError too.
+A file that ends, while it is replayed, before the states counted when the source
+opened it (cut or overwritten meanwhile) raises :class:`~motionbase.errors.SourceError`
+from the iteration: the pipeline parks, and the replay does not end as if the
+recording ended there.
 
 A malformed aircraft state (not JSON, not UTF-8, a missing field, a string or a bool
 for a number, a list of the wrong length, ``null``, a negative time) never stops a
@@ -92,7 +96,10 @@ def decode_message(data: bytes) -> Any:
         except ValueError as exc:
             raise ValueError(f"not JSON: {exc}") from None
     if _NONFINITE_MARKER.search(data):
-        msg = _restore_nonfinite(msg)
+        try:
+            msg = _restore_nonfinite(msg)
+        except RecursionError:  # (the parser's own depth limit is higher than this walk's)
+            raise ValueError("not JSON: nested too deeply") from None
     return msg
 
 
@@ -279,8 +286,14 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
         return {}
     try:
         value = json.loads(raw)
+        if isinstance(value, dict):
+            value = _restore_nonfinite(value)
     except json.JSONDecodeError:
         raise LogFormatError(f"{path}: metadata 'config' is not valid JSON") from None
+    except RecursionError:
+        raise LogFormatError(
+            f"{path}: metadata 'config' is nested too deeply to be a motionbase configuration"
+        ) from None
     if not isinstance(value, dict):
         kinds = {list: "a JSON array", str: "a JSON string", bool: "a JSON boolean"}
         kind = "JSON null" if value is None else kinds.get(type(value), "a JSON number")
@@ -288,7 +301,7 @@ def _decode_config(path: Path, meta: Metadata) -> dict[str, Any]:
             f"{path}: metadata 'config' is {kind}, not an object (motionbase records its "
             "configuration as one; re-record the file)"
         )
-    return _restore_nonfinite(value)
+    return value
 
 
 def _no_messages(path: Path, topic: str, present: Iterable[str], truncated: bool) -> LogFormatError:
@@ -427,6 +440,11 @@ def _vector(msg: dict[str, Any], key: str, *, optional: bool = False) -> list[fl
     return [_number(key, v) for v in value]
 
 
+#: The reason a replay gives for the stop it reproduces (:meth:`McapSource.reproduce_stop`).
+RECORDED_STOP = "the stop in the recording"
+_POSES = frozenset({"/platform/pose", "/planar/pose"})
+_STOPPING = re.compile(rb'"phase"\s*:\s*"stopping"')
+
 _NAN3 = (math.nan, math.nan, math.nan)
 _MALFORMED_STATE = AircraftState(t=math.nan, specific_force=_NAN3, angular_velocity=_NAN3)
 
@@ -483,6 +501,12 @@ class McapSource:
         The file was cut short; the states before the cut are read.
     count : int
         Number of states.
+    recorded_stop : int or None
+        The recorded run was stopped (a stop signal, a failure) while its source still
+        gave states: the 1-based number of the state whose tick was the first one
+        stopping (its ``/platform/pose`` or ``/planar/pose`` phase). None when the run
+        went on to the end of its source. :meth:`reproduce_stop` asks a replay to stop
+        at the same state.
     malformed : int
         States read so far that were malformed (each yielded as a sample of NaNs, which
         the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
@@ -513,9 +537,13 @@ class McapSource:
         self.first_malformed = ""
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
+        self.rate_from = ""  # where rate_hz came from, for messages
         self.duration_s: float | None = None
+        self.recorded_stop: int | None = None
+        self._stop_request: Any = None
         self._channel_ids: set[int] = set()
-        self._topics: set[str] = set()
+        self._topics: dict[int, str] = {}  # channel id -> topic
+        with_messages: set[int] = set()  # the channels that have messages
         times: list[int] = []
 
         def on_metadata(meta: Metadata) -> None:
@@ -524,7 +552,7 @@ class McapSource:
                 self.version = meta.metadata.get("version")
 
         def on_channel(ch: Channel) -> None:
-            self._topics.add(ch.topic)
+            self._topics[ch.id] = ch.topic
             if ch.topic == topic:
                 if ch.message_encoding != "json":
                     raise LogFormatError(
@@ -534,12 +562,20 @@ class McapSource:
                 self._channel_ids.add(ch.id)
 
         first: list[bytes] = []
+        # a tick logs its state (when it has one) before its poses
+        state_in_tick = [False]
 
         def on_message(msg: Message) -> None:
+            with_messages.add(msg.channel_id)
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
+                state_in_tick[0] = True
                 if not first:
                     first.append(msg.data)
+            elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
+                if state_in_tick[0] and _STOPPING.search(msg.data):
+                    self.recorded_stop = len(times)
+                state_in_tick[0] = False
 
         if not _scan_messages:
             self.truncated = _scan_metadata_only(self.path, on_metadata)
@@ -547,13 +583,21 @@ class McapSource:
         ending = _scan(self.path, on_metadata, on_channel, on_message)
         self.truncated = ending.truncated
         if not times:
-            raise _no_messages(self.path, topic, self._topics, ending.truncated)
+            present = {self._topics[i] for i in with_messages if i in self._topics}
+            raise _no_messages(self.path, topic, present, ending.truncated)
         self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
         _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
+
+    def reproduce_stop(self, stop: Any) -> None:
+        """Set ``stop`` (a :class:`~motionbase.stopping.StopRequest`) when the iteration
+        hands over the state at which the recorded run was stopped (:attr:`recorded_stop`),
+        so that a replay stops where the recording did, with :data:`RECORDED_STOP` as the
+        reason (the pipeline's loop reads the request before it steps that state)."""
+        self._stop_request = stop
 
     def _check_clock(self, data: bytes) -> None:
         """Refuse a recording whose clock starts before 0 s, naming the file: each of its
@@ -570,7 +614,8 @@ class McapSource:
             )
 
     def _find_rate(self, times_ns: np.ndarray) -> float:
-        for table in (self.metadata, self.metadata.get("pipeline"), self.metadata.get("source")):
+        for name in ("", "pipeline", "source"):
+            table = self.metadata.get(name) if name else self.metadata
             if isinstance(table, dict):
                 rate = table.get("rate_hz")
                 if (
@@ -578,6 +623,8 @@ class McapSource:
                     and not isinstance(rate, bool)
                     and 0 < rate < math.inf
                 ):
+                    where = f"{name}." if name else ""
+                    self.rate_from = f"its recorded configuration ({where}rate_hz)"
                     return float(rate)
         steps = np.diff(times_ns)
         steps = steps[steps > 0]
@@ -586,7 +633,12 @@ class McapSource:
                 f"{self.path}: cannot tell the sample rate: fewer than two distinct times on "
                 f"{self.topic} and no rate_hz in the recorded configuration"
             )
-        return 1e9 / float(np.median(steps))
+        median = float(np.median(steps))
+        self.rate_from = (
+            f"the spacing of its {self.topic} log times (median {median:g} ns; no rate_hz in "
+            "its recorded configuration)"
+        )
+        return 1e9 / median
 
     # lifecycle -------------------------------------------------------------
     def __enter__(self) -> McapSource:
@@ -604,30 +656,48 @@ class McapSource:
     def __iter__(self) -> Iterator[AircraftState]:
         """The recorded states in file order (the order they were logged)."""
         fh = _open(self.path)
+        index = 0
         try:
             fh.seek(len(MCAP_MAGIC))
             records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
             ids: set[int] = set()
-            index = 0
             self.malformed = 0
             while True:
                 try:
                     rec = next(records)
                 except StopIteration:
-                    return
-                except Exception:  # noqa: BLE001 - the cut, already reported
+                    break
+                except Exception as exc:  # noqa: BLE001 - the cut, already reported
+                    self._check_whole(index, exc)
                     return
                 if isinstance(rec, Message):
                     if rec.channel_id in ids:
                         index += 1
-                        yield self._read_state(rec.data, index)
+                        state = self._read_state(rec.data, index)
+                        if index == self.recorded_stop and self._stop_request is not None:
+                            self._stop_request.set(RECORDED_STOP)
+                        yield state
                 elif isinstance(rec, Channel):
                     if rec.topic == self.topic:
                         ids.add(rec.id)
                 elif isinstance(rec, Footer):
-                    return
+                    break
+            self._check_whole(index, None)
         finally:
             fh.close()
+
+    def _check_whole(self, read: int, exc: BaseException | None) -> None:
+        """Raise when the file ended before the states counted when it was opened: it was
+        cut, overwritten or damaged during the replay (a replay that ended there as if the
+        recording ended would say nothing of it)."""
+        if read >= self.count:
+            return
+        why = f" ({_short_reason(exc) or type(exc).__name__})" if exc is not None else ""
+        raise SourceError(
+            f"{self.path}: the recording changed while it was replayed: it ends after "
+            f"{read} of the {self.count} aircraft states it held when the replay began{why}; "
+            "replay a copy that nothing writes to"
+        )
 
     def _read_state(self, data: bytes, index: int) -> AircraftState:
         """The state in message ``index`` (1-based), or a sample of NaNs when malformed."""
@@ -673,4 +743,4 @@ def _scan_metadata_only(path: Path, on_metadata: Callable[[Metadata], None]) -> 
     return _scan(path, on_metadata, lambda c: None, lambda m: None).truncated
 
 
-__all__ = ["McapSource", "decode_message", "read_messages", "read_metadata"]
+__all__ = ["RECORDED_STOP", "McapSource", "decode_message", "read_messages", "read_metadata"]

@@ -285,19 +285,24 @@ def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     return next((robot for robot in robots if name in preset_names(robot)), None)
 
 
+def robot_named(name_or_path: str | None) -> str | None:
+    """The robot a ``--platform`` value names (the robot's name, one of its geometry presets
+    or a TOML file of its geometry), or None when it names none that is known."""
+    if name_or_path is None:
+        return None
+    text = str(name_or_path)
+    if text in ROBOTS:
+        return text
+    if names_a_file(text):
+        return _robot_of_file(text)
+    return _robot_of_preset(text, list(ROBOTS))
+
+
 def names_planar_robot(name_or_path: str | None) -> bool:
     """True when a ``--platform`` value names a planar robot: the robot's name, one of its
     geometry presets or a TOML file of its geometry (for the commands that take either mode
     from the value alone, having no ``--planar``)."""
-    if name_or_path is None:
-        return False
-    text = str(name_or_path)
-    if text in ROBOTS:
-        robot = text
-    elif names_a_file(text):
-        robot = _robot_of_file(text)
-    else:
-        robot = _robot_of_preset(text, list(ROBOTS))
+    robot = robot_named(name_or_path)
     return robot is not None and ROBOTS[robot].planar
 
 

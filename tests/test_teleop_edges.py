@@ -1,0 +1,112 @@
+"""``motionbase teleop`` against what a user can get wrong or pull away during a run.
+
+Found by an adversarial review of the teleop path (real CLI runs): each test here failed on
+the code before its fix.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from motionbase import cli
+from motionbase.io.mcap_source import read_messages
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+GEOMETRY = ROOT / "src" / "motionbase" / "presets" / "rrr3_udesc_symmetric.toml"
+
+
+def _cursor_csv(path: Path) -> Path:
+    path.write_text("t,x,y\n" + "".join(f"{k / 50},{600 + k},{350}\n" for k in range(20)))
+    return path
+
+
+def _cli(capfd, *args) -> tuple[int, str, str]:
+    code = cli.main([str(a) for a in args])
+    captured = capfd.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.mark.parametrize("flag", ["--input", "--rrr3"])
+def test_the_log_may_not_overwrite_a_file_the_run_reads(tmp_path, capfd, fresh_logger, flag):
+    """``--out`` naming the cursor file or the geometry file: teleop read it, then wrote its
+    MCAP log over it (the file was gone, the run said nothing). ``replay`` refuses its own
+    recording as ``--out`` for the same reason."""
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    geometry = tmp_path / "robot.toml"
+    shutil.copyfile(GEOMETRY, geometry)
+    victim = csv if flag == "--input" else geometry
+    before = victim.read_bytes()
+    args = ["teleop", "--input", f"file:{csv}", "--rrr3", geometry, "--serial", "none"]
+    code, _, err = _cli(capfd, *args, "--out", tmp_path / "." / victim.name)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "--out" in lines[0] and flag in lines[0] and "destroy" in lines[0]
+    assert victim.read_bytes() == before
+
+
+def test_a_log_removed_during_the_run_is_said_lost_with_exit_status_1(tmp_path):
+    """The log's folder removed while teleop runs: the writer goes on into a file without a
+    name. Teleop said nothing and exited 0; now it warns, as fly, replay and stream do, and
+    exits 1 (the run was fine, its log was lost)."""
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    out = folder / "teleop.mcap"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]  # (free again once closed, for the run to bind)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase", "teleop", "--input", f"udp:127.0.0.1:{port}",
+         "--serial", "none", "--out", str(out)],
+        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        for _ in range(6000):  # the log exists once the run has opened everything
+            if out.exists() or proc.poll() is not None:
+                break
+            time.sleep(0.01)
+        assert proc.poll() is None, proc.communicate()
+        shutil.rmtree(folder)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, (stdout, stderr)
+    assert "Traceback" not in stderr
+    warnings = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(warnings) == 1 and str(out) in warnings[0] and "gone" in warnings[0], stderr
+    assert "stopped by SIGINT" in stdout and "log lost" in stdout
+
+
+@pytest.mark.parametrize("rate", ["5", "20000"])
+def test_a_rate_the_loop_cannot_tick_at_names_the_option(tmp_path, capfd, fresh_logger, rate):
+    """It named an internal ("command pipeline: rate_hz 5 is below 10 Hz")."""
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    code, _, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--rate", rate)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "--rate" in lines[0] and rate in lines[0]
+
+
+def test_a_cursor_csv_saved_by_a_spreadsheet_is_read(tmp_path, capfd, fresh_logger):
+    """ "CSV UTF-8" from a spreadsheet starts with a byte order mark: the header read as
+    '\\ufefft' and the file was refused ("line 1: expected 't,x,y' numbers")."""
+    csv = tmp_path / "cursor.csv"
+    csv.write_bytes(b"\xef\xbb\xbft,x,y\r\n0,655,357\r\n0.2,700,357\r\n")
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--out", out)
+    assert code == 0, err
+    assert "stopped by end of input" in stdout
+    pixels = [m["pixel"] for m in read_messages(out)["/cursor"]]
+    assert pixels[0] == [655.0, 357.0] and pixels[-1] == [700.0, 357.0]
