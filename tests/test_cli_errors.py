@@ -559,3 +559,68 @@ def test_a_mistake_said_to_a_reader_that_went_away_still_exits_2(tmp_path):
     finally:
         os.close(write_end)
     assert proc.returncode == 2
+
+
+# --------------------------------------------------------------------------- review: config
+
+
+def run_process(*args: object, setup: str = "", cwd: Path | None = None) -> tuple[int, str]:
+    """``motionbase ARGS`` in a process of its own, as a user's script runs it: ``setup``
+    (Python) first, then ``motionbase.cli.main``. Returns (exit status, stderr)."""
+    import subprocess
+    import sys
+
+    import motionbase
+
+    code = f"{setup}\nimport sys\nfrom motionbase import cli\nsys.exit(cli.main(sys.argv[1:]))"
+    here = str(Path(motionbase.__file__).parents[1])  # the motionbase under test, not another
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *[str(a) for a in args]],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=300,
+    )
+    return proc.returncode, proc.stderr
+
+
+@pytest.mark.parametrize(
+    "cueing_class, needles",
+    [
+        ("no_such_module_for_motionbase:Proportional", ("no_such_module_for_motionbase",)),
+        ("motionbase.washout.classical:NoSuchCueing", ("NoSuchCueing",)),
+    ],
+    ids=["module missing", "class missing"],
+)
+def test_a_cueing_plug_in_that_will_not_import_is_one_line(tmp_path, cueing_class, needles):
+    """A plug-in registered as the README shows, whose package is not installed (or whose
+    registration names a class its module lacks), is a set-up mistake: one line naming the
+    cueing and the reference, exit 2, and no log."""
+    setup = (
+        "from motionbase.washout.cueing import CUEINGS, CueingSpec\n"
+        f"CUEINGS['plug'] = CueingSpec('plug', {cueing_class!r}, "
+        "'motionbase.washout.params:WashoutParams', preset_kind='washout')"
+    )
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        "fly", "c1723", "--duration", "1", "--cueing", "plug", "--out", out, setup=setup
+    )
+    assert code == 2, err
+    one_line(err, "cueing 'plug'", "cannot import", *needles)
+    assert not out.exists()
+
+
+def test_a_robot_plug_in_that_will_not_import_is_one_line(tmp_path):
+    """The same for a robot: its registration (here the 6-RUS's, pointed at a package that
+    is not installed, its preset kept) names classes that cannot be imported."""
+    setup = (
+        "from motionbase.platform.robot import ROBOTS, RobotSpec\n"
+        "ROBOTS['rus6'] = RobotSpec('rus6', 'no_such_module_for_motionbase:Arm', "
+        "'no_such_module_for_motionbase:ArmGeometry', 'ceart')"
+    )
+    code, err = run_process("workspace", "--platform", "rus6", setup=setup, cwd=tmp_path)
+    assert code == 2, err
+    one_line(err, "robot 'rus6'", "cannot import", "no_such_module_for_motionbase")

@@ -7,6 +7,7 @@ names the file, the field and the fix.
 
 from __future__ import annotations
 
+import importlib
 import tomllib
 from collections.abc import Iterable, Mapping
 from importlib import resources
@@ -88,6 +89,33 @@ def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
     if names_a_file(name_or_path):
         return Path(name_or_path)
     return preset_path(kind, str(name_or_path))
+
+
+def import_plugin(ref: str, what: str) -> Any:
+    """The class a plug-in registration names, ``"module:Name"`` (or ``"module.Name"``).
+
+    A module that will not import (not installed, or failing its own imports) or a name it
+    does not define is a ConfigError naming the plug-in ``what`` and the reference, not a
+    traceback: a registered plug-in whose package is missing is a set-up mistake.
+    """
+    module_name, sep, attr = ref.partition(":")
+    if not sep:
+        module_name, _, attr = ref.rpartition(".")
+    try:
+        obj: Any = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(
+            f"{what}: cannot import {ref!r}: {exc} (install the plug-in's package or fix its "
+            "registration)"
+        ) from None
+    for part in attr.split(".") if attr else ():
+        if not hasattr(obj, part):
+            raise ConfigError(
+                f"{what}: cannot import {ref!r}: {module_name!r} has no {part!r} (fix the "
+                "plug-in's registration)"
+            )
+        obj = getattr(obj, part)
+    return obj
 
 
 def check_keys(

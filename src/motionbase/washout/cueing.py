@@ -39,7 +39,6 @@ with the same results.
 
 from __future__ import annotations
 
-import pkgutil
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +47,7 @@ from typing import Any, ClassVar
 import numba
 import numpy as np
 
+from motionbase.config import import_plugin
 from motionbase.errors import ConfigError
 
 _vec = numba.float64[::1]
@@ -157,12 +157,12 @@ class CueingSpec:
     @property
     def cueing_type(self) -> type[Cueing]:
         c = self.cueing_class
-        return pkgutil.resolve_name(c) if isinstance(c, str) else c
+        return import_plugin(c, f"cueing {self.name!r}") if isinstance(c, str) else c
 
     @property
     def params_type(self) -> Any:
         c = self.params_class
-        return pkgutil.resolve_name(c) if isinstance(c, str) else c
+        return import_plugin(c, f"cueing {self.name!r}'s parameters") if isinstance(c, str) else c
 
     def load_params(self, preset_or_path: str | Path | None = None) -> Any:
         """Parameters from a preset name or a TOML path (the default preset for None)."""
