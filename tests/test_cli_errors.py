@@ -624,3 +624,28 @@ def test_a_robot_plug_in_that_will_not_import_is_one_line(tmp_path):
     code, err = run_process("workspace", "--platform", "rus6", setup=setup, cwd=tmp_path)
     assert code == 2, err
     one_line(err, "robot 'rus6'", "cannot import", "no_such_module_for_motionbase")
+
+
+@pytest.mark.parametrize("step_s", [1e-100, 1e30])
+def test_an_mpc_step_the_solver_cannot_factorise_is_refused_when_read(tmp_path, step_s):
+    """A prediction step far outside any horizon a cue needs made OSQP's set-up fail with a
+    traceback (and its C library's own lines on stderr): refused when the file is read,
+    one line naming the file and the field."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("mpc", "tuned_ceart"), "rb") as fh:
+        params = tomllib.load(fh)
+    params["horizon"]["step_s"] = step_s
+    path = tmp_path / "mpc_steps.toml"
+    path.write_bytes(tomli_w.dumps(params).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        "fly", "c1723", "--duration", "1", "--cueing", "mpc", "--params", path, "--out", out
+    )
+    assert code == 2, err
+    one_line(err, "mpc_steps.toml", "horizon.step_s")
+    assert not out.exists()
