@@ -649,3 +649,27 @@ def test_an_mpc_step_the_solver_cannot_factorise_is_refused_when_read(tmp_path, 
     assert code == 2, err
     one_line(err, "mpc_steps.toml", "horizon.step_s")
     assert not out.exists()
+
+
+def test_a_servo_zero_of_many_turns_is_refused_not_flown(tmp_path):
+    """A 3-RRR servo zero of 1e300 deg was taken: the joint angles measured from it had no
+    precision left and servo 1's command stayed at one value whatever the pose (a flight
+    of the planar robot exited 0 with that servo frozen). One line naming the field."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("rrr3", "udesc_symmetric"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    geometry["servo"]["zero_deg"] = [1e300, 122.0, 242.0]
+    path = tmp_path / "rrr3_far.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        "fly", "c1723", "--duration", "1", "--planar", "--platform", path, "--out", out
+    )
+    assert code == 2, err
+    one_line(err, "rrr3_far.toml", "servo.zero_deg", "servo 1")
+    assert not out.exists()
