@@ -673,3 +673,26 @@ def test_a_servo_zero_of_many_turns_is_refused_not_flown(tmp_path):
     assert code == 2, err
     one_line(err, "rrr3_far.toml", "servo.zero_deg", "servo 1")
     assert not out.exists()
+
+
+def test_a_frequency_above_the_nyquist_frequency_names_the_file_and_the_profile(tmp_path):
+    """A washout frequency the pipeline's rate cannot sample is only found when the cueing
+    is built at that rate: the line said ``washout: filter frequency ...`` without the file
+    the user gave, nor the profile whose value it was."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("washout", "default"), "rb") as fh:
+        params = tomllib.load(fh)
+    # 500 rad/s: above pi * 120 Hz = 377 rad/s, fly's rate
+    params["profile"] = {"ground": {"translational": {"wn": [500.0, 1.5, 4.0]}}}
+    path = tmp_path / "fast_ground.toml"
+    path.write_bytes(tomli_w.dumps(params).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", "c1723", "--duration", "1", "--params", path, "--out", out)
+    assert code == 2, err
+    one_line(err, "fast_ground.toml", "[profile.ground]", "translational.wn", "Nyquist")
+    assert not out.exists()
