@@ -411,7 +411,12 @@ def test_a_file_of_the_wrong_kind_is_named_for_what_it_is(tmp_path, run_cli):
     washout = preset_path("washout", "default")
     rus6 = preset_path("rus6", "ceart")
     rrr3 = preset_path("rrr3", "udesc")
+    mpc = preset_path("mpc", "ceart")
     cases = [
+        # an MPC file has a [tilt] table as a washout file does: it was read as a washout
+        # file with an unknown field 'horizon', and as a --platform named a washout file
+        (["--washout", mpc], ("mpc_ceart.toml", "MPC cueing parameter file", "--cueing mpc")),
+        (["--platform", mpc], ("mpc_ceart.toml", "MPC cueing parameter file", "--cueing mpc")),
         (["--platform", washout], ("washout_default.toml", "washout parameter file", "--washout")),
         (["--washout", rus6], ("rus6_ceart.toml", "6-RUS geometry file", "--platform")),
         (["--platform", rrr3], ("rrr3_udesc.toml", "3-RRR geometry file", "--planar")),

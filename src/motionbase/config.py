@@ -206,6 +206,10 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
         frozenset({"scaling", "translational", "tilt", "rotational"}),
         "a washout parameter file (give it with --washout)",
     ),
+    "mpc": (
+        frozenset({"horizon", "weights", "limits", "reference", "robot", "solver"}),
+        "an MPC cueing parameter file (give it with --cueing mpc --params)",
+    ),
     "rus6": (
         frozenset(
             {"rb", "rp", "chi_a", "chi_a_deg", "chi_j", "chi_j_deg", "beta", "beta_deg"}
@@ -228,6 +232,7 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
 }
 _KIND_NAMES = {
     "washout": "washout parameters",
+    "mpc": "MPC parameters",
     "rus6": "a 6-RUS geometry",
     "rrr3": "a 3-RRR geometry",
     "stewart6": "a 6-UPS Stewart platform geometry",
@@ -236,7 +241,8 @@ _KIND_NAMES = {
 
 def file_kind(table: Any) -> str | None:
     """Which kind of configuration file a parsed table is (a key of the file kinds:
-    ``"washout"``, ``"rus6"``, ``"rrr3"``, ``"stewart6"``), or None when it cannot tell.
+    ``"washout"``, ``"mpc"``, ``"rus6"``, ``"rrr3"``, ``"stewart6"``), or None when it
+    cannot tell.
 
     A ``kind`` field naming one decides; otherwise the kind whose own fields it has (the
     one with the most of them).
@@ -267,21 +273,25 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
         Named in the message (the file).
     table : mapping
         The parsed file.
-    expected : {"washout", "rus6", "rrr3", "stewart6"}
+    expected : {"washout", "mpc", "rus6", "rrr3", "stewart6"}
         What the caller reads.
 
     Raises
     ------
     ConfigError
-        ``table`` has fields only another kind of file has and none of ``expected``'s.
+        ``table`` has fields only another kind of file has and none of ``expected``'s, or
+        more of another kind's than of ``expected``'s.
     """
     if not isinstance(table, Mapping):
         return
     keys = set(table)
-    if keys & _FILE_KINDS[expected][0]:
+    score = {k: len(keys & marks) for k, (marks, _) in _FILE_KINDS.items()}
+    if score[expected] and max(score.values()) == score[expected]:
         return  # its own fields are there: the field checks say what is wrong
     declared = table.get("kind")
-    found = [k for k, (marks, _) in _FILE_KINDS.items() if k != expected and keys & marks]
+    # the other kinds whose fields it has, the one with the most of them first (an MPC file
+    # has a [tilt] table as a washout file does, and five tables only it has)
+    found = sorted((k for k in score if k != expected and score[k]), key=lambda k: -score[k])
     if isinstance(declared, str) and declared in _FILE_KINDS and declared != expected:
         found.insert(0, declared)
     if not found:
