@@ -631,11 +631,15 @@ def test_a_robot_plug_in_that_will_not_import_is_one_line(tmp_path):
     one_line(err, "robot 'rus6'", "cannot import", "no_such_module_for_motionbase")
 
 
-@pytest.mark.parametrize("step_s", [1e-100, 1e30])
-def test_an_mpc_step_the_solver_cannot_factorise_is_refused_when_read(tmp_path, step_s):
+@pytest.mark.parametrize(
+    "section, key, value",
+    [("horizon", "step_s", 1e-100), ("horizon", "step_s", 1e30), ("solver", "max_iter", 2**31)],
+)
+def test_mpc_values_the_solver_cannot_take_are_refused_when_read(tmp_path, section, key, value):
     """A prediction step far outside any horizon a cue needs made OSQP's set-up fail with a
-    traceback (and its C library's own lines on stderr): refused when the file is read,
-    one line naming the file and the field."""
+    traceback (and its C library's own lines on stderr), and so did an iteration limit past
+    its 32-bit integer: refused when the file is read, one line naming the file and the
+    field."""
     import tomllib
 
     import tomli_w
@@ -644,7 +648,7 @@ def test_an_mpc_step_the_solver_cannot_factorise_is_refused_when_read(tmp_path, 
 
     with open(preset_path("mpc", "tuned_ceart"), "rb") as fh:
         params = tomllib.load(fh)
-    params["horizon"]["step_s"] = step_s
+    params[section][key] = value
     path = tmp_path / "mpc_steps.toml"
     path.write_bytes(tomli_w.dumps(params).encode())
     out = tmp_path / "x.mcap"
@@ -652,7 +656,7 @@ def test_an_mpc_step_the_solver_cannot_factorise_is_refused_when_read(tmp_path, 
         "fly", "c1723", "--duration", "1", "--cueing", "mpc", "--params", path, "--out", out
     )
     assert code == 2, err
-    one_line(err, "mpc_steps.toml", "horizon.step_s")
+    one_line(err, "mpc_steps.toml", f"{section}.{key}")
     assert not out.exists()
 
 
