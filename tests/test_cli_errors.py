@@ -632,14 +632,20 @@ def test_a_robot_plug_in_that_will_not_import_is_one_line(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "section, key, value",
-    [("horizon", "step_s", 1e-100), ("horizon", "step_s", 1e30), ("solver", "max_iter", 2**31)],
+    "section, key, value, needle",
+    [
+        ("horizon", "step_s", 1e-100, "horizon.step_s"),
+        ("horizon", "step_s", 1e30, "horizon.step_s"),
+        ("solver", "max_iter", 2**31, "solver.max_iter"),
+        ("weights", "specific_force", [1e300] * 3, "[weights]"),
+        ("", "g", 1e300, "overflow"),
+    ],
 )
-def test_mpc_values_the_solver_cannot_take_are_refused_when_read(tmp_path, section, key, value):
+def test_mpc_values_the_solver_cannot_take_are_one_line(tmp_path, section, key, value, needle):
     """A prediction step far outside any horizon a cue needs made OSQP's set-up fail with a
-    traceback (and its C library's own lines on stderr), and so did an iteration limit past
-    its 32-bit integer: refused when the file is read, one line naming the file and the
-    field."""
+    traceback (and its C library's own lines), and so did an iteration limit past its 32-bit
+    integer, a weight of 1e300 and a g of 1e300 (the model's matrices overflowed, with numpy's
+    warnings on stderr too): one line naming the file and what to fix, exit 2, no log."""
     import tomllib
 
     import tomli_w
@@ -648,7 +654,7 @@ def test_mpc_values_the_solver_cannot_take_are_refused_when_read(tmp_path, secti
 
     with open(preset_path("mpc", "tuned_ceart"), "rb") as fh:
         params = tomllib.load(fh)
-    params[section][key] = value
+    (params[section] if section else params)[key] = value
     path = tmp_path / "mpc_steps.toml"
     path.write_bytes(tomli_w.dumps(params).encode())
     out = tmp_path / "x.mcap"
@@ -656,7 +662,7 @@ def test_mpc_values_the_solver_cannot_take_are_refused_when_read(tmp_path, secti
         "fly", "c1723", "--duration", "1", "--cueing", "mpc", "--params", path, "--out", out
     )
     assert code == 2, err
-    one_line(err, "mpc_steps.toml", f"{section}.{key}")
+    one_line(err, "mpc_steps.toml", needle)
     assert not out.exists()
 
 
