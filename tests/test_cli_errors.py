@@ -711,3 +711,33 @@ def test_a_frequency_above_the_nyquist_frequency_names_the_file_and_the_profile(
     assert code == 2, err
     one_line(err, "fast_ground.toml", "[profile.ground]", "translational.wn", "Nyquist")
     assert not out.exists()
+
+
+def test_a_park_angle_past_the_lowest_pose_is_refused_not_flown(tmp_path):
+    """Crank limits looser than the geometry allows (-179 .. 179 deg on ceart's dimensions)
+    put the default park angle, the lowest limit plus 5 deg, past the lowest pure-heave pose:
+    the platform parked 5 cm above neutral with its cranks in an assembly the inverse
+    kinematics never commands, and every start swung them through the lowest pose at the
+    full speed limit (exit 0). One line naming the file and the field; no log."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("rus6", "ceart"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    geometry["angle_min_deg"], geometry["angle_max_deg"] = -179.0, 179.0
+    del geometry["park_angle_deg"]
+    path = tmp_path / "wide.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", "c1723", "--duration", "1", "--platform", path, "--out", out)
+    assert code == 2, err
+    one_line(err, "wide.toml", "park_angle", "lowest pure-heave pose")
+    assert not out.exists()
+    # an explicit park angle that the inverse kinematics gives back is flown
+    geometry["park_angle_deg"] = -55.0
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    code, err = run_process("fly", "c1723", "--duration", "1", "--platform", path, "--out", out)
+    assert code == 0, err
