@@ -741,3 +741,20 @@ def test_a_park_angle_past_the_lowest_pose_is_refused_not_flown(tmp_path):
     path.write_bytes(tomli_w.dumps(geometry).encode())
     code, err = run_process("fly", "c1723", "--duration", "1", "--platform", path, "--out", out)
     assert code == 0, err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--scripts", "c1723@0:2", "--holdout", "none"], ["--holdout", "c1723@0:1.5"]],
+    ids=["tuning window", "held-out window"],
+)
+def test_a_tuning_window_shorter_than_the_soft_start_is_one_line(tmp_path, args):
+    """A window (or a recording) no longer than the 2 s soft start leaves nothing to score:
+    a worker's ValueError came back as a traceback (exit 1). One line naming the
+    manoeuvre, exit 2, and no file written."""
+    out = tmp_path / "tuned.toml"
+    scripts = [] if "--scripts" in args else ["--scripts", "c1723@0:5"]
+    code, err = run_process("tune", *scripts, *args, "--budget", "1", "--out", out)
+    assert code == 2, err
+    one_line(err, "c1723@0:", "soft start", "longer window")
+    assert not out.exists()
