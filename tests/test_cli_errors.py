@@ -758,3 +758,20 @@ def test_a_tuning_window_shorter_than_the_soft_start_is_one_line(tmp_path, args)
     assert code == 2, err
     one_line(err, "c1723@0:", "soft start", "longer window")
     assert not out.exists()
+
+
+def test_a_script_whose_initial_conditions_are_missing_is_one_line(tmp_path):
+    """JSBSim's exception text ends in a newline, and its logger had said the same thing:
+    the error was two lines, the second repeating the first."""
+    script = tmp_path / "no_init.xml"
+    script.write_text(
+        '<?xml version="1.0"?>\n<runscript name="no_init">'
+        '<use aircraft="c172x" initialize="no_such_initial_conditions"/>'
+        '<run start="0" end="10" dt="0.008333"></run></runscript>\n'
+    )
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", script, "--duration", "1", "--out", out)
+    assert code == 2, err
+    line = one_line(err, "no_such_initial_conditions")
+    assert line.count("no_such_initial_conditions") == 1, line
+    assert not out.exists()
