@@ -775,3 +775,20 @@ def test_a_script_whose_initial_conditions_are_missing_is_one_line(tmp_path):
     line = one_line(err, "no_such_initial_conditions")
     assert line.count("no_such_initial_conditions") == 1, line
     assert not out.exists()
+
+
+@pytest.mark.parametrize("dt", ["10", "1e-9"])
+def test_a_script_time_step_out_of_the_pipelines_range_names_the_script(tmp_path, dt):
+    """fly's pipeline runs at the rate of the script's time step: one the pipeline cannot
+    tick at was said as 'pipeline: rate_hz ...', a rate the user never gave."""
+    script = tmp_path / "odd_dt.xml"
+    script.write_text(
+        '<?xml version="1.0"?>\n<runscript name="odd_dt">'
+        '<use aircraft="c172x" initialize="reset00"/>'
+        f'<run start="0" end="5" dt="{dt}"></run></runscript>\n'
+    )
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", script, "--duration", "1", "--out", out)
+    assert code == 2, err
+    one_line(err, "odd_dt.xml", "<run dt>")
+    assert not out.exists()
