@@ -792,3 +792,28 @@ def test_a_script_time_step_out_of_the_pipelines_range_names_the_script(tmp_path
     assert code == 2, err
     one_line(err, "odd_dt.xml", "<run dt>")
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "output", ['unit = "deg"\ngear_ratio = 1e300', 'unit = "counts"\ncounts_per_rev = 1e300']
+)
+def test_a_drive_mapping_past_whole_numbers_is_refused_and_sends_nothing(tmp_path, output):
+    """A gear ratio or counts per revolution of 1e300 (a typo for 1e3, say) was taken: the
+    wiring check sent frames of 300-digit numbers, float rounding noise past their 16th
+    digit, to the drive, and exited 0. Refused before anything is sent."""
+    from motionbase.config import preset_path
+
+    path = tmp_path / "geared.toml"
+    path.write_text(preset_path("rus6", "ceart").read_text() + f"\n[output]\n{output}\n")
+    sock = udp_listener()
+    port = sock.getsockname()[1]
+    try:
+        code, err = run_process(
+            "output", "--test", f"udp:127.0.0.1:{port}", "--platform", path, "--range-deg", "1"
+        )
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 2, err
+    one_line(err, "geared.toml", "[output]", "2^53")
+    assert frames == []
