@@ -817,3 +817,57 @@ def test_a_drive_mapping_past_whole_numbers_is_refused_and_sends_nothing(tmp_pat
     assert code == 2, err
     one_line(err, "geared.toml", "[output]", "2^53")
     assert frames == []
+
+
+_HUGE = 10**400  # a TOML (or JSON) integer has no bound; a float stops near 1.8e308
+
+
+@pytest.mark.parametrize(
+    "kind, preset, edit, args, needle",
+    [
+        ("washout", "default", ("tilt", "wn"), ["fly", "c1723", "--params"], "tilt.wn"),
+        (
+            "mpc",
+            "tuned_ceart",
+            ("horizon", "step_s"),
+            ["fly", "--cueing", "mpc", "--params"],
+            "step_s",
+        ),
+        ("rus6", "ceart", (None, "rb"), ["workspace", "--platform"], "'rb'"),
+        ("stewart6", "seat", (None, "length_min"), ["workspace", "--platform"], "length_min"),
+        ("rrr3", "udesc", (None, "crank"), ["workspace", "--planar", "--platform"], "crank"),
+        (
+            "rus6",
+            "ceart",
+            ("output", "range_hi"),
+            ["output", "--test", "udp:127.0.0.1:9", "--platform"],
+            "range_hi",
+        ),
+    ],
+    ids=["washout", "mpc", "rus6", "stewart6", "rrr3", "output"],
+)
+def test_a_whole_number_too_large_for_a_float_is_one_line(
+    tmp_path, kind, preset, edit, args, needle
+):
+    """``float()`` of a 400-digit TOML integer raises OverflowError: every configuration file
+    answered it with a traceback (exit 1)."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path(kind, preset), "rb") as fh:
+        data = tomllib.load(fh)
+    section, key = edit
+    if section == "output":
+        data["output"] = {"unit": "range", "range_lo": 0}
+    (data[section] if section else data)[key] = _HUGE
+    path = tmp_path / f"huge_{kind}.toml"
+    path.write_bytes(tomli_w.dumps(data).encode())
+    out = ["--out", tmp_path / "x.mcap"] if args[0] == "fly" else []
+    duration = ["--duration", "1"] if args[0] == "fly" else []
+    code, err = run_process(*args, path, *duration, *out)
+    assert code == 2, err
+    one_line(err, f"huge_{kind}.toml", needle)
+    assert not (tmp_path / "x.mcap").exists()

@@ -8,6 +8,7 @@ names the file, the field and the fix.
 from __future__ import annotations
 
 import importlib
+import math
 import tomllib
 from collections.abc import Iterable, Mapping
 from importlib import resources
@@ -141,6 +142,16 @@ def is_number(value: Any) -> bool:
     )
 
 
+def to_float(value: Any) -> float:
+    """``float(value)``, a whole number too large for a float (TOML and JSON integers have
+    no bound: ``1`` and 400 zeros) taken as the infinity of its sign, so that the finiteness
+    checks refuse it by name instead of an OverflowError."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def as_float(
     source: str,
     name: str,
@@ -153,9 +164,10 @@ def as_float(
     """Validate a finite scalar (a number: never a bool or a string), optionally bounded below."""
     if not is_number(value):
         raise ConfigError(f"{source}: field {name!r}: expected a number, got {value!r}")
-    v = float(value)
+    v = to_float(value)
     if not np.isfinite(v):
-        raise ConfigError(f"{source}: field {name!r}: must be finite, got {v}")
+        got = "a whole number too large for a float" if isinstance(value, int) else v
+        raise ConfigError(f"{source}: field {name!r}: must be finite, got {got}")
     if min_value is not None:
         bad = v <= min_value if strict_min else v < min_value
         if bad:
@@ -175,7 +187,7 @@ def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
     """
     what = f"{source}: field {name!r}: expected {length} numbers"
     if is_number(value):
-        arr = np.full(length, float(value))
+        arr = np.full(length, to_float(value))
     elif isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
         arr = value.astype(float)
         if arr.ndim == 0:
@@ -185,7 +197,7 @@ def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
         for item in items:
             if not is_number(item):
                 raise ConfigError(f"{what}, got {item!r} in {_short(value)} (write a number)")
-        arr = np.array([float(v) for v in items], dtype=float)
+        arr = np.array([to_float(v) for v in items], dtype=float)
     else:
         raise ConfigError(f"{what} (or one number for all), got {_short(value)}")
     if arr.shape != (length,):

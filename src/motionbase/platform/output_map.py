@@ -137,6 +137,11 @@ class OutputMapping:
                 v = getattr(self, f)
                 if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
                     raise ConfigError(f"{src}: unit 'range' needs an integer {f!r}, got {v!r}")
+                if not abs(int(v)) <= _EXACT:  # (a float no longer holds every whole number)
+                    raise ConfigError(
+                        f"{src}: field {f!r}: must be within +-2^53, got a whole number of "
+                        f"{len(str(abs(int(v))))} digits (fix the value)"
+                    )
                 object.__setattr__(self, f, int(v))
             if not self.range_lo < self.range_hi:
                 raise ConfigError(
