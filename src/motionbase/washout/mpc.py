@@ -460,7 +460,7 @@ class MpcCueing(Cueing):
         self._solver = self._osqp.OSQP()
         try:
             self._osqp_setup(A, lo, hi, P, budget)
-        except self._osqp.OSQPException as exc:  # (its C library also says why on stderr)
+        except self._osqp.OSQPException as exc:  # (its C library also says why, on stdout)
             raise ConfigError(
                 f"mpc parameters: OSQP cannot factorise the QP these parameters make (error "
                 f"{exc}); bring the [weights] closer to the shipped presets' (a weight of "
