@@ -411,7 +411,12 @@ def test_a_file_of_the_wrong_kind_is_named_for_what_it_is(tmp_path, run_cli):
     washout = preset_path("washout", "default")
     rus6 = preset_path("rus6", "ceart")
     rrr3 = preset_path("rrr3", "udesc")
+    mpc = preset_path("mpc", "ceart")
     cases = [
+        # an MPC file has a [tilt] table as a washout file does: it was read as a washout
+        # file with an unknown field 'horizon', and as a --platform named a washout file
+        (["--washout", mpc], ("mpc_ceart.toml", "MPC cueing parameter file", "--cueing mpc")),
+        (["--platform", mpc], ("mpc_ceart.toml", "MPC cueing parameter file", "--cueing mpc")),
         (["--platform", washout], ("washout_default.toml", "washout parameter file", "--washout")),
         (["--washout", rus6], ("rus6_ceart.toml", "6-RUS geometry file", "--platform")),
         (["--platform", rrr3], ("rrr3_udesc.toml", "3-RRR geometry file", "--planar")),
@@ -559,3 +564,310 @@ def test_a_mistake_said_to_a_reader_that_went_away_still_exits_2(tmp_path):
     finally:
         os.close(write_end)
     assert proc.returncode == 2
+
+
+# --------------------------------------------------------------------------- review: config
+
+
+def run_process(*args: object, setup: str = "", cwd: Path | None = None) -> tuple[int, str]:
+    """``motionbase ARGS`` in a process of its own, as a user's script runs it: ``setup``
+    (Python) first, then ``motionbase.cli.main``. Returns (exit status, stderr)."""
+    import subprocess
+    import sys
+
+    import motionbase
+
+    code = f"{setup}\nimport sys\nfrom motionbase import cli\nsys.exit(cli.main(sys.argv[1:]))"
+    here = str(Path(motionbase.__file__).parents[1])  # the motionbase under test, not another
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *[str(a) for a in args]],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=300,
+    )
+    return proc.returncode, proc.stderr
+
+
+@pytest.mark.parametrize(
+    "cueing_class, needles",
+    [
+        ("no_such_module_for_motionbase:Proportional", ("no_such_module_for_motionbase",)),
+        ("motionbase.washout.classical:NoSuchCueing", ("NoSuchCueing",)),
+    ],
+    ids=["module missing", "class missing"],
+)
+def test_a_cueing_plug_in_that_will_not_import_is_one_line(tmp_path, cueing_class, needles):
+    """A plug-in registered as the README shows, whose package is not installed (or whose
+    registration names a class its module lacks), is a set-up mistake: one line naming the
+    cueing and the reference, exit 2, and no log."""
+    setup = (
+        "from motionbase.washout.cueing import CUEINGS, CueingSpec\n"
+        f"CUEINGS['plug'] = CueingSpec('plug', {cueing_class!r}, "
+        "'motionbase.washout.params:WashoutParams', preset_kind='washout')"
+    )
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        "fly", "c1723", "--duration", "1", "--cueing", "plug", "--out", out, setup=setup
+    )
+    assert code == 2, err
+    one_line(err, "cueing 'plug'", "cannot import", *needles)
+    assert not out.exists()
+
+
+def test_a_robot_plug_in_that_will_not_import_is_one_line(tmp_path):
+    """The same for a robot: its registration (here the 6-RUS's, pointed at a package that
+    is not installed, its preset kept) names classes that cannot be imported."""
+    setup = (
+        "from motionbase.platform.robot import ROBOTS, RobotSpec\n"
+        "ROBOTS['rus6'] = RobotSpec('rus6', 'no_such_module_for_motionbase:Arm', "
+        "'no_such_module_for_motionbase:ArmGeometry', 'ceart')"
+    )
+    code, err = run_process("workspace", "--platform", "rus6", setup=setup, cwd=tmp_path)
+    assert code == 2, err
+    one_line(err, "robot 'rus6'", "cannot import", "no_such_module_for_motionbase")
+
+
+@pytest.mark.parametrize(
+    "section, key, value, needle",
+    [
+        ("horizon", "step_s", 1e-100, "horizon.step_s"),
+        ("horizon", "step_s", 1e30, "horizon.step_s"),
+        ("solver", "max_iter", 2**31, "solver.max_iter"),
+        ("weights", "specific_force", [1e300] * 3, "[weights]"),
+        ("", "g", 1e300, "overflow"),
+    ],
+)
+def test_mpc_values_the_solver_cannot_take_are_one_line(tmp_path, section, key, value, needle):
+    """A prediction step far outside any horizon a cue needs made OSQP's set-up fail with a
+    traceback (and its C library's own lines), and so did an iteration limit past its 32-bit
+    integer, a weight of 1e300 and a g of 1e300 (the model's matrices overflowed, with numpy's
+    warnings on stderr too): one line naming the file and what to fix, exit 2, no log."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("mpc", "tuned_ceart"), "rb") as fh:
+        params = tomllib.load(fh)
+    (params[section] if section else params)[key] = value
+    path = tmp_path / "mpc_steps.toml"
+    path.write_bytes(tomli_w.dumps(params).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        "fly", "c1723", "--duration", "1", "--cueing", "mpc", "--params", path, "--out", out
+    )
+    assert code == 2, err
+    one_line(err, "mpc_steps.toml", needle)
+    assert not out.exists()
+
+
+def test_a_servo_zero_of_many_turns_is_refused_not_flown(tmp_path):
+    """A 3-RRR servo zero of 1e300 deg was taken: the joint angles measured from it had no
+    precision left and servo 1's command stayed at one value whatever the pose (a flight
+    of the planar robot exited 0 with that servo frozen). One line naming the field."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("rrr3", "udesc_symmetric"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    geometry["servo"]["zero_deg"] = [1e300, 122.0, 242.0]
+    path = tmp_path / "rrr3_far.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        "fly", "c1723", "--duration", "1", "--planar", "--platform", path, "--out", out
+    )
+    assert code == 2, err
+    one_line(err, "rrr3_far.toml", "servo.zero_deg", "servo 1")
+    assert not out.exists()
+
+
+def test_a_frequency_above_the_nyquist_frequency_names_the_file_and_the_profile(tmp_path):
+    """A washout frequency the pipeline's rate cannot sample is only found when the cueing
+    is built at that rate: the line said ``washout: filter frequency ...`` without the file
+    the user gave, nor the profile whose value it was."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("washout", "default"), "rb") as fh:
+        params = tomllib.load(fh)
+    # 500 rad/s: above pi * 120 Hz = 377 rad/s, fly's rate
+    params["profile"] = {"ground": {"translational": {"wn": [500.0, 1.5, 4.0]}}}
+    path = tmp_path / "fast_ground.toml"
+    path.write_bytes(tomli_w.dumps(params).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", "c1723", "--duration", "1", "--params", path, "--out", out)
+    assert code == 2, err
+    one_line(err, "fast_ground.toml", "[profile.ground]", "translational.wn", "Nyquist")
+    assert not out.exists()
+
+
+def test_a_park_angle_past_the_lowest_pose_is_refused_not_flown(tmp_path):
+    """Crank limits looser than the geometry allows (-179 .. 179 deg on ceart's dimensions)
+    put the default park angle, the lowest limit plus 5 deg, past the lowest pure-heave pose:
+    the platform parked 5 cm above neutral with its cranks in an assembly the inverse
+    kinematics never commands, and every start swung them through the lowest pose at the
+    full speed limit (exit 0). One line naming the file and the field; no log."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("rus6", "ceart"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    geometry["angle_min_deg"], geometry["angle_max_deg"] = -179.0, 179.0
+    del geometry["park_angle_deg"]
+    path = tmp_path / "wide.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", "c1723", "--duration", "1", "--platform", path, "--out", out)
+    assert code == 2, err
+    one_line(err, "wide.toml", "park_angle", "lowest pure-heave pose")
+    assert not out.exists()
+    # an explicit park angle that the inverse kinematics gives back is flown
+    geometry["park_angle_deg"] = -55.0
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    code, err = run_process("fly", "c1723", "--duration", "1", "--platform", path, "--out", out)
+    assert code == 0, err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--scripts", "c1723@0:2", "--holdout", "none"], ["--holdout", "c1723@0:1.5"]],
+    ids=["tuning window", "held-out window"],
+)
+def test_a_tuning_window_shorter_than_the_soft_start_is_one_line(tmp_path, args):
+    """A window (or a recording) no longer than the 2 s soft start leaves nothing to score:
+    a worker's ValueError came back as a traceback (exit 1). One line naming the
+    manoeuvre, exit 2, and no file written."""
+    out = tmp_path / "tuned.toml"
+    scripts = [] if "--scripts" in args else ["--scripts", "c1723@0:5"]
+    code, err = run_process("tune", *scripts, *args, "--budget", "1", "--out", out)
+    assert code == 2, err
+    one_line(err, "c1723@0:", "soft start", "longer window")
+    assert not out.exists()
+
+
+def test_a_script_whose_initial_conditions_are_missing_is_one_line(tmp_path):
+    """JSBSim's exception text ends in a newline, and its logger had said the same thing:
+    the error was two lines, the second repeating the first."""
+    script = tmp_path / "no_init.xml"
+    script.write_text(
+        '<?xml version="1.0"?>\n<runscript name="no_init">'
+        '<use aircraft="c172x" initialize="no_such_initial_conditions"/>'
+        '<run start="0" end="10" dt="0.008333"></run></runscript>\n'
+    )
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", script, "--duration", "1", "--out", out)
+    assert code == 2, err
+    line = one_line(err, "no_such_initial_conditions")
+    assert line.count("no_such_initial_conditions") == 1, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("dt", ["10", "1e-9"])
+def test_a_script_time_step_out_of_the_pipelines_range_names_the_script(tmp_path, dt):
+    """fly's pipeline runs at the rate of the script's time step: one the pipeline cannot
+    tick at was said as 'pipeline: rate_hz ...', a rate the user never gave."""
+    script = tmp_path / "odd_dt.xml"
+    script.write_text(
+        '<?xml version="1.0"?>\n<runscript name="odd_dt">'
+        '<use aircraft="c172x" initialize="reset00"/>'
+        f'<run start="0" end="5" dt="{dt}"></run></runscript>\n'
+    )
+    out = tmp_path / "x.mcap"
+    code, err = run_process("fly", script, "--duration", "1", "--out", out)
+    assert code == 2, err
+    one_line(err, "odd_dt.xml", "<run dt>")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "output", ['unit = "deg"\ngear_ratio = 1e300', 'unit = "counts"\ncounts_per_rev = 1e300']
+)
+def test_a_drive_mapping_past_whole_numbers_is_refused_and_sends_nothing(tmp_path, output):
+    """A gear ratio or counts per revolution of 1e300 (a typo for 1e3, say) was taken: the
+    wiring check sent frames of 300-digit numbers, float rounding noise past their 16th
+    digit, to the drive, and exited 0. Refused before anything is sent."""
+    from motionbase.config import preset_path
+
+    path = tmp_path / "geared.toml"
+    path.write_text(preset_path("rus6", "ceart").read_text() + f"\n[output]\n{output}\n")
+    sock = udp_listener()
+    port = sock.getsockname()[1]
+    try:
+        code, err = run_process(
+            "output", "--test", f"udp:127.0.0.1:{port}", "--platform", path, "--range-deg", "1"
+        )
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 2, err
+    one_line(err, "geared.toml", "[output]", "2^53")
+    assert frames == []
+
+
+_HUGE = 10**400  # a TOML (or JSON) integer has no bound; a float stops near 1.8e308
+
+
+@pytest.mark.parametrize(
+    "kind, preset, edit, args, needle",
+    [
+        ("washout", "default", ("tilt", "wn"), ["fly", "c1723", "--params"], "tilt.wn"),
+        (
+            "mpc",
+            "tuned_ceart",
+            ("horizon", "step_s"),
+            ["fly", "--cueing", "mpc", "--params"],
+            "step_s",
+        ),
+        ("rus6", "ceart", (None, "rb"), ["workspace", "--platform"], "'rb'"),
+        ("stewart6", "seat", (None, "length_min"), ["workspace", "--platform"], "length_min"),
+        ("rrr3", "udesc", (None, "crank"), ["workspace", "--planar", "--platform"], "crank"),
+        (
+            "rus6",
+            "ceart",
+            ("output", "range_hi"),
+            ["output", "--test", "udp:127.0.0.1:9", "--platform"],
+            "range_hi",
+        ),
+    ],
+    ids=["washout", "mpc", "rus6", "stewart6", "rrr3", "output"],
+)
+def test_a_whole_number_too_large_for_a_float_is_one_line(
+    tmp_path, kind, preset, edit, args, needle
+):
+    """``float()`` of a 400-digit TOML integer raises OverflowError: every configuration file
+    answered it with a traceback (exit 1)."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path(kind, preset), "rb") as fh:
+        data = tomllib.load(fh)
+    section, key = edit
+    if section == "output":
+        data["output"] = {"unit": "range", "range_lo": 0}
+    (data[section] if section else data)[key] = _HUGE
+    path = tmp_path / f"huge_{kind}.toml"
+    path.write_bytes(tomli_w.dumps(data).encode())
+    out = ["--out", tmp_path / "x.mcap"] if args[0] == "fly" else []
+    duration = ["--duration", "1"] if args[0] == "fly" else []
+    code, err = run_process(*args, path, *duration, *out)
+    assert code == 2, err
+    one_line(err, f"huge_{kind}.toml", needle)
+    assert not (tmp_path / "x.mcap").exists()

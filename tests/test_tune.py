@@ -581,6 +581,10 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--scripts", "c1723@5:x"], "two numbers"),
         (["--scripts", "c1723@0:5", "--holdout", "c1723@0:5"], "also in the tuning set"),
         (["--scheduler", "localhost:8786"], "tcp://HOST:PORT"),
+        # a port no scheduler can have waited out the connection timeout, then said that
+        # no scheduler answers there
+        (["--scheduler", "tcp://127.0.0.1:0"], "port 0 is out of range (1..65535)"),
+        (["--scheduler", "tcp://127.0.0.1:99999"], "port 99999 is out of range (1..65535)"),
         (["--budget", "0"], "expected a whole number >= 1"),
         (["--time-budget", "soon"], "expected a duration such as 90s, 30m or 8h"),
         (["--time-budget", "0s"], "expected a duration such as 90s, 30m or 8h"),

@@ -7,6 +7,8 @@ names the file, the field and the fix.
 
 from __future__ import annotations
 
+import importlib
+import math
 import tomllib
 from collections.abc import Iterable, Mapping
 from importlib import resources
@@ -90,6 +92,33 @@ def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
     return preset_path(kind, str(name_or_path))
 
 
+def import_plugin(ref: str, what: str) -> Any:
+    """The class a plug-in registration names, ``"module:Name"`` (or ``"module.Name"``).
+
+    A module that will not import (not installed, or failing its own imports) or a name it
+    does not define is a ConfigError naming the plug-in ``what`` and the reference, not a
+    traceback: a registered plug-in whose package is missing is a set-up mistake.
+    """
+    module_name, sep, attr = ref.partition(":")
+    if not sep:
+        module_name, _, attr = ref.rpartition(".")
+    try:
+        obj: Any = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(
+            f"{what}: cannot import {ref!r}: {exc} (install the plug-in's package or fix its "
+            "registration)"
+        ) from None
+    for part in attr.split(".") if attr else ():
+        if not hasattr(obj, part):
+            raise ConfigError(
+                f"{what}: cannot import {ref!r}: {module_name!r} has no {part!r} (fix the "
+                "plug-in's registration)"
+            )
+        obj = getattr(obj, part)
+    return obj
+
+
 def check_keys(
     source: str, table: Mapping[str, Any], allowed: Iterable[str], required: Iterable[str] = ()
 ) -> None:
@@ -113,6 +142,16 @@ def is_number(value: Any) -> bool:
     )
 
 
+def to_float(value: Any) -> float:
+    """``float(value)``, a whole number too large for a float (TOML and JSON integers have
+    no bound: ``1`` and 400 zeros) taken as the infinity of its sign, so that the finiteness
+    checks refuse it by name instead of an OverflowError."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def as_float(
     source: str,
     name: str,
@@ -125,9 +164,10 @@ def as_float(
     """Validate a finite scalar (a number: never a bool or a string), optionally bounded below."""
     if not is_number(value):
         raise ConfigError(f"{source}: field {name!r}: expected a number, got {value!r}")
-    v = float(value)
+    v = to_float(value)
     if not np.isfinite(v):
-        raise ConfigError(f"{source}: field {name!r}: must be finite, got {v}")
+        got = "a whole number too large for a float" if isinstance(value, int) else v
+        raise ConfigError(f"{source}: field {name!r}: must be finite, got {got}")
     if min_value is not None:
         bad = v <= min_value if strict_min else v < min_value
         if bad:
@@ -147,7 +187,7 @@ def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
     """
     what = f"{source}: field {name!r}: expected {length} numbers"
     if is_number(value):
-        arr = np.full(length, float(value))
+        arr = np.full(length, to_float(value))
     elif isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
         arr = value.astype(float)
         if arr.ndim == 0:
@@ -157,7 +197,7 @@ def as_array(source: str, name: str, value: Any, length: int) -> np.ndarray:
         for item in items:
             if not is_number(item):
                 raise ConfigError(f"{what}, got {item!r} in {_short(value)} (write a number)")
-        arr = np.array([float(v) for v in items], dtype=float)
+        arr = np.array([to_float(v) for v in items], dtype=float)
     else:
         raise ConfigError(f"{what} (or one number for all), got {_short(value)}")
     if arr.shape != (length,):
@@ -177,6 +217,10 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
     "washout": (
         frozenset({"scaling", "translational", "tilt", "rotational"}),
         "a washout parameter file (give it with --washout)",
+    ),
+    "mpc": (
+        frozenset({"horizon", "weights", "limits", "reference", "robot", "solver"}),
+        "an MPC cueing parameter file (give it with --cueing mpc --params)",
     ),
     "rus6": (
         frozenset(
@@ -200,6 +244,7 @@ _FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
 }
 _KIND_NAMES = {
     "washout": "washout parameters",
+    "mpc": "MPC parameters",
     "rus6": "a 6-RUS geometry",
     "rrr3": "a 3-RRR geometry",
     "stewart6": "a 6-UPS Stewart platform geometry",
@@ -208,7 +253,8 @@ _KIND_NAMES = {
 
 def file_kind(table: Any) -> str | None:
     """Which kind of configuration file a parsed table is (a key of the file kinds:
-    ``"washout"``, ``"rus6"``, ``"rrr3"``, ``"stewart6"``), or None when it cannot tell.
+    ``"washout"``, ``"mpc"``, ``"rus6"``, ``"rrr3"``, ``"stewart6"``), or None when it
+    cannot tell.
 
     A ``kind`` field naming one decides; otherwise the kind whose own fields it has (the
     one with the most of them).
@@ -239,21 +285,25 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
         Named in the message (the file).
     table : mapping
         The parsed file.
-    expected : {"washout", "rus6", "rrr3", "stewart6"}
+    expected : {"washout", "mpc", "rus6", "rrr3", "stewart6"}
         What the caller reads.
 
     Raises
     ------
     ConfigError
-        ``table`` has fields only another kind of file has and none of ``expected``'s.
+        ``table`` has fields only another kind of file has and none of ``expected``'s, or
+        more of another kind's than of ``expected``'s.
     """
     if not isinstance(table, Mapping):
         return
     keys = set(table)
-    if keys & _FILE_KINDS[expected][0]:
+    score = {k: len(keys & marks) for k, (marks, _) in _FILE_KINDS.items()}
+    if score[expected] and max(score.values()) == score[expected]:
         return  # its own fields are there: the field checks say what is wrong
     declared = table.get("kind")
-    found = [k for k, (marks, _) in _FILE_KINDS.items() if k != expected and keys & marks]
+    # the other kinds whose fields it has, the one with the most of them first (an MPC file
+    # has a [tilt] table as a washout file does, and five tables only it has)
+    found = sorted((k for k in score if k != expected and score[k]), key=lambda k: -score[k])
     if isinstance(declared, str) and declared in _FILE_KINDS and declared != expected:
         found.insert(0, declared)
     if not found:

@@ -64,7 +64,7 @@ import numba
 import numpy as np
 
 from motionbase import __version__, stages
-from motionbase.config import as_float, is_number
+from motionbase.config import as_float, is_number, to_float
 from motionbase.errors import ConfigError, CueingInputError, MotionbaseError, SinkError
 from motionbase.pacing import GarbageBetweenTicks, wait_until
 from motionbase.physics import STANDARD_GRAVITY
@@ -91,8 +91,8 @@ MIN_RATE_HZ = 10.0
 def check_rate(rate_hz: Any, where: str = "pipeline") -> None:
     """A ConfigError (saying ``where``) unless a pipeline can tick at ``rate_hz``:
     :data:`MIN_RATE_HZ` to 10 kHz."""
-    if not (is_number(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
-        raise ConfigError(f"{where}: rate_hz must be > 0, got {rate_hz!r}")
+    if not (is_number(rate_hz) and np.isfinite(to_float(rate_hz)) and rate_hz > 0):
+        raise ConfigError(f"{where}: rate_hz must be > 0, got {rate_hz!r:.40}")
     if rate_hz > 10_000:
         raise ConfigError(f"{where}: rate_hz {rate_hz:g} is above 10 kHz (lower it)")
     if rate_hz < MIN_RATE_HZ:
@@ -152,8 +152,8 @@ class PipelineConfig:
         cueing_spec(self.cueing)
         for name in ("rate_hz", "soft_start_s", "stale_timeout_s", "fade_s"):
             value = getattr(self, name)
-            if not (is_number(value) and np.isfinite(value) and value > 0):
-                raise ConfigError(f"pipeline: {name} must be > 0, got {value!r}")
+            if not (is_number(value) and np.isfinite(to_float(value)) and value > 0):
+                raise ConfigError(f"pipeline: {name} must be > 0, got {value!r:.40}")
         for name in ("planar_scale_m", "planar_yaw_scale"):
             as_float("pipeline", name, getattr(self, name))
         if not isinstance(self.input_limits, InputLimits):

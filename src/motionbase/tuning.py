@@ -499,14 +499,16 @@ def scored_samples(
 
     Raises
     ------
-    ValueError
-        Fewer than three running ticks (a manoeuvre shorter than the soft start).
+    ConfigError
+        Fewer than three running ticks (a manoeuvre shorter than the soft start: a user's
+        window or recording, said in one line).
     """
     sel = np.flatnonzero(run.running)
     if sel.size < 3:
-        raise ValueError(
-            f"manoeuvre {manoeuvre.name}: fewer than 3 ticks after the soft start; "
-            "give a longer window"
+        raise ConfigError(
+            f"manoeuvre {manoeuvre.name}: fewer than 3 of its {len(run.running)} ticks "
+            f"come after the soft start ({np.count_nonzero(~run.running)} ticks); give a "
+            "longer window or recording"
         )
     n = len(manoeuvre)
     last = np.maximum.accumulate(np.where(run.accepted, np.arange(n), -1))

@@ -257,6 +257,11 @@ def _dask(problem: TuningProblem, address: str, stop: StopRequest | None) -> Ite
             f"--scheduler {address!r}: expected the scheduler's address, tcp://HOST:PORT "
             "(e.g. tcp://192.168.1.10:8786)"
         )
+    if not 1 <= int(port) <= 65535:  # (port 0 or 99999 waited out the timeout, then blamed
+        raise ConfigError(  # the scheduler for not answering)
+            f"--scheduler {address!r}: port {int(port)} is out of range (1..65535); the "
+            "scheduler's is 8786 unless it was started with another"
+        )
     try:
         from distributed import Client
     except ImportError:

@@ -392,12 +392,21 @@ class JsbsimSource:
         try:
             return fn(*args)
         except jsbsim.BaseError as exc:
-            raise SourceError(f"JSBSim: {exc}{self._problems()}") from None
+            raise SourceError(f"JSBSim: {self._said(exc)}") from None
 
-    def _problems(self) -> str:
+    def _problems(self, said: str = "") -> str:
+        """JSBSim's last logged problem, as `` (JSBSim says: ...)``; nothing when none was
+        logged or when it is ``said`` already."""
         if self._logger is None or not self._logger.problems:
             return ""
-        return f" (JSBSim says: {self._logger.problems[-1]})"
+        problem = self._logger.problems[-1]
+        return "" if problem == said else f" (JSBSim says: {problem})"
+
+    def _said(self, exc: BaseException) -> str:
+        """A JSBSim exception's text on one line (it may end in a newline), with the last
+        problem JSBSim logged unless that is the same text."""
+        text = " ".join(str(exc).split())
+        return f"{text}{self._problems(text)}"
 
     # ------------------------------------------------------------------ samples
     def __iter__(self) -> Iterator[AircraftState]:
@@ -436,7 +445,7 @@ class JsbsimSource:
                         if not alive:
                             break
             except jsbsim.BaseError as exc:
-                raise SourceError(f"JSBSim stopped: {exc}{self._problems()}") from None
+                raise SourceError(f"JSBSim stopped: {self._said(exc)}") from None
             if not alive:
                 return
             state = from_vector(

@@ -55,6 +55,8 @@ __all__ = ["OutputMapping", "UNITS", "sweep_profile"]
 
 UNITS = ("deg", "rad", "counts", "range", "mm", "m")
 _INTEGER_UNITS = ("counts", "range")
+#: The largest drive value whose neighbours are whole numbers in a double (2^53).
+_EXACT = 2.0**53
 _TWO_PI = 2.0 * math.pi
 
 
@@ -135,6 +137,11 @@ class OutputMapping:
                 v = getattr(self, f)
                 if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
                     raise ConfigError(f"{src}: unit 'range' needs an integer {f!r}, got {v!r}")
+                if not abs(int(v)) <= _EXACT:  # (a float no longer holds every whole number)
+                    raise ConfigError(
+                        f"{src}: field {f!r}: must be within +-2^53, got a whole number of "
+                        f"{len(str(abs(int(v))))} digits (fix the value)"
+                    )
                 object.__setattr__(self, f, int(v))
             if not self.range_lo < self.range_hi:
                 raise ConfigError(
@@ -336,7 +343,19 @@ class OutputMapping:
                 dmin = np.where(np.isnan(dmin), np.minimum(v1, v2), dmin)
                 dmax = np.where(np.isnan(dmax), np.maximum(v1, v2), dmax)
             kw["drive_min"], kw["drive_max"] = dmin, dmax
-            return cls(**kw)
+            mapping = cls(**kw)
+            # Past 2^53 a double no longer holds every whole number: a gear ratio or counts
+            # per revolution of 1e300 sent 300-digit values of rounding noise to the drive.
+            ends = np.stack([mapping.to_drive(qmin), mapping.to_drive(qmax)])
+            huge = (mapping.in_range(ends) & (np.abs(ends) > _EXACT)).any(axis=0)
+            if huge.any():
+                i = int(np.flatnonzero(huge)[0])
+                raise ConfigError(
+                    f"output mapping: motor {i + 1}'s crank range reaches drive value "
+                    f"{np.max(np.abs(ends[:, i])):g}, past 2^53, where the values lose whole "
+                    "units (check its gear_ratio and counts_per_rev)"
+                )
+            return mapping
         except ConfigError as exc:
             raise ConfigError(str(exc).replace("output mapping", source, 1)) from None
 

@@ -27,7 +27,6 @@ compiled code (:func:`motionbase.stages.after_cueing`).
 
 from __future__ import annotations
 
-import pkgutil
 from abc import ABC
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -35,7 +34,7 @@ from typing import Any, ClassVar
 import numba
 import numpy as np
 
-from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, names_a_file
+from motionbase.config import DEFAULT_RRR3, DEFAULT_RUS6, import_plugin, names_a_file
 from motionbase.errors import ConfigError
 from motionbase.safety import ActuatorLimits
 
@@ -209,12 +208,12 @@ class RobotSpec:
     @property
     def geometry_type(self) -> Any:
         """The geometry class."""
-        return pkgutil.resolve_name(self.geometry_class)
+        return import_plugin(self.geometry_class, f"robot {self.name!r}'s geometry")
 
     @property
     def robot_type(self) -> type[Robot]:
         """The :class:`Robot` subclass."""
-        return pkgutil.resolve_name(self.robot_class)
+        return import_plugin(self.robot_class, f"robot {self.name!r}")
 
     def make(self, geometry: Any, **options: Any) -> Robot:
         """The robot for ``geometry`` (options: the planar mapping's scales)."""

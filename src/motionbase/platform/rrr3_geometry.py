@@ -66,7 +66,8 @@ class Rrr3Geometry:
         Working mode per chain, +1 or -1: the sign of the root in the tangent half-angle
         solution (``theta_i = atan2(yc, xc) + mode_i * delta_i``).
     servo_zero_deg : tuple of 3 float
-        Joint angle ``theta_i`` (deg, base frame) at which servo ``i`` reads 0.
+        Joint angle ``theta_i`` (deg, base frame) at which servo ``i`` reads 0, from -360
+        to 360.
     servo_direction : tuple of 3 int
         +1 when servo degrees grow with ``theta_i`` (counter-clockwise), -1 otherwise.
     servo_min_deg, servo_max_deg : tuple of 3 int
@@ -119,9 +120,16 @@ class Rrr3Geometry:
                 f"{src}: field 'servo.direction': each must be +1 or -1, got {direction}"
             )
         object.__setattr__(self, "servo_direction", direction)
-        object.__setattr__(
-            self, "servo_zero_deg", _triple(src, "servo.zero_deg", self.servo_zero_deg, kind=float)
-        )
+        zero = _triple(src, "servo.zero_deg", self.servo_zero_deg, kind=float)
+        for i, z in enumerate(zero):
+            # (a zero of many turns is the same mapping in exact arithmetic, but the joint
+            # angles measured from it lose their precision: 1e300 froze servo 1's command)
+            if not -360.0 <= z <= 360.0:
+                raise ConfigError(
+                    f"{src}: field 'servo.zero_deg': servo {i + 1}'s zero must be from -360 to "
+                    f"360 deg, got {z:g} (take whole turns off it)"
+                )
+        object.__setattr__(self, "servo_zero_deg", zero)
         lo = _triple(src, "servo.min_deg", self.servo_min_deg, kind=int)
         hi = _triple(src, "servo.max_deg", self.servo_max_deg, kind=int)
         for i in range(3):

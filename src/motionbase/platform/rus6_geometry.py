@@ -230,6 +230,23 @@ class Rus6Geometry:
                 f"deg give no pure-heave pose on this asymmetric platform (legs disagree by "
                 f"{np.ptp(z) * 1e3:.3f} mm)"
             )
+        # The inverse kinematics must give the park angle back for the park pose: past the
+        # lowest pure-heave pose the cranks hold the platform in the other assembly, which
+        # the inverse kinematics never commands (limits looser than the geometry allows put
+        # the default park there: the start then swung the cranks through the lowest pose
+        # at full speed, and parked the platform above neutral).
+        back = self.angles_for_heave(float(np.mean(z)))
+        if not np.allclose(back, park, rtol=0.0, atol=1e-6):
+            neutral = float(np.max(self.neutral_angle))
+            grid = np.linspace(float(np.max(lo)), neutral, 2001)
+            heave = np.array([np.mean(self.heave_for_angles(np.full(N_LEGS, a))) for a in grid])
+            lowest = math.degrees(grid[int(np.nanargmax(heave))])
+            raise ConfigError(
+                f"{src}: field 'park_angle': at {math.degrees(self.park_angle):g} deg the "
+                f"cranks are past the lowest pure-heave pose (at about {lowest:.1f} deg), in "
+                "an assembly the inverse kinematics never commands (give a park_angle_deg "
+                "above it and below the neutral angle, or raise angle_min_deg above it)"
+            )
 
     # ------------------------------------------------------------------ derived geometry
     def _neutral_points(self):

@@ -73,7 +73,14 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.config import as_float, check_keys, read_toml, resolve_preset_or_path, write_toml
+from motionbase.config import (
+    as_float,
+    check_keys,
+    read_toml,
+    resolve_preset_or_path,
+    to_float,
+    write_toml,
+)
 from motionbase.errors import ConfigError
 from motionbase.platform.output_map import OutputMapping
 
@@ -125,7 +132,7 @@ def _per_leg(source: str, name: str, value: Any, unit: str) -> tuple[float, ...]
             raise ConfigError(
                 f"{source}: field {name!r}: leg {i + 1}: expected a number ({unit}), got {v!r}"
             )
-        f = float(v)
+        f = to_float(v)
         if not math.isfinite(f) or f <= 0.0:
             raise ConfigError(
                 f"{source}: field {name!r}: leg {i + 1} must be a finite number > 0 {unit}, "
@@ -502,7 +509,7 @@ def _output_from_table(
             v = table[f]
             items = [v] * N_LEGS if not isinstance(v, (list, tuple)) else list(v)
             if len(items) != N_LEGS or not all(
-                _is_number(x) and math.isfinite(float(x)) for x in items
+                _is_number(x) and math.isfinite(to_float(x)) for x in items
             ):
                 raise ConfigError(
                     f"{source}: field {f!r}: expected a number or a list of {N_LEGS} numbers "

@@ -39,7 +39,6 @@ with the same results.
 
 from __future__ import annotations
 
-import pkgutil
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +47,7 @@ from typing import Any, ClassVar
 import numba
 import numpy as np
 
+from motionbase.config import import_plugin
 from motionbase.errors import ConfigError
 
 _vec = numba.float64[::1]
@@ -125,6 +125,10 @@ class Cueing(ABC):
         return None
 
 
+#: The attribute :meth:`CueingSpec.load_params` sets on the parameters it read: their file.
+LOADED_FROM = "_motionbase_loaded_from"
+
+
 @dataclass(frozen=True)
 class CueingSpec:
     """One entry of :data:`CUEINGS`.
@@ -157,29 +161,47 @@ class CueingSpec:
     @property
     def cueing_type(self) -> type[Cueing]:
         c = self.cueing_class
-        return pkgutil.resolve_name(c) if isinstance(c, str) else c
+        return import_plugin(c, f"cueing {self.name!r}") if isinstance(c, str) else c
 
     @property
     def params_type(self) -> Any:
         c = self.params_class
-        return pkgutil.resolve_name(c) if isinstance(c, str) else c
+        return import_plugin(c, f"cueing {self.name!r}'s parameters") if isinstance(c, str) else c
 
     def load_params(self, preset_or_path: str | Path | None = None) -> Any:
         """Parameters from a preset name or a TOML path (the default preset for None)."""
         from motionbase.config import resolve_preset_or_path
 
         path = resolve_preset_or_path(self.preset_kind, preset_or_path or self.default_preset)
-        return self.params_type.from_toml(path)
+        params = self.params_type.from_toml(path)
+        try:  # for :meth:`make`'s errors (not a field: equality and the log ignore it)
+            object.__setattr__(params, LOADED_FROM, str(path))
+        except (AttributeError, TypeError):  # (a plug-in's parameters with __slots__)
+            pass
+        return params
 
     def make(self, params: Any, dt: float) -> Cueing:
         """The cueing for ``params`` at sample period ``dt`` (s): a
         :class:`~motionbase.washout.profiles.ProfiledCueing` when they hold flight-phase
-        profiles."""
-        if getattr(params, "profiles", ()):
-            from motionbase.washout.profiles import ProfiledCueing
+        profiles.
 
-            return ProfiledCueing(self.cueing_type, params, dt, name=self.name)
-        return self.cueing_type(params, dt)
+        Raises
+        ------
+        ConfigError
+            The parameters do not fit ``dt`` (a filter frequency above the Nyquist
+            frequency); the message names their file when :meth:`load_params` read one.
+        """
+        try:
+            if getattr(params, "profiles", ()):
+                from motionbase.washout.profiles import ProfiledCueing
+
+                return ProfiledCueing(self.cueing_type, params, dt, name=self.name)
+            return self.cueing_type(params, dt)
+        except ConfigError as exc:
+            source = getattr(params, LOADED_FROM, None)
+            if source is None or str(exc).startswith(source):
+                raise
+            raise ConfigError(f"{source}: {exc}") from None
 
 
 #: Every cueing algorithm by name; :func:`register_cueing` adds one.

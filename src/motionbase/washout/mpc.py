@@ -98,6 +98,7 @@ import scipy.linalg
 import scipy.signal
 import scipy.sparse as sp
 
+from motionbase.errors import ConfigError
 from motionbase.physics import smoothstep
 from motionbase.washout.cueing import Cueing
 from motionbase.washout.mpc_params import MpcParams
@@ -375,7 +376,8 @@ class MpcCueing(Cueing):
             raise ValueError(f"mpc: dt must be > 0 s, got {dt!r}")
         self.params = params
         self.dt = dt
-        self.model = m = build_model(params, dt)
+        with np.errstate(over="ignore", invalid="ignore"):  # (said below, as one error)
+            self.model = m = build_model(params, dt)
         self.fallback = ClassicalWashout(WashoutParams.load(params.fallback), dt)
         N = params.steps
         self._N = N
@@ -450,7 +452,25 @@ class MpcCueing(Cueing):
         p = self.params
         self._slack = np.zeros(P.shape[0] - self._N * NU)
         budget = {"time_limit": p.time_limit_ms * 1e-3} if p.time_limit_ms > 0 else {}
+        if not (np.isfinite(P.data).all() and np.isfinite(A.data).all()):
+            raise ConfigError(
+                "mpc parameters: the QP's coefficients overflow with these parameters (a "
+                "weight, a limit or g too large; fix the [weights], [limits] or g)"
+            )
         self._solver = self._osqp.OSQP()
+        try:
+            self._osqp_setup(A, lo, hi, P, budget)
+        except self._osqp.OSQPException as exc:  # (its C library also says why, on stdout)
+            raise ConfigError(
+                f"mpc parameters: OSQP cannot factorise the QP these parameters make (error "
+                f"{exc}); bring the [weights] closer to the shipped presets' (a weight of "
+                "1e300 did this)"
+            ) from None
+
+    def _osqp_setup(
+        self, A: sp.csc_matrix, lo: np.ndarray, hi: np.ndarray, P: Any, budget: dict
+    ) -> None:
+        p = self.params
         self._solver.setup(
             sp.triu(P, format="csc"),
             np.zeros(P.shape[0]),

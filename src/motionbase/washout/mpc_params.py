@@ -101,6 +101,14 @@ Vec6 = tuple[float, float, float, float, float, float]
 #: asked for 29 GB), and 100 steps of 0.1 s are a 10 s horizon, far more than a cue needs.
 MAX_STEPS = 100
 
+#: The range of a prediction step, s: a tick of the fastest pipeline (10 kHz) to a minute.
+#: Far outside it the QP's matrices are not factorisable in double precision (OSQP's set-up
+#: failed, with a traceback, at 1e-100 s and at 1e30 s).
+STEP_RANGE_S = (1e-4, 60.0)
+
+#: The most iterations OSQP takes (its C library's 32-bit integer); more was a traceback.
+MAX_ITER = 2**31 - 1
+
 #: (section, key, field name, length (0: scalar), strictly positive, integer)
 _SCHEMA: tuple[tuple[str, str, str, int, bool, bool], ...] = (
     ("horizon", "steps", "steps", 0, True, True),
@@ -446,6 +454,17 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         raise ConfigError(
             f"{source}: field 'horizon.steps': must be from 2 to {MAX_STEPS}, got {out['steps']} "
             "(for a longer horizon, lengthen horizon.step_s)"
+        )
+    if out["max_iter"] > MAX_ITER:
+        raise ConfigError(
+            f"{source}: field 'solver.max_iter': must be at most {MAX_ITER} (OSQP counts its "
+            f"iterations in a 32-bit integer), got {out['max_iter']} (fix the value)"
+        )
+    lo_s, hi_s = STEP_RANGE_S
+    if not lo_s <= out["step_s"] <= hi_s:
+        raise ConfigError(
+            f"{source}: field 'horizon.step_s': must be from {lo_s:g} to {hi_s:g} s, got "
+            f"{out['step_s']:g} (fix the value)"
         )
     if out["actuator_margin"] >= 0.5:
         raise ConfigError(

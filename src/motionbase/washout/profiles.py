@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from motionbase.errors import ConfigError
 from motionbase.physics import smoothstep
 from motionbase.washout.cueing import Cueing
 
@@ -83,9 +84,7 @@ class ProfiledCueing(Cueing):
         self.diagnostics_schema = getattr(cueing_class, "diagnostics_schema", None)
         defined = tuple(params.profile_names)
         self._names = (BASE, *defined)
-        self._cueings = [cueing_class(params.for_profile(None), self.dt)] + [
-            cueing_class(params.for_profile(n), self.dt) for n in defined
-        ]
+        self._cueings = [self._make(cueing_class, params, name) for name in (None, *defined)]
         #: phase (True: ground) -> index of the profile it runs
         self._index = {
             True: self._names.index("ground") if "ground" in defined else 0,
@@ -99,6 +98,16 @@ class ProfiledCueing(Cueing):
         self._w = np.zeros(n)
         self._w0 = np.zeros(n)
         self.reset()
+
+    def _make(self, cueing_class: type[Cueing], params: Any, name: str | None) -> Cueing:
+        """The cueing of profile ``name`` (None: the file's own values); an error that only
+        its values cause (a frequency above the Nyquist frequency) names the profile."""
+        try:
+            return cueing_class(params.for_profile(name), self.dt)
+        except ConfigError as exc:
+            if name is None:
+                raise
+            raise ConfigError(f"[profile.{name}]: {exc}") from None
 
     # -- state -------------------------------------------------------------------------------
     def reset(self) -> None:
