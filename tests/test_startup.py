@@ -11,6 +11,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 
@@ -167,6 +168,35 @@ def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
     sweep = SweepSource(machine, range_=0.01, speed=0.2, rate_hz=200, lead_s=pipeline.soft_start_s)
     summary = _run_loading_nothing(pipeline, sweep)
     assert name == robot.replace("ceart", "rus6") and summary.samples > 200 and pipeline.parked
+
+
+@pytest.mark.parametrize("robot", ["rrr3", "ceart"])
+def test_teleoperation_loads_no_compiled_code_once_built(robot):
+    # Teleop's pipeline (robot poses) is built before its window opens: a kernel first used
+    # in the run stalled it there, on a fresh install for seconds (the limiter's kernel for
+    # the far jumps' plan, 1.5 s; the brake stage at the first tick without input or the
+    # stop; the run's peak tracker). Far jumps, ticks without input, then the stop.
+    from motionbase.commanding import Command, CommandPipeline
+    from motionbase.pipeline import run
+    from motionbase.platform.robot import load_geometry, robot_spec
+
+    planar = robot == "rrr3"
+    name, geometry = load_geometry(None if planar else robot, planar=planar)
+    machine = robot_spec(name).make(geometry)
+    pipeline = CommandPipeline(machine, rate_hz=200, mode="poses")
+    before = _overload_counts()
+    home = np.array(machine.park_pose, dtype=float)
+    far = home.copy()
+    far[0] += 0.03  # (reachable from home on both robots)
+
+    def commands():
+        for k in range(400):
+            target = None if 150 <= k < 200 else (far if (k // 50) % 2 else home)
+            yield Command(k / 200, None if target is None else target.copy())
+
+    summary = run(pipeline, commands(), [])
+    assert _overload_counts() == before
+    assert pipeline.parked and summary.health.rate_limited > 0 and pipeline.no_input >= 50
 
 
 @pytest.mark.parametrize("robot", ["ceart", "stewart6", "udesc_symmetric"])

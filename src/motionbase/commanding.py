@@ -196,6 +196,9 @@ class CommandPipeline(PipelineCore):
     def _warm_ticks(self) -> None:
         park = self.robot.park_angles if self.mode == "actuators" else self.robot.park_pose
         self.step(Command(0.0, np.array(park, dtype=float)))
+        self.step(None)  # running without input: the brake stage
+        # the approach's plan of a far jump (the limiter's kernel on one virtual axis)
+        stages.path_step(1.0, 0.0, float(self.params[0]["dt"]), self._path_limits)
         self.stop()
         self.step(None)
 

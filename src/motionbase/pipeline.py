@@ -386,6 +386,8 @@ class PipelineCore(ABC):
         time; the pipeline is left reset, its counters untouched."""
         health, self.health = self.health, Health()  # the warm-up ticks count elsewhere
         self._warm_ticks()
+        scratch = np.zeros(self.robot.n)
+        _track_peaks(scratch, scratch.copy(), scratch, scratch)  # run()'s summary of a tick
         self.parked  # noqa: B018 - loads the check that the loop makes at the end of a run
         self.reset()
         self.health = health
@@ -952,8 +954,6 @@ def run(
         stop_raised = stop.is_set if isinstance(stop, StopRequest) else stop.__bool__
         has_fresh = hasattr(source, "fresh")
         step = pipeline.step
-        scratch = np.zeros(n)
-        _track_peaks(scratch, scratch.copy(), scratch, scratch)  # loaded now, not in the first tick
         # a stop asked before the first tick (while the program loaded): nothing moves, the
         # source is not read; the run is one park tick
         while not (summary.samples == 0 and stop_raised()):
