@@ -225,24 +225,19 @@ class TextFormat:
         self.template = template
         src = re.sub(r"<Axis(\d+)a>", r"{\1}", template)
         src = _unescape(src)
-        literals: list[str] = []  # literal, field, literal, field, ..., literal
+        # the text between the tokens, and the tokens: literal, token, literal, ..., literal
+        parts = re.split(r"(\{\{|\}\}|\{[^{}]*\}|[{}])", src)
+        literals = [parts[0]]  # literal, field, literal, field, ..., literal
         fields: list[_TextField] = []
-        pos = 0
-        literal = ""
-        for m in re.finditer(r"\{\{|\}\}|\{([^{}]*)\}|[{}]", src):
-            literal += src[pos : m.start()]
-            pos = m.end()
-            tok = m.group(0)
+        for tok, literal in zip(parts[1::2], parts[2::2], strict=True):
             if tok in ("{{", "}}"):
-                literal += tok[0]
-                continue
-            if m.group(1) is None:
+                literals[-1] += tok[0]
+            elif len(tok) == 1:
                 raise ConfigError(f"text format {template!r}: unmatched {tok!r} (write {tok * 2})")
-            fields.append(self._field(m.group(1), n_axes))
-            literals += [literal, ""]
-            literal = ""
-        literal += src[pos:]
-        literals.append(literal)
+            else:
+                fields.append(self._field(tok[1:-1], n_axes))
+                literals += ["", ""]
+            literals[-1] += literal
         if not fields:
             raise ConfigError(f"text format {template!r}: no placeholder like {{1}} (add one)")
         if any(ord(c) > 0xFF for c in src):  # (frames are encoded as latin-1)
