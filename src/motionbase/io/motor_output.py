@@ -869,36 +869,27 @@ class MotorOutput:
         if self.limits is None:
             self._send(command.frame, now)
             return True
-        step = self._ramp(command, now)
-        if step is None:  # not sendable now: the drive stays where it is
+        # the next frame toward the command (:func:`ramp_step`)
+        step = ramp_step(
+            self._drive, command, now,
+            period=1.0 / self.rate_hz, command_dt=self.command_dt, limits=self.limits,
+        )  # fmt: skip
+        if step is None:  # no frame due now
             return False
-        q, v, frame = step
+        q, v, status = step
+        frame = command.frame
+        if q is not command.angles:  # short of the command: a frame of its own
+            if status & RATE_LIMITED:
+                self.ramped += 1
+            frame = self._encode(self.mapping.to_drive(q))
+            if frame is None:  # not sendable: the drive stays where it is
+                return False
         sent = time.monotonic()  # (not before ``now``: the step was sized for less time)
         if self._send(frame, sent) and self.link_up:
             # received (as far as the sender can know): the drive is there now
             self._drive = Drive(q, v, sent)
             return frame is command.frame and not v.any()
         return False
-
-    def _ramp(
-        self, command: DriveCommand, now: float
-    ) -> tuple[np.ndarray, np.ndarray, bytes] | None:
-        """The next frame toward ``command`` (:func:`ramp_step`), encoded; None when no frame
-        is due or the ramped one cannot be encoded."""
-        assert self.limits is not None
-        step = ramp_step(
-            self._drive, command, now,
-            period=1.0 / self.rate_hz, command_dt=self.command_dt, limits=self.limits,
-        )  # fmt: skip
-        if step is None:
-            return None
-        q, v, status = step
-        if q is command.angles:
-            return q, v, command.frame
-        if status & RATE_LIMITED:
-            self.ramped += 1
-        ramp_frame = self._encode(self.mapping.to_drive(q))
-        return None if ramp_frame is None else (q, v, ramp_frame)
 
     def _finish_ramp(self) -> None:
         """After the sender stopped: ramp the drive to the latest command (the park command
