@@ -819,13 +819,11 @@ class MotorOutput:
                 self._holding = True
                 log.warning("output %s: %s; holding the last frame", self.label, self._why(values))
         else:
-            before = None if self._holding else self._command  # (the tick before's, if accepted)
+            if self._holding or self._command is None:  # (no command accepted the tick before)
+                self._command = DriveCommand.at_rest(angles, frame)
+            else:
+                self._command = self._command.then(angles, frame)
             self._holding = False
-            self._command = (
-                DriveCommand.at_rest(angles, frame)
-                if before is None
-                else before.then(angles, frame)
-            )
             self.commands += 1
         return frame is not None
 
