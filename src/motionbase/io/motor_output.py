@@ -789,7 +789,7 @@ class MotorOutput:
             if self.limits is None:
                 self._send(command.frame, time.monotonic(), final=True)
             else:
-                self._finish_ramp()
+                self._finish_ramp(command)
         self.transport.close()
         self._thread = None
 
@@ -889,9 +889,9 @@ class MotorOutput:
             return frame is command.frame and not v.any()
         return False
 
-    def _finish_ramp(self) -> None:
-        """After the sender stopped: ramp the drive to the latest command (the park command
-        at the end of a run), then send it again.
+    def _finish_ramp(self, command: DriveCommand) -> None:
+        """After the sender stopped: ramp the drive to the latest command, ``command`` (the
+        park command at the end of a run), then send it again.
 
         A link that is down, or back for less than its probation (:data:`LINK_PROBATION_S`:
         a refused datagram shows on a later send), is given that probation and the time a
@@ -902,9 +902,8 @@ class MotorOutput:
         lim = self.limits
         assert lim is not None
         period = 1.0 / self.rate_hz
-        command = self._command
-        if command is not None:  # the pipeline is done: its last command is at rest
-            self._command = DriveCommand.at_rest(command.angles, command.frame)
+        # the pipeline is done: its last command is at rest
+        self._command = DriveCommand.at_rest(command.angles, command.frame)
         span = lim.upper - lim.lower
         speed_up_and_brake = 2.0 * lim.max_speed / lim.max_accel
         bound = float(np.max(span / lim.max_speed + speed_up_and_brake)) + 0.5
