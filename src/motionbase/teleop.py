@@ -179,27 +179,22 @@ class _TeleopLog:
         self.scene_every = max(1, round(rate_hz / SCENE_RATE_HZ))
         self.health_every = max(1, int(round(rate_hz)))
         self.stats = stats  # () -> TeleopStats
-        self.failed = False
         self._k = 0
 
     def write(self, out: PipelineOutput) -> None:
-        try:
-            add, t, k = self.logger.add, out.t, self._k
-            used = _cursor_used(out)
-            if used is not None:
-                add("/cursor", t, {"pixel": list(used[0]), "target": list(used[1])})
-            add("/planar/pose", t, {"pose": out.platform_pose.tolist()})
-            add(
-                "/planar/actuators", t,
-                {"angles": out.angles.tolist(), "servo_deg": [int(d) for d in out.servo_deg]},
-            )  # fmt: skip
-            if k % self.scene_every == 0:  # the robot drawn for Foxglove, about 30 Hz
-                add("/platform/scene", t, self.scene.message(t, out.platform_pose, out.angles))
-            if k % self.health_every == 0:
-                add("/health", t, self.stats().as_health())
-        except Exception:
-            self.failed = True
-            raise
+        add, t, k = self.logger.add, out.t, self._k
+        used = _cursor_used(out)
+        if used is not None:
+            add("/cursor", t, {"pixel": list(used[0]), "target": list(used[1])})
+        add("/planar/pose", t, {"pose": out.platform_pose.tolist()})
+        add(
+            "/planar/actuators", t,
+            {"angles": out.angles.tolist(), "servo_deg": [int(d) for d in out.servo_deg]},
+        )  # fmt: skip
+        if k % self.scene_every == 0:  # the robot drawn for Foxglove, about 30 Hz
+            add("/platform/scene", t, self.scene.message(t, out.platform_pose, out.angles))
+        if k % self.health_every == 0:
+            add("/health", t, self.stats().as_health())
         self._k += 1
 
 
@@ -325,7 +320,7 @@ def run_teleop(
         pipeline, frames_sent=servo.frames_sent if servo is not None else 0,
         estops=int(asked), stopped_by=stopped_by,
     )  # fmt: skip
-    if logger is not None and not log.failed:
+    if logger is not None:  # (a sink that failed, the log too, made run raise above)
         logger.add("/health", max(0.0, float(pipeline.state[0]["t"])), result.as_health())
     return result
 
