@@ -328,19 +328,15 @@ def run_teleop(
 def _refuse_out_over_an_input(out: str, *given: tuple[str, str | None]) -> None:
     """A ConfigError when ``--out`` names a file the run reads (``(flag, path)`` pairs):
     the log would overwrite it (a preset's name is no file and is never refused)."""
-    target = Path(out)
     for flag, path in given:
         if path is None or not Path(path).is_file():
             continue
-        try:
-            same = Path(path).resolve() == target.resolve() or os.path.samefile(path, target)
-        except OSError:  # --out is not there yet
-            same = False
-        if same:
-            raise ConfigError(
-                f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
-                "give another file"
-            )
+        with contextlib.suppress(OSError):  # --out is not there yet
+            if os.path.samefile(path, out):  # (through symlinks, ``..`` and hard links)
+                raise ConfigError(
+                    f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
+                    "give another file"
+                )
 
 
 def teleop_job(
