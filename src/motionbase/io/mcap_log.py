@@ -390,15 +390,12 @@ class McapLogger:
         try:
             if self._state != "failed":
                 self._request(OP_CLOSE)
-        finally:
+        finally:  # (open or failed: start() made the writer process and its pipes)
             self._state = "finished"
-            if self._data_fd >= 0:
-                os.close(self._data_fd)  # the writer ends at the end of its input
-                self._data_fd = -1
-            if self._process is not None:
-                self._process.wait()
-            if self._reply is not None:
-                self._reply.close()
+            os.close(self._data_fd)  # the writer ends at the end of its input
+            self._data_fd = -1
+            self._process.wait()
+            self._reply.close()
 
     def __enter__(self) -> McapLogger:
         return self.start()
