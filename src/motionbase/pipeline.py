@@ -943,8 +943,7 @@ def run(
                 if late > 0.0:
                     health.late_commands += 1
                     health.worst_late_s = max(health.worst_late_s, late)
-                if after_tick is not None:
-                    after_tick()  # (the garbage collector: the command is out)
+                after_tick()  # (the garbage collector, a paced run's: the command is out)
 
         stopping_requested = False
         park_tick = partial(pipeline.step, None)  # the ticks after the flight
