@@ -967,14 +967,12 @@ def run(
                 break
             if paced:
                 pace(loop_paces)
-            if stop_raised() and (not stopping_requested or (stop.estop and not pipeline.estopped)):
-                if not stopping_requested:
-                    summary.stopped_by = stop.reason
+            if stop_raised() and not stopping_requested:
+                summary.stopped_by = stop.reason
                 stopping_requested = True
-                if stop.estop and not pipeline.estopped:  # (an E-stop sets the phase stopping)
-                    pipeline.estop()
-                elif pipeline.phase in ("starting", "running"):
-                    pipeline.stop()
+                pipeline.stop()  # (the phase to stopping: from starting or running only)
+            if stopping_requested and stop.estop and not pipeline.estopped:
+                pipeline.estop()
             try:
                 out = step(state, bool(source.fresh) if has_fresh else True)
             except Exception as exc:  # noqa: BLE001 - a plug-in's bug: park without it
