@@ -293,10 +293,9 @@ def run_teleop(
         stale_timeout_s=stale_timeout_s,
     )  # fmt: skip
     servo = _ServoSink(sink) if sink is not None else None
-    log = None
+    sinks: list[Any] = [] if servo is None else [servo]
     if logger is not None:
-        log = _TeleopLog(logger, pipeline.robot, rate_hz, lambda: TeleopStats.of(pipeline))
-    sinks = [x for x in (servo, log) if x is not None]
+        sinks.append(_TeleopLog(logger, robot, rate_hz, lambda: TeleopStats.of(pipeline)))
     if hasattr(source, "view"):
         sinks.append(_Window(source, rrr3, stop))
 
