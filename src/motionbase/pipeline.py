@@ -943,8 +943,7 @@ def run(
                 if late > 0.0:
                     health.late_commands += 1
                     health.worst_late_s = max(health.worst_late_s, late)
-                if after_tick is not None:
-                    after_tick()  # (the garbage collector: the command is out)
+                after_tick()  # (the garbage collector, a paced run's: the command is out)
 
         stopping_requested = False
         park_tick = partial(pipeline.step, None)  # the ticks after the flight
@@ -968,14 +967,12 @@ def run(
                 break
             if paced:
                 pace(loop_paces)
-            if stop_raised() and (not stopping_requested or (stop.estop and not pipeline.estopped)):
-                if not stopping_requested:
-                    summary.stopped_by = stop.reason
+            if stop_raised() and not stopping_requested:
+                summary.stopped_by = stop.reason
                 stopping_requested = True
-                if stop.estop and not pipeline.estopped:  # (an E-stop sets the phase stopping)
-                    pipeline.estop()
-                elif pipeline.phase in ("starting", "running"):
-                    pipeline.stop()
+                pipeline.stop()  # (the phase to stopping: from starting or running only)
+            if stopping_requested and stop.estop and not pipeline.estopped:
+                pipeline.estop()
             try:
                 out = step(state, bool(source.fresh) if has_fresh else True)
             except Exception as exc:  # noqa: BLE001 - a plug-in's bug: park without it

@@ -179,27 +179,22 @@ class _TeleopLog:
         self.scene_every = max(1, round(rate_hz / SCENE_RATE_HZ))
         self.health_every = max(1, int(round(rate_hz)))
         self.stats = stats  # () -> TeleopStats
-        self.failed = False
         self._k = 0
 
     def write(self, out: PipelineOutput) -> None:
-        try:
-            add, t, k = self.logger.add, out.t, self._k
-            used = _cursor_used(out)
-            if used is not None:
-                add("/cursor", t, {"pixel": list(used[0]), "target": list(used[1])})
-            add("/planar/pose", t, {"pose": out.platform_pose.tolist()})
-            add(
-                "/planar/actuators", t,
-                {"angles": out.angles.tolist(), "servo_deg": [int(d) for d in out.servo_deg]},
-            )  # fmt: skip
-            if k % self.scene_every == 0:  # the robot drawn for Foxglove, about 30 Hz
-                add("/platform/scene", t, self.scene.message(t, out.platform_pose, out.angles))
-            if k % self.health_every == 0:
-                add("/health", t, self.stats().as_health())
-        except Exception:
-            self.failed = True
-            raise
+        add, t, k = self.logger.add, out.t, self._k
+        used = _cursor_used(out)
+        if used is not None:
+            add("/cursor", t, {"pixel": list(used[0]), "target": list(used[1])})
+        add("/planar/pose", t, {"pose": out.platform_pose.tolist()})
+        add(
+            "/planar/actuators", t,
+            {"angles": out.angles.tolist(), "servo_deg": [int(d) for d in out.servo_deg]},
+        )  # fmt: skip
+        if k % self.scene_every == 0:  # the robot drawn for Foxglove, about 30 Hz
+            add("/platform/scene", t, self.scene.message(t, out.platform_pose, out.angles))
+        if k % self.health_every == 0:
+            add("/health", t, self.stats().as_health())
         self._k += 1
 
 
@@ -298,10 +293,9 @@ def run_teleop(
         stale_timeout_s=stale_timeout_s,
     )  # fmt: skip
     servo = _ServoSink(sink) if sink is not None else None
-    log = None
+    sinks: list[Any] = [] if servo is None else [servo]
     if logger is not None:
-        log = _TeleopLog(logger, pipeline.robot, rate_hz, lambda: TeleopStats.of(pipeline))
-    sinks = [x for x in (servo, log) if x is not None]
+        sinks.append(_TeleopLog(logger, robot, rate_hz, lambda: TeleopStats.of(pipeline)))
     if hasattr(source, "view"):
         sinks.append(_Window(source, rrr3, stop))
 
@@ -325,7 +319,7 @@ def run_teleop(
         pipeline, frames_sent=servo.frames_sent if servo is not None else 0,
         estops=int(asked), stopped_by=stopped_by,
     )  # fmt: skip
-    if logger is not None and not log.failed:
+    if logger is not None:  # (a sink that failed, the log too, made run raise above)
         logger.add("/health", max(0.0, float(pipeline.state[0]["t"])), result.as_health())
     return result
 
@@ -333,19 +327,15 @@ def run_teleop(
 def _refuse_out_over_an_input(out: str, *given: tuple[str, str | None]) -> None:
     """A ConfigError when ``--out`` names a file the run reads (``(flag, path)`` pairs):
     the log would overwrite it (a preset's name is no file and is never refused)."""
-    target = Path(out)
     for flag, path in given:
         if path is None or not Path(path).is_file():
             continue
-        try:
-            same = Path(path).resolve() == target.resolve() or os.path.samefile(path, target)
-        except OSError:  # --out is not there yet
-            same = False
-        if same:
-            raise ConfigError(
-                f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
-                "give another file"
-            )
+        with contextlib.suppress(OSError):  # --out is not there yet
+            if os.path.samefile(path, out):  # (through symlinks, ``..`` and hard links)
+                raise ConfigError(
+                    f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
+                    "give another file"
+                )
 
 
 def teleop_job(

@@ -65,7 +65,8 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
     with a sample), ``/washout/pose``, ``/platform/pose`` and ``/platform/actuators`` (or
     ``/planar/pose`` and ``/planar/actuators`` for a command in servo degrees), and the
     cueing's diagnostics topic. Non-finite numbers are written as the strings ``"NaN"``,
-    ``"Infinity"`` and ``"-Infinity"``, as :func:`motionbase.io.mcap_log.json_safe` does.
+    ``"Infinity"`` and ``"-Infinity"`` (:func:`json_float`), as
+    :func:`motionbase.io.mcap_log.json_safe` does.
     """
     (t, source_t, fade, phase, m, n, fresh, accepted, clamped, rate_limited, held, ground,
      has_state, has_acc, servo, tail) = HEAD.unpack_from(record)  # fmt: skip
@@ -115,7 +116,10 @@ def _finite(values: tuple[float, ...]) -> list[Any]:
     """``values``, each non-finite one as the string JSON needs for it."""
     if math.isfinite(sum(values)):
         return list(values)
-    return [
-        v if math.isfinite(v) else ("NaN" if v != v else ("Infinity" if v > 0 else "-Infinity"))
-        for v in values
-    ]
+    return [json_float(v) for v in values]
+
+
+def json_float(v: float) -> float | str:
+    """``v``, or when it is not finite the string the log writes for it in JSON (which has
+    no NaN or infinity): ``"NaN"``, ``"Infinity"`` or ``"-Infinity"``."""
+    return v if math.isfinite(v) else ("NaN" if v != v else ("Infinity" if v > 0 else "-Infinity"))

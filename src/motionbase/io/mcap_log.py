@@ -92,6 +92,7 @@ from motionbase.io.log_writer import (
 )
 from motionbase.io.net_address import check_host_port
 from motionbase.io.schemas import TOPIC_SCHEMAS
+from motionbase.tick_record import json_float
 
 log = logging.getLogger("motionbase")
 
@@ -130,10 +131,7 @@ def json_safe(obj: Any) -> Any:
     non-finite number.
     """
     if isinstance(obj, float | np.floating):
-        f = float(obj)
-        if math.isfinite(f):
-            return f
-        return "NaN" if f != f else ("Infinity" if f > 0 else "-Infinity")
+        return json_float(float(obj))
     if isinstance(obj, bool | str | int) or obj is None:
         return obj
     if isinstance(obj, np.ndarray):
@@ -392,15 +390,12 @@ class McapLogger:
         try:
             if self._state != "failed":
                 self._request(OP_CLOSE)
-        finally:
+        finally:  # (open or failed: start() made the writer process and its pipes)
             self._state = "finished"
-            if self._data_fd >= 0:
-                os.close(self._data_fd)  # the writer ends at the end of its input
-                self._data_fd = -1
-            if self._process is not None:
-                self._process.wait()
-            if self._reply is not None:
-                self._reply.close()
+            os.close(self._data_fd)  # the writer ends at the end of its input
+            self._data_fd = -1
+            self._process.wait()
+            self._reply.close()
 
     def __enter__(self) -> McapLogger:
         return self.start()

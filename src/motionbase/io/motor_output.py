@@ -225,24 +225,19 @@ class TextFormat:
         self.template = template
         src = re.sub(r"<Axis(\d+)a>", r"{\1}", template)
         src = _unescape(src)
-        literals: list[str] = []  # literal, field, literal, field, ..., literal
+        # the text between the tokens, and the tokens: literal, token, literal, ..., literal
+        parts = re.split(r"(\{\{|\}\}|\{[^{}]*\}|[{}])", src)
+        literals = [parts[0]]  # literal, field, literal, field, ..., literal
         fields: list[_TextField] = []
-        pos = 0
-        literal = ""
-        for m in re.finditer(r"\{\{|\}\}|\{([^{}]*)\}|[{}]", src):
-            literal += src[pos : m.start()]
-            pos = m.end()
-            tok = m.group(0)
+        for tok, literal in zip(parts[1::2], parts[2::2], strict=True):
             if tok in ("{{", "}}"):
-                literal += tok[0]
-                continue
-            if m.group(1) is None:
+                literals[-1] += tok[0]
+            elif len(tok) == 1:
                 raise ConfigError(f"text format {template!r}: unmatched {tok!r} (write {tok * 2})")
-            fields.append(self._field(m.group(1), n_axes))
-            literals += [literal, ""]
-            literal = ""
-        literal += src[pos:]
-        literals.append(literal)
+            else:
+                fields.append(self._field(tok[1:-1], n_axes))
+                literals += ["", ""]
+            literals[-1] += literal
         if not fields:
             raise ConfigError(f"text format {template!r}: no placeholder like {{1}} (add one)")
         if any(ord(c) > 0xFF for c in src):  # (frames are encoded as latin-1)
@@ -794,7 +789,7 @@ class MotorOutput:
             if self.limits is None:
                 self._send(command.frame, time.monotonic(), final=True)
             else:
-                self._finish_ramp()
+                self._finish_ramp(command)
         self.transport.close()
         self._thread = None
 
@@ -824,13 +819,11 @@ class MotorOutput:
                 self._holding = True
                 log.warning("output %s: %s; holding the last frame", self.label, self._why(values))
         else:
-            before = None if self._holding else self._command  # (the tick before's, if accepted)
+            if self._holding or self._command is None:  # (no command accepted the tick before)
+                self._command = DriveCommand.at_rest(angles, frame)
+            else:
+                self._command = self._command.then(angles, frame)
             self._holding = False
-            self._command = (
-                DriveCommand.at_rest(angles, frame)
-                if before is None
-                else before.then(angles, frame)
-            )
             self.commands += 1
         return frame is not None
 
@@ -874,10 +867,21 @@ class MotorOutput:
         if self.limits is None:
             self._send(command.frame, now)
             return True
-        step = self._ramp(command, now)
-        if step is None:  # not sendable now: the drive stays where it is
+        # the next frame toward the command (:func:`ramp_step`)
+        step = ramp_step(
+            self._drive, command, now,
+            period=1.0 / self.rate_hz, command_dt=self.command_dt, limits=self.limits,
+        )  # fmt: skip
+        if step is None:  # no frame due now
             return False
-        q, v, frame = step
+        q, v, status = step
+        frame = command.frame
+        if q is not command.angles:  # short of the command: a frame of its own
+            if status & RATE_LIMITED:
+                self.ramped += 1
+            frame = self._encode(self.mapping.to_drive(q))
+            if frame is None:  # not sendable: the drive stays where it is
+                return False
         sent = time.monotonic()  # (not before ``now``: the step was sized for less time)
         if self._send(frame, sent) and self.link_up:
             # received (as far as the sender can know): the drive is there now
@@ -885,29 +889,9 @@ class MotorOutput:
             return frame is command.frame and not v.any()
         return False
 
-    def _ramp(
-        self, command: DriveCommand, now: float
-    ) -> tuple[np.ndarray, np.ndarray, bytes] | None:
-        """The next frame toward ``command`` (:func:`ramp_step`), encoded; None when no frame
-        is due or the ramped one cannot be encoded."""
-        assert self.limits is not None
-        step = ramp_step(
-            self._drive, command, now,
-            period=1.0 / self.rate_hz, command_dt=self.command_dt, limits=self.limits,
-        )  # fmt: skip
-        if step is None:
-            return None
-        q, v, status = step
-        if q is command.angles:
-            return q, v, command.frame
-        if status & RATE_LIMITED:
-            self.ramped += 1
-        ramp_frame = self._encode(self.mapping.to_drive(q))
-        return None if ramp_frame is None else (q, v, ramp_frame)
-
-    def _finish_ramp(self) -> None:
-        """After the sender stopped: ramp the drive to the latest command (the park command
-        at the end of a run), then send it again.
+    def _finish_ramp(self, command: DriveCommand) -> None:
+        """After the sender stopped: ramp the drive to the latest command, ``command`` (the
+        park command at the end of a run), then send it again.
 
         A link that is down, or back for less than its probation (:data:`LINK_PROBATION_S`:
         a refused datagram shows on a later send), is given that probation and the time a
@@ -918,9 +902,8 @@ class MotorOutput:
         lim = self.limits
         assert lim is not None
         period = 1.0 / self.rate_hz
-        command = self._command
-        if command is not None:  # the pipeline is done: its last command is at rest
-            self._command = DriveCommand.at_rest(command.angles, command.frame)
+        # the pipeline is done: its last command is at rest
+        self._command = DriveCommand.at_rest(command.angles, command.frame)
         span = lim.upper - lim.lower
         speed_up_and_brake = 2.0 * lim.max_speed / lim.max_accel
         bound = float(np.max(span / lim.max_speed + speed_up_and_brake)) + 0.5

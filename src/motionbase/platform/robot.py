@@ -357,12 +357,8 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
             if found is not None and ROBOTS[found].planar == planar:
                 robot = found
         else:
-            found = _robot_of_preset(text, candidates)
-            other = [name for name, spec in ROBOTS.items() if spec.planar != planar]
-            elsewhere = None if found is not None else _robot_of_preset(text, other)
-            if elsewhere is not None:
-                what = f"a preset of the {ROBOTS[elsewhere].description},"
-                raise _other_mode(text, what, planar)
+            # the mode's robots first; a preset of the other mode's is refused by name
+            found = _robot_of_preset(text, candidates) or _robot_of_preset(text, list(ROBOTS))
             if found is None:
                 names = sorted({name for r in candidates for name in preset_names(r)})
                 raise ConfigError(
@@ -370,6 +366,8 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
                     f"robot ({', '.join(candidates)}), a preset ({', '.join(names)}) or give "
                     "a path to a .toml file"
                 )
+            if ROBOTS[found].planar != planar:
+                raise _other_mode(text, f"a preset of the {ROBOTS[found].description},", planar)
             robot = found
     spec = ROBOTS[robot]
     path = resolve_preset_or_path(robot, value or spec.default_preset)

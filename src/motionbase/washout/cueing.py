@@ -39,6 +39,7 @@ with the same results.
 
 from __future__ import annotations
 
+import contextlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -174,10 +175,10 @@ class CueingSpec:
 
         path = resolve_preset_or_path(self.preset_kind, preset_or_path or self.default_preset)
         params = self.params_type.from_toml(path)
-        try:  # for :meth:`make`'s errors (not a field: equality and the log ignore it)
+        # for :meth:`make`'s errors (not a field: equality and the log ignore it); not on a
+        # plug-in's parameters with __slots__
+        with contextlib.suppress(AttributeError, TypeError):
             object.__setattr__(params, LOADED_FROM, str(path))
-        except (AttributeError, TypeError):  # (a plug-in's parameters with __slots__)
-            pass
         return params
 
     def make(self, params: Any, dt: float) -> Cueing:
