@@ -55,8 +55,8 @@ from motionbase.quaternions import quaternion_from_euler_zyx
 from motionbase.scene_update import scene_message, timestamp
 from motionbase.tick_record import messages as tick_messages
 
-#: op (u8), flags (u8), topic index (u16), payload length (u32), log time (u64, ns)
-HEADER = struct.Struct("<BIQ")  # op, payload length, log time (ns)
+#: a record's header: op (u8), payload length (u32), log time (u64, ns)
+HEADER = struct.Struct("<BIQ")
 OP_START, OP_BATCH, OP_FLUSH, OP_CLOSE, OP_TICK = 1, 2, 3, 4, 5
 #: a message's flag: it goes live whatever the topic's live grid says
 FLAG_ALWAYS_LIVE = 1
