@@ -152,20 +152,29 @@ def _state(t: float) -> bytes:
 
 
 def write_states(
-    path: Path, n: int = 200, *, config: dict | None = None, ns_per_s: float = 1e9
+    path: Path,
+    n: int = 200,
+    *,
+    config: dict | str | None = None,
+    ns_per_s: float = 1e9,
+    payloads: list[bytes] | None = None,
 ) -> Path:
-    """``n`` aircraft states at 100 Hz made with the mcap library; ``config`` as the
-    motionbase metadata (none when None); log times ``ns_per_s`` units per second."""
+    """``n`` aircraft states at 100 Hz made with the mcap library (or the messages
+    ``payloads``, 100 Hz apart); ``config`` as the motionbase metadata (a text as it is;
+    none when None); log times ``ns_per_s`` units per second."""
+    if payloads is None:
+        payloads = [_state(k / 100) for k in range(n)]
     with open(path, "wb") as fh:
         writer = Writer(fh)
         writer.start()
         if config is not None:
-            writer.add_metadata("motionbase", {"config": json.dumps(config)})
+            text = config if isinstance(config, str) else json.dumps(config)
+            writer.add_metadata("motionbase", {"config": text})
         schema = writer.register_schema("state", "jsonschema", b"{}")
         channel = writer.register_channel("/aircraft/state", "json", schema)
-        for k in range(n):
-            t = k / 100
-            writer.add_message(channel, round(t * ns_per_s), _state(t), round(t * ns_per_s))
+        for k, data in enumerate(payloads):
+            ns = round(k / 100 * ns_per_s)
+            writer.add_message(channel, ns, data, ns)
         writer.finish()
     return path
 
@@ -280,19 +289,9 @@ def test_a_state_nested_deeply_around_a_nan_string_is_rejected_not_a_traceback(
     string back into a number walked it recursively and raised RecursionError, a traceback
     from ``replay`` (and ``--check``, ``report``). Now it is a malformed state, rejected and
     held like any."""
-    rec = tmp_path / "rec.mcap"
     payloads = [_state(k / 100) for k in range(200)]
     payloads[50] = b"[" * 900 + b'"NaN"' + b"]" * 900
-    with open(rec, "wb") as fh:
-        writer = Writer(fh)
-        writer.start()
-        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": 100.0})})
-        channel = writer.register_channel(
-            "/aircraft/state", "json", writer.register_schema("s", "jsonschema", b"{}")
-        )
-        for k, data in enumerate(payloads):
-            writer.add_message(channel, k * 10_000_000, data, k * 10_000_000)
-        writer.finish()
+    rec = write_states(tmp_path / "rec.mcap", config={"rate_hz": 100.0}, payloads=payloads)
     out = tmp_path / "out.mcap"
     code, stdout, err = _cli(capfd, "replay", rec, "--out", out)
     assert code == 0, err
@@ -305,17 +304,7 @@ def test_a_state_nested_deeply_around_a_nan_string_is_rejected_not_a_traceback(
     "config", ["[" * 100_000 + "]" * 100_000, '{"a":' * 600 + '"NaN"' + "}" * 600]
 )
 def test_a_configuration_nested_too_deeply_is_one_line(tmp_path, capfd, fresh_logger, config):
-    rec = tmp_path / "rec.mcap"
-    with open(rec, "wb") as fh:
-        writer = Writer(fh)
-        writer.start()
-        writer.add_metadata("motionbase", {"config": config})
-        channel = writer.register_channel(
-            "/aircraft/state", "json", writer.register_schema("s", "jsonschema", b"{}")
-        )
-        for k in range(100):
-            writer.add_message(channel, k * 10_000_000, _state(k / 100), k * 10_000_000)
-        writer.finish()
+    rec = write_states(tmp_path / "rec.mcap", 100, config=config)
     code, _, err = _cli(capfd, "replay", rec)
     assert code == 2
     line = _one_line(err)
@@ -496,17 +485,7 @@ def test_a_state_sent_twice_costs_one_rejection_not_the_rest_of_the_recording(
     copies are rejected."""
     payloads = [_state(k / 100) for k in range(1, 301)]
     payloads[60:60] = [payloads[59]] * copies  # state 60 again, right after itself
-    rec = tmp_path / "rec.mcap"
-    with open(rec, "wb") as fh:
-        writer = Writer(fh)
-        writer.start()
-        writer.add_metadata("motionbase", {"config": json.dumps({"rate_hz": 100.0})})
-        channel = writer.register_channel(
-            "/aircraft/state", "json", writer.register_schema("s", "jsonschema", b"{}")
-        )
-        for k, data in enumerate(payloads):
-            writer.add_message(channel, k * 10_000_000, data, k * 10_000_000)
-        writer.finish()
+    rec = write_states(tmp_path / "rec.mcap", config={"rate_hz": 100.0}, payloads=payloads)
     out = tmp_path / "out.mcap"
     code, _, err = _cli(capfd, "replay", rec, "--out", out)
     assert code == 0, err
