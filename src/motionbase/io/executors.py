@@ -11,7 +11,8 @@ order of the candidates, whatever finishes first), the function
 - ``workers=1``: in this process, one after the other;
 - ``workers=K`` (default: the processors this process may use): a
   :class:`concurrent.futures.ProcessPoolExecutor` of K processes (started with
-  ``spawn``), each given the problem (the manoeuvre arrays) once, by its initializer.
+  ``spawn``), each reading the problem (the manoeuvre arrays) once, from a file this
+  process writes, in its initializer.
   More than four per processor is refused: the evaluations are CPU bound. The workers
   leave the stop signals (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT, also when they are sent to the
   whole process group, as ``timeout`` and service managers do) to the main process, which
@@ -30,7 +31,9 @@ order of the candidates, whatever finishes first), the function
 from __future__ import annotations
 
 import os
+import pickle
 import signal
+import tempfile
 import threading
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -131,11 +134,19 @@ def open_evaluator(
         return
     _start_resource_tracker()
     others = set(active_children())  # (processes this one had started before the pool)
+    # The workers read the problem from a file: sent with their start-up data, its arrays
+    # (hundreds of kB) filled the pipe, and this process, its stop signals held back, then
+    # waited for each worker to import motionbase (a minute or more on a loaded machine with
+    # an empty numba cache) before it could take the rest, a stop signal with it.
+    folder = tempfile.TemporaryDirectory(prefix="motionbase-tune-")
+    problem_file = os.path.join(folder.name, "problem.pickle")
+    with open(problem_file, "wb") as fh:
+        pickle.dump(problem, fh, protocol=pickle.HIGHEST_PROTOCOL)
     pool = ProcessPoolExecutor(
         max_workers=n,
         mp_context=get_context("spawn"),
         initializer=_init_worker,
-        initargs=(problem,),
+        initargs=(problem_file,),
     )
     try:
         _results(_start_workers(pool, n), stop)  # (a stop while they start up ends here)
@@ -154,6 +165,8 @@ def open_evaluator(
             worker.kill()
         pool.shutdown(wait=True, cancel_futures=True)
         raise
+    finally:
+        folder.cleanup()
     pool.shutdown(wait=True)
 
 
@@ -214,9 +227,9 @@ def _worker_pid(_: int) -> int:
     return os.getpid()
 
 
-def _init_worker(problem: TuningProblem) -> None:
-    """A pool worker: keep the problem, leave the stop signals to the main process, die
-    with it."""
+def _init_worker(problem_file: str) -> None:
+    """A pool worker: leave the stop signals to the main process, die with it, and keep the
+    problem (read from ``problem_file``)."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):  # blocked by _start_workers when spawned
@@ -230,7 +243,8 @@ def _init_worker(problem: TuningProblem) -> None:
 
         threading.Thread(target=watch, name="motionbase-parent-watch", daemon=True).start()
     global _PROBLEM
-    _PROBLEM = problem
+    with open(problem_file, "rb") as fh:
+        _PROBLEM = pickle.load(fh)  # noqa: S301 - written by this run's main process
 
 
 #: The problem of this pool worker (set by :func:`_init_worker`).
