@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from motionbase import __version__
-from motionbase.config import DEFAULT_RUS6
+from motionbase.config import DEFAULT_RUS6, refuse_out_over_inputs
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -807,17 +807,8 @@ def _replay(
             f"--out {out} is the recording being replayed ({src_path}): writing it would destroy "
             "it; give another file"
         )
-    for flag, given in (("--platform", platform), ("--params", washout)):
-        if (
-            out is not None
-            and given is not None
-            and Path(given).is_file()
-            and _same_file(Path(given), Path(out))
-        ):
-            raise ConfigError(
-                f"--out {out} is the {flag} file ({given}): writing the log would destroy it; "
-                "give another file"
-            )
+    if out is not None:
+        refuse_out_over_inputs(out, ("--platform", platform), ("--params", washout))
     if outputs and platform is None:
         raise ConfigError(
             "replay --output drives motors: give --platform with your own geometry (preset or "

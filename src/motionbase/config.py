@@ -7,8 +7,10 @@ names the file, the field and the fix.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
+import os
 import tomllib
 from collections.abc import Iterable, Mapping
 from importlib import resources
@@ -90,6 +92,21 @@ def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
     if names_a_file(name_or_path):
         return Path(name_or_path)
     return preset_path(kind, str(name_or_path))
+
+
+def refuse_out_over_inputs(out: str | Path, *given: tuple[str, str | Path | None]) -> None:
+    """A ConfigError when ``--out`` names a file the run reads (``(flag, path)`` pairs; a
+    path that is None or no file, a preset's name, is skipped): the log would overwrite it.
+    One file through symlinks, ``..`` and hard links counts."""
+    for flag, path in given:
+        if path is None or not Path(path).is_file():
+            continue
+        with contextlib.suppress(OSError):  # --out is not there yet
+            if os.path.samefile(path, out):
+                raise ConfigError(
+                    f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
+                    "give another file"
+                )
 
 
 def import_plugin(ref: str, what: str) -> Any:

@@ -36,7 +36,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import os
 import sys
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
@@ -46,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from motionbase.commanding import Command, CommandPipeline
-from motionbase.config import DEFAULT_RRR3
+from motionbase.config import DEFAULT_RRR3, refuse_out_over_inputs
 from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
 from motionbase.pipeline import PipelineOutput, check_rate, run
@@ -324,20 +323,6 @@ def run_teleop(
     return result
 
 
-def _refuse_out_over_an_input(out: str, *given: tuple[str, str | None]) -> None:
-    """A ConfigError when ``--out`` names a file the run reads (``(flag, path)`` pairs):
-    the log would overwrite it (a preset's name is no file and is never refused)."""
-    for flag, path in given:
-        if path is None or not Path(path).is_file():
-            continue
-        with contextlib.suppress(OSError):  # --out is not there yet
-            if os.path.samefile(path, out):  # (through symlinks, ``..`` and hard links)
-                raise ConfigError(
-                    f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
-                    "give another file"
-                )
-
-
 def teleop_job(
     input_spec: str = "mouse",
     *,
@@ -372,7 +357,7 @@ def teleop_job(
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
     check_rate(rate_hz, "teleop --rate")  # (the user's option, not "command pipeline")
     if out is not None:
-        _refuse_out_over_an_input(
+        refuse_out_over_inputs(
             out,
             ("--input", input_spec[5:] if input_spec.startswith("file:") else None),
             ("--calibration", calibration_path),
