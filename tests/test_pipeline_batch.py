@@ -24,7 +24,7 @@ from motionbase.app import load_config
 from motionbase.cli import main
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.pipeline import Pipeline
-from motionbase.state import AircraftState
+from motionbase.state import PHASES, AircraftState
 from motionbase.washout.cueing import CUEINGS, STEP_SIGNATURE, TRACK_SIGNATURE, Cueing, CueingSpec
 from motionbase.washout.params import WashoutParams
 
@@ -76,7 +76,7 @@ def test_batch_equals_the_tick_bit_for_bit(planar):
     assert np.array_equal(batch.accepted, [o.accepted for o in outs])
     assert np.array_equal(batch.clamped, [o.clamped for o in outs])
     assert np.array_equal(batch.limited, [o.rate_limited or o.held for o in outs])
-    phases = [stages.PHASES[p] for p in batch.phases]
+    phases = [PHASES[p] for p in batch.phases]
     assert phases == [o.phase for o in outs]
     poses = np.array([o.platform_pose for o in outs])
     free = ~batch.limited

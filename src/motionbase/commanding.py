@@ -56,6 +56,7 @@ from motionbase.pipeline import Health, PipelineCore, PipelineOutput, check_rate
 from motionbase.platform.output_map import sweep_profile
 from motionbase.platform.robot import SOLVE_SIGNATURE, Robot
 from motionbase.safety import ActuatorLimits
+from motionbase.state import PHASES
 from motionbase.stopping import StopRequest
 
 __all__ = ["MODES", "Command", "CommandPipeline", "SweepSource"]
@@ -280,7 +281,7 @@ class CommandPipeline(PipelineCore):
         return PipelineOutput(
             t, cmd, True, cmd is not None and not rejected, self._no_cue, self._pose, False, q,
             self.robot.servo(q), bool(flags & stages.RATE_LIMITED), bool(flags & stages.HELD),
-            stages.PHASES[flags >> stages.PHASE_SHIFT], 1.0,
+            PHASES[flags >> stages.PHASE_SHIFT], 1.0,
         )  # fmt: skip
 
     def _step_poses(self, cmd: Command | None, t: float, fresh: bool) -> PipelineOutput:

@@ -70,7 +70,7 @@ from motionbase.pacing import GarbageBetweenTicks, wait_until
 from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
-from motionbase.state import AircraftState, PipelineOutput  # (re-exported)
+from motionbase.state import PHASES, AircraftState, PipelineOutput  # (the classes re-exported)
 from motionbase.stopping import (
     StopRequest,
     install_signal_stop,  # noqa: F401 - re-exported
@@ -429,7 +429,7 @@ class PipelineCore(ABC):
     @property
     def phase(self) -> str:
         """``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``."""
-        return "parked" if self.parked else stages.PHASES[int(self.state[0]["phase"])]
+        return "parked" if self.parked else PHASES[int(self.state[0]["phase"])]
 
     @property
     def command(self) -> np.ndarray:
@@ -596,7 +596,7 @@ class Pipeline(PipelineCore):
             self.robot.servo(q),
             bool(flags & stages.RATE_LIMITED),
             bool(flags & stages.HELD),
-            stages.PHASES[flags >> stages.PHASE_SHIFT],
+            PHASES[flags >> stages.PHASE_SHIFT],
             float(self._fade[0]),
             cue_status,
         )

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from motionbase.errors import ConfigError, LogFormatError
+from motionbase.state import PHASES
 from motionbase.washout.perception import (
     CueingMetrics,
     PerceivedMotion,
@@ -52,8 +53,6 @@ __all__ = ["AXES6", "PHASES", "Report", "build_report", "planar_reach", "robot_r
 
 #: Pose axis names, in pose order.
 AXES6 = ("surge", "sway", "heave", "roll", "pitch", "yaw")
-#: Pipeline phases, in the order they occur.
-PHASES = ("starting", "running", "stopping", "parked")
 
 
 @dataclass(frozen=True)

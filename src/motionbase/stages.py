@@ -37,8 +37,7 @@ from motionbase.platform.robot import SOLVE_SIGNATURE
 from motionbase.safety import ActuatorLimits, input_code, limit_command, limit_kernel
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
 
-#: Phases of the soft start and stop (``STATE.phase``), by code.
-PHASES = ("starting", "running", "stopping", "parked")
+#: Codes of the soft start and stop's phases (``STATE.phase``; names in ``PHASES``).
 STARTING, RUNNING, STOPPING, PARKED = range(4)
 
 #: The pipeline's state, one record (units in the comments).

@@ -12,6 +12,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+#: The pipeline's phases (:attr:`PipelineOutput.phase`), in the order they occur; a phase's
+#: code (the pipeline state's ``phase``) is its index.
+PHASES = ("starting", "running", "stopping", "parked")
+
 _F64 = np.dtype(np.float64)
 _VECTOR_SHAPES = ((9,), (12,))
 
@@ -153,7 +157,7 @@ class PipelineOutput(NamedTuple):
     held : bool
         The safety stage replaced an unsafe command by the last safe one.
     phase : str
-        ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
+        One of :data:`PHASES`: ``"starting"``, ``"running"``, ``"stopping"`` or ``"parked"``.
     fade : float
         Watchdog fade in [0, 1]: the share of the held sample's deviation from level
         flight given to the cueing (1 = the aircraft's motion, 0 = level flight).
