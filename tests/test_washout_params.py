@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from motionbase.errors import ConfigError
+from motionbase.platform.robot import load_geometry
 from motionbase.washout import ClassicalWashout, WashoutParams
 
 G = 9.80665
@@ -287,3 +288,22 @@ def test_a_geometry_file_given_as_washout_is_named_for_what_it_is():
     for kind, name in (("rus6", "ceart"), ("rrr3", "udesc")):
         with pytest.raises(ConfigError, match=r"^g.toml: this is a .* geometry file"):
             WashoutParams.from_dict(read_toml(preset_path(kind, name)), source="g.toml")
+
+
+def test_a_stray_file_named_like_a_preset_is_not_loaded_in_its_place(tmp_path, monkeypatch):
+    """``--params default`` beside a file called ``default`` (a log, a note) must not read
+    that file as the preset; ``./default`` names the file, and a bare name that is only a
+    file is still read as one."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "default").write_text("not a washout file\n")
+    with pytest.raises(
+        ConfigError, match=r"'default' is both a shipped preset and a file .*\./default"
+    ):
+        WashoutParams.load("default")
+    (tmp_path / "ceart").write_text("x = 1\n")
+    with pytest.raises(ConfigError, match=r"'ceart' is both"):  # any kind's preset counts
+        load_geometry("ceart")
+    with pytest.raises(ConfigError, match="^default: "):  # the file, when asked for
+        WashoutParams.load("./default")
+    WashoutParams.preset("gentle").to_toml(tmp_path / "mine")
+    assert WashoutParams.load("mine") == WashoutParams.preset("gentle")

@@ -82,9 +82,26 @@ def preset_path(kind: str, name: str) -> Path:
 
 def names_a_file(name_or_path: str | Path) -> bool:
     """True when a preset-or-path value is a path (``my.toml``, ``dir/x``, an existing file),
-    not a preset name (``ceart``)."""
+    not a preset name (``ceart``).
+
+    Raises
+    ------
+    ConfigError
+        A bare name that is both a file in the working directory and a shipped preset (of
+        any kind): which one is meant cannot be told, and a stray file must not silently
+        replace a preset.
+    """
     s = str(name_or_path)
-    return s.endswith(".toml") or "/" in s or Path(s).is_file()
+    if s.endswith(".toml") or "/" in s:
+        return True
+    if not Path(s).is_file():
+        return False
+    if any(q.stem.partition("_")[2] == s for q in _preset_dir().glob("*.toml")):
+        raise ConfigError(
+            f"{s!r} is both a shipped preset and a file in the working directory: write "
+            f"./{s} for the file, or rename it to use the preset"
+        )
+    return True
 
 
 def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
