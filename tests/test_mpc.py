@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
+from motionbase.config import write_toml
 from motionbase.errors import ConfigError
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.platform import Rus6Geometry
@@ -791,3 +792,27 @@ def test_the_false_cue_term_makes_fewer_false_cues():
         score = tuning.score_motion(m, run, rus6_reach(geometry), params.gravity)
         share[weight] = float(np.mean(score.false_cues))
     assert share[100.0] < 0.75 * share[0.0], share
+
+
+def test_a_fallback_path_in_an_mpc_file_is_relative_to_that_file(tmp_path, monkeypatch):
+    """An MPC file beside its own washout file names it ``fallback = "wash.toml"``; read from
+    another working directory (a user running from their project root), it must still find
+    it, and a copy written elsewhere (``tune --out``) must still load."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    WashoutParams.preset("gentle").to_toml(folder / "wash.toml")
+    d = MpcParams.load("ceart").to_dict()
+    d["solver"]["fallback"] = "wash.toml"
+    write_toml(folder / "mpc.toml", d)
+    elsewhere = tmp_path / "run"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    p = MpcParams.from_toml(folder / "mpc.toml")
+    assert WashoutParams.load(p.fallback) == WashoutParams.preset("gentle")
+    p.to_toml(elsewhere / "copy.toml")
+    again = MpcParams.from_toml("copy.toml")
+    assert WashoutParams.load(again.fallback) == WashoutParams.preset("gentle")
+    # a preset's name stays a name
+    d["solver"]["fallback"] = "gentle"
+    write_toml(folder / "mpc.toml", d)
+    assert MpcParams.from_toml(folder / "mpc.toml").fallback == "gentle"

@@ -60,7 +60,7 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     eps_abs = 1e-4
     eps_rel = 1e-4
     blend_s = 0.5                      # blend to and from the fallback, s
-    fallback = "tuned_ceart"           # classical washout preset (or TOML path) to fall back on
+    fallback = "tuned_ceart"           # washout preset, or TOML path (relative: to this file)
 
 Every table is required but for ``[reference]`` (gains 1, no limits), ``[robot]``, ``[solver]``
 (defaults as above), ``description``, ``g`` and ``mode``. The dataclass fields mirror the
@@ -256,7 +256,8 @@ class MpcParams:
         Time of the blend from the MPC's pose to the fallback's and back, s.
     fallback : str
         The classical washout preset (or TOML path) run alongside, for ticks the solver
-        fails or is late.
+        fails or is late. Read from a file, a relative path is relative to that file's
+        folder (and kept as an absolute path, so that a copy written elsewhere still works).
     g : float
         Gravity, m/s^2.
     description : str
@@ -484,6 +485,9 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             f"{source}: field 'solver.fallback': expected a washout preset name or a .toml path, "
             f"got {fallback!r}"
         )
+    here = Path(source)
+    if (fallback.endswith(".toml") or "/" in fallback) and here.is_file():
+        fallback = str((here.parent / fallback).resolve())  # relative to the file, not cwd
     try:  # a preset name or a file: load it now, so that a wrong one names this field
         WashoutParams.load(fallback)
     except ConfigError as exc:
