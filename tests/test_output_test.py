@@ -425,3 +425,39 @@ def test_the_sweep_options_of_the_other_actuator_kind_are_refused(platform, opti
             sock.recv(4096)  # nothing was sent
     finally:
         sock.close()
+
+
+def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_refused(capsys):
+    """``output --test 'udp:...?rate=R'`` used to run at 100 Hz whatever R was (``rate=nan``
+    too): the command line's default overrode the URL. The URL's rate is now the sweep's
+    when ``--rate`` is not given, and a URL rate that is not a number, or differs from
+    ``--rate``, is one line, exit 2, with nothing sent."""
+    from motionbase import cli
+    from motionbase.app import output_test
+    from motionbase.pipeline import StopRequest
+
+    stop = StopRequest()
+    stop.set("test")  # a stop before the sweep starts: the command parks at once
+    rx = UdpDrive()
+    try:
+        lines = output_test(rx.url(50.0), "ceart", stop=stop, echo=lambda s: None)
+        rx.drain()
+    finally:
+        rx.close()
+    assert "frames sent at 50 Hz" in lines[-1], lines
+    for url_rate, extra, needle in [
+        ("nan", [], "rate"),
+        ("50", ["--rate", "100"], "give the rate once"),
+    ]:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", 0))
+        sock.settimeout(0.3)
+        try:
+            url = f"udp:127.0.0.1:{sock.getsockname()[1]}?rate={url_rate}"
+            code = cli.main(["output", "--test", url, *extra])
+            err = capsys.readouterr().err
+            assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+            with pytest.raises(socket.timeout):
+                sock.recv(4096)
+        finally:
+            sock.close()

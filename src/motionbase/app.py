@@ -455,7 +455,7 @@ def output_test(
     speed_deg_s: float | None = None,
     range_mm: float | None = None,
     speed_mm_s: float | None = None,
-    rate_hz: float = 100.0,
+    rate_hz: float | None = None,
     echo: Callable[[str], None] | None = None,
     stop: StopRequest | None = None,
 ) -> list[str]:
@@ -493,8 +493,9 @@ def output_test(
     range_mm, speed_mm_s : float, optional
         Linear actuators: the same in mm (default 10) and mm/s (default 20). The pair for
         the other kind of actuator is refused (a ConfigError): it would be ignored.
-    rate_hz : float
-        The pipeline's rate and the drive's frame rate, Hz.
+    rate_hz : float, optional
+        The pipeline's rate and the drive's frame rate, Hz. Default: the URL's ``rate``
+        (100 Hz when it has none); a URL rate that differs is refused.
     echo : callable, optional
         Prints a line (default: stdout).
     stop : StopRequest, optional
@@ -542,8 +543,13 @@ def output_test(
         )
         rng = defaults[0] if rng is None else rng
         speed = defaults[1] if speed is None else speed
-        pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
         mapping = mapping_for(robot)
+        # ramped at the drive within the robot's limits, as fly --output's drives are: a
+        # drive back from an outage moves on from its last frame, one gone for good is
+        # waited for at the end and said not to be parked (not open yet: opened to run)
+        sink = open_output(url, mapping, rate_hz=rate_hz, limits=robot.limits)
+        rate_hz = sink.rate_hz  # (the URL's when not given; the pipeline's = the frames')
+        pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
 
         sweep = SweepSource(
             robot, range_=rng * scale, speed=speed * scale, rate_hz=rate_hz,
@@ -572,12 +578,6 @@ def output_test(
                         how = "heading for park at once, within the limits"
                     say(f"output test stopped by {why}: {how}")
 
-        # ramped at the drive within the robot's limits, as fly --output's drives are: a
-        # drive back from an outage moves on from its last frame, one gone for good is
-        # waited for at the end and said not to be parked
-        sink = open_output(
-            url, mapping, rate_hz=rate_hz, limits=robot.limits, command_dt=pipeline.dt
-        )
         check_sendable(sink, robot)
         say(f"output test on {sink.label}: {mapping.describe()}")
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")

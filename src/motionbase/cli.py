@@ -640,7 +640,10 @@ def _args_output(p: argparse.ArgumentParser) -> None:
         help="peak linear actuator speed, mm/s (default 20)",
     )
     p.add_argument(
-        "--rate", type=_positive_float, default=100.0, help="command rate, Hz (default 100)"
+        "--rate",
+        type=_positive_float,
+        default=None,
+        help="command and frame rate, Hz (default: the URL's rate, else 100)",
     )
 
 

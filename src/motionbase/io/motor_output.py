@@ -1014,7 +1014,8 @@ def open_output(
     mapping : OutputMapping
         Crank angle to drive value, per motor.
     rate_hz : float, optional
-        Overrides the URL's ``rate``.
+        The frame rate, Hz, when the URL gives none (the URL's ``rate``, when it has one,
+        must then be the same: a ConfigError otherwise).
     limits : ActuatorLimits, optional
         Ramp every frame at the drive within these limits (see :class:`MotorOutput`).
     command_dt : float, optional
@@ -1030,15 +1031,17 @@ def open_output(
     ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
     other = [(k, v) for k, v in pairs if k not in ours]
     fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
+    try:
+        rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
+    except (TypeError, ValueError):
+        raise ConfigError(f"output {url!r}: rate must be a number of frames per second") from None
     if rate_hz is not None:
-        rate = float(rate_hz)
-    else:
-        try:
-            rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
-        except (TypeError, ValueError):
+        if "rate" in ours and float(rate_hz) != rate:  # (a NaN in the URL differs too)
             raise ConfigError(
-                f"output {url!r}: rate must be a number of frames per second"
-            ) from None
+                f"output {url!r}: the URL's rate={ours['rate']} and the {rate_hz:g} Hz asked "
+                "for differ: give the rate once"
+            )
+        rate = float(rate_hz)
     if scheme == "serial":
         try:
             baud = int(ours.get("baud", DEFAULT_BAUD))
