@@ -151,3 +151,30 @@ def test_vanished_port_gives_clear_error_and_clean_stop():
 def test_unopenable_port_is_a_sink_error():
     with pytest.raises(SinkError, match="cannot open serial port"):
         ServoSerialSink("/dev/ttyDOES_NOT_EXIST").open()
+
+
+def test_frames_never_outpace_the_line_so_a_write_never_waits_for_it():
+    """Teleop at 1 kHz (the sink's rate is the loop's) over the sketch's 19200 baud: a frame
+    of up to 12 bytes takes 6.25 ms on the wire (10 bits a byte), so at most 160 frames a
+    second fit. The sink used to write one a tick and wait for each to leave (a flush): the
+    loop was paced by the serial line, 5-6 ms a tick. Frames now go no closer than the line
+    carries them, each the latest command, and the board still gets every final value."""
+    board = Board()
+    clock = FakeClock()
+    rate_hz, baud = 1000.0, 19200
+    try:
+        with ServoSerialSink(board.path, baud=baud, rate_hz=rate_hz, clock=clock) as sink:
+            times = []
+            for k in range(1000):  # one second of ticks, a new command each
+                clock.t = k / rate_hz
+                if sink.write((k % 181, 90, 90)):
+                    times.append(clock.t)
+            sink.write((7, 8, 9))  # the last command, too soon after the last frame: held
+        gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+        line_s = 10 * len(b"180p180q180r") / baud  # (independent of the sink's own figure)
+        assert min(gaps) >= line_s
+        assert 0.8 / line_s <= len(times) <= 1.0 / line_s + 1  # the line used, not much less
+        wait_for(board, sink.bytes_sent)
+        assert decode(bytes(board.data))[-3:] == [(0, 7), (1, 8), (2, 9)]  # sent on close
+    finally:
+        board.close()

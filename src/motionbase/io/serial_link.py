@@ -3,10 +3,12 @@
 ``ServoSerialSink`` opens a port with :func:`serial.serial_for_url` (``/dev/ttyACM0``,
 ``loop://``, ``socket://host:port``, ...), waits for the board's ready line (``Rolling``; an
 Arduino resets when the port opens), then sends the three servo commands of
-:mod:`motionbase.io.servo_protocol`. It writes at most ``rate_hz`` frames per second and only
-when a value changed or ``keepalive_s`` passed since the last frame. A port that vanishes
-(USB unplugged) raises :class:`~motionbase.errors.SinkError` with a clear message; the port is
-closed first, so the caller can stop cleanly.
+:mod:`motionbase.io.servo_protocol`. It writes at most ``rate_hz`` frames per second, and no
+more than the line carries at its baud rate, and only when a value changed or ``keepalive_s``
+passed since the last frame. It never waits for the line: frames so spaced find the port's
+buffer empty, so a write returns at once, and only closing drains the buffer (the last frame).
+A port that vanishes (USB unplugged) raises :class:`~motionbase.errors.SinkError` with a clear
+message; the port is closed first, so the caller can stop cleanly.
 """
 
 from __future__ import annotations
@@ -78,8 +80,9 @@ class ServoSerialSink:
         Baud rate (the sketch uses 19200).
     rate_hz : float
         Most frames per second written (with 25 % tolerance for a caller's jitter: a frame
-        comes at least ``0.75 / rate_hz`` after the previous one); a command arriving sooner
-        is kept and sent at the next call after the interval (or on close).
+        comes at least ``0.75 / rate_hz`` after the previous one), and never more than the
+        line carries (a longest frame's 10 bits a byte at ``baud``, plus 10 %); a command
+        arriving sooner is kept and sent at the next call after the interval (or on close).
     keepalive_s : float
         Re-send the last frame when nothing was sent for this long, s.
     ready_timeout_s : float
@@ -108,12 +111,15 @@ class ServoSerialSink:
         ready_line: bytes = READY_LINE,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if rate_hz <= 0 or keepalive_s <= 0 or ready_timeout_s < 0:
+        if rate_hz <= 0 or keepalive_s <= 0 or ready_timeout_s < 0 or baud <= 0:
             raise SinkError(
-                "serial sink: rate_hz and keepalive_s must be > 0 and ready_timeout_s >= 0"
+                "serial sink: baud, rate_hz and keepalive_s must be > 0 and ready_timeout_s >= 0"
             )
         self.url = url
         self.baud = int(baud)
+        # the line's time for a longest frame (start + 8 data + stop bits a byte), with a
+        # margin: frames never queue up behind one another in the port's buffer
+        self.line_s = 1.1 * 10 * len(encode((180, 180, 180))) / self.baud
         self.min_interval = 1.0 / float(rate_hz)
         self.keepalive_s = float(keepalive_s)
         self.ready_timeout_s = float(ready_timeout_s)
@@ -164,7 +170,8 @@ class ServoSerialSink:
         try:
             if self._pending is not None:
                 self._send(self._pending, self._clock())
-        except SinkError:
+            self._port.flush()  # the last frame out before the port closes
+        except (SinkError, *SERIAL_ERRORS):
             pass
         finally:
             port, self._port = self._port, None
@@ -199,7 +206,7 @@ class ServoSerialSink:
             self._pending = None
             self._drain()
             return False
-        if now - self._last_time < 0.75 * self.min_interval:
+        if now - self._last_time < max(0.75 * self.min_interval, self.line_s):
             self._pending = cmd  # too soon: send at the next opportunity
             return False
         self._send(cmd, now)
@@ -208,8 +215,7 @@ class ServoSerialSink:
     def _send(self, cmd: tuple[int, int, int], now: float) -> None:
         frame = encode(cmd)
         try:
-            self._port.write(frame)
-            self._port.flush()
+            self._port.write(frame)  # (no flush: spaced as above, it never waits for the line)
         except (serial.SerialException, OSError) as exc:
             self._fail(f"write failed: {exc}")
         self._last, self._last_time, self._pending = cmd, now, None
