@@ -691,12 +691,13 @@ def fly(
         )
         # a real-time flight is paced by the pipeline's loop (the source never waits)
         source = JsbsimSource(script, duration_s=duration_s)
-        with source:
-            from motionbase.pipeline import check_rate
+        from motionbase.pipeline import check_rate
 
-            # the script's time step sets the pipeline's rate: a bad one names the script
-            where = f"{source.script_path or script}: its <run dt> ({1 / source.rate_hz:g} s)"
-            check_rate(source.rate_hz, where)
+        # the script's time step sets the pipeline's rate: a bad one names the script, and
+        # before JSBSim loads it (a dt of 1e-9 s alone held JSBSim's load for 20-30 s)
+        where = f"{source.script_path or script}: its <run dt> ({1 / source.rate_hz:g} s)"
+        check_rate(source.rate_hz, where)
+        with source:
             config = load_config(
                 planar=planar,
                 platform=platform,
