@@ -256,6 +256,31 @@ def test_replay_refuses_to_overwrite_its_own_input(tmp_path, run_cli):
     assert rec.read_bytes() == before
 
 
+@pytest.mark.parametrize("flag", ["script", "--platform", "--params"])
+def test_fly_out_may_not_overwrite_the_script_geometry_or_washout_file(tmp_path, run_cli, flag):
+    """``fly --out`` naming the script, the ``--platform`` or the ``--params`` file: the
+    flight read it, then wrote its log over it (exit 0), so the user's geometry, washout or
+    script was gone. Refused with one line, the file untouched."""
+    import jsbsim
+
+    sources = {
+        "script": Path(jsbsim.get_default_root_dir()) / "scripts" / "c1723.xml",
+        "--platform": Path(cli.__file__).parent / "presets" / "rus6_ceart.toml",
+        "--params": Path(cli.__file__).parent / "presets" / "washout_gentle.toml",
+    }
+    victim = tmp_path / f"mine{sources[flag].suffix}"
+    victim.write_bytes(sources[flag].read_bytes())
+    before = victim.read_bytes()
+    script = victim if flag == "script" else "c1723"
+    given = [] if flag == "script" else [flag, victim]
+    out = tmp_path / "sub" / ".." / victim.name  # another spelling of the same file
+    (tmp_path / "sub").mkdir()
+    code, _, err = run_cli("fly", script, *given, "--duration", "3", "--out", out)
+    assert code == 2, err
+    one_line(err, "--out", flag, "destroy")
+    assert victim.read_bytes() == before
+
+
 # --------------------------------------------------------------------------- item 13
 
 

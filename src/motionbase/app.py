@@ -691,6 +691,12 @@ def fly(
         )
         # a real-time flight is paced by the pipeline's loop (the source never waits)
         source = JsbsimSource(script, duration_s=duration_s)
+        refuse_out_over_inputs(
+            out_path,
+            ("script", source.script_path),
+            ("--platform", platform),
+            ("--params", washout),
+        )
         with source:
             from motionbase.pipeline import check_rate
 
