@@ -819,6 +819,22 @@ def test_a_script_time_step_out_of_the_pipelines_range_names_the_script(tmp_path
     assert not out.exists()
 
 
+def test_a_script_that_ends_before_it_starts_is_one_line_not_an_empty_flight(tmp_path, run_cli):
+    """Nothing to fly: it was "1 sample, stopped by end of source", a log of the park
+    alone and exit status 0."""
+    script = tmp_path / "backwards.xml"
+    script.write_text(
+        '<?xml version="1.0"?>\n<runscript name="backwards">'
+        '<use aircraft="c172x" initialize="reset00"/>'
+        '<run start="10" end="5" dt="0.008333"></run></runscript>\n'
+    )
+    out = tmp_path / "x.mcap"
+    code, _, err = run_cli("fly", script, "--out", out)
+    assert code == 2, err
+    one_line(err, "backwards.xml", "<run> end")
+    assert not out.exists()
+
+
 @pytest.mark.parametrize(
     "output", ['unit = "deg"\ngear_ratio = 1e300', 'unit = "counts"\ncounts_per_rev = 1e300']
 )
