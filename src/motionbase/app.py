@@ -716,7 +716,7 @@ def fly(
 
                 _check_preview(config.cueing)
                 with JsbsimSource(script, duration_s=duration_s) as ahead:
-                    reference = preview_reference(ahead)
+                    reference = preview_reference(ahead, stop)
             return _drive(
                 f"flew {name} on the {robot_title(config)}",
                 config,
@@ -866,7 +866,7 @@ def _replay(
                     "with --cueing or --params given, which makes no preview)"
                 ) from None
             with McapSource(src_path) as ahead:
-                reference = preview_reference(ahead)
+                reference = preview_reference(ahead, stop)
         notes = []
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")
