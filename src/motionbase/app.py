@@ -1130,6 +1130,13 @@ def _stream(
     )
     if out is None:
         out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+    refuse_out_over_inputs(
+        out,
+        ("--mavlink", mavlink),
+        ("--signing-key", signing_key),
+        ("--platform", platform),
+        ("--params", washout),
+    )
     source = open_live_source(
         source_url,
         mavlink=mavlink,
