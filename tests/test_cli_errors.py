@@ -256,6 +256,82 @@ def test_replay_refuses_to_overwrite_its_own_input(tmp_path, run_cli):
     assert rec.read_bytes() == before
 
 
+@pytest.mark.parametrize("flag", ["script", "--platform", "--params"])
+def test_fly_out_may_not_overwrite_the_script_geometry_or_washout_file(tmp_path, run_cli, flag):
+    """``fly --out`` naming the script, the ``--platform`` or the ``--params`` file: the
+    flight read it, then wrote its log over it (exit 0), so the user's geometry, washout or
+    script was gone. Refused with one line, the file untouched."""
+    import jsbsim
+
+    sources = {
+        "script": Path(jsbsim.get_default_root_dir()) / "scripts" / "c1723.xml",
+        "--platform": Path(cli.__file__).parent / "presets" / "rus6_ceart.toml",
+        "--params": Path(cli.__file__).parent / "presets" / "washout_gentle.toml",
+    }
+    victim = tmp_path / f"mine{sources[flag].suffix}"
+    victim.write_bytes(sources[flag].read_bytes())
+    before = victim.read_bytes()
+    script = victim if flag == "script" else "c1723"
+    given = [] if flag == "script" else [flag, victim]
+    out = tmp_path / "sub" / ".." / victim.name  # another spelling of the same file
+    (tmp_path / "sub").mkdir()
+    code, _, err = run_cli("fly", script, *given, "--duration", "3", "--out", out)
+    assert code == 2, err
+    one_line(err, "--out", flag, "destroy")
+    assert victim.read_bytes() == before
+
+
+def _tlog(path: Path) -> Path:
+    """A telemetry log of 2 s: HIGHRES_IMU and ATTITUDE at 100 Hz, each behind its
+    receive time in microseconds (the .tlog layout)."""
+    from mavlink_sender import send_good
+    from pymavlink import mavutil
+
+    class Frames(list):
+        def write(self, data: bytes) -> None:
+            self.append(bytes(data))
+
+    frames = Frames()
+    mav = mavutil.mavlink.MAVLink(frames, srcSystem=1, srcComponent=1)
+    with open(path, "wb") as fh:
+        for i in range(200):
+            frames.clear()
+            send_good(mav, i)
+            for frame in frames:
+                fh.write((1_700_000_000_000_000 + i * 10_000).to_bytes(8, "big") + frame)
+    return path
+
+
+@pytest.mark.parametrize("flag", ["--mavlink", "--signing-key", "--platform", "--params"])
+def test_stream_out_may_not_overwrite_the_log_it_reads_or_its_other_files(tmp_path, run_cli, flag):
+    """``stream --mavlink flight.tlog --fast --out flight.tlog``: the stream opened the log
+    for its states, then wrote its own over it (the user's flight was gone, and the error
+    that followed said the .tlog had no MAVLink messages). The key, geometry and washout
+    files went the same way. Refused with one line, the file untouched."""
+    presets = Path(cli.__file__).parent / "presets"
+    tlog = _tlog(tmp_path / "flight.tlog")
+    files = {
+        "--mavlink": tlog,
+        "--signing-key": tmp_path / "key.bin",
+        "--platform": tmp_path / "rig.toml",
+        "--params": tmp_path / "washout.toml",
+    }
+    files["--signing-key"].write_bytes(bytes(range(32)))
+    files["--platform"].write_bytes((presets / "rus6_ceart.toml").read_bytes())
+    files["--params"].write_bytes((presets / "washout_telemetry.toml").read_bytes())
+    victim = files[flag]
+    before = victim.read_bytes()
+    given = [] if flag == "--mavlink" else [flag, victim]
+    code, _, err = run_cli("stream", "--mavlink", tlog, "--fast", *given, "--out", victim)
+    assert code == 2, err
+    one_line(err, "--out", flag, "destroy")
+    assert victim.read_bytes() == before
+    # the same log to another file streams (the log above is a readable one)
+    code, _, err = run_cli("stream", "--mavlink", tlog, "--fast", "--out", tmp_path / "o.mcap")
+    assert code == 0, err
+    assert read_messages(tmp_path / "o.mcap")["/aircraft/state"]
+
+
 # --------------------------------------------------------------------------- item 13
 
 
@@ -791,6 +867,22 @@ def test_a_script_time_step_out_of_the_pipelines_range_names_the_script(tmp_path
     code, err = run_process("fly", script, "--duration", "1", "--out", out)
     assert code == 2, err
     one_line(err, "odd_dt.xml", "<run dt>")
+    assert not out.exists()
+
+
+def test_a_script_that_ends_before_it_starts_is_one_line_not_an_empty_flight(tmp_path, run_cli):
+    """Nothing to fly: it was "1 sample, stopped by end of source", a log of the park
+    alone and exit status 0."""
+    script = tmp_path / "backwards.xml"
+    script.write_text(
+        '<?xml version="1.0"?>\n<runscript name="backwards">'
+        '<use aircraft="c172x" initialize="reset00"/>'
+        '<run start="10" end="5" dt="0.008333"></run></runscript>\n'
+    )
+    out = tmp_path / "x.mcap"
+    code, _, err = run_cli("fly", script, "--out", out)
+    assert code == 2, err
+    one_line(err, "backwards.xml", "<run> end")
     assert not out.exists()
 
 

@@ -115,6 +115,37 @@ def test_bad_rate_and_duration_are_config_errors() -> None:
         JsbsimSource("c1723", duration_s=-1.0)
 
 
+def _script(tmp_path: Path, run: str) -> Path:
+    path = tmp_path / "timing.xml"
+    path.write_text(
+        '<?xml version="1.0"?>\n<runscript name="timing">'
+        '<use aircraft="c172x" initialize="reset00"/>'
+        f"<run {run}></run></runscript>\n"
+    )
+    return path
+
+
+@pytest.mark.parametrize("duration_s", [None, 3.0])
+def test_a_script_without_an_end_time_is_refused_saying_what_to_add(tmp_path, duration_s):
+    """JSBSim will not load a script whose <run> has no end, whatever the duration: the
+    error said "give duration_s" (a --duration then failed in JSBSim's loader), or, with
+    one, came from JSBSim only once the source opened."""
+    path = _script(tmp_path, 'start="0" dt="0.008333"')
+    with pytest.raises(SourceError) as err:
+        JsbsimSource(str(path), duration_s=duration_s)
+    assert str(path) in str(err.value) and 'end="' in str(err.value)
+
+
+@pytest.mark.parametrize("run", ['start="10" end="5"', 'start="5" end="5"'])
+def test_a_script_that_ends_before_it_starts_is_refused(tmp_path, run):
+    """<run end> not after <run start>: the source yielded no state at all, and fly parked
+    at once and exited 0 as if the script had been flown."""
+    path = _script(tmp_path, f'{run} dt="0.008333"')
+    with pytest.raises(SourceError) as err:
+        JsbsimSource(str(path))
+    assert str(path) in str(err.value) and "not after its start" in str(err.value)
+
+
 def test_script_by_path_and_describe(tmp_path: Path) -> None:
     src = JsbsimSource("c1723")
     path = src.describe()["path"]

@@ -568,6 +568,41 @@ def test_fly_log_has_the_cueing_topic_and_preview_replays(tmp_path):
     assert real_time.failed
 
 
+def test_a_stop_during_the_look_ahead_ends_it_there(tmp_path):
+    """``fly --preview`` (and ``replay --preview``) reads the whole flight before the first
+    tick. A stop signal meanwhile was only seen once all of it was read: for c3105 (an
+    hour of flight) Ctrl-C waited about ten seconds, for longer scripts as long as JSBSim
+    takes to fly them. The read now ends at the stop."""
+    from motionbase import app
+    from motionbase.io.jsbsim_source import JsbsimSource
+    from motionbase.io.manoeuvres import preview_reference
+    from motionbase.stopping import StopRequest
+
+    stop = StopRequest()
+    with JsbsimSource("c3105") as source:
+        assert source.duration_s * source.rate_hz > 100_000  # an hour at 120 Hz
+
+        def read_with_a_stop_one_second_in():
+            for k, state in enumerate(source):
+                if k == round(source.rate_hz):
+                    stop.set("SIGINT")  # as the signal handler does
+                yield state
+
+        f, w = preview_reference(read_with_a_stop_one_second_in(), stop)
+    assert len(f) == len(w) == round(source.rate_hz)  # the second before the stop
+    # through fly: a stop before the look-ahead (a signal while the command starts)
+    # previews nothing of the flight, and the flight stops before its first tick
+    stop = StopRequest()
+    stop.set("SIGINT")
+    out = tmp_path / "stopped.mcap"
+    res = app.fly(
+        "c172_elevator_doublet", cueing="mpc", preview=True, out=out, progress=False, stop=stop
+    )
+    assert res.summary.stopped_by == "SIGINT" and res.summary.running_samples == 0
+    (note,) = [n for n in res.notes if n.startswith("preview:")]
+    assert "(1 samples;" in note, note  # level flight, not the script's 4800 samples
+
+
 def test_a_failing_solver_in_a_flight_is_logged_and_flies_the_fallback(tmp_path, capsys):
     """``fly --cueing mpc`` with a solver that never converges (one iteration): every tick's
     ``/cueing/mpc`` says so, and once the blend is over the cue is the fallback washout's,

@@ -290,6 +290,31 @@ def test_geometry_round_trips_and_errors(tmp_path):
         Rrr3(Rrr3Geometry(modes=(1, 1, 1)))
 
 
+def test_a_file_whose_home_pose_is_out_of_reach_is_named_not_the_preset_it_was_copied_from(
+    tmp_path,
+):
+    """A copy of a preset with a rod too short for chain 1 to reach its platform joint at
+    home: the error named the preset the copy came from ("rrr3 geometry 'udesc_symmetric'"),
+    as if the shipped preset were broken, and not the file (fly --planar, workspace
+    --planar, teleop said the same)."""
+    from motionbase.config import preset_path
+
+    text = preset_path("rrr3", "udesc_symmetric").read_text()
+    # chain 1 at home: motor axis at the origin, its platform joint h/sqrt(3) from the home
+    # point (L/2, L sqrt(3)/6) toward the origin, so L/sqrt(3) - h/sqrt(3) away from it
+    reach_needed = (L - H) / math.sqrt(3)
+    rod = reach_needed - A_LEN - 0.002  # the crank and the rod together fall 2 mm short
+    assert A_LEN + rod > H / math.sqrt(3)  # (not the simpler "too short to reach" check)
+    lines = [f"rod = {rod!r}" if ln.startswith("rod =") else ln for ln in text.splitlines()]
+    path = tmp_path / "mine.toml"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ConfigError) as err:
+        Rrr3Geometry.from_toml(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: home pose") and "unreachable" in message
+    assert "udesc_symmetric" not in message
+
+
 @pytest.mark.parametrize(
     ("edit", "match"),
     [

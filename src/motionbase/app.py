@@ -691,6 +691,12 @@ def fly(
         )
         # a real-time flight is paced by the pipeline's loop (the source never waits)
         source = JsbsimSource(script, duration_s=duration_s)
+        refuse_out_over_inputs(
+            out_path,
+            ("script", source.script_path),
+            ("--platform", platform),
+            ("--params", washout),
+        )
         from motionbase.pipeline import check_rate
 
         # the script's time step sets the pipeline's rate: a bad one names the script, and
@@ -711,7 +717,7 @@ def fly(
 
                 _check_preview(config.cueing)
                 with JsbsimSource(script, duration_s=duration_s) as ahead:
-                    reference = preview_reference(ahead)
+                    reference = preview_reference(ahead, stop)
             return _drive(
                 f"flew {name} on the {robot_title(config)}",
                 config,
@@ -861,7 +867,7 @@ def _replay(
                     "with --cueing or --params given, which makes no preview)"
                 ) from None
             with McapSource(src_path) as ahead:
-                reference = preview_reference(ahead)
+                reference = preview_reference(ahead, stop)
         notes = []
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")
@@ -1125,6 +1131,13 @@ def _stream(
     )
     if out is None:
         out = user_recordings_dir() / time.strftime("stream-%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+    refuse_out_over_inputs(
+        out,
+        ("--mavlink", mavlink),
+        ("--signing-key", signing_key),
+        ("--platform", platform),
+        ("--params", washout),
+    )
     source = open_live_source(
         source_url,
         mavlink=mavlink,

@@ -173,10 +173,19 @@ class JsbsimSource:
         start, end, dt = _script_timing(self.script_path)
         if not (math.isfinite(dt) and dt > 0):
             raise SourceError(f"{self.script_path}: <run> has no valid dt")
+        if not math.isfinite(end):  # JSBSim refuses to load it, --duration or not
+            raise SourceError(
+                f"{self.script_path}: <run> has no end time, which JSBSim needs: add "
+                'end="SECONDS" to it'
+            )
+        if not (math.isfinite(start) and end > start):
+            raise SourceError(
+                f"{self.script_path}: <run> end ({end:g} s) is not after its start "
+                f"({start:g} s): nothing to fly"
+            )
         self._dt = dt
         self._t_start = start
-        length = end - start if math.isfinite(end) else math.inf
-        self._setup_rate_duration(rate_hz, duration_s, length)
+        self._setup_rate_duration(rate_hz, duration_s, end - start)
         self._init_state()
 
     @classmethod

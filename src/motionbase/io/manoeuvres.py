@@ -291,12 +291,18 @@ def write_washout(path: str | Path, params: WashoutParams, header: list[str]) ->
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
 
 
-def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:
+def preview_reference(source: Any, stop: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """Every sample of an (entered) offline source, as the preview of a cueing
     (:meth:`motionbase.washout.mpc.MpcCueing.set_preview`): specific force (N, 3), m/s^2,
     and body rates (N, 3), rad/s, one row per sample the source gives. A non-finite
     sample holds the last finite one (level flight before any), as the pipeline holds a
     rejected sample.
+
+    ``stop`` (the run's :class:`~motionbase.stopping.StopRequest`): once it is set, the
+    rest of the source is not read, and the run this prepares stops before its first
+    tick. (A stop signal during the look-ahead of a long flight waited for all of it: as
+    long as simulating the whole script took.) Level flight when it was set before the
+    first sample.
 
     Raises
     ------
@@ -306,6 +312,8 @@ def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:
     f, w = [], []
     last_f, last_w = np.array([0.0, 0.0, -STANDARD_GRAVITY]), np.zeros(3)
     for state in source:
+        if stop is not None and stop.is_set():
+            break
         sf = np.asarray(state.specific_force, dtype=float)
         av = np.asarray(state.angular_velocity, dtype=float)
         if np.isfinite(sf).all() and np.isfinite(av).all():
@@ -313,6 +321,8 @@ def preview_reference(source: Any) -> tuple[np.ndarray, np.ndarray]:
         f.append(last_f)
         w.append(last_w)
     if not f:
+        if stop is not None and stop.is_set():
+            return last_f[None, :].copy(), last_w[None, :].copy()
         raise ConfigError("--preview: the source gave no aircraft state to preview")
     return np.array(f), np.array(w)
 

@@ -167,7 +167,7 @@ class Rrr3:
         if st != OK:
             raise ConfigError(
                 f"rrr3 geometry {self.geometry.name!r}: home pose {self.home.tolist()} is "
-                f"{describe_status(int(st))} (fix modes, servo mapping or margins)"
+                f"{describe_status(int(st))} (fix the lengths, modes, servo mapping or margins)"
             )
 
     # -- inverse kinematics -----------------------------------------------------------------

@@ -197,7 +197,11 @@ class Rrr3Geometry:
         check_keys(f"{source} [servo]", servo, _SERVO_KEYS, required=_SERVO_KEYS)
         check_keys(f"{source} [safety]", safety, _SAFETY_KEYS, required=_SAFETY_KEYS)
         try:
-            return cls._from_tables(data, servo, safety)
+            geometry = cls._from_tables(data, servo, safety)
+            from motionbase.platform.rrr3 import Rrr3  # (it imports this module)
+
+            Rrr3(geometry)  # a home pose it cannot take, said here, where the file is known
+            return geometry
         except ConfigError as exc:  # name the file rather than the geometry's inner name
             msg, prefix = str(exc), f"rrr3 geometry {data.get('name', 'custom')!r}"
             if source != "rrr3 geometry" and msg.startswith(prefix):
