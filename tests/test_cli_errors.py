@@ -963,3 +963,23 @@ def test_a_whole_number_too_large_for_a_float_is_one_line(
     assert code == 2, err
     one_line(err, f"huge_{kind}.toml", needle)
     assert not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("args", [["workspace", "--planar"], ["workspace"]])
+def test_a_reader_gone_before_the_result_is_printed_is_no_traceback(args):
+    """``motionbase workspace --planar | head -1`` printed a BrokenPipeError traceback: the
+    reader had gone when the table came. The work is done by then; the result is a display,
+    so the command ends as it would have, exit 0, with nothing on stderr."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "motionbase", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    proc.stdout.close()  # the reader goes before anything is printed
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == 0, err
+    assert "Traceback" not in err and "Error" not in err, err

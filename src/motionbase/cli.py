@@ -406,13 +406,13 @@ def run_workspace(args: argparse.Namespace) -> int:
                 f"--platform {args.platform} and --rrr3 {args.rrr3} both name the 3-RRR "
                 "geometry with --planar: give one of them"
             )
-        print(planar_workspace_report(args.platform or args.rrr3, args.plot))
+        tell(planar_workspace_report(args.platform or args.rrr3, args.plot))
     else:
         from motionbase.io.workspace_plots import workspace_report
 
         if args.rrr3:
             raise ConfigError(f"--rrr3 {args.rrr3} names a 3-RRR geometry: add --planar")
-        print(workspace_report(args.platform, args.plot))
+        tell(workspace_report(args.platform, args.plot))
     return 0
 
 
@@ -548,7 +548,7 @@ def _args_report(p: argparse.ArgumentParser) -> None:
 def run_report(args: argparse.Namespace) -> int:
     from motionbase.io.report_plots import write_report
 
-    print(write_report(args.recording, args.out).summary_text())
+    tell(write_report(args.recording, args.out).summary_text())
     return 0
 
 
@@ -600,7 +600,7 @@ def run_omct(args: argparse.Namespace) -> int:
         planar=args.planar,
         rate_hz=args.rate, scale=args.scale, preview=args.preview,
     )  # fmt: skip
-    print(files.summary_text())
+    tell(files.summary_text())
     return 0
 
 
@@ -816,7 +816,7 @@ def run_tune(args: argparse.Namespace) -> int:
             time_budget_s=args.time_budget,
             preview=args.preview,
         )
-    print(result.summary_text())
+    tell(result.summary_text())
     return 0
 
 

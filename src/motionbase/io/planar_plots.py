@@ -14,10 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.config import DEFAULT_RRR3
 from motionbase.io.workspace_plots import plot_format, save_figure
+from motionbase.platform.robot import load_geometry
 from motionbase.platform.rrr3 import Rrr3
-from motionbase.platform.rrr3_geometry import Rrr3Geometry
 from motionbase.platform.rrr3_workspace import PlanarWorkspace
 
 __all__ = ["planar_workspace_figure", "plot_planar_workspace", "planar_workspace_report"]
@@ -176,7 +175,7 @@ def planar_workspace_report(
     """
     if plot is not None:
         plot_format(plot)
-    g = Rrr3Geometry.preset(str(geometry if geometry is not None else DEFAULT_RRR3))
+    _, g = load_geometry(geometry, planar=True)  # (a 6-DOF robot: "drop --planar", as fly)
     rrr3 = Rrr3(g)
     t0 = time.perf_counter()
     ws = rrr3.workspace(nx, ny, nphi)
