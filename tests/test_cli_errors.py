@@ -983,3 +983,41 @@ def test_a_reader_gone_before_the_result_is_printed_is_no_traceback(args):
     err = proc.stderr.read()
     assert proc.wait(timeout=120) == 0, err
     assert "Traceback" not in err and "Error" not in err, err
+
+
+@pytest.mark.parametrize("reader", [False, True], ids=["no reader", "a reader"])
+def test_out_on_a_fifo_is_one_line_and_exit_2(tmp_path, reader):
+    """``--out`` naming a FIFO: the log's writer seeks back into its file to finish each
+    chunk, which a FIFO cannot do. Without a reader, opening it waited for one forever
+    (the run never started, and ignored Ctrl-C); with one, the SDK's error came as two
+    lines. Now: one line naming the path, exit 2, before the run starts."""
+    import subprocess
+    import sys
+    import threading
+
+    import motionbase
+
+    fifo = tmp_path / "log.mcap"
+    os.mkfifo(fifo)
+    drained = threading.Thread(target=lambda: Path(fifo).read_bytes(), daemon=True)
+    if reader:
+        drained.start()
+    here = str(Path(motionbase.__file__).parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "motionbase.cli", "fly", "c1723", "--duration", "1"]
+            + ["--out", str(fifo)],
+            cwd=tmp_path,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,  # (it used to wait here forever)
+        )
+    finally:
+        if reader and drained.is_alive():  # release a reader the run never opened for
+            with open(fifo, "wb"):
+                pass
+    assert proc.returncode == 2, proc.stderr
+    one_line(proc.stderr, str(fifo), "FIFO")

@@ -9,6 +9,7 @@ import signal
 import struct
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -598,3 +599,50 @@ def test_file_size_limit_mid_run_is_reported_and_the_log_stays_readable(tmp_path
     assert out.startswith("SinkError:") and str(path) in out and "\n" not in out, out
     times = [m["t"] for m in read_messages(path)["/washout/pose"]]
     assert len(times) > 120 and times == [k / 120 for k in range(1, len(times) + 1)]
+
+
+def _process_state(pid: int) -> str:
+    """The state letter of process ``pid`` (``T``: stopped)."""
+    with open(f"/proc/{pid}/stat") as fh:
+        return fh.read().rsplit(")", 1)[1].split()[0]
+
+
+def test_a_stopped_writer_never_holds_up_a_real_time_logger(tmp_path: Path) -> None:
+    """The writer process stopped (SIGSTOP; a disk that hangs does the same): a real-time
+    logger's calls go on, its records waiting in memory; a backlog past BACKLOG_BYTES is one
+    SinkError, finish() leaves the stopped writer be, and once the writer runs again it
+    finishes the file with what it was handed. (A call that waits on the full pipe would
+    hold up the pipeline's tick, and the platform with it, as long as the writer is stopped.)
+    """
+    path = tmp_path / "stopped.mcap"
+    logger = McapLogger(path, CONFIG, realtime=True).start()
+    pid = logger.writer_pid
+    assert pid is not None
+    os.kill(pid, signal.SIGSTOP)
+    # a logger that waits for the writer would wait forever: let the writer go on after a
+    # minute, so that such a logger fails below instead of hanging the test
+    rescue = threading.Timer(60.0, os.kill, (pid, signal.SIGCONT))
+    rescue.start()
+    added = 0
+    try:
+        with pytest.raises(SinkError) as err:
+            for k in range(1, 400_000):
+                logger.add("/washout/pose", k / 1000, {"pose": [k * 1e-3] * 6})
+                added = k
+        with pytest.raises(SinkError, match="writer process"):  # the same error after it
+            logger.add("/washout/pose", 1000.0, {"pose": [0.0] * 6})
+        logger.finish()  # reported already: no second error, and no wait for the writer
+        state = _process_state(pid)
+    finally:
+        rescue.cancel()
+        os.kill(pid, signal.SIGCONT)
+    assert state == "T", "finish() or an add() waited until the writer ran again"
+    msg = str(err.value)
+    assert str(path) in msg and "writer process" in msg and "\n" not in msg
+    summary = _finished_summary(path, timeout_s=30)  # the writer finishes the file on its own
+    assert summary is not None
+    times = [m["t"] for m in read_messages(path)["/washout/pose"]]
+    assert len(times) > 0 and times == [k / 1000 for k in range(1, len(times) + 1)]
+    assert summary.statistics.message_count == len(times)
+    # the file has what the pipe took; the calls went on far beyond it while it was stopped
+    assert added > 4 * len(times)

@@ -31,9 +31,9 @@ G = 9.80665
 
 
 def _outputs(planar: bool, n: int = 900) -> list:
-    """Real pipeline outputs: strong and calm stretches, NaN samples, no angular
-    acceleration on some, the flight phase on some (on the ground or in the air), stale
-    marks, then the park ramp (state None)."""
+    """Real pipeline outputs: strong and calm stretches, NaN samples (and three whose time is
+    not finite), no angular acceleration on some, the flight phase on some (on the ground or
+    in the air), stale marks, then the park ramp (state None)."""
     rng = np.random.default_rng(3)
     pipeline = Pipeline(load_config(planar=planar, rate_hz=120.0))
     outs = []
@@ -48,7 +48,8 @@ def _outputs(planar: bool, n: int = 900) -> list:
             w[2] = math.inf
         acc = None if k % 3 == 0 else rng.normal(size=3)
         ground = (None, True, False)[k % 5 % 3]  # (with and without acceleration)
-        state = AircraftState(k / 120.0, f, w, att, angular_acceleration=acc, on_ground=ground)
+        t = {200: math.inf, 400: -math.inf, 600: math.nan}.get(k, k / 120.0)  # rejected
+        state = AircraftState(t, f, w, att, angular_acceleration=acc, on_ground=ground)
         outs.append(pipeline.step(state, fresh=(k // 40) % 9 != 4))
     pipeline.stop()
     while not pipeline.parked and len(outs) < n + 600:
@@ -117,7 +118,8 @@ def test_every_output_is_logged_exactly(tmp_path, planar):
 
         if out.state is not None:
             (st,) = got["/aircraft/state"]
-            assert st["t"] == out.t and st["source_t"] == out.state.t
+            assert st["t"] == out.t
+            _same(st["source_t"], out.state.t)  # a non-finite time too, as a JSON string
             assert st["fresh"] is out.fresh and st["accepted"] is out.accepted
             _same(st["specific_force"], out.state.specific_force)
             _same(st["angular_velocity"], out.state.angular_velocity)
@@ -163,6 +165,8 @@ def test_every_output_is_logged_exactly(tmp_path, planar):
     # the rejected samples' non-finite values are kept, as JSON strings
     raw = [d for topic, _, d in records if topic == "/aircraft/state"]
     assert any(b'"NaN"' in d for d in raw) and any(b'"Infinity"' in d for d in raw)
+    for bad in (b'"source_t":"Infinity"', b'"source_t":"-Infinity"', b'"source_t":"NaN"'):
+        assert sum(bad in d for d in raw) == 1, bad  # the source's own time, not a null
 
 
 def test_state_from_vector_equals_the_constructor():

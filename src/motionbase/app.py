@@ -385,6 +385,7 @@ def _drive_stoppable(
                     robot=pipeline.robot,
                     live=live,
                     cueing=pipeline.cueing,
+                    realtime=paced,  # a tick never waits for the log's writer
                 )
                 log.__enter__()
                 sinks.insert(0, log)  # the log stays the first sink, closed last

@@ -400,6 +400,7 @@ def teleop_job(
                         "stale_timeout_s": stale_timeout_s,
                     },
                     live=live_at,
+                    realtime=realtime,  # a tick never waits for the log's writer
                 ).start()
                 cleanup.callback(logger.finish)
                 if live_at is not None:

@@ -83,7 +83,7 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
 
     items: list[tuple[str, dict[str, Any]]] = []
     if has_state:
-        state = {"t": t, "source_t": source_t}
+        state = {"t": t, "source_t": json_float(source_t)}
         state.update((key, take(3)) for key in _STATE_KEYS)
         state.update(fresh=fresh, accepted=accepted)
         if has_acc:

@@ -79,7 +79,16 @@ class LogFile:
     """
 
     def __init__(self, path: str) -> None:
-        self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
+        # O_NONBLOCK: a FIFO with no reader fails at once (ENXIO) instead of waiting for one
+        flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK | os.O_CLOEXEC
+        fd = os.open(path, flags, 0o666)
+        try:
+            os.lseek(fd, 0, os.SEEK_CUR)  # the writer seeks back to finish each chunk
+            os.set_blocking(fd, True)
+        except BaseException:
+            os.close(fd)
+            raise
+        self._fh = open(fd, "wb", buffering=0)  # noqa: SIM115 - closed by close()
         self.error: OSError | None = None
         self._pos = self._end = 0  # positions after an error
 
@@ -174,6 +183,12 @@ class Writer:
             self._file = LogFile(config["file"])
         except OSError as exc:
             self.stop_server()
+            if exc.errno in (errno.ENXIO, errno.ESPIPE):  # a FIFO, a socket, a terminal
+                raise WriterFailed(
+                    f"{self.path}: cannot write the MCAP log there: it is not a file the log "
+                    "can seek in (a FIFO, a socket or a terminal); give a file path",
+                    "config",
+                ) from None
             raise WriterFailed(
                 f"{self.path}: cannot create the MCAP log: {exc.strerror or exc} "
                 "(check the folder exists and is writable)"

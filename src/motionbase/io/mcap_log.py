@@ -22,6 +22,15 @@ The writer runs in a process of its own
     end, is raised as a :class:`SinkError` by the next call that writes to the pipe (or
     by ``finish()``).
 
+Never waiting for the writer (real-time runs)
+    With ``realtime=True`` a call never waits for the writer process: what the pipe does
+    not take now (a writer stopped, or held up by a disk that does not answer, once the
+    pipe's 1 MiB is full) waits in memory for the next call. A backlog past
+    :data:`BACKLOG_BYTES` (8 MiB: tens of seconds of a run) is a :class:`SinkError`, as a
+    full disk is (the pipeline parks), and ``finish()`` then waits a few seconds at most
+    for the writer, which finishes the file on its own once it runs again. Without it (runs
+    as fast as they go) a call waits for the pipe, so the writer's pace sets the run's.
+
 Live view
     With ``live=`` (``--live [HOST:]PORT``) the writer process also serves the log's
     topics on a Foxglove WebSocket server, with the same channels on a context of its
@@ -68,6 +77,7 @@ import json
 import logging
 import math
 import os
+import select
 import subprocess
 import sys
 from collections.abc import Mapping, Sequence
@@ -109,6 +119,10 @@ _SEND_BYTES = 16 * 1024
 _SEND_NS = 100_000_000  # ... or once they span 0.1 s of source time
 _PIPE_BYTES = 1 << 20  # the writer process's pipe: about 3 s of a 1 kHz log with its scene
 _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
+#: real-time runs: the most bytes of records the writer process may leave in this process
+#: (the pipe full) before the log counts as failed
+BACKLOG_BYTES = 8 << 20
+_FAILED_WRITER_WAIT_S = 5.0  # finish() after such a failure: the writer may be stopped
 _Items = Sequence[tuple[str, Mapping[str, Any]]]  # (topic, message) pairs
 #: The most messages per second of source time a live client gets on one topic.
 LIVE_RATE_HZ = 60.0
@@ -265,6 +279,10 @@ class McapLogger:
     live_rate_hz : float
         The live feed's most messages per second of source time per topic (default
         :data:`LIVE_RATE_HZ`, 60).
+    realtime : bool
+        A real-time run: no call waits for the writer process (see the module's notes);
+        a backlog past :data:`BACKLOG_BYTES` is a :class:`SinkError`. Default False: a call
+        waits while the pipe is full.
     topics : Mapping, optional
         More topics than :data:`~motionbase.io.schemas.TOPIC_SCHEMAS`: topic ->
         (schema name, JSON Schema of its messages), e.g. a cueing plug-in's
@@ -288,10 +306,12 @@ class McapLogger:
         flush_interval_s: float = 1.0,
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,
+        realtime: bool = False,
         topics: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
     ) -> None:
         self.path = Path(path)
         self.live = live
+        self.realtime = bool(realtime)
         self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
         self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
@@ -375,6 +395,7 @@ class McapLogger:
         finally:
             os.close(data_r)
             os.close(reply_w)
+        os.set_blocking(data_w, False)  # _send waits for it only when it must
         self._data_fd = data_w
         self._reply = os.fdopen(reply_r, "rb")
 
@@ -391,10 +412,13 @@ class McapLogger:
             if self._state != "failed":
                 self._request(OP_CLOSE)
         finally:  # (open or failed: start() made the writer process and its pipes)
-            self._state = "finished"
+            failed, self._state = self._state == "failed", "finished"
             os.close(self._data_fd)  # the writer ends at the end of its input
             self._data_fd = -1
-            self._process.wait()
+            try:
+                self._process.wait(timeout=_FAILED_WRITER_WAIT_S if failed else None)
+            except subprocess.TimeoutExpired:  # stopped or stuck: it finishes on its own
+                pass
             self._reply.close()
 
     def __enter__(self) -> McapLogger:
@@ -540,21 +564,38 @@ class McapLogger:
     def _request(self, op: int, payload: bytes = b"") -> dict[str, Any]:
         """Send a control record (after the records pending); the writer process's answer."""
         self._pending += _HEADER.pack(op, len(payload), 0) + payload
-        self._send()
+        self._send(wait=True)
         return self._answer()
 
-    def _send(self) -> None:
-        """Write the pending records to the writer process (all of them: a signal can cut a
-        write short)."""
-        data, self._pending = self._pending, bytearray()
+    def _send(self, wait: bool = False) -> None:
+        """Write the pending records to the writer process: all of them (a signal can cut a
+        write short), or in a real-time run, unless ``wait``, what the pipe takes now (the
+        rest stays pending; past :data:`BACKLOG_BYTES` the log fails)."""
+        wait = wait or not self.realtime
         self._pending_ns = -1
-        view = memoryview(data)
+        sent = 0
         try:
-            while view:
-                view = view[os.write(self._data_fd, view) :]
+            with memoryview(self._pending) as view:
+                while sent < len(view):
+                    try:
+                        sent += os.write(self._data_fd, view[sent:])
+                    except BlockingIOError:  # the pipe is full
+                        if not wait:
+                            break
+                        select.select((), (self._data_fd,), ())
         except BrokenPipeError:  # the writer failed and closed its end: its answer says why
+            self._pending.clear()
             self._answer()
             raise SinkError(f"{self.path}: the MCAP log's writer process stopped") from None
+        del self._pending[:sent]
+        if len(self._pending) > BACKLOG_BYTES:
+            self._pending.clear()
+            self._failed(
+                SinkError,
+                f"{self.path}: the MCAP log's writer process does not keep up with the run "
+                f"(its pipe full and {BACKLOG_BYTES / 2**20:g} MiB more of the log waiting: "
+                "the process is stopped, or its disk does not answer); the log ends there",
+            )
 
     def _answer(self) -> dict[str, Any]:
         """The writer process's next answer; a failure it reports raises, as does its end."""

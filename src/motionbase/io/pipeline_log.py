@@ -77,6 +77,9 @@ class PipelineLog:
     cueing : Cueing, optional
         The pipeline's cueing: its per-tick diagnostics go on ``/cueing/<name>``
         (:func:`cueing_schema`), read right after the tick it describes.
+    realtime : bool
+        A real-time run: a tick never waits for the log's writer process
+        (:class:`~motionbase.io.mcap_log.McapLogger`'s ``realtime``).
     """
 
     def __init__(
@@ -89,6 +92,7 @@ class PipelineLog:
         live: LiveAddress | None = None,
         live_rate_hz: float = LIVE_RATE_HZ,
         cueing: Any = None,
+        realtime: bool = False,
     ) -> None:
         self.path = Path(path)
         schema = cueing_schema(cueing)
@@ -97,7 +101,12 @@ class PipelineLog:
         self._cueing_topic = f"/cueing/{cueing.name}" if schema is not None else ""
         topics = {self._cueing_topic: schema} if schema is not None else None
         self._logger: McapLogger | None = McapLogger(
-            self.path, metadata, live=live, live_rate_hz=live_rate_hz, topics=topics
+            self.path,
+            metadata,
+            live=live,
+            live_rate_hz=live_rate_hz,
+            realtime=realtime,
+            topics=topics,
         )
         self._scene = SceneBuilder(robot) if robot is not None else None
         self._scene_period = 1.0 / SCENE_RATE_HZ
