@@ -598,3 +598,14 @@ def test_file_size_limit_mid_run_is_reported_and_the_log_stays_readable(tmp_path
     assert out.startswith("SinkError:") and str(path) in out and "\n" not in out, out
     times = [m["t"] for m in read_messages(path)["/washout/pose"]]
     assert len(times) > 120 and times == [k / 120 for k in range(1, len(times) + 1)]
+
+
+def test_actuator_schema_gives_the_stewart_platforms_unit():
+    """A 6-UPS Stewart platform logs its actuator *lengths* (m, joint centre to joint centre,
+    0.60-0.90 m on the seat preset) on /platform/actuators; the schema Foxglove shows must
+    not call every value a crank angle in rad (it did: 0.75 "rad" for a 0.75 m leg)."""
+    from motionbase.io.schemas import TOPIC_SCHEMAS
+
+    _, schema = TOPIC_SCHEMAS["/platform/actuators"]
+    text = schema["description"] + " " + schema["properties"]["angles"]["description"]
+    assert "rad" in text and ", m" in text and "Stewart" in text
