@@ -646,3 +646,14 @@ def test_a_stopped_writer_never_holds_up_a_real_time_logger(tmp_path: Path) -> N
     assert summary.statistics.message_count == len(times)
     # the file has what the pipe took; the calls went on far beyond it while it was stopped
     assert added > 4 * len(times)
+
+
+def test_actuator_schema_gives_the_stewart_platforms_unit():
+    """A 6-UPS Stewart platform logs its actuator *lengths* (m, joint centre to joint centre,
+    0.60-0.90 m on the seat preset) on /platform/actuators; the schema Foxglove shows must
+    not call every value a crank angle in rad (it did: 0.75 "rad" for a 0.75 m leg)."""
+    from motionbase.io.schemas import TOPIC_SCHEMAS
+
+    _, schema = TOPIC_SCHEMAS["/platform/actuators"]
+    text = schema["description"] + " " + schema["properties"]["angles"]["description"]
+    assert "rad" in text and ", m" in text and "Stewart" in text

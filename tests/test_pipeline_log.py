@@ -222,3 +222,47 @@ def test_a_tick_record_carries_the_cueing_status_and_diagnostics_and_refuses_oth
     bad = out._replace(angles=out.angles.astype(np.float32))
     with pytest.raises(ValueError, match="tick record"):
         tick_record.messages(tick_record.pack(bad, None, "", encode_message))
+
+
+@pytest.mark.parametrize(
+    ("platform", "neutral_height"),
+    [("ceart", 0.648), ("stewart6", None)],
+    ids=["rus6", "stewart6"],
+)
+def test_tf_places_the_platform_frame_at_the_platform(tmp_path, platform, neutral_height):
+    """``/tf``'s ``platform`` frame sits where the platform is: DESIGN.md puts the platform
+    frame's origin at the centroid of the platform joints and the base origin in the base
+    joint (crank pivot) plane, so at a pose ``p`` the frame is at ``(0, 0, -h) + p[:3]``
+    (h the neutral height: 0.648 m for ceart per DESIGN.md's geometry table; for the
+    Stewart seat, ``sqrt(L^2 - d^2)`` with L = 0.75 m the neutral leg length and d the
+    horizontal reach of a leg between the 0.50 m and 0.35 m circles). It used to be at
+    ``p[:3]`` alone: the frame rode 0.65 m below the plate that /platform/scene draws."""
+    pipeline = Pipeline(load_config(platform=platform, rate_hz=120.0))
+    robot = pipeline.robot
+    outs = []
+    for k in range(1, 240):
+        f = (2.0 * math.sin(k / 20.0), -1.5, -G + 1.0)
+        outs.append(pipeline.step(AircraftState(k / 120.0, f, (0.2, -0.1, 0.3), (0.0, 0.0, 0.0))))
+    path = tmp_path / "tf.mcap"
+    with PipelineLog(path, {"kind": "test"}, robot=robot) as log:
+        for out in outs:
+            log.write(out)
+    if neutral_height is None:  # Stewart seat: pairs at 0/120/240 deg (+-12) and 60/180/300
+        b = 0.50 * np.array([math.cos(math.radians(-12.0)), math.sin(math.radians(-12.0))])
+        c = 0.35 * np.array([math.cos(math.radians(-48.0)), math.sin(math.radians(-48.0))])
+        neutral_height = math.sqrt(0.75**2 - float(np.sum((c - b) ** 2)))
+    by_ns = {round(o.t * 1e9): o for o in outs}
+    n = 0
+    for topic, ns, data in _read(path):
+        msg = decode_message(data)
+        if topic != "/tf" or msg["child_frame_id"] != "platform":
+            continue
+        pose = by_ns[ns].platform_pose
+        got = np.array([msg["translation"][k] for k in "xyz"])
+        # the independent figure (DESIGN.md's rounded neutral height, or the hand computation)
+        np.testing.assert_allclose(got, pose[:3] + (0.0, 0.0, -neutral_height), atol=1e-3)
+        # and exactly the centroid of the platform joints the scene draws at that pose
+        joints = robot.joint_points(np.asarray(pose))[-1]
+        np.testing.assert_allclose(got, joints.mean(axis=0), atol=1e-12)
+        n += 1
+    assert n == len(outs)

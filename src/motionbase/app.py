@@ -908,6 +908,10 @@ def _replay(
                 result.failed = True
             elif check:
                 recording = read_messages(src_path)
+                if source.log_format in (None, "1"):  # its /tf: the pose alone (see below)
+                    origin = getattr(config.geometry, "platform_origin", None)
+                    if origin is not None:
+                        recording = _tf_at_platform_origin(recording, origin)
                 report = compare_recordings(recording, read_messages(out_path))
                 result.notes.extend(report.lines())
                 result.failed = not report.identical
@@ -1245,6 +1249,26 @@ def _max_diff(a: Any, b: Any, skip: set[str]) -> float:
         except OverflowError:  # an integer beyond any float (a crafted file)
             return math.inf
     return 0.0 if a == b else math.inf
+
+
+def _tf_at_platform_origin(recording: dict[str, list[dict]], origin: Any) -> dict[str, list[dict]]:
+    """A recording of log format "1" with its ``/tf`` written as the log writes it now.
+
+    Format "1" gave the ``platform`` frame the pose's displacement alone as its translation,
+    which put it ``neutral_height`` below the platform; the writer now adds the platform's
+    origin at neutral (:class:`~motionbase.io.mcap_log.McapLogger`'s ``platform_origin``),
+    the same sum done here, so a replay of an older recording still compares bit for bit.
+    """
+    ox, oy, oz = (float(v) for v in origin)
+    tfs = []
+    for m in recording.get("/tf", []):
+        tr = m.get("translation") if isinstance(m, dict) else None
+        if m.get("child_frame_id") == "platform" and isinstance(tr, dict):
+            x, y, z = tr.get("x"), tr.get("y"), tr.get("z")
+            if all(isinstance(v, int | float) and not isinstance(v, bool) for v in (x, y, z)):
+                m = {**m, "translation": {"x": ox + x, "y": oy + y, "z": oz + z}}
+        tfs.append(m)
+    return {**recording, "/tf": tfs} if "/tf" in recording else recording
 
 
 def compare_recordings(a: Mapping[str, list[dict]], b: Mapping[str, list[dict]]) -> CheckReport:

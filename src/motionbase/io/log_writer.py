@@ -155,7 +155,8 @@ class Writer:
     ``chunk_size`` (bytes), ``flush_interval_ns``, ``metadata_name`` and
     ``metadata`` (the metadata record's name and string fields), ``topics`` (``[topic,
     schema name, JSON Schema]`` in index order), ``live`` (``[host, port]`` or null),
-    ``live_period_ns``.
+    ``live_period_ns``, and optionally ``platform_origin`` (``[x, y, z]``, m: the platform
+    frame's origin in the base frame at the neutral pose; zeros when absent).
     """
 
     def __init__(self, config: dict[str, Any]) -> None:
@@ -167,6 +168,10 @@ class Writer:
         self._flush_interval_ns = int(config["flush_interval_ns"])
         self._chunk_start_ns = -1  # log time of the first message since the last flush
         self._world_ns = -1  # log time of the last world -> base transform
+        # the platform frame's origin (the centroid of its joints) in the base frame at the
+        # neutral pose, m: a pose is the displacement from there (DESIGN.md)
+        ox, oy, oz = config.get("platform_origin") or (0.0, 0.0, 0.0)
+        self._origin = (float(ox), float(oy), float(oz))
         self._context = foxglove.Context()  # channels hold only a weak reference to it
         self._server: Any = None
         self._live: list[list] | None = None  # per topic: [live channel, next due ns]
@@ -255,8 +260,9 @@ class Writer:
 
     def log_pose(self, index: int, pose: list[float], ns: int) -> None:
         """Log the platform pose ``[x, y, z, roll, pitch, yaw]`` (m, rad, FRD base axes) on
-        topic ``index`` as the ``platform`` frame in the ``base`` frame (rotation: the
-        quaternion of the Z-Y-X Euler angles), after the transform from Foxglove's z-up
+        topic ``index`` as the ``platform`` frame in the ``base`` frame (translation: the
+        platform origin at neutral plus the pose's displacement; rotation: the quaternion of
+        the Z-Y-X Euler angles), after the transform from Foxglove's z-up
         ``world`` frame to ``base`` (half a turn about x) at the first pose and then once per
         second of log time (each of those goes live)."""
         if self._world_ns < 0 or ns - self._world_ns >= _SEC:
@@ -264,8 +270,10 @@ class Writer:
             world = transform_message(ns, "world", "base", 0.0, 0.0, 0.0, _WORLD_TO_BASE)
             self.log(index, orjson.dumps(world), ns, FLAG_ALWAYS_LIVE)
         x, y, z, roll, pitch, yaw = pose
+        ox, oy, oz = self._origin
         q = quaternion_from_euler_zyx(roll, pitch, yaw)
-        self.log(index, orjson.dumps(transform_message(ns, "base", "platform", x, y, z, q)), ns, 0)
+        tf = transform_message(ns, "base", "platform", ox + x, oy + y, oz + z, q)
+        self.log(index, orjson.dumps(tf), ns, 0)
 
     def log_tick(self, record: bytes, ns: int) -> None:
         """Log one pipeline tick packed by :func:`motionbase.tick_record.pack`: its messages,

@@ -109,8 +109,10 @@ log = logging.getLogger("motionbase")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: Name of the metadata record that holds the configuration.
 METADATA_NAME = "motionbase"
-#: Version of the message layout written in the metadata (key ``log_format``).
-LOG_FORMAT = "1"
+#: Version of the message layout written in the metadata (key ``log_format``). "2": ``/tf``
+#: places the ``platform`` frame at the platform (its origin at neutral plus the pose);
+#: "1" wrote the pose's displacement alone as the translation.
+LOG_FORMAT = "2"
 
 _COMPRESSIONS = ("lz4", "zstd", "none")
 _HEADER = log_writer.HEADER
@@ -288,6 +290,10 @@ class McapLogger:
         (schema name, JSON Schema of its messages), e.g. a cueing plug-in's
         diagnostics (:attr:`motionbase.washout.cueing.Cueing.diagnostics_schema`).
         A topic of ``TOPIC_SCHEMAS`` keeps its own schema.
+    platform_origin : array_like, shape (3,), optional
+        The platform frame's origin (the centroid of the platform joints) in the base frame
+        at the neutral pose, m (the robot geometry's ``platform_origin``): ``/tf`` places
+        the ``platform`` frame there plus the pose's displacement. Default zeros.
 
     Raises
     ------
@@ -308,10 +314,16 @@ class McapLogger:
         live_rate_hz: float = LIVE_RATE_HZ,
         realtime: bool = False,
         topics: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
+        platform_origin: ArrayLike | None = None,
     ) -> None:
         self.path = Path(path)
         self.live = live
         self.realtime = bool(realtime)
+        origin = np.zeros(3) if platform_origin is None else np.asarray(platform_origin, float)
+        if origin.shape != (3,) or not np.isfinite(origin).all():
+            raise ConfigError(f"platform_origin must be 3 finite numbers (m), got {origin}")
+        #: the platform frame's origin in the base frame at the neutral pose, m (``/tf``)
+        self.platform_origin = tuple(float(v) for v in origin)
         self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
         self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
@@ -362,6 +374,7 @@ class McapLogger:
             "topics": [[topic, name, schema] for topic, (name, schema) in self.topics.items()],
             "live": None if self.live is None else [self.live.host, self.live.port],
             "live_period_ns": self._live_period_ns,
+            "platform_origin": list(self.platform_origin),
         }
         self._spawn()
         self._state = "open"
@@ -517,11 +530,14 @@ class McapLogger:
         """Log the platform pose as a ``foxglove.FrameTransform`` on ``/tf``.
 
         The transform is the ``platform`` frame in the ``base`` frame: translation
-        ``pose6[:3]`` m, rotation the quaternion of the Z-Y-X Euler angles ``pose6[3:]``
-        rad. Both frames are FRD (x forward, y right, z down) and Foxglove shows them as
-        they are. So that the 3D panel shows the platform upright, a transform from
-        Foxglove's z-up ``world`` frame to ``base`` (half a turn about x) is also written
-        at the first call and then once per second of source time: pick ``world`` as the
+        ``platform_origin + pose6[:3]`` m (the pose is the displacement from the neutral pose,
+        whose platform frame origin, the centroid of the platform joints, is
+        ``platform_origin``: ``(0, 0, -neutral_height)`` on the 6-DOF robots), rotation the
+        quaternion of the Z-Y-X Euler angles ``pose6[3:]`` rad. Both frames are FRD (x
+        forward, y right, z down) and Foxglove shows them as they are. So that the 3D panel
+        shows the platform upright, a transform from Foxglove's z-up ``world`` frame to
+        ``base`` (half a turn about x) is also written at the first call and then once per
+        second of source time: pick ``world`` as the
         display frame. (The writer process builds these messages from the pose.)
 
         Parameters

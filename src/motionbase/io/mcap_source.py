@@ -531,6 +531,9 @@ class McapSource:
         self.topic = topic
         self.metadata: dict[str, Any] = {}
         self.version: str | None = None
+        #: the log's message layout (``LOG_FORMAT`` of :mod:`motionbase.io.mcap_log`; None
+        #: when the file does not say)
+        self.log_format: str | None = None
         self.truncated = False
         self.count = 0
         self.malformed = 0
@@ -550,6 +553,7 @@ class McapSource:
             if meta.name == METADATA_NAME and not self.metadata:
                 self.metadata = _decode_config(self.path, meta)
                 self.version = meta.metadata.get("version")
+                self.log_format = meta.metadata.get("log_format")
 
         def on_channel(ch: Channel) -> None:
             self._topics[ch.id] = ch.topic

@@ -68,7 +68,9 @@ class PipelineLog:
     health : callable, optional
         Returns the current health counters (a dict) for ``/health``.
     robot : Robot, optional
-        The robot plug-in the outputs come from: ``/platform/scene`` is written when given.
+        The robot plug-in the outputs come from: ``/platform/scene`` is written when given,
+        and ``/tf`` places the ``platform`` frame at its geometry's ``platform_origin`` plus
+        the pose (without a robot, at the pose alone).
     live : LiveAddress, optional
         Also serve every topic to Foxglove over WebSocket while the log is written (at
         most :data:`~motionbase.io.mcap_log.LIVE_RATE_HZ` messages a second per topic).
@@ -100,6 +102,9 @@ class PipelineLog:
         self._cueing = cueing if schema is not None else None
         self._cueing_topic = f"/cueing/{cueing.name}" if schema is not None else ""
         topics = {self._cueing_topic: schema} if schema is not None else None
+        # /tf places the platform frame at its origin (the centroid of its joints, at
+        # neutral_height above the base) plus the pose, as the scene draws the platform
+        origin = getattr(getattr(robot, "geometry", None), "platform_origin", None)
         self._logger: McapLogger | None = McapLogger(
             self.path,
             metadata,
@@ -107,6 +112,7 @@ class PipelineLog:
             live_rate_hz=live_rate_hz,
             realtime=realtime,
             topics=topics,
+            platform_origin=origin,
         )
         self._scene = SceneBuilder(robot) if robot is not None else None
         self._scene_period = 1.0 / SCENE_RATE_HZ

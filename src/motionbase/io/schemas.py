@@ -122,8 +122,10 @@ PLATFORM_POSE = _topic(
 
 PLATFORM_ACTUATORS = _topic(
     "motionbase.PlatformActuators",
-    "6-RUS crank angles sent to the actuators, rad (0 = crank horizontal).",
-    {"angles": _vector(6, "crank angles, rad")},
+    "Actuator positions sent to the 6-DOF platform: 6-RUS crank angles, rad (0 = crank "
+    "horizontal); 6-UPS Stewart actuator lengths joint centre to joint centre, m (the "
+    "metadata's pipeline_config.robot says which).",
+    {"angles": _vector(6, "crank angles, rad (6-RUS), or actuator lengths, m (6-UPS)")},
     ["angles"],
 )
 
