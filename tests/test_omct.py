@@ -206,6 +206,34 @@ def test_linear_response_has_the_washout_s_asymptotes():
     assert omct.classical_response(q, "surge", lo)[0] == pytest.approx(0.5, rel=1e-3)
 
 
+def test_the_linear_response_includes_the_input_low_pass():
+    """A file with an [input] low-pass (the telemetry preset: 8 rad/s) filters every channel
+    first. Its linear response was drawn without it, so omct --params telemetry marked every
+    point '*' (a limit acts) with nothing clamped or limited."""
+    p = WashoutParams.preset("telemetry")
+    assert p.input_lowpass_wn == 8.0
+    w = np.array([1.0, 4.0, 10.0])
+    s = 1j * w
+    # the continuous design by hand: yaw rate K_w s^2/(s^2 + 2 zeta wn s + wn^2), heave
+    # K_f s^3/((s^2 + 2 zeta wn s + wn^2)(s + wb)), each after 8^2/(s + 8)^2
+    pre = 64.0 / (s + 8.0) ** 2
+    yaw = 0.3 * s**2 / (s**2 + 3.0 * s + 2.25)
+    heave = 0.35 * s**3 / ((s**2 + 10.0 * s + 25.0) * (s + 0.5))
+    np.testing.assert_allclose(omct.classical_response(p, "yaw", w), pre * yaw, rtol=1e-12)
+    np.testing.assert_allclose(omct.classical_response(p, "heave", w), pre * heave, rtol=1e-12)
+    # the low-pass's pole (8 rad/s) is not the slowest: the settling time is the washout's
+    assert omct.slowest_decay(p) == pytest.approx(0.5)
+    # measured through the whole chain at half the amplitudes (nothing limits): on the line
+    config = load_config(platform="ceart", washout="telemetry")
+    result = omct.run_omct(
+        config, frequencies=w, tests=["yaw", "heave"], amplitudes=omct.Amplitudes().scaled(0.5)
+    )
+    for r in result.results:
+        assert (r.clamped == 0).all() and (r.limited == 0).all(), r.test.name
+        assert _complex_error(r.response, r.linear).max() < 2e-4, r.test.name
+        assert not r.deviates().any(), r.test.name
+
+
 def test_tight_crank_limits_lower_the_gain_where_the_linear_motion_exceeds_the_reach():
     lim = math.radians(4.0)
     geometry = _geometry(name="tight", angle_min=-lim, angle_max=lim, park_angle=-math.radians(3.0))

@@ -89,7 +89,9 @@ the translational one (acceleration to acceleration, ``s^3/((s^2 + 2 zeta wn s +
   Planar mode: ``K_f (1 - L) Ht`` (the robot cannot tilt);
 - pitch->surge: ``+g K_w Hr (1 - Ht)``; roll->sway: ``-g K_w Hr (1 - Ht)``: the tilt's
   gravity component, less the translation the washout commands against it;
-- surge->pitch: ``K_f L / g``; sway->roll: ``-K_f L / g``.
+- surge->pitch: ``K_f L / g``; sway->roll: ``-K_f L / g``;
+- each of them times the input low-pass ``P = wn^2/(s^2 + 2 wn s + wn^2)`` when the file
+  has one (``[input] lowpass_wn`` > 0): it filters every input channel first.
 
 The tables and plots compare the measurement with the same response of the discrete chain
 (``classical_response(..., dt=...)``: each block discretised as the washout does it and
@@ -541,6 +543,9 @@ def classical_response(
         )
         return resp(blk, wn)
 
+    # the optional input low-pass filters every channel before the rest (a linear factor)
+    wn_in = params.input_lowpass_wn
+    pre = resp(lowpass2(wn_in, 1.0), wn_in) if wn_in > 0.0 else 1.0
     # surge is tilt-coordinated by pitch (tilt axis 1), sway by roll (0)
     if i < 2 and params.tilt_angle_limit_deg[1 - i] > 0.0:
         low = resp(lowpass2(params.tilt_wn, params.tilt_zeta), params.tilt_wn)
@@ -552,19 +557,19 @@ def classical_response(
             rotational_highpass(wn, params.rotational_zeta[i]), wn
         )  # platform angle per aircraft rate
         if tst.direct:
-            return angle * d1  # rate -> rate
+            return pre * angle * d1  # rate -> rate
         rot = angle * s  # angle -> angle (the input rate is the input angle's derivative)
         sign = 1.0 if tst.excite == "pitch" else -1.0
         ht = d2 * position(j)
-        return sign * g * rot * ((1.0 - ht) if tilt else -ht)
+        return pre * sign * g * rot * ((1.0 - ht) if tilt else -ht)
     k_f = params.specific_force_gain[i]
     if tst.excite == "heave":
-        return k_f * d2 * position(2)
+        return pre * k_f * d2 * position(2)
     if tst.direct:
         ht = d2 * position(i)
-        return k_f * ((low if tilt else 0.0) + (1.0 - low) * ht)
+        return pre * k_f * ((low if tilt else 0.0) + (1.0 - low) * ht)
     sign = 1.0 if tst.excite == "surge" else -1.0
-    return sign * k_f * low / g
+    return pre * sign * k_f * low / g
 
 
 def slowest_decay(params: WashoutParams) -> float:
@@ -581,6 +586,8 @@ def slowest_decay(params: WashoutParams) -> float:
         for wn, z in zip(params.rotational_wn, params.rotational_zeta, strict=True)
     ]
     blocks.append(lowpass2(params.tilt_wn, params.tilt_zeta))
+    if params.input_lowpass_wn > 0.0:
+        blocks.append(lowpass2(params.input_lowpass_wn, 1.0))
     return float(min(-np.linalg.eigvals(b.a).real.max() for b in blocks))
 
 
