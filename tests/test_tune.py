@@ -179,8 +179,9 @@ def test_a_profiled_file_is_scored_with_the_manoeuvres_flight_phase(takeoff, cea
 
 def test_tuning_a_profile_changes_only_that_profile_and_scores_where_it_runs(takeoff, ceart):
     """On the take-off run (on the ground throughout): tuning the air profile cannot change
-    the score (that profile never runs), while tuning the ground profile changes only that
-    profile's overrides, and the best set scores as its ground profile alone."""
+    the manoeuvre's score (that profile never runs; only its sizing counts), while tuning
+    the ground profile changes only that profile's overrides, and the best set scores as
+    its ground profile alone."""
     geometry, reach = ceart
     problem = tuning.TuningProblem(geometry, (takeoff,), reach)
     start = WashoutParams.preset("profiles_example")
@@ -189,11 +190,11 @@ def test_tuning_a_profile_changes_only_that_profile_and_scores_where_it_runs(tak
 
     def evaluate_many(candidates):
         scores = [problem.evaluate(p) for p in candidates]
-        costs.extend(s.cost for s in scores)
+        costs.extend(s.scores[0].cost for s in scores)
         return scores
 
     air = tuning.tune(start, evaluate_many, budget=7, seed=0, profile="air")
-    assert len(costs) == 7 and len(set(costs)) == 1  # every candidate scored as the start
+    assert len(costs) == 7 and len(set(costs)) == 1  # every candidate flew as the start
     assert air.best is air.start
     ground = tuning.tune(start, evaluate_many, budget=7, seed=0, profile="ground")
     best = ground.best
@@ -256,6 +257,29 @@ def test_saturated_inputs_beyond_the_reach_cost(kick, ceart):
     excess = np.maximum(0.0, score.sizing_usage - tuning.SIZING_MARGIN).sum()
     manoeuvres = np.mean([s.cost for s in score.scores])
     assert score.cost == pytest.approx(manoeuvres + tuning.WEIGHT_SIZING * excess)
+
+
+def test_a_profile_beyond_the_reach_under_saturated_inputs_costs(kick, ceart):
+    """The sizing rule holds for each flight-phase profile, not only for the file's own
+    values: a ground profile that tilts to 20 deg under a saturated force (the steep set
+    above) is sized as that set alone. It was sized by the file's own values, so
+    ``tune --profile ground`` could push the profile past the rule at no cost."""
+    geometry, reach = ceart
+    default = WashoutParams.preset("default")
+    steep = dataclasses.replace(
+        default,
+        specific_force_gain=(1, 1, 1),
+        specific_force_limit=(5, 5, 5),
+        tilt_angle_limit_deg=20.0,
+        angular_velocity_gain=(0, 0, 0),
+    )
+    profiled = default.with_profile("ground", steep)
+    assert profiled.for_profile(None) == default
+    usage = tuning.saturated_reach_use(profiled, reach)
+    # the nose-down tilt at its 20 deg limit, against the 17.6 deg nose-down reach
+    assert usage[4] == pytest.approx(math.radians(20.0) / -reach[0, 4], rel=1e-6)
+    problem = tuning.TuningProblem(geometry, (kick,), reach)
+    assert problem.evaluate(profiled).sizing_excess > 0.2
 
 
 def test_shipped_tuned_ceart_preset(ceart):

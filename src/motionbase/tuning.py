@@ -75,7 +75,9 @@ sizing term that does not depend on the manoeuvres::
   platform's single-axis reach. ``s`` is the sum over the six pose axes of the largest
   use beyond 90 %, ``W_SIZING`` = :data:`WEIGHT_SIZING` = 10 m/s^2 (10 % beyond costs
   1 m/s^2). The manoeuvres alone cannot see motion they do not contain; this keeps the
-  result fit for any flight, as the default is.
+  result fit for any flight, as the default is. With flight-phase profiles, the file's
+  own values and each profile's are sized alike, the largest use kept (a profile runs
+  whole flights too).
 
 The parameters tuned (:data:`KNOBS`)
 ------------------------------------
@@ -712,7 +714,9 @@ def saturated_reach_use(
 
     Twelve runs of the washout alone (no clamp), each :data:`SIZING_DURATION_S` long: the
     specific force (x, y, z) or the body rate (roll, pitch, yaw) held at far beyond its
-    saturation limit, each way, on one axis at a time.
+    saturation limit, each way, on one axis at a time. Parameters with flight-phase
+    profiles are sized in each of them (the file's own values and every profile's: either
+    may run a whole flight), the largest use kept.
 
     Returns
     -------
@@ -722,18 +726,21 @@ def saturated_reach_use(
     from motionbase.washout import ClassicalWashout
 
     n = int(round(SIZING_DURATION_S / dt))
+    names = getattr(params, "profile_names", ())
+    sets = [params] + [params.for_profile(name) for name in names]
     worst = np.zeros(6)
-    for axis in range(6):
-        for sign in (1.0, -1.0):
-            f = np.tile([0.0, 0.0, -params.gravity], (n, 1))
-            w = np.zeros((n, 3))
-            if axis < 3:
-                f[:, axis] += sign * 1e3
-            else:
-                w[:, axis - 3] = sign * 1e3
-            poses = ClassicalWashout(params, dt).run(f, w)
-            use = np.maximum(poses.max(axis=0) / reach[1], poses.min(axis=0) / reach[0])
-            worst = np.maximum(worst, use)
+    for values in sets:
+        for axis in range(6):
+            for sign in (1.0, -1.0):
+                f = np.tile([0.0, 0.0, -values.gravity], (n, 1))
+                w = np.zeros((n, 3))
+                if axis < 3:
+                    f[:, axis] += sign * 1e3
+                else:
+                    w[:, axis - 3] = sign * 1e3
+                poses = ClassicalWashout(values, dt).run(f, w)
+                use = np.maximum(poses.max(axis=0) / reach[1], poses.min(axis=0) / reach[0])
+                worst = np.maximum(worst, use)
     return worst
 
 
