@@ -100,6 +100,22 @@ def test_recording_reads_the_aircraft_states_of_the_flight_it_recorded():
     np.testing.assert_array_equal(rec.angular_velocity, flown.angular_velocity)
 
 
+def test_held_out_manoeuvres_share_no_samples_with_the_tuning_set(tmp_path):
+    """A held-out manoeuvre holds samples of a tuning one when it is a window of the same
+    script that overlaps it, or the same file by another path; windows that do not overlap
+    and other flights are held out."""
+    first, later = load_script("c1723@0:4"), load_script("c1723@4.5:7")
+    assert not first.shares_samples_with(later) and not later.shares_samples_with(first)
+    assert first.shares_samples_with(load_script("c1723@3.9:6"))
+    assert not first.shares_samples_with(load_script("rudder_kick@0:4"))
+    rec = load_recording("recordings/c1723_30s.mcap")
+    (tmp_path / "link.mcap").symlink_to(Path("recordings/c1723_30s.mcap").resolve())
+    assert rec.shares_samples_with(load_recording(tmp_path / "link.mcap"))
+    # a recording of a script's flight is told apart from the script by its origin, not
+    # by comparing samples
+    assert not rec.shares_samples_with(first)
+
+
 def test_mavlink_log_is_resampled_at_100_hz(flight_data):
     m = load_recording(flight_data / "vtol.tlog")
     assert m.rate_hz == pytest.approx(100.0)
@@ -604,6 +620,10 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--scripts", "c1721@20:30"], "the script is shorter"),
         (["--scripts", "c1723@5:x"], "two numbers"),
         (["--scripts", "c1723@0:5", "--holdout", "c1723@0:5"], "also in the tuning set"),
+        # the same samples under another name, or windows of one flight that overlap: the
+        # held-out table scored the tuning set's own samples as "not tuned on"
+        (["--scripts", "c1723@0:5", "--holdout", "c1723@0:5.0"], "also in the tuning set"),
+        (["--scripts", "c1723@0:5", "--holdout", "c1723@4:9"], "the same flight's samples"),
         (["--scheduler", "localhost:8786"], "tcp://HOST:PORT"),
         # a port no scheduler can have waited out the connection timeout, then said that
         # no scheduler answers there

@@ -1609,13 +1609,14 @@ def tune(
     manoeuvres = [loaded(load_spec, s) for s in scripts]
     manoeuvres += [loaded(load_recording, r) for r in recordings]
     held = [loaded(load_spec, s) for s in holdout]
-    names = [m.name for m in manoeuvres]
-    for m in held:
-        if m.name in names:
-            raise ConfigError(
-                f"--holdout {m.name} is also in the tuning set; a held-out manoeuvre must not "
-                "be tuned on (drop it from one of them)"
-            )
+    for h in held:
+        for m in manoeuvres:
+            if h.name == m.name or h.shares_samples_with(m):
+                same = "" if h.name == m.name else f" (as {m.name}: the same flight's samples)"
+                raise ConfigError(
+                    f"--holdout {h.name} is also in the tuning set{same}; a held-out "
+                    "manoeuvre must not be tuned on (drop it from one of them)"
+                )
     reach = robot_reach(robot_spec(robot_name).make(geometry))
     problem = tuning.TuningProblem(
         geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name, preview=preview

@@ -156,6 +156,19 @@ class Manoeuvre:
     def __len__(self) -> int:
         return int(self.t.shape[0])
 
+    def shares_samples_with(self, other: Manoeuvre) -> bool:
+        """Whether ``other`` holds some of the same samples: windows of one script that
+        overlap in time, or the same recording file (however each was named)."""
+
+        def origin(m: Manoeuvre) -> str:
+            if m.source.startswith("jsbsim:"):
+                return m.source.rsplit("@", 1)[0]  # the script, without the window
+            return str(Path(m.source).resolve())
+
+        if origin(self) != origin(other):
+            return False
+        return bool(self.t[0] <= other.t[-1] and other.t[0] <= self.t[-1])
+
     def states(self) -> list[AircraftState]:
         """The samples as :class:`~motionbase.state.AircraftState` objects (what sources yield)."""
         rows = np.ascontiguousarray(
