@@ -298,6 +298,32 @@ def test_a_profile_beyond_the_reach_under_saturated_inputs_costs(kick, ceart):
     assert problem.evaluate(profiled).sizing_excess > 0.2
 
 
+def test_the_tables_mean_row_is_the_mean_of_its_rows(kick, takeoff, ceart):
+    """The "mean of N" row's cost is the mean of the manoeuvres' costs printed above it; the
+    sizing term (which no manoeuvre has) is printed apart, with the score it makes. The
+    mean row showed the score, so a set beyond the sizing rule had a "mean" several times
+    its rows' costs."""
+    geometry, reach = ceart
+    default = WashoutParams.preset("default")
+    steep = dataclasses.replace(
+        default, specific_force_gain=(1, 1, 1), specific_force_limit=(5, 5, 5),
+        tilt_angle_limit_deg=20.0,
+    )  # fmt: skip
+    problem = tuning.TuningProblem(geometry, (kick, takeoff), reach)
+    before, after = problem.evaluate(default), problem.evaluate(steep)
+    assert after.sizing_excess > 0.5
+    lines = tuning.format_table([("tuning set", before, after)]).splitlines()
+    rows = [line.split() for line in lines if line.startswith(("  rudder_kick", "  c1723"))]
+    mean = next(line.split() for line in lines if line.startswith("  mean of 2"))
+    for col in (-2, -1):  # cost before, after
+        assert float(mean[col]) == pytest.approx(np.mean([float(r[col]) for r in rows]), abs=2e-3)
+    score = lines[-1]
+    assert score.startswith("score tuned") and score.endswith(
+        f"{before.cost:.3f} -> {after.cost:.3f}"
+    )
+    assert after.cost == pytest.approx(float(mean[-1]) + 10 * after.sizing_excess, abs=1e-3)
+
+
 def test_shipped_tuned_ceart_preset(ceart):
     """``--washout tuned_ceart``: made by the tuner, fits the presets' rule, and beats the
     default on the default manoeuvres without clamping more (rerun the command in its header

@@ -479,6 +479,11 @@ class ManoeuvreScore:
         return float(max(np.max(self.workspace_usage), np.max(self.crank_usage)))
 
     @property
+    def manoeuvre_cost(self) -> float:
+        """:attr:`cost` (the tables' cost column; a set's is the mean of these)."""
+        return self.cost
+
+    @property
     def cost(self) -> float:
         """The manoeuvre's cost, m/s^2."""
         w = self.weights
@@ -597,6 +602,11 @@ class SetScore:
         """``s``: sum of the reach used beyond the sizing margin under saturated inputs."""
         margin = self.weights.sizing_margin
         return float(np.sum(np.maximum(0.0, self.sizing_usage - margin)))
+
+    @property
+    def manoeuvre_cost(self) -> float:
+        """Mean cost over the manoeuvres, m/s^2 (without the sizing term)."""
+        return self._mean("cost")
 
     @property
     def cost(self) -> float:
@@ -960,7 +970,7 @@ _COLUMNS = (
     ("false cues %", "false_cue_share", 100.0, "{:.1f}"),
     ("clamped %", "limited", 100.0, "{:.1f}"),
     ("workspace %", "workspace_max", 100.0, "{:.0f}"),
-    ("cost", "cost", 1.0, "{:.3f}"),
+    ("cost", "manoeuvre_cost", 1.0, "{:.3f}"),
 )
 
 
@@ -985,8 +995,9 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         ``e_w`` (deg/s), false cues (mean share over the six channels, %), clamped
         (share of running ticks the clamp or the safety stage acted, %), workspace
         (largest use of any pose axis's single-axis reach or of any crank's range, %; the
-        largest over the manoeuvres in the mean row), cost; each before and after; then
-        the relative change of the means, and the sizing under saturated inputs.
+        largest over the manoeuvres in the mean row), cost (the manoeuvre's; the mean row
+        its mean); each before and after; then the relative change of the means, and the
+        sizing under saturated inputs with the score tuned (mean cost plus the sizing term).
     """
     names = [s.name for _, b, _ in sections for s in b.scores]
     means = {id(b): f"  mean of {len(b.scores)} (workspace: largest)" for _, b, _ in sections}
@@ -1019,6 +1030,10 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         "saturated single-axis inputs (washout alone): largest use of the reach "
         f"{100 * before.sizing_usage.max():.0f} % -> {100 * after.sizing_usage.max():.0f} % "
         f"(rule: at most {100 * before.weights.sizing_margin:.0f} %)"
+    )
+    lines.append(
+        f"score tuned (the tuning set's mean cost + {before.weights.sizing:g} x the use beyond "
+        f"the rule): {before.cost:.3f} -> {after.cost:.3f}"
     )
     return "\n".join(lines)
 
