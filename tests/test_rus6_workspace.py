@@ -193,8 +193,11 @@ def test_workspace_planar_honours_platform_and_rrr3(capsys):
     # --rrr3 without --planar would be silently unused: refused, saying what to add
     err = _one_line_error(capsys, "--rrr3", "udesc")
     assert "--planar" in err
-    # a 6-RUS preset is not a 3-RRR geometry: one line naming it
-    assert "'ceart'" in _one_line_error(capsys, "--planar", "--platform", "ceart")
+    # a 6-RUS preset or robot is not a 3-RRR geometry: one line naming it and the flag to
+    # drop, as fly --planar says it
+    for value in ("ceart", "stewart6"):
+        err = _one_line_error(capsys, "--planar", "--platform", value)
+        assert value in err and "not a planar robot (drop --planar)" in err, err
 
 
 def test_planar_default_geometry_is_the_same_for_every_command(capsys, tmp_path):
