@@ -492,6 +492,8 @@ def _case_files(tmp_path: Path) -> list[tuple[list[str], tuple[str, ...]]]:
         (["--duration", "-3"], ("--duration",)),
         (["--duration", "nan"], ("--duration",)),
         (["--duration", "inf"], ("--duration",)),
+        # shorter than one sample of c1723 (1/120 s): it flew nothing and exited 0
+        (["--duration", "0.001"], ("--duration", "0.001", "one sample")),
     ]
 
 

@@ -704,6 +704,11 @@ def fly(
         # before JSBSim loads it (a dt of 1e-9 s alone held JSBSim's load for 20-30 s)
         where = f"{source.script_path or script}: its <run dt> ({1 / source.rate_hz:g} s)"
         check_rate(source.rate_hz, where)
+        if duration_s is not None and duration_s * source.rate_hz + 1e-6 < 1.0:
+            raise ConfigError(  # (no sample: nothing would be flown)
+                f"--duration {duration_s:g} s is shorter than one sample of the script "
+                f"({1 / source.rate_hz:g} s): give at least that"
+            )
         with source:
             config = load_config(
                 planar=planar,
