@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from motionbase import __version__
-from motionbase.config import DEFAULT_RUS6, refuse_out_over_inputs
+from motionbase.config import DEFAULT_RUS6, refuse_out_over_inputs, same_file
 from motionbase.errors import ConfigError
 from motionbase.pipeline import (
     Pipeline,
@@ -815,7 +815,7 @@ def _replay(
     from motionbase.io.mcap_source import RECORDED_STOP, McapSource, read_messages
 
     src_path = Path(path)
-    if out is not None and _same_file(src_path, Path(out)):
+    if out is not None and same_file(src_path, out):
         raise ConfigError(
             f"--out {out} is the recording being replayed ({src_path}): writing it would destroy "
             "it; give another file"
@@ -955,14 +955,6 @@ def _check_recorded_rate(path: Path, source: Any) -> None:
                 else "the recorded rate is wrong, so the recording cannot be replayed"
             )
         ) from None
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    """Whether two paths name one file (through symlinks, hard links, ``..``)."""
-    try:
-        return a.resolve() == b.resolve() or os.path.samefile(a, b)
-    except OSError:  # one of them does not exist (yet)
-        return False
 
 
 class StatusLine:

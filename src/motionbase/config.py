@@ -7,7 +7,6 @@ names the file, the field and the fix.
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import math
 import os
@@ -116,14 +115,19 @@ def refuse_out_over_inputs(out: str | Path, *given: tuple[str, str | Path | None
     path that is None or no file, a preset's name, is skipped): the log would overwrite it.
     One file through symlinks, ``..`` and hard links counts."""
     for flag, path in given:
-        if path is None or not Path(path).is_file():
-            continue
-        with contextlib.suppress(OSError):  # --out is not there yet
-            if os.path.samefile(path, out):
-                raise ConfigError(
-                    f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
-                    "give another file"
-                )
+        if path is not None and Path(path).is_file() and same_file(path, out):
+            raise ConfigError(
+                f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
+                "give another file"
+            )
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name one existing file (through symlinks, ``..`` and hard links)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return False
 
 
 def import_plugin(ref: str, what: str) -> Any:
