@@ -252,6 +252,18 @@ def test_clamping_is_counted_and_costs(takeoff, ceart):
     )
 
 
+def _steep(default: WashoutParams) -> WashoutParams:
+    """``default`` with full force gains, a 20 deg tilt limit and no rotation cue: under a
+    saturated -x force it tilts the nose down to 20 deg, beyond ``ceart``'s 17.6 deg reach."""
+    return dataclasses.replace(
+        default,
+        specific_force_gain=(1, 1, 1),
+        specific_force_limit=(5, 5, 5),
+        tilt_angle_limit_deg=20.0,
+        angular_velocity_gain=(0, 0, 0),
+    )
+
+
 def test_saturated_inputs_beyond_the_reach_cost(kick, ceart):
     geometry, reach = ceart
     default = WashoutParams.preset("default")
@@ -259,13 +271,7 @@ def test_saturated_inputs_beyond_the_reach_cost(kick, ceart):
     assert problem.evaluate(default).sizing_excess == 0.0  # the presets' rule holds
     # a saturated -x force tilts the nose down to the tilt limit (asin(K L / g) is beyond
     # it) and nothing else pitches: pitch uses 20 deg of the 17.6 deg nose-down reach
-    steep = dataclasses.replace(
-        default,
-        specific_force_gain=(1, 1, 1),
-        specific_force_limit=(5, 5, 5),
-        tilt_angle_limit_deg=20.0,
-        angular_velocity_gain=(0, 0, 0),
-    )
+    steep = _steep(default)
     score = problem.evaluate(steep)
     pitch = score.sizing_usage[4]
     assert pitch == pytest.approx(math.radians(20.0) / -reach[0, 4], rel=1e-6)
@@ -277,18 +283,12 @@ def test_saturated_inputs_beyond_the_reach_cost(kick, ceart):
 
 def test_a_profile_beyond_the_reach_under_saturated_inputs_costs(kick, ceart):
     """The sizing rule holds for each flight-phase profile, not only for the file's own
-    values: a ground profile that tilts to 20 deg under a saturated force (the steep set
-    above) is sized as that set alone. It was sized by the file's own values, so
+    values: a ground profile that tilts to 20 deg under a saturated force (``_steep``) is
+    sized as that set alone. It was sized by the file's own values, so
     ``tune --profile ground`` could push the profile past the rule at no cost."""
     geometry, reach = ceart
     default = WashoutParams.preset("default")
-    steep = dataclasses.replace(
-        default,
-        specific_force_gain=(1, 1, 1),
-        specific_force_limit=(5, 5, 5),
-        tilt_angle_limit_deg=20.0,
-        angular_velocity_gain=(0, 0, 0),
-    )
+    steep = _steep(default)
     profiled = default.with_profile("ground", steep)
     assert profiled.for_profile(None) == default
     usage = tuning.saturated_reach_use(profiled, reach)
