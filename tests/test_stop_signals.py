@@ -177,6 +177,29 @@ def test_a_finalizer_that_fails_after_ctrl_c_adds_nothing_to_the_one_line():
     assert done.returncode == 130
 
 
+def test_an_object_that_ctrl_c_left_half_built_is_never_freed():
+    """Freed, an LLVM module that a Ctrl-C left half built (llvmlite's, while numba compiles)
+    crashes the process inside LLVM: the shell saw -11 after the line "interrupted" (CI, a
+    fresh numba cache, Ctrl-C after 1 s). Made to happen every time with an object whose
+    finalizer crashes the process, held by the frame the Ctrl-C cut short."""
+    code = (
+        "import os, signal, sys\n"
+        "from motionbase import cli\n"
+        "class HalfBuilt:\n"
+        "    def __del__(self):\n"
+        "        os.kill(os.getpid(), signal.SIGSEGV)\n"
+        "def command(args):\n"
+        "    module = HalfBuilt()  # a local of the frame Ctrl-C ends\n"
+        "    raise KeyboardInterrupt\n"
+        "cli.COMMANDS[:] = [(n, h, a, command if n == 'workspace' else r)\n"
+        "                   for n, h, a, r in cli.COMMANDS]\n"
+        "sys.exit(cli.main(['workspace']))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.stderr.strip() == "motionbase workspace: interrupted"
+    assert done.returncode == 130
+
+
 def test_an_error_after_a_swallowed_ctrl_c_ends_the_block_as_ctrl_c():
     """Compiled code can swallow the KeyboardInterrupt and fail later with an error of its
     own that does not name it (numba: "no compiled object yet"): inside

@@ -39,8 +39,8 @@ try:  # numpy and the rest take a few tenths of a second to import
         Stopped,
         insistent_ctrl_c,
         interrupting_signal,
+        keep_what_ctrl_c_cut_short,
         other_signals_as_ctrl_c,
-        quiet_finalizers,
         stop_on_signals,
     )
 except KeyboardInterrupt:
@@ -124,8 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MotionbaseError as exc:
         tell(f"motionbase {args.command}: error: {exc}", sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return _interrupted(args.command)
+    except KeyboardInterrupt as exc:
+        return _interrupted(args.command, exc)
     except Stopped as exc:  # a job that moves nothing, stopped by a signal (tune)
         by = "" if exc.reason == "SIGINT" else f" ({exc.reason})"
         kept = f"; {exc.kept}" if exc.kept else ""
@@ -134,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if not _raised_by_ctrl_c(exc):
             raise  # a bug: its traceback is what a bug report needs
-        return _interrupted(args.command)
+        return _interrupted(args.command, exc)
 
 
 #: Said at a terminal when numba starts compiling (:func:`_notice_compiling`).
@@ -167,9 +167,10 @@ def _notice_compiling() -> None:
     event.register("numba:compile", Notice())
 
 
-def _interrupted(command: str) -> int:
-    """One line for a command a Ctrl-C ended (or a SIGTERM turned into one); its status."""
-    quiet_finalizers()
+def _interrupted(command: str, exc: BaseException) -> int:
+    """One line for a command a Ctrl-C ended (or a SIGTERM turned into one); its status.
+    ``exc``: what ended it (the frames it cut short are kept, never freed)."""
+    keep_what_ctrl_c_cut_short(exc)
     sig = interrupting_signal()
     by = "" if sig == signal.SIGINT else f" ({sig.name})"
     print(f"motionbase {command}: interrupted{by}", file=sys.stderr)

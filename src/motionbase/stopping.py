@@ -268,12 +268,13 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
     compiles for several seconds), so a single one would be lost and the command run on.
     The dropped ones are not reported (``sys.unraisablehook``): the next one is raised;
     nor, once a Ctrl-C came, are the errors of the objects it left half-built when their
-    finalizers run (llvmlite's, when it lands inside one's constructor; after the block,
-    see :func:`quiet_finalizers`). An error that ends the block after a Ctrl-C came is
-    raised as a ``KeyboardInterrupt`` (from it): a Ctrl-C swallowed by compiled code can
-    leave it half done and failing later, as numba's compiler does ("no compiled object
-    yet"). A no-op outside the main thread, and where SIGINT is not
-    Python's default handler (a background job ignores it; a host program has its own).
+    finalizers run (llvmlite's, when it lands inside one's constructor: the frames a dropped
+    one cut short are never freed; after the block, see :func:`keep_what_ctrl_c_cut_short`).
+    An error that ends the block after a Ctrl-C came is raised as a ``KeyboardInterrupt``
+    (from it): a Ctrl-C swallowed by compiled code can leave it half done and failing
+    later, as numba's compiler does ("no compiled object yet"). A no-op outside the main
+    thread, and where SIGINT is not Python's default handler (a background job ignores it;
+    a host program has its own).
 
     Parameters
     ----------
@@ -303,7 +304,10 @@ def insistent_ctrl_c(period_s: float = 0.2) -> Iterator[None]:
         raise KeyboardInterrupt
 
     def quiet(unraisable: Any) -> None:  # a dropped one: raised again, not worth a traceback
-        if not (repeater or isinstance(unraisable.exc_value, KeyboardInterrupt)):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            if unraisable.exc_traceback is not None:  # its frames may hold half-built objects
+                _keep_to_the_end(unraisable.exc_traceback)
+        elif not repeater:
             previous_hook(unraisable)
 
     previous_hook = sys.unraisablehook
@@ -371,14 +375,38 @@ def other_signals_as_ctrl_c() -> Iterator[None]:
             signal.signal(sig, old[sig])
 
 
-def quiet_finalizers() -> None:
-    """From now on, errors in finalizers (``sys.unraisablehook``) are not reported.
+#: What Ctrl-C cut short, kept to the process's end (:func:`keep_what_ctrl_c_cut_short`).
+_CUT_SHORT: list[object] = []
 
-    For a command that a Ctrl-C ends: it may have landed inside a library's constructor
-    (llvmlite's), and the half-built object's finalizer fails when the process exits; one
-    line has said the command was interrupted, and that is all the user needs to read.
+
+def keep_what_ctrl_c_cut_short(exc: BaseException) -> None:
+    """Never free what a Ctrl-C cut short, and say nothing of finalizers that fail.
+
+    For a command that a Ctrl-C ended: it may have landed inside a library's constructor
+    (llvmlite's, while numba compiles). Freed, the half-built object's finalizer fails, or
+    crashes the process inside LLVM (a segmentation fault: the shell saw -11 right after
+    the line "interrupted", instead of 130). ``exc``'s traceback holds the frames the
+    Ctrl-C cut short, and they hold the object: they are kept until the process ends (the
+    operating system takes the memory back). From now on, errors in finalizers
+    (``sys.unraisablehook``) are not reported either: one line has said the command was
+    interrupted, and that is all the user needs to read.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The ``KeyboardInterrupt``, or the error a library made of it.
     """
     sys.unraisablehook = lambda unraisable: None
+    _keep_to_the_end(exc)
+
+
+def _keep_to_the_end(thing: object) -> None:
+    """``thing`` (and what it holds) is never freed, not even as the interpreter exits."""
+    _CUT_SHORT.append(thing)
+    if sys.implementation.name == "cpython":  # the list itself goes when modules do, at exit
+        import ctypes
+
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(thing))
 
 
 def _forget_escaped_ctrl_c() -> None:
