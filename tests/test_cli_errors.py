@@ -1021,3 +1021,26 @@ def test_out_on_a_fifo_is_one_line_and_exit_2(tmp_path, reader):
                 pass
     assert proc.returncode == 2, proc.stderr
     one_line(proc.stderr, str(fifo), "FIFO")
+
+
+@pytest.mark.parametrize("spelling", ["drive.toml", "@drive.toml"])
+def test_out_may_not_overwrite_an_output_format_file(tmp_path, run_cli, spelling, monkeypatch):
+    """``--output 'udp:...?format=drive.toml' --out drive.toml``: the drive's frame format
+    was read from the file, then the log was written over it. Refused with one line, the
+    file untouched, nothing sent."""
+    import socket
+
+    monkeypatch.chdir(tmp_path)
+    victim = tmp_path / "drive.toml"
+    victim.write_text('text = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"\nrate_hz = 50.0\n')
+    before = victim.read_bytes()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as drive:
+        drive.bind(("127.0.0.1", 0))
+        drive.settimeout(0.5)
+        url = f"udp:127.0.0.1:{drive.getsockname()[1]}?format={spelling}"
+        code, _, err = run_cli("fly", "c1723", "--duration", "1", "--output", url, "--out", victim)
+        assert code == 2, err
+        one_line(err, "--out", "--output format", "destroy")
+        assert victim.read_bytes() == before
+        with pytest.raises(TimeoutError):
+            drive.recv(100)  # the drive heard nothing

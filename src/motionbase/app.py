@@ -341,7 +341,7 @@ def _drive_stoppable(
     live: Any,
     preview: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JobResult:
-    from motionbase.io.motor_output import open_outputs
+    from motionbase.io.motor_output import format_file, open_outputs
     from motionbase.io.pipeline_log import PipelineLog
 
     pipeline = Pipeline(config)
@@ -357,6 +357,8 @@ def _drive_stoppable(
             pipeline.cueing.name,
         )
     drives = open_outputs(outputs, pipeline.robot, command_dt=pipeline.dt)
+    if out:  # a drive's frame-format file has been read; the log must not overwrite it
+        refuse_out_over_inputs(out, *(("--output format", format_file(u)) for u in outputs or []))
     if drives:  # which drives the log's commands went to, in what units and frames
         metadata["outputs"] = [drive.describe() for drive in drives]
     extra_sinks = [*(extra_sinks or []), *drives]

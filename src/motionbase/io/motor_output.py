@@ -422,8 +422,8 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
         return BinaryFormat(text[4:], n_axes), {}
     if text.startswith("text:"):
         return TextFormat(text[5:], n_axes), {}
-    path = text[1:] if text.startswith("@") else text
-    if path.endswith(".toml"):
+    path = _format_path(text)
+    if path is not None:
         data = read_toml(path)
         extra = {k: v for k, v in data.items() if k not in ("text", "binary")}
         unknown = set(extra) - {"rate_hz"}
@@ -440,6 +440,21 @@ def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any
         frame_format = TextFormat if key == "text" else BinaryFormat
         return frame_format(data[key], n_axes), extra
     return TextFormat(text, n_axes), {}
+
+
+def _format_path(text: str) -> str | None:
+    """The frame-format file a ``format`` value names (``drive.toml``, ``@drive.toml``)."""
+    path = text[1:] if text.startswith("@") else text
+    return path if path.endswith(".toml") and not text.startswith(("bin:", "text:")) else None
+
+
+def format_file(url: str) -> str | None:
+    """The frame-format file an output URL reads (its ``format=...toml``), if any: a run
+    must not write its log over it."""
+    formats = [
+        v for k, v in parse_qsl(url.partition("?")[2], keep_blank_values=True) if k == "format"
+    ]
+    return _format_path(formats[-1]) if formats else None  # (the last one counts)
 
 
 # --------------------------------------------------------------------------- transports
