@@ -174,12 +174,8 @@ class PipelineConfig:
 
     def make_robot(self) -> Robot:
         """The robot plug-in this configuration drives."""
-        options = (
-            {"scale_m": self.planar_scale_m, "yaw_scale": self.planar_yaw_scale}
-            if self.planar
-            else {}
-        )
-        return robot_spec(self.robot).make(self.geometry, **options)
+        planar = {"scale_m": self.planar_scale_m, "yaw_scale": self.planar_yaw_scale}
+        return robot_spec(self.robot).make(self.geometry, **(planar if self.planar else {}))
 
     def make_cueing(self) -> Cueing:
         """The cueing plug-in this configuration runs, at the pipeline's rate."""
