@@ -71,11 +71,7 @@ from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
 from motionbase.state import PHASES, AircraftState, PipelineOutput  # (the classes re-exported)
-from motionbase.stopping import (
-    StopRequest,
-    install_signal_stop,  # noqa: F401 - re-exported
-    stopped_by,
-)
+from motionbase.stopping import StopRequest, stopped_by
 from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
 
 if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
