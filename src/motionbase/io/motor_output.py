@@ -327,8 +327,7 @@ class BinaryFormat:
         self.spec = spec
         where = f"binary format {spec!r}"
         items: list[_BinField] = []
-        next_axis = 0
-        offset = 0
+        next_axis = offset = 0
         tokens = [t for t in re.split(r"[,\s]+", spec.strip()) if t]
         if not tokens:
             raise ConfigError(f"{where}: empty (e.g. 0xFFFE,6xu16be,sum8@2)")
@@ -660,9 +659,7 @@ def ramp_step(
         q0, v0, target, command.step, command.step_before, dt, limits,
         dt_min=MIN_STEP_PERIODS * period, command_dt=command_dt,
     )  # fmt: skip
-    if np.array_equal(q, target):
-        return target, v, status
-    return q, v, status
+    return (target if np.array_equal(q, target) else q), v, status
 
 
 # --------------------------------------------------------------------------- the sink
@@ -741,11 +738,7 @@ class MotorOutput:
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
-        self.frames_sent = 0
-        self.commands = 0
-        self.held = 0
-        self.send_errors = 0
-        self.ramped = 0
+        self.frames_sent = self.commands = self.held = self.send_errors = self.ramped = 0
         self.link_up = True
         # the latest accepted command, replaced as one object
         self._command: DriveCommand | None = None
