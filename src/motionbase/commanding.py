@@ -189,8 +189,7 @@ class CommandPipeline(PipelineCore):
         self._cue[: self.robot.n] = self.robot.park_angles
         self._pose = np.array(self.robot.park_pose, dtype=float)
         self._sub = _BRAKE
-        self._ticks = 0
-        self._deadline = 0
+        self._ticks = self._deadline = 0
         self._stale = False
         self.no_input = self.stale_ticks = self.trims = self.park_ticks = 0
 
