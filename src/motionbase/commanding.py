@@ -349,14 +349,14 @@ class CommandPipeline(PipelineCore):
         in the health while running; returns (limiter bits, the pose the command realises
         or None when it is not the one asked)."""
         P, S = self.params, self.state
-        done = stages.approach_stage(P, S, self.robot, goal, q, self._path_limits)
-        if done.limited:
+        flags, limited, pose = stages.approach_stage(P, S, self.robot, goal, q, self._path_limits)
+        if limited:
             self.health.rate_limited += counted
-            if done.flags:  # the limiter changed the approach's command too
+            if flags:  # the limiter changed the approach's command too
                 self.trims += counted
-        elif done.flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
+        elif flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
             self.health.unsafe_commands += counted
-        return done.flags, done.pose
+        return flags, pose
 
 
 # --------------------------------------------------------------------------- the sweep
