@@ -428,10 +428,9 @@ class McapLogger:
             failed, self._state = self._state == "failed", "finished"
             os.close(self._data_fd)  # the writer ends at the end of its input
             self._data_fd = -1
-            try:
+            # a writer stopped or stuck (after a failure) finishes the file on its own
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 self._process.wait(timeout=_FAILED_WRITER_WAIT_S if failed else None)
-            except subprocess.TimeoutExpired:  # stopped or stuck: it finishes on its own
-                pass
             self._reply.close()
 
     def __enter__(self) -> McapLogger:
@@ -481,10 +480,9 @@ class McapLogger:
         :meth:`add_transform`, with the per-call checks done once and one encoding: the
         messages go to the writer process as one JSON array, which it splits.
         """
-        index = self._index
         batch = []  # (topic index, flags, message)
         for topic, message in items:
-            i = index.get(topic)
+            i = self._index.get(topic)
             if i is None:
                 self._unknown(topic)
             batch.append((i, 0, message if "t" in message else {"t": t, **message}))
