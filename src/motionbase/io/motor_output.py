@@ -842,13 +842,12 @@ class MotorOutput:
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
         nxt = time.monotonic()
-        wait = self._stop.wait
         while not self._stop.is_set():
             self._tick(time.monotonic())
             nxt += period
             delay = nxt - time.monotonic()
             if delay > 0:
-                wait(delay)
+                self._stop.wait(delay)
             elif delay < -period:
                 nxt = time.monotonic()  # overrun: skip, never burst
 
