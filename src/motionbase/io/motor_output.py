@@ -195,12 +195,6 @@ _ESCAPES = {"n": "\n", "r": "\r", "t": "\t", "\\": "\\", "0": "\0"}
 _ESCAPE_RE = re.compile(r"\\(?:([nrt\\0])|x([0-9a-fA-F]{2}))")
 
 
-def _unescape(text: str) -> str:
-    """``\\n``, ``\\r``, ``\\t``, ``\\\\``, ``\\0`` and ``\\xHH`` expanded, left to right; any
-    other backslash is kept as it is."""
-    return _ESCAPE_RE.sub(lambda m: _ESCAPES.get(m[1]) or chr(int(m[2], 16)), text)
-
-
 @dataclass(frozen=True)
 class _TextField:
     axis: int  # 0-based
@@ -224,7 +218,8 @@ class TextFormat:
     def __init__(self, template: str, n_axes: int = 6) -> None:
         self.template = template
         src = re.sub(r"<Axis(\d+)a>", r"{\1}", template)
-        src = _unescape(src)
+        # \n, \r, \t, \\, \0 and \xHH expanded, left to right; any other backslash is kept
+        src = _ESCAPE_RE.sub(lambda m: _ESCAPES.get(m[1]) or chr(int(m[2], 16)), src)
         # the text between the tokens, and the tokens: literal, token, literal, ..., literal
         parts = re.split(r"(\{\{|\}\}|\{[^{}]*\}|[{}])", src)
         literals = [parts[0]]  # literal, field, literal, field, ..., literal
