@@ -189,8 +189,7 @@ class CommandPipeline(PipelineCore):
         self._cue[: self.robot.n] = self.robot.park_angles
         self._pose = np.array(self.robot.park_pose, dtype=float)
         self._sub = _BRAKE
-        self._ticks = 0
-        self._deadline = 0
+        self._ticks = self._deadline = 0
         self._stale = False
         self.no_input = self.stale_ticks = self.trims = self.park_ticks = 0
 
@@ -329,8 +328,16 @@ class CommandPipeline(PipelineCore):
             q_prev = s["q"][:n].copy()
             flags = stages.brake_stage(P, S, q)
             new_pose = before if np.array_equal(q, q_prev) else None
-        else:
-            flags, new_pose = self._approach(goal, q, running)
+        else:  # the approach toward a valid pose, counted in the health while running
+            flags, limited, new_pose = stages.approach_stage(
+                P, S, robot, goal, q, self._path_limits
+            )
+            if limited:
+                health.rate_limited += running
+                if flags:  # the limiter changed the approach's command too
+                    self.trims += running
+            elif flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
+                health.unsafe_commands += running
         if new_pose is None:  # the actuators realise another pose than the one asked
             achieved = np.asarray(robot.forward(q, guess=before), dtype=float)
             new_pose = achieved if np.isfinite(achieved).all() else before
@@ -342,22 +349,6 @@ class CommandPipeline(PipelineCore):
             refused or self._stale and running or bool(flags & stages.HELD), self.phase,
             0.0 if self._stale and running else 1.0,
         )  # fmt: skip
-
-    def _approach(
-        self, goal: np.ndarray, q: np.ndarray, counted: bool
-    ) -> tuple[int, np.ndarray | None]:
-        """:func:`motionbase.stages.approach_stage` toward ``goal`` (a valid pose), counted
-        in the health while running; returns (limiter bits, the pose the command realises
-        or None when it is not the one asked)."""
-        P, S = self.params, self.state
-        done = stages.approach_stage(P, S, self.robot, goal, q, self._path_limits)
-        if done.limited:
-            self.health.rate_limited += counted
-            if done.flags:  # the limiter changed the approach's command too
-                self.trims += counted
-        elif done.flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
-            self.health.unsafe_commands += counted
-        return done.flags, done.pose
 
 
 # --------------------------------------------------------------------------- the sweep

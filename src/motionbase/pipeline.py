@@ -71,11 +71,7 @@ from motionbase.physics import STANDARD_GRAVITY
 from motionbase.platform.robot import ROBOTS, Robot, robot_spec
 from motionbase.safety import INPUT_PROBLEMS, InputLimits
 from motionbase.state import PHASES, AircraftState, PipelineOutput  # (the classes re-exported)
-from motionbase.stopping import (
-    StopRequest,
-    install_signal_stop,  # noqa: F401 - re-exported
-    stopped_by,
-)
+from motionbase.stopping import StopRequest, stopped_by
 from motionbase.washout.cueing import CUEINGS, Cueing, cueing_spec
 
 if TYPE_CHECKING:  # (io's package loads every adapter: not at run time)
@@ -174,12 +170,8 @@ class PipelineConfig:
 
     def make_robot(self) -> Robot:
         """The robot plug-in this configuration drives."""
-        options = (
-            {"scale_m": self.planar_scale_m, "yaw_scale": self.planar_yaw_scale}
-            if self.planar
-            else {}
-        )
-        return robot_spec(self.robot).make(self.geometry, **options)
+        planar = {"scale_m": self.planar_scale_m, "yaw_scale": self.planar_yaw_scale}
+        return robot_spec(self.robot).make(self.geometry, **(planar if self.planar else {}))
 
     def make_cueing(self) -> Cueing:
         """The cueing plug-in this configuration runs, at the pipeline's rate."""

@@ -26,8 +26,6 @@ of actuator values have room for 6; the first ``n`` (the robot's) are used.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numba
 import numpy as np
 from numba import types
@@ -416,26 +414,7 @@ def brake_stage(P, S, q):  # pragma: no cover - compiled
     return flags
 
 
-class Approach(NamedTuple):
-    """What :func:`approach_stage` did this tick.
-
-    Attributes
-    ----------
-    flags : int
-        :func:`limit_stage`'s bits for the command sent.
-    limited : bool
-        The goal was out of one tick's reach (the limiter cut the direct command).
-    pose : ndarray or None
-        The robot pose (m,) the command realises; None when it is not a pose the stage
-        asked for (the limiter changed the command: forward kinematics tells).
-    """
-
-    flags: int
-    limited: bool
-    pose: np.ndarray | None
-
-
-def approach_stage(P, S, robot, goal, q, path_limits) -> Approach:
+def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.ndarray | None]:
     """The limiter toward a reachable robot pose, shaped into a coordinated approach when
     the pose is out of one tick's reach (teleoperation's far jumps, the way home).
 
@@ -465,6 +444,16 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> Approach:
     path_limits : ActuatorLimits
         One virtual axis: the approach's planned speed and acceleration, in actuator units
         (max norm) per s and s^2.
+
+    Returns
+    -------
+    flags : int
+        :func:`limit_stage`'s bits for the command sent.
+    limited : bool
+        The goal was out of one tick's reach (the limiter cut the direct command).
+    pose : ndarray or None
+        The robot pose (m,) the command realises; None when it is not a pose the stage
+        asked for (the limiter changed the command: forward kinematics tells).
     """
     p = P[0]
     s = S[0]
@@ -491,7 +480,7 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> Approach:
         s["wanted"][:n] = goal_q  # the goal's own speed is fed forward next tick
     if not np.array_equal(q, wanted):
         pose = None
-    return Approach(int(flags), limited, pose)
+    return int(flags), limited, pose
 
 
 def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) -> float:

@@ -365,8 +365,7 @@ def teleop_job(
         )
     live_at = None if live is None else LiveAddress.parse(live)
     stop = stop if stop is not None else StopRequest()
-    sink = None
-    logger = None
+    sink = logger = None
     with contextlib.ExitStack() as cleanup:  # (undone in reverse: the log, the link, the signals)
         cleanup.callback(install_signal_stop(stop))  # first: a stop during start-up parks too
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))

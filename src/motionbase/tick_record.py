@@ -79,7 +79,8 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
     def take(count: int) -> list[Any]:
         nonlocal at
         at += count
-        return _finite(values[at - count : at])
+        chunk = values[at - count : at]  # (non-finite numbers as JSON's strings for them)
+        return list(chunk) if math.isfinite(sum(chunk)) else [json_float(v) for v in chunk]
 
     items: list[tuple[str, dict[str, Any]]] = []
     if has_state:
@@ -110,13 +111,6 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
     if diagnostics is not None:
         items.append((topic, diagnostics if "t" in diagnostics else {"t": t, **diagnostics}))
     return items, None if servo else pose
-
-
-def _finite(values: tuple[float, ...]) -> list[Any]:
-    """``values``, each non-finite one as the string JSON needs for it."""
-    if math.isfinite(sum(values)):
-        return list(values)
-    return [json_float(v) for v in values]
 
 
 def json_float(v: float) -> float | str:

@@ -170,8 +170,7 @@ class Writer:
         self._world_ns = -1  # log time of the last world -> base transform
         # the platform frame's origin (the centroid of its joints) in the base frame at the
         # neutral pose, m: a pose is the displacement from there (DESIGN.md)
-        ox, oy, oz = config.get("platform_origin") or (0.0, 0.0, 0.0)
-        self._origin = (float(ox), float(oy), float(oz))
+        self._origin = config.get("platform_origin") or (0.0, 0.0, 0.0)
         self._context = foxglove.Context()  # channels hold only a weak reference to it
         self._server: Any = None
         self._live: list[list] | None = None  # per topic: [live channel, next due ns]
@@ -213,10 +212,9 @@ class Writer:
 
     def _channel(self, topic: str, name: str, schema: Any, context: Any) -> Any:
         """A JSON channel of ``topic`` with its JSON Schema, on ``context``."""
-        foxglove = self._foxglove
-        return foxglove.Channel(
+        return self._foxglove.Channel(
             topic,
-            schema=foxglove.Schema(
+            schema=self._foxglove.Schema(
                 name=name, encoding="jsonschema", data=json.dumps(schema).encode()
             ),
             message_encoding="json",

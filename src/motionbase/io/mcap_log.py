@@ -226,23 +226,6 @@ class LiveAddress:
         return f"live view: {self.url(port)} (Foxglove: Open connection > Foxglove WebSocket)"
 
 
-def _checked_topics(
-    topics: Mapping[str, tuple[str, Mapping[str, Any]]],
-) -> dict[str, tuple[str, Mapping[str, Any]]]:
-    """``topics`` (topic -> (schema name, JSON Schema)) when each entry is one, else a
-    ConfigError naming the entry."""
-    for topic, entry in topics.items():
-        ok = isinstance(topic, str) and topic.startswith("/") and isinstance(entry, tuple)
-        ok = ok and len(entry) == 2 and isinstance(entry[0], str) and entry[0] != ""
-        ok = ok and isinstance(entry[1], Mapping) and entry[1].get("type") == "object"
-        if not ok:
-            raise ConfigError(
-                f"MCAP topic {topic!r}: expected '/name' -> (schema name, JSON Schema of an "
-                f"object), got {entry!r:.80}"
-            )
-    return dict(topics)
-
-
 class McapLogger:
     """Write pipeline topics to an MCAP file through the Foxglove SDK's writer, which runs
     in a process of its own (see the module's notes).
@@ -324,7 +307,16 @@ class McapLogger:
             raise ConfigError(f"platform_origin must be 3 finite numbers (m), got {origin}")
         #: the platform frame's origin in the base frame at the neutral pose, m (``/tf``)
         self.platform_origin = tuple(float(v) for v in origin)
-        self.topics = {**_checked_topics(topics or {}), **TOPIC_SCHEMAS}
+        for topic, entry in (topics or {}).items():  # topic -> (schema name, JSON Schema)
+            ok = isinstance(topic, str) and topic.startswith("/") and isinstance(entry, tuple)
+            ok = ok and len(entry) == 2 and isinstance(entry[0], str) and entry[0] != ""
+            ok = ok and isinstance(entry[1], Mapping) and entry[1].get("type") == "object"
+            if not ok:
+                raise ConfigError(
+                    f"MCAP topic {topic!r}: expected '/name' -> (schema name, JSON Schema of an "
+                    f"object), got {entry!r:.80}"
+                )
+        self.topics = {**(topics or {}), **TOPIC_SCHEMAS}
         self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
@@ -428,10 +420,9 @@ class McapLogger:
             failed, self._state = self._state == "failed", "finished"
             os.close(self._data_fd)  # the writer ends at the end of its input
             self._data_fd = -1
-            try:
+            # a writer stopped or stuck (after a failure) finishes the file on its own
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 self._process.wait(timeout=_FAILED_WRITER_WAIT_S if failed else None)
-            except subprocess.TimeoutExpired:  # stopped or stuck: it finishes on its own
-                pass
             self._reply.close()
 
     def __enter__(self) -> McapLogger:
@@ -481,10 +472,9 @@ class McapLogger:
         :meth:`add_transform`, with the per-call checks done once and one encoding: the
         messages go to the writer process as one JSON array, which it splits.
         """
-        index = self._index
         batch = []  # (topic index, flags, message)
         for topic, message in items:
-            i = index.get(topic)
+            i = self._index.get(topic)
             if i is None:
                 self._unknown(topic)
             batch.append((i, 0, message if "t" in message else {"t": t, **message}))

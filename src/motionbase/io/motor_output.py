@@ -195,12 +195,6 @@ _ESCAPES = {"n": "\n", "r": "\r", "t": "\t", "\\": "\\", "0": "\0"}
 _ESCAPE_RE = re.compile(r"\\(?:([nrt\\0])|x([0-9a-fA-F]{2}))")
 
 
-def _unescape(text: str) -> str:
-    """``\\n``, ``\\r``, ``\\t``, ``\\\\``, ``\\0`` and ``\\xHH`` expanded, left to right; any
-    other backslash is kept as it is."""
-    return _ESCAPE_RE.sub(lambda m: _ESCAPES.get(m[1]) or chr(int(m[2], 16)), text)
-
-
 @dataclass(frozen=True)
 class _TextField:
     axis: int  # 0-based
@@ -224,7 +218,8 @@ class TextFormat:
     def __init__(self, template: str, n_axes: int = 6) -> None:
         self.template = template
         src = re.sub(r"<Axis(\d+)a>", r"{\1}", template)
-        src = _unescape(src)
+        # \n, \r, \t, \\, \0 and \xHH expanded, left to right; any other backslash is kept
+        src = _ESCAPE_RE.sub(lambda m: _ESCAPES.get(m[1]) or chr(int(m[2], 16)), src)
         # the text between the tokens, and the tokens: literal, token, literal, ..., literal
         parts = re.split(r"(\{\{|\}\}|\{[^{}]*\}|[{}])", src)
         literals = [parts[0]]  # literal, field, literal, field, ..., literal
@@ -327,8 +322,7 @@ class BinaryFormat:
         self.spec = spec
         where = f"binary format {spec!r}"
         items: list[_BinField] = []
-        next_axis = 0
-        offset = 0
+        next_axis = offset = 0
         tokens = [t for t in re.split(r"[,\s]+", spec.strip()) if t]
         if not tokens:
             raise ConfigError(f"{where}: empty (e.g. 0xFFFE,6xu16be,sum8@2)")
@@ -675,9 +669,7 @@ def ramp_step(
         q0, v0, target, command.step, command.step_before, dt, limits,
         dt_min=MIN_STEP_PERIODS * period, command_dt=command_dt,
     )  # fmt: skip
-    if np.array_equal(q, target):
-        return target, v, status
-    return q, v, status
+    return (target if np.array_equal(q, target) else q), v, status
 
 
 # --------------------------------------------------------------------------- the sink
@@ -756,11 +748,7 @@ class MotorOutput:
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
-        self.frames_sent = 0
-        self.commands = 0
-        self.held = 0
-        self.send_errors = 0
-        self.ramped = 0
+        self.frames_sent = self.commands = self.held = self.send_errors = self.ramped = 0
         self.link_up = True
         # the latest accepted command, replaced as one object
         self._command: DriveCommand | None = None
@@ -864,13 +852,12 @@ class MotorOutput:
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
         nxt = time.monotonic()
-        wait = self._stop.wait
         while not self._stop.is_set():
             self._tick(time.monotonic())
             nxt += period
             delay = nxt - time.monotonic()
             if delay > 0:
-                wait(delay)
+                self._stop.wait(delay)
             elif delay < -period:
                 nxt = time.monotonic()  # overrun: skip, never burst
 
