@@ -4,6 +4,7 @@ against the perception module, constraints, fallback, preview, streaming = batch
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -851,3 +852,30 @@ def test_a_fallback_path_in_an_mpc_file_is_relative_to_that_file(tmp_path, monke
     d["solver"]["fallback"] = "gentle"
     write_toml(folder / "mpc.toml", d)
     assert MpcParams.from_toml(folder / "mpc.toml").fallback == "gentle"
+
+
+def test_a_run_whose_solver_failed_says_so_in_its_summary(tmp_path):
+    """A flight whose MPC fell back (here on every tick: one iteration never solves) flew
+    the fallback washout's cue, not the MPC's: the per-tick record on ``/cueing/mpc`` was
+    the only trace, and the summary read as for any MPC flight. It now says how many ticks
+    fell back and where the log has them; a flight that solved every tick says nothing."""
+    from motionbase import app
+    from motionbase.io.manoeuvres import write_washout
+
+    failing = tmp_path / "failing.toml"
+    write_washout(
+        failing, dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1), ["never solved"]
+    )
+    res = app.fly(
+        "c1723", cueing="mpc", washout=str(failing), duration_s=0.5, out=tmp_path / "f.mcap",
+        progress=False,
+    )  # fmt: skip
+    notes = [n for n in res.notes if "fell back" in n]
+    assert len(notes) == 1, res.notes
+    failed, ticks = map(int, re.search(r"failed on (\d+) of (\d+) ticks", notes[0]).groups())
+    # (every tick of the flight; on the park ramp after it, near rest, one iteration may do)
+    assert ticks >= res.summary.samples and failed >= res.summary.samples - 10, notes
+    assert "/cueing/mpc" in notes[0] and "tuned_ceart" in notes[0]  # the washout that flew
+    assert notes[0] in res.summary_text()  # what the command prints
+    solved = app.fly("c1723", cueing="mpc", duration_s=0.3, out=tmp_path / "s.mcap", progress=False)
+    assert not [n for n in solved.notes if "fell back" in n], solved.notes

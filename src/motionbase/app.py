@@ -425,6 +425,7 @@ def _drive_stoppable(
         out,
         failed=log_gone,
         notes=[d.stats_line() for d in drives]
+        + _fallback_notes(pipeline.cueing, out)
         + (
             [
                 f"preview: the {pipeline.cueing.name} cueing saw the flight's future "
@@ -435,6 +436,22 @@ def _drive_stoppable(
         ),
         actuator_unit=pipeline.robot.actuator_unit,
     )
+
+
+def _fallback_notes(cueing: Any, out: Path | None) -> list[str]:
+    """A warning when the cueing's solver failed on some ticks (an MPC's ``counts``), so
+    that the pose blended toward its fallback washout: the summary says how often and
+    which washout flew them (the log has each tick on ``/cueing/<name>``)."""
+    counts = getattr(cueing, "counts", None)
+    if not isinstance(counts, dict) or not counts.get("fallbacks"):
+        return []
+    fallback = getattr(getattr(cueing, "params", None), "fallback", "its fallback")
+    where = f" (each tick on /cueing/{cueing.name} in {out})" if out is not None else ""
+    return [
+        f"warning: {cueing.name}: the solver failed on {counts['fallbacks']} of "
+        f"{counts.get('ticks', '?')} ticks, which fell back: the pose blended toward the "
+        f"fallback washout {fallback}{where}"
+    ]
 
 
 def _check_preview(cueing: str) -> None:
