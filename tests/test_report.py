@@ -366,3 +366,10 @@ def test_a_recording_cut_anywhere_after_its_first_states_gives_a_report(rus6_fli
         assert np.isfinite(report.metrics.rmse_specific_force).all()
         reported += 1
     assert reported >= 10
+
+
+def test_the_planar_robot_is_named_without_a_stray_comma(planar_written):
+    """The summary's first line and the plots' titles name the robot from its description
+    ("3-RRR, planar mode"): the first word kept the comma, "(planar 3-RRR,, source ...)"."""
+    first = (planar_written / "summary.txt").read_text().splitlines()[0]
+    assert "(planar 3-RRR, source " in first and ",," not in first, first

@@ -161,7 +161,8 @@ class Report:
         """The robot as the titles name it (``6-RUS``, ``6-UPS``, ``planar 3-RRR``)."""
         from motionbase.platform.robot import robot_spec
 
-        kind = robot_spec(self.robot).description.removeprefix("planar ").split()[0]
+        # (the description's first word: "3-RRR, planar mode" -> "3-RRR", without its comma)
+        kind = robot_spec(self.robot).description.removeprefix("planar ").split()[0].rstrip(",")
         return f"planar {kind}" if self.planar else kind
 
     def actuators_shown(self) -> tuple[np.ndarray, np.ndarray, str]:
