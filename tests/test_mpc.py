@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +24,7 @@ from motionbase.washout.perception import perceived_specific_force
 
 G = 9.80665
 DT = 0.01
+RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 
 
 @pytest.fixture(scope="module")
@@ -879,3 +881,41 @@ def test_a_run_whose_solver_failed_says_so_in_its_summary(tmp_path):
     assert notes[0] in res.summary_text()  # what the command prints
     solved = app.fly("c1723", cueing="mpc", duration_s=0.3, out=tmp_path / "s.mcap", progress=False)
     assert not [n for n in solved.notes if "fell back" in n], solved.notes
+
+
+def test_out_may_not_be_the_mpc_files_fallback_washout(tmp_path, capsys):
+    """An MPC file names its fallback washout file (``fallback = "wash.toml"``): the run
+    reads it, as it reads ``--params``, yet ``fly --out wash.toml`` wrote the log over it
+    (the user's washout file became an MCAP file), and ``tune --out wash.toml`` wrote an
+    MPC file there whose fallback was itself. Each is now one line, exit 2, the file kept."""
+    from motionbase import app, cli
+
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    wash = folder / "wash.toml"
+    WashoutParams.preset("gentle").to_toml(wash)
+    before = wash.read_bytes()
+    d = MpcParams.load("tuned_ceart").to_dict()
+    d["solver"]["fallback"] = "wash.toml"
+    mpc = folder / "mpc.toml"
+    write_toml(mpc, d)
+    common = ["--cueing", "mpc", "--params", str(mpc), "--out", str(wash)]
+    for args in (
+        ["fly", "c1723", "--duration", "0.5", *common],
+        ["replay", str(RECORDINGS / "c1723_30s.mcap"), *common],
+        ["stream", "--mavlink", "udpin:127.0.0.1:0", "--duration", "0.5", *common],
+        ["tune", "--scripts", "rudder_kick@0:4", "--holdout", "none", "--budget", "1", *common],
+    ):
+        code = cli.main(args)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1, (args, err)
+        assert "fallback" in err[0] and str(wash) in err[0], (args, err)
+        assert wash.read_bytes() == before, args
+    # (a fallback that is a preset's name is no file: nothing to refuse)
+    d["solver"]["fallback"] = "gentle"
+    write_toml(mpc, d)
+    res = app.fly(
+        "c1723", cueing="mpc", washout=str(mpc), duration_s=0.2, out=tmp_path / "gentle",
+        progress=False,
+    )  # fmt: skip
+    assert res.summary.samples > 0

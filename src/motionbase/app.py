@@ -438,6 +438,15 @@ def _drive_stoppable(
     )
 
 
+def _refuse_out_over_cueing_files(out: str | Path, config: PipelineConfig) -> None:
+    """A ConfigError when ``--out`` is a file the cueing's parameters name and the run
+    reads: an MPC file's fallback washout (``solver.fallback``), which the log would
+    overwrite as it would ``--params`` itself."""
+    fallback = getattr(config.cueing_params, "fallback", None)
+    if isinstance(fallback, str):
+        refuse_out_over_inputs(out, ("--params file's solver.fallback", fallback))
+
+
 def _fallback_notes(cueing: Any, out: Path | None) -> list[str]:
     """A warning when the cueing's solver failed on some ticks (an MPC's ``counts``), so
     that the pose blended toward its fallback washout: the summary says how often and
@@ -734,6 +743,7 @@ def fly(
                 cueing=cueing,
                 rate_hz=source.rate_hz,
             )
+            _refuse_out_over_cueing_files(out_path, config)
             reference = None
             if preview:
                 from motionbase.io.manoeuvres import preview_reference
@@ -871,6 +881,8 @@ def _replay(
                 cueing=cueing or "classical",
                 rate_hz=source.rate_hz,
             )
+        if out is not None:
+            _refuse_out_over_cueing_files(out, config)
         as_recorded = preview is None
         if as_recorded:  # as recorded, unless the configuration was overridden
             same = recorded is not None and all(x is None for x in asked)
@@ -1157,6 +1169,7 @@ def _stream(
         ("--platform", platform),
         ("--params", washout),
     )
+    _refuse_out_over_cueing_files(out, config)
     source = open_live_source(
         source_url,
         mavlink=mavlink,
@@ -1598,6 +1611,12 @@ def tune(
     robot_name, geometry = load_geometry(platform_name)
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
+    fallback = getattr(start, "fallback", None)
+    if isinstance(fallback, str) and same_file(fallback, out_path):
+        raise ConfigError(
+            f"--out {out} is the fallback washout the start set names (solver.fallback, "
+            f"{fallback}): the tuned set written there would destroy it; give another file"
+        )
     if profile is not None:
         from motionbase.washout.params import PROFILES
 
