@@ -919,3 +919,29 @@ def test_out_may_not_be_the_mpc_files_fallback_washout(tmp_path, capsys):
         progress=False,
     )  # fmt: skip
     assert res.summary.samples > 0
+
+
+def test_replay_overrides_keep_the_recorded_cueing(tmp_path):
+    """``replay --help``: ``--cueing`` is "the recorded cueing unless given" and ``--params``
+    overrides "the recorded cueing parameters". Yet any override made the cueing classical:
+    an MPC recording replayed with ``--params ceart`` (the MPC's hand-set preset) was
+    refused as an unknown washout preset, and with ``--params tuned_ceart`` or
+    ``--platform stewart6`` it silently replayed with the classical washout."""
+    import json
+
+    from motionbase import app
+
+    rec = tmp_path / "mpc.mcap"
+    app.fly("c1723", cueing="mpc", duration_s=0.3, out=rec, progress=False)
+    for override in ({"washout": "ceart"}, {"washout": "tuned_ceart"}, {"platform": "stewart6"}):
+        out = tmp_path / f"{'_'.join(override.values())}.mcap"
+        app.replay(rec, out=out, progress=False, **override)
+        messages, _, meta = _read_mcap(out)
+        config = json.loads(meta["motionbase"]["config"])["pipeline_config"]
+        assert config["cueing"] == "mpc" and "/cueing/mpc" in messages, override
+    # --cueing given still decides
+    out = tmp_path / "classical.mcap"
+    app.replay(rec, out=out, progress=False, cueing="classical", washout="tuned_ceart")
+    assert json.loads(_read_mcap(out)[2]["motionbase"]["config"])["pipeline_config"]["cueing"] == (
+        "classical"
+    )

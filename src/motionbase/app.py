@@ -874,11 +874,14 @@ def _replay(
             if platform is None and spec is not None and spec.planar == base_planar:
                 platform = None if spec.planar else spec.name  # the recorded robot's default
             _check_recorded_rate(src_path, source)
+            recorded_cueing = (recorded or {}).get("cueing")
+            if not isinstance(recorded_cueing, str):
+                recorded_cueing = "classical"
             config = load_config(
                 planar=base_planar,
                 platform=platform,
                 washout=washout,
-                cueing=cueing or "classical",
+                cueing=cueing or recorded_cueing,  # the recorded cueing unless given
                 rate_hz=source.rate_hz,
             )
         if out is not None:
