@@ -4,6 +4,8 @@ against the perception module, constraints, fallback, preview, streaming = batch
 from __future__ import annotations
 
 import dataclasses
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +24,7 @@ from motionbase.washout.perception import perceived_specific_force
 
 G = 9.80665
 DT = 0.01
+RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 
 
 @pytest.fixture(scope="module")
@@ -851,3 +854,94 @@ def test_a_fallback_path_in_an_mpc_file_is_relative_to_that_file(tmp_path, monke
     d["solver"]["fallback"] = "gentle"
     write_toml(folder / "mpc.toml", d)
     assert MpcParams.from_toml(folder / "mpc.toml").fallback == "gentle"
+
+
+def test_a_run_whose_solver_failed_says_so_in_its_summary(tmp_path):
+    """A flight whose MPC fell back (here on every tick: one iteration never solves) flew
+    the fallback washout's cue, not the MPC's: the per-tick record on ``/cueing/mpc`` was
+    the only trace, and the summary read as for any MPC flight. It now says how many ticks
+    fell back and where the log has them; a flight that solved every tick says nothing."""
+    from motionbase import app
+    from motionbase.io.manoeuvres import write_washout
+
+    failing = tmp_path / "failing.toml"
+    write_washout(
+        failing, dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1), ["never solved"]
+    )
+    res = app.fly(
+        "c1723", cueing="mpc", washout=str(failing), duration_s=0.5, out=tmp_path / "f.mcap",
+        progress=False,
+    )  # fmt: skip
+    notes = [n for n in res.notes if "fell back" in n]
+    assert len(notes) == 1, res.notes
+    failed, ticks = map(int, re.search(r"failed on (\d+) of (\d+) ticks", notes[0]).groups())
+    # (every tick of the flight; on the park ramp after it, near rest, one iteration may do)
+    assert ticks >= res.summary.samples and failed >= res.summary.samples - 10, notes
+    assert "/cueing/mpc" in notes[0] and "tuned_ceart" in notes[0]  # the washout that flew
+    assert notes[0] in res.summary_text()  # what the command prints
+    solved = app.fly("c1723", cueing="mpc", duration_s=0.3, out=tmp_path / "s.mcap", progress=False)
+    assert not [n for n in solved.notes if "fell back" in n], solved.notes
+
+
+def test_out_may_not_be_the_mpc_files_fallback_washout(tmp_path, capsys):
+    """An MPC file names its fallback washout file (``fallback = "wash.toml"``): the run
+    reads it, as it reads ``--params``, yet ``fly --out wash.toml`` wrote the log over it
+    (the user's washout file became an MCAP file), and ``tune --out wash.toml`` wrote an
+    MPC file there whose fallback was itself. Each is now one line, exit 2, the file kept."""
+    from motionbase import app, cli
+
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    wash = folder / "wash.toml"
+    WashoutParams.preset("gentle").to_toml(wash)
+    before = wash.read_bytes()
+    d = MpcParams.load("tuned_ceart").to_dict()
+    d["solver"]["fallback"] = "wash.toml"
+    mpc = folder / "mpc.toml"
+    write_toml(mpc, d)
+    common = ["--cueing", "mpc", "--params", str(mpc), "--out", str(wash)]
+    for args in (
+        ["fly", "c1723", "--duration", "0.5", *common],
+        ["replay", str(RECORDINGS / "c1723_30s.mcap"), *common],
+        ["stream", "--mavlink", "udpin:127.0.0.1:0", "--duration", "0.5", *common],
+        ["tune", "--scripts", "rudder_kick@0:4", "--holdout", "none", "--budget", "1", *common],
+    ):
+        code = cli.main(args)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1, (args, err)
+        assert "fallback" in err[0] and str(wash) in err[0], (args, err)
+        assert wash.read_bytes() == before, args
+    # (a fallback that is a preset's name is no file: nothing to refuse)
+    d["solver"]["fallback"] = "gentle"
+    write_toml(mpc, d)
+    res = app.fly(
+        "c1723", cueing="mpc", washout=str(mpc), duration_s=0.2, out=tmp_path / "gentle",
+        progress=False,
+    )  # fmt: skip
+    assert res.summary.samples > 0
+
+
+def test_replay_overrides_keep_the_recorded_cueing(tmp_path):
+    """``replay --help``: ``--cueing`` is "the recorded cueing unless given" and ``--params``
+    overrides "the recorded cueing parameters". Yet any override made the cueing classical:
+    an MPC recording replayed with ``--params ceart`` (the MPC's hand-set preset) was
+    refused as an unknown washout preset, and with ``--params tuned_ceart`` or
+    ``--platform stewart6`` it silently replayed with the classical washout."""
+    import json
+
+    from motionbase import app
+
+    rec = tmp_path / "mpc.mcap"
+    app.fly("c1723", cueing="mpc", duration_s=0.3, out=rec, progress=False)
+    for override in ({"washout": "ceart"}, {"washout": "tuned_ceart"}, {"platform": "stewart6"}):
+        out = tmp_path / f"{'_'.join(override.values())}.mcap"
+        app.replay(rec, out=out, progress=False, **override)
+        messages, _, meta = _read_mcap(out)
+        config = json.loads(meta["motionbase"]["config"])["pipeline_config"]
+        assert config["cueing"] == "mpc" and "/cueing/mpc" in messages, override
+    # --cueing given still decides
+    out = tmp_path / "classical.mcap"
+    app.replay(rec, out=out, progress=False, cueing="classical", washout="tuned_ceart")
+    assert json.loads(_read_mcap(out)[2]["motionbase"]["config"])["pipeline_config"]["cueing"] == (
+        "classical"
+    )

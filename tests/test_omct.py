@@ -365,3 +365,24 @@ def test_out_that_is_a_file_is_one_line(tmp_path, capsys):
 
     with pytest.raises(SinkError, match="is not a folder"):
         write_omct(result, blocker)
+
+
+def test_an_mpc_whose_solver_failed_says_so_in_the_table():
+    """An MPC that fell back on every tick (one iteration never solves) measures its
+    fallback washout's response, which the table printed as the MPC's without a word. The
+    table, and the JSON file, now say on how many ticks the solver failed; an MPC that
+    solved says nothing."""
+    from motionbase.washout.mpc_params import MpcParams
+
+    failing = dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1)
+    for params, failed in ((failing, True), (MpcParams.load("tuned_ceart"), False)):
+        config = dataclasses.replace(load_config(cueing="mpc"), cueing_params=params)
+        result = omct.run_omct(config, frequencies=[1.0], tests=["surge"], settle_s=1.0)
+        warnings = [line for line in result.table_text().splitlines() if "fell back" in line]
+        fallbacks, ticks = result.to_dict()["cueing_fallbacks"]
+        # (at rest, before the sinusoid starts, one iteration may be enough)
+        assert ticks > 0 and (fallbacks > ticks // 2 if failed else fallbacks == 0), fallbacks
+        assert len(warnings) == int(failed), warnings
+        if failed:
+            assert f"{fallbacks} of {ticks} ticks" in warnings[0], warnings
+            assert "tuned_ceart" in warnings[0]  # the washout measured instead

@@ -366,3 +366,35 @@ def test_a_recording_cut_anywhere_after_its_first_states_gives_a_report(rus6_fli
         assert np.isfinite(report.metrics.rmse_specific_force).all()
         reported += 1
     assert reported >= 10
+
+
+def test_the_planar_robot_is_named_without_a_stray_comma(planar_written):
+    """The summary's first line and the plots' titles name the robot from its description
+    ("3-RRR, planar mode"): the first word kept the comma, "(planar 3-RRR,, source ...)"."""
+    first = (planar_written / "summary.txt").read_text().splitlines()[0]
+    assert "(planar 3-RRR, source " in first and ",," not in first, first
+
+
+def test_the_summary_says_when_an_mpcs_solver_failed(tmp_path):
+    """A recording of an MPC flight whose solver failed (one iteration never solves) has
+    each tick's fallback on /cueing/mpc; the report scored the fallback washout's cue as
+    the MPC's without a word. Its summary now says on how many ticks the solver failed; a
+    recording without such ticks says nothing of it."""
+    import dataclasses
+
+    from motionbase.io.manoeuvres import write_washout
+    from motionbase.washout.mpc_params import MpcParams
+
+    failing = tmp_path / "failing.toml"
+    params = dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1)
+    write_washout(failing, params, ["never solved"])
+    out = tmp_path / "mpc.mcap"
+    fly("c1723", cueing="mpc", washout=str(failing), duration_s=2.5, out=out, progress=False)
+    text = write_report(out, tmp_path / "rep").out_dir.joinpath("summary.txt").read_text()
+    (line,) = [x for x in text.splitlines() if "fell back" in x]
+    failed, ticks = map(int, re.search(r"failed on (\d+) of (\d+) ticks", line).groups())
+    assert ticks == len(read_messages(out)["/cueing/mpc"]) and failed > ticks // 2, line
+    solved = tmp_path / "solved.mcap"
+    fly("c1723", cueing="mpc", duration_s=2.5, out=solved, progress=False)
+    text = write_report(solved, tmp_path / "rep2").out_dir.joinpath("summary.txt").read_text()
+    assert "fell back" not in text

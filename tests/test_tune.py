@@ -979,3 +979,25 @@ def test_the_ceart_default_is_the_washout_tuned_for_it(tmp_path):
     # asked for by name, on ceart: what was asked for
     assert params(washout="default") == simona
     assert params(washout="gentle") == WashoutParams.preset("gentle").to_dict()
+
+
+def test_the_mpcs_table_does_not_claim_a_sizing_check_it_did_not_make(ceart):
+    """``tune --cueing mpc`` printed "saturated single-axis inputs (washout alone): largest
+    use of the reach 0 % -> 0 %" for every set, although the check only runs for the
+    classical washout (an MPC's usage is left at zero): a measurement that was never made,
+    read as a set that uses none of the reach. The table now says it was not checked."""
+    from motionbase.washout.mpc_params import MpcParams
+
+    geometry, reach = ceart
+    problem = tuning.TuningProblem(geometry, (load_script("rudder_kick@0:4"),), reach, cueing="mpc")
+    score = problem.evaluate(MpcParams.load("tuned_ceart"))
+    lines = tuning.format_table([("tuning set", score, score)]).splitlines()
+    (sizing,) = [line for line in lines if line.startswith("saturated")]
+    assert "not checked" in sizing and "%" not in sizing, sizing
+    assert lines[-1].startswith("score tuned") and "use beyond the rule" not in lines[-1]
+    assert score.cost == pytest.approx(score.manoeuvre_cost)
+    # the classical washout's table still gives the check's figures
+    classical = tuning.TuningProblem(geometry, (load_script("rudder_kick@0:4"),), reach)
+    default = classical.evaluate(WashoutParams.preset("default"))
+    text = tuning.format_table([("tuning set", default, default)])
+    assert "largest use of the reach" in text and "not checked" not in text

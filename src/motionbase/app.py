@@ -427,6 +427,7 @@ def _drive_stoppable(
         out,
         failed=log_gone,
         notes=[d.stats_line() for d in drives]
+        + _fallback_notes(pipeline.cueing, out)
         + (
             [
                 f"preview: the {pipeline.cueing.name} cueing saw the flight's future "
@@ -437,6 +438,31 @@ def _drive_stoppable(
         ),
         actuator_unit=pipeline.robot.actuator_unit,
     )
+
+
+def _refuse_out_over_cueing_files(out: str | Path, config: PipelineConfig) -> None:
+    """A ConfigError when ``--out`` is a file the cueing's parameters name and the run
+    reads: an MPC file's fallback washout (``solver.fallback``), which the log would
+    overwrite as it would ``--params`` itself."""
+    fallback = getattr(config.cueing_params, "fallback", None)
+    if isinstance(fallback, str):
+        refuse_out_over_inputs(out, ("--params file's solver.fallback", fallback))
+
+
+def _fallback_notes(cueing: Any, out: Path | None) -> list[str]:
+    """A warning when the cueing's solver failed on some ticks (an MPC's ``counts``), so
+    that the pose blended toward its fallback washout: the summary says how often and
+    which washout flew them (the log has each tick on ``/cueing/<name>``)."""
+    counts = getattr(cueing, "counts", None)
+    if not isinstance(counts, dict) or not counts.get("fallbacks"):
+        return []
+    fallback = getattr(getattr(cueing, "params", None), "fallback", "its fallback")
+    where = f" (each tick on /cueing/{cueing.name} in {out})" if out is not None else ""
+    return [
+        f"warning: {cueing.name}: the solver failed on {counts['fallbacks']} of "
+        f"{counts.get('ticks', '?')} ticks, which fell back: the pose blended toward the "
+        f"fallback washout {fallback}{where}"
+    ]
 
 
 def _check_preview(cueing: str) -> None:
@@ -719,6 +745,7 @@ def fly(
                 cueing=cueing,
                 rate_hz=source.rate_hz,
             )
+            _refuse_out_over_cueing_files(out_path, config)
             reference = None
             if preview:
                 from motionbase.io.manoeuvres import preview_reference
@@ -849,13 +876,18 @@ def _replay(
             if platform is None and spec is not None and spec.planar == base_planar:
                 platform = None if spec.planar else spec.name  # the recorded robot's default
             _check_recorded_rate(src_path, source)
+            recorded_cueing = (recorded or {}).get("cueing")
+            if not isinstance(recorded_cueing, str):
+                recorded_cueing = "classical"
             config = load_config(
                 planar=base_planar,
                 platform=platform,
                 washout=washout,
-                cueing=cueing or "classical",
+                cueing=cueing or recorded_cueing,  # the recorded cueing unless given
                 rate_hz=source.rate_hz,
             )
+        if out is not None:
+            _refuse_out_over_cueing_files(out, config)
         as_recorded = preview is None
         if as_recorded:  # as recorded, unless the configuration was overridden
             same = recorded is not None and all(x is None for x in asked)
@@ -1142,6 +1174,7 @@ def _stream(
         ("--platform", platform),
         ("--params", washout),
     )
+    _refuse_out_over_cueing_files(out, config)
     source = open_live_source(
         source_url,
         mavlink=mavlink,
@@ -1583,6 +1616,12 @@ def tune(
     robot_name, geometry = load_geometry(platform_name)
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
+    fallback = getattr(start, "fallback", None)
+    if isinstance(fallback, str) and same_file(fallback, out_path):
+        raise ConfigError(
+            f"--out {out} is the fallback washout the start set names (solver.fallback, "
+            f"{fallback}): the tuned set written there would destroy it; give another file"
+        )
     if profile is not None:
         from motionbase.washout.params import PROFILES
 

@@ -358,12 +358,17 @@ class Simulated(NamedTuple):
         The workspace clamp moved the pose.
     limited : ndarray of bool, shape (N,)
         The safety stage rate-limited or held the command.
+    fallbacks, ticks : int
+        For a cueing that counts them (an MPC's ``counts``): the ticks its solver failed on
+        (the pose blended toward its fallback washout), of the ticks it solved for.
     """
 
     angles: np.ndarray
     poses: np.ndarray
     clamped: np.ndarray
     limited: np.ndarray
+    fallbacks: int = 0
+    ticks: int = 0
 
 
 def simulate(
@@ -410,7 +415,10 @@ def simulate(
         )
     angles, poses = result.commands, result.poses
     clamped, limited = result.clamped, result.limited
-    return Simulated(angles, poses, clamped, limited)
+    counts = getattr(pipeline.cueing, "counts", None)
+    counts = counts if isinstance(counts, dict) else {}
+    fallbacks, ticks = int(counts.get("fallbacks", 0)), int(counts.get("ticks", 0))
+    return Simulated(angles, poses, clamped, limited, fallbacks, ticks)
 
 
 class Motion(NamedTuple):
@@ -714,6 +722,9 @@ class OmctResult:
         ``"classical"``, or the name of the substituted cueing.
     preview : bool
         The cueing saw each run's whole input first (offline mode, ``omct --preview``).
+    cueing_fallbacks : (int, int)
+        For a cueing that counts them (an MPC): the ticks of all runs its solver failed on,
+        when the pose blended toward its fallback washout, and the ticks it solved for.
     """
 
     results: tuple[TestResult, ...]
@@ -726,6 +737,7 @@ class OmctResult:
     cueing: str = "classical"
     command: str = field(default="", compare=False)
     preview: bool = False
+    cueing_fallbacks: tuple[int, int] = (0, 0)
 
     def __getitem__(self, name: str) -> TestResult:
         for r in self.results:
@@ -798,6 +810,14 @@ class OmctResult:
                 "not applicable (the planar robot renders surge, sway and yaw only): "
                 + ", ".join(self.not_applicable)
             )
+        fallbacks, ticks = self.cueing_fallbacks
+        if fallbacks:
+            fallback = getattr(self.config.cueing_params, "fallback", "its fallback")
+            lines.append(
+                f"warning: {self.cueing}: the solver failed on {fallbacks} of {ticks} ticks, "
+                f"which fell back: there the pose blended toward the fallback washout "
+                f"{fallback}, whose response these figures partly are"
+            )
         return "\n".join(lines).rstrip("\n")
 
     def markdown(self) -> str:
@@ -864,6 +884,7 @@ class OmctResult:
             "measure_periods": [int(v) for v in self.measure_periods],
             "tests": {r.test.name: r.to_dict() for r in self.results},
             "not_applicable": list(self.not_applicable),
+            "cueing_fallbacks": list(self.cueing_fallbacks),
             "pipeline_config": self.config.to_dict(),
         }
 
@@ -963,6 +984,7 @@ def run_omct(
     limited = {t.name: np.zeros(nk) for t in chosen}
     total = len(axes) * nk
     done = 0
+    fallbacks = ticks = 0
     for axis in axes:
         for k, w in enumerate(freqs):
             a = amps.of(axis, float(w))
@@ -974,6 +996,7 @@ def run_omct(
             sim = simulate(
                 config, t, f_in, w_in, att_in, cueing=cueing() if cueing else None, preview=preview
             )
+            fallbacks, ticks = fallbacks + sim.fallbacks, ticks + sim.ticks
             win = slice(lo, lo + n_win)
             # the motion one tick either side of the window, for the central differences
             motion = achieved_motion(config, sim.angles[lo - 1 :], sim.poses[lo - 1 :])
@@ -1026,4 +1049,5 @@ def run_omct(
         cueing=cueing_name if cueing is not None else config.cueing,
         command=command,
         preview=preview,
+        cueing_fallbacks=(fallbacks, ticks),
     )

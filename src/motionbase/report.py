@@ -117,6 +117,10 @@ class Report:
         One paragraph saying what is compared with what.
     text : str
         The text summary (metrics and run facts).
+    cueing_fallbacks : (str, int, int) or None
+        For a cueing that logs its solver's fallbacks (``/cueing/<name>`` messages with a
+        ``fallback`` field: the MPC): its name, the ticks that fell back and the ticks
+        logged; None without such a topic.
     """
 
     name: str
@@ -149,6 +153,7 @@ class Report:
     rejected: np.ndarray
     compared: str
     text: str
+    cueing_fallbacks: tuple[str, int, int] | None = None
 
     @property
     def planar(self) -> bool:
@@ -161,7 +166,8 @@ class Report:
         """The robot as the titles name it (``6-RUS``, ``6-UPS``, ``planar 3-RRR``)."""
         from motionbase.platform.robot import robot_spec
 
-        kind = robot_spec(self.robot).description.removeprefix("planar ").split()[0]
+        # (the description's first word: "3-RRR, planar mode" -> "3-RRR", without its comma)
+        kind = robot_spec(self.robot).description.removeprefix("planar ").split()[0].rstrip(",")
         return f"planar {kind}" if self.planar else kind
 
     def actuators_shown(self) -> tuple[np.ndarray, np.ndarray, str]:
@@ -495,9 +501,22 @@ def build_report(
         rejected=~good,
         compared=compared,
         text="",
+        cueing_fallbacks=_cueing_fallbacks(messages),
     )
     report = Report(**fields)  # type: ignore[arg-type]
     return replace(report, text=summary_text(report, metadata))
+
+
+def _cueing_fallbacks(
+    messages: Mapping[str, Sequence[Mapping[str, Any]]],
+) -> tuple[str, int, int] | None:
+    """The cueing's name, its ticks that fell back and its ticks logged, from the first
+    ``/cueing/<name>`` topic whose messages have a ``fallback`` field (the MPC's)."""
+    for topic, msgs in messages.items():
+        if topic.startswith("/cueing/") and msgs and "fallback" in msgs[0]:
+            failed = sum(1 for m in msgs if m.get("fallback") is True)
+            return topic.removeprefix("/cueing/"), failed, len(msgs)
+    return None
 
 
 # --------------------------------------------------------------------------- text
@@ -560,6 +579,12 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         + "; ".join(f"{k} {100 * v.mean():.1f} % of ticks" for k, v in shares)
         + f"; faded {100 * (r.fade < 1).mean():.1f} %; rejected inputs {int(r.rejected.sum())}"
     )
+    if r.cueing_fallbacks is not None and r.cueing_fallbacks[1]:
+        name, failed, ticks = r.cueing_fallbacks
+        lines.append(
+            f"  warning: {name}: the solver failed on {failed} of {ticks} ticks, which fell "
+            f"back (the pose blended toward its fallback washout; each tick on /cueing/{name})"
+        )
     act, (lo, hi), unit = r.actuators_shown()
     lines.append(f"  {r.actuator_label} [{unit}]: range used (limits)")
     for i in range(act.shape[1]):

@@ -588,11 +588,15 @@ class SetScore:
         Largest use of the single-axis reach per pose axis under saturated inputs
         (:func:`saturated_reach_use`).
     weights : Weights
+    sizing_checked : bool
+        Whether ``sizing_usage`` was measured: the rule is the classical washout's, and an
+        MPC's is left at zero (it keeps its own pose box).
     """
 
     scores: tuple[ManoeuvreScore, ...]
     sizing_usage: np.ndarray = field(default_factory=lambda: np.zeros(6))
     weights: Weights = Weights()
+    sizing_checked: bool = True
 
     def _mean(self, attr: str) -> float:
         return float(np.mean([getattr(s, attr) for s in self.scores]))
@@ -704,6 +708,7 @@ class TuningProblem:
             # the sizing rule is the classical washout's (an MPC keeps its box by design)
             saturated_reach_use(params, self.reach) if self.cueing == "classical" else np.zeros(6),
             self.weights,
+            sizing_checked=self.cueing == "classical",
         )
 
 
@@ -1026,6 +1031,15 @@ def format_table(sections: Sequence[tuple[str, SetScore, SetScore]]) -> str:
         )
         lines.append(f"  change of the means: {changes}")
     _, before, after = sections[0]
+    if not before.sizing_checked:  # (an MPC: the rule is the classical washout's)
+        lines.append(
+            "saturated single-axis inputs: not checked for this cueing (the sizing rule is the "
+            "classical washout's; an MPC keeps the pose box of its [limits])"
+        )
+        lines.append(
+            f"score tuned (the tuning set's mean cost): {before.cost:.3f} -> {after.cost:.3f}"
+        )
+        return "\n".join(lines)
     lines.append(
         "saturated single-axis inputs (washout alone): largest use of the reach "
         f"{100 * before.sizing_usage.max():.0f} % -> {100 * after.sizing_usage.max():.0f} % "
