@@ -503,3 +503,26 @@ def test_round_trip_is_exact_for_any_valid_geometry(tmp_path_factory, scale, rod
     path = tmp_path_factory.mktemp("g") / "g.toml"
     g.to_toml(path)
     assert Rus6Geometry.from_toml(path) == g
+
+
+@pytest.mark.parametrize(("rp", "e"), [(1e-6, 0.0), (1e-3, 0.0), (0.0, 1e-6)])
+def test_platform_joints_at_one_point_are_refused(rp, e):
+    """Joints at (nearly) one point leave the platform's rotations free: refused at load.
+
+    rp = 1e-6 with e = 0 loaded, and `workspace` reported 180 deg of roll, pitch and yaw (the
+    rods hardly change length when the platform turns about the point they meet at).
+    """
+    data = GEOMETRY.to_dict()
+    data["rp"], data["e"] = rp, e
+    if rp == 0.0:
+        data["rp"] = 1e-9
+    del data["park_angle"]
+    with pytest.raises(ConfigError, match=r"^g\.toml: fields 'rp'/'e': the rods barely hold"):
+        Rus6Geometry.from_dict(data, source="g.toml")
+
+
+def test_a_small_but_real_platform_still_loads():
+    data = GEOMETRY.to_dict()
+    data["rp"], data["e"] = 0.05, 0.01
+    del data["park_angle"]
+    Rus6Geometry.from_dict(data, source="g.toml")

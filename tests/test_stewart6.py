@@ -524,3 +524,11 @@ def test_actuator_jacobian_is_the_legs_velocity_relation() -> None:
     one_q, one_J = robot.actuator_jacobian(poses[0])  # one pose: no batch axis
     np.testing.assert_array_equal(one_q, q[0])
     np.testing.assert_array_equal(one_J, J[0])
+
+
+def test_platform_joints_at_one_point_are_refused():
+    """A platform radius of 1e-6 m left the rotations unconstrained and loaded."""
+    data = GEOMETRY.to_dict()
+    data["platform_radius"] = 1e-6
+    with pytest.raises(ConfigError, match=r"^g\.toml: field 'platform_radius': the actuators"):
+        Stewart6Geometry.from_dict(data, source="g.toml")

@@ -39,6 +39,7 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
+from motionbase.platform.conditioning import MIN_LINE_CONDITIONING, line_conditioning
 from motionbase.platform.output_map import OutputMapping
 
 __all__ = ["Rus6Geometry", "N_LEGS"]
@@ -168,6 +169,7 @@ class Rus6Geometry:
                     f"{math.degrees(lo[i]):g} .. {math.degrees(hi[i]):g} deg "
                     "(fix neutral_height or the limits)"
                 )
+        self._check_lines(src, neutral)
         if self.park_angle is None:
             object.__setattr__(self, "park_angle", float(np.max(lo)) + _PARK_MARGIN)
         else:
@@ -206,6 +208,24 @@ class Rus6Geometry:
                     f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too long to meet its "
                     f"platform joint at the neutral pose (needs <= {dmax:.4f} m)"
                 )
+
+    def _check_lines(self, src: str, neutral: np.ndarray) -> None:
+        """The rods must hold the platform's rotations (see :mod:`.conditioning`)."""
+        pivots, joints, centroid, cdir = self._neutral_points()
+        r = np.array(self.crank)[:, None]
+        up = np.array([0.0, 0.0, -1.0])
+        tips = pivots + r * (np.cos(neutral)[:, None] * cdir + np.sin(neutral)[:, None] * up)
+        length = float(np.mean(self.rod))
+        c = line_conditioning(joints - centroid, joints - tips, length)
+        if c < MIN_LINE_CONDITIONING:
+            raise ConfigError(
+                f"{src}: fields 'rp'/'e': the rods barely hold the platform's rotations at "
+                f"the neutral pose (line conditioning {c:.2g} < {MIN_LINE_CONDITIONING:g}, "
+                f"moments over the rod length {length:g} m): the platform joints "
+                f"(rp = {self.rp:g} m, e = {self.e:g} m) are too close to one point or the "
+                "rods' lines nearly meet (spread the joints: a larger rp or e, or fix the "
+                "layout angles)"
+            )
 
     def _check_park(self, src: str) -> None:
         park = np.full(N_LEGS, self.park_angle)
