@@ -526,3 +526,14 @@ def test_a_small_but_real_platform_still_loads():
     data["rp"], data["e"] = 0.05, 0.01
     del data["park_angle"]
     Rus6Geometry.from_dict(data, source="g.toml")
+
+
+@pytest.mark.parametrize("angle", [-88.0, 150.0, 360.0, 1e300])
+def test_neutral_angle_the_inverse_kinematics_never_commands_is_refused(angle):
+    """neutral_angle_deg = 1e300 loaded with the cranks at -22 deg, -88 at -62.8 deg."""
+    data = GEOMETRY.to_dict()
+    del data["neutral_height"], data["angle_min"], data["angle_max"], data["park_angle"]
+    data.update(neutral_angle_deg=angle, angle_min_deg=-89.0, angle_max_deg=89.0)
+    data["park_angle_deg"] = -60.0
+    with pytest.raises(ConfigError, match=r"^g\.toml: field 'neutral_angle_deg': the cranks"):
+        Rus6Geometry.from_dict(data, source="g.toml")

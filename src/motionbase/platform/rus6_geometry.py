@@ -493,10 +493,24 @@ class Rus6Geometry:
                 source=f"{source}: [output]",
             )
         try:
-            return cls(**kw)
+            geometry = cls(**kw)
         except ConfigError as exc:
             msg = str(exc).replace(f"rus6 geometry {name!r}", source, 1)
             raise ConfigError(msg) from None
+        if "neutral_angle_deg" in data:
+            # The height that closes the legs at this angle closes them at a second one too;
+            # the inverse kinematics commands the other one when the angle is past the lowest
+            # pure-heave pose (or outside -180..180 deg, where it wraps).
+            got = geometry.neutral_angle
+            if not np.allclose(got, ang, rtol=0.0, atol=1e-6):
+                raise ConfigError(
+                    f"{source}: field 'neutral_angle_deg': the cranks cannot be commanded to "
+                    f"{math.degrees(ang):g} deg at neutral: at that height the inverse "
+                    f"kinematics puts them at {math.degrees(float(got[0])):.2f} deg (give an "
+                    "angle between those of the lowest and the highest pure-heave poses, or "
+                    "neutral_height)"
+                )
+        return geometry
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Rus6Geometry:
