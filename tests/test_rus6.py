@@ -537,3 +537,12 @@ def test_neutral_angle_the_inverse_kinematics_never_commands_is_refused(angle):
     data["park_angle_deg"] = -60.0
     with pytest.raises(ConfigError, match=r"^g\.toml: field 'neutral_angle_deg': the cranks"):
         Rus6Geometry.from_dict(data, source="g.toml")
+
+
+@pytest.mark.parametrize("unit", ["mm", "m"])
+def test_a_linear_drive_unit_for_cranks_is_refused(unit):
+    """unit = "mm" loaded on the 6-RUS: the drives got 1000 x the motor angle in rad as mm."""
+    data = GEOMETRY.to_dict()
+    data["output"] = {"unit": unit}
+    with pytest.raises(ConfigError, match=rf"^g\.toml: table 'output': field 'unit': '{unit}'"):
+        Rus6Geometry.from_dict(data, source="g.toml")

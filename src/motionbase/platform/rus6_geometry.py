@@ -182,6 +182,11 @@ class Rus6Geometry:
                 )
             if self.output.n != N_LEGS:
                 raise ConfigError(f"{src}: table 'output': expected 6 motors, got {self.output.n}")
+            if self.output.unit in ("mm", "m"):
+                raise ConfigError(
+                    f"{src}: table 'output': field 'unit': {self.output.unit!r} is for linear "
+                    "actuators, and a crank turns (use deg, rad, counts or range)"
+                )
 
     def _check_rods(self, src: str) -> None:
         """Each rod must bridge the gap between its crank tip circle and its neutral joint."""
