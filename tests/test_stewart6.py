@@ -532,3 +532,12 @@ def test_platform_joints_at_one_point_are_refused():
     data["platform_radius"] = 1e-6
     with pytest.raises(ConfigError, match=r"^g\.toml: field 'platform_radius': the actuators"):
         Stewart6Geometry.from_dict(data, source="g.toml")
+
+
+def test_base_joints_at_one_point_are_refused_naming_the_base():
+    """A base radius of 1e-6 m loaded and `workspace` said yaw 180 deg each way (the lines
+    all pass through the base centre); refused now, naming base_radius, not platform_radius."""
+    data = GEOMETRY.to_dict()
+    data["base_radius"] = 1e-6
+    with pytest.raises(ConfigError, match=r"^g\.toml: field 'base_radius': the actuators"):
+        Stewart6Geometry.from_dict(data, source="g.toml")

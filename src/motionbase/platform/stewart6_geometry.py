@@ -239,12 +239,15 @@ class Stewart6Geometry:
         length = float(np.mean(neutral))
         c = line_conditioning(self.platform_joints_local, self._neutral_lines(), length)
         if c < MIN_LINE_CONDITIONING:
+            # The actuators' lines meet near one point: the joints of the smaller circle.
+            side = "platform" if self.platform_radius <= self.base_radius else "base"
+            radius = getattr(self, f"{side}_radius")
             raise ConfigError(
-                f"{src}: field 'platform_radius': the actuators barely hold the platform's "
+                f"{src}: field '{side}_radius': the actuators barely hold the platform's "
                 f"rotations at the neutral pose (line conditioning {c:.2g} < "
                 f"{MIN_LINE_CONDITIONING:g}, moments over the actuator length {length:g} m): "
-                f"the platform joints (radius {self.platform_radius:g} m) are too close to one "
-                "point (spread them: a larger platform_radius)"
+                f"the {side} joints (radius {radius:g} m) are too close to one point (spread "
+                f"them: a larger {side}_radius)"
             )
         margin = as_float(src, "park_margin", self.park_margin, min_value=0.0, strict_min=True)
         object.__setattr__(self, "park_margin", margin)
