@@ -546,3 +546,21 @@ def test_a_linear_drive_unit_for_cranks_is_refused(unit):
     data["output"] = {"unit": unit}
     with pytest.raises(ConfigError, match=rf"^g\.toml: table 'output': field 'unit': '{unit}'"):
         Rus6Geometry.from_dict(data, source="g.toml")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("crank", -1.0, r"field 'crank': leg 1 must be > 0 m, got -1 "),
+        ("crank", [0.184] * 5 + [0.0], r"field 'crank': leg 6 must be > 0 m, got 0"),
+        ("rod", 1e300, r"field 'rod': leg 1 rod 1e\+300 m is too long for the platform"),
+    ],
+)
+def test_neutral_angle_path_names_the_bad_length(field, value, match):
+    """With neutral_angle_deg, a negative crank was reported as a rod too short, a zero crank
+    on one leg as legs needing different heights, and a rod of 1e300 m as too short."""
+    data = GEOMETRY.to_dict()
+    del data["neutral_height"]
+    data.update(neutral_angle_deg=0.0, **{field: value})
+    with pytest.raises(ConfigError, match=rf"^g\.toml: {match}"):
+        Rus6Geometry.from_dict(data, source="g.toml")

@@ -474,11 +474,23 @@ class Rus6Geometry:
             }
             for k in ("rb", "d", "rp", "e"):
                 geo[k] = as_float(source, k, geo[k], min_value=0.0)
-            h = cls.neutral_height_for_angle(**geo, angle=ang)
+            for k in _LENGTH_ARRAYS:  # (the same check as the constructor's, which comes later)
+                for i, v in enumerate(np.broadcast_to(geo[k], (N_LEGS,))):
+                    if not v > 0:
+                        raise ConfigError(
+                            f"{source}: field {k!r}: leg {i + 1} must be > 0 m, got {v:g} "
+                            "(fix the value)"
+                        )
+            with np.errstate(over="ignore", invalid="ignore"):
+                h = cls.neutral_height_for_angle(**geo, angle=ang)
             if not np.isfinite(h).all():
+                i = int(np.flatnonzero(~np.isfinite(h))[0])
+                how = "too short to reach" if np.isnan(h[i]) else "too long for"
+                rod_i = float(np.broadcast_to(geo["rod"], (N_LEGS,))[i])
                 raise ConfigError(
-                    f"{source}: field 'rod': too short to reach the platform with the cranks at "
-                    f"neutral_angle_deg = {math.degrees(ang):g}"
+                    f"{source}: field 'rod': leg {i + 1} rod {rod_i:g} m is "
+                    f"{how} the platform with the cranks at neutral_angle_deg = "
+                    f"{math.degrees(ang):g} (fix the rod, the crank or the joint circles)"
                 )
             if np.ptp(h) > 1e-9:
                 raise ConfigError(
