@@ -1044,3 +1044,22 @@ def test_out_may_not_overwrite_an_output_format_file(tmp_path, run_cli, spelling
         assert victim.read_bytes() == before
         with pytest.raises(TimeoutError):
             drive.recv(100)  # the drive heard nothing
+
+
+def test_a_geometry_file_saved_with_a_byte_order_mark_loads(run_cli, tmp_path):
+    """Notepad's UTF-8 starts with a BOM: 'not valid TOML: Invalid statement (at line 1,
+    column 1)' for a file that looks right in any editor."""
+    src = Path(cli.__file__).parent / "presets" / "rus6_ceart.toml"
+    path = tmp_path / "mine.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + src.read_bytes())
+    code, out, err = run_cli("workspace", "--platform", path)
+    assert code == 0, err
+    assert "roll" in out
+
+
+def test_a_geometry_file_not_in_utf8_says_where(run_cli, tmp_path):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b'kind = "rus6"\nname = "caf\xe9"\n')
+    code, _, err = run_cli("workspace", "--platform", path)
+    assert code == 2
+    one_line(err, f"{path}: not a text TOML file", "line 2", "save it as UTF-8")

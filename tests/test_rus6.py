@@ -503,3 +503,64 @@ def test_round_trip_is_exact_for_any_valid_geometry(tmp_path_factory, scale, rod
     path = tmp_path_factory.mktemp("g") / "g.toml"
     g.to_toml(path)
     assert Rus6Geometry.from_toml(path) == g
+
+
+@pytest.mark.parametrize(("rp", "e"), [(1e-6, 0.0), (1e-3, 0.0), (0.0, 1e-6)])
+def test_platform_joints_at_one_point_are_refused(rp, e):
+    """Joints at (nearly) one point leave the platform's rotations free: refused at load.
+
+    rp = 1e-6 with e = 0 loaded, and `workspace` reported 180 deg of roll, pitch and yaw (the
+    rods hardly change length when the platform turns about the point they meet at).
+    """
+    data = GEOMETRY.to_dict()
+    data["rp"], data["e"] = rp, e
+    if rp == 0.0:
+        data["rp"] = 1e-9
+    del data["park_angle"]
+    with pytest.raises(ConfigError, match=r"^g\.toml: fields 'rp'/'e': the rods barely hold"):
+        Rus6Geometry.from_dict(data, source="g.toml")
+
+
+def test_a_small_but_real_platform_still_loads():
+    data = GEOMETRY.to_dict()
+    data["rp"], data["e"] = 0.05, 0.01
+    del data["park_angle"]
+    Rus6Geometry.from_dict(data, source="g.toml")
+
+
+@pytest.mark.parametrize("angle", [-88.0, 150.0, 360.0, 1e300])
+def test_neutral_angle_the_inverse_kinematics_never_commands_is_refused(angle):
+    """neutral_angle_deg = 1e300 loaded with the cranks at -22 deg, -88 at -62.8 deg."""
+    data = GEOMETRY.to_dict()
+    del data["neutral_height"], data["angle_min"], data["angle_max"], data["park_angle"]
+    data.update(neutral_angle_deg=angle, angle_min_deg=-89.0, angle_max_deg=89.0)
+    data["park_angle_deg"] = -60.0
+    with pytest.raises(ConfigError, match=r"^g\.toml: field 'neutral_angle_deg': the cranks"):
+        Rus6Geometry.from_dict(data, source="g.toml")
+
+
+@pytest.mark.parametrize("unit", ["mm", "m"])
+def test_a_linear_drive_unit_for_cranks_is_refused(unit):
+    """unit = "mm" loaded on the 6-RUS: the drives got 1000 x the motor angle in rad as mm."""
+    data = GEOMETRY.to_dict()
+    data["output"] = {"unit": unit}
+    with pytest.raises(ConfigError, match=rf"^g\.toml: table 'output': field 'unit': '{unit}'"):
+        Rus6Geometry.from_dict(data, source="g.toml")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("crank", -1.0, r"field 'crank': leg 1 must be > 0 m, got -1 "),
+        ("crank", [0.184] * 5 + [0.0], r"field 'crank': leg 6 must be > 0 m, got 0"),
+        ("rod", 1e300, r"field 'rod': leg 1 rod 1e\+300 m is too long for the platform"),
+    ],
+)
+def test_neutral_angle_path_names_the_bad_length(field, value, match):
+    """With neutral_angle_deg, a negative crank was reported as a rod too short, a zero crank
+    on one leg as legs needing different heights, and a rod of 1e300 m as too short."""
+    data = GEOMETRY.to_dict()
+    del data["neutral_height"]
+    data.update(neutral_angle_deg=0.0, **{field: value})
+    with pytest.raises(ConfigError, match=rf"^g\.toml: {match}"):
+        Rus6Geometry.from_dict(data, source="g.toml")

@@ -524,3 +524,20 @@ def test_actuator_jacobian_is_the_legs_velocity_relation() -> None:
     one_q, one_J = robot.actuator_jacobian(poses[0])  # one pose: no batch axis
     np.testing.assert_array_equal(one_q, q[0])
     np.testing.assert_array_equal(one_J, J[0])
+
+
+def test_platform_joints_at_one_point_are_refused():
+    """A platform radius of 1e-6 m left the rotations unconstrained and loaded."""
+    data = GEOMETRY.to_dict()
+    data["platform_radius"] = 1e-6
+    with pytest.raises(ConfigError, match=r"^g\.toml: field 'platform_radius': the actuators"):
+        Stewart6Geometry.from_dict(data, source="g.toml")
+
+
+def test_base_joints_at_one_point_are_refused_naming_the_base():
+    """A base radius of 1e-6 m loaded and `workspace` said yaw 180 deg each way (the lines
+    all pass through the base centre); refused now, naming base_radius, not platform_radius."""
+    data = GEOMETRY.to_dict()
+    data["base_radius"] = 1e-6
+    with pytest.raises(ConfigError, match=r"^g\.toml: field 'base_radius': the actuators"):
+        Stewart6Geometry.from_dict(data, source="g.toml")

@@ -26,8 +26,9 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning a missing file or a syntax error into ConfigError."""
     p = Path(path)
     try:
-        with p.open("rb") as fh:
-            return tomllib.load(fh)
+        raw = p.read_bytes()
+        # A byte-order mark (Windows Notepad writes one) is not TOML; take the text after it.
+        return tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{p}: file not found (check the path)") from None
     except IsADirectoryError:
@@ -36,8 +37,11 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: permission denied (check the file's permissions)") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc} (fix the syntax there)") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{p}: not a text TOML file") from None
+    except UnicodeDecodeError as exc:
+        line = exc.object[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{p}: not a text TOML file (not UTF-8 on line {line}: save it as UTF-8)"
+        ) from None
 
 
 def write_toml(path: str | Path, data: Mapping[str, Any]) -> None:

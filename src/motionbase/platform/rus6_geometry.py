@@ -39,6 +39,7 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
+from motionbase.platform.conditioning import MIN_LINE_CONDITIONING, line_conditioning
 from motionbase.platform.output_map import OutputMapping
 
 __all__ = ["Rus6Geometry", "N_LEGS"]
@@ -168,6 +169,7 @@ class Rus6Geometry:
                     f"{math.degrees(lo[i]):g} .. {math.degrees(hi[i]):g} deg "
                     "(fix neutral_height or the limits)"
                 )
+        self._check_lines(src, neutral)
         if self.park_angle is None:
             object.__setattr__(self, "park_angle", float(np.max(lo)) + _PARK_MARGIN)
         else:
@@ -180,6 +182,11 @@ class Rus6Geometry:
                 )
             if self.output.n != N_LEGS:
                 raise ConfigError(f"{src}: table 'output': expected 6 motors, got {self.output.n}")
+            if self.output.unit in ("mm", "m"):
+                raise ConfigError(
+                    f"{src}: table 'output': field 'unit': {self.output.unit!r} is for linear "
+                    "actuators, and a crank turns (use deg, rad, counts or range)"
+                )
 
     def _check_rods(self, src: str) -> None:
         """Each rod must bridge the gap between its crank tip circle and its neutral joint."""
@@ -206,6 +213,24 @@ class Rus6Geometry:
                     f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too long to meet its "
                     f"platform joint at the neutral pose (needs <= {dmax:.4f} m)"
                 )
+
+    def _check_lines(self, src: str, neutral: np.ndarray) -> None:
+        """The rods must hold the platform's rotations (see :mod:`.conditioning`)."""
+        pivots, joints, centroid, cdir = self._neutral_points()
+        r = np.array(self.crank)[:, None]
+        up = np.array([0.0, 0.0, -1.0])
+        tips = pivots + r * (np.cos(neutral)[:, None] * cdir + np.sin(neutral)[:, None] * up)
+        length = float(np.mean(self.rod))
+        c = line_conditioning(joints - centroid, joints - tips, length)
+        if c < MIN_LINE_CONDITIONING:
+            raise ConfigError(
+                f"{src}: fields 'rp'/'e': the rods barely hold the platform's rotations at "
+                f"the neutral pose (line conditioning {c:.2g} < {MIN_LINE_CONDITIONING:g}, "
+                f"moments over the rod length {length:g} m): the platform joints "
+                f"(rp = {self.rp:g} m, e = {self.e:g} m) are too close to one point or the "
+                "rods' lines nearly meet (spread the joints: a larger rp or e, or fix the "
+                "layout angles)"
+            )
 
     def _check_park(self, src: str) -> None:
         park = np.full(N_LEGS, self.park_angle)
@@ -449,11 +474,23 @@ class Rus6Geometry:
             }
             for k in ("rb", "d", "rp", "e"):
                 geo[k] = as_float(source, k, geo[k], min_value=0.0)
-            h = cls.neutral_height_for_angle(**geo, angle=ang)
+            for k in _LENGTH_ARRAYS:  # (the same check as the constructor's, which comes later)
+                for i, v in enumerate(np.broadcast_to(geo[k], (N_LEGS,))):
+                    if not v > 0:
+                        raise ConfigError(
+                            f"{source}: field {k!r}: leg {i + 1} must be > 0 m, got {v:g} "
+                            "(fix the value)"
+                        )
+            with np.errstate(over="ignore", invalid="ignore"):
+                h = cls.neutral_height_for_angle(**geo, angle=ang)
             if not np.isfinite(h).all():
+                i = int(np.flatnonzero(~np.isfinite(h))[0])
+                how = "too short to reach" if np.isnan(h[i]) else "too long for"
+                rod_i = float(np.broadcast_to(geo["rod"], (N_LEGS,))[i])
                 raise ConfigError(
-                    f"{source}: field 'rod': too short to reach the platform with the cranks at "
-                    f"neutral_angle_deg = {math.degrees(ang):g}"
+                    f"{source}: field 'rod': leg {i + 1} rod {rod_i:g} m is "
+                    f"{how} the platform with the cranks at neutral_angle_deg = "
+                    f"{math.degrees(ang):g} (fix the rod, the crank or the joint circles)"
                 )
             if np.ptp(h) > 1e-9:
                 raise ConfigError(
@@ -473,10 +510,24 @@ class Rus6Geometry:
                 source=f"{source}: [output]",
             )
         try:
-            return cls(**kw)
+            geometry = cls(**kw)
         except ConfigError as exc:
             msg = str(exc).replace(f"rus6 geometry {name!r}", source, 1)
             raise ConfigError(msg) from None
+        if "neutral_angle_deg" in data:
+            # The height that closes the legs at this angle closes them at a second one too;
+            # the inverse kinematics commands the other one when the angle is past the lowest
+            # pure-heave pose (or outside -180..180 deg, where it wraps).
+            got = geometry.neutral_angle
+            if not np.allclose(got, ang, rtol=0.0, atol=1e-6):
+                raise ConfigError(
+                    f"{source}: field 'neutral_angle_deg': the cranks cannot be commanded to "
+                    f"{math.degrees(ang):g} deg at neutral: at that height the inverse "
+                    f"kinematics puts them at {math.degrees(float(got[0])):.2f} deg (give an "
+                    "angle between those of the lowest and the highest pure-heave poses, or "
+                    "neutral_height)"
+                )
+        return geometry
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Rus6Geometry:

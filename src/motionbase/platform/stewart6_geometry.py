@@ -82,6 +82,7 @@ from motionbase.config import (
     write_toml,
 )
 from motionbase.errors import ConfigError
+from motionbase.platform.conditioning import MIN_LINE_CONDITIONING, line_conditioning
 from motionbase.platform.output_map import OutputMapping
 
 __all__ = ["Stewart6Geometry", "N_LEGS", "DEFAULT_PARK_MARGIN"]
@@ -235,6 +236,19 @@ class Stewart6Geometry:
                     f"the neutral pose, not inside its stroke {lo[i]:g} .. {hi[i]:g} m (fix "
                     "neutral_height, neutral_length or the length limits)"
                 )
+        length = float(np.mean(neutral))
+        c = line_conditioning(self.platform_joints_local, self._neutral_lines(), length)
+        if c < MIN_LINE_CONDITIONING:
+            # The actuators' lines meet near one point: the joints of the smaller circle.
+            side = "platform" if self.platform_radius <= self.base_radius else "base"
+            radius = getattr(self, f"{side}_radius")
+            raise ConfigError(
+                f"{src}: field '{side}_radius': the actuators barely hold the platform's "
+                f"rotations at the neutral pose (line conditioning {c:.2g} < "
+                f"{MIN_LINE_CONDITIONING:g}, moments over the actuator length {length:g} m): "
+                f"the {side} joints (radius {radius:g} m) are too close to one point (spread "
+                f"them: a larger {side}_radius)"
+            )
         margin = as_float(src, "park_margin", self.park_margin, min_value=0.0, strict_min=True)
         object.__setattr__(self, "park_margin", margin)
         for i in range(N_LEGS):
@@ -260,6 +274,10 @@ class Stewart6Geometry:
         return _leg_layout(
             self.base_radius, self.base_half_angle, self.platform_radius, self.platform_half_angle
         )
+
+    def _neutral_lines(self) -> np.ndarray:
+        """Each actuator's vector, base joint to platform joint, at the neutral pose, m."""
+        return self.platform_origin + self.platform_joints_local - self.base_joints
 
     @property
     def base_joints(self) -> np.ndarray:
