@@ -897,6 +897,37 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
 
 
+def _crafted_bin(path: Path, times_us: list[int]) -> Path:
+    """A DataFlash log of IMU and ATT records stamped ``times_us`` (its FMT records first)."""
+
+    def fmt(typ: int, name: str, form: str, columns: str) -> bytes:
+        sizes = {"Q": 8, "f": 4, "B": 1, "n": 4, "N": 16, "Z": 64}
+        length = 3 + sum(sizes[c] for c in form)
+        body = struct.pack(
+            "<BB4s16s64s", typ, length, name.encode(), form.encode(), columns.encode()
+        )
+        return b"\xa3\x95\x80" + body
+
+    out = bytearray(fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
+    out += fmt(129, "IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I")
+    out += fmt(130, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")
+    for t in times_us:
+        out += b"\xa3\x95\x81" + struct.pack("<QffffffB", t, 0.01, 0.0, 0.0, 0.1, 0.0, -9.8, 0)
+        out += b"\xa3\x95\x82" + struct.pack("<Qfff", t, 2.0, 1.0, 30.0)
+    path.write_bytes(bytes(out))
+    return path
+
+
+def test_a_dataflash_log_whose_clock_jumps_hours_ahead_holds_the_gap_briefly(tmp_path):
+    """The same 5-hour jump in a DataFlash .bin: only the .tlog's clock shortened gaps, so the
+    .bin replayed 18,006 s of ticks (5 hours in real time, all but 650 of them stale)."""
+    times = [10_000_000 + i * 10_000 + (5 * 3600 * 10**6 if i >= 300 else 0) for i in range(600)]
+    times, fresh = _replay_times(_crafted_bin(tmp_path / "jump.bin", times))
+    span = times[-1] - times[0]
+    assert 6.0 + MAX_LOG_GAP_S - 0.1 < span < 6.0 + MAX_LOG_GAP_S + 0.1, span
+    assert 580 <= fresh <= 600 + 50 + 5
+
+
 # --------------------------------------------------------------------------- real logs
 
 

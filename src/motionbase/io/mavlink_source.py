@@ -394,7 +394,8 @@ class _VehicleClock:
     back, and the next sample going on from there) re-anchors the clock where it
     was; one sample behind the clock with the next one back on it is an outlier,
     given the clock's time. A jump ahead of more than :data:`MAX_LOG_GAP_S` is
-    shortened to it (``gaps_shortened`` counts them).
+    shortened to it (``gaps_shortened`` counts them). A DataFlash log's times
+    (already the vehicle's) take the same path through :meth:`advance`.
     """
 
     def __init__(self, sysid: int) -> None:
@@ -418,6 +419,11 @@ class _VehicleClock:
             return self.last if math.isfinite(self.last) else msg._timestamp
         if not math.isfinite(self.last):
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
+        return self.advance(t)
+
+    def advance(self, t: float) -> float:
+        """The clock's time for a sample stamped ``t`` (s, before the offset): a DataFlash
+        log's own times go through here directly, for the same reboots and gaps."""
         t += self.offset
         if t < self.last - 1.0:  # a reboot or clock reset, or one bad sample
             behind, self._behind = self._behind, t
@@ -970,11 +976,14 @@ class MavlinkSource(SampleHoldSource):
         if isinstance(conn, DFReader.DFReader):
             types = ["IMU", "ATT"]
             handle = self._handle_dataflash
-            clock = None  # DataFlash timestamps already come from the vehicle's clock
+            # DataFlash times already come from the vehicle's clock; its gaps are shortened too
+            clock: _VehicleClock | None = _VehicleClock(self.sysid)
+            dataflash = True
         else:
             types = [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
             handle = self._handle
             clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
+            dataflash = False
 
         def next_msg() -> tuple[Any, float]:
             with _quiet():  # pymavlink prints each bad byte range of a log
@@ -984,7 +993,7 @@ class MavlinkSource(SampleHoldSource):
             if clock is None:
                 return msg, msg._timestamp
             shortened = clock.gaps_shortened
-            t = clock(msg)
+            t = clock.advance(msg._timestamp) if dataflash else clock(msg)
             if clock.gaps_shortened == 1 and not shortened:
                 _log.warning(
                     "mavlink log %s: its vehicle clock jumps ahead by more than %g s; such a "
