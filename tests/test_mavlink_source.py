@@ -1046,3 +1046,41 @@ def test_a_serial_device_is_a_character_device(tmp_path: Path) -> None:
     assert ".tlog" in str(err.value) and "character device" in str(err.value)
     with pytest.raises(ConfigError, match=r"foo:bar: unknown kind of link 'foo'; give udpin:"):
         MavlinkSource("foo:bar")
+
+
+class _TcpWire:
+    """A file-like sink for pymavlink's encoder: what it writes goes down a TCP socket."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+
+    def write(self, data: bytes) -> None:
+        self.sock.sendall(bytes(data))
+
+
+def test_a_tcp_peer_that_closes_ends_the_run_with_one_error(capfd):
+    """SITL (or anything at the other end of tcp:) closing its side of the connection: pymavlink
+    printed "EOF on TCP socket" at every read (about 100,000 lines a second on stdout) and the
+    source read the dead link for ever, every tick stale. It is a failed link now, as a reset
+    already was: one SourceError, which parks the platform."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    try:
+        with MavlinkSource(f"tcp:127.0.0.1:{port}", rate_hz=100.0) as src:
+            peer, _ = server.accept()
+            mav = ML.MAVLink(_TcpWire(peer), srcSystem=1, srcComponent=1)
+            it = iter(src)
+            for i in range(5):
+                send_good(mav, i)
+                next(it)
+            peer.shutdown(socket.SHUT_WR)  # the peer is done sending (it still reads)
+            t0 = time.monotonic()
+            with pytest.raises(SourceError, match="the peer closed the connection"):
+                while time.monotonic() - t0 < 1.0:
+                    next(it)
+            peer.close()
+    finally:
+        server.close()
+    assert "EOF on TCP socket" not in capfd.readouterr().out

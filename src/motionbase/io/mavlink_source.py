@@ -845,6 +845,7 @@ class MavlinkSource(SampleHoldSource):
             ) from None
         self._conn = conn
         if not self.is_log:
+            _end_tcp_at_eof(conn)
             conn.mav.robust_parsing = True
             self._frames = _FrameReader(conn, self._c, self.partial_timeout_s)
             if self._key is not None:
@@ -1262,6 +1263,21 @@ class MavlinkSource(SampleHoldSource):
                 label,
             )
             self._req_state = "rejected"
+
+
+def _end_tcp_at_eof(conn: Any) -> None:
+    """A ``tcp:`` link whose peer closes its side fails (a ``ConnectionError``, which the
+    reader turns into a SourceError) instead of printing "EOF on TCP socket" at every read
+    of a dead link for ever: pymavlink reconnects only with ``autoreconnect``, which we do
+    not ask for. Its print before a reset is dropped too (the reset error follows)."""
+    if not isinstance(conn, mavutil.mavtcp):
+        return
+
+    def eof() -> None:
+        raise ConnectionError("the peer closed the connection")
+
+    conn.handle_eof = eof
+    conn.handle_disconnect = lambda: None
 
 
 def _reject_unsigned(mav: Any, msgid: int) -> bool:
