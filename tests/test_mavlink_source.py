@@ -1084,3 +1084,38 @@ def test_a_tcp_peer_that_closes_ends_the_run_with_one_error(capfd):
     finally:
         server.close()
     assert "EOF on TCP socket" not in capfd.readouterr().out
+
+
+def test_tcpin_listens_again_when_its_peer_stops_sending():
+    """tcpin: a sender that closes its sending side and stays connected (it still reads our
+    heartbeats): pymavlink went on reading the finished connection for ever, never taking a
+    new one, so a restarted sender could not get in. The finished connection is dropped at
+    its end and the next one is taken."""
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+
+    def connect_and_send(first: int) -> socket.socket:
+        sock = socket.create_connection(("127.0.0.1", port))
+        mav = ML.MAVLink(_TcpWire(sock), srcSystem=1, srcComponent=1)
+        for i in range(first, first + 5):
+            send_good(mav, i)
+        return sock
+
+    with MavlinkSource(f"tcpin:127.0.0.1:{port}", rate_hz=100.0, stale_timeout_s=0.1) as src:
+        it = iter(src)
+        first = connect_and_send(0)
+        first.shutdown(socket.SHUT_WR)
+        for _ in range(20):
+            next(it)
+        used = src.stats.used
+        second = connect_and_send(100)
+        fresh = False
+        t0 = time.monotonic()
+        while not fresh and time.monotonic() - t0 < 2.5:
+            next(it)
+            fresh = src.fresh
+        first.close()
+        second.close()
+    assert used == 10 and fresh

@@ -1269,7 +1269,24 @@ def _end_tcp_at_eof(conn: Any) -> None:
     """A ``tcp:`` link whose peer closes its side fails (a ``ConnectionError``, which the
     reader turns into a SourceError) instead of printing "EOF on TCP socket" at every read
     of a dead link for ever: pymavlink reconnects only with ``autoreconnect``, which we do
-    not ask for. Its print before a reset is dropped too (the reset error follows)."""
+    not ask for. Its print before a reset is dropped too (the reset error follows).
+
+    ``tcpin:``: the end of the peer's stream drops that connection and listens again for
+    the next one (pymavlink read the finished connection for ever, taking no other)."""
+    if isinstance(conn, mavutil.mavtcpin):
+        recv = conn.recv
+
+        def recv_until_eof(n: int | None = None) -> Any:
+            port = conn.port
+            data = recv(n)
+            if port is not None and conn.port is port and isinstance(data, bytes) and not data:
+                port.close()  # (an empty str is pymavlink's "nothing yet")
+                conn.port = None
+                conn.fd = conn.listen.fileno()
+            return data
+
+        conn.recv = recv_until_eof
+        return
     if not isinstance(conn, mavutil.mavtcp):
         return
 
