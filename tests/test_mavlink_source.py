@@ -1119,3 +1119,41 @@ def test_tcpin_listens_again_when_its_peer_stops_sending():
         first.close()
         second.close()
     assert used == 10 and fresh
+
+
+def test_a_refusal_meant_for_another_ground_station_does_not_stop_the_stream_requests(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A COMMAND_ACK refusing SET_MESSAGE_INTERVAL that answers someone else (another ground
+    station behind the same router, target_system 42) before we asked anything: it was taken
+    for the vehicle's answer to us, warned of as a refusal, and no request was ever sent, so
+    a silent vehicle that would have streamed stayed silent (every tick stale). Only an answer
+    to our own outstanding request counts."""
+    caplog.set_level(logging.WARNING, logger="motionbase")
+    stop = threading.Event()
+    got: list[Any] = []
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=2.4, request_timeout_s=0.8
+    ) as src:
+        foreign = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{src.local_address[1]}", source_system=1, source_component=1
+        )
+        it = iter(src)
+        next(it)
+        foreign.mav.command_ack_send(
+            ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAV_RESULT_DENIED, 0, 0, 42, 190
+        )
+        foreign.close()
+        th = threading.Thread(
+            target=_vehicle, args=(src.local_address[1],), kwargs=dict(ack=True, stop=stop, got=got)
+        )
+        th.start()
+        try:
+            fresh = False
+            for _ in it:
+                fresh = src.fresh
+        finally:
+            stop.set()
+            th.join(timeout=5)
+    assert fresh
+    assert not any("refused MAV_CMD_SET_MESSAGE_INTERVAL" in r.message for r in caplog.records)

@@ -184,7 +184,8 @@ class MavlinkStats(TickStats):
         Stream requests on a live link: ``"off"`` (a log, or disabled),
         ``"idle"`` (nothing asked yet), ``"sent"`` (asked, waiting),
         ``"acknowledged"`` (COMMAND_ACK accepted, waiting for data),
-        ``"rejected"`` (COMMAND_ACK refused), ``"ignored"`` (no data after
+        ``"rejected"`` (COMMAND_ACK refused: an answer to our outstanding request,
+        addressed to us or to no one), ``"ignored"`` (no data after
         ``request_timeout_s``) or ``"streaming"`` (fresh data arriving).
     """
 
@@ -1248,8 +1249,14 @@ class MavlinkSource(SampleHoldSource):
 
     def _on_command_ack(self, msg: Any) -> None:
         ml = mavutil.mavlink
-        if msg.command != ml.MAV_CMD_SET_MESSAGE_INTERVAL or self._req_state == "off":
-            return
+        if msg.command != ml.MAV_CMD_SET_MESSAGE_INTERVAL or self._req_state not in (
+            "sent",
+            "acknowledged",
+            "ignored",
+        ):
+            return  # no request of ours outstanding: an answer to someone else
+        if getattr(msg, "target_system", 0) not in (0, _GCS_SYSID):
+            return  # addressed to another ground station (0: a sender that does not say)
         if msg.result == ml.MAV_RESULT_ACCEPTED:
             if self._req_state == "sent":
                 self._req_state = "acknowledged"
