@@ -8,6 +8,7 @@ port (bound to port 0: a free port, no race). Each test is bounded by the source
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -1157,3 +1158,43 @@ def test_a_refusal_meant_for_another_ground_station_does_not_stop_the_stream_req
             th.join(timeout=5)
     assert fresh
     assert not any("refused MAV_CMD_SET_MESSAGE_INTERVAL" in r.message for r in caplog.records)
+
+
+def test_udpin_answers_its_vehicle_not_every_address_that_ever_sent_a_datagram():
+    """pymavlink's udpin sends each message to every address a datagram ever came from, for
+    ever: 200 strangers (one datagram of garbage each, as spoofed sources would send) got our
+    heartbeat every second, and the tick that sends it spent a sendto on each (a reflector,
+    and a stall that grows with the flood). Our messages go to the vehicle's address now."""
+    strangers = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(200)]
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        with MavlinkSource("udpin:127.0.0.1:0", rate_hz=100.0) as src:
+            it = iter(src)
+            for s in strangers:
+                s.sendto(b"\xfd garbage", src.local_address)
+                s.setblocking(False)
+            mav = ML.MAVLink(_UdpWire(vehicle, src.local_address), srcSystem=1, srcComponent=1)
+            mav.heartbeat_send(ML.MAV_TYPE_FIXED_WING, ML.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+            for _ in range(120):  # 1.2 s: one heartbeat of ours at least
+                next(it)
+        reached = 0
+        for s in strangers:
+            with contextlib.suppress(BlockingIOError):
+                s.recv(1000)
+                reached += 1
+        vehicle.setblocking(False)
+        heard = vehicle.recv(1000)
+    finally:
+        for s in (*strangers, vehicle):
+            s.close()
+    assert reached == 0 and heard
+
+
+class _UdpWire:
+    """A file-like sink for pymavlink's encoder: each message one datagram to ``addr``."""
+
+    def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
+        self.sock, self.addr = sock, addr
+
+    def write(self, data: bytes) -> None:
+        self.sock.sendto(bytes(data), self.addr)

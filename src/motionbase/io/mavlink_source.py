@@ -788,6 +788,7 @@ class MavlinkSource(SampleHoldSource):
         self._req_count = 0
         self._warned_ignored = False
         self._last_hb = -math.inf
+        self._vehicle_addr: Any = None  # udpin: where the last message from sysid came from
         self._on_ground: bool | None = None
 
     @property
@@ -847,6 +848,8 @@ class MavlinkSource(SampleHoldSource):
         self._conn = conn
         if not self.is_log:
             _end_tcp_at_eof(conn)
+            if getattr(conn, "udp_server", False):
+                self._reply_to_vehicle(conn)
             conn.mav.robust_parsing = True
             self._frames = _FrameReader(conn, self._c, self.partial_timeout_s)
             if self._key is not None:
@@ -856,6 +859,29 @@ class MavlinkSource(SampleHoldSource):
             host = self._bind_host()
             if host is not None and not is_loopback(host):
                 _log.warning("MAVLink: listening on %s (not loopback), as requested", host)
+
+    def _reply_to_vehicle(self, conn: Any) -> None:
+        """udpin: send to the vehicle's address only. pymavlink sends each message to every
+        address a datagram ever came from, for ever (a reflector for spoofed garbage, and a
+        sendto per address inside a tick). Here ``last_address`` is the sender of the last
+        datagram, and our messages go to that of the last message accepted from ``sysid``;
+        to nobody before one (a vehicle sends heartbeats: we talk to the one we hear)."""
+        port = conn.port
+
+        def recv(n: int | None = None) -> bytes | str:
+            try:
+                data, conn.last_address = port.recvfrom(65535)
+            except (BlockingIOError, ConnectionRefusedError):
+                return ""  # (pymavlink's "nothing yet")
+            return data
+
+        def write(buf: bytes) -> None:
+            addr = self._vehicle_addr
+            if addr is not None:
+                with contextlib.suppress(OSError):
+                    port.sendto(buf, addr)
+
+        conn.recv, conn.write = recv, write
 
     def close(self) -> None:
         """Close the connection. Idempotent."""
@@ -1057,6 +1083,7 @@ class MavlinkSource(SampleHoldSource):
             c["rejected_compid"] += 1
             return
         c["accepted"] += 1
+        self._vehicle_addr = getattr(self._conn, "last_address", None)
         self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
 
         imu = _IMU_TYPES.get(mtype)
