@@ -1198,3 +1198,12 @@ class _UdpWire:
 
     def write(self, data: bytes) -> None:
         self.sock.sendto(bytes(data), self.addr)
+
+
+@pytest.mark.parametrize("url", ["udpin:[::1]:14550", "tcp:[::1]:5760", "udpout:::1:14550"])
+def test_an_ipv6_address_is_named_as_such(url: str) -> None:
+    """pymavlink opens IPv4 sockets only: ``udpin:[::1]:14550`` said "host name '[::1]' does
+    not resolve", which sends the user to check a spelling that is right."""
+    with pytest.raises(ConfigError, match="IPv4 only") as err:
+        MavlinkSource(url).open()
+    assert "does not resolve" not in str(err.value)

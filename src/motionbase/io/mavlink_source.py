@@ -315,6 +315,11 @@ def _check_link_address(url: str, free_port: bool) -> None:
                 raise ConfigError(
                     f"mavlink {url}: expected {prefix}HOST:PORT, e.g. {prefix}127.0.0.1:14550"
                 )
+            if ":" in host or host.startswith("["):  # pymavlink's sockets are AF_INET
+                raise ConfigError(
+                    f"mavlink {url}: {host} is an IPv6 address; MAVLink links here are IPv4 "
+                    f"only: give an IPv4 address or a host name, e.g. {prefix}127.0.0.1:14550"
+                )
             check_host_port(f"mavlink {url}", host, port, free_port=bind and free_port)
             return
 
