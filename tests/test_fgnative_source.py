@@ -507,3 +507,36 @@ def test_real_flightgear_packets(sender):
         )
         np.testing.assert_allclose(s.specific_force, -g_body, atol=0.1)
         np.testing.assert_allclose(s.angular_velocity, 0.0, atol=1e-3)
+
+
+def test_a_second_sender_interleaved_is_refused_while_the_first_is_fresh(sender, caplog):
+    """Two senders on the port (a second FlightGear, or anyone who can reach it) took turns
+    in the held state: each tick jumped between two aircraft (here 0.3 and -0.3 rad of roll).
+    The first sender is kept while it is fresh; the other's datagrams are counted, not used,
+    and the source takes a new sender (a restarted FlightGear) once the first is stale."""
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    mine = fgnetfdm_packet(24, A_Z_pilot=-32.0, phi=0.3)
+    theirs = fgnetfdm_packet(24, A_Z_pilot=-32.0, phi=-0.3)
+    try:
+        with caplog.at_level(logging.WARNING, logger="motionbase"):
+            with FgNativeSource(
+                "fgnative:udp:127.0.0.1:0", rate_hz=100, stale_timeout_s=0.1
+            ) as src:
+                it = iter(src)
+                rolls = []
+                for _ in range(20):
+                    sender.sendto(mine, src.local_address)
+                    other.sendto(theirs, src.local_address)
+                    time.sleep(0.002)
+                    rolls.append(next(it).attitude[0])
+                stats = src.stats
+                t0 = time.monotonic()  # the first sender stops: the other one takes over
+                while time.monotonic() - t0 < 0.4:
+                    other.sendto(theirs, src.local_address)
+                    last = next(it)
+    finally:
+        other.close()
+    assert rolls[0] == pytest.approx(0.3) and all(r == rolls[0] for r in rolls)
+    assert stats.accepted == 20 and stats.bad_data == 20 and stats.extra["other senders"] == 20
+    assert src.fresh and last.attitude[0] == pytest.approx(-0.3)
+    assert sum("another sender" in r.getMessage() for r in caplog.records) == 1

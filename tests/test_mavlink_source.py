@@ -8,6 +8,7 @@ port (bound to port 0: a free port, no race). Each test is bounded by the source
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -897,6 +898,37 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
 
 
+def _crafted_bin(path: Path, times_us: list[int]) -> Path:
+    """A DataFlash log of IMU and ATT records stamped ``times_us`` (its FMT records first)."""
+
+    def fmt(typ: int, name: str, form: str, columns: str) -> bytes:
+        sizes = {"Q": 8, "f": 4, "B": 1, "n": 4, "N": 16, "Z": 64}
+        length = 3 + sum(sizes[c] for c in form)
+        body = struct.pack(
+            "<BB4s16s64s", typ, length, name.encode(), form.encode(), columns.encode()
+        )
+        return b"\xa3\x95\x80" + body
+
+    out = bytearray(fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
+    out += fmt(129, "IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I")
+    out += fmt(130, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")
+    for t in times_us:
+        out += b"\xa3\x95\x81" + struct.pack("<QffffffB", t, 0.01, 0.0, 0.0, 0.1, 0.0, -9.8, 0)
+        out += b"\xa3\x95\x82" + struct.pack("<Qfff", t, 2.0, 1.0, 30.0)
+    path.write_bytes(bytes(out))
+    return path
+
+
+def test_a_dataflash_log_whose_clock_jumps_hours_ahead_holds_the_gap_briefly(tmp_path):
+    """The same 5-hour jump in a DataFlash .bin: only the .tlog's clock shortened gaps, so the
+    .bin replayed 18,006 s of ticks (5 hours in real time, all but 650 of them stale)."""
+    times = [10_000_000 + i * 10_000 + (5 * 3600 * 10**6 if i >= 300 else 0) for i in range(600)]
+    times, fresh = _replay_times(_crafted_bin(tmp_path / "jump.bin", times))
+    span = times[-1] - times[0]
+    assert 6.0 + MAX_LOG_GAP_S - 0.1 < span < 6.0 + MAX_LOG_GAP_S + 0.1, span
+    assert 580 <= fresh <= 600 + 50 + 5
+
+
 # --------------------------------------------------------------------------- real logs
 
 
@@ -1015,3 +1047,163 @@ def test_a_serial_device_is_a_character_device(tmp_path: Path) -> None:
     assert ".tlog" in str(err.value) and "character device" in str(err.value)
     with pytest.raises(ConfigError, match=r"foo:bar: unknown kind of link 'foo'; give udpin:"):
         MavlinkSource("foo:bar")
+
+
+class _TcpWire:
+    """A file-like sink for pymavlink's encoder: what it writes goes down a TCP socket."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+
+    def write(self, data: bytes) -> None:
+        self.sock.sendall(bytes(data))
+
+
+def test_a_tcp_peer_that_closes_ends_the_run_with_one_error(capfd):
+    """SITL (or anything at the other end of tcp:) closing its side of the connection: pymavlink
+    printed "EOF on TCP socket" at every read (about 100,000 lines a second on stdout) and the
+    source read the dead link for ever, every tick stale. It is a failed link now, as a reset
+    already was: one SourceError, which parks the platform."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    try:
+        with MavlinkSource(f"tcp:127.0.0.1:{port}", rate_hz=100.0) as src:
+            peer, _ = server.accept()
+            mav = ML.MAVLink(_TcpWire(peer), srcSystem=1, srcComponent=1)
+            it = iter(src)
+            for i in range(5):
+                send_good(mav, i)
+                next(it)
+            peer.shutdown(socket.SHUT_WR)  # the peer is done sending (it still reads)
+            t0 = time.monotonic()
+            with pytest.raises(SourceError, match="the peer closed the connection"):
+                while time.monotonic() - t0 < 1.0:
+                    next(it)
+            peer.close()
+    finally:
+        server.close()
+    assert "EOF on TCP socket" not in capfd.readouterr().out
+
+
+def test_tcpin_listens_again_when_its_peer_stops_sending():
+    """tcpin: a sender that closes its sending side and stays connected (it still reads our
+    heartbeats): pymavlink went on reading the finished connection for ever, never taking a
+    new one, so a restarted sender could not get in. The finished connection is dropped at
+    its end and the next one is taken."""
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+
+    def connect_and_send(first: int) -> socket.socket:
+        sock = socket.create_connection(("127.0.0.1", port))
+        mav = ML.MAVLink(_TcpWire(sock), srcSystem=1, srcComponent=1)
+        for i in range(first, first + 5):
+            send_good(mav, i)
+        return sock
+
+    with MavlinkSource(f"tcpin:127.0.0.1:{port}", rate_hz=100.0, stale_timeout_s=0.1) as src:
+        it = iter(src)
+        first = connect_and_send(0)
+        first.shutdown(socket.SHUT_WR)
+        for _ in range(20):
+            next(it)
+        used = src.stats.used
+        second = connect_and_send(100)
+        fresh = False
+        t0 = time.monotonic()
+        while not fresh and time.monotonic() - t0 < 2.5:
+            next(it)
+            fresh = src.fresh
+        first.close()
+        second.close()
+    assert used == 10 and fresh
+
+
+def test_a_refusal_meant_for_another_ground_station_does_not_stop_the_stream_requests(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A COMMAND_ACK refusing SET_MESSAGE_INTERVAL that answers someone else (another ground
+    station behind the same router, target_system 42) before we asked anything: it was taken
+    for the vehicle's answer to us, warned of as a refusal, and no request was ever sent, so
+    a silent vehicle that would have streamed stayed silent (every tick stale). Only an answer
+    to our own outstanding request counts."""
+    caplog.set_level(logging.WARNING, logger="motionbase")
+    stop = threading.Event()
+    got: list[Any] = []
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=2.4, request_timeout_s=0.8
+    ) as src:
+        foreign = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{src.local_address[1]}", source_system=1, source_component=1
+        )
+        it = iter(src)
+        next(it)
+        foreign.mav.command_ack_send(
+            ML.MAV_CMD_SET_MESSAGE_INTERVAL, ML.MAV_RESULT_DENIED, 0, 0, 42, 190
+        )
+        foreign.close()
+        th = threading.Thread(
+            target=_vehicle, args=(src.local_address[1],), kwargs=dict(ack=True, stop=stop, got=got)
+        )
+        th.start()
+        try:
+            fresh = False
+            for _ in it:
+                fresh = src.fresh
+        finally:
+            stop.set()
+            th.join(timeout=5)
+    assert fresh
+    assert not any("refused MAV_CMD_SET_MESSAGE_INTERVAL" in r.message for r in caplog.records)
+
+
+def test_udpin_answers_its_vehicle_not_every_address_that_ever_sent_a_datagram():
+    """pymavlink's udpin sends each message to every address a datagram ever came from, for
+    ever: 200 strangers (one datagram of garbage each, as spoofed sources would send) got our
+    heartbeat every second, and the tick that sends it spent a sendto on each (a reflector,
+    and a stall that grows with the flood). Our messages go to the vehicle's address now."""
+    strangers = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(200)]
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        with MavlinkSource("udpin:127.0.0.1:0", rate_hz=100.0) as src:
+            it = iter(src)
+            for s in strangers:
+                s.sendto(b"\xfd garbage", src.local_address)
+                s.setblocking(False)
+            mav = ML.MAVLink(_UdpWire(vehicle, src.local_address), srcSystem=1, srcComponent=1)
+            mav.heartbeat_send(ML.MAV_TYPE_FIXED_WING, ML.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+            for _ in range(120):  # 1.2 s: one heartbeat of ours at least
+                next(it)
+        reached = 0
+        for s in strangers:
+            with contextlib.suppress(BlockingIOError):
+                s.recv(1000)
+                reached += 1
+        vehicle.setblocking(False)
+        heard = vehicle.recv(1000)
+    finally:
+        for s in (*strangers, vehicle):
+            s.close()
+    assert reached == 0 and heard
+
+
+class _UdpWire:
+    """A file-like sink for pymavlink's encoder: each message one datagram to ``addr``."""
+
+    def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
+        self.sock, self.addr = sock, addr
+
+    def write(self, data: bytes) -> None:
+        self.sock.sendto(bytes(data), self.addr)
+
+
+@pytest.mark.parametrize("url", ["udpin:[::1]:14550", "tcp:[::1]:5760", "udpout:::1:14550"])
+def test_an_ipv6_address_is_named_as_such(url: str) -> None:
+    """pymavlink opens IPv4 sockets only: ``udpin:[::1]:14550`` said "host name '[::1]' does
+    not resolve", which sends the user to check a spelling that is right."""
+    with pytest.raises(ConfigError, match="IPv4 only") as err:
+        MavlinkSource(url).open()
+    assert "does not resolve" not in str(err.value)

@@ -597,3 +597,27 @@ def test_a_serial_link_failing_mid_motion_parks_through_the_log_then_says_so(tmp
     assert q.shape[0] > 55
     assert_stops_within_limits(q, rrr3.geometry)
     np.testing.assert_allclose(log.m["/planar/pose"][-1][1]["pose"], rrr3.home, atol=1e-9)
+
+
+def test_a_flood_of_cursor_datagrams_cannot_hold_a_read_back():
+    """Another process sending cursor lines as fast as it can: read() drained the socket
+    until it was empty, which a flood never lets happen, so one read lasted as long as the
+    flood (1.7 s of a 2 s flood, from a second process) and the teleop loop stood still. A
+    read takes a bounded share of what is queued (here 100 datagrams waiting); the rest
+    waits for the next ticks."""
+    src = UdpCursor("127.0.0.1", 0).open()
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for i in range(100):
+            tx.sendto(f"{i} 200\n".encode() * 20, ("127.0.0.1", src.port))
+        first = src.read(0.0)
+        after_one = src.received
+        reads = 1
+        while src.read(0.01 * reads) != (99.0, 200.0):
+            reads += 1
+            assert reads < 1000
+    finally:
+        tx.close()
+        src.close()
+    assert first is not None and after_one <= 20 * 16 and reads > 1
+    assert src.received == 100 * 20

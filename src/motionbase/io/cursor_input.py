@@ -12,7 +12,8 @@ teleop loop can hold position when the input goes stale.
 - :class:`FileCursor`: a CSV of ``t,x,y`` rows (seconds, pixels), looked up by time, so a
   replay gives the same targets at the same loop ticks however the loop is paced.
 - :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
-  127.0.0.1 by default; malformed lines are counted and ignored.
+  127.0.0.1 by default; malformed lines are counted and ignored, and a read takes 16
+  datagrams at most (a flood on the port cannot hold the loop back).
 - :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
   a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
   tick while it is inside the window (a resting pointer is live input; outside the window the
@@ -128,6 +129,10 @@ class FileCursor(_Base):
         return {"kind": "file", "path": str(self.path), "rows": len(self.times)}
 
 
+#: Datagrams one :meth:`UdpCursor.read` takes at most (Opengazer sends some 30 a second).
+MAX_DATAGRAMS_PER_READ = 16
+
+
 class UdpCursor(_Base):
     """Cursor or gaze points as UDP text lines ``x y`` (pixels), e.g. from Opengazer.
 
@@ -169,9 +174,11 @@ class UdpCursor(_Base):
             self._sock = None
 
     def read(self, t: float) -> tuple[float, float] | None:
+        """The latest point, after reading at most :data:`MAX_DATAGRAMS_PER_READ` datagrams
+        (a flood on the port cannot hold the loop back: the rest waits for the next read)."""
         if self._sock is None:
             raise SourceError("UDP cursor source is not open")
-        while True:
+        for _ in range(MAX_DATAGRAMS_PER_READ):
             try:
                 data = self._sock.recv(4096)
             except (BlockingIOError, InterruptedError):

@@ -45,11 +45,18 @@ a new version: it is counted as too short, with one warning for the first. A dat
 of the wrong size, or with a NaN, infinite or absurd value (a specific force or
 a body rate beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`:
 150 m/s^2, 20 rad/s; an angle out of range), is rejected whole and counted.
+
+One sender at a time: while the datagrams of one address are fresh (one accepted at
+most ``stale_timeout_s`` ago), those of any other address are refused, counted as
+``bad_data`` (``other senders``) with one warning; two interleaved streams would
+take turns in the state. A new address (a restarted FlightGear) is taken once the
+first one is stale.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import struct
 from typing import Any
 
@@ -185,12 +192,31 @@ class FgNativeSource(UdpLiveSource):
         self._warned_versions: set[int] = set()
         self._bad_size = 0
         self._too_short = 0
+        self._sender: Any = None  # address of the datagrams in use
+        self._sender_time = -math.inf  # when its last datagram was accepted, s
+        self._other_senders = 0  # datagrams refused from another address meanwhile
 
     def _bind_address(self) -> tuple[str, int]:
         return self.host, self.port
 
     def _on_packet(self, data: bytes, addr: Any, arrival: float) -> None:
         c = self._c
+        if (
+            addr != self._sender
+            and self._sender is not None
+            and arrival - self._sender_time <= self.stale_timeout_s
+        ):  # one stream at a time: two interleaved would take turns in the state
+            c["bad_data"] += 1
+            c["bad_bytes"] += len(data)
+            self._other_senders += 1
+            if self._other_senders == 1:
+                _log.warning(
+                    "FlightGear: refusing datagrams from %s, another sender than %s, while "
+                    "that one is fresh; further ones are counted as bad data, not reported",
+                    addr,
+                    self._sender,
+                )
+            return
         version, values = decode_fgnetfdm(data)
         if values is None:
             c["bad_data"] += 1
@@ -231,6 +257,9 @@ class FgNativeSource(UdpLiveSource):
         ):
             c["rejected_invalid"] += 1
             return
+        if addr != self._sender and self._sender is not None:
+            _log.info("FlightGear: now using the datagrams from %s", addr)
+        self._sender, self._sender_time = addr, arrival
         self._store(0, (*values[:8], wrap_pi(values[8])), arrival)
         self._versions[version] = self._versions.get(version, 0) + 1
         c["accepted"] += 1
@@ -245,6 +274,8 @@ class FgNativeSource(UdpLiveSource):
             out["wrong size"] = self._bad_size
         if self._too_short:
             out["too short"] = self._too_short
+        if self._other_senders:
+            out["other senders"] = self._other_senders
         return out
 
     def describe(self) -> dict[str, Any]:

@@ -184,7 +184,8 @@ class MavlinkStats(TickStats):
         Stream requests on a live link: ``"off"`` (a log, or disabled),
         ``"idle"`` (nothing asked yet), ``"sent"`` (asked, waiting),
         ``"acknowledged"`` (COMMAND_ACK accepted, waiting for data),
-        ``"rejected"`` (COMMAND_ACK refused), ``"ignored"`` (no data after
+        ``"rejected"`` (COMMAND_ACK refused: an answer to our outstanding request,
+        addressed to us or to no one), ``"ignored"`` (no data after
         ``request_timeout_s``) or ``"streaming"`` (fresh data arriving).
     """
 
@@ -314,6 +315,11 @@ def _check_link_address(url: str, free_port: bool) -> None:
                 raise ConfigError(
                     f"mavlink {url}: expected {prefix}HOST:PORT, e.g. {prefix}127.0.0.1:14550"
                 )
+            if ":" in host or host.startswith("["):  # pymavlink's sockets are AF_INET
+                raise ConfigError(
+                    f"mavlink {url}: {host} is an IPv6 address; MAVLink links here are IPv4 "
+                    f"only: give an IPv4 address or a host name, e.g. {prefix}127.0.0.1:14550"
+                )
             check_host_port(f"mavlink {url}", host, port, free_port=bind and free_port)
             return
 
@@ -394,7 +400,8 @@ class _VehicleClock:
     back, and the next sample going on from there) re-anchors the clock where it
     was; one sample behind the clock with the next one back on it is an outlier,
     given the clock's time. A jump ahead of more than :data:`MAX_LOG_GAP_S` is
-    shortened to it (``gaps_shortened`` counts them).
+    shortened to it (``gaps_shortened`` counts them). A DataFlash log's times
+    (already the vehicle's) take the same path through :meth:`advance`.
     """
 
     def __init__(self, sysid: int) -> None:
@@ -418,6 +425,11 @@ class _VehicleClock:
             return self.last if math.isfinite(self.last) else msg._timestamp
         if not math.isfinite(self.last):
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
+        return self.advance(t)
+
+    def advance(self, t: float) -> float:
+        """The clock's time for a sample stamped ``t`` (s, before the offset): a DataFlash
+        log's own times go through here directly, for the same reboots and gaps."""
         t += self.offset
         if t < self.last - 1.0:  # a reboot or clock reset, or one bad sample
             behind, self._behind = self._behind, t
@@ -781,6 +793,7 @@ class MavlinkSource(SampleHoldSource):
         self._req_count = 0
         self._warned_ignored = False
         self._last_hb = -math.inf
+        self._vehicle_addr: Any = None  # udpin: where the last message from sysid came from
         self._on_ground: bool | None = None
 
     @property
@@ -839,6 +852,9 @@ class MavlinkSource(SampleHoldSource):
             ) from None
         self._conn = conn
         if not self.is_log:
+            _end_tcp_at_eof(conn)
+            if getattr(conn, "udp_server", False):
+                self._reply_to_vehicle(conn)
             conn.mav.robust_parsing = True
             self._frames = _FrameReader(conn, self._c, self.partial_timeout_s)
             if self._key is not None:
@@ -848,6 +864,29 @@ class MavlinkSource(SampleHoldSource):
             host = self._bind_host()
             if host is not None and not is_loopback(host):
                 _log.warning("MAVLink: listening on %s (not loopback), as requested", host)
+
+    def _reply_to_vehicle(self, conn: Any) -> None:
+        """udpin: send to the vehicle's address only. pymavlink sends each message to every
+        address a datagram ever came from, for ever (a reflector for spoofed garbage, and a
+        sendto per address inside a tick). Here ``last_address`` is the sender of the last
+        datagram, and our messages go to that of the last message accepted from ``sysid``;
+        to nobody before one (a vehicle sends heartbeats: we talk to the one we hear)."""
+        port = conn.port
+
+        def recv(n: int | None = None) -> bytes | str:
+            try:
+                data, conn.last_address = port.recvfrom(65535)
+            except (BlockingIOError, ConnectionRefusedError):
+                return ""  # (pymavlink's "nothing yet")
+            return data
+
+        def write(buf: bytes) -> None:
+            addr = self._vehicle_addr
+            if addr is not None:
+                with contextlib.suppress(OSError):
+                    port.sendto(buf, addr)
+
+        conn.recv, conn.write = recv, write
 
     def close(self) -> None:
         """Close the connection. Idempotent."""
@@ -970,11 +1009,14 @@ class MavlinkSource(SampleHoldSource):
         if isinstance(conn, DFReader.DFReader):
             types = ["IMU", "ATT"]
             handle = self._handle_dataflash
-            clock = None  # DataFlash timestamps already come from the vehicle's clock
+            # DataFlash times already come from the vehicle's clock; its gaps are shortened too
+            clock: _VehicleClock | None = _VehicleClock(self.sysid)
+            dataflash = True
         else:
             types = [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
             handle = self._handle
             clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
+            dataflash = False
 
         def next_msg() -> tuple[Any, float]:
             with _quiet():  # pymavlink prints each bad byte range of a log
@@ -984,7 +1026,7 @@ class MavlinkSource(SampleHoldSource):
             if clock is None:
                 return msg, msg._timestamp
             shortened = clock.gaps_shortened
-            t = clock(msg)
+            t = clock.advance(msg._timestamp) if dataflash else clock(msg)
             if clock.gaps_shortened == 1 and not shortened:
                 _log.warning(
                     "mavlink log %s: its vehicle clock jumps ahead by more than %g s; such a "
@@ -1046,6 +1088,7 @@ class MavlinkSource(SampleHoldSource):
             c["rejected_compid"] += 1
             return
         c["accepted"] += 1
+        self._vehicle_addr = getattr(self._conn, "last_address", None)
         self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
 
         imu = _IMU_TYPES.get(mtype)
@@ -1238,8 +1281,14 @@ class MavlinkSource(SampleHoldSource):
 
     def _on_command_ack(self, msg: Any) -> None:
         ml = mavutil.mavlink
-        if msg.command != ml.MAV_CMD_SET_MESSAGE_INTERVAL or self._req_state == "off":
-            return
+        if msg.command != ml.MAV_CMD_SET_MESSAGE_INTERVAL or self._req_state not in (
+            "sent",
+            "acknowledged",
+            "ignored",
+        ):
+            return  # no request of ours outstanding: an answer to someone else
+        if getattr(msg, "target_system", 0) not in (0, _GCS_SYSID):
+            return  # addressed to another ground station (0: a sender that does not say)
         if msg.result == ml.MAV_RESULT_ACCEPTED:
             if self._req_state == "sent":
                 self._req_state = "acknowledged"
@@ -1253,6 +1302,38 @@ class MavlinkSource(SampleHoldSource):
                 label,
             )
             self._req_state = "rejected"
+
+
+def _end_tcp_at_eof(conn: Any) -> None:
+    """A ``tcp:`` link whose peer closes its side fails (a ``ConnectionError``, which the
+    reader turns into a SourceError) instead of printing "EOF on TCP socket" at every read
+    of a dead link for ever: pymavlink reconnects only with ``autoreconnect``, which we do
+    not ask for. Its print before a reset is dropped too (the reset error follows).
+
+    ``tcpin:``: the end of the peer's stream drops that connection and listens again for
+    the next one (pymavlink read the finished connection for ever, taking no other)."""
+    if isinstance(conn, mavutil.mavtcpin):
+        recv = conn.recv
+
+        def recv_until_eof(n: int | None = None) -> Any:
+            port = conn.port
+            data = recv(n)
+            if port is not None and conn.port is port and isinstance(data, bytes) and not data:
+                port.close()  # (an empty str is pymavlink's "nothing yet")
+                conn.port = None
+                conn.fd = conn.listen.fileno()
+            return data
+
+        conn.recv = recv_until_eof
+        return
+    if not isinstance(conn, mavutil.mavtcp):
+        return
+
+    def eof() -> None:
+        raise ConnectionError("the peer closed the connection")
+
+    conn.handle_eof = eof
+    conn.handle_disconnect = lambda: None
 
 
 def _reject_unsigned(mav: Any, msgid: int) -> bool:
