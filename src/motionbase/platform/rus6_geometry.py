@@ -469,6 +469,13 @@ class Rus6Geometry:
                     f"{source}: give either 'neutral_height' or 'neutral_angle_deg', not both"
                 )
             ang = math.radians(as_float(source, "neutral_angle_deg", data["neutral_angle_deg"]))
+            for i, (lo, hi) in enumerate(zip(kw["angle_min"], kw["angle_max"], strict=True)):
+                if lo > ang or ang > hi:  # (NaN limits are the constructor's to name)
+                    raise ConfigError(
+                        f"{source}: field 'neutral_angle_deg': {math.degrees(ang):g} deg is "
+                        f"outside leg {i + 1}'s limits {math.degrees(lo):g} .. "
+                        f"{math.degrees(hi):g} deg (fix the angle or the limits)"
+                    )
             geo = {
                 k: kw[k] for k in ("rb", "d", "rp", "e", "chi_a", "chi_j", "beta", "crank", "rod")
             }
