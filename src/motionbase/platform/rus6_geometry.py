@@ -470,7 +470,7 @@ class Rus6Geometry:
                 )
             ang = math.radians(as_float(source, "neutral_angle_deg", data["neutral_angle_deg"]))
             for i, (lo, hi) in enumerate(zip(kw["angle_min"], kw["angle_max"], strict=True)):
-                if lo > ang or ang > hi:  # (NaN limits are the constructor's to name)
+                if lo < hi and not lo <= ang <= hi:  # (the constructor names bad limits)
                     raise ConfigError(
                         f"{source}: field 'neutral_angle_deg': {math.degrees(ang):g} deg is "
                         f"outside leg {i + 1}'s limits {math.degrees(lo):g} .. "
