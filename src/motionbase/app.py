@@ -1617,10 +1617,9 @@ def tune(
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
     fallback = getattr(start, "fallback", None)
-    if isinstance(fallback, str) and same_file(fallback, out_path):
-        raise ConfigError(
-            f"--out {out} is the fallback washout the start set names (solver.fallback, "
-            f"{fallback}): the tuned set written there would destroy it; give another file"
+    if isinstance(fallback, str):  # (--out may be the start set itself, not its fallback)
+        refuse_out_over_inputs(
+            out_path, ("start set's solver.fallback", fallback), writing="the tuned set"
         )
     if profile is not None:
         from motionbase.washout.params import PROFILES

@@ -114,14 +114,16 @@ def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
     return preset_path(kind, str(name_or_path))
 
 
-def refuse_out_over_inputs(out: str | Path, *given: tuple[str, str | Path | None]) -> None:
+def refuse_out_over_inputs(
+    out: str | Path, *given: tuple[str, str | Path | None], writing: str = "the log"
+) -> None:
     """A ConfigError when ``--out`` names a file the run reads (``(flag, path)`` pairs; a
-    path that is None or no file, a preset's name, is skipped): the log would overwrite it.
-    One file through symlinks, ``..`` and hard links counts."""
+    path that is None or no file, a preset's name, is skipped): ``writing`` (what goes to
+    ``--out``) would overwrite it. One file through symlinks, ``..`` and hard links counts."""
     for flag, path in given:
         if path is not None and Path(path).is_file() and same_file(path, out):
             raise ConfigError(
-                f"--out {out} is the {flag} file ({path}): writing the log would destroy it; "
+                f"--out {out} is the {flag} file ({path}): writing {writing} would destroy it; "
                 "give another file"
             )
 
