@@ -13,6 +13,7 @@ import scipy.optimize
 
 from motionbase.config import write_toml
 from motionbase.errors import ConfigError
+from motionbase.io.mcap_source import McapSource
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.platform import Rus6Geometry
 from motionbase.state import AircraftState
@@ -321,7 +322,13 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
     cfg = PipelineConfig(
         robot="rus6", geometry=Rus6Geometry.preset("ceart"), cueing="mpc", cueing_params=ceart
     )
-    assert PipelineConfig.from_dict(cfg.to_dict()).cueing_params == ceart
+    # the log holds the fallback washout's values, not the preset's name
+    recorded = PipelineConfig.from_dict(cfg.to_dict()).cueing_params
+    assert recorded.fallback == WashoutParams.preset(ceart.fallback) != ceart.fallback
+    assert recorded == dataclasses.replace(ceart, fallback=recorded.fallback)
+    assert MpcParams.from_dict(recorded.to_dict()) == recorded
+    recorded.to_toml(path)  # and a file holding them reads back
+    assert MpcParams.from_toml(path) == recorded
     # the mode a set was tuned for: real time unless the file says preview; nothing else
     assert ceart.mode == "real-time" and "mode" not in ceart.to_dict()
     offline = MpcParams.load("preview_ceart")
@@ -634,6 +641,31 @@ def test_a_failing_solver_in_a_flight_is_logged_and_flies_the_fallback(tmp_path,
     assert cli.main(["report", str(out), "--out", str(tmp_path / "report")]) == 0
     assert "mpc" in (tmp_path / "report" / "summary.txt").read_text()
     capsys.readouterr()
+
+
+def test_a_recording_replays_after_its_fallback_washout_file_changed_or_went(tmp_path, capsys):
+    """An MPC file names its fallback washout (here ``wash.toml`` beside it, the ``gentle``
+    set). The recording stored only that path: replayed after the file was edited, the
+    fallback's ticks came out of the new values (``replay --check`` failed), and after it
+    was deleted the recording could not be replayed at all. It now stores the values."""
+    from motionbase import cli
+    from motionbase.io.manoeuvres import write_washout
+
+    folder = tmp_path / "cfg"
+    write_washout(folder / "wash.toml", WashoutParams.preset("gentle"), ["the fallback"])
+    d = dataclasses.replace(MpcParams.load("tuned_ceart"), max_iter=1).to_dict()
+    d["solver"]["fallback"] = "wash.toml"  # relative to the MPC file
+    write_toml(folder / "mpc.toml", d)
+    out = tmp_path / "mpc.mcap"
+    args = ["fly", "c1723", "--cueing", "mpc", "--params", str(folder / "mpc.toml")]
+    assert cli.main([*args, "--duration", "3", "--out", str(out)]) == 0
+    assert "fell back" in capsys.readouterr().out  # every tick flew the fallback
+    write_washout(folder / "wash.toml", WashoutParams.preset("default"), ["edited"])
+    assert cli.main(["replay", str(out), "--check"]) == 0, capsys.readouterr()
+    (folder / "wash.toml").unlink()
+    assert cli.main(["replay", str(out), "--check"]) == 0, capsys.readouterr()
+    recorded = McapSource(out).metadata["pipeline_config"]["cueing_params"]["solver"]
+    assert WashoutParams.from_dict(recorded["fallback"]) == WashoutParams.preset("gentle")
 
 
 def test_preview_refused_for_live_sources_and_cueings_without_it(tmp_path, capsys):

@@ -456,7 +456,7 @@ def _fallback_notes(cueing: Any, out: Path | None) -> list[str]:
     counts = getattr(cueing, "counts", None)
     if not isinstance(counts, dict) or not counts.get("fallbacks"):
         return []
-    fallback = getattr(getattr(cueing, "params", None), "fallback", "its fallback")
+    fallback = getattr(getattr(cueing, "params", None), "fallback_name", "its fallback")
     where = f" (each tick on /cueing/{cueing.name} in {out})" if out is not None else ""
     return [
         f"warning: {cueing.name}: the solver failed on {counts['fallbacks']} of "

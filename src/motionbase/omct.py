@@ -812,7 +812,7 @@ class OmctResult:
             )
         fallbacks, ticks = self.cueing_fallbacks
         if fallbacks:
-            fallback = getattr(self.config.cueing_params, "fallback", "its fallback")
+            fallback = getattr(self.config.cueing_params, "fallback_name", "its fallback")
             lines.append(
                 f"warning: {self.cueing}: the solver failed on {fallbacks} of {ticks} ticks, "
                 f"which fell back: there the pose blended toward the fallback washout "

@@ -178,12 +178,18 @@ class PipelineConfig:
         return cueing_spec(self.cueing).make(self.cueing_params, self.dt)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (for the log's metadata); :meth:`from_dict` rebuilds it exactly."""
+        """Plain data (for the log's metadata); :meth:`from_dict` rebuilds a configuration
+        that computes the same numbers. Cueing parameters that name another set (an MPC's
+        fallback washout) are stored with its values (their ``self_contained()``, where
+        they have one), so that a recording never depends on a file or preset."""
+        params = self.cueing_params
+        if hasattr(params, "self_contained"):
+            params = params.self_contained()
         return {
             "robot": self.robot,
             "geometry": self.geometry.to_dict(),
             "cueing": self.cueing,
-            "cueing_params": self.cueing_params.to_dict(),
+            "cueing_params": params.to_dict(),
             "pipeline": {
                 **{name: getattr(self, name) for name in _SETTINGS},
                 "input_limits": asdict(self.input_limits),

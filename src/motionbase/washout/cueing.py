@@ -139,7 +139,9 @@ class CueingSpec:
     name : str
     cueing_class, params_class : str or type
         ``"module:Class"`` (imported on use) or the class itself. The parameters class
-        has ``from_toml(path)``, ``from_dict(data, source=...)`` and ``to_dict()``.
+        has ``from_toml(path)``, ``from_dict(data, source=...)`` and ``to_dict()``, and,
+        when it names other files or presets, ``self_contained()``: the same parameters
+        holding their values, which the log stores.
     preset_kind : str
         Shipped parameter files are ``motionbase/presets/<preset_kind>_<name>.toml``.
     default_preset : str

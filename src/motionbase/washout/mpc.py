@@ -367,7 +367,6 @@ class MpcCueing(Cueing):
         import osqp
 
         from motionbase.washout.classical import ClassicalWashout
-        from motionbase.washout.params import WashoutParams
 
         if not isinstance(params, MpcParams):
             raise TypeError(f"params must be MpcParams, got {type(params).__name__}")
@@ -378,7 +377,7 @@ class MpcCueing(Cueing):
         self.dt = dt
         with np.errstate(over="ignore", invalid="ignore"):  # (said below, as one error)
             self.model = m = build_model(params, dt)
-        self.fallback = ClassicalWashout(WashoutParams.load(params.fallback), dt)
+        self.fallback = ClassicalWashout(params.fallback_washout, dt)
         N = params.steps
         self._N = N
         self._offsets = np.concatenate([[0.0], np.cumsum(m.h[:-1])])

@@ -62,6 +62,9 @@ A preset file (``src/motionbase/presets/mpc_<name>.toml``) looks like::
     blend_s = 0.5                      # blend to and from the fallback, s
     fallback = "tuned_ceart"           # washout preset, or TOML path (relative: to this file)
 
+``fallback`` may also be a table of washout parameters (``[solver.fallback]``, the layout of
+a washout file): a recording stores the values so (:meth:`MpcParams.self_contained`).
+
 Every table is required but for ``[reference]`` (gains 1, no limits), ``[robot]``, ``[solver]``
 (defaults as above), ``description``, ``g`` and ``mode``. The dataclass fields mirror the
 file one to one, so ``from_dict(p.to_dict()) == p``.
@@ -75,7 +78,7 @@ header says how); they hold with or without a robot. When the pipeline binds its
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -254,10 +257,12 @@ class MpcParams:
         OSQP tolerances.
     blend_s : float
         Time of the blend from the MPC's pose to the fallback's and back, s.
-    fallback : str
-        The classical washout preset (or TOML path) run alongside, for ticks the solver
-        fails or is late. Read from a file, a relative path is relative to that file's
-        folder (and kept as an absolute path, so that a copy written elsewhere still works).
+    fallback : str or WashoutParams
+        The classical washout run alongside, for ticks the solver fails or is late: a
+        preset name or a TOML path (read from a file, a relative path is relative to that
+        file's folder, and kept as an absolute path, so that a copy written elsewhere still
+        works), or the parameters themselves (a recording holds them:
+        :meth:`self_contained`).
     g : float
         Gravity, m/s^2.
     description : str
@@ -307,7 +312,7 @@ class MpcParams:
     eps_abs: float = 1e-4
     eps_rel: float = 1e-4
     blend_s: float = 0.5
-    fallback: str = "tuned_ceart"
+    fallback: str | WashoutParams = "tuned_ceart"
     g: float = STANDARD_GRAVITY
     description: str = ""
     mode: str = "real-time"
@@ -316,6 +321,33 @@ class MpcParams:
         validated = _validate(self.to_dict(), "MpcParams")
         for key, value in validated.items():
             object.__setattr__(self, key, value)
+
+    # --- the fallback washout -------------------------------------------------------------
+
+    @property
+    def fallback_washout(self) -> WashoutParams:
+        """The fallback washout's parameters (loaded when :attr:`fallback` names them)."""
+        if isinstance(self.fallback, WashoutParams):
+            return self.fallback
+        return WashoutParams.load(self.fallback)
+
+    @property
+    def fallback_name(self) -> str:
+        """The fallback washout as a message names it: its preset or file, or, for values
+        (a recording's), ``"recorded with the run"`` and their description."""
+        if isinstance(self.fallback, str):
+            return self.fallback
+        about = self.fallback.description
+        return "recorded with the run" + (f" ({about})" if about else "")
+
+    def self_contained(self) -> MpcParams:
+        """The same parameters with the fallback washout's values in place of its name, so
+        that :meth:`to_dict` holds every number the cueing uses: what a recording stores
+        (:meth:`motionbase.pipeline.PipelineConfig.to_dict`), which then replays the same
+        when the preset or file it named has changed or gone."""
+        if isinstance(self.fallback, WashoutParams):
+            return self
+        return replace(self, fallback=self.fallback_washout)
 
     # --- SI views -------------------------------------------------------------------------
 
@@ -414,7 +446,8 @@ class MpcParams:
             if section == "tilt" and value[0] == value[1]:
                 value, length = value[0], 0
             out.setdefault(section, {})[key] = list(value) if length else value
-        out["solver"]["fallback"] = self.fallback
+        fallback = self.fallback
+        out["solver"]["fallback"] = fallback if isinstance(fallback, str) else fallback.to_dict()
         return out
 
     def to_toml(self, path: str | Path) -> None:
@@ -480,19 +513,25 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
     if max(out["tilt_angle_limit_deg"]) >= 90.0:
         raise ConfigError(f"{source}: field 'tilt.angle_limit_deg': must be < 90 deg")
     fallback = d["solver"]["fallback"]
-    if not isinstance(fallback, str) or not fallback:
+    if isinstance(fallback, WashoutParams):
+        fallback = fallback.to_dict()
+    if isinstance(fallback, dict):  # the values themselves (a recording's)
+        out["fallback"] = WashoutParams.from_dict(fallback, source=f"{source}: solver.fallback")
+        fallback = ""
+    elif not isinstance(fallback, str) or not fallback:
         raise ConfigError(
-            f"{source}: field 'solver.fallback': expected a washout preset name or a .toml path, "
-            f"got {fallback!r}"
+            f"{source}: field 'solver.fallback': expected a washout preset name, a .toml path "
+            f"or a table of washout parameters, got {fallback!r}"
         )
     here = Path(source)
     if (fallback.endswith(".toml") or "/" in fallback) and here.is_file():
         fallback = str((here.parent / fallback).resolve())  # relative to the file, not cwd
-    try:  # a preset name or a file: load it now, so that a wrong one names this field
-        WashoutParams.load(fallback)
-    except ConfigError as exc:
-        raise ConfigError(f"{source}: field 'solver.fallback': {exc}") from None
-    out["fallback"] = fallback
+    if fallback:
+        try:  # a preset name or a file: load it now, so that a wrong one names this field
+            WashoutParams.load(fallback)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: field 'solver.fallback': {exc}") from None
+        out["fallback"] = fallback
     out["g"] = as_float(source, "g", d["g"], min_value=0.0, strict_min=True, unit="m/s^2")
     if not isinstance(d["description"], str):
         raise ConfigError(f"{source}: field 'description': expected text, got {d['description']!r}")
