@@ -644,6 +644,8 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--out", "/dev/null/o.toml"], "/dev/null is not a folder"),  # before the tuning
         (["--scripts", "no_such_script"], "unknown JSBSim script"),
         (["--scripts", "c1721@20:30"], "the script is shorter"),
+        # a window shorter than three samples was said to lie past the script's end
+        (["--scripts", "c1723@0:0.001"], "choose a longer window"),
         (["--scripts", "c1723@5:x"], "two numbers"),
         (["--scripts", "c1723@0:5", "--holdout", "c1723@0:5"], "also in the tuning set"),
         # the same samples under another name, or windows of one flight that overlap: the

@@ -222,9 +222,15 @@ def load_script(spec: str) -> Manoeuvre:
         dt = 1.0 / source.rate_hz
         states = [s for s in source if s.t >= start - 0.5 * dt]
     if len(states) < 3:
+        why = (
+            f"at least {3 * dt:.3g} s at the script's {source.rate_hz:g} Hz: choose a longer "
+            "window"
+            if end - start < 3 * dt
+            else "the script is shorter: choose an earlier window"
+        )
         raise ConfigError(
             f"script {spec!r}: the window {start:g}-{end:g} s holds {len(states)} samples "
-            "(the script is shorter; choose an earlier window)"
+            f"(it needs 3, {why})"
         )
     label = name if "@" not in str(spec) else str(spec).strip()
     return _from_states(label, f"jsbsim:{source.script_path}@{start:g}:{end:g}", dt, states)
