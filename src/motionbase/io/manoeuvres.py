@@ -223,8 +223,7 @@ def load_script(spec: str) -> Manoeuvre:
         states = [s for s in source if s.t >= start - 0.5 * dt]
     if len(states) < 3:
         why = (
-            f"at least {3 * dt:.3g} s at the script's {source.rate_hz:g} Hz: choose a longer "
-            "window"
+            f"at least {3 * dt:.3g} s at the script's {source.rate_hz:g} Hz: choose a longer window"
             if end - start < 3 * dt
             else "the script is shorter: choose an earlier window"
         )
