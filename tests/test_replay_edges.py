@@ -238,6 +238,33 @@ def test_a_planar_recording_replays_on_the_6_dof_platform_it_is_given(
     assert len(msgs["/aircraft/state"]) == len(read_messages(PLANAR)["/aircraft/state"])
 
 
+def test_another_platform_alone_keeps_the_recorded_washout(tmp_path, capfd, fresh_logger):
+    """``--platform`` changes the robot and nothing else. A flight with ``--params gentle``
+    replayed with ``--platform ceart`` (as ``replay --output`` needs, to drive motors) ran
+    the platform's tuned default washout instead, which moves harder, without a word: its
+    cue was not the recording's. On the recorded platform, it now is, tick for tick."""
+    from motionbase.washout import WashoutParams
+
+    rec, out = tmp_path / "gentle.mcap", tmp_path / "again.mcap"
+    code, _, err = _cli(
+        capfd, "fly", "c1723", "--params", "gentle", "--duration", "2", "--out", rec
+    )
+    assert code == 0, err
+    code, _, err = _cli(capfd, "replay", rec, "--platform", "ceart", "--out", out)
+    assert code == 0, err
+    recorded = read_metadata(out)["pipeline_config"]["cueing_params"]
+    assert WashoutParams.from_dict(recorded) == WashoutParams.preset("gentle")
+    cue = [m["pose"] for m in read_messages(rec)["/washout/pose"]]
+    assert cue == [m["pose"] for m in read_messages(out)["/washout/pose"]]
+    # --params still changes them
+    code, _, err = _cli(
+        capfd, "replay", rec, "--platform", "ceart", "--params", "default", "--out", out
+    )
+    assert code == 0, err
+    recorded = read_metadata(out)["pipeline_config"]["cueing_params"]
+    assert WashoutParams.from_dict(recorded) == WashoutParams.preset("default")
+
+
 def test_planar_is_still_refused_with_a_6_dof_platform_when_asked_for(
     tmp_path, capfd, fresh_logger
 ):

@@ -886,6 +886,12 @@ def _replay(
                 cueing=cueing or recorded_cueing,  # the recorded cueing unless given
                 rate_hz=source.rate_hz,
             )
+            if recorded is not None and washout is None and config.cueing == recorded_cueing:
+                # and its parameters: another platform alone must not bring another set (a
+                # recording of --params gentle replayed to motors with --platform got the
+                # platform's tuned default, harder, without a word)
+                kept = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
+                config = replace(config, cueing_params=kept.cueing_params)
         if out is not None:
             _refuse_out_over_cueing_files(out, config)
         as_recorded = preview is None
