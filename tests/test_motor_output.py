@@ -91,7 +91,8 @@ class UdpPeer:
         self.sock.close()
 
 
-def wait_until(pred: Callable[[], bool], timeout: float = 5.0) -> bool:
+def wait_until(pred: Callable[[], bool], timeout: float = 30.0) -> bool:
+    """Whether ``pred()`` came true within ``timeout`` s (a watchdog, not a bound)."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if pred():
