@@ -76,25 +76,32 @@ class UdpDrive:
         sock.bind(("127.0.0.1", port))
         sock.settimeout(0.05)
         self._sock = sock
-        self._thread = threading.Thread(target=self._read, args=(sock,), daemon=True)
-        self._thread.start()
+        self._start_reading(sock)
         return sock.getsockname()[1]
 
-    def _read(self, sock: socket.socket) -> None:
-        while True:
+    def _start_reading(self, sock: socket.socket) -> None:
+        self._paused = threading.Event()
+        self._thread = threading.Thread(target=self._read, args=(sock, self._paused), daemon=True)
+        self._thread.start()
+
+    def _read(self, sock: socket.socket, paused: threading.Event) -> None:
+        while not paused.is_set():
             try:
                 data, anc, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(16))
             except TimeoutError:
                 continue
             except OSError:  # closed: vanished
                 return
-            stamp = math.nan
-            for level, kind, raw in anc:
-                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
-                    sec, nsec = struct.unpack("qq", raw[:16])
-                    stamp = sec + nsec * 1e-9
-            with self._lock:
-                self.frames.append((stamp, data))
+            self._keep(data, anc)
+
+    def _keep(self, data: bytes, anc: list) -> None:
+        stamp = math.nan  # the kernel's arrival time of the datagram
+        for level, kind, raw in anc:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
+                sec, nsec = struct.unpack("qq", raw[:16])
+                stamp = sec + nsec * 1e-9
+        with self._lock:
+            self.frames.append((stamp, data))
 
     def vanish(self) -> None:
         """Stop listening: datagrams to the port are refused (the sender sees send errors)."""
@@ -116,11 +123,28 @@ class UdpDrive:
             return len(self.frames)
 
     def drain(self) -> None:
-        """Wait until the datagrams already sent have all been read (none for 0.2 s)."""
-        n = -1
-        while n != self.count():
-            n = self.count()
-            threading.Event().wait(0.2)
+        """Read the datagrams already sent, every one: the reader thread is paused and the
+        socket's queue read to its end here (a datagram sent on loopback is in that queue
+        when its send returns), then the thread goes on. (It waited for 0.2 s without a new
+        datagram, which a reader thread kept off the processor on a loaded machine could
+        also give.)"""
+        sock = self._sock
+        if sock is None:  # vanished: nothing more to read
+            return
+        self._paused.set()
+        if self._thread is not None:
+            self._thread.join()
+        sock.setblocking(False)
+        try:
+            while True:
+                try:
+                    data, anc, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(16))
+                except BlockingIOError:
+                    break
+                self._keep(data, anc)
+        finally:
+            sock.settimeout(0.05)
+        self._start_reading(sock)
 
     def angles(self, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """(arrival times s, positions (k, n): rad, or m / 1000 for mm) of the frames from

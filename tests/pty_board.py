@@ -42,9 +42,22 @@ class Board:
                     self.got_first.set()
 
     def close(self) -> None:
-        """Stop reading and close both ends (the port vanishes)."""
+        """Stop reading, take the bytes still in the pty (a host that has finished wrote
+        them all; the reader thread could stop before it had read them: a test then saw a
+        run's last frames missing on a loaded machine) and close both ends (the port
+        vanishes)."""
+        if self.stop.is_set():
+            return  # closed already
         self.stop.set()
         self.thread.join(2)
+        while select.select([self.master], [], [], 0)[0]:
+            try:
+                chunk = os.read(self.master, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            self.data += chunk
         for fd in (self.master, self.slave):
             try:
                 os.close(fd)

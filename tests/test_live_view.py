@@ -411,10 +411,22 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
     thread.start()
     try:
         assert subscribed.wait(30)
-        time.sleep(0.5)  # the server applies the subscription on its own thread
+        # the server applies the subscription on its own thread: /health messages (20 ms
+        # apart, on the 60 Hz grid) until the client has one, then the test's ticks from the
+        # next whole second (it slept 0.5 s instead, which a loaded machine could outlast)
+        deadline = time.monotonic() + 30  # a watchdog, not a bound
+        k = 0
+        while not got["/health"]:
+            assert time.monotonic() < deadline, "the subscription never took effect"
+            logger.add("/health", k * 0.02, {"t": k * 0.02, "samples": 0})
+            logger.flush()
+            k += 1
+            time.sleep(0.01)
+        t0 = float(math.ceil(k * 0.02 + 0.5))
+        t0_ns = round(t0 * 1e9)
         scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
         for k in range(rate * seconds):
-            t = k / rate
+            t = t0 + k / rate
             pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 * math.sin(t)])
             logger.add("/platform/actuators", t, {"t": t, "angles": np.full(6, t)})
             logger.add_transform(t, pose)
@@ -437,12 +449,12 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
                                      "/platform/actuators")  # fmt: skip
     gaps = np.diff(acts) / 1e6  # ms
     assert set(gaps.round(3)) <= {16.0, 17.0}
-    assert acts[0] == 0 and len(acts) == 60 * seconds
+    assert acts[0] == t0_ns and len(acts) == 60 * seconds
     _assert_same_as_logged(got["/platform/scene"], logged["/platform/scene"], "/platform/scene")
     _assert_same_as_logged(got["/health"], logged["/health"], "/health")
     # /tf: the platform frame on the 60 Hz grid, world -> base every second
     tf = [(t, json.loads(p)) for t, p in got["/tf"]]
-    assert [t for t, m in tf if m["child_frame_id"] == "base"] == [0, 1_000_000_000]
+    assert [t for t, m in tf if m["child_frame_id"] == "base"] == [t0_ns, t0_ns + 1_000_000_000]
     platform = [t for t, m in tf if m["child_frame_id"] == "platform"]
     assert platform == acts
     with open(tmp_path / "live.mcap", "rb") as fh:

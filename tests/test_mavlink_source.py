@@ -1079,7 +1079,7 @@ def test_a_tcp_peer_that_closes_ends_the_run_with_one_error(capfd):
             peer.shutdown(socket.SHUT_WR)  # the peer is done sending (it still reads)
             t0 = time.monotonic()
             with pytest.raises(SourceError, match="the peer closed the connection"):
-                while time.monotonic() - t0 < 1.0:
+                while time.monotonic() - t0 < 30.0:  # (a watchdog, not a bound)
                     next(it)
             peer.close()
     finally:
@@ -1114,7 +1114,7 @@ def test_tcpin_listens_again_when_its_peer_stops_sending():
         second = connect_and_send(100)
         fresh = False
         t0 = time.monotonic()
-        while not fresh and time.monotonic() - t0 < 2.5:
+        while not fresh and time.monotonic() - t0 < 30.0:  # (a watchdog, not a bound)
             next(it)
             fresh = src.fresh
         first.close()

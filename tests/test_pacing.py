@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -47,26 +48,42 @@ def test_returns_at_the_deadline_never_before(busy: bool) -> None:
 
 
 def test_busy_waiting_leaves_the_interpreter_to_other_threads() -> None:
-    """The MCAP writer and the motor-drive sender run while the loop busy-waits."""
+    """The MCAP writer and the motor-drive sender run while the loop busy-waits: the wait
+    gives the interpreter lock up at every turn, not only when the interpreter's switch
+    interval forces it. With that interval made longer than the test, a thread that needs
+    the lock still takes its turns during the wait; the wait's clock here is that thread's
+    count of turns, so the wait ends once it had them (a watchdog ends it otherwise).
+
+    (It counted the turns of a thread in 0.2 s of wall clock: a threshold a loaded machine
+    could miss, and one the switch interval met alone, without the yield.)"""
+    import sys
+
+    turns = 0
     done = threading.Event()
-    turns = []
 
     def worker() -> None:
+        nonlocal turns
         while not done.is_set():
-            turns.append(time.perf_counter())
-            time.sleep(1e-4)
+            turns += 1  # Python code: it needs the interpreter lock for each turn
+            time.sleep(1e-5)
 
+    watchdog = time.monotonic() + 30.0  # not a bound: only ends a wait that never would
+
+    def clock() -> float:
+        return math.inf if time.monotonic() > watchdog else float(turns)
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1000.0)  # the interpreter never takes the lock away by itself
     thread = threading.Thread(target=worker)
-    thread.start()
     try:
-        start = time.perf_counter()
-        wait_until(start + 0.2, busy=True)
-        end = time.perf_counter()
+        thread.start()
+        wait_until(200.0, busy=True, clock=clock)
+        seen = turns
     finally:
         done.set()
         thread.join()
-    during = [t for t in turns if start <= t <= end]
-    assert len(during) > 20  # it ran all along (about every 0.1 ms asked, 2000 possible)
+        sys.setswitchinterval(interval)
+    assert seen >= 200, "the busy-wait kept the interpreter lock: the other thread never ran"
 
 
 def test_a_paced_run_collects_garbage_between_ticks_and_restores_the_collector() -> None:

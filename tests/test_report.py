@@ -18,6 +18,7 @@ from motionbase.errors import LogFormatError
 from motionbase.io.mcap_log import McapLogger
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.report_plots import default_report_dir, report_figures, write_report
+from motionbase.pipeline import PipelineConfig
 from motionbase.report import build_report
 
 G = 9.80665
@@ -271,9 +272,24 @@ def test_rus6_pose_plot_shows_heave_up(rus6_flight):
     assert up_cm[-1] < -5.0 and up_cm[0] < -5.0
     _, washout_cm = _line(ax, "washout")
     np.testing.assert_allclose(washout_cm, [-100.0 * m["pose"][2] for m in msgs["/washout/pose"]])
-    # the reach lines are drawn the same way up: the larger reach (0.20 m) is upward
+    # the reach lines are drawn the same way up: the recorded platform's heave reach, found
+    # here by a plain scan of its inverse kinematics within the crank limits (0.1 mm steps),
+    # up (negative z) drawn positive; the larger reach is upward
+    robot = PipelineConfig.from_dict(read_metadata(rus6_flight)["pipeline_config"]).make_robot()
+    lo, hi = robot.limits.lower, robot.limits.upper
+    z = np.arange(-0.5, 0.5, 1e-4)
+    poses = np.zeros((z.size, 6))
+    poses[:, 2] = z
+    q = robot.inverse(poses)
+    ok = np.isfinite(q).all(axis=1) & (q >= lo).all(axis=1) & (q <= hi).all(axis=1)
+    centre = np.argmin(np.abs(z))
+    assert ok[centre] and not ok[0] and not ok[-1]
+    top = z[centre - np.argmin(ok[centre::-1])]  # the first pose up that is out of reach
+    bottom = z[centre + np.argmin(ok[centre:])]  # and down
     reach = sorted(ln.get_ydata()[0] for ln in ax.get_lines() if ln.get_linestyle() == ":")
-    assert reach[0] == pytest.approx(-12.0, abs=1.0) and reach[1] == pytest.approx(20.0, abs=1.0)
+    assert reach[0] == pytest.approx(-100.0 * bottom, abs=0.011)
+    assert reach[1] == pytest.approx(-100.0 * top, abs=0.011)
+    assert reach[1] > -reach[0] > 0.0
     # other axes keep the logged sign and say which way is positive
     assert _axis(fig, "pitch").get_ylabel() == "pitch (nose up) [deg]"
     assert _axis(fig, "surge").get_ylabel() == "surge (forward) [cm]"

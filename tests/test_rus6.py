@@ -78,11 +78,17 @@ def test_ceart_preset_matches_design_table():
     tip_dir = (jp.crank_tips - jp.pivots) / CRANK
     np.testing.assert_allclose(tip_dir[:, :2], _ring(1.0, DESIGN_CRANK_DIR_DEG), atol=1e-12)
     np.testing.assert_allclose(tip_dir[:, 2], 0.0, atol=1e-12)
-    # platform about 0.648 m above the pivots (FRD: z negative), rods lean about 26 deg
-    np.testing.assert_allclose(jp.platform_joints[:, 2], -0.648, atol=1e-3)
+    # the platform's height closes each rod over its crank tip (crank horizontal, tip at the
+    # pivots' height): z = -sqrt(rod^2 - h^2), h the horizontal tip-to-joint distance from the
+    # design table; about 0.648 m above the pivots (FRD: z negative), rods leaning about 26 deg
+    # (it compared with those rounded figures to 1 mm and 0.6 deg)
+    tips = _ring(0.4064, DESIGN_PIVOT_DEG) + CRANK * _ring(1.0, DESIGN_CRANK_DIR_DEG)
+    h = np.linalg.norm(_ring(0.400, DESIGN_JOINT_DEG) - tips, axis=1)
+    np.testing.assert_allclose(jp.platform_joints[:, 2], -np.sqrt(ROD**2 - h**2), atol=1e-12)
     rod = jp.platform_joints - jp.crank_tips
     lean = np.degrees(np.arccos(-rod[:, 2] / np.linalg.norm(rod, axis=1)))
-    np.testing.assert_allclose(lean, 26.0, atol=0.6)
+    np.testing.assert_allclose(lean, np.degrees(np.arcsin(h / ROD)), atol=1e-9)
+    assert np.ptp(h) < 1e-12  # one height for the six joints: the platform is level
     lo, hi = RUS6.angle_limits
     assert lo.shape == hi.shape == (6,)
     np.testing.assert_allclose(lo, -math.pi / 3)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 import warnings
 
 import pytest
@@ -64,9 +65,11 @@ class FakeClock:
 
 
 def wait_for(board: Board, n: int) -> None:
-    for _ in range(200):
-        if len(board.data) >= n:
-            return
+    """Until the board has ``n`` bytes (30 s: a watchdog, not a bound; it gave up silently
+    after 2 s, leaving a loaded machine's late bytes to fail a later assertion)."""
+    deadline = time.monotonic() + 30.0
+    while len(board.data) < n:
+        assert time.monotonic() < deadline, f"the board got {len(board.data)} of {n} bytes"
         threading.Event().wait(0.01)
 
 

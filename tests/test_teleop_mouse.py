@@ -75,13 +75,15 @@ def _run_with_pointer(display, tmp_path: Path, points, *, escape: bool):
     out = tmp_path / "mouse.mcap"
     env = dict(os.environ, DISPLAY=display)
     cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input", "mouse"]
-    cmd += ["--serial", "none", "--duration", "3", "--out", str(out)]
+    # Escape ends the run; the duration is only a watchdog (3 s, it could end a run on a
+    # loaded machine before the pointer had made its moves and the Escape came)
+    cmd += ["--serial", "none", "--duration", "60", "--out", str(out)]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wid = _wait_window(env, proc)
         for u, v in points:
             _xdotool(env, "mousemove", "--window", wid, str(u), str(v))
-            time.sleep(0.6)
+            time.sleep(1.5)  # the robot arrives (its speed limit), with room for a busy machine
         if escape:
             _xdotool(env, "key", "--window", wid, "Escape")
         stdout, stderr = proc.communicate(timeout=60)

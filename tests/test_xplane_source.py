@@ -152,7 +152,7 @@ def xplane():
             f.stop()
 
 
-def _until(src, it, cond, timeout_s=3.0):
+def _until(src, it, cond, timeout_s=30.0):  # (a watchdog, not a bound)
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout_s:
         state = next(it)
@@ -182,7 +182,7 @@ def test_rref_subscribes_converts_and_unsubscribes(xplane):
     assert subs["sim/version/xplane_internal_version"] == 1
     assert all(size == 413 for *_, size in xp.requests)
     t0 = time.monotonic()  # the stand-in reads the freq-0 requests in its own thread
-    while xp.unsubscribed() != set(TURN) and time.monotonic() - t0 < 2.0:
+    while xp.unsubscribed() != set(TURN) and time.monotonic() - t0 < 30.0:
         time.sleep(0.01)
     assert xp.unsubscribed() == set(TURN)
     with xp._lock:
@@ -210,7 +210,7 @@ def test_resubscribes_when_xplane_restarts(xplane, caplog):
             time.sleep(0.3)
             banked = dict(TURN, **{"sim/flightmodel/position/phi": -20.0})
             xp2 = xplane(banked, port=port)  # X-Plane is back, knowing nothing of us
-            state = _until(src, it, lambda s: src.fresh, timeout_s=4.0)
+            state = _until(src, it, lambda s: src.fresh)
             stats = src.stats
     assert xp2.subscribed(), "the source did not subscribe again"
     assert stats.extra["subscriptions sent"] > n_sub
@@ -384,7 +384,7 @@ def test_stream_command_takes_an_xplane_url(xplane, tmp_path, capsys):
         np.testing.assert_allclose(m["attitude"], att, atol=1e-9)
     assert "X-Plane:" in capsys.readouterr().out
     t0 = time.monotonic()
-    while xp.unsubscribed() != set(TURN) and time.monotonic() - t0 < 2.0:
+    while xp.unsubscribed() != set(TURN) and time.monotonic() - t0 < 30.0:
         time.sleep(0.01)
     assert xp.unsubscribed() == set(TURN)  # the command unsubscribed on its way out
 
