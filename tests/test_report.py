@@ -429,3 +429,16 @@ def test_the_planar_reach_ends_where_the_robot_does_not_where_the_scan_did():
             beyond = home.copy()
             beyond[j] += edge + math.copysign(1e-5, edge)
             assert not kin.reachable(beyond), (col, row, edge)
+
+
+def test_an_empty_out_is_refused_not_the_current_folder(rus6_flight, tmp_path, monkeypatch, capsys):
+    """``--out ""`` (an unset ``$DIR``) wrote the six plots and summary.txt into the current
+    folder, over any files of those names there; omct refuses it, and so does report now."""
+    monkeypatch.chdir(tmp_path)
+    mine = tmp_path / "summary.txt"
+    mine.write_text("my own notes\n")
+    assert main(["report", str(rus6_flight), "--out", ""]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--out: empty" in err, err
+    assert mine.read_text() == "my own notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.txt"]

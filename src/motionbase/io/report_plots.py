@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.errors import SinkError
+from motionbase.errors import ConfigError, SinkError
 from motionbase.io.whole_files import folder_problem, whole_folder
 from motionbase.report import AXES6, PHASES, Report, build_report
 
@@ -93,6 +93,8 @@ def write_report(
 
     Raises
     ------
+    ConfigError
+        ``out`` is empty (an unset shell variable): the current folder is not taken for it.
     SourceError, LogFormatError
         Missing or unreadable file, not MCAP, or no ``/aircraft/state`` messages.
     SinkError
@@ -100,6 +102,11 @@ def write_report(
     """
     from motionbase.io.mcap_source import read_messages, read_metadata
 
+    if out is not None and not str(out).strip():
+        raise ConfigError(
+            "--out: empty; give the folder for the report's files, or leave --out out "
+            "for <stem>_report/ beside the recording"
+        )
     src = Path(recording)
     # nothing to report: the error alone, without a warning that the file is cut short
     messages = read_messages(src, require="/aircraft/state")
