@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from scipy.special import j1
 from motionbase import omct
 from motionbase.app import load_config
 from motionbase.cli import build_parser, main
+from motionbase.errors import ConfigError
 from motionbase.io.omct_plots import write_omct
 from motionbase.pipeline import PipelineConfig
 from motionbase.platform import Rus6, Rus6Geometry
@@ -386,3 +388,17 @@ def test_an_mpc_whose_solver_failed_says_so_in_the_table():
         if failed:
             assert f"{fallbacks} of {ticks} ticks" in warnings[0], warnings
             assert "tuned_ceart" in warnings[0]  # the washout measured instead
+
+
+def test_the_rate_the_too_low_message_asks_for_is_accepted():
+    """At 20 Hz the message said "at least 20 Hz" for 15.85 rad/s and refused 20 Hz (it
+    needs 8 samples a period: 4 x 15.85 / pi = 20.2 Hz, printed rounded down)."""
+    w = omct.FREQUENCIES[-1]
+    config = load_config(planar=False, platform=None, washout="default", rate_hz=20.0)
+    with pytest.raises(ConfigError, match="too low") as exc:
+        omct.run_omct(config, frequencies=[w], tests=["yaw"], settle_s=0.0)
+    asked = float(re.search(r"at least ([0-9.]+) Hz", str(exc.value)).group(1))
+    assert asked >= 8 * w / (2 * math.pi)  # 8 samples per period, counted independently
+    config = load_config(planar=False, platform=None, washout="default", rate_hz=asked)
+    result = omct.run_omct(config, frequencies=[w], tests=["yaw"], settle_s=0.0)
+    assert result["yaw"].gain[0] > 0

@@ -964,10 +964,11 @@ def run_omct(
         raise ConfigError(f"OMCT: settle time must be >= 0 s, got {settle_s!r}")
     dt = config.dt
     if freqs.max() * dt > np.pi / MIN_SAMPLES_PER_HALF_PERIOD:
-        need = MIN_SAMPLES_PER_HALF_PERIOD * freqs.max() / np.pi
+        # the lowest whole rate that passes (rounded up: 20.2 Hz is not "at least 20 Hz")
+        need = math.ceil(MIN_SAMPLES_PER_HALF_PERIOD * freqs.max() / np.pi)
         raise ConfigError(
             f"OMCT: a pipeline rate of {config.rate_hz:g} Hz is too low for "
-            f"{freqs.max():.4g} rad/s (at least {need:.0f} Hz: {2 * MIN_SAMPLES_PER_HALF_PERIOD}"
+            f"{freqs.max():.4g} rad/s (at least {need} Hz: {2 * MIN_SAMPLES_PER_HALF_PERIOD}"
             " samples per period; raise --rate)"
         )
     g = STANDARD_GRAVITY
