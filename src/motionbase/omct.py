@@ -133,6 +133,7 @@ from motionbase.washout.perception import platform_angular_velocity, platform_sp
 __all__ = [
     "AXES",
     "FREQUENCIES",
+    "MIN_SCALE",
     "TESTS",
     "Amplitudes",
     "Motion",
@@ -166,6 +167,10 @@ MIN_MEASURE_S = 5.0  # s
 MIN_SAMPLES_PER_HALF_PERIOD = 4
 #: Level flight before the excitation starts, beyond the pipeline's soft start, s.
 PRE_ROLL_S = 1.0
+#: The smallest amplitude scale (``Amplitudes.scaled``, ``omct --scale``): at 1e-6 the
+#: heave gain at 0.1 rad/s is still within 3e-5 of the one at 1e-2; by 1e-12 the heave input
+#: (5e-13 m/s^2 on 9.8) is 0.1 % off by rounding and the gains are noise.
+MIN_SCALE = 1e-6
 
 
 # --------------------------------------------------------------------------- the tests
@@ -283,9 +288,15 @@ class Amplitudes:
         return self.specific_force
 
     def scaled(self, k: float) -> Amplitudes:
-        """Every amplitude times ``k`` (> 0)."""
+        """Every amplitude times ``k`` (at least :data:`MIN_SCALE`)."""
         if not (isinstance(k, (int, float)) and math.isfinite(k) and k > 0):
             raise ConfigError(f"OMCT: the amplitude scale must be a number > 0, got {k!r}")
+        if k < MIN_SCALE:
+            raise ConfigError(
+                f"OMCT: --scale {k:g} is below {MIN_SCALE:g}: the test signals would be lost "
+                "in the chain's rounding (a heave input on top of 1 g, the platform's motion "
+                "read back by forward kinematics), giving noise for gains; use a larger --scale"
+            )
         return Amplitudes(self.angle * k, self.rate * k, self.specific_force * k)
 
     def describe(self) -> str:
