@@ -404,3 +404,24 @@ def test_the_rate_the_too_low_message_asks_for_is_accepted():
     config = load_config(planar=False, platform=None, washout="default", rate_hz=asked)
     result = omct.run_omct(config, frequencies=[w], tests=["yaw"], settle_s=0.0)
     assert result["yaw"].gain[0] > 0
+
+
+def test_a_channel_switched_off_is_not_marked_as_a_limit_acting():
+    """With a gain of 0 (roll's angular_velocity_gain, heave's specific_force_gain) the
+    channel is off: the platform does not move in it, and the linear response is 0. The
+    measurement reads the chain's rounding (1e-15), which was marked "*" (a limit acts)
+    at every frequency, since any difference from 0 exceeded 5 % of 0."""
+    base = WashoutParams.preset("default")
+    params = dataclasses.replace(
+        base,
+        angular_velocity_gain=(0.0, *base.angular_velocity_gain[1:]),
+        specific_force_gain=(*base.specific_force_gain[:2], 0.0),
+    )
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), params)
+    result = omct.run_omct(
+        config, frequencies=[0.3, 3.0], tests=["roll", "roll->sway", "heave"], settle_s=3.0
+    )
+    for r in result.results:
+        assert (r.gain < 1e-9).all(), (r.test.name, r.gain)  # nothing moves in the channel
+        assert not r.deviates().any(), r.test.name
+    assert "*" not in result.markdown().split("\n\n")[0]

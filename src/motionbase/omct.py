@@ -674,15 +674,19 @@ class TestResult:
     def linear_phase_deg(self) -> np.ndarray | None:
         return None if self.linear is None else _phase_deg(self.linear)
 
-    def deviates(self, rel: float = 0.05, deg: float = 5.0) -> np.ndarray:
+    def deviates(self, rel: float = 0.05, deg: float = 5.0, atol: float = 1e-6) -> np.ndarray:
         """Where the measured response leaves the linear one (gain by more than ``rel``
-        of the linear gain, or phase by more than ``deg`` where the gain is not tiny)."""
+        of the linear gain plus ``atol``, in the test's gain unit, or phase by more than
+        ``deg`` where the linear gain is not tiny). ``atol`` is far above the chain's
+        rounding (about 1e-14 at the default amplitudes, 1e-8 at the smallest ``--scale``)
+        and far below a cue anyone feels: a channel whose gain is 0 (``angular_velocity_gain
+        = 0``) measures rounding noise, not a limit acting."""
         if self.linear is None:
             return np.zeros(self.frequencies.shape, dtype=bool)
         lin = np.abs(self.linear)
-        gain_off = np.abs(self.gain - lin) > rel * lin
+        gain_off = np.abs(self.gain - lin) > rel * lin + atol
         dphase = np.abs((self.phase_deg - self.linear_phase_deg + 180.0) % 360.0 - 180.0)
-        visible = lin > 1e-3 * max(float(lin.max()), 1e-300)
+        visible = (lin > 1e-3 * max(float(lin.max()), 1e-300)) & (lin > atol)
         return gain_off | ((dphase > deg) & visible)
 
     def to_dict(self) -> dict[str, Any]:
