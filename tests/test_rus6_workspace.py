@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -259,3 +261,27 @@ def test_planar_workspace_figure_has_a_legend_naming_what_it_draws():
     box = next(ln for ln in slice_ax.get_lines() if "rectangle" in ln.get_label())
     assert (min(box.get_xdata()), max(box.get_xdata())) == rect[:2]
     assert (min(box.get_ydata()), max(box.get_ydata())) == rect[2:]
+
+
+def test_a_planar_workspace_too_small_for_a_rectangle_is_still_swept_and_drawn(tmp_path, capsys):
+    """Servos of 2 deg range: home is reachable (``fly --planar`` runs with the file), but no
+    4 x 4 block of the grids is valid. ``workspace --planar`` failed as a whole on the
+    decoration it draws, the calibration's rectangle, with "no usable workspace rectangle
+    at phi = 0 rad", naming neither the file nor a fix."""
+    from motionbase.platform.robot import load_geometry
+    from motionbase.platform.rrr3 import Rrr3
+
+    preset = Path(__file__).parents[1] / "src/motionbase/presets/rrr3_udesc_symmetric.toml"
+    text = preset.read_text()
+    text = re.sub(r"(?m)^min_deg = .*$", "min_deg = [88, 88, 88]", text)
+    text = re.sub(r"(?m)^max_deg = .*$", "max_deg = [90, 90, 90]", text)
+    path = tmp_path / "narrow.toml"
+    path.write_text(text)
+    _, geometry = load_geometry(str(path), planar=True)
+    kin = Rrr3(geometry)
+    assert kin.reachable(np.asarray(kin.home))  # a robot that works, in a small space
+    plot = tmp_path / "narrow.png"
+    assert main(["workspace", "--planar", "--platform", str(path), "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out
+    assert "largest rectangle at phi = 0: none" in out
+    assert plot.stat().st_size > 1000

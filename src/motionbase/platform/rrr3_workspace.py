@@ -118,5 +118,9 @@ def inscribed_rectangle(
             stack.append(i)
     _, i0, i1, j0, j1 = best
     if i1 - i0 < 3 or j1 - j0 < 3:
-        raise ConfigError(f"no usable workspace rectangle at phi = {phi:g} rad")
+        raise ConfigError(
+            f"3-RRR {geometry.name!r}: no usable workspace rectangle at phi = {phi:g} rad "
+            f"(fewer than 4 x 4 valid positions on a {n} x {n} grid over the base triangle; "
+            "widen the servo ranges or check the geometry)"
+        )
     return (xs[i0 + 1], xs[i1 - 1], ys[j0 + 1], ys[j1 - 1])
