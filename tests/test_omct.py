@@ -425,3 +425,29 @@ def test_a_channel_switched_off_is_not_marked_as_a_limit_acting():
         assert (r.gain < 1e-9).all(), (r.test.name, r.gain)  # nothing moves in the channel
         assert not r.deviates().any(), r.test.name
     assert "*" not in result.markdown().split("\n\n")[0]
+
+
+def test_the_bode_plot_of_a_channel_switched_off_draws_its_zeros_without_a_warning():
+    """All gains 0 (roll with angular_velocity_gain 0): the log gain axis had nothing
+    positive and matplotlib printed "UserWarning: Data has no positive values" on the
+    terminal of ``motionbase omct``; the zeros are now drawn on a linear gain axis."""
+    import warnings
+
+    from motionbase.io.omct_plots import bode_figure
+
+    base = WashoutParams.preset("default")
+    params = dataclasses.replace(base, angular_velocity_gain=(0.0, *base.angular_velocity_gain[1:]))
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), params)
+    result = omct.run_omct(config, frequencies=[0.3, 3.0], tests=["roll", "pitch"], settle_s=1.0)
+    assert (result["roll"].gain == 0).all()  # the platform does not roll at all
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        roll = bode_figure(result, result["roll"])
+        roll.canvas.draw()
+        pitch = bode_figure(result, result["pitch"])
+        pitch.canvas.draw()
+    assert roll.axes[0].get_yscale() == "linear"
+    assert pitch.axes[0].get_yscale() == "log" and pitch.axes[0].get_xscale() == "log"
+    # the measured zeros are on the roll plot, at the test frequencies
+    xy = roll.axes[0].lines[-1].get_xydata()
+    np.testing.assert_array_equal(xy, [[0.3, 0.0], [3.0, 0.0]])
