@@ -451,3 +451,29 @@ def test_the_bode_plot_of_a_channel_switched_off_draws_its_zeros_without_a_warni
     # the measured zeros are on the roll plot, at the test frequencies
     xy = roll.axes[0].lines[-1].get_xydata()
     np.testing.assert_array_equal(xy, [[0.3, 0.0], [3.0, 0.0]])
+
+
+def test_printed_phases_stay_in_the_stated_range_without_a_negative_zero():
+    """Phases are in (-180, 180] deg; rounded for print, -179.7 came out "-180" and -0.3
+    "-0" (the MPC's table: "0.44 ∠-0"). The printed value must be the rounded phase in
+    that range: 180 and 0."""
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), WashoutParams.preset("default"))
+    phases = np.radians([-0.3, -179.7, -179.96, 90.0])
+    tr = omct.TestResult(
+        test=omct._test("yaw"),
+        frequencies=np.array([0.5, 1.0, 2.0, 4.0]),
+        input_amplitude=np.full(4, 0.1),
+        response=0.5 * np.exp(1j * phases),
+        linear=0.5 * np.exp(1j * phases),
+        clamped=np.zeros(4),
+        limited=np.zeros(4),
+    )
+    result = omct.OmctResult(
+        results=(tr,), not_applicable=(), config=config, amplitudes=omct.Amplitudes(),
+        settle_s=0.0, discard_periods=np.ones(4, int), measure_periods=np.full(4, 2),
+    )  # fmt: skip
+    cells = [line.split("|")[2].strip() for line in result.markdown().splitlines()[2:6]]
+    assert cells == ["0.5 ∠0", "0.5 ∠180", "0.5 ∠180", "0.5 ∠90"]
+    rows = result.table_text().splitlines()[4:8]
+    assert [row.split()[2] for row in rows] == ["-0.3", "-179.7", "180.0", "90.0"]
+    assert [row.split()[4] for row in rows] == ["-0.3", "-179.7", "180.0", "90.0"]

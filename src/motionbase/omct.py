@@ -814,9 +814,9 @@ class OmctResult:
             lin_g, lin_p = r.linear_gain, r.linear_phase_deg
             for k, w in enumerate(r.frequencies):
                 lg = f"{lin_g[k]:10.4g}" if lin_g is not None else f"{'-':>10}"
-                lp = f"{lin_p[k]:10.1f}" if lin_p is not None else f"{'-':>10}"
+                lp = f"{_fmt_phase(lin_p[k], 1):>10}" if lin_p is not None else f"{'-':>10}"
                 lines.append(
-                    f"  {w:8.3f} {r.gain[k]:10.4g} {r.phase_deg[k]:8.1f} {lg} {lp}"
+                    f"  {w:8.3f} {r.gain[k]:10.4g} {_fmt_phase(r.phase_deg[k], 1):>8} {lg} {lp}"
                     f" {100 * r.clamped[k]:7.1f}% {100 * r.limited[k]:7.1f}%"
                 )
             lines.append("")
@@ -854,7 +854,8 @@ class OmctResult:
         for k, w in enumerate(f):
             cells = [f"{w:.3g}"]
             for r, m in zip(self.results, marks, strict=True):
-                cells.append(f"{_fmt_gain(r.gain[k])} ∠{r.phase_deg[k]:.0f}{'*' if m[k] else ''}")
+                phase = _fmt_phase(r.phase_deg[k], 0)
+                cells.append(f"{_fmt_gain(r.gain[k])} ∠{phase}{'*' if m[k] else ''}")
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
         note = (
@@ -902,6 +903,15 @@ class OmctResult:
             "cueing_fallbacks": list(self.cueing_fallbacks),
             "pipeline_config": self.config.to_dict(),
         }
+
+
+def _fmt_phase(p: float, digits: int) -> str:
+    """A phase in degrees as printed, in (-180, 180] after rounding: -179.7 is "180" (not
+    "-180"), and -0.3 is "0" (not "-0")."""
+    v = round(float(p), digits)
+    if v <= -180.0:
+        v += 360.0
+    return f"{v + 0.0:.{digits}f}"  # (+ 0.0: no negative zero)
 
 
 def _fmt_gain(g: float) -> str:
