@@ -285,3 +285,31 @@ def test_a_planar_workspace_too_small_for_a_rectangle_is_still_swept_and_drawn(t
     out = capsys.readouterr().out
     assert "largest rectangle at phi = 0: none" in out
     assert plot.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("platform", ["rus6", "stewart6", "long_rods"])
+def test_the_default_slices_show_the_whole_reachable_region(platform, tmp_path):
+    """The grids spanned 1.25 x the largest single-axis reach, but axes combined reach
+    further: a 6-RUS with 1.2 m rods and 0.1 m cranks (a user's geometry) was cut off at
+    the plot's edge in its side and front views. No slice may touch its grid's border,
+    and nothing may be reachable one grid step past the side view's edges."""
+    from motionbase.platform.robot import load_geometry, robot_spec
+
+    if platform == "long_rods":
+        preset = Path(__file__).parents[1] / "src/motionbase/presets/rus6_ceart.toml"
+        text = re.sub(r"(?m)^rod = .*$", "rod = 1.2", preset.read_text())
+        text = re.sub(r"(?m)^crank = .*$", "crank = 0.1", text)
+        platform = str(tmp_path / "long_rods.toml")
+        Path(platform).write_text(text)
+    name, geometry = load_geometry(platform)
+    robot = robot_spec(name).make(geometry)
+    s = workspace_slices(robot, n=121)
+    for grid in (s.xy, s.xz, s.yz):
+        assert grid.any()
+        assert not (grid[0].any() or grid[-1].any() or grid[:, 0].any() or grid[:, -1].any())
+    edge = s.x[-1] + (s.x[1] - s.x[0])
+    zs = np.linspace(s.z[0], s.z[-1], 481)
+    for x in (-edge, edge):
+        poses = np.zeros((zs.size, 6))
+        poses[:, 0], poses[:, 2] = x, zs
+        assert not np.asarray(robot.reachable(poses)).any()
