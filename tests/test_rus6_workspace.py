@@ -313,3 +313,33 @@ def test_the_default_slices_show_the_whole_reachable_region(platform, tmp_path):
         poses = np.zeros((zs.size, 6))
         poses[:, 0], poses[:, 2] = x, zs
         assert not np.asarray(robot.reachable(poses)).any()
+
+
+def test_a_large_platform_reaches_beyond_the_first_scan(tmp_path):
+    """The translation scans stopped at 2 m and gave 2.000 m as the reach of any platform
+    reaching further: a hexapod with 3 m legs and a 3.5 m stroke printed surge, sway and
+    heave up "2.000". Each bound must be an edge: reachable from neutral up to it, not
+    just past it."""
+    from motionbase.platform.robot import load_geometry, robot_spec
+
+    preset = Path(__file__).parents[1] / "src/motionbase/presets/stewart6_seat.toml"
+    text = preset.read_text()
+    for key, value in (
+        ("base_radius", 2.0), ("platform_radius", 1.4), ("neutral_length", 3.0),
+        ("length_min", 1.5), ("length_max", 5.0),
+    ):  # fmt: skip
+        text = re.sub(rf"(?m)^{key} = \S+", f"{key} = {value}", text)
+    path = tmp_path / "big.toml"
+    path.write_text(text)
+    name, geometry = load_geometry(str(path))
+    robot = robot_spec(name).make(geometry)
+    envelope = single_axis_envelope(robot, tol=1e-7)
+    assert max(envelope[0].negative, envelope[0].positive) > 2.5  # surge
+    for j, a in enumerate(envelope[:3]):
+        for sign, edge in ((-1.0, a.negative), (1.0, a.positive)):
+            path = np.zeros((2001, 6))
+            path[:, j] = sign * np.linspace(0.0, edge - 1e-6, 2001)
+            assert np.asarray(robot.reachable(path)).all(), (a.axis, sign)
+            beyond = np.zeros(6)
+            beyond[j] = sign * (edge + 1e-5)
+            assert not robot.reachable(beyond), (a.axis, sign, edge)

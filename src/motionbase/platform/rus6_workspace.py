@@ -128,19 +128,30 @@ def single_axis_envelope(
     """How far each of surge, sway, heave, roll, pitch, yaw reaches alone, both ways.
 
     A fine scan from neutral finds the first unreachable value, then bisection refines it to
-    ``tol`` (m or rad). Reach is capped at ``max_translation`` (m) / ``max_rotation`` (rad).
+    ``tol`` (m or rad). A translation scan that is reachable all the way to
+    ``max_translation`` (m) is repeated twice as far, and so on up to
+    ``MAX_TRANSLATION_GROWTH`` times it: a large platform's reach is its own, not the
+    scan's. Rotations are capped at ``max_rotation`` (rad).
 
     Returns
     -------
     list of AxisReach, in :data:`AXES` order.
     """
-    out = []
-    for j, name in enumerate(AXES):
+
+    def reach(j: int, sign: float) -> float:
         limit = max_translation if j < 3 else max_rotation
-        neg = _reach_along(robot, j, -1.0, limit, tol)
-        pos = _reach_along(robot, j, +1.0, limit, tol)
-        out.append(AxisReach(name, neg, pos))
-    return out
+        found = _reach_along(robot, j, sign, limit, tol)
+        while j < 3 and found >= limit and limit < MAX_TRANSLATION_GROWTH * max_translation:
+            limit *= 2.0
+            found = _reach_along(robot, j, sign, limit, tol)
+        return found
+
+    return [AxisReach(name, reach(j, -1.0), reach(j, +1.0)) for j, name in enumerate(AXES)]
+
+
+#: How far a translation scan of :func:`single_axis_envelope` goes at most, in units of its
+#: ``max_translation`` (2 m by default: 128 m).
+MAX_TRANSLATION_GROWTH = 64.0
 
 
 def format_envelope(envelope: list[AxisReach]) -> str:
