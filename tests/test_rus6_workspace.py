@@ -343,3 +343,33 @@ def test_a_large_platform_reaches_beyond_the_first_scan(tmp_path):
             beyond = np.zeros(6)
             beyond[j] = sign * (edge + 1e-5)
             assert not robot.reachable(beyond), (a.axis, sign, edge)
+
+
+def test_the_planar_sweep_holds_a_workspace_that_leaves_the_base_triangle(tmp_path):
+    """The default sweep covered the base triangle's bounding box only; with cranks of
+    0.07 m and rods of 0.14 m (a user's 3-RRR on the thesis's base) valid poses lie up to
+    3 cm below y = 0, and ``workspace --planar`` cut them off its plot and its figures.
+    Every valid position of a sweep over a box three times as large must lie inside the
+    default sweep's box."""
+    from motionbase.platform.robot import load_geometry
+    from motionbase.platform.rrr3_workspace import workspace_sweep
+
+    preset = Path(__file__).parents[1] / "src/motionbase/presets/rrr3_udesc_symmetric.toml"
+    text = re.sub(r"(?m)^crank = \S+", "crank = 0.07", preset.read_text())
+    text = re.sub(r"(?m)^rod = \S+", "rod = 0.14", text)
+    path = tmp_path / "long_links.toml"
+    path.write_text(text)
+    _, geometry = load_geometry(str(path), planar=True)
+    side = geometry.base_side
+    wide = workspace_sweep(geometry, 150, 150, 37, x_range=(-side, 2 * side),
+                           y_range=(-side, 2 * side))  # fmt: skip
+    xi, yi = np.nonzero(wide.total)
+    assert wide.y[yi].min() < -0.01  # the workspace does leave the triangle's box
+    default = workspace_sweep(geometry, 100, 100, 37)
+    assert default.x[0] <= wide.x[xi].min() and wide.x[xi].max() <= default.x[-1]
+    assert default.y[0] <= wide.y[yi].min() and wide.y[yi].max() <= default.y[-1]
+    # and the thesis's robot is swept over its base triangle's box, as before
+    _, thesis = load_geometry("udesc_symmetric", planar=True)
+    ws = workspace_sweep(thesis, 10, 10, 3)
+    assert (ws.x[0], ws.x[-1], ws.y[0]) == (0.0, side, 0.0)
+    assert ws.y[-1] == pytest.approx(side * math.sqrt(3) / 2)
