@@ -477,3 +477,21 @@ def test_printed_phases_stay_in_the_stated_range_without_a_negative_zero():
     rows = result.table_text().splitlines()[4:8]
     assert [row.split()[2] for row in rows] == ["-0.3", "-179.7", "180.0", "90.0"]
     assert [row.split()[4] for row in rows] == ["-0.3", "-179.7", "180.0", "90.0"]
+
+
+def test_a_washout_that_never_settles_is_refused_before_it_fills_the_memory(capsys, tmp_path):
+    """A translational zeta of 1e-6 (valid: > 0) puts a pole 1.7e-6 1/s from the axis; the
+    test discarded 10 time constants, 5.9e6 s, and set out to simulate 7e8 ticks per run:
+    24 GB in under a minute, then the machine's memory. It must be a one-line error
+    naming the settling time and the fix, said at once."""
+    base = WashoutParams.preset("default")
+    zeta = (1e-6, *base.translational_zeta[1:])
+    params = dataclasses.replace(base, translational_zeta=zeta)
+    decay = 1e-6 * base.translational_wn[0]  # -Re(pole) of the lightly damped pair, 1/s
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), params)
+    with pytest.raises(ConfigError) as exc:
+        omct.run_omct(config)
+    message = str(exc.value)
+    settle = float(re.search(r"needs ([0-9.e+]+) s to settle", message).group(1))
+    assert settle == pytest.approx(10.0 / decay, rel=1e-2)
+    assert "zeta" in message and "--rate" in message and "\n" not in message

@@ -167,6 +167,9 @@ MIN_MEASURE_S = 5.0  # s
 MIN_SAMPLES_PER_HALF_PERIOD = 4
 #: Level flight before the excitation starts, beyond the pipeline's soft start, s.
 PRE_ROLL_S = 1.0
+#: The most ticks one run may simulate (about 0.5 kB a tick: 2.5 GB). The default washout on
+#: ceart (``tuned_ceart``, 192 s of transient) at the highest rate, 10 kHz: 3.8 million.
+MAX_RUN_TICKS = 5_000_000
 #: The smallest amplitude scale (``Amplitudes.scaled``, ``omct --scale``): at 1e-6 the
 #: heave gain at 0.1 rad/s is still within 3e-5 of the one at 1e-2; by 1e-12 the heave input
 #: (5e-13 m/s^2 on 9.8) is 0.1 % off by rounding and the gains are noise.
@@ -1001,6 +1004,19 @@ def run_omct(
     periods = 2.0 * np.pi / freqs
     discard = np.maximum(1, np.ceil(settle / periods - 1e-9)).astype(int)
     measure = np.maximum(MIN_MEASURE_PERIODS, np.ceil(MIN_MEASURE_S / periods)).astype(int)
+    longest = float(np.max(t0 + (discard + measure) * periods))  # s, the longest run
+    if longest / dt > MAX_RUN_TICKS:
+        why = (
+            f"the washout's slowest pole decays at {SETTLE_TIME_CONSTANTS / settle:.3g} 1/s, "
+            f"so its transient needs {settle:.3g} s to settle"
+            if settle_s is None and analytic
+            else f"{settle:.3g} s of transient to discard"
+        )
+        raise ConfigError(
+            f"OMCT: {why}: a run of {longest:.3g} s at {config.rate_hz:g} Hz, "
+            f"{longest / dt:.3g} ticks (at most {MAX_RUN_TICKS:.0e}); damp that pole more "
+            "(a larger zeta * wn or wb in the washout file) or lower --rate"
+        )
     axes = [a for a in AXES if any(t.excite == a for t in chosen)]
 
     nk = freqs.size
