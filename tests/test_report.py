@@ -442,3 +442,30 @@ def test_an_empty_out_is_refused_not_the_current_folder(rus6_flight, tmp_path, m
     assert "\n" not in err and "--out: empty" in err, err
     assert mine.read_text() == "my own notes\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.txt"]
+
+
+def test_the_report_leaves_the_robots_drawing_unread(rus6_flight):
+    """The report decoded every topic, /platform/scene included (the robot drawn for
+    Foxglove, about 75 kB a message once decoded, 30 a second: 8 GB for an hour's
+    stream), which it never uses. What it reads must take a fraction of the memory of
+    every message, and give the same report."""
+    import tracemalloc
+
+    from motionbase.io.report_plots import read_recording
+
+    def traced(read):
+        tracemalloc.start()
+        try:
+            result = read()
+            return result, tracemalloc.get_traced_memory()[0]
+        finally:
+            tracemalloc.stop()
+
+    everything, full = traced(lambda: read_messages(rus6_flight))
+    assert len(everything["/platform/scene"]) > 100
+    (messages, metadata), used = traced(lambda: read_recording(rus6_flight))
+    assert "/platform/scene" not in messages and "/tf" not in messages
+    assert used < 0.3 * full, (used, full)
+    fewer = build_report(messages, metadata, name="r")
+    whole = build_report(everything, read_metadata(rus6_flight), name="r")
+    assert fewer.text == whole.text
