@@ -403,7 +403,7 @@ def test_the_summary_says_when_an_mpcs_solver_failed(tmp_path):
 def test_the_planar_reach_ends_where_the_robot_does_not_where_the_scan_did():
     """The planar report's single-axis reach scanned only 0.2 m and 0.2 rad from home and
     gave the scan's end as the reach: yaw +-22.9 deg of cab (0.2 rad of the robot / 0.5),
-    when the 3-RRR turns its platform by 45 deg and more at home. Each bound must be a true
+    when the 3-RRR turns its platform to +45 deg and more at home. Each bound must be a true
     edge: every pose from home to it reachable, the pose just past it not."""
     from motionbase.platform import Rrr3
     from motionbase.platform.rrr3_geometry import Rrr3Geometry
@@ -415,7 +415,7 @@ def test_the_planar_reach_ends_where_the_robot_does_not_where_the_scan_did():
     scale_m, yaw_scale = 0.1, 0.5
     reach = planar_reach(geometry, scale_m, yaw_scale)
     assert np.isnan(reach[:, 2:5]).all()  # no heave, roll or pitch
-    # the robot at home turns by 45 deg either way (the thesis's robot: fig. 10)
+    # the robot at home turns its platform to +45 deg and to -15 deg
     for phi in (math.radians(45.0), math.radians(-15.0)):
         assert kin.reachable(home + [0.0, 0.0, phi])
     assert reach[1, 5] * yaw_scale > math.radians(45.0)
