@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from scipy.special import j1
 from motionbase import omct
 from motionbase.app import load_config
 from motionbase.cli import build_parser, main
+from motionbase.errors import ConfigError
 from motionbase.io.omct_plots import write_omct
 from motionbase.pipeline import PipelineConfig
 from motionbase.platform import Rus6, Rus6Geometry
@@ -331,6 +333,8 @@ def test_params_is_the_washout_file_option():
         (["omct", "--out", "D", "--rate", "15"], "too low"),
         (["omct", "--out", "D", "--scale", "-1"], "--scale"),
         (["omct", "--out", "D", "--scale", "200"], "lower the amplitudes"),
+        # the signals lost in rounding: gains of 1e268, then a traceback from the plots
+        (["omct", "--out", "D", "--scale", "1e-300"], "--scale 1e-300"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, words, capsys, tmp_path, monkeypatch):
@@ -386,3 +390,108 @@ def test_an_mpc_whose_solver_failed_says_so_in_the_table():
         if failed:
             assert f"{fallbacks} of {ticks} ticks" in warnings[0], warnings
             assert "tuned_ceart" in warnings[0]  # the washout measured instead
+
+
+def test_the_rate_the_too_low_message_asks_for_is_accepted():
+    """At 20 Hz the message said "at least 20 Hz" for 15.85 rad/s and refused 20 Hz (it
+    needs 8 samples a period: 4 x 15.85 / pi = 20.2 Hz, printed rounded down)."""
+    w = omct.FREQUENCIES[-1]
+    config = load_config(planar=False, platform=None, washout="default", rate_hz=20.0)
+    with pytest.raises(ConfigError, match="too low") as exc:
+        omct.run_omct(config, frequencies=[w], tests=["yaw"], settle_s=0.0)
+    asked = float(re.search(r"at least ([0-9.]+) Hz", str(exc.value)).group(1))
+    assert asked >= 8 * w / (2 * math.pi)  # 8 samples per period, counted independently
+    config = load_config(planar=False, platform=None, washout="default", rate_hz=asked)
+    result = omct.run_omct(config, frequencies=[w], tests=["yaw"], settle_s=0.0)
+    assert result["yaw"].gain[0] > 0
+
+
+def test_a_channel_switched_off_is_not_marked_as_a_limit_acting():
+    """With a gain of 0 (roll's angular_velocity_gain, heave's specific_force_gain) the
+    channel is off: the platform does not move in it, and the linear response is 0. The
+    measurement reads the chain's rounding (1e-15), which was marked "*" (a limit acts)
+    at every frequency, since any difference from 0 exceeded 5 % of 0."""
+    base = WashoutParams.preset("default")
+    params = dataclasses.replace(
+        base,
+        angular_velocity_gain=(0.0, *base.angular_velocity_gain[1:]),
+        specific_force_gain=(*base.specific_force_gain[:2], 0.0),
+    )
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), params)
+    result = omct.run_omct(
+        config, frequencies=[0.3, 3.0], tests=["roll", "roll->sway", "heave"], settle_s=3.0
+    )
+    for r in result.results:
+        assert (r.gain < 1e-9).all(), (r.test.name, r.gain)  # nothing moves in the channel
+        assert not r.deviates().any(), r.test.name
+    assert "*" not in result.markdown().split("\n\n")[0]
+
+
+def test_the_bode_plot_of_a_channel_switched_off_draws_its_zeros_without_a_warning():
+    """All gains 0 (roll with angular_velocity_gain 0): the log gain axis had nothing
+    positive and matplotlib printed "UserWarning: Data has no positive values" on the
+    terminal of ``motionbase omct``; the zeros are now drawn on a linear gain axis."""
+    import warnings
+
+    from motionbase.io.omct_plots import bode_figure
+
+    base = WashoutParams.preset("default")
+    params = dataclasses.replace(base, angular_velocity_gain=(0.0, *base.angular_velocity_gain[1:]))
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), params)
+    result = omct.run_omct(config, frequencies=[0.3, 3.0], tests=["roll", "pitch"], settle_s=1.0)
+    assert (result["roll"].gain == 0).all()  # the platform does not roll at all
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        roll = bode_figure(result, result["roll"])
+        roll.canvas.draw()
+        pitch = bode_figure(result, result["pitch"])
+        pitch.canvas.draw()
+    assert roll.axes[0].get_yscale() == "linear"
+    assert pitch.axes[0].get_yscale() == "log" and pitch.axes[0].get_xscale() == "log"
+    # the measured zeros are on the roll plot, at the test frequencies
+    xy = roll.axes[0].lines[-1].get_xydata()
+    np.testing.assert_array_equal(xy, [[0.3, 0.0], [3.0, 0.0]])
+
+
+def test_printed_phases_stay_in_the_stated_range_without_a_negative_zero():
+    """Phases are in (-180, 180] deg; rounded for print, -179.7 came out "-180" and -0.3
+    "-0" (the MPC's table: "0.44 ∠-0"). The printed value must be the rounded phase in
+    that range: 180 and 0."""
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), WashoutParams.preset("default"))
+    phases = np.radians([-0.3, -179.7, -179.96, 90.0])
+    tr = omct.TestResult(
+        test=omct._test("yaw"),
+        frequencies=np.array([0.5, 1.0, 2.0, 4.0]),
+        input_amplitude=np.full(4, 0.1),
+        response=0.5 * np.exp(1j * phases),
+        linear=0.5 * np.exp(1j * phases),
+        clamped=np.zeros(4),
+        limited=np.zeros(4),
+    )
+    result = omct.OmctResult(
+        results=(tr,), not_applicable=(), config=config, amplitudes=omct.Amplitudes(),
+        settle_s=0.0, discard_periods=np.ones(4, int), measure_periods=np.full(4, 2),
+    )  # fmt: skip
+    cells = [line.split("|")[2].strip() for line in result.markdown().splitlines()[2:6]]
+    assert cells == ["0.5 ∠0", "0.5 ∠180", "0.5 ∠180", "0.5 ∠90"]
+    rows = result.table_text().splitlines()[4:8]
+    assert [row.split()[2] for row in rows] == ["-0.3", "-179.7", "180.0", "90.0"]
+    assert [row.split()[4] for row in rows] == ["-0.3", "-179.7", "180.0", "90.0"]
+
+
+def test_a_washout_that_never_settles_is_refused_before_it_fills_the_memory(capsys, tmp_path):
+    """A translational zeta of 1e-6 (valid: > 0) puts a pole 1.7e-6 1/s from the axis; the
+    test discarded 10 time constants, 5.9e6 s, and set out to simulate 7e8 ticks per run:
+    24 GB in under a minute, then the machine's memory. It must be a one-line error
+    naming the settling time and the fix, said at once."""
+    base = WashoutParams.preset("default")
+    zeta = (1e-6, *base.translational_zeta[1:])
+    params = dataclasses.replace(base, translational_zeta=zeta)
+    decay = 1e-6 * base.translational_wn[0]  # -Re(pole) of the lightly damped pair, 1/s
+    config = PipelineConfig("rus6", Rus6Geometry.preset("ceart"), params)
+    with pytest.raises(ConfigError) as exc:
+        omct.run_omct(config)
+    message = str(exc.value)
+    settle = float(re.search(r"needs ([0-9.e+]+) s to settle", message).group(1))
+    assert settle == pytest.approx(10.0 / decay, rel=1e-2)
+    assert "zeta" in message and "--rate" in message and "\n" not in message

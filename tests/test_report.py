@@ -414,3 +414,74 @@ def test_the_summary_says_when_an_mpcs_solver_failed(tmp_path):
     fly("c1723", cueing="mpc", duration_s=2.5, out=solved, progress=False)
     text = write_report(solved, tmp_path / "rep2").out_dir.joinpath("summary.txt").read_text()
     assert "fell back" not in text
+
+
+def test_the_planar_reach_ends_where_the_robot_does_not_where_the_scan_did():
+    """The planar report's single-axis reach scanned only 0.2 m and 0.2 rad from home and
+    gave the scan's end as the reach: yaw +-22.9 deg of cab (0.2 rad of the robot / 0.5),
+    when the 3-RRR turns its platform to +45 deg and more at home. Each bound must be a true
+    edge: every pose from home to it reachable, the pose just past it not."""
+    from motionbase.platform import Rrr3
+    from motionbase.platform.rrr3_geometry import Rrr3Geometry
+    from motionbase.report import planar_reach
+
+    geometry = Rrr3Geometry.preset("udesc_symmetric")
+    kin = Rrr3(geometry)
+    home = np.asarray(kin.home, dtype=float)
+    scale_m, yaw_scale = 0.1, 0.5
+    reach = planar_reach(geometry, scale_m, yaw_scale)
+    assert np.isnan(reach[:, 2:5]).all()  # no heave, roll or pitch
+    # the robot at home turns its platform to +45 deg and to -15 deg
+    for phi in (math.radians(45.0), math.radians(-15.0)):
+        assert kin.reachable(home + [0.0, 0.0, phi])
+    assert reach[1, 5] * yaw_scale > math.radians(45.0)
+    for col, j, scale in ((0, 0, scale_m), (1, 1, scale_m), (5, 2, yaw_scale)):
+        for row in (0, 1):
+            edge = reach[row, col] * scale  # robot units, signed
+            assert edge != 0.0
+            path = np.tile(home, (2001, 1))
+            path[:, j] += np.linspace(0.0, edge * (1 - 1e-6), 2001)
+            assert kin.reachable(path).all(), (col, row)
+            beyond = home.copy()
+            beyond[j] += edge + math.copysign(1e-5, edge)
+            assert not kin.reachable(beyond), (col, row, edge)
+
+
+def test_an_empty_out_is_refused_not_the_current_folder(rus6_flight, tmp_path, monkeypatch, capsys):
+    """``--out ""`` (an unset ``$DIR``) wrote the six plots and summary.txt into the current
+    folder, over any files of those names there; omct refuses it, and so does report now."""
+    monkeypatch.chdir(tmp_path)
+    mine = tmp_path / "summary.txt"
+    mine.write_text("my own notes\n")
+    assert main(["report", str(rus6_flight), "--out", ""]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--out: empty" in err, err
+    assert mine.read_text() == "my own notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.txt"]
+
+
+def test_the_report_leaves_the_robots_drawing_unread(rus6_flight):
+    """The report decoded every topic, /platform/scene included (the robot drawn for
+    Foxglove, about 75 kB a message once decoded, 30 a second: 8 GB for an hour's
+    stream), which it never uses. What it reads must take a fraction of the memory of
+    every message, and give the same report."""
+    import tracemalloc
+
+    from motionbase.io.report_plots import read_recording
+
+    def traced(read):
+        tracemalloc.start()
+        try:
+            result = read()
+            return result, tracemalloc.get_traced_memory()[0]
+        finally:
+            tracemalloc.stop()
+
+    everything, full = traced(lambda: read_messages(rus6_flight))
+    assert len(everything["/platform/scene"]) > 100
+    (messages, metadata), used = traced(lambda: read_recording(rus6_flight))
+    assert "/platform/scene" not in messages and "/tf" not in messages
+    assert used < 0.3 * full, (used, full)
+    fewer = build_report(messages, metadata, name="r")
+    whole = build_report(everything, read_metadata(rus6_flight), name="r")
+    assert fewer.text == whole.text

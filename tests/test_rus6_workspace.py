@@ -4,6 +4,8 @@ slices, CLI, plot."""
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -266,3 +268,115 @@ def test_planar_workspace_figure_has_a_legend_naming_what_it_draws():
     box = next(ln for ln in slice_ax.get_lines() if "rectangle" in ln.get_label())
     assert (min(box.get_xdata()), max(box.get_xdata())) == rect[:2]
     assert (min(box.get_ydata()), max(box.get_ydata())) == rect[2:]
+
+
+def test_a_planar_workspace_too_small_for_a_rectangle_is_still_swept_and_drawn(tmp_path, capsys):
+    """Servos of 2 deg range: home is reachable (``fly --planar`` runs with the file), but no
+    4 x 4 block of the grids is valid. ``workspace --planar`` failed as a whole on the
+    decoration it draws, the calibration's rectangle, with "no usable workspace rectangle
+    at phi = 0 rad", naming neither the file nor a fix."""
+    from motionbase.platform.robot import load_geometry
+    from motionbase.platform.rrr3 import Rrr3
+
+    preset = Path(__file__).parents[1] / "src/motionbase/presets/rrr3_udesc_symmetric.toml"
+    text = preset.read_text()
+    text = re.sub(r"(?m)^min_deg = .*$", "min_deg = [88, 88, 88]", text)
+    text = re.sub(r"(?m)^max_deg = .*$", "max_deg = [90, 90, 90]", text)
+    path = tmp_path / "narrow.toml"
+    path.write_text(text)
+    _, geometry = load_geometry(str(path), planar=True)
+    kin = Rrr3(geometry)
+    assert kin.reachable(np.asarray(kin.home))  # a robot that works, in a small space
+    plot = tmp_path / "narrow.png"
+    assert main(["workspace", "--planar", "--platform", str(path), "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out
+    assert "largest rectangle at phi = 0: none" in out
+    assert plot.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("platform", ["rus6", "stewart6", "long_rods"])
+def test_the_default_slices_show_the_whole_reachable_region(platform, tmp_path):
+    """The grids spanned 1.25 x the largest single-axis reach, but axes combined reach
+    further: a 6-RUS with 1.2 m rods and 0.1 m cranks (a user's geometry) was cut off at
+    the plot's edge in its side and front views. No slice may touch its grid's border,
+    and nothing may be reachable one grid step past the side view's edges."""
+    from motionbase.platform.robot import load_geometry, robot_spec
+
+    if platform == "long_rods":
+        preset = Path(__file__).parents[1] / "src/motionbase/presets/rus6_ceart.toml"
+        text = re.sub(r"(?m)^rod = .*$", "rod = 1.2", preset.read_text())
+        text = re.sub(r"(?m)^crank = .*$", "crank = 0.1", text)
+        platform = str(tmp_path / "long_rods.toml")
+        Path(platform).write_text(text)
+    name, geometry = load_geometry(platform)
+    robot = robot_spec(name).make(geometry)
+    s = workspace_slices(robot, n=121)
+    for grid in (s.xy, s.xz, s.yz):
+        assert grid.any()
+        assert not (grid[0].any() or grid[-1].any() or grid[:, 0].any() or grid[:, -1].any())
+    edge = s.x[-1] + (s.x[1] - s.x[0])
+    zs = np.linspace(s.z[0], s.z[-1], 481)
+    for x in (-edge, edge):
+        poses = np.zeros((zs.size, 6))
+        poses[:, 0], poses[:, 2] = x, zs
+        assert not np.asarray(robot.reachable(poses)).any()
+
+
+def test_a_large_platform_reaches_beyond_the_first_scan(tmp_path):
+    """The translation scans stopped at 2 m and gave 2.000 m as the reach of any platform
+    reaching further: a hexapod with 3 m legs and a 3.5 m stroke printed surge, sway and
+    heave up "2.000". Each bound must be an edge: reachable from neutral up to it, not
+    just past it."""
+    from motionbase.platform.robot import load_geometry, robot_spec
+
+    preset = Path(__file__).parents[1] / "src/motionbase/presets/stewart6_seat.toml"
+    text = preset.read_text()
+    for key, value in (
+        ("base_radius", 2.0), ("platform_radius", 1.4), ("neutral_length", 3.0),
+        ("length_min", 1.5), ("length_max", 5.0),
+    ):  # fmt: skip
+        text = re.sub(rf"(?m)^{key} = \S+", f"{key} = {value}", text)
+    path = tmp_path / "big.toml"
+    path.write_text(text)
+    name, geometry = load_geometry(str(path))
+    robot = robot_spec(name).make(geometry)
+    envelope = single_axis_envelope(robot, tol=1e-7)
+    assert max(envelope[0].negative, envelope[0].positive) > 2.5  # surge
+    for j, a in enumerate(envelope[:3]):
+        for sign, edge in ((-1.0, a.negative), (1.0, a.positive)):
+            path = np.zeros((2001, 6))
+            path[:, j] = sign * np.linspace(0.0, edge - 1e-6, 2001)
+            assert np.asarray(robot.reachable(path)).all(), (a.axis, sign)
+            beyond = np.zeros(6)
+            beyond[j] = sign * (edge + 1e-5)
+            assert not robot.reachable(beyond), (a.axis, sign, edge)
+
+
+def test_the_planar_sweep_holds_a_workspace_that_leaves_the_base_triangle(tmp_path):
+    """The default sweep covered the base triangle's bounding box only; with cranks of
+    0.07 m and rods of 0.14 m (a user's 3-RRR on the thesis's base) valid poses lie up to
+    3 cm below y = 0, and ``workspace --planar`` cut them off its plot and its figures.
+    Every valid position of a sweep over a box three times as large must lie inside the
+    default sweep's box."""
+    from motionbase.platform.robot import load_geometry
+    from motionbase.platform.rrr3_workspace import workspace_sweep
+
+    preset = Path(__file__).parents[1] / "src/motionbase/presets/rrr3_udesc_symmetric.toml"
+    text = re.sub(r"(?m)^crank = \S+", "crank = 0.07", preset.read_text())
+    text = re.sub(r"(?m)^rod = \S+", "rod = 0.14", text)
+    path = tmp_path / "long_links.toml"
+    path.write_text(text)
+    _, geometry = load_geometry(str(path), planar=True)
+    side = geometry.base_side
+    wide = workspace_sweep(geometry, 150, 150, 37, x_range=(-side, 2 * side),
+                           y_range=(-side, 2 * side))  # fmt: skip
+    xi, yi = np.nonzero(wide.total)
+    assert wide.y[yi].min() < -0.01  # the workspace does leave the triangle's box
+    default = workspace_sweep(geometry, 100, 100, 37)
+    assert default.x[0] <= wide.x[xi].min() and wide.x[xi].max() <= default.x[-1]
+    assert default.y[0] <= wide.y[yi].min() and wide.y[yi].max() <= default.y[-1]
+    # and the thesis's robot is swept over its base triangle's box, as before
+    _, thesis = load_geometry("udesc_symmetric", planar=True)
+    ws = workspace_sweep(thesis, 10, 10, 3)
+    assert (ws.x[0], ws.x[-1], ws.y[0]) == (0.0, side, 0.0)
+    assert ws.y[-1] == pytest.approx(side * math.sqrt(3) / 2)

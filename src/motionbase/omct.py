@@ -133,6 +133,7 @@ from motionbase.washout.perception import platform_angular_velocity, platform_sp
 __all__ = [
     "AXES",
     "FREQUENCIES",
+    "MIN_SCALE",
     "TESTS",
     "Amplitudes",
     "Motion",
@@ -166,6 +167,13 @@ MIN_MEASURE_S = 5.0  # s
 MIN_SAMPLES_PER_HALF_PERIOD = 4
 #: Level flight before the excitation starts, beyond the pipeline's soft start, s.
 PRE_ROLL_S = 1.0
+#: The most ticks one run may simulate (about 0.5 kB a tick: 2.5 GB). The default washout on
+#: ceart (``tuned_ceart``, 192 s of transient) at the highest rate, 10 kHz: 3.8 million.
+MAX_RUN_TICKS = 5_000_000
+#: The smallest amplitude scale (``Amplitudes.scaled``, ``omct --scale``): at 1e-6 the
+#: heave gain at 0.1 rad/s is still within 3e-5 of the one at 1e-2; by 1e-12 the heave input
+#: (5e-13 m/s^2 on 9.8) is 0.1 % off by rounding and the gains are noise.
+MIN_SCALE = 1e-6
 
 
 # --------------------------------------------------------------------------- the tests
@@ -283,9 +291,15 @@ class Amplitudes:
         return self.specific_force
 
     def scaled(self, k: float) -> Amplitudes:
-        """Every amplitude times ``k`` (> 0)."""
+        """Every amplitude times ``k`` (at least :data:`MIN_SCALE`)."""
         if not (isinstance(k, (int, float)) and math.isfinite(k) and k > 0):
             raise ConfigError(f"OMCT: the amplitude scale must be a number > 0, got {k!r}")
+        if k < MIN_SCALE:
+            raise ConfigError(
+                f"OMCT: --scale {k:g} is below {MIN_SCALE:g}: the test signals would be lost "
+                "in the chain's rounding (a heave input on top of 1 g, the platform's motion "
+                "read back by forward kinematics), giving noise for gains; use a larger --scale"
+            )
         return Amplitudes(self.angle * k, self.rate * k, self.specific_force * k)
 
     def describe(self) -> str:
@@ -663,15 +677,19 @@ class TestResult:
     def linear_phase_deg(self) -> np.ndarray | None:
         return None if self.linear is None else _phase_deg(self.linear)
 
-    def deviates(self, rel: float = 0.05, deg: float = 5.0) -> np.ndarray:
+    def deviates(self, rel: float = 0.05, deg: float = 5.0, atol: float = 1e-6) -> np.ndarray:
         """Where the measured response leaves the linear one (gain by more than ``rel``
-        of the linear gain, or phase by more than ``deg`` where the gain is not tiny)."""
+        of the linear gain plus ``atol``, in the test's gain unit, or phase by more than
+        ``deg`` where the linear gain is not tiny). ``atol`` is far above the chain's
+        rounding (about 1e-14 at the default amplitudes, 1e-8 at the smallest ``--scale``)
+        and far below a cue anyone feels: a channel whose gain is 0 (``angular_velocity_gain
+        = 0``) measures rounding noise, not a limit acting."""
         if self.linear is None:
             return np.zeros(self.frequencies.shape, dtype=bool)
         lin = np.abs(self.linear)
-        gain_off = np.abs(self.gain - lin) > rel * lin
+        gain_off = np.abs(self.gain - lin) > rel * lin + atol
         dphase = np.abs((self.phase_deg - self.linear_phase_deg + 180.0) % 360.0 - 180.0)
-        visible = lin > 1e-3 * max(float(lin.max()), 1e-300)
+        visible = (lin > 1e-3 * max(float(lin.max()), 1e-300)) & (lin > atol)
         return gain_off | ((dphase > deg) & visible)
 
     def to_dict(self) -> dict[str, Any]:
@@ -799,9 +817,9 @@ class OmctResult:
             lin_g, lin_p = r.linear_gain, r.linear_phase_deg
             for k, w in enumerate(r.frequencies):
                 lg = f"{lin_g[k]:10.4g}" if lin_g is not None else f"{'-':>10}"
-                lp = f"{lin_p[k]:10.1f}" if lin_p is not None else f"{'-':>10}"
+                lp = f"{_fmt_phase(lin_p[k], 1):>10}" if lin_p is not None else f"{'-':>10}"
                 lines.append(
-                    f"  {w:8.3f} {r.gain[k]:10.4g} {r.phase_deg[k]:8.1f} {lg} {lp}"
+                    f"  {w:8.3f} {r.gain[k]:10.4g} {_fmt_phase(r.phase_deg[k], 1):>8} {lg} {lp}"
                     f" {100 * r.clamped[k]:7.1f}% {100 * r.limited[k]:7.1f}%"
                 )
             lines.append("")
@@ -839,7 +857,8 @@ class OmctResult:
         for k, w in enumerate(f):
             cells = [f"{w:.3g}"]
             for r, m in zip(self.results, marks, strict=True):
-                cells.append(f"{_fmt_gain(r.gain[k])} ∠{r.phase_deg[k]:.0f}{'*' if m[k] else ''}")
+                phase = _fmt_phase(r.phase_deg[k], 0)
+                cells.append(f"{_fmt_gain(r.gain[k])} ∠{phase}{'*' if m[k] else ''}")
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
         note = (
@@ -887,6 +906,15 @@ class OmctResult:
             "cueing_fallbacks": list(self.cueing_fallbacks),
             "pipeline_config": self.config.to_dict(),
         }
+
+
+def _fmt_phase(p: float, digits: int) -> str:
+    """A phase in degrees as printed, in (-180, 180] after rounding: -179.7 is "180" (not
+    "-180"), and -0.3 is "0" (not "-0")."""
+    v = round(float(p), digits)
+    if v <= -180.0:
+        v += 360.0
+    return f"{v + 0.0:.{digits}f}"  # (+ 0.0: no negative zero)
 
 
 def _fmt_gain(g: float) -> str:
@@ -964,10 +992,11 @@ def run_omct(
         raise ConfigError(f"OMCT: settle time must be >= 0 s, got {settle_s!r}")
     dt = config.dt
     if freqs.max() * dt > np.pi / MIN_SAMPLES_PER_HALF_PERIOD:
-        need = MIN_SAMPLES_PER_HALF_PERIOD * freqs.max() / np.pi
+        # the lowest whole rate that passes (rounded up: 20.2 Hz is not "at least 20 Hz")
+        need = math.ceil(MIN_SAMPLES_PER_HALF_PERIOD * freqs.max() / np.pi)
         raise ConfigError(
             f"OMCT: a pipeline rate of {config.rate_hz:g} Hz is too low for "
-            f"{freqs.max():.4g} rad/s (at least {need:.0f} Hz: {2 * MIN_SAMPLES_PER_HALF_PERIOD}"
+            f"{freqs.max():.4g} rad/s (at least {need} Hz: {2 * MIN_SAMPLES_PER_HALF_PERIOD}"
             " samples per period; raise --rate)"
         )
     g = STANDARD_GRAVITY
@@ -975,6 +1004,19 @@ def run_omct(
     periods = 2.0 * np.pi / freqs
     discard = np.maximum(1, np.ceil(settle / periods - 1e-9)).astype(int)
     measure = np.maximum(MIN_MEASURE_PERIODS, np.ceil(MIN_MEASURE_S / periods)).astype(int)
+    longest = float(np.max(t0 + (discard + measure) * periods))  # s, the longest run
+    if longest / dt > MAX_RUN_TICKS:
+        why = (
+            f"the washout's slowest pole decays at {SETTLE_TIME_CONSTANTS / settle:.3g} 1/s, "
+            f"so its transient needs {settle:.3g} s to settle"
+            if settle_s is None and analytic
+            else f"{settle:.3g} s of transient to discard"
+        )
+        raise ConfigError(
+            f"OMCT: {why}: a run of {longest:.3g} s at {config.rate_hz:g} Hz, "
+            f"{longest / dt:.3g} ticks (at most {MAX_RUN_TICKS:.0e}); damp that pole more "
+            "(a larger zeta * wn or wb in the washout file) or lower --rate"
+        )
     axes = [a for a in AXES if any(t.excite == a for t in chosen)]
 
     nk = freqs.size

@@ -201,19 +201,33 @@ def rus6_reach(geometry: Any, tol: float = 1e-6) -> np.ndarray:
 
 
 def planar_reach(
-    geometry: Any, scale_m: float, yaw_scale: float, *, limit: float = 0.2, n: int = 4001
+    geometry: Any,
+    scale_m: float,
+    yaw_scale: float,
+    *,
+    limit: float | None = None,
+    n: int = 4001,
+    tol: float = 1e-7,
 ) -> np.ndarray:
     """Reach of the 3-RRR from home along x, y and phi alone, mapped back to cab units.
+
+    A scan from home finds the first pose that is not reachable (:meth:`Rrr3.reachable`:
+    closed, outside the singularity margins, in the servos' range), then bisection refines
+    it to ``tol``.
 
     Parameters
     ----------
     geometry : Rrr3Geometry
     scale_m, yaw_scale : float
         The pipeline's planar scales (robot m per cab m, robot rad per cab rad).
-    limit : float
-        Scan up to this far from home, m and rad.
+    limit : float, optional
+        Scan up to this far from home, m and rad. By default as far as the robot could go:
+        pi in phi, and in x and y the base side plus crank, rod and platform side (no
+        reachable pose lies beyond), so the scan ends where the robot does, not the scan.
     n : int
         Scan points per direction.
+    tol : float
+        Bisection tolerance, robot m and rad.
 
     Returns
     -------
@@ -225,16 +239,35 @@ def planar_reach(
 
     kin = Rrr3(geometry)
     home = np.asarray(kin.home, dtype=float)
-    s = np.linspace(0.0, limit, n)
+    if limit is None:
+        span = geometry.base_side + geometry.crank + geometry.rod + geometry.platform_side
+        limits = (span, span, np.pi)
+    else:
+        limits = (limit, limit, limit)
     out = np.full((2, 6), np.nan)
     scales = (scale_m, scale_m, yaw_scale)
     for j, col in enumerate((0, 1, 5)):
+        s = np.linspace(0.0, limits[j], n)
         for row, sign in ((0, -1.0), (1, 1.0)):
             poses = np.tile(home, (n, 1))
             poses[:, j] += sign * s
             ok = np.asarray(kin.reachable(poses), dtype=bool)
             bad = np.flatnonzero(~ok)
-            reach = s[-1] if bad.size == 0 else s[max(bad[0] - 1, 0)]
+            if bad.size == 0:
+                reach = s[-1]
+            elif bad[0] == 0:
+                reach = 0.0
+            else:
+                lo, hi = s[bad[0] - 1], s[bad[0]]
+                pose = home.copy()
+                while hi - lo > tol:
+                    mid = 0.5 * (lo + hi)
+                    pose[j] = home[j] + sign * mid
+                    if bool(kin.reachable(pose)):
+                        lo = mid
+                    else:
+                        hi = mid
+                reach = lo
             out[row, col] = sign * reach / scales[j]
     return out
 

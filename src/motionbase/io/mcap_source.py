@@ -37,7 +37,7 @@ import math
 import os
 import re
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
@@ -318,7 +318,10 @@ def _no_messages(path: Path, topic: str, present: Iterable[str], truncated: bool
 
 
 def read_messages(
-    path: str | os.PathLike[str], *, require: str | None = None
+    path: str | os.PathLike[str],
+    *,
+    require: str | None = None,
+    skip: Collection[str] = (),
 ) -> dict[str, list[dict[str, Any]]]:
     """Every JSON message of a recording, by topic, in file order.
 
@@ -332,6 +335,10 @@ def read_messages(
     require : str, optional
         A topic the caller cannot do without: a recording with no message on it
         raises, before any warning (a file with nothing usable gives one line).
+    skip : collection of str
+        Topics not decoded and left out of the result (``report`` skips the robot's
+        drawing, ``/platform/scene``: about 75 kB a message decoded, 30 a second, most of
+        a recording's memory once read).
 
     Raises
     ------
@@ -352,9 +359,11 @@ def read_messages(
                 "motionbase reads JSON channels only"
             )
         topics[ch.id] = ch.topic
-        out.setdefault(ch.topic, [])
+        if ch.topic not in skip:
+            out.setdefault(ch.topic, [])
 
     skipped: list[str] = []
+    skipped_topics: set[str] = set()  # (on ``skip``: present, not read)
     # the first message on a channel never defined: refused after the walk, so that damage
     # (which may have taken the channel's record) is reported as such
     orphans: list[int] = []
@@ -364,6 +373,9 @@ def read_messages(
         if topic is None:
             if not orphans:
                 orphans.append(msg.channel_id)
+            return
+        if topic in skip:
+            skipped_topics.add(topic)
             return
         try:
             out[topic].append(decode_message(msg.data))
@@ -383,7 +395,8 @@ def read_messages(
     if orphans:
         raise LogFormatError(f"{p}: message on unknown channel {orphans[0]}")
     if require is not None and not out.get(require):
-        raise _no_messages(p, require, (t for t, msgs in out.items() if msgs), ending.truncated)
+        present = {t for t, msgs in out.items() if msgs} | skipped_topics
+        raise _no_messages(p, require, present, ending.truncated)
     _warn_ending(p, ending, f"{sum(len(v) for v in out.values())} messages")
     if skipped:
         log.warning(

@@ -105,6 +105,11 @@ def _wrapped_line(z: np.ndarray) -> np.ndarray:
     return out
 
 
+def _on_scale(gain: np.ndarray, log: bool) -> np.ndarray:
+    """Gains as drawn: on a log axis, NaN where not positive (not drawn)."""
+    return np.where(gain > 0, gain, np.nan) if log else np.asarray(gain, dtype=float)
+
+
 def bode_figure(result: OmctResult, r: TestResult) -> Any:
     """The Bode plot of one test: gain (log-log) and phase, measured against linear.
 
@@ -122,21 +127,29 @@ def bode_figure(result: OmctResult, r: TestResult) -> Any:
     w = r.frequencies
     phase = r.phase_deg  # in (-180, 180], as in the tables
     curves = result.linear_curves(r)
+    # a channel switched off (gain 0) has nothing to draw on a log scale: the gain axis is
+    # then linear, so the zeros show (and matplotlib does not warn on the terminal)
+    shown = [r.gain] + ([np.abs(curves[1]), np.abs(curves[2])] if curves is not None else [])
+    log_gain = any((g > 0).any() for g in shown)
+    ax_g.set_xscale("log")
+    if log_gain:
+        ax_g.set_yscale("log")
     if curves is not None:
         dense, lin, design = curves
         lin_phase = _wrapped_line(lin)
         design_phase = _wrapped_line(design)
-        ax_g.loglog(dense, np.abs(lin), color=_LINEAR, lw=1.5, label="classical washout, linear")
-        ax_g.loglog(dense, np.abs(design), color=_LINEAR, lw=1.0, ls=":", label="continuous design")
+        lin_g, design_g = (_on_scale(np.abs(z), log_gain) for z in (lin, design))
+        ax_g.plot(dense, lin_g, color=_LINEAR, lw=1.5, label="classical washout, linear")
+        ax_g.plot(dense, design_g, color=_LINEAR, lw=1.0, ls=":", label="continuous design")
         ax_p.semilogx(dense, lin_phase, color=_LINEAR, lw=1.5)
         ax_p.semilogx(dense, design_phase, color=_LINEAR, lw=1.0, ls=":")
-    gain = np.where(r.gain > 0, r.gain, np.nan)
-    ax_g.loglog(w, gain, "o", color=_MEASURED, ms=6, label="measured (whole chain)")
+    gain = _on_scale(r.gain, log_gain)
+    ax_g.plot(w, gain, "o", color=_MEASURED, ms=6, label="measured (whole chain)")
     ax_p.semilogx(w, phase, "o", color=_MEASURED, ms=6)
     hit = (r.clamped > 0) | (r.limited > 0)
     if hit.any():
         label = "clamp or actuator limit acted"
-        ax_g.loglog(w[hit], gain[hit], "x", color=_LIMIT, ms=10, mew=2, label=label)
+        ax_g.plot(w[hit], gain[hit], "x", color=_LIMIT, ms=10, mew=2, label=label)
         ax_p.semilogx(w[hit], phase[hit], "x", color=_LIMIT, ms=10, mew=2)
     unit = "" if r.test.gain_unit == "-" else f" [{r.test.gain_unit}]"
     ax_g.set_ylabel(f"gain{unit}")

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from motionbase.errors import ConfigError
 from motionbase.io.workspace_plots import plot_format, save_figure
 from motionbase.platform.robot import load_geometry
 from motionbase.platform.rrr3 import Rrr3
@@ -192,7 +193,10 @@ def planar_workspace_report(
             f"y {ws.y[yi.min()]:.4f}..{ws.y[yi.max()]:.4f} m"
         )
 
-    rect = rrr3.inscribed_rectangle(0.0)
+    try:
+        rect: tuple[float, float, float, float] | None = rrr3.inscribed_rectangle(0.0)
+    except ConfigError:  # a workspace too small for one: said, not a failure of the sweep
+        rect = None
     phis = np.degrees(ws.phi[ws.valid.any(axis=(0, 1))])
     lines = [
         f"3-RRR robot {g.name!r}: L = {g.base_side} m, a = {g.crank} m, b = {g.rod} m, "
@@ -204,7 +208,10 @@ def planar_workspace_report(
         if phis.size
         else "no valid orientation",
         f"largest rectangle at phi = 0: x {rect[0]:.4f}..{rect[1]:.4f} m, "
-        f"y {rect[2]:.4f}..{rect[3]:.4f} m",
+        f"y {rect[2]:.4f}..{rect[3]:.4f} m"
+        if rect is not None
+        else "largest rectangle at phi = 0: none (fewer than 4 x 4 valid positions on its "
+        "grid: the cursor calibration has no default target rectangle)",
     ]
     if plot is not None:
         written = plot_planar_workspace(rrr3, ws, plot, rectangle=rect, title=f"3-RRR {g.name}")

@@ -27,11 +27,18 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.errors import SinkError
+from motionbase.errors import ConfigError, SinkError
 from motionbase.io.whole_files import folder_problem, whole_folder
 from motionbase.report import AXES6, PHASES, Report, build_report
 
-__all__ = ["ReportFiles", "default_report_dir", "plot_report", "report_figures", "write_report"]
+__all__ = [
+    "ReportFiles",
+    "default_report_dir",
+    "plot_report",
+    "read_recording",
+    "report_figures",
+    "write_report",
+]
 
 _AIR = "#1f4e9c"  # aircraft
 _CUE = "#d9480f"  # platform
@@ -79,6 +86,30 @@ def default_report_dir(recording: str | os.PathLike[str]) -> Path:
     return p.with_name(f"{p.stem}_report")
 
 
+#: Topics the report does not use, left unread: the robot's drawing (``/platform/scene``,
+#: about 75 kB a message decoded at 30 a second: 8 GB for an hour's stream) and ``/tf``.
+UNREAD_TOPICS = ("/platform/scene", "/tf")
+
+
+def read_recording(
+    recording: str | os.PathLike[str],
+) -> tuple[dict[str, list[dict[str, Any]]], dict[str, Any]]:
+    """A recording's messages (but :data:`UNREAD_TOPICS`) and metadata, for
+    :func:`~motionbase.report.build_report`.
+
+    Raises
+    ------
+    SourceError, LogFormatError
+        Missing or unreadable file, not MCAP, or no ``/aircraft/state`` messages.
+    """
+    from motionbase.io.mcap_source import read_messages, read_metadata
+
+    src = Path(recording)
+    # nothing to report: the error alone, without a warning that the file is cut short
+    messages = read_messages(src, require="/aircraft/state", skip=UNREAD_TOPICS)
+    return messages, read_metadata(src)
+
+
 def write_report(
     recording: str | os.PathLike[str], out: str | os.PathLike[str] | None = None
 ) -> ReportFiles:
@@ -93,17 +124,20 @@ def write_report(
 
     Raises
     ------
+    ConfigError
+        ``out`` is empty (an unset shell variable): the current folder is not taken for it.
     SourceError, LogFormatError
         Missing or unreadable file, not MCAP, or no ``/aircraft/state`` messages.
     SinkError
         The output folder cannot be written.
     """
-    from motionbase.io.mcap_source import read_messages, read_metadata
-
+    if out is not None and not str(out).strip():
+        raise ConfigError(
+            "--out: empty; give the folder for the report's files, or leave --out out "
+            "for <stem>_report/ beside the recording"
+        )
     src = Path(recording)
-    # nothing to report: the error alone, without a warning that the file is cut short
-    messages = read_messages(src, require="/aircraft/state")
-    metadata = read_metadata(src)
+    messages, metadata = read_recording(src)
     report = build_report(messages, metadata, name=src.name)
     out_dir = Path(out) if out is not None else default_report_dir(src)
     problem = folder_problem(out_dir)

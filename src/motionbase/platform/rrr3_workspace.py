@@ -71,12 +71,19 @@ def workspace_sweep(
         Grid sizes (phi includes both ends of ``phi_range``: 73 gives 5 deg steps on
         -180..180 deg).
     x_range, y_range : (float, float), m, optional
-        Default: the bounding box of the base triangle.
+        Default: the bounding box of the base triangle, grown to hold every position the
+        platform can reach: within ``crank + rod + platform_side / sqrt(3)`` (to its
+        centroid) of every motor. With longer links than the thesis's the workspace leaves
+        the triangle's box (cranks of 0.07 m and rods of 0.14 m on its base: 3 cm below
+        ``y = 0``), and a sweep of the box alone would cut it off.
     phi_range : (float, float), rad
     """
-    L = geometry.base_side
-    xr = x_range if x_range is not None else (0.0, L)
-    yr = y_range if y_range is not None else (0.0, L * _SQRT3 / 2)
+    base = np.asarray(geometry.base_points, dtype=float)
+    r = geometry.crank + geometry.rod + geometry.platform_side / _SQRT3
+    lo = np.minimum(base.min(axis=0), base.max(axis=0) - r)  # (the discs' intersection)
+    hi = np.maximum(base.max(axis=0), base.min(axis=0) + r)
+    xr = x_range if x_range is not None else (float(lo[0]), float(hi[0]))
+    yr = y_range if y_range is not None else (float(lo[1]), float(hi[1]))
     xs = np.linspace(xr[0], xr[1], int(nx))
     ys = np.linspace(yr[0], yr[1], int(ny))
     ps = np.linspace(phi_range[0], phi_range[1], int(nphi))
@@ -118,5 +125,9 @@ def inscribed_rectangle(
             stack.append(i)
     _, i0, i1, j0, j1 = best
     if i1 - i0 < 3 or j1 - j0 < 3:
-        raise ConfigError(f"no usable workspace rectangle at phi = {phi:g} rad")
+        raise ConfigError(
+            f"3-RRR {geometry.name!r}: no usable workspace rectangle at phi = {phi:g} rad "
+            f"(fewer than 4 x 4 valid positions on a {n} x {n} grid over the base triangle; "
+            "widen the servo ranges or check the geometry)"
+        )
     return (xs[i0 + 1], xs[i1 - 1], ys[j0 + 1], ys[j1 - 1])
