@@ -207,6 +207,9 @@ def test_workspace_planar_honours_platform_and_rrr3(capsys):
     for value in ("ceart", "stewart6"):
         err = _one_line_error(capsys, "--planar", "--platform", value)
         assert value in err and "not a planar robot (drop --planar)" in err, err
+        # given as --rrr3, the error named --platform, which nobody gave
+        err = _one_line_error(capsys, "--planar", "--rrr3", value)
+        assert f"--rrr3 {value}:" in err and "--platform" not in err.split(":", 2)[1], err
 
 
 def test_planar_default_geometry_is_the_same_for_every_command(capsys, tmp_path):

@@ -407,6 +407,14 @@ def run_workspace(args: argparse.Namespace) -> int:
                 f"--platform {args.platform} and --rrr3 {args.rrr3} both name the 3-RRR "
                 "geometry with --planar: give one of them"
             )
+        from motionbase.platform.robot import names_planar_robot, robot_named
+
+        named = args.rrr3 and not args.platform and robot_named(args.rrr3)
+        if named and not names_planar_robot(args.rrr3):
+            raise ConfigError(
+                f"--rrr3 {args.rrr3}: a 6-DOF platform, not a 3-RRR geometry (give it as "
+                "--platform, without --planar)"
+            )
         tell(planar_workspace_report(args.platform or args.rrr3, args.plot))
     else:
         from motionbase.io.workspace_plots import workspace_report
