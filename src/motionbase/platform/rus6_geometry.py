@@ -162,7 +162,8 @@ class Rus6Geometry:
         self._check_rods(src)
         neutral = self.neutral_angle
         for i in range(N_LEGS):
-            if not lo[i] <= neutral[i] <= hi[i]:
+            # (1e-9 rad: a neutral angle set at a limit, then derived through the height)
+            if not lo[i] - 1e-9 <= neutral[i] <= hi[i] + 1e-9:
                 raise ConfigError(
                     f"{src}: field 'neutral_height': leg {i + 1} crank angle at neutral is "
                     f"{math.degrees(neutral[i]):.2f} deg, outside its limits "
@@ -520,6 +521,8 @@ class Rus6Geometry:
             geometry = cls(**kw)
         except ConfigError as exc:
             msg = str(exc).replace(f"rus6 geometry {name!r}", source, 1)
+            if "neutral_angle_deg" in data:  # the height is derived: name what the file gave
+                msg = msg.replace("neutral_height", "neutral_angle_deg")
             raise ConfigError(msg) from None
         if "neutral_angle_deg" in data:
             # The height that closes the legs at this angle closes them at a second one too;
