@@ -19,10 +19,11 @@ import sys
 import termios
 import time
 from subprocess import PIPE
+from urllib.parse import quote
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_sweep, check_wire_limits, sweep_holds
+from drive_wire import UdpDrive, check_sweep, check_wire_limits, frame_format, sweep_holds
 
 from motionbase.platform import Rus6Geometry
 from motionbase.platform.robot import robot_spec
@@ -421,6 +422,57 @@ def test_the_sweep_options_of_the_other_actuator_kind_are_refused(platform, opti
         err = capsys.readouterr().err
         assert code == 2
         assert needle in err and len(err.strip().splitlines()) == 1, err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)  # nothing was sent
+    finally:
+        sock.close()
+
+
+@pytest.mark.parametrize(
+    ("platform", "args", "needle"),
+    [
+        ("rrr3", ["--range-deg", "15"], "choose a smaller --range-deg"),
+        ("udesc", ["--range-deg", "5"], "choose a smaller --range-deg"),
+        ("stewart6", ["--range-mm", "200"], "+-200 mm about neutral leaves the length limits"),
+    ],
+)
+def test_a_sweep_the_robot_cannot_follow_is_refused_before_anything_is_sent(
+    platform, args, needle, capsys
+):
+    """The wiring check moves one actuator at a time, the others held at neutral; a parallel
+    robot's platform must follow, and past some offset it cannot: the 3-RRR has no pose
+    with servo 1 at +15 deg from home and servos 2 and 3 at home (nor the thesis's own
+    ``udesc`` robot, which sits at a fold of its assembly, with servo 1 at +0.1 deg: all its
+    assemblies are found here by :meth:`Rrr3.forward_all`, a search over every
+    orientation). Only the servo limits were checked, and the drive was sent the servo
+    angles, pushing the linkage against itself. Refused now, one line, exit 2, nothing
+    sent. A range past the Stewart platform's stroke is refused in millimetres and names
+    --range-mm (it said "+-11.4592 deg ... --range-deg")."""
+    from motionbase import cli
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    if platform != "stewart6":  # the independent check: no assembly at all there
+        preset = "udesc_symmetric" if platform == "rrr3" else "udesc"
+        rrr3 = Rrr3(Rrr3Geometry.preset(preset))
+        lo = rrr3.angle_limits[:, 0]
+        home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
+        assert len(rrr3.forward_all(home, n_phi=7200)) > 0  # home itself is assembled
+        offset = 15.0 if platform == "rrr3" else 0.1
+        q = home.copy()
+        q[0] += math.radians(offset)  # servo 1, the first one swept
+        assert len(rrr3.forward_all(q, n_phi=7200)) == 0, rrr3.forward_all(q)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    try:
+        port = sock.getsockname()[1]
+        fmt = quote(frame_format(6 if platform == "stewart6" else 3), safe="")
+        url = f"udp:127.0.0.1:{port}?format={fmt}"
+        code = cli.main(["output", "--test", url, "--platform", platform, *args])
+        err = capsys.readouterr().err
+        assert code == 2
+        assert needle in err and len(err.strip().splitlines()) == 1, err
+        assert "deg" not in err if platform == "stewart6" else "mm" not in err
         with pytest.raises(socket.timeout):
             sock.recv(4096)  # nothing was sent
     finally:
