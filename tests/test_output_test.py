@@ -479,6 +479,42 @@ def test_a_sweep_the_robot_cannot_follow_is_refused_before_anything_is_sent(
         sock.close()
 
 
+def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
+    """``output --test udp:HOST:PORT --platform rrr3`` (no ``format``) was refused with
+    "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n': placeholder {4}: the motor number must be
+    1..3": the default frame had six fields whatever the robot. The 3-RRR's frames are now
+    ``A{1}B{2}C{3}\\n``: integer degrees, read here by a parser of that frame, from home,
+    one servo at a time 5 deg each way, back to home last."""
+    from motionbase.app import output_test
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    lo = rrr3.angle_limits[:, 0]
+    home = np.degrees(lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi))
+    rx = UdpDrive(n=3)
+    try:
+        output_test(
+            f"udp:127.0.0.1:{rx.port}", "rrr3", speed_deg_s=60.0, rate_hz=200.0,
+            echo=lambda s: None,
+        )  # fmt: skip
+        rx.drain()
+    finally:
+        rx.close()
+    frames = [f for _, f in rx.frames]
+    assert frames
+    values = []
+    for f in frames:
+        m = re.fullmatch(rb"A(-?\d+)B(-?\d+)C(-?\d+)\n", f)
+        assert m is not None, f
+        values.append([int(x) for x in m.groups()])
+    deg = np.array(values, dtype=float)
+    np.testing.assert_array_equal(deg[-1], np.round(home))  # home, the 3-RRR's park
+    dev = deg - np.round(home)
+    assert np.abs(dev).max() <= 5 + 1  # 5 deg each way, rounded to whole degrees
+    for i in range(3):  # each servo reaches +5 and -5 deg (to the rounding) in turn
+        assert dev[:, i].max() >= 4 and dev[:, i].min() <= -4, i
+
+
 def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_refused(capsys):
     """``output --test 'udp:...?rate=R'`` used to run at 100 Hz whatever R was (``rate=nan``
     too): the command line's default overrode the URL. The URL's rate is now the sweep's

@@ -6,7 +6,8 @@ A drive output is chosen by a URL (``--output URL`` on ``fly``, ``replay`` and `
     serial:loop://?format=...                             (``loop://``, a pty path, ...)
     udp:192.168.1.50:4123?rate=1000&format=...
 
-Query keys: ``format`` (below; URL-encode it: ``%7B`` ``{``, ``%7D`` ``}``, ``%2B`` ``+``,
+Query keys: ``format`` (below; default ``A{1}B{2}C{3}D{4}E{5}F{6}\n``, one letter a motor:
+``A{1}B{2}C{3}\n`` for the 3-RRR; URL-encode it: ``%7B`` ``{``, ``%7D`` ``}``, ``%2B`` ``+``,
 ``%26`` ``&``, ``%23`` ``#``; a literal ``+`` means a space), ``rate`` (frames per second,
 default 100), ``baud`` (serial, default 115200). Other keys of a serial URL go to pyserial.
 
@@ -128,6 +129,15 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
+
+
+def default_text(n: int) -> str:
+    """The frame format of a URL without ``format``: :data:`DEFAULT_TEXT` for six motors,
+    its first ``n`` fields for fewer (``A{1}B{2}C{3}\\n`` for the 3-RRR), more letters
+    for more."""
+    return "".join(f"{chr(ord('A') + i)}{{{i + 1}}}" for i in range(n)) + "\\n"
+
+
 DEFAULT_RATE_HZ = 100.0
 #: Seconds of sends without an error before a link that was down counts as back (UDP reports
 #: a refused datagram on a later send).
@@ -1032,7 +1042,7 @@ def open_output(
     pairs = parse_qsl(query, keep_blank_values=True)
     ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
     other = [(k, v) for k, v in pairs if k not in ours]
-    fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
+    fmt, extra = parse_format(ours.get("format", default_text(mapping.n)), mapping.n)
     try:
         rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
     except (TypeError, ValueError):
