@@ -344,10 +344,12 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
 
 @pytest.mark.parametrize("platform", ["rrr3", "udesc_symmetric"])  # the robot, or its preset
 def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform):
-    """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
-    geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
+    """``output --test --platform rrr3``: the 3-RRR's servos (servo degrees, the default
+    mapping of its geometry: ``direction * (theta - zero_deg)`` of its ``[servo]`` table,
+    90 at home on every servo of this preset; the joint angles in the base frame, 92, 212
+    and 332 deg, were sent before) are swept one at a time by +-5 deg about home, each
     reaching +5 deg and -5 deg exactly and going no further
-    (:func:`drive_wire.check_sweep`), the frames within the servos' angle, speed and
+    (:func:`drive_wire.check_sweep`), the frames within the servos' 0..180 deg, speed and
     acceleration limits, the last frame home (its park). A 3-RRR geometry preset names the
     planar robot as well (``output`` has no --planar)."""
     from motionbase.platform import Rrr3, Rrr3Geometry
@@ -356,12 +358,17 @@ def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform
     proc, t, q = sweep_at_the_drive(args, n=3)
     stdout = proc.stdout
     assert [f"motor {i}:" in stdout for i in (1, 2, 3)] == [True] * 3
-    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))  # the planar default
-    lo, hi = rrr3.angle_limits.T
-    home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
+    geometry = Rrr3Geometry.preset("udesc_symmetric")  # the planar default
+    rrr3 = Rrr3(geometry)
+    lo = rrr3.angle_limits[:, 0]
+    theta = np.degrees(lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi))
+    servo = np.mod(np.array(geometry.servo_direction) * (theta - geometry.servo_zero_deg), 360)
+    np.testing.assert_allclose(servo, 90.0, atol=0.05)  # the preset's own words
+    home = np.radians(servo)  # (the drive's parser reads degrees into radians)
     np.testing.assert_allclose(q[-1], home, atol=math.radians(1e-4))
-    assert np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)
-    lim = robot_spec("rrr3").make(Rrr3Geometry.preset("udesc_symmetric")).limits
+    assert np.all(q >= np.radians(geometry.servo_min_deg) - 1e-6)
+    assert np.all(q <= np.radians(geometry.servo_max_deg) + 1e-6)
+    lim = robot_spec("rrr3").make(geometry).limits
     check_wire_limits(t, q, lim.max_speed, lim.max_accel, "the 3-RRR's sweep")
     # motor 1 to +5 deg and -5 deg, then motor 2, then motor 3, the others at home (to the
     # wire's four decimals of a degree)
@@ -483,14 +490,16 @@ def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
     """``output --test udp:HOST:PORT --platform rrr3`` (no ``format``) was refused with
     "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n': placeholder {4}: the motor number must be
     1..3": the default frame had six fields whatever the robot. The 3-RRR's frames are now
-    ``A{1}B{2}C{3}\\n``: integer degrees, read here by a parser of that frame, from home,
-    one servo at a time 5 deg each way, back to home last."""
+    ``A{1}B{2}C{3}\\n``: integer servo degrees, read here by a parser of that frame, from
+    home (90 on each servo), one servo at a time 5 deg each way, back to home last."""
     from motionbase.app import output_test
     from motionbase.platform import Rrr3, Rrr3Geometry
 
-    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    geometry = Rrr3Geometry.preset("udesc_symmetric")
+    rrr3 = Rrr3(geometry)
     lo = rrr3.angle_limits[:, 0]
-    home = np.degrees(lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi))
+    theta = np.degrees(lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi))
+    home = np.array(geometry.servo_direction) * (theta - geometry.servo_zero_deg)  # servo deg
     rx = UdpDrive(n=3)
     try:
         output_test(
@@ -508,7 +517,8 @@ def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
         assert m is not None, f
         values.append([int(x) for x in m.groups()])
     deg = np.array(values, dtype=float)
-    np.testing.assert_array_equal(deg[-1], np.round(home))  # home, the 3-RRR's park
+    np.testing.assert_array_equal(deg[-1], [90, 90, 90])  # home, the 3-RRR's park
+    np.testing.assert_array_equal(deg[-1], np.round(home))
     dev = deg - np.round(home)
     assert np.abs(dev).max() <= 5 + 1  # 5 deg each way, rounded to whole degrees
     for i in range(3):  # each servo reaches +5 and -5 deg (to the rounding) in turn

@@ -1128,11 +1128,11 @@ def check_sendable(sink: MotorOutput, robot: Robot) -> None:
 
 
 def mapping_for(robot: Robot) -> OutputMapping:
-    """The geometry's ``[output]`` mapping; when it has none, degrees for every motor
-    (rotary actuators) or millimetres (linear ones, ``robot.actuator_unit == "m"``)."""
+    """The geometry's ``[output]`` mapping; when it has none, the robot's default
+    (:meth:`Robot.default_output`): degrees for every crank (rotary actuators), millimetres
+    (linear ones, ``robot.actuator_unit == "m"``), servo degrees for the 3-RRR's hobby
+    servos (its ``[servo]`` zero offsets and directions)."""
     out = getattr(robot.geometry, "output", None)
     if out is not None:
         return out
-    lim = robot.limits
-    unit = "mm" if robot.actuator_unit == "m" else "deg"
-    return OutputMapping.default(lim.lower, lim.upper, unit=unit)
+    return robot.default_output()
