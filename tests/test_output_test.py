@@ -486,6 +486,44 @@ def test_a_sweep_the_robot_cannot_follow_is_refused_before_anything_is_sent(
         sock.close()
 
 
+def test_a_range_output_never_sends_a_value_past_its_range(tmp_path, capsys):
+    """A 12-bit drive (``unit = "range"``, 0..4095) whose span is +-45 deg of a crank that
+    parks at -55 deg (``ceart``): the park command maps to (-55 + 45) / 90 * 4095 = -455,
+    outside 0..4095, and was sent (the default drive range was the crank range's image,
+    -682..4777). Now the run is refused before a frame is sent, naming the park command; a
+    span that holds the park sends only values within 0..4095."""
+    from motionbase import cli
+    from motionbase.config import preset_path
+
+    def geometry(span: float) -> str:
+        path = tmp_path / f"span{span:g}.toml"
+        table = '[output]\nunit = "range"\nrange_lo = 0\nrange_hi = 4095\n'
+        table += f"span_min_deg = {-span}\nspan_max_deg = {span}\n"
+        path.write_text(preset_path("rus6", "ceart").read_text() + "\n" + table)
+        return str(path)
+
+    fmt = quote("text:" + ",".join(f"{{{i}}}" for i in range(1, 7)) + "\\n", safe="")
+    rx = UdpDrive()
+    try:
+        url = f"udp:127.0.0.1:{rx.port}?rate=200&format={fmt}"
+        code = cli.main(["output", "--test", url, "--platform", geometry(45.0)])
+        err = capsys.readouterr().err
+        assert code == 2 and "park command" in err and len(err.strip().splitlines()) == 1, err
+        time.sleep(0.3)
+        assert rx.count() == 0  # nothing was sent
+        # +-58 deg holds park (-55 deg): every value on the wire within 0..4095, park last
+        args = ["--platform", geometry(58.0), "--speed-deg-s", "60", "--range-deg", "5"]
+        assert cli.main(["output", "--test", url, *args]) == 0
+        rx.drain()
+    finally:
+        rx.close()
+    values = np.array([[int(x) for x in f.strip().split(b",")] for _, f in rx.frames])
+    assert len(values) > 100
+    assert values.min() >= 0 and values.max() <= 4095
+    park = round((-55.0 + 58.0) / 116.0 * 4095.0)  # the span's straight line at park
+    assert np.all(np.abs(values[-1] - park) <= 1), values[-1]
+
+
 def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
     """``output --test udp:HOST:PORT --platform rrr3`` (no ``format``) was refused with
     "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n': placeholder {4}: the motor number must be
