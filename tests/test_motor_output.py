@@ -37,7 +37,7 @@ from motionbase.io.motor_output import (
 )
 from motionbase.pipeline import Pipeline, run
 from motionbase.platform import OutputMapping, Rus6Geometry
-from motionbase.safety import UNSAFE_TARGET, limit_command
+from motionbase.safety import UNSAFE_TARGET, ActuatorLimits, limit_command
 from motionbase.state import AircraftState
 
 GEOMETRY = Rus6Geometry.preset("ceart")
@@ -791,6 +791,43 @@ def _flight(pipeline: Pipeline, states, sink, progress) -> threading.Thread:
             run(pipeline, states, [sink], paced=True, progress=progress)
 
     return threading.Thread(target=flight, daemon=True)
+
+
+def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
+    """An ``[output]`` drive range of -20..20 deg on cranks limited to +-60 deg: commands
+    within the limits (speeding up at 50 deg/s^2 to 30 deg/s) run past 20 deg. The frames
+    beyond are never sent, and the drive used to get the last one it could and stop there
+    from 30 deg/s at once: 4.9 rad/s^2 over 0.1 s windows on the wire, against a limit of
+    0.87. It now brakes within the limit before the edge (it needs 30^2 / (2 * 50) = 9 deg),
+    every frame within -20..20 deg, and ends on the last command it could be sent."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": -20.0, "drive_max": 20.0},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+    dt = 0.01
+    speed = np.minimum(vmax, amax * dt * np.arange(1, 251))  # within the limits
+    commands = np.cumsum(speed * dt)  # to 66 deg in 2.5 s
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=dt)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate(commands):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+            time.sleep(0.5)  # the last command held: the drive comes to rest
+        drive.drain()
+    finally:
+        drive.close()
+    t, q = drive.angles()
+    assert sink.held > 0  # the commands past 20 deg were never sent
+    assert np.degrees(q).max() <= 20.0 + 1e-4
+    check_wire_limits(t, q, vmax, amax, "braking for the drive range")
+    # at rest, last, on the last command it could be sent (the frames' four decimals)
+    last = commands[np.degrees(commands) <= 20.0].max()
+    np.testing.assert_allclose(q[-1], last, rtol=0, atol=math.radians(1e-4))
 
 
 def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):

@@ -59,8 +59,10 @@ Behaviour
   since that frame (:func:`ramp_step`, :func:`motionbase.safety.ramp_command`). So the
   limits hold at the drive whatever the ticks did (late ticks, a burst after a stall,
   timestamps squeezed in a recording): a frame the limiter changed is counted in
-  ``ramped``. A drive whose last frame is more than two periods old (a link that was down,
-  a sender stall) is taken to stand at that frame and is ramped from there, from rest.
+  ``ramped``. The positions are also kept within the drive range (:func:`drive_limits`):
+  a drive range narrower than the actuator limits is braked for, as an angle limit is. A
+  drive whose last frame is more than two periods old (a link that was down, a sender
+  stall) is taken to stand at that frame and is ramped from there, from rest.
 * The ramp feeds forward each command's own speed: its step from the command of the tick
   before, over the pipeline's tick (``command_dt``), never the speed between the frames
   that happened to sample it (the sender samples the commands at its own rate: one
@@ -118,6 +120,7 @@ __all__ = [
     "crc16_ccitt",
     "crc16_modbus",
     "check_sendable",
+    "drive_limits",
     "mapping_for",
     "open_output",
     "open_outputs",
@@ -682,6 +685,31 @@ def ramp_step(
     return (target if np.array_equal(q, target) else q), v, status
 
 
+def drive_limits(limits: ActuatorLimits, mapping: OutputMapping) -> ActuatorLimits:
+    """The ramp's limits: ``limits`` with each actuator's range cut to the positions whose
+    drive values are within the drive range (``mapping.drive_min..drive_max``, the values
+    that are sent).
+
+    A drive range narrower than the actuator limits (an ``[output]`` table's
+    ``drive_min``/``drive_max``, a ``range`` span narrower than the cranks') holds the
+    commands beyond it: the drive got the last one it could and stopped there at once, from
+    whatever speed (4.9 rad/s^2 on the wire against a 0.87 limit). With the range in the
+    ramp's limits it brakes before the edge, as the limiter brakes before an angle limit.
+    Unchanged when the drive range holds the actuator limits (the default).
+    """
+    lo_d, hi_d = np.array(mapping.drive_min), np.array(mapping.drive_max)
+    if mapping.integer:  # a value rounds into the range from within half a step of it
+        lo_d, hi_d = lo_d - 0.499999, hi_d + 0.499999
+    else:  # (a hair inside: to_drive of from_drive is not exact)
+        lo_d, hi_d = lo_d + 1e-9 * (1.0 + np.abs(lo_d)), hi_d - 1e-9 * (1.0 + np.abs(hi_d))
+    a, b = mapping.from_drive(lo_d), mapping.from_drive(hi_d)
+    lower = np.maximum(limits.lower, np.minimum(a, b))
+    upper = np.minimum(limits.upper, np.maximum(a, b))
+    if np.array_equal(lower, limits.lower) and np.array_equal(upper, limits.upper):
+        return limits
+    return ActuatorLimits(lower, upper, limits.max_speed, limits.max_accel)
+
+
 # --------------------------------------------------------------------------- the sink
 
 
@@ -703,7 +731,8 @@ class MotorOutput:
         geometry's). When given, every frame is ramped at the drive: the sender knows what
         the drive last received and when, and moves it toward the latest command no faster
         than these limits allow over the wall-clock time elapsed (:func:`ramp_step`),
-        whatever the pipeline's ticks did (see the module docstring). None: frames carry the
+        whatever the pipeline's ticks did (see the module docstring), and within the
+        positions the drive range can carry (:func:`drive_limits`). None: frames carry the
         latest command as it is, and ``close()`` sends it once (the sender alone; every
         ``motionbase`` command that drives motors gives the limits).
     command_dt : float, optional
@@ -754,7 +783,7 @@ class MotorOutput:
         self.format = frame_format
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
-        self.limits = limits
+        self.limits = None if limits is None else drive_limits(limits, mapping)
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
