@@ -9,11 +9,14 @@ from __future__ import annotations
 import binascii
 import logging
 import math
+import os
+import pty
 import re
 import socket
 import struct
 import threading
 import time
+import tty
 from collections.abc import Callable
 from urllib.parse import quote
 
@@ -876,6 +879,66 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
     assert sink.send_errors > 0
     said = [r.getMessage() for r in caplog.records]
     assert any("link is down" in m for m in said) and any("link back" in m for m in said)
+
+
+def test_a_drive_that_reads_nothing_at_first_is_ramped_from_park_when_it_starts():
+    """A serial drive that is not reading when the run starts (its pseudo-terminal's buffer
+    full): the first frames time out and the link is down. When it starts reading, 7 s into
+    a wiring check, it was sent the command of that moment, the cranks on their way from
+    park (-55 deg) to neutral: a step of about 10 deg in one frame. It is now ramped from
+    park, where the run started: after the bytes it had not read, its first frame is within
+    one frame's travel of park, and no two frames in a row are further apart than the
+    speed limit allows over two periods (the longest step the ramp takes while moving)."""
+    from motionbase.app import output_test
+    from motionbase.platform.robot import robot_spec
+
+    robot = robot_spec("rus6").make(Rus6Geometry.preset("ceart"))
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    fill = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+    try:  # the drive's buffer is full: it reads nothing yet
+        while True:
+            os.write(fill, b"Z" * 1024)
+    except BlockingIOError:
+        pass
+    finally:
+        os.close(fill)
+    got = bytearray()
+
+    def read_later() -> None:
+        time.sleep(7.0)
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            got.extend(chunk)
+
+    reader = threading.Thread(target=read_later, daemon=True)
+    reader.start()
+    rate = 100.0
+    fmt = quote(r"text:{1:.4f},{2:.4f},{3:.4f},{4:.4f},{5:.4f},{6:.4f}\n", safe="")
+    try:
+        output_test(
+            f"serial:{path}?rate={rate:g}&format={fmt}", robot, speed_deg_s=30.0,
+            echo=lambda s: None,
+        )  # fmt: skip
+        wait_until(lambda: got.endswith(b"\n") and len(got) > 20000, timeout=5)
+    finally:
+        os.close(slave)
+        reader.join(5)
+        os.close(master)
+    frames = re.findall(rb"(-?\d+\.\d{4}(?:,-?\d+\.\d{4}){5})\n", bytes(got).lstrip(b"Z"))
+    q = np.radians([[float(x) for x in f.split(b",")] for f in frames])
+    assert len(q) > 1000
+    one = float(robot.limits.max_speed.max()) / rate  # the farthest a frame moves a drive
+    np.testing.assert_allclose(q[0], robot.park_angles, rtol=0, atol=one)
+    steps = np.abs(np.diff(q, axis=0)).max(axis=1)
+    assert steps.max() <= 2 * one + math.radians(1e-4), np.degrees(steps.max())
+    np.testing.assert_allclose(q[-1], robot.park_angles, rtol=0, atol=math.radians(1e-4))
 
 
 @pytest.mark.parametrize("outage_s", [0.05])

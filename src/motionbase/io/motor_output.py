@@ -79,9 +79,10 @@ Behaviour
   warning line; the pipeline and its log go on; a serial port is reopened once a second and
   sending resumes (``link back`` line) when it returns. Frames sent while the link is
   reported down (from the first failed send until a second of sends without errors) count as not
-  received: when it returns, the drive is ramped from the last frame sent before, within
-  the limits. (UDP cannot tell whether a datagram arrived: on a network that drops frames
-  without an error, the drive-side limiter still bounds each step by the time elapsed.)
+  received: when it returns, the drive is ramped from the last frame sent before (from the
+  first command, park, when none got through), within the limits. (UDP cannot tell
+  whether a datagram arrived: on a network that drops frames without an error, the
+  drive-side limiter still bounds each step by the time elapsed.)
 """
 
 from __future__ import annotations
@@ -640,7 +641,9 @@ def ramp_step(
 ) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The drive's next frame toward ``command`` at ``now``: the sender's ramp, one frame.
 
-    A drive that got nothing yet starts where the command is. One that got its last frame
+    A drive that got nothing yet starts where the command is (:class:`MotorOutput` takes a
+    drive whose first frame did not get through to stand at that first command, park, and
+    passes it here as ``drive``). One that got its last frame
     more than two periods ago stood still at it (a sender stall, a link that was down): the
     ramp starts again from there, at rest, on a step of one period. A step shorter than
     :data:`MIN_STEP_PERIODS` is not taken (None: no frame now). Otherwise
@@ -928,6 +931,12 @@ class MotorOutput:
             # received (as far as the sender can know): the drive is there now
             self._drive = Drive(q, v, sent)
             return frame is command.frame and not v.any()
+        if self._drive is None:
+            # The first frame did not get through (a drive not reading yet): the drive is
+            # taken to stand at the first command, the park command every run starts from,
+            # and is ramped from there when it returns. It used to be sent the command of the
+            # moment it returned, a jump of 10 deg in one frame 7 s into a wiring check.
+            self._drive = Drive(q, np.zeros_like(q), sent)
         return False
 
     def _finish_ramp(self, command: DriveCommand) -> None:
