@@ -833,6 +833,40 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     np.testing.assert_allclose(q[-1], last, rtol=0, atol=math.radians(1e-4))
 
 
+def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
+    """The same with the frame's fields: ``bin:6xu16be*1000`` of degrees with a 60 deg zero
+    offset (thousandths of a degree from -60) carries the park and neutral commands but no
+    value past 65.535 - 60 = 5.535 deg. Commands within the limits at 30 deg/s ran past it
+    and the drive stopped there at once (4.9 rad/s^2 on the wire against 0.87). It now
+    brakes within the limits, every frame, read here by ``struct``, at most 5.535 deg."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "zero_offset_deg": 60.0}, angle_min=limits.lower, angle_max=limits.upper
+    )
+    dt = 0.01
+    speed = np.minimum(vmax, amax * dt * np.arange(1, 301))  # within the limits
+    commands = math.radians(-30.0) + np.cumsum(speed * dt)  # -30 deg to about 50 deg
+    drive = UdpDrive()  # (its frames as they came; decoded here)
+    try:
+        url = f"udp:127.0.0.1:{drive.port}?rate=100&format=bin:6xu16be*1000"
+        sink = open_output(url, mapping, limits=limits, command_dt=dt)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate(commands):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+            time.sleep(0.5)
+        drive.drain()
+    finally:
+        drive.close()
+    t = np.array([a for a, _ in drive.frames])
+    q = np.radians(np.array([struct.unpack(">6H", f) for _, f in drive.frames]) / 1000.0 - 60.0)
+    assert sink.held > 0 and len(q) > 100
+    assert np.degrees(q).max() <= 5.535 + 1e-9
+    check_wire_limits(t, q, vmax, amax, "braking for the frame's field")
+
+
 def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):
     """The drive vanishes in full motion (its port refuses: send errors) and returns 1.5 s of
     motion later: its first frame after the outage is within one frame's travel of the last

@@ -286,18 +286,28 @@ class TextFormat:
         """The frame for drive values (one per motor), or None when a value cannot be written."""
         out = self._literals[:]
         for k, f in enumerate(self.fields):
-            v = values[f.axis]
-            if v != v:  # NaN
-                return None
-            if f.integer:
-                v = int(round(v))
-                if f.unsigned and v < 0:
-                    return None
-            text = format(v, f.spec)
-            if f.exact_width is not None and len(text) != f.exact_width:
+            text = self._text(f, values[f.axis])
+            if text is None:
                 return None
             out[2 * k + 1] = text
         return "".join(out).encode("latin-1")
+
+    @staticmethod
+    def _text(f: _TextField, v: float) -> str | None:
+        if v != v:  # NaN
+            return None
+        if f.integer:
+            v = int(round(v))
+            if f.unsigned and v < 0:
+                return None
+        text = format(v, f.spec)
+        if f.exact_width is not None and len(text) != f.exact_width:
+            return None
+        return text
+
+    def axis_ok(self, axis: int, value: float) -> bool:
+        """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
+        return all(self._text(f, value) is not None for f in self.fields if f.axis == axis)
 
     def describe(self) -> str:
         return f"text:{self.template}"
@@ -400,11 +410,8 @@ class BinaryFormat:
         for i in self.items:
             kind = i.kind
             if kind == "axis":
-                v = values[i.axis] * i.scale
-                if not (i.lo - 0.5 <= v <= i.hi + 0.5):  # False for NaN
-                    return None
-                iv = int(round(v))
-                if iv < i.lo or iv > i.hi:
+                iv = self._int(i, values[i.axis])
+                if iv is None:
                     return None
                 out += iv.to_bytes(i.size, i.order, signed=i.signed)
             elif kind == "lit":
@@ -413,6 +420,22 @@ class BinaryFormat:
                 fn, size, order = _CHECKSUMS[i.checksum]
                 out += fn(bytes(out[i.start :])).to_bytes(size, order)
         return bytes(out)
+
+    @staticmethod
+    def _int(i: _BinField, value: float) -> int | None:
+        v = value * i.scale
+        if not (i.lo - 0.5 <= v <= i.hi + 0.5):  # False for NaN
+            return None
+        iv = int(round(v))
+        return None if iv < i.lo or iv > i.hi else iv
+
+    def axis_ok(self, axis: int, value: float) -> bool:
+        """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
+        return all(
+            self._int(i, value) is not None
+            for i in self.items
+            if i.kind == "axis" and i.axis == axis
+        )
 
     def describe(self) -> str:
         return f"bin:{self.spec}"
@@ -688,23 +711,63 @@ def ramp_step(
     return (target if np.array_equal(q, target) else q), v, status
 
 
-def drive_limits(limits: ActuatorLimits, mapping: OutputMapping) -> ActuatorLimits:
-    """The ramp's limits: ``limits`` with each actuator's range cut to the positions whose
-    drive values are within the drive range (``mapping.drive_min..drive_max``, the values
-    that are sent).
+def _carried(frame_format: FrameFormat, axis: int, lo: float, hi: float) -> tuple[float, float]:
+    """The part of ``lo..hi`` (drive units) that the format's fields of motor ``axis``
+    (0-based) carry, found by bisection from a value they carry (a format carries an
+    interval: a field's bounds, an exact width); ``lo, hi`` when they carry none of it."""
+    good = next(
+        (
+            v
+            for v in (0.5 * (lo + hi), lo, hi, 0.0)
+            if lo <= v <= hi and frame_format.axis_ok(axis, v)
+        ),
+        None,
+    )
+    if good is None:  # (check_sendable refuses such a format)
+        return lo, hi
 
-    A drive range narrower than the actuator limits (an ``[output]`` table's
-    ``drive_min``/``drive_max``, a ``range`` span narrower than the cranks') holds the
-    commands beyond it: the drive got the last one it could and stopped there at once, from
-    whatever speed (4.9 rad/s^2 on the wire against a 0.87 limit). With the range in the
-    ramp's limits it brakes before the edge, as the limiter brakes before an angle limit.
-    Unchanged when the drive range holds the actuator limits (the default).
+    def edge(bad: float) -> float:
+        g = good
+        for _ in range(2000):
+            m = 0.5 * (g + bad)
+            if m in (g, bad):
+                break
+            if frame_format.axis_ok(axis, m):
+                g = m
+            else:
+                bad = m
+        return g
+
+    return (
+        lo if frame_format.axis_ok(axis, lo) else edge(lo),
+        hi if frame_format.axis_ok(axis, hi) else edge(hi),
+    )
+
+
+def drive_limits(
+    limits: ActuatorLimits, mapping: OutputMapping, frame_format: FrameFormat | None = None
+) -> ActuatorLimits:
+    """The ramp's limits: ``limits`` with each actuator's range cut to the positions whose
+    drive values are sent: within the drive range (``mapping.drive_min..drive_max``) and,
+    given ``frame_format``, values its fields can carry (a field's bounds, an exact width).
+
+    A drive range (or a frame field) narrower than the actuator limits holds the commands
+    beyond it: the drive got the last one it could and stopped there at once, from whatever
+    speed (4.9 rad/s^2 on the wire against a 0.87 limit). With the range in the ramp's
+    limits it brakes before the edge, as the limiter brakes before an angle limit.
+    Unchanged when the drive range and the format hold the actuator limits (the default).
     """
     lo_d, hi_d = np.array(mapping.drive_min), np.array(mapping.drive_max)
     if mapping.integer:  # a value rounds into the range from within half a step of it
         lo_d, hi_d = lo_d - 0.499999, hi_d + 0.499999
-    else:  # (a hair inside: to_drive of from_drive is not exact)
-        lo_d, hi_d = lo_d + 1e-9 * (1.0 + np.abs(lo_d)), hi_d - 1e-9 * (1.0 + np.abs(hi_d))
+    if frame_format is not None:
+        for axis in frame_format.axes:
+            # (integer units reach the format rounded: their edges are then whole values)
+            a, b = _carried(frame_format, axis, float(lo_d[axis]), float(hi_d[axis]))
+            lo_d[axis], hi_d[axis] = max(lo_d[axis], a), min(hi_d[axis], b)
+    # a hair inside: to_drive of from_drive is not exact
+    lo_d = lo_d + 1e-9 * (1.0 + np.abs(lo_d))
+    hi_d = hi_d - 1e-9 * (1.0 + np.abs(hi_d))
     a, b = mapping.from_drive(lo_d), mapping.from_drive(hi_d)
     lower = np.maximum(limits.lower, np.minimum(a, b))
     upper = np.minimum(limits.upper, np.maximum(a, b))
@@ -786,7 +849,7 @@ class MotorOutput:
         self.format = frame_format
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
-        self.limits = None if limits is None else drive_limits(limits, mapping)
+        self.limits = None if limits is None else drive_limits(limits, mapping, frame_format)
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
