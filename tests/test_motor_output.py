@@ -833,6 +833,31 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     np.testing.assert_allclose(q[-1], last, rtol=0, atol=math.radians(1e-4))
 
 
+def test_a_command_at_a_limit_reaches_the_drive_exactly(caplog):
+    """The drive range of the default mapping is the limits' own image: a command exactly
+    at a crank limit (a clamped pose can put one there) is sent as it is, the ramp's limits
+    untouched by the braking for narrower drive ranges (cut a hair inside, they held such a
+    command: the drive stopped at 59.9855 deg, "may not be at the last command")."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.default(limits.lower, limits.upper)
+    commands = np.linspace(math.radians(55.0), limits.upper[0], 60)  # 5 deg in 0.6 s
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=0.01)
+        with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"), sink:
+            start = time.monotonic()
+            for k, c in enumerate([*commands, *[commands[-1]] * 30]):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * 0.01 - time.monotonic()))
+        drive.drain()
+    finally:
+        drive.close()
+    _, q = drive.angles()
+    np.testing.assert_array_equal(np.round(np.degrees(q[-1]), 4), np.full(6, 60.0))
+    assert not [r for r in caplog.records if "may not be" in r.getMessage()]
+
+
 def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
     """The same with the frame's fields: ``bin:6xu16be*1000`` of degrees with a 60 deg zero
     offset (thousandths of a degree from -60) carries the park and neutral commands but no

@@ -765,14 +765,19 @@ def drive_limits(
             # (integer units reach the format rounded: their edges are then whole values)
             a, b = _carried(frame_format, axis, float(lo_d[axis]), float(hi_d[axis]))
             lo_d[axis], hi_d[axis] = max(lo_d[axis], a), min(hi_d[axis], b)
-    # a hair inside: to_drive of from_drive is not exact
-    lo_d = lo_d + 1e-9 * (1.0 + np.abs(lo_d))
-    hi_d = hi_d - 1e-9 * (1.0 + np.abs(hi_d))
     a, b = mapping.from_drive(lo_d), mapping.from_drive(hi_d)
-    lower = np.maximum(limits.lower, np.minimum(a, b))
-    upper = np.minimum(limits.upper, np.maximum(a, b))
-    if np.array_equal(lower, limits.lower) and np.array_equal(upper, limits.upper):
+    q_lo, q_hi = np.minimum(a, b), np.maximum(a, b)
+    # A side is cut only where the range is inside the limit by more than rounding: the
+    # default drive range is the limits' own image, and a command at a limit is sent.
+    cut_lo = q_lo > limits.lower + 1e-9 * (1.0 + np.abs(limits.lower))
+    cut_hi = q_hi < limits.upper - 1e-9 * (1.0 + np.abs(limits.upper))
+    if not (cut_lo.any() or cut_hi.any()):
         return limits
+    # where cut, a hair inside the range: to_drive of from_drive is not exact
+    a = mapping.from_drive(lo_d + 1e-9 * (1.0 + np.abs(lo_d)))
+    b = mapping.from_drive(hi_d - 1e-9 * (1.0 + np.abs(hi_d)))
+    lower = np.where(cut_lo, np.maximum(limits.lower, np.minimum(a, b)), limits.lower)
+    upper = np.where(cut_hi, np.minimum(limits.upper, np.maximum(a, b)), limits.upper)
     return ActuatorLimits(lower, upper, limits.max_speed, limits.max_accel)
 
 
