@@ -425,7 +425,8 @@ def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
 class SweepSource(Iterator[Command]):
     """The wiring check as a command source: actuator targets that rest at park, move to
     neutral, take each actuator in turn through ``+range, -range`` about neutral and back,
-    return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`).
+    return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`), after
+    :func:`check_sweep_range` has found every actuator's sweep one the robot can follow.
 
     Each command's ``info`` is the actuator being moved (1-based; 0 on the way from or to
     park): a display can say which (``motionbase output --test`` prints a line when it

@@ -1241,4 +1241,9 @@ def mapping_for(robot: Robot) -> OutputMapping:
     out = getattr(robot.geometry, "output", None)
     if out is not None:
         return out
-    return robot.default_output()
+    default = getattr(robot, "default_output", None)  # (a plug-in robot may predate it)
+    if default is not None:
+        return default()
+    lim = robot.limits
+    unit = "mm" if robot.actuator_unit == "m" else "deg"
+    return OutputMapping.default(lim.lower, lim.upper, unit=unit)
