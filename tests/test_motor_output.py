@@ -858,6 +858,37 @@ def test_a_command_at_a_limit_reaches_the_drive_exactly(caplog):
     assert not [r for r in caplog.records if "may not be" in r.getMessage()]
 
 
+def test_a_command_sent_at_the_edge_of_a_narrow_drive_range_is_reached():
+    """Braking for a drive range of -60..3 deg on +-60 deg cranks must not refuse a command
+    the drive can be sent: the ramp's edge was put a hair inside 3 deg, and a command a hair
+    less than 3 deg (drive value <= 3, sent) lay beyond it, so the ramp held the drive at
+    2.99 deg. The edge is now the last position sent, and the drive reaches the command."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": -60.0, "drive_max": 3.0},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+    top = math.radians(3.0)
+    while mapping.to_drive(np.full(6, top))[0] > 3.0:  # the largest angle sent as <= 3 deg
+        top = np.nextafter(top, 0.0)
+    assert 3.0 - 1e-12 < mapping.to_drive(np.full(6, top))[0] <= 3.0
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=0.01)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate([*np.linspace(0.0, top, 40), *[top] * 40]):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * 0.01 - time.monotonic()))
+        drive.drain()
+    finally:
+        drive.close()
+    _, q = drive.angles()
+    assert sink.held == 0
+    np.testing.assert_array_equal(np.round(np.degrees(q[-1]), 4), np.full(6, 3.0))
+
+
 def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
     """The same with the frame's fields: ``bin:6xu16be*1000`` of degrees with a 60 deg zero
     offset (thousandths of a degree from -60) carries the park and neutral commands but no

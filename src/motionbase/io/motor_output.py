@@ -711,73 +711,59 @@ def ramp_step(
     return (target if np.array_equal(q, target) else q), v, status
 
 
-def _carried(frame_format: FrameFormat, axis: int, lo: float, hi: float) -> tuple[float, float]:
-    """The part of ``lo..hi`` (drive units) that the format's fields of motor ``axis``
-    (0-based) carry, found by bisection from a value they carry (a format carries an
-    interval: a field's bounds, an exact width); ``lo, hi`` when they carry none of it."""
-    good = next(
-        (
-            v
-            for v in (0.5 * (lo + hi), lo, hi, 0.0)
-            if lo <= v <= hi and frame_format.axis_ok(axis, v)
-        ),
-        None,
-    )
-    if good is None:  # (check_sendable refuses such a format)
-        return lo, hi
-
-    def edge(bad: float) -> float:
-        g = good
-        for _ in range(2000):
-            m = 0.5 * (g + bad)
-            if m in (g, bad):
-                break
-            if frame_format.axis_ok(axis, m):
-                g = m
-            else:
-                bad = m
-        return g
-
-    return (
-        lo if frame_format.axis_ok(axis, lo) else edge(lo),
-        hi if frame_format.axis_ok(axis, hi) else edge(hi),
-    )
-
-
 def drive_limits(
     limits: ActuatorLimits, mapping: OutputMapping, frame_format: FrameFormat | None = None
 ) -> ActuatorLimits:
-    """The ramp's limits: ``limits`` with each actuator's range cut to the positions whose
-    drive values are sent: within the drive range (``mapping.drive_min..drive_max``) and,
-    given ``frame_format``, values its fields can carry (a field's bounds, an exact width).
+    """The ramp's limits: ``limits`` with each actuator's range cut to the positions that
+    are sent: whose drive values are within the drive range (``mapping.drive_min..
+    drive_max``) and, given ``frame_format``, carried by its fields (a field's bounds, an
+    exact width).
 
     A drive range (or a frame field) narrower than the actuator limits holds the commands
     beyond it: the drive got the last one it could and stopped there at once, from whatever
     speed (4.9 rad/s^2 on the wire against a 0.87 limit). With the range in the ramp's
-    limits it brakes before the edge, as the limiter brakes before an angle limit.
-    Unchanged when the drive range and the format hold the actuator limits (the default).
+    limits it brakes before the edge, as the limiter brakes before an angle limit. Each
+    edge is the last position sent (by bisection to adjacent floats: a position sent is
+    within it, one beyond is not); the limits are returned unchanged when both of an
+    actuator's limits are sent (the default mapping: the drive range is their image).
     """
-    lo_d, hi_d = np.array(mapping.drive_min), np.array(mapping.drive_max)
-    if mapping.integer:  # a value rounds into the range from within half a step of it
-        lo_d, hi_d = lo_d - 0.499999, hi_d + 0.499999
-    if frame_format is not None:
-        for axis in frame_format.axes:
-            # (integer units reach the format rounded: their edges are then whole values)
-            a, b = _carried(frame_format, axis, float(lo_d[axis]), float(hi_d[axis]))
-            lo_d[axis], hi_d[axis] = max(lo_d[axis], a), min(hi_d[axis], b)
-    a, b = mapping.from_drive(lo_d), mapping.from_drive(hi_d)
-    q_lo, q_hi = np.minimum(a, b), np.maximum(a, b)
-    # A side is cut only where the range is inside the limit by more than rounding: the
-    # default drive range is the limits' own image, and a command at a limit is sent.
-    cut_lo = q_lo > limits.lower + 1e-9 * (1.0 + np.abs(limits.lower))
-    cut_hi = q_hi < limits.upper - 1e-9 * (1.0 + np.abs(limits.upper))
-    if not (cut_lo.any() or cut_hi.any()):
+    axes = set(frame_format.axes) if frame_format is not None else set()
+    probe = np.array(limits.lower, dtype=float)
+
+    def sent(i: int, x: float) -> bool:
+        probe[i] = x  # (the other motors' values do not matter to motor i's)
+        v = float(mapping.to_drive(probe)[i])
+        if not mapping.drive_min[i] <= v <= mapping.drive_max[i]:  # False for NaN
+            return False
+        return i not in axes or frame_format.axis_ok(i, v)  # type: ignore[union-attr]
+
+    lower, upper = np.array(limits.lower, dtype=float), np.array(limits.upper, dtype=float)
+    for i in range(len(lower)):
+        lo, hi = float(lower[i]), float(upper[i])
+        lo_ok, hi_ok = sent(i, lo), sent(i, hi)
+        if lo_ok and hi_ok:
+            continue
+        good = next((x for x in (0.5 * (lo + hi), lo, hi) if sent(i, x)), None)
+        if good is None:  # nothing sent (check_sendable refuses such an output)
+            continue
+        for bad, side in ((lo, lo_ok), (hi, hi_ok)):
+            if side:
+                continue
+            g = good
+            for _ in range(2000):  # to adjacent floats
+                m = 0.5 * (g + bad)
+                if m in (g, bad):
+                    break
+                if sent(i, m):
+                    g = m
+                else:
+                    bad = m
+            if bad < good:
+                lower[i] = g
+            else:
+                upper[i] = g
+    if np.array_equal(lower, limits.lower) and np.array_equal(upper, limits.upper):
         return limits
-    # where cut, a hair inside the range: to_drive of from_drive is not exact
-    a = mapping.from_drive(lo_d + 1e-9 * (1.0 + np.abs(lo_d)))
-    b = mapping.from_drive(hi_d - 1e-9 * (1.0 + np.abs(hi_d)))
-    lower = np.where(cut_lo, np.maximum(limits.lower, np.minimum(a, b)), limits.lower)
-    upper = np.where(cut_hi, np.minimum(limits.upper, np.maximum(a, b)), limits.upper)
     return ActuatorLimits(lower, upper, limits.max_speed, limits.max_accel)
 
 
