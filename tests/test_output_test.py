@@ -524,6 +524,34 @@ def test_a_range_output_never_sends_a_value_past_its_range(tmp_path, capsys):
     assert np.all(np.abs(values[-1] - park) <= 1), values[-1]
 
 
+def test_a_sweep_end_the_drive_cannot_be_sent_is_refused(tmp_path, capsys):
+    """An ``[output]`` drive range of -60..3 deg (or a frame field that stops there) with
+    the default +-5 deg sweep: the ends at +5 deg were held, each motor stopped short at
+    3 deg and the check ended "exit 0" as if it had shown +5 and -5. Refused now, naming
+    the motor and its drive value, one line, exit 2, nothing sent; --range-deg 3 runs."""
+    from motionbase import cli
+    from motionbase.config import preset_path
+
+    path = tmp_path / "narrow.toml"
+    table = '[output]\nunit = "deg"\ndrive_min = -60.0\ndrive_max = 3.0\n'
+    path.write_text(preset_path("rus6", "ceart").read_text() + "\n" + table)
+    rx = UdpDrive()
+    try:
+        args = ["output", "--test", rx.url(200.0), "--platform", str(path)]
+        code = cli.main([*args, "--speed-deg-s", "60"])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert "motor 1 at +5 deg" in err and "choose a smaller --range-deg" in err, err
+        time.sleep(0.3)
+        assert rx.count() == 0  # nothing was sent
+        assert cli.main([*args, "--speed-deg-s", "60", "--range-deg", "3"]) == 0
+        rx.drain()
+    finally:
+        rx.close()
+    _, q = rx.angles()
+    np.testing.assert_allclose(np.degrees(q).max(), 3.0, atol=1e-4)  # each +3 deg, exactly
+
+
 def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
     """``output --test udp:HOST:PORT --platform rrr3`` (no ``format``) was refused with
     "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n': placeholder {4}: the motor number must be
