@@ -9,11 +9,14 @@ from __future__ import annotations
 import binascii
 import logging
 import math
+import os
+import pty
 import re
 import socket
 import struct
 import threading
 import time
+import tty
 from collections.abc import Callable
 from urllib.parse import quote
 
@@ -37,7 +40,7 @@ from motionbase.io.motor_output import (
 )
 from motionbase.pipeline import Pipeline, run
 from motionbase.platform import OutputMapping, Rus6Geometry
-from motionbase.safety import UNSAFE_TARGET, limit_command
+from motionbase.safety import UNSAFE_TARGET, ActuatorLimits, limit_command
 from motionbase.state import AircraftState
 
 GEOMETRY = Rus6Geometry.preset("ceart")
@@ -793,6 +796,133 @@ def _flight(pipeline: Pipeline, states, sink, progress) -> threading.Thread:
     return threading.Thread(target=flight, daemon=True)
 
 
+def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
+    """An ``[output]`` drive range of -20..20 deg on cranks limited to +-60 deg: commands
+    within the limits (speeding up at 50 deg/s^2 to 30 deg/s) run past 20 deg. The frames
+    beyond are never sent, and the drive used to get the last one it could and stop there
+    from 30 deg/s at once: 4.9 rad/s^2 over 0.1 s windows on the wire, against a limit of
+    0.87. It now brakes within the limit before the edge (it needs 30^2 / (2 * 50) = 9 deg),
+    every frame within -20..20 deg, and ends on the last command it could be sent."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": -20.0, "drive_max": 20.0},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+    dt = 0.01
+    speed = np.minimum(vmax, amax * dt * np.arange(1, 251))  # within the limits
+    commands = np.cumsum(speed * dt)  # to 66 deg in 2.5 s
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=dt)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate(commands):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+            time.sleep(0.5)  # the last command held: the drive comes to rest
+        drive.drain()
+    finally:
+        drive.close()
+    t, q = drive.angles()
+    assert sink.held > 0  # the commands past 20 deg were never sent
+    assert np.degrees(q).max() <= 20.0 + 1e-4
+    check_wire_limits(t, q, vmax, amax, "braking for the drive range")
+    # at rest, last, on the last command it could be sent (the frames' four decimals)
+    last = commands[np.degrees(commands) <= 20.0].max()
+    np.testing.assert_allclose(q[-1], last, rtol=0, atol=math.radians(1e-4))
+
+
+def test_a_command_at_a_limit_reaches_the_drive_exactly(caplog):
+    """The drive range of the default mapping is the limits' own image: a command exactly
+    at a crank limit (a clamped pose can put one there) is sent as it is, the ramp's limits
+    untouched by the braking for narrower drive ranges (cut a hair inside, they held such a
+    command: the drive stopped at 59.9855 deg, "may not be at the last command")."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.default(limits.lower, limits.upper)
+    commands = np.linspace(math.radians(55.0), limits.upper[0], 60)  # 5 deg in 0.6 s
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=0.01)
+        with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"), sink:
+            start = time.monotonic()
+            for k, c in enumerate([*commands, *[commands[-1]] * 30]):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * 0.01 - time.monotonic()))
+        drive.drain()
+    finally:
+        drive.close()
+    _, q = drive.angles()
+    np.testing.assert_array_equal(np.round(np.degrees(q[-1]), 4), np.full(6, 60.0))
+    assert not [r for r in caplog.records if "may not be" in r.getMessage()]
+
+
+def test_a_command_sent_at_the_edge_of_a_narrow_drive_range_is_reached():
+    """Braking for a drive range of -60..3 deg on +-60 deg cranks must not refuse a command
+    the drive can be sent: the ramp's edge was put a hair inside 3 deg, and a command a hair
+    less than 3 deg (drive value <= 3, sent) lay beyond it, so the ramp held the drive at
+    2.99 deg. The edge is now the last position sent, and the drive reaches the command."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": -60.0, "drive_max": 3.0},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+    top = math.radians(3.0)
+    while mapping.to_drive(np.full(6, top))[0] > 3.0:  # the largest angle sent as <= 3 deg
+        top = np.nextafter(top, 0.0)
+    assert 3.0 - 1e-12 < mapping.to_drive(np.full(6, top))[0] <= 3.0
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=0.01)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate([*np.linspace(0.0, top, 40), *[top] * 40]):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * 0.01 - time.monotonic()))
+        drive.drain()
+    finally:
+        drive.close()
+    _, q = drive.angles()
+    assert sink.held == 0
+    np.testing.assert_array_equal(np.round(np.degrees(q[-1]), 4), np.full(6, 3.0))
+
+
+def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
+    """The same with the frame's fields: ``bin:6xu16be*1000`` of degrees with a 60 deg zero
+    offset (thousandths of a degree from -60) carries the park and neutral commands but no
+    value past 65.535 - 60 = 5.535 deg. Commands within the limits at 30 deg/s ran past it
+    and the drive stopped there at once (4.9 rad/s^2 on the wire against 0.87). It now
+    brakes within the limits, every frame, read here by ``struct``, at most 5.535 deg."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "zero_offset_deg": 60.0}, angle_min=limits.lower, angle_max=limits.upper
+    )
+    dt = 0.01
+    speed = np.minimum(vmax, amax * dt * np.arange(1, 301))  # within the limits
+    commands = math.radians(-30.0) + np.cumsum(speed * dt)  # -30 deg to about 50 deg
+    drive = UdpDrive()  # (its frames as they came; decoded here)
+    try:
+        url = f"udp:127.0.0.1:{drive.port}?rate=100&format=bin:6xu16be*1000"
+        sink = open_output(url, mapping, limits=limits, command_dt=dt)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate(commands):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+            time.sleep(0.5)
+        drive.drain()
+    finally:
+        drive.close()
+    t = np.array([a for a, _ in drive.frames])
+    q = np.radians(np.array([struct.unpack(">6H", f) for _, f in drive.frames]) / 1000.0 - 60.0)
+    assert sink.held > 0 and len(q) > 100
+    assert np.degrees(q).max() <= 5.535 + 1e-9
+    check_wire_limits(t, q, vmax, amax, "braking for the frame's field")
+
+
 def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):
     """The drive vanishes in full motion (its port refuses: send errors) and returns 1.5 s of
     motion later: its first frame after the outage is within one frame's travel of the last
@@ -839,6 +969,66 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
     assert sink.send_errors > 0
     said = [r.getMessage() for r in caplog.records]
     assert any("link is down" in m for m in said) and any("link back" in m for m in said)
+
+
+def test_a_drive_that_reads_nothing_at_first_is_ramped_from_park_when_it_starts():
+    """A serial drive that is not reading when the run starts (its pseudo-terminal's buffer
+    full): the first frames time out and the link is down. When it starts reading, 7 s into
+    a wiring check, it was sent the command of that moment, the cranks on their way from
+    park (-55 deg) to neutral: a step of about 10 deg in one frame. It is now ramped from
+    park, where the run started: after the bytes it had not read, its first frame is within
+    one frame's travel of park, and no two frames in a row are further apart than the
+    speed limit allows over two periods (the longest step the ramp takes while moving)."""
+    from motionbase.app import output_test
+    from motionbase.platform.robot import robot_spec
+
+    robot = robot_spec("rus6").make(Rus6Geometry.preset("ceart"))
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    fill = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+    try:  # the drive's buffer is full: it reads nothing yet
+        while True:
+            os.write(fill, b"Z" * 1024)
+    except BlockingIOError:
+        pass
+    finally:
+        os.close(fill)
+    got = bytearray()
+
+    def read_later() -> None:
+        time.sleep(7.0)
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            got.extend(chunk)
+
+    reader = threading.Thread(target=read_later, daemon=True)
+    reader.start()
+    rate = 100.0
+    fmt = quote(r"text:{1:.4f},{2:.4f},{3:.4f},{4:.4f},{5:.4f},{6:.4f}\n", safe="")
+    try:
+        output_test(
+            f"serial:{path}?rate={rate:g}&format={fmt}", robot, speed_deg_s=30.0,
+            echo=lambda s: None,
+        )  # fmt: skip
+        wait_until(lambda: got.endswith(b"\n") and len(got) > 20000, timeout=5)
+    finally:
+        os.close(slave)
+        reader.join(5)
+        os.close(master)
+    frames = re.findall(rb"(-?\d+\.\d{4}(?:,-?\d+\.\d{4}){5})\n", bytes(got).lstrip(b"Z"))
+    q = np.radians([[float(x) for x in f.split(b",")] for f in frames])
+    assert len(q) > 1000
+    one = float(robot.limits.max_speed.max()) / rate  # the farthest a frame moves a drive
+    np.testing.assert_allclose(q[0], robot.park_angles, rtol=0, atol=one)
+    steps = np.abs(np.diff(q, axis=0)).max(axis=1)
+    assert steps.max() <= 2 * one + math.radians(1e-4), np.degrees(steps.max())
+    np.testing.assert_allclose(q[-1], robot.park_angles, rtol=0, atol=math.radians(1e-4))
 
 
 @pytest.mark.parametrize("outage_s", [0.05])

@@ -60,6 +60,25 @@ def test_range_spans_the_crank_range_and_reverses_when_mirrored():
     np.testing.assert_allclose(m16.resolution(), math.radians(120.0) / 65535, rtol=1e-12)
 
 
+def test_a_span_narrower_than_the_cranks_never_maps_past_the_range():
+    """``range_lo..range_hi`` is what the drive takes: 0..4095 across +-45 deg of motor
+    angle, on cranks limited to +-60 deg, gave a default drive range of -682..4777, so a
+    crank at 50 deg went out as 4322 (a 12-bit drive wraps it to 226, near its other end).
+    The default drive range is now the crank range's image within 0..4095."""
+    m = make(unit="range", range_lo=0, range_hi=4095, span_min_deg=-45.0, span_max_deg=45.0)
+    assert np.all(np.array(m.drive_min) >= 0) and np.all(np.array(m.drive_max) <= 4095)
+    deg = np.linspace(-60.0, 60.0, 241)
+    for d in deg:
+        v = m.to_drive(np.full(6, math.radians(d)))
+        expected = (d + 45.0) / 90.0 * 4095.0  # the span's straight line
+        assert np.all(np.abs(v - expected) <= 0.5)
+        assert m.in_range(v).all() == (0.0 <= round(expected) <= 4095.0), d
+    # the same with a mirrored motor: the crank range's image reversed, still within 0..4095
+    r = make(unit="range", sign=-1, range_lo=0, range_hi=4095, span_min_deg=-45, span_max_deg=45)
+    assert np.all(np.array(r.drive_min) >= 0) and np.all(np.array(r.drive_max) <= 4095)
+    assert not r.in_range(r.to_drive(np.full(6, math.radians(50.0)))).any()
+
+
 @settings(max_examples=150, deadline=None)
 @given(
     st.sampled_from(["deg", "rad", "counts", "range"]),

@@ -19,10 +19,11 @@ import sys
 import termios
 import time
 from subprocess import PIPE
+from urllib.parse import quote
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_sweep, check_wire_limits, sweep_holds
+from drive_wire import UdpDrive, check_sweep, check_wire_limits, frame_format, sweep_holds
 
 from motionbase.platform import Rus6Geometry
 from motionbase.platform.robot import robot_spec
@@ -343,10 +344,12 @@ def test_a_stop_before_the_sweep_starts_sends_only_park():
 
 @pytest.mark.parametrize("platform", ["rrr3", "udesc_symmetric"])  # the robot, or its preset
 def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform):
-    """``output --test --platform rrr3``: the 3-RRR's servos (degrees, the default mapping of a
-    geometry without ``[output]``) are swept one at a time by +-5 deg about home, each
+    """``output --test --platform rrr3``: the 3-RRR's servos (servo degrees, the default
+    mapping of its geometry: ``direction * (theta - zero_deg)`` of its ``[servo]`` table,
+    90 at home on every servo of this preset; the joint angles in the base frame, 92, 212
+    and 332 deg, were sent before) are swept one at a time by +-5 deg about home, each
     reaching +5 deg and -5 deg exactly and going no further
-    (:func:`drive_wire.check_sweep`), the frames within the servos' angle, speed and
+    (:func:`drive_wire.check_sweep`), the frames within the servos' 0..180 deg, speed and
     acceleration limits, the last frame home (its park). A 3-RRR geometry preset names the
     planar robot as well (``output`` has no --planar)."""
     from motionbase.platform import Rrr3, Rrr3Geometry
@@ -355,12 +358,17 @@ def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform
     proc, t, q = sweep_at_the_drive(args, n=3)
     stdout = proc.stdout
     assert [f"motor {i}:" in stdout for i in (1, 2, 3)] == [True] * 3
-    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))  # the planar default
-    lo, hi = rrr3.angle_limits.T
-    home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
+    geometry = Rrr3Geometry.preset("udesc_symmetric")  # the planar default
+    rrr3 = Rrr3(geometry)
+    lo = rrr3.angle_limits[:, 0]
+    theta = np.degrees(lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi))
+    servo = np.mod(np.array(geometry.servo_direction) * (theta - geometry.servo_zero_deg), 360)
+    np.testing.assert_allclose(servo, 90.0, atol=0.05)  # the preset's own words
+    home = np.radians(servo)  # (the drive's parser reads degrees into radians)
     np.testing.assert_allclose(q[-1], home, atol=math.radians(1e-4))
-    assert np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)
-    lim = robot_spec("rrr3").make(Rrr3Geometry.preset("udesc_symmetric")).limits
+    assert np.all(q >= np.radians(geometry.servo_min_deg) - 1e-6)
+    assert np.all(q <= np.radians(geometry.servo_max_deg) + 1e-6)
+    lim = robot_spec("rrr3").make(geometry).limits
     check_wire_limits(t, q, lim.max_speed, lim.max_accel, "the 3-RRR's sweep")
     # motor 1 to +5 deg and -5 deg, then motor 2, then motor 3, the others at home (to the
     # wire's four decimals of a degree)
@@ -425,6 +433,162 @@ def test_the_sweep_options_of_the_other_actuator_kind_are_refused(platform, opti
             sock.recv(4096)  # nothing was sent
     finally:
         sock.close()
+
+
+@pytest.mark.parametrize(
+    ("platform", "args", "needle"),
+    [
+        ("rrr3", ["--range-deg", "15"], "choose a smaller --range-deg"),
+        ("udesc", ["--range-deg", "5"], "choose a smaller --range-deg"),
+        ("stewart6", ["--range-mm", "200"], "+-200 mm about neutral leaves the length limits"),
+    ],
+)
+def test_a_sweep_the_robot_cannot_follow_is_refused_before_anything_is_sent(
+    platform, args, needle, capsys
+):
+    """The wiring check moves one actuator at a time, the others held at neutral; a parallel
+    robot's platform must follow, and past some offset it cannot: the 3-RRR has no pose
+    with servo 1 at +15 deg from home and servos 2 and 3 at home (nor the thesis's own
+    ``udesc`` robot, which sits at a fold of its assembly, with servo 1 at +0.1 deg: all its
+    assemblies are found here by :meth:`Rrr3.forward_all`, a search over every
+    orientation). Only the servo limits were checked, and the drive was sent the servo
+    angles, pushing the linkage against itself. Refused now, one line, exit 2, nothing
+    sent. A range past the Stewart platform's stroke is refused in millimetres and names
+    --range-mm (it said "+-11.4592 deg ... --range-deg")."""
+    from motionbase import cli
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    if platform != "stewart6":  # the independent check: no assembly at all there
+        preset = "udesc_symmetric" if platform == "rrr3" else "udesc"
+        rrr3 = Rrr3(Rrr3Geometry.preset(preset))
+        lo = rrr3.angle_limits[:, 0]
+        home = lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi)
+        assert len(rrr3.forward_all(home, n_phi=7200)) > 0  # home itself is assembled
+        offset = 15.0 if platform == "rrr3" else 0.1
+        q = home.copy()
+        q[0] += math.radians(offset)  # servo 1, the first one swept
+        assert len(rrr3.forward_all(q, n_phi=7200)) == 0, rrr3.forward_all(q)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    try:
+        port = sock.getsockname()[1]
+        fmt = quote(frame_format(6 if platform == "stewart6" else 3), safe="")
+        url = f"udp:127.0.0.1:{port}?format={fmt}"
+        code = cli.main(["output", "--test", url, "--platform", platform, *args])
+        err = capsys.readouterr().err
+        assert code == 2
+        assert needle in err and len(err.strip().splitlines()) == 1, err
+        assert "deg" not in err if platform == "stewart6" else "mm" not in err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)  # nothing was sent
+    finally:
+        sock.close()
+
+
+def test_a_range_output_never_sends_a_value_past_its_range(tmp_path, capsys):
+    """A 12-bit drive (``unit = "range"``, 0..4095) whose span is +-45 deg of a crank that
+    parks at -55 deg (``ceart``): the park command maps to (-55 + 45) / 90 * 4095 = -455,
+    outside 0..4095, and was sent (the default drive range was the crank range's image,
+    -682..4777). Now the run is refused before a frame is sent, naming the park command; a
+    span that holds the park sends only values within 0..4095."""
+    from motionbase import cli
+    from motionbase.config import preset_path
+
+    def geometry(span: float) -> str:
+        path = tmp_path / f"span{span:g}.toml"
+        table = '[output]\nunit = "range"\nrange_lo = 0\nrange_hi = 4095\n'
+        table += f"span_min_deg = {-span}\nspan_max_deg = {span}\n"
+        path.write_text(preset_path("rus6", "ceart").read_text() + "\n" + table)
+        return str(path)
+
+    fmt = quote("text:" + ",".join(f"{{{i}}}" for i in range(1, 7)) + "\\n", safe="")
+    rx = UdpDrive()
+    try:
+        url = f"udp:127.0.0.1:{rx.port}?rate=200&format={fmt}"
+        code = cli.main(["output", "--test", url, "--platform", geometry(45.0)])
+        err = capsys.readouterr().err
+        assert code == 2 and "park command" in err and len(err.strip().splitlines()) == 1, err
+        time.sleep(0.3)
+        assert rx.count() == 0  # nothing was sent
+        # +-58 deg holds park (-55 deg): every value on the wire within 0..4095, park last
+        args = ["--platform", geometry(58.0), "--speed-deg-s", "60", "--range-deg", "5"]
+        assert cli.main(["output", "--test", url, *args]) == 0
+        rx.drain()
+    finally:
+        rx.close()
+    values = np.array([[int(x) for x in f.strip().split(b",")] for _, f in rx.frames])
+    assert len(values) > 100
+    assert values.min() >= 0 and values.max() <= 4095
+    park = round((-55.0 + 58.0) / 116.0 * 4095.0)  # the span's straight line at park
+    assert np.all(np.abs(values[-1] - park) <= 1), values[-1]
+
+
+def test_a_sweep_end_the_drive_cannot_be_sent_is_refused(tmp_path, capsys):
+    """An ``[output]`` drive range of -60..3 deg (or a frame field that stops there) with
+    the default +-5 deg sweep: the ends at +5 deg were held, each motor stopped short at
+    3 deg and the check ended "exit 0" as if it had shown +5 and -5. Refused now, naming
+    the motor and its drive value, one line, exit 2, nothing sent; --range-deg 3 runs."""
+    from motionbase import cli
+    from motionbase.config import preset_path
+
+    path = tmp_path / "narrow.toml"
+    table = '[output]\nunit = "deg"\ndrive_min = -60.0\ndrive_max = 3.0\n'
+    path.write_text(preset_path("rus6", "ceart").read_text() + "\n" + table)
+    rx = UdpDrive()
+    try:
+        args = ["output", "--test", rx.url(200.0), "--platform", str(path)]
+        code = cli.main([*args, "--speed-deg-s", "60"])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert "motor 1 at +5 deg" in err and "choose a smaller --range-deg" in err, err
+        time.sleep(0.3)
+        assert rx.count() == 0  # nothing was sent
+        assert cli.main([*args, "--speed-deg-s", "60", "--range-deg", "3"]) == 0
+        rx.drain()
+    finally:
+        rx.close()
+    _, q = rx.angles()
+    np.testing.assert_allclose(np.degrees(q).max(), 3.0, atol=1e-4)  # each +3 deg, exactly
+
+
+def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
+    """``output --test udp:HOST:PORT --platform rrr3`` (no ``format``) was refused with
+    "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n': placeholder {4}: the motor number must be
+    1..3": the default frame had six fields whatever the robot. The 3-RRR's frames are now
+    ``A{1}B{2}C{3}\\n``: integer servo degrees, read here by a parser of that frame, from
+    home (90 on each servo), one servo at a time 5 deg each way, back to home last."""
+    from motionbase.app import output_test
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    geometry = Rrr3Geometry.preset("udesc_symmetric")
+    rrr3 = Rrr3(geometry)
+    lo = rrr3.angle_limits[:, 0]
+    theta = np.degrees(lo + np.mod(rrr3.inverse(rrr3.home) - lo, 2 * math.pi))
+    home = np.array(geometry.servo_direction) * (theta - geometry.servo_zero_deg)  # servo deg
+    rx = UdpDrive(n=3)
+    try:
+        output_test(
+            f"udp:127.0.0.1:{rx.port}", "rrr3", speed_deg_s=60.0, rate_hz=200.0,
+            echo=lambda s: None,
+        )  # fmt: skip
+        rx.drain()
+    finally:
+        rx.close()
+    frames = [f for _, f in rx.frames]
+    assert frames
+    values = []
+    for f in frames:
+        m = re.fullmatch(rb"A(-?\d+)B(-?\d+)C(-?\d+)\n", f)
+        assert m is not None, f
+        values.append([int(x) for x in m.groups()])
+    deg = np.array(values, dtype=float)
+    np.testing.assert_array_equal(deg[-1], [90, 90, 90])  # home, the 3-RRR's park
+    np.testing.assert_array_equal(deg[-1], np.round(home))
+    dev = deg - np.round(home)
+    assert np.abs(dev).max() <= 5 + 1  # 5 deg each way, rounded to whole degrees
+    for i in range(3):  # each servo reaches +5 and -5 deg (to the rounding) in turn
+        assert dev[:, i].max() >= 4 and dev[:, i].min() <= -4, i
 
 
 def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_refused(capsys):

@@ -608,12 +608,37 @@ def output_test(
                     say(f"output test stopped by {why}: {how}")
 
         check_sendable(sink, robot)
+        _check_sweep_sendable(sink, sweep.neutral, rng, unit, scale)
         say(f"output test on {sink.label}: {mapping.describe()}")
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")
         with sink:
             run(pipeline, sweep, [sink], paced=True, stop=stop, progress=on_tick)
         say(sink.stats_line())
         return lines
+
+
+def _check_sweep_sendable(
+    sink: Any, neutral: np.ndarray, rng: float, unit: str, scale: float
+) -> None:
+    """A ConfigError unless the drive can be sent each end of each actuator's sweep: one
+    outside the drive range or the frame's fields would be held, and the actuator would stop
+    short of it, the check silently not showing the move it says it makes."""
+    option = "--range-mm" if unit == "mm" else "--range-deg"
+    for i in range(len(neutral)):
+        for side in (1.0, -1.0):
+            q = np.array(neutral, dtype=float)
+            q[i] += side * rng * scale
+            values = sink.mapping.to_drive(q)
+            if (
+                not sink.mapping.in_range(values).all()
+                or sink.format.encode(values.tolist()) is None
+            ):
+                raise ConfigError(
+                    f"output {sink.url!r}: motor {i + 1} at {side * rng:+g} {unit} from neutral "
+                    f"is drive value {values[i]:g}, which the drive range "
+                    f"{sink.mapping.drive_min[i]:g}..{sink.mapping.drive_max[i]:g} or the frame "
+                    f"format {sink.format.describe()!r} cannot carry: choose a smaller {option}"
+                )
 
 
 def _sweep_line(

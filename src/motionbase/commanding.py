@@ -59,7 +59,7 @@ from motionbase.safety import ActuatorLimits
 from motionbase.state import PHASES
 from motionbase.stopping import StopRequest
 
-__all__ = ["MODES", "Command", "CommandPipeline", "SweepSource"]
+__all__ = ["MODES", "Command", "CommandPipeline", "SweepSource", "check_sweep_range"]
 
 MODES = ("actuators", "poses")
 
@@ -353,11 +353,80 @@ class CommandPipeline(PipelineCore):
 
 # --------------------------------------------------------------------------- the sweep
 
+#: Steps per side of each actuator's sweep at which :func:`check_sweep_range` solves the
+#: forward kinematics (each from the step before: the assembly the robot moves through).
+SWEEP_CHECK_STEPS = 200
+
+
+def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
+    """A ConfigError unless the wiring check can move each actuator alone ``+-range_``
+    about ``neutral``, the others held there: within the actuator limits, and through
+    poses the robot can take (:meth:`Robot.reachable`), along the assembly it is in.
+
+    A parallel robot whose actuator moves alone moves its platform: past some offset no
+    pose has every leg at its length (the 3-RRR's servos at about 12 deg from home),
+    and before it the platform nears a singularity and spins. The drive would push the
+    linkage against itself there, though every actuator is within its limits.
+
+    Parameters
+    ----------
+    robot : Robot
+    neutral : ndarray, shape (n,)
+        The actuators at the neutral pose (rad or m).
+    range_ : float
+        Half-range of each sweep, in the robot's actuator unit (> 0).
+    """
+    linear = robot.actuator_unit == "m"
+    unit, scale, option = (
+        ("mm", 1e3, "--range-mm") if linear else ("deg", 180 / math.pi, "--range-deg")
+    )
+    what = "length" if linear else "crank"
+    shown = f"+-{range_ * scale:g} {unit}"
+    lim = robot.limits
+    if not range_ > 0:
+        raise ConfigError(f"output test: the sweep range must be > 0, got {shown} ({option})")
+    if np.any(neutral + range_ > lim.upper) or np.any(neutral - range_ < lim.lower):
+        raise ConfigError(
+            f"output test: {shown} about neutral leaves the {what} limits (choose a "
+            f"smaller {option})"
+        )
+    neutral_pose = np.asarray(robot.neutral_pose, dtype=float)
+    fractions = np.arange(1, SWEEP_CHECK_STEPS + 1) / SWEEP_CHECK_STEPS
+    for i in range(robot.n):
+        for side in (1.0, -1.0):
+            pose = neutral_pose
+            for f in fractions:
+                q = neutral.copy()
+                q[i] += side * f * range_
+                pose = robot.forward(q, guess=pose)
+                ok = np.isfinite(pose).all() and np.allclose(
+                    robot.inverse(pose), q, rtol=0.0, atol=1e-9
+                )
+                if ok and not np.all(robot.reachable(pose)):
+                    # a pose at an actuator limit itself may read as a hair outside it
+                    inside = q.copy()
+                    inside[i] -= side * 1e-9
+                    at_limit = not lim.lower[i] < q[i] < lim.upper[i]
+                    probe = robot.forward(inside, guess=pose)
+                    ok = (
+                        at_limit
+                        and np.isfinite(probe).all()
+                        and bool(np.all(robot.reachable(probe)))
+                    )
+                if not ok:
+                    raise ConfigError(
+                        f"output test: actuator {i + 1} alone at {side * f * range_ * scale:+.3g} "
+                        f"{unit} from neutral takes the robot out of its workspace (no pose, or "
+                        f"one too near a singularity, holds its legs there): {shown} is too "
+                        f"far for a sweep of one actuator at a time (choose a smaller {option})"
+                    )
+
 
 class SweepSource(Iterator[Command]):
     """The wiring check as a command source: actuator targets that rest at park, move to
     neutral, take each actuator in turn through ``+range, -range`` about neutral and back,
-    return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`).
+    return to park and rest (:func:`motionbase.platform.output_map.sweep_profile`), after
+    :func:`check_sweep_range` has found every actuator's sweep one the robot can follow.
 
     Each command's ``info`` is the actuator being moved (1-based; 0 on the way from or to
     park): a display can say which (``motionbase output --test`` prints a line when it
@@ -399,6 +468,7 @@ class SweepSource(Iterator[Command]):
         self.accel = 0.5 * float(lim.max_accel.min())
         self.dt = 1.0 / rate_hz
         self.neutral = np.asarray(robot.inverse(robot.neutral_pose), dtype=float)
+        check_sweep_range(robot, self.neutral, range_)
         targets, motor = sweep_profile(
             robot.park_angles, self.neutral, lim.lower, lim.upper, range_rad=range_,
             speed=self.speed, accel=self.accel, dt=self.dt, dwell_s=0.2,

@@ -6,7 +6,8 @@ A drive output is chosen by a URL (``--output URL`` on ``fly``, ``replay`` and `
     serial:loop://?format=...                             (``loop://``, a pty path, ...)
     udp:192.168.1.50:4123?rate=1000&format=...
 
-Query keys: ``format`` (below; URL-encode it: ``%7B`` ``{``, ``%7D`` ``}``, ``%2B`` ``+``,
+Query keys: ``format`` (below; default ``A{1}B{2}C{3}D{4}E{5}F{6}\n``, one letter a motor:
+``A{1}B{2}C{3}\n`` for the 3-RRR; URL-encode it: ``%7B`` ``{``, ``%7D`` ``}``, ``%2B`` ``+``,
 ``%26`` ``&``, ``%23`` ``#``; a literal ``+`` means a space), ``rate`` (frames per second,
 default 100), ``baud`` (serial, default 115200). Other keys of a serial URL go to pyserial.
 
@@ -58,8 +59,10 @@ Behaviour
   since that frame (:func:`ramp_step`, :func:`motionbase.safety.ramp_command`). So the
   limits hold at the drive whatever the ticks did (late ticks, a burst after a stall,
   timestamps squeezed in a recording): a frame the limiter changed is counted in
-  ``ramped``. A drive whose last frame is more than two periods old (a link that was down,
-  a sender stall) is taken to stand at that frame and is ramped from there, from rest.
+  ``ramped``. The positions are also kept within the drive range (:func:`drive_limits`):
+  a drive range narrower than the actuator limits is braked for, as an angle limit is. A
+  drive whose last frame is more than two periods old (a link that was down, a sender
+  stall) is taken to stand at that frame and is ramped from there, from rest.
 * The ramp feeds forward each command's own speed: its step from the command of the tick
   before, over the pipeline's tick (``command_dt``), never the speed between the frames
   that happened to sample it (the sender samples the commands at its own rate: one
@@ -76,9 +79,10 @@ Behaviour
   warning line; the pipeline and its log go on; a serial port is reopened once a second and
   sending resumes (``link back`` line) when it returns. Frames sent while the link is
   reported down (from the first failed send until a second of sends without errors) count as not
-  received: when it returns, the drive is ramped from the last frame sent before, within
-  the limits. (UDP cannot tell whether a datagram arrived: on a network that drops frames
-  without an error, the drive-side limiter still bounds each step by the time elapsed.)
+  received: when it returns, the drive is ramped from the last frame sent before (from the
+  first command, park, when none got through), within the limits. (UDP cannot tell
+  whether a datagram arrived: on a network that drops frames without an error, the
+  drive-side limiter still bounds each step by the time elapsed.)
 """
 
 from __future__ import annotations
@@ -117,6 +121,7 @@ __all__ = [
     "crc16_ccitt",
     "crc16_modbus",
     "check_sendable",
+    "drive_limits",
     "mapping_for",
     "open_output",
     "open_outputs",
@@ -128,6 +133,15 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
+
+
+def default_text(n: int) -> str:
+    """The frame format of a URL without ``format``: :data:`DEFAULT_TEXT` for six motors,
+    its first ``n`` fields for fewer (``A{1}B{2}C{3}\\n`` for the 3-RRR), more letters
+    for more."""
+    return "".join(f"{chr(ord('A') + i)}{{{i + 1}}}" for i in range(n)) + "\\n"
+
+
 DEFAULT_RATE_HZ = 100.0
 #: Seconds of sends without an error before a link that was down counts as back (UDP reports
 #: a refused datagram on a later send).
@@ -272,18 +286,28 @@ class TextFormat:
         """The frame for drive values (one per motor), or None when a value cannot be written."""
         out = self._literals[:]
         for k, f in enumerate(self.fields):
-            v = values[f.axis]
-            if v != v:  # NaN
-                return None
-            if f.integer:
-                v = int(round(v))
-                if f.unsigned and v < 0:
-                    return None
-            text = format(v, f.spec)
-            if f.exact_width is not None and len(text) != f.exact_width:
+            text = self._text(f, values[f.axis])
+            if text is None:
                 return None
             out[2 * k + 1] = text
         return "".join(out).encode("latin-1")
+
+    @staticmethod
+    def _text(f: _TextField, v: float) -> str | None:
+        if v != v:  # NaN
+            return None
+        if f.integer:
+            v = int(round(v))
+            if f.unsigned and v < 0:
+                return None
+        text = format(v, f.spec)
+        if f.exact_width is not None and len(text) != f.exact_width:
+            return None
+        return text
+
+    def axis_ok(self, axis: int, value: float) -> bool:
+        """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
+        return all(self._text(f, value) is not None for f in self.fields if f.axis == axis)
 
     def describe(self) -> str:
         return f"text:{self.template}"
@@ -386,11 +410,8 @@ class BinaryFormat:
         for i in self.items:
             kind = i.kind
             if kind == "axis":
-                v = values[i.axis] * i.scale
-                if not (i.lo - 0.5 <= v <= i.hi + 0.5):  # False for NaN
-                    return None
-                iv = int(round(v))
-                if iv < i.lo or iv > i.hi:
+                iv = self._int(i, values[i.axis])
+                if iv is None:
                     return None
                 out += iv.to_bytes(i.size, i.order, signed=i.signed)
             elif kind == "lit":
@@ -399,6 +420,22 @@ class BinaryFormat:
                 fn, size, order = _CHECKSUMS[i.checksum]
                 out += fn(bytes(out[i.start :])).to_bytes(size, order)
         return bytes(out)
+
+    @staticmethod
+    def _int(i: _BinField, value: float) -> int | None:
+        v = value * i.scale
+        if not (i.lo - 0.5 <= v <= i.hi + 0.5):  # False for NaN
+            return None
+        iv = int(round(v))
+        return None if iv < i.lo or iv > i.hi else iv
+
+    def axis_ok(self, axis: int, value: float) -> bool:
+        """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
+        return all(
+            self._int(i, value) is not None
+            for i in self.items
+            if i.kind == "axis" and i.axis == axis
+        )
 
     def describe(self) -> str:
         return f"bin:{self.spec}"
@@ -627,7 +664,9 @@ def ramp_step(
 ) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The drive's next frame toward ``command`` at ``now``: the sender's ramp, one frame.
 
-    A drive that got nothing yet starts where the command is. One that got its last frame
+    A drive that got nothing yet starts where the command is (:class:`MotorOutput` takes a
+    drive whose first frame did not get through to stand at that first command, park, and
+    passes it here as ``drive``). One that got its last frame
     more than two periods ago stood still at it (a sender stall, a link that was down): the
     ramp starts again from there, at rest, on a step of one period. A step shorter than
     :data:`MIN_STEP_PERIODS` is not taken (None: no frame now). Otherwise
@@ -672,6 +711,62 @@ def ramp_step(
     return (target if np.array_equal(q, target) else q), v, status
 
 
+def drive_limits(
+    limits: ActuatorLimits, mapping: OutputMapping, frame_format: FrameFormat | None = None
+) -> ActuatorLimits:
+    """The ramp's limits: ``limits`` with each actuator's range cut to the positions that
+    are sent: whose drive values are within the drive range (``mapping.drive_min..
+    drive_max``) and, given ``frame_format``, carried by its fields (a field's bounds, an
+    exact width).
+
+    A drive range (or a frame field) narrower than the actuator limits holds the commands
+    beyond it: the drive got the last one it could and stopped there at once, from whatever
+    speed (4.9 rad/s^2 on the wire against a 0.87 limit). With the range in the ramp's
+    limits it brakes before the edge, as the limiter brakes before an angle limit. Each
+    edge is the last position sent (by bisection to adjacent floats: a position sent is
+    within it, one beyond is not); the limits are returned unchanged when both of an
+    actuator's limits are sent (the default mapping: the drive range is their image).
+    """
+    axes = set(frame_format.axes) if frame_format is not None else set()
+    probe = np.array(limits.lower, dtype=float)
+
+    def sent(i: int, x: float) -> bool:
+        probe[i] = x  # (the other motors' values do not matter to motor i's)
+        v = float(mapping.to_drive(probe)[i])
+        if not mapping.drive_min[i] <= v <= mapping.drive_max[i]:  # False for NaN
+            return False
+        return i not in axes or frame_format.axis_ok(i, v)  # type: ignore[union-attr]
+
+    lower, upper = np.array(limits.lower, dtype=float), np.array(limits.upper, dtype=float)
+    for i in range(len(lower)):
+        lo, hi = float(lower[i]), float(upper[i])
+        lo_ok, hi_ok = sent(i, lo), sent(i, hi)
+        if lo_ok and hi_ok:
+            continue
+        good = next((x for x in (0.5 * (lo + hi), lo, hi) if sent(i, x)), None)
+        if good is None:  # nothing sent (check_sendable refuses such an output)
+            continue
+        for bad, side in ((lo, lo_ok), (hi, hi_ok)):
+            if side:
+                continue
+            g = good
+            for _ in range(2000):  # to adjacent floats
+                m = 0.5 * (g + bad)
+                if m in (g, bad):
+                    break
+                if sent(i, m):
+                    g = m
+                else:
+                    bad = m
+            if bad < good:
+                lower[i] = g
+            else:
+                upper[i] = g
+    if np.array_equal(lower, limits.lower) and np.array_equal(upper, limits.upper):
+        return limits
+    return ActuatorLimits(lower, upper, limits.max_speed, limits.max_accel)
+
+
 # --------------------------------------------------------------------------- the sink
 
 
@@ -693,7 +788,8 @@ class MotorOutput:
         geometry's). When given, every frame is ramped at the drive: the sender knows what
         the drive last received and when, and moves it toward the latest command no faster
         than these limits allow over the wall-clock time elapsed (:func:`ramp_step`),
-        whatever the pipeline's ticks did (see the module docstring). None: frames carry the
+        whatever the pipeline's ticks did (see the module docstring), and within the
+        positions the drive range can carry (:func:`drive_limits`). None: frames carry the
         latest command as it is, and ``close()`` sends it once (the sender alone; every
         ``motionbase`` command that drives motors gives the limits).
     command_dt : float, optional
@@ -744,7 +840,7 @@ class MotorOutput:
         self.format = frame_format
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
-        self.limits = limits
+        self.limits = None if limits is None else drive_limits(limits, mapping, frame_format)
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
@@ -889,6 +985,12 @@ class MotorOutput:
             # received (as far as the sender can know): the drive is there now
             self._drive = Drive(q, v, sent)
             return frame is command.frame and not v.any()
+        if self._drive is None:
+            # The first frame did not get through (a drive not reading yet): the drive is
+            # taken to stand at the first command, the park command every run starts from,
+            # and is ramped from there when it returns. It used to be sent the command of the
+            # moment it returned, a jump of 10 deg in one frame 7 s into a wiring check.
+            self._drive = Drive(q, np.zeros_like(q), sent)
         return False
 
     def _finish_ramp(self, command: DriveCommand) -> None:
@@ -1032,7 +1134,7 @@ def open_output(
     pairs = parse_qsl(query, keep_blank_values=True)
     ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
     other = [(k, v) for k, v in pairs if k not in ours]
-    fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
+    fmt, extra = parse_format(ours.get("format", default_text(mapping.n)), mapping.n)
     try:
         rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
     except (TypeError, ValueError):
@@ -1118,11 +1220,16 @@ def check_sendable(sink: MotorOutput, robot: Robot) -> None:
 
 
 def mapping_for(robot: Robot) -> OutputMapping:
-    """The geometry's ``[output]`` mapping; when it has none, degrees for every motor
-    (rotary actuators) or millimetres (linear ones, ``robot.actuator_unit == "m"``)."""
+    """The geometry's ``[output]`` mapping; when it has none, the robot's default
+    (:meth:`Robot.default_output`): degrees for every crank (rotary actuators), millimetres
+    (linear ones, ``robot.actuator_unit == "m"``), servo degrees for the 3-RRR's hobby
+    servos (its ``[servo]`` zero offsets and directions)."""
     out = getattr(robot.geometry, "output", None)
     if out is not None:
         return out
+    default = getattr(robot, "default_output", None)  # (a plug-in robot may predate it)
+    if default is not None:
+        return default()
     lim = robot.limits
     unit = "mm" if robot.actuator_unit == "m" else "deg"
     return OutputMapping.default(lim.lower, lim.upper, unit=unit)

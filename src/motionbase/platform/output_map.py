@@ -23,7 +23,9 @@ growing as the crank tip rises):
 
 Every motor has a drive range ``drive_min..drive_max`` (drive units); a value outside it is
 never sent. The default is the image of the crank limits (rounded for integer units), so a
-command within the crank limits always fits.
+command within the crank limits always fits; for ``"range"`` only its part within
+``range_lo..range_hi`` (a span narrower than the crank range leaves the commands beyond it
+unsent, never sent past the range).
 
 TOML (an ``[output]`` table of the 6-RUS geometry file)::
 
@@ -36,7 +38,8 @@ TOML (an ``[output]`` table of the 6-RUS geometry file)::
     range_hi = 4095
     # counts_per_rev = 10000          (unit = "counts")
     # span_min_deg / span_max_deg     (unit = "range"; default: the crank range)
-    # drive_min / drive_max           (drive units; default: the crank range's image)
+    # drive_min / drive_max           (drive units; default: the crank range's image,
+    #                                  within range_lo..range_hi for unit "range")
 """
 
 from __future__ import annotations
@@ -340,8 +343,14 @@ class OutputMapping:
                         f"({v1[i]:g}): check its zero_offset and gear_ratio (the offset "
                         "swamps the crank's motion), or give drive_min/drive_max"
                     )
-                dmin = np.where(np.isnan(dmin), np.minimum(v1, v2), dmin)
-                dmax = np.where(np.isnan(dmax), np.maximum(v1, v2), dmax)
+                lo, hi = np.minimum(v1, v2), np.maximum(v1, v2)
+                if kw["unit"] == "range":
+                    # the range is the drive's: a span narrower than the crank range (0..4095
+                    # across +-45 deg of +-60 deg cranks) sent 4778 to a 12-bit drive
+                    lo = np.maximum(lo, probe.range_lo)
+                    hi = np.minimum(hi, probe.range_hi)
+                dmin = np.where(np.isnan(dmin), lo, dmin)
+                dmax = np.where(np.isnan(dmax), hi, dmax)
             kw["drive_min"], kw["drive_max"] = dmin, dmax
             mapping = cls(**kw)
             # Past 2^53 a double no longer holds every whole number: a gear ratio or counts

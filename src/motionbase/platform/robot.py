@@ -164,6 +164,15 @@ class Robot(ABC):
         """Hobby-servo command in integer degrees, for robots driven that way (else None)."""
         return None
 
+    def default_output(self) -> Any:
+        """The drive values of a geometry without an ``[output]`` table, an
+        :class:`~motionbase.platform.output_map.OutputMapping`: degrees of each crank (rotary
+        actuators) or millimetres of each length (linear ones, ``actuator_unit == "m"``)."""
+        from motionbase.platform.output_map import OutputMapping
+
+        unit = "mm" if self.actuator_unit == "m" else "deg"
+        return OutputMapping.default(self.limits.lower, self.limits.upper, unit=unit)
+
     def _finish(self) -> None:
         """Check and freeze the attributes a subclass's constructor set."""
         for name in ("park_angles", "park_pose", "park_cue", "neutral_pose"):

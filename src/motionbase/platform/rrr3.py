@@ -622,3 +622,21 @@ class Rrr3Robot(Robot):
 
     def servo(self, q: np.ndarray) -> np.ndarray:
         return np.asarray(self.kin.to_servo(q))
+
+    def default_output(self) -> Any:
+        """Servo degrees, as :meth:`servo` commands them: ``direction * (theta - zero_deg)``
+        per servo (the ``[servo]`` table; no wrap is needed within the servo's range), not the
+        joint angles in the base frame (92, 212, 332 deg at home for servos that all stand at
+        90 there). Fractional: the frame format rounds them."""
+        from motionbase.platform.output_map import OutputMapping
+
+        g = self.geometry
+        direction = np.asarray(g.servo_direction, dtype=float)
+        table = {
+            "unit": "deg",
+            "sign": direction.tolist(),
+            "zero_offset_deg": (-direction * np.asarray(g.servo_zero_deg, dtype=float)).tolist(),
+        }
+        return OutputMapping.from_dict(
+            table, angle_min=self.limits.lower, angle_max=self.limits.upper, source="[servo]"
+        )
