@@ -470,6 +470,21 @@ def test_bad_urls_say_what_is_wrong(url, err, match):
         open_output(url, m).open()
 
 
+def test_frames_the_serial_line_cannot_carry_are_refused_before_the_run(caplog):
+    """A frame rate past what the baud rate carries was a warning ("frames will be
+    dropped"), and the frames queued up behind the line instead: on a slow line the drive
+    read ever older commands, and its park frame seconds after the sender said it had
+    parked. The frame here is 2 header bytes, six 16-bit fields and a checksum byte: 15
+    bytes, 150 bits with a start and a stop bit each, 15000 baud at 100 Hz."""
+    url = "serial:loop://?format=bin:0xFFFE,6xu16be,sum8@2&rate=100&baud={}"
+    m = mapping({"unit": "range", "range_lo": 0, "range_hi": 4095})
+    with pytest.raises(ConfigError, match=r"frames of up to 15 bytes at 100 Hz need 15000 baud"):
+        open_output(url.format(14999), m)
+    with open_output(url.format(15000), m):  # what the line carries
+        pass
+    assert not caplog.records
+
+
 @pytest.mark.parametrize("baud", ["0", "-5"])
 def test_a_baud_rate_of_zero_is_one_error_and_no_warning(baud, caplog):
     """``baud=0`` used to print the frames-will-be-dropped warning (0 baud is less than any

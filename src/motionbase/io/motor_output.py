@@ -711,6 +711,18 @@ def ramp_step(
     return (target if np.array_equal(q, target) else q), v, status
 
 
+def _longest_frame(fmt: FrameFormat, mapping: OutputMapping) -> int:
+    """Bytes of the longest frame ``fmt`` makes of the drive values ``mapping`` sends (a text
+    frame's numbers are longest at an end of the drive range, or at zero)."""
+    longest = 0
+    for values in (np.zeros(mapping.n), mapping.drive_min, mapping.drive_max):
+        try:
+            longest = max(longest, len(fmt.encode(values) or b""))
+        except (ValueError, OverflowError):  # (a value the fields cannot carry: never sent)
+            continue
+    return longest
+
+
 def drive_limits(
     limits: ActuatorLimits, mapping: OutputMapping, frame_format: FrameFormat | None = None
 ) -> ActuatorLimits:
@@ -1156,13 +1168,14 @@ def open_output(
         if not base:
             raise ConfigError(f"output {url!r}: give a device or pyserial URL after 'serial:'")
         dev = base + ("?" + urlencode(other) if other else "")
-        size = len(fmt.encode([0] * mapping.n) or b"")  # (a binary frame: always its size)
-        if size * 10 * rate > baud:
-            log.warning(
-                "output %s: %d-byte frames at %g Hz need %d baud, more than %d: frames will be "
-                "dropped (raise baud or lower rate)",
-                url, size, rate, size * 10 * rate, baud,
-            )  # fmt: skip
+        size = _longest_frame(fmt, mapping)
+        if size * 10 * rate > baud:  # (10 bits a byte: start, 8 data, stop)
+            raise ConfigError(
+                f"output {url!r}: frames of up to {size} bytes at {rate:g} Hz need "
+                f"{math.ceil(size * 10 * rate)} baud, more than the line's {baud}: they would "
+                "queue up behind it and reach the drive ever later, the park frame last (raise "
+                "baud=, which a USB serial device ignores, or lower rate=)"
+            )
         transport: Any = _SerialTransport(dev, baud)
     else:
         if other:
