@@ -1063,3 +1063,30 @@ def test_a_geometry_file_not_in_utf8_says_where(run_cli, tmp_path):
     code, _, err = run_cli("workspace", "--platform", path)
     assert code == 2
     one_line(err, f"{path}: not a text TOML file", "line 2", "save it as UTF-8")
+
+
+# --------------------------------------------------------------------------- review: cli
+
+#: A process's address space in the tests that read endless files: old code read them until
+#: the memory ran out (a MemoryError traceback here; the machine's memory without a limit).
+_AS_LIMIT = "import resource\nresource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30))"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["workspace", "--platform", "/dev/zero"],
+        ["workspace", "--planar", "--platform", "/dev/urandom"],
+        ["teleop", "--input", "file:CSV", "--calibration", "/dev/zero"],
+    ],
+    ids=["geometry", "3-RRR geometry", "calibration"],
+)
+def test_a_toml_path_that_never_ends_is_one_line(tmp_path, args):
+    """``--platform /dev/zero`` (or /dev/urandom, any device that never ends): the file was
+    read whole, until the memory ran out. One line naming the file, exit 2."""
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("t,x,y\n0,100,100\n0.5,120,110\n")
+    args = [a.replace("CSV", str(csv)) for a in args]
+    code, err = run_process(*args, setup=_AS_LIMIT, cwd=tmp_path)
+    assert code == 2, err
+    one_line(err, f"{args[-1]}: larger than", "not a configuration file")

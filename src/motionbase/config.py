@@ -21,12 +21,22 @@ import tomli_w
 
 from motionbase.errors import ConfigError
 
+#: The largest configuration file read, bytes: a file past it is not one (a device such as
+#: /dev/zero or /dev/urandom never ends, and was read until the memory ran out).
+MAX_TOML_BYTES = 16 * 1024 * 1024
+
 
 def read_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning a missing file or a syntax error into ConfigError."""
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        with p.open("rb") as fh:
+            raw = fh.read(MAX_TOML_BYTES + 1)
+        if len(raw) > MAX_TOML_BYTES:
+            raise ConfigError(
+                f"{p}: larger than {MAX_TOML_BYTES // 2**20} MB, not a configuration file "
+                "(give a .toml file)"
+            )
         # A byte-order mark (Windows Notepad writes one) is not TOML; take the text after it.
         return tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError:
