@@ -1090,3 +1090,24 @@ def test_a_toml_path_that_never_ends_is_one_line(tmp_path, args):
     code, err = run_process(*args, setup=_AS_LIMIT, cwd=tmp_path)
     assert code == 2, err
     one_line(err, f"{args[-1]}: larger than", "not a configuration file")
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["stream", "--signing-key", "/dev/urandom"], ("signing key /dev/urandom", "32 raw bytes")),
+        (["teleop", "--input", "file:/dev/zero"], ("/dev/zero: line 1", "t,x,y")),
+    ],
+    ids=["signing key", "cursor CSV"],
+)
+def test_a_key_or_cursor_file_that_never_ends_is_one_line(tmp_path, args, needles):
+    """``--signing-key /dev/urandom`` (the README makes a key with ``head -c 32
+    /dev/urandom``) and ``--input file:/dev/zero`` were read until the memory ran out."""
+    link = ["--mavlink", f"udpin:127.0.0.1:{_closed_port()}"] if args[0] == "stream" else []
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        *args, *link, "--duration", "1", "--out", out, setup=_AS_LIMIT, cwd=tmp_path
+    )
+    assert code == 2, err
+    one_line(err, *needles)
+    assert not out.exists()

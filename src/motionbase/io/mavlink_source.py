@@ -219,6 +219,10 @@ MavlinkTick = LiveTick
 """The freshness of a tick (the name this module exported before the live sources shared it)."""
 
 
+#: The most of a signing key file read, bytes (64 hex digits and whitespace fit many times).
+_MAX_KEY_FILE = 4096
+
+
 def load_signing_key(path: str | os.PathLike[str]) -> bytes:
     """Read a 32-byte MAVLink 2 signing key from a file.
 
@@ -240,7 +244,8 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
     """
     p = Path(path)
     try:
-        data = p.read_bytes()
+        with p.open("rb") as fh:  # (a device such as /dev/urandom never ends)
+            data = fh.read(_MAX_KEY_FILE + 1)
     except OSError as exc:
         raise ConfigError(
             f"signing key {p}: cannot read ({exc.strerror}); give the path of a 32-byte key file"
@@ -249,6 +254,11 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
         return data
     text = data.strip()
     make = "(make one with: head -c 32 /dev/urandom > key.bin)"
+    if len(data) > _MAX_KEY_FILE:
+        raise ConfigError(
+            f"signing key {p}: expected 32 raw bytes or 64 hex digits, got more than "
+            f"{_MAX_KEY_FILE} bytes {make}"
+        )
     if len(text) == 64 and text.isascii():
         chars = text.decode("ascii")
         bad = next((i for i, c in enumerate(chars) if c not in string.hexdigits), None)
