@@ -1111,3 +1111,30 @@ def test_a_key_or_cursor_file_that_never_ends_is_one_line(tmp_path, args, needle
     assert code == 2, err
     one_line(err, *needles)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        # a traceback (OverflowError: cannot convert float infinity to integer) ...
+        (["--speed-deg-s", "1e-320"], ("deg/s", "more than an hour", "--speed-deg-s")),
+        (["--platform", "stewart6", "--speed-mm-s", "1e-320"], ("mm/s", "--speed-mm-s")),
+        # ... or a sweep of years, its whole table of commands made before the first frame
+        (["--speed-deg-s", "0.0001"], ("0.0001 deg/s", "more than an hour", "--speed-deg-s")),
+        # "+-57.2958 deg about neutral leaves the crank limits (choose a smaller --range-deg)"
+        (["--platform", "stewart6", "--range-mm", "1000"], ("+-1000 mm", "--range-mm")),
+    ],
+    ids=["tiny speed", "tiny linear speed", "slow speed", "linear range"],
+)
+def test_an_output_test_sweep_out_of_reach_is_one_line_in_the_units_given(args, needles):
+    sock = udp_listener()
+    try:
+        url = f"udp:127.0.0.1:{sock.getsockname()[1]}"
+        code, err = run_process("output", "--test", url, *args, setup=_AS_LIMIT)
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 2, err
+    line = one_line(err, *needles)
+    assert ("deg" in line) == ("deg" in " ".join(args)), line
+    assert frames == []
