@@ -1138,3 +1138,14 @@ def test_an_output_test_sweep_out_of_reach_is_one_line_in_the_units_given(args, 
     line = one_line(err, *needles)
     assert ("deg" in line) == ("deg" in " ".join(args)), line
     assert frames == []
+
+
+@pytest.mark.parametrize("scale", ["1e-12", "1e-300"])
+def test_an_omct_scale_too_small_to_measure_is_one_line(tmp_path, run_cli, scale):
+    """``omct --scale 1e-300``: minutes of tests, then a traceback from the plots; ``1e-12``:
+    a table whose heave column was rounding noise, marked as a limit acting (exit 0)."""
+    out = tmp_path / "omct"
+    code, _, err = run_cli("omct", "--scale", scale, "--out", out)
+    assert code == 2, err
+    one_line(err, f"--scale {float(scale):g}", "at least 1e-06")
+    assert not out.exists()

@@ -252,6 +252,12 @@ def _test(test: str | OmctTest) -> OmctTest:
         raise ConfigError(f"OMCT: unknown test {test!r} (one of {', '.join(_BY_NAME)})") from None
 
 
+#: The smallest amplitude scale (``omct --scale``): at 1e-12 the heave column was rounding
+#: noise (0.014 at 0.1 rad/s against 5.5e-05), marked as a limit acting; at 1e-300 the plots
+#: failed with a traceback. Down to 1e-6 the table is the one at 1.
+MIN_SCALE = 1e-6
+
+
 @dataclass(frozen=True)
 class Amplitudes:
     """Input amplitudes of the tests (module docstring: why these, and what they are not).
@@ -283,9 +289,15 @@ class Amplitudes:
         return self.specific_force
 
     def scaled(self, k: float) -> Amplitudes:
-        """Every amplitude times ``k`` (> 0)."""
+        """Every amplitude times ``k`` (at least :data:`MIN_SCALE`)."""
         if not (isinstance(k, (int, float)) and math.isfinite(k) and k > 0):
             raise ConfigError(f"OMCT: the amplitude scale must be a number > 0, got {k!r}")
+        if k < MIN_SCALE:
+            raise ConfigError(
+                f"OMCT: --scale {k:g} is below {MIN_SCALE:g}: the test signals would be lost "
+                "in the rounding of the numbers they ride on (gravity, the actuators' "
+                f"angles), and the table would show that noise; give at least {MIN_SCALE:g}"
+            )
         return Amplitudes(self.angle * k, self.rate * k, self.specific_force * k)
 
     def describe(self) -> str:
