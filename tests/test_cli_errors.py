@@ -1149,3 +1149,23 @@ def test_an_omct_scale_too_small_to_measure_is_one_line(tmp_path, run_cli, scale
     assert code == 2, err
     one_line(err, f"--scale {float(scale):g}", "at least 1e-06")
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["output", "--test", "URL", "--platform", "rrr3"], ["fly", "--planar", "--output", "URL"]],
+)
+def test_the_3rrr_drives_through_an_output_url_without_a_format(tmp_path, args):
+    """The README's ``output --test URL --platform rrr3`` (and ``fly --planar --output URL``)
+    was refused for a format the user never gave: "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n':
+    placeholder {4}: the motor number must be 1..3". The default names the robot's motors."""
+    sock = udp_listener()
+    url = f"udp:127.0.0.1:{sock.getsockname()[1]}"
+    out = ["--duration", "1", "--out", tmp_path / "x.mcap"] if args[0] == "fly" else []
+    try:
+        code, err = run_process(*[url if a == "URL" else a for a in args], *out)
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 0, err
+    assert frames and all(re.fullmatch(rb"A-?\d+B-?\d+C-?\d+\n", f) for f in frames), frames[:3]

@@ -7,7 +7,8 @@ A drive output is chosen by a URL (``--output URL`` on ``fly``, ``replay`` and `
     udp:192.168.1.50:4123?rate=1000&format=...
 
 Query keys: ``format`` (below; URL-encode it: ``%7B`` ``{``, ``%7D`` ``}``, ``%2B`` ``+``,
-``%26`` ``&``, ``%23`` ``#``; a literal ``+`` means a space), ``rate`` (frames per second,
+``%26`` ``&``, ``%23`` ``#``; a literal ``+`` means a space; by default ``A{1}B{2}...\n``, a
+letter and a value for each of the robot's motors), ``rate`` (frames per second,
 default 100), ``baud`` (serial, default 115200). Other keys of a serial URL go to pyserial.
 
 Format language
@@ -127,6 +128,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: The text format of a URL without ``format``, for six motors; :func:`default_text` gives
+#: the same for any number (the 3-RRR's three servos: ``A{1}B{2}C{3}\\n``).
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
 DEFAULT_RATE_HZ = 100.0
 #: Seconds of sends without an error before a link that was down counts as back (UDP reports
@@ -405,6 +408,12 @@ class BinaryFormat:
 
 
 FrameFormat = TextFormat | BinaryFormat
+
+
+def default_text(n_axes: int) -> str:
+    """The default text format for ``n_axes`` motors: a letter, then motor N's drive value,
+    for each (:data:`DEFAULT_TEXT` for six), and a newline."""
+    return "".join(f"{chr(ord('A') + i)}{{{i + 1}}}" for i in range(n_axes)) + "\\n"
 
 
 def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any]]:
@@ -1032,7 +1041,7 @@ def open_output(
     pairs = parse_qsl(query, keep_blank_values=True)
     ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
     other = [(k, v) for k, v in pairs if k not in ours]
-    fmt, extra = parse_format(ours.get("format", DEFAULT_TEXT), mapping.n)
+    fmt, extra = parse_format(ours.get("format", default_text(mapping.n)), mapping.n)
     try:
         rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
     except (TypeError, ValueError):
