@@ -1169,3 +1169,16 @@ def test_the_3rrr_drives_through_an_output_url_without_a_format(tmp_path, args):
         sock.close()
     assert code == 0, err
     assert frames and all(re.fullmatch(rb"A-?\d+B-?\d+C-?\d+\n", f) for f in frames), frames[:3]
+
+
+def test_tune_out_may_not_overwrite_the_platform_file(tmp_path, run_cli):
+    """``tune --platform rig.toml --out rig.toml``: the tuning read the geometry, then wrote
+    the tuned washout over it (exit 0): the user's geometry was gone."""
+    rig = tmp_path / "rig.toml"
+    rig.write_bytes((Path(cli.__file__).parent / "presets" / "rus6_ceart.toml").read_bytes())
+    before = rig.read_bytes()
+    args = ["--scripts", "c1723@0:5", "--holdout", "none", "--budget", "1"]
+    code, _, err = run_cli("tune", "--platform", rig, *args, "--out", rig)
+    assert code == 2, err
+    one_line(err, "--out", "--platform", "destroy")
+    assert rig.read_bytes() == before

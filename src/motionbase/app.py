@@ -1617,10 +1617,13 @@ def tune(
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
     fallback = getattr(start, "fallback", None)
-    if isinstance(fallback, str):  # (--out may be the start set itself, not its fallback)
-        refuse_out_over_inputs(
-            out_path, ("start set's solver.fallback", fallback), writing="the tuned set"
-        )
+    # (--out may be the start set itself, not the geometry nor the start set's fallback)
+    refuse_out_over_inputs(
+        out_path,
+        ("--platform", platform),
+        ("start set's solver.fallback", fallback if isinstance(fallback, str) else None),
+        writing="the tuned set",
+    )
     if profile is not None:
         from motionbase.washout.params import PROFILES
 
