@@ -1182,3 +1182,19 @@ def test_tune_out_may_not_overwrite_the_platform_file(tmp_path, run_cli):
     assert code == 2, err
     one_line(err, "--out", "--platform", "destroy")
     assert rig.read_bytes() == before
+
+
+@pytest.mark.parametrize("suffix", [".tlog", ".bin"])
+def test_a_log_without_states_leaves_an_existing_out_file_untouched(tmp_path, run_cli, suffix):
+    """``stream --mavlink notes.tlog --fast --out flight.mcap``, the .tlog holding no
+    MAVLink message of the states: refused, but only at the run's first tick, after the
+    log had been opened over flight.mcap (the user's earlier recording, now a log of one
+    park tick). Refused when the log is opened, before anything is written."""
+    garbage = tmp_path / f"garbage{suffix}"
+    garbage.write_bytes(np.random.default_rng(3).bytes(5_000))
+    out = tmp_path / "flight.mcap"
+    out.write_bytes(b"an earlier recording")
+    code, _, err = run_cli("stream", "--mavlink", garbage, "--fast", "--out", out)
+    assert code == 2, err
+    one_line(err, f"garbage{suffix}", "no ", "messages")
+    assert out.read_bytes() == b"an earlier recording"
