@@ -1198,3 +1198,33 @@ def test_a_log_without_states_leaves_an_existing_out_file_untouched(tmp_path, ru
     assert code == 2, err
     one_line(err, f"garbage{suffix}", "no ", "messages")
     assert out.read_bytes() == b"an earlier recording"
+
+
+@pytest.mark.parametrize(
+    "edit, needles",
+    [
+        # numpy's overflow warning (two lines of it) came before the error
+        ({"base_radius": 1e300, "neutral_height": 0.6}, ("'neutral_height'", "inf m long")),
+        # blamed on neutral_height, a field the file did not have
+        ({"neutral_length": 1e300}, ("'neutral_length'", "1e+300 m")),
+    ],
+    ids=["radius", "neutral length"],
+)
+def test_a_stewart_geometry_of_astronomical_size_is_one_line(tmp_path, edit, needles):
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("stewart6", "seat"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    if "neutral_height" in edit:
+        del geometry["neutral_length"]
+    geometry.update(edit)
+    path = tmp_path / "huge_seat.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    code, err = run_process("workspace", "--platform", path)
+    assert code == 2, err
+    line = one_line(err, "huge_seat.toml", *needles)
+    assert "neutral_height" not in line or "neutral_height" in edit, line
