@@ -1228,3 +1228,20 @@ def test_a_stewart_geometry_of_astronomical_size_is_one_line(tmp_path, edit, nee
     assert code == 2, err
     line = one_line(err, "huge_seat.toml", *needles)
     assert "neutral_height" not in line or "neutral_height" in edit, line
+
+
+def test_an_output_frame_rate_too_slow_to_stop_is_one_line(tmp_path, run_cli):
+    """``--output 'udp:...?rate=1e-320'``: the sender thread's wait for its second frame
+    overflowed (a traceback from the thread), one frame was sent, and the run exited 0."""
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    sock = udp_listener()
+    url = f"udp:127.0.0.1:{sock.getsockname()[1]}?rate=1e-320"
+    out = tmp_path / "out.mcap"
+    try:
+        code, _, err = run_cli("replay", rec, "--platform", "ceart", "--output", url, "--out", out)
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 2, err
+    one_line(err, "rate must be in [1, 10000] Hz", "1e-320")
+    assert frames == [] and not out.exists()
