@@ -1245,3 +1245,19 @@ def test_an_output_frame_rate_too_slow_to_stop_is_one_line(tmp_path, run_cli):
     assert code == 2, err
     one_line(err, "rate must be in [1, 10000] Hz", "1e-320")
     assert frames == [] and not out.exists()
+
+
+def test_a_baud_rate_past_a_c_long_is_one_line(tmp_path, run_cli):
+    """``serial:/dev/ttyUSB0?baud=99999999999999999999`` (a pseudo-terminal here): pyserial's
+    OverflowError came out as a traceback."""
+    import pty
+
+    master, slave = pty.openpty()
+    try:
+        url = f"serial:{os.ttyname(slave)}?baud=99999999999999999999"
+        code, _, err = run_cli("output", "--test", url)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert code == 2, err
+    one_line(err, "cannot open serial port", "too large")
