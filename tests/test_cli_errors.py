@@ -1261,3 +1261,19 @@ def test_a_baud_rate_past_a_c_long_is_one_line(tmp_path, run_cli):
         os.close(slave)
     assert code == 2, err
     one_line(err, "cannot open serial port", "too large")
+
+
+@pytest.mark.parametrize("limit", ["angle_min_deg", "angle_max_deg"])
+def test_a_neutral_angle_on_a_crank_limit_names_neutral_angle_deg(tmp_path, run_cli, limit):
+    """``neutral_angle_deg = 0`` with ``angle_min_deg = 0``: the crank angle the neutral height
+    gives back is -0.00 deg, a rounding below the limit, and the error named
+    'neutral_height', a field the file did not have (with ``angle_max_deg = 0`` the rounding
+    fell the other way and the file was taken). Refused alike, naming the field given."""
+    src = (Path(cli.__file__).parent / "presets" / "rus6_ceart.toml").read_text()
+    lines = [ln for ln in src.splitlines() if not ln.startswith((limit, "park_angle_deg"))]
+    path = tmp_path / "on_limit.toml"
+    path.write_text(f"{limit} = 0.0\n" + "\n".join(lines) + "\n")
+    code, _, err = run_cli("workspace", "--platform", path)
+    assert code == 2, err
+    line = one_line(err, "on_limit.toml", "'neutral_angle_deg'", "0 deg is on one of")
+    assert "neutral_height" not in line

@@ -470,11 +470,16 @@ class Rus6Geometry:
                 )
             ang = math.radians(as_float(source, "neutral_angle_deg", data["neutral_angle_deg"]))
             for i, (lo, hi) in enumerate(zip(kw["angle_min"], kw["angle_max"], strict=True)):
-                if lo < hi and not lo <= ang <= hi:  # (the constructor names bad limits)
+                # (the constructor names bad limits). On a limit is refused too: the angle
+                # the height gives back differs by a rounding, which fell outside and was
+                # blamed on neutral_height, a field the file did not have.
+                if lo < hi and not lo < ang < hi:
+                    where = "outside" if not lo <= ang <= hi else "on one of"
                     raise ConfigError(
                         f"{source}: field 'neutral_angle_deg': {math.degrees(ang):g} deg is "
-                        f"outside leg {i + 1}'s limits {math.degrees(lo):g} .. "
-                        f"{math.degrees(hi):g} deg (fix the angle or the limits)"
+                        f"{where} leg {i + 1}'s limits {math.degrees(lo):g} .. "
+                        f"{math.degrees(hi):g} deg (fix the angle or the limits: neutral lies "
+                        "between them)"
                     )
             geo = {
                 k: kw[k] for k in ("rb", "d", "rp", "e", "chi_a", "chi_j", "beta", "crank", "rod")
