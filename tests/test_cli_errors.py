@@ -1277,3 +1277,27 @@ def test_a_neutral_angle_on_a_crank_limit_names_neutral_angle_deg(tmp_path, run_
     assert code == 2, err
     line = one_line(err, "on_limit.toml", "'neutral_angle_deg'", "0 deg is on one of")
     assert "neutral_height" not in line
+
+
+@pytest.mark.parametrize("how", ["copy", "hard link"])
+def test_a_held_out_recording_that_is_a_tuned_one_under_another_name_is_refused(
+    tmp_path, run_cli, how
+):
+    """The README: "the same recording is refused" as a held-out manoeuvre. A symlink was
+    caught; a hard link or a copy of the tuning recording was scored as held out (exit 0),
+    the overfitting check then comparing the tuning set with itself."""
+    rec = tmp_path / "flight.mcap"
+    code, _, err = run_cli("fly", "--duration", "5", "--out", rec)
+    assert code == 0, err
+    other = tmp_path / "held_out.mcap"
+    if how == "copy":
+        other.write_bytes(rec.read_bytes())
+    else:
+        os.link(rec, other)
+    out = tmp_path / "tuned.toml"
+    code, _, err = run_cli(
+        "tune", "--recordings", rec, "--holdout", other, "--budget", "1", "--out", out
+    )
+    assert code == 2, err
+    one_line(err, "--holdout held_out.mcap is also in the tuning set", "flight.mcap")
+    assert not out.exists()
