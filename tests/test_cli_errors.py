@@ -1301,3 +1301,17 @@ def test_a_held_out_recording_that_is_a_tuned_one_under_another_name_is_refused(
     assert code == 2, err
     one_line(err, "--holdout held_out.mcap is also in the tuning set", "flight.mcap")
     assert not out.exists()
+
+
+def test_too_many_workers_says_how_many_are_taken(run_cli, tmp_path):
+    """``--workers 9`` on two processors said "give at most 2 (the default)", while up to
+    four per processor (8) are taken, as the README says."""
+    from motionbase.io.executors import MAX_WORKERS_PER_PROCESSOR, default_workers
+
+    most = MAX_WORKERS_PER_PROCESSOR * default_workers()
+    out = tmp_path / "tuned.toml"
+    args = ["--scripts", "c1723@0:5", "--holdout", "none", "--budget", "1", "--out", out]
+    code, _, err = run_cli("tune", "--workers", most + 1, *args)
+    assert code == 2, err
+    one_line(err, f"--workers {most + 1}", f"give at most {most} ")
+    assert not out.exists()
