@@ -1315,3 +1315,16 @@ def test_too_many_workers_says_how_many_are_taken(run_cli, tmp_path):
     assert code == 2, err
     one_line(err, f"--workers {most + 1}", f"give at most {most} ")
     assert not out.exists()
+
+
+def test_tune_workers_and_a_scheduler_are_refused_together(run_cli, tmp_path):
+    """``--workers 2 --scheduler tcp://...``: the README gives them as alternatives; the
+    workers were silently ignored (and the error, after a 10 s wait, was the scheduler's)."""
+    out = tmp_path / "tuned.toml"
+    args = ["--scripts", "c1723@0:5", "--holdout", "none", "--budget", "1", "--out", out]
+    code, _, err = run_cli(
+        "tune", "--workers", "2", "--scheduler", f"tcp://127.0.0.1:{_closed_port()}", *args
+    )
+    assert code == 2, err
+    one_line(err, "--workers 2 and --scheduler", "give one of them")
+    assert not out.exists()

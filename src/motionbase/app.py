@@ -1544,7 +1544,8 @@ def tune(
     seed : int
         CMA-ES seed (>= 0); the same seed and inputs give the same result.
     workers : int, optional
-        Local worker processes (default: the processors available; 1: this process).
+        Local worker processes (default: the processors available; 1: this process); not
+        with ``scheduler``.
     scheduler : str, optional
         A Dask distributed scheduler, ``tcp://HOST:PORT``, instead of local processes.
     progress : bool
@@ -1587,6 +1588,11 @@ def tune(
     knobs = tuning.knobs_for(cueing)
     if preview:
         _check_preview(cueing)
+    if workers is not None and scheduler is not None:  # (the workers were ignored)
+        raise ConfigError(
+            f"--workers {workers} and --scheduler {scheduler}: the evaluations run in local "
+            "processes or on a Dask cluster, not both; give one of them"
+        )
     if budget is None and time_budget_s is None:
         budget = DEFAULT_TUNE_BUDGET
     if budget is not None and (
