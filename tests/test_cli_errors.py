@@ -1328,3 +1328,64 @@ def test_tune_workers_and_a_scheduler_are_refused_together(run_cli, tmp_path):
     assert code == 2, err
     one_line(err, "--workers 2 and --scheduler", "give one of them")
     assert not out.exists()
+
+
+def _with_field(src: Path, dst: Path, topic: str, key: str, value: object) -> Path:
+    """A copy of the recording ``src`` whose 10th ``topic`` message has ``key`` = ``value``."""
+    from mcap.reader import make_reader
+
+    with open(src, "rb") as fh:
+        reader = make_reader(fh)
+        metadata = list(reader.iter_metadata())
+        messages = list(reader.iter_messages())
+    with open(dst, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        for m in metadata:
+            writer.add_metadata(m.name, m.metadata)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        seen = 0
+        for schema, channel, msg in messages:
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id]
+                )
+            data = msg.data
+            if channel.topic == topic:
+                seen += 1
+                if seen == 10:
+                    data = json.dumps({**json.loads(data), key: value}).encode()
+            writer.add_message(channels[channel.id], msg.log_time, data, msg.publish_time)
+        writer.finish()
+    return dst
+
+
+@pytest.mark.parametrize(
+    "topic, key, value, needle",
+    [
+        ("/platform/pose", "pose", 5, "field 'pose' is 5"),
+        ("/platform/pose", "pose", ["a", 0, 0, 0, 0, 0], "holds 'a', not a number"),
+        ("/platform/actuators", "angles", True, "field 'angles' is True"),
+        ("/aircraft/state", "specific_force", [[1.0], 0.0, 0.0], "holds [1.0], not a number"),
+    ],
+    ids=["number", "string in the list", "bool", "list in the list"],
+)
+def test_report_of_a_recording_with_a_malformed_field_is_one_line(
+    tmp_path, run_cli, topic, key, value, needle
+):
+    """A recording whose message held a number, a bool or a string where a list of numbers
+    goes: ``report`` answered with a TypeError or ValueError traceback."""
+    rec = tmp_path / "flight.mcap"
+    code, _, err = run_cli("fly", "--duration", "3", "--out", rec)
+    assert code == 0, err
+    bad = _with_field(rec, tmp_path / "bad.mcap", topic, key, value)
+    out = tmp_path / "report"
+    code, _, err = run_cli("report", bad, "--out", out)
+    assert code == 2, err
+    one_line(err, f"{topic}: message 10", needle)
+    assert not out.exists()
