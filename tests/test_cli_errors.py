@@ -1389,3 +1389,17 @@ def test_report_of_a_recording_with_a_malformed_field_is_one_line(
     assert code == 2, err
     one_line(err, f"{topic}: message 10", needle)
     assert not out.exists()
+
+
+def test_tune_scripts_and_holdout_given_twice_take_both(tmp_path, run_cli):
+    """``--scripts c1723@0:5 --scripts c1723@10:15``: the second replaced the first, which
+    was silently not tuned on (``--recordings`` given twice takes both)."""
+    out = tmp_path / "tuned.toml"
+    code, _, err = run_cli(
+        "tune", "--scripts", "c1723@0:5", "--scripts", "c1723@10:15",
+        "--holdout", "c1723@20:25", "--holdout", "c1723@30:35", "--budget", "1", "--out", out,
+    )  # fmt: skip
+    assert code == 0, err
+    header = out.read_text().split("\n[", 1)[0]
+    for window in ("c1723@0:5", "c1723@10:15", "c1723@20:25", "c1723@30:35"):
+        assert window in header, (window, header)
