@@ -1403,3 +1403,41 @@ def test_tune_scripts_and_holdout_given_twice_take_both(tmp_path, run_cli):
     header = out.read_text().split("\n[", 1)[0]
     for window in ("c1723@0:5", "c1723@10:15", "c1723@20:25", "c1723@30:35"):
         assert window in header, (window, header)
+
+
+_UNREADABLE = "/proc/self/mem"  # a file that opens and fails its first read (EIO), as root too
+
+
+@pytest.mark.skipif(not os.path.exists(_UNREADABLE), reason="needs Linux's /proc/self/mem")
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["fly", _UNREADABLE, "--duration", "1"], "cannot read the JSBSim script"),
+        (["tune", "--scripts", _UNREADABLE, "--holdout", "none"], "cannot read the JSBSim script"),
+        (["replay", _UNREADABLE], "cannot read"),
+        (["report", _UNREADABLE], "cannot read"),
+        (["workspace", "--platform", _UNREADABLE], "cannot read"),
+    ],
+    ids=["fly", "tune", "replay", "report", "geometry"],
+)
+def test_a_file_that_cannot_be_read_is_one_line(tmp_path, run_cli, args, needle):
+    """A file that opens but whose read fails (EIO from a failing disk or stick; a script
+    without read permission fails the same way for a user who is not root) was an OSError
+    traceback for a JSBSim script, a recording and a TOML file."""
+    out = ["--out", tmp_path / ("x.toml" if args[0] == "tune" else "x.mcap")]
+    code, _, err = run_cli(*args, *(out if args[0] in ("fly", "tune", "replay") else []))
+    assert code == 2, err
+    one_line(err, "/mem: " + needle)
+    assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "x.toml").exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads a file without read permission")
+def test_a_script_without_read_permission_is_one_line(tmp_path, run_cli):
+    import jsbsim
+
+    script = tmp_path / "mine.xml"
+    script.write_bytes((Path(jsbsim.get_default_root_dir()) / "scripts" / "c1723.xml").read_bytes())
+    script.chmod(0)
+    code, _, err = run_cli("fly", script, "--duration", "1", "--out", tmp_path / "x.mcap")
+    assert code == 2, err
+    one_line(err, "mine.xml: cannot read the JSBSim script", "permission denied")

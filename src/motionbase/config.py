@@ -45,6 +45,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: is a directory, expected a .toml file") from None
     except PermissionError:
         raise ConfigError(f"{p}: permission denied (check the file's permissions)") from None
+    except OSError as exc:  # a read that fails (EIO: a failing disk or stick)
+        raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc} (fix the syntax there)") from None
     except UnicodeDecodeError as exc:

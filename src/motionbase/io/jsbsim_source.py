@@ -102,6 +102,8 @@ def _script_timing(path: Path) -> tuple[float, float, float]:
         run = ET.parse(path).getroot().find("run")
     except ET.ParseError as exc:
         raise SourceError(f"{path}: not a valid JSBSim script: {exc}") from None
+    except OSError as exc:  # (no read permission, a failing disk: a traceback once)
+        raise SourceError(f"{path}: cannot read the JSBSim script: {exc.strerror or exc}") from None
     if run is None:
         raise SourceError(f"{path}: not a JSBSim script (no <run> element)")
     try:
