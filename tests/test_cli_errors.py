@@ -1441,3 +1441,33 @@ def test_a_script_without_read_permission_is_one_line(tmp_path, run_cli):
     code, _, err = run_cli("fly", script, "--duration", "1", "--out", tmp_path / "x.mcap")
     assert code == 2, err
     one_line(err, "mine.xml: cannot read the JSBSim script", "permission denied")
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["tune", "--scripts", "c1723@0:5", "--holdout", "none", "--out", "LONG.toml"], "too long"),
+        (["omct", "--out", "LONG"], "too long"),
+        (["fly", "LONG.xml"], "not found"),
+        (["tune", "--scripts", "LONG", "--holdout", "none", "--out", "x.toml"], "unknown"),
+        (["stream", "--mavlink", "LONG.tlog", "--fast"], "no such file"),
+        (["fly", "--params", "LONG"], "unknown washout preset"),
+        (["fly", "--platform", "LONG"], "unknown rus6 preset"),
+        (["stream", "--signing-key", "LONG", "--mavlink", "udpin:127.0.0.1:14599"], "too long"),
+    ],
+    ids=["tune --out", "omct --out", "script", "tune --scripts", "log", "params", "platform",
+         "signing key"],
+)  # fmt: skip
+def test_a_file_name_too_long_is_one_line(tmp_path, run_cli, monkeypatch, args, needle):
+    """A name longer than the file system takes (300 characters): pathlib's ``is_file()``,
+    ``is_dir()`` and ``exists()`` raise for it where ``os.path``'s say False, and those
+    tests were OSError tracebacks (ENAMETOOLONG) for a script, a log, a preset name, and
+    tune's and omct's --out."""
+    monkeypatch.chdir(tmp_path)
+    long = "a" * 300
+    out = [] if "--out" in args else ["--out", tmp_path / "x.mcap"]
+    duration = ["--duration", "1"] if args[0] in ("fly", "stream") else []
+    code, _, err = run_cli(*[a.replace("LONG", long) for a in args], *duration, *out)
+    assert code == 2, err
+    one_line(err, needle)
+    assert not (tmp_path / "x.mcap").exists()

@@ -1610,7 +1610,7 @@ def tune(
     out_path = Path(out)
     if out_path.suffix.lower() != ".toml":
         raise ConfigError(f"--out {out}: the result is a washout TOML file; name it *.toml")
-    if out_path.is_dir():
+    if os.path.isdir(out_path):  # (pathlib's is_dir raises for a name too long)
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
     _writable_folder(out_path.parent, out_path)  # before the tuning's minutes, not after them
     platform_name = platform or DEFAULT_RUS6

@@ -86,7 +86,7 @@ def preset_names(kind: str) -> list[str]:
 def preset_path(kind: str, name: str) -> Path:
     """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
     candidate = _preset_dir() / f"{kind}_{name}.toml"
-    if not candidate.is_file():
+    if not os.path.isfile(candidate):  # (pathlib's raises for a name too long)
         known = preset_names(kind)
         raise ConfigError(
             f"unknown {kind} preset {name!r}: choose one of {', '.join(known) or '(none)'} "
@@ -109,7 +109,7 @@ def names_a_file(name_or_path: str | Path) -> bool:
     s = str(name_or_path)
     if s.endswith(".toml") or "/" in s:
         return True
-    if not Path(s).is_file():
+    if not os.path.isfile(s):  # (pathlib's raises for a name too long)
         return False
     if any(q.stem.partition("_")[2] == s for q in _preset_dir().glob("*.toml")):
         raise ConfigError(
@@ -133,7 +133,7 @@ def refuse_out_over_inputs(
     path that is None or no file, a preset's name, is skipped): ``writing`` (what goes to
     ``--out``) would overwrite it. One file through symlinks, ``..`` and hard links counts."""
     for flag, path in given:
-        if path is not None and Path(path).is_file() and same_file(path, out):
+        if path is not None and os.path.isfile(path) and same_file(path, out):
             raise ConfigError(
                 f"--out {out} is the {flag} file ({path}): writing {writing} would destroy it; "
                 "give another file"

@@ -829,7 +829,7 @@ class MavlinkSource(SampleHoldSource):
         """
         if self._conn is not None:
             return
-        if self.is_log and not Path(self.url).is_file():
+        if self.is_log and not os.path.isfile(self.url):  # (pathlib: raises for a long name)
             raise SourceError(f"mavlink log {self.url}: no such file (check the path)")
         if not self.is_log:
             _check_link_address(self.url, self.free_port)
