@@ -1471,3 +1471,26 @@ def test_a_file_name_too_long_is_one_line(tmp_path, run_cli, monkeypatch, args, 
     assert code == 2, err
     one_line(err, needle)
     assert not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("field", ["rb", "crank"])
+def test_a_rus6_geometry_of_astronomical_size_is_one_line(tmp_path, run_cli, field):
+    """``rb = 1e300`` with a ``neutral_height`` (as in a recording's stored settings too):
+    numpy's overflow warning (two lines) came before the error; ``crank = 1e300`` printed
+    the rod length it needs with 300 digits."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("rus6", "ceart"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    del geometry["neutral_angle_deg"]
+    geometry.update({field: 1e300, "neutral_height": 0.65})
+    path = tmp_path / "huge_ceart.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    code, err = run_process("workspace", "--platform", path)
+    assert code == 2, err
+    line = one_line(err, "huge_ceart.toml", "field 'rod'", "needs >=")
+    assert len(line) < 300, line

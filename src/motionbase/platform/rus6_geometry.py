@@ -199,19 +199,20 @@ class Rus6Geometry:
             b = -rel[2]
             off = rel - a * cdir[i] - np.array([0.0, 0.0, -b])
             rho = math.hypot(a, b)
-            across = float(np.linalg.norm(off))
+            with np.errstate(over="ignore"):  # (joint circles of 1e300 m: inf, said below)
+                across = float(np.linalg.norm(off))
             dmin = math.hypot(abs(rho - r[i]), across)
             dmax = math.hypot(rho + r[i], across)
             rod = self.rod[i]
             if rod < dmin:
                 raise ConfigError(
                     f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too short to reach its "
-                    f"platform joint at the neutral pose (needs >= {dmin:.4f} m)"
+                    f"platform joint at the neutral pose (needs >= {dmin:.6g} m)"
                 )
             if rod > dmax:
                 raise ConfigError(
                     f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too long to meet its "
-                    f"platform joint at the neutral pose (needs <= {dmax:.4f} m)"
+                    f"platform joint at the neutral pose (needs <= {dmax:.6g} m)"
                 )
 
     def _check_lines(self, src: str, neutral: np.ndarray) -> None:
