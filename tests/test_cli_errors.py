@@ -1063,3 +1063,434 @@ def test_a_geometry_file_not_in_utf8_says_where(run_cli, tmp_path):
     code, _, err = run_cli("workspace", "--platform", path)
     assert code == 2
     one_line(err, f"{path}: not a text TOML file", "line 2", "save it as UTF-8")
+
+
+# --------------------------------------------------------------------------- review: cli
+
+#: A process's address space in the tests that read endless files: old code read them until
+#: the memory ran out (a MemoryError traceback here; the machine's memory without a limit).
+_AS_LIMIT = "import resource\nresource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30))"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["workspace", "--platform", "/dev/zero"],
+        ["workspace", "--planar", "--platform", "/dev/urandom"],
+        ["teleop", "--input", "file:CSV", "--calibration", "/dev/zero"],
+    ],
+    ids=["geometry", "3-RRR geometry", "calibration"],
+)
+def test_a_toml_path_that_never_ends_is_one_line(tmp_path, args):
+    """``--platform /dev/zero`` (or /dev/urandom, any device that never ends): the file was
+    read whole, until the memory ran out. One line naming the file, exit 2."""
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("t,x,y\n0,100,100\n0.5,120,110\n")
+    args = [a.replace("CSV", str(csv)) for a in args]
+    code, err = run_process(*args, setup=_AS_LIMIT, cwd=tmp_path)
+    assert code == 2, err
+    one_line(err, f"{args[-1]}: larger than", "not a configuration file")
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["stream", "--signing-key", "/dev/urandom"], ("signing key /dev/urandom", "32 raw bytes")),
+        (["teleop", "--input", "file:/dev/zero"], ("/dev/zero: line 1", "t,x,y")),
+    ],
+    ids=["signing key", "cursor CSV"],
+)
+def test_a_key_or_cursor_file_that_never_ends_is_one_line(tmp_path, args, needles):
+    """``--signing-key /dev/urandom`` (the README makes a key with ``head -c 32
+    /dev/urandom``) and ``--input file:/dev/zero`` were read until the memory ran out."""
+    link = ["--mavlink", f"udpin:127.0.0.1:{_closed_port()}"] if args[0] == "stream" else []
+    out = tmp_path / "x.mcap"
+    code, err = run_process(
+        *args, *link, "--duration", "1", "--out", out, setup=_AS_LIMIT, cwd=tmp_path
+    )
+    assert code == 2, err
+    one_line(err, *needles)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        # a traceback (OverflowError: cannot convert float infinity to integer) ...
+        (["--speed-deg-s", "1e-320"], ("deg/s", "more than an hour", "--speed-deg-s")),
+        (["--platform", "stewart6", "--speed-mm-s", "1e-320"], ("mm/s", "--speed-mm-s")),
+        # ... or a sweep of years, its whole table of commands made before the first frame
+        (["--speed-deg-s", "0.0001"], ("0.0001 deg/s", "more than an hour", "--speed-deg-s")),
+        # "+-57.2958 deg about neutral leaves the crank limits (choose a smaller --range-deg)"
+        (["--platform", "stewart6", "--range-mm", "1000"], ("+-1000 mm", "--range-mm")),
+    ],
+    ids=["tiny speed", "tiny linear speed", "slow speed", "linear range"],
+)
+def test_an_output_test_sweep_out_of_reach_is_one_line_in_the_units_given(args, needles):
+    sock = udp_listener()
+    try:
+        url = f"udp:127.0.0.1:{sock.getsockname()[1]}"
+        code, err = run_process("output", "--test", url, *args, setup=_AS_LIMIT)
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 2, err
+    line = one_line(err, *needles)
+    assert ("deg" in line) == ("deg" in " ".join(args)), line
+    assert frames == []
+
+
+@pytest.mark.parametrize("scale", ["1e-12", "1e-300"])
+def test_an_omct_scale_too_small_to_measure_is_one_line(tmp_path, run_cli, scale):
+    """``omct --scale 1e-300``: minutes of tests, then a traceback from the plots; ``1e-12``:
+    a table whose heave column was rounding noise, marked as a limit acting (exit 0)."""
+    out = tmp_path / "omct"
+    code, _, err = run_cli("omct", "--scale", scale, "--out", out)
+    assert code == 2, err
+    one_line(err, f"--scale {float(scale):g}", "at least 1e-06")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["output", "--test", "URL", "--platform", "rrr3"], ["fly", "--planar", "--output", "URL"]],
+)
+def test_the_3rrr_drives_through_an_output_url_without_a_format(tmp_path, args):
+    """The README's ``output --test URL --platform rrr3`` (and ``fly --planar --output URL``)
+    was refused for a format the user never gave: "text format 'A{1}B{2}C{3}D{4}E{5}F{6}\\n':
+    placeholder {4}: the motor number must be 1..3". The default names the robot's motors."""
+    sock = udp_listener()
+    url = f"udp:127.0.0.1:{sock.getsockname()[1]}"
+    out = ["--duration", "1", "--out", tmp_path / "x.mcap"] if args[0] == "fly" else []
+    try:
+        code, err = run_process(*[url if a == "URL" else a for a in args], *out)
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 0, err
+    assert frames and all(re.fullmatch(rb"A-?\d+B-?\d+C-?\d+\n", f) for f in frames), frames[:3]
+
+
+def test_tune_out_may_not_overwrite_the_platform_file(tmp_path, run_cli):
+    """``tune --platform rig.toml --out rig.toml``: the tuning read the geometry, then wrote
+    the tuned washout over it (exit 0): the user's geometry was gone."""
+    rig = tmp_path / "rig.toml"
+    rig.write_bytes((Path(cli.__file__).parent / "presets" / "rus6_ceart.toml").read_bytes())
+    before = rig.read_bytes()
+    args = ["--scripts", "c1723@0:5", "--holdout", "none", "--budget", "1"]
+    code, _, err = run_cli("tune", "--platform", rig, *args, "--out", rig)
+    assert code == 2, err
+    one_line(err, "--out", "--platform", "destroy")
+    assert rig.read_bytes() == before
+
+
+@pytest.mark.parametrize("suffix", [".tlog", ".bin"])
+def test_a_log_without_states_leaves_an_existing_out_file_untouched(tmp_path, run_cli, suffix):
+    """``stream --mavlink notes.tlog --fast --out flight.mcap``, the .tlog holding no
+    MAVLink message of the states: refused, but only at the run's first tick, after the
+    log had been opened over flight.mcap (the user's earlier recording, now a log of one
+    park tick). Refused when the log is opened, before anything is written."""
+    garbage = tmp_path / f"garbage{suffix}"
+    garbage.write_bytes(np.random.default_rng(3).bytes(5_000))
+    out = tmp_path / "flight.mcap"
+    out.write_bytes(b"an earlier recording")
+    code, _, err = run_cli("stream", "--mavlink", garbage, "--fast", "--out", out)
+    assert code == 2, err
+    one_line(err, f"garbage{suffix}", "no ", "messages")
+    assert out.read_bytes() == b"an earlier recording"
+
+
+@pytest.mark.parametrize(
+    "edit, needles",
+    [
+        # numpy's overflow warning (two lines of it) came before the error
+        ({"base_radius": 1e300, "neutral_height": 0.6}, ("'neutral_height'", "inf m long")),
+        # blamed on neutral_height, a field the file did not have
+        ({"neutral_length": 1e300}, ("'neutral_length'", "1e+300 m")),
+    ],
+    ids=["radius", "neutral length"],
+)
+def test_a_stewart_geometry_of_astronomical_size_is_one_line(tmp_path, edit, needles):
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("stewart6", "seat"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    if "neutral_height" in edit:
+        del geometry["neutral_length"]
+    geometry.update(edit)
+    path = tmp_path / "huge_seat.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    code, err = run_process("workspace", "--platform", path)
+    assert code == 2, err
+    line = one_line(err, "huge_seat.toml", *needles)
+    assert "neutral_height" not in line or "neutral_height" in edit, line
+
+
+def test_an_output_frame_rate_too_slow_to_stop_is_one_line(tmp_path, run_cli):
+    """``--output 'udp:...?rate=1e-320'``: the sender thread's wait for its second frame
+    overflowed (a traceback from the thread), one frame was sent, and the run exited 0."""
+    rec = write_recording(tmp_path / "rec.mcap", ceart_config())
+    sock = udp_listener()
+    url = f"udp:127.0.0.1:{sock.getsockname()[1]}?rate=1e-320"
+    out = tmp_path / "out.mcap"
+    try:
+        code, _, err = run_cli("replay", rec, "--platform", "ceart", "--output", url, "--out", out)
+        frames = received(sock)
+    finally:
+        sock.close()
+    assert code == 2, err
+    one_line(err, "rate must be in [1, 10000] Hz", "1e-320")
+    assert frames == [] and not out.exists()
+
+
+def test_a_baud_rate_past_a_c_long_is_one_line(tmp_path, run_cli):
+    """``serial:/dev/ttyUSB0?baud=99999999999999999999`` (a pseudo-terminal here): pyserial's
+    OverflowError came out as a traceback."""
+    import pty
+
+    master, slave = pty.openpty()
+    try:
+        url = f"serial:{os.ttyname(slave)}?baud=99999999999999999999"
+        code, _, err = run_cli("output", "--test", url)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert code == 2, err
+    one_line(err, "cannot open serial port", "too large")
+
+
+@pytest.mark.parametrize("limit", ["angle_min_deg", "angle_max_deg"])
+def test_a_neutral_angle_on_a_crank_limit_names_neutral_angle_deg(tmp_path, run_cli, limit):
+    """``neutral_angle_deg = 0`` with ``angle_min_deg = 0``: the crank angle the neutral height
+    gives back is -0.00 deg, a rounding below the limit, and the error named
+    'neutral_height', a field the file did not have (with ``angle_max_deg = 0`` the rounding
+    fell the other way and the file was taken). Refused alike, naming the field given."""
+    src = (Path(cli.__file__).parent / "presets" / "rus6_ceart.toml").read_text()
+    lines = [ln for ln in src.splitlines() if not ln.startswith((limit, "park_angle_deg"))]
+    path = tmp_path / "on_limit.toml"
+    path.write_text(f"{limit} = 0.0\n" + "\n".join(lines) + "\n")
+    code, _, err = run_cli("workspace", "--platform", path)
+    assert code == 2, err
+    line = one_line(err, "on_limit.toml", "'neutral_angle_deg'", "0 deg is on one of")
+    assert "neutral_height" not in line
+
+
+@pytest.mark.parametrize("how", ["copy", "hard link"])
+def test_a_held_out_recording_that_is_a_tuned_one_under_another_name_is_refused(
+    tmp_path, run_cli, how
+):
+    """The README: "the same recording is refused" as a held-out manoeuvre. A symlink was
+    caught; a hard link or a copy of the tuning recording was scored as held out (exit 0),
+    the overfitting check then comparing the tuning set with itself."""
+    rec = tmp_path / "flight.mcap"
+    code, _, err = run_cli("fly", "--duration", "5", "--out", rec)
+    assert code == 0, err
+    other = tmp_path / "held_out.mcap"
+    if how == "copy":
+        other.write_bytes(rec.read_bytes())
+    else:
+        os.link(rec, other)
+    out = tmp_path / "tuned.toml"
+    code, _, err = run_cli(
+        "tune", "--recordings", rec, "--holdout", other, "--budget", "1", "--out", out
+    )
+    assert code == 2, err
+    one_line(err, "--holdout held_out.mcap is also in the tuning set", "flight.mcap")
+    assert not out.exists()
+
+
+def test_too_many_workers_says_how_many_are_taken(run_cli, tmp_path):
+    """``--workers 9`` on two processors said "give at most 2 (the default)", while up to
+    four per processor (8) are taken, as the README says."""
+    from motionbase.io.executors import MAX_WORKERS_PER_PROCESSOR, default_workers
+
+    most = MAX_WORKERS_PER_PROCESSOR * default_workers()
+    out = tmp_path / "tuned.toml"
+    args = ["--scripts", "c1723@0:5", "--holdout", "none", "--budget", "1", "--out", out]
+    code, _, err = run_cli("tune", "--workers", most + 1, *args)
+    assert code == 2, err
+    one_line(err, f"--workers {most + 1}", f"give at most {most} ")
+    assert not out.exists()
+
+
+def test_tune_workers_and_a_scheduler_are_refused_together(run_cli, tmp_path):
+    """``--workers 2 --scheduler tcp://...``: the README gives them as alternatives; the
+    workers were silently ignored (and the error, after a 10 s wait, was the scheduler's)."""
+    out = tmp_path / "tuned.toml"
+    args = ["--scripts", "c1723@0:5", "--holdout", "none", "--budget", "1", "--out", out]
+    code, _, err = run_cli(
+        "tune", "--workers", "2", "--scheduler", f"tcp://127.0.0.1:{_closed_port()}", *args
+    )
+    assert code == 2, err
+    one_line(err, "--workers 2 and --scheduler", "give one of them")
+    assert not out.exists()
+
+
+def _with_field(src: Path, dst: Path, topic: str, key: str, value: object) -> Path:
+    """A copy of the recording ``src`` whose 10th ``topic`` message has ``key`` = ``value``."""
+    from mcap.reader import make_reader
+
+    with open(src, "rb") as fh:
+        reader = make_reader(fh)
+        metadata = list(reader.iter_metadata())
+        messages = list(reader.iter_messages())
+    with open(dst, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        for m in metadata:
+            writer.add_metadata(m.name, m.metadata)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        seen = 0
+        for schema, channel, msg in messages:
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id]
+                )
+            data = msg.data
+            if channel.topic == topic:
+                seen += 1
+                if seen == 10:
+                    data = json.dumps({**json.loads(data), key: value}).encode()
+            writer.add_message(channels[channel.id], msg.log_time, data, msg.publish_time)
+        writer.finish()
+    return dst
+
+
+@pytest.mark.parametrize(
+    "topic, key, value, needle",
+    [
+        ("/platform/pose", "pose", 5, "field 'pose' is 5"),
+        ("/platform/pose", "pose", ["a", 0, 0, 0, 0, 0], "holds 'a', not a number"),
+        ("/platform/actuators", "angles", True, "field 'angles' is True"),
+        ("/aircraft/state", "specific_force", [[1.0], 0.0, 0.0], "holds [1.0], not a number"),
+    ],
+    ids=["number", "string in the list", "bool", "list in the list"],
+)
+def test_report_of_a_recording_with_a_malformed_field_is_one_line(
+    tmp_path, run_cli, topic, key, value, needle
+):
+    """A recording whose message held a number, a bool or a string where a list of numbers
+    goes: ``report`` answered with a TypeError or ValueError traceback."""
+    rec = tmp_path / "flight.mcap"
+    code, _, err = run_cli("fly", "--duration", "3", "--out", rec)
+    assert code == 0, err
+    bad = _with_field(rec, tmp_path / "bad.mcap", topic, key, value)
+    out = tmp_path / "report"
+    code, _, err = run_cli("report", bad, "--out", out)
+    assert code == 2, err
+    one_line(err, f"{topic}: message 10", needle)
+    assert not out.exists()
+
+
+def test_tune_scripts_and_holdout_given_twice_take_both(tmp_path, run_cli):
+    """``--scripts c1723@0:5 --scripts c1723@10:15``: the second replaced the first, which
+    was silently not tuned on (``--recordings`` given twice takes both)."""
+    out = tmp_path / "tuned.toml"
+    code, _, err = run_cli(
+        "tune", "--scripts", "c1723@0:5", "--scripts", "c1723@10:15",
+        "--holdout", "c1723@20:25", "--holdout", "c1723@30:35", "--budget", "1", "--out", out,
+    )  # fmt: skip
+    assert code == 0, err
+    header = out.read_text().split("\n[", 1)[0]
+    for window in ("c1723@0:5", "c1723@10:15", "c1723@20:25", "c1723@30:35"):
+        assert window in header, (window, header)
+
+
+_UNREADABLE = "/proc/self/mem"  # a file that opens and fails its first read (EIO), as root too
+
+
+@pytest.mark.skipif(not os.path.exists(_UNREADABLE), reason="needs Linux's /proc/self/mem")
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["fly", _UNREADABLE, "--duration", "1"], "cannot read the JSBSim script"),
+        (["tune", "--scripts", _UNREADABLE, "--holdout", "none"], "cannot read the JSBSim script"),
+        (["replay", _UNREADABLE], "cannot read"),
+        (["report", _UNREADABLE], "cannot read"),
+        (["workspace", "--platform", _UNREADABLE], "cannot read"),
+    ],
+    ids=["fly", "tune", "replay", "report", "geometry"],
+)
+def test_a_file_that_cannot_be_read_is_one_line(tmp_path, run_cli, args, needle):
+    """A file that opens but whose read fails (EIO from a failing disk or stick; a script
+    without read permission fails the same way for a user who is not root) was an OSError
+    traceback for a JSBSim script, a recording and a TOML file."""
+    out = ["--out", tmp_path / ("x.toml" if args[0] == "tune" else "x.mcap")]
+    code, _, err = run_cli(*args, *(out if args[0] in ("fly", "tune", "replay") else []))
+    assert code == 2, err
+    one_line(err, "/mem: " + needle)
+    assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "x.toml").exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads a file without read permission")
+def test_a_script_without_read_permission_is_one_line(tmp_path, run_cli):
+    import jsbsim
+
+    script = tmp_path / "mine.xml"
+    script.write_bytes((Path(jsbsim.get_default_root_dir()) / "scripts" / "c1723.xml").read_bytes())
+    script.chmod(0)
+    code, _, err = run_cli("fly", script, "--duration", "1", "--out", tmp_path / "x.mcap")
+    assert code == 2, err
+    one_line(err, "mine.xml: cannot read the JSBSim script", "permission denied")
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["tune", "--scripts", "c1723@0:5", "--holdout", "none", "--out", "LONG.toml"], "too long"),
+        (["omct", "--out", "LONG"], "too long"),
+        (["fly", "LONG.xml"], "not found"),
+        (["tune", "--scripts", "LONG", "--holdout", "none", "--out", "x.toml"], "unknown"),
+        (["stream", "--mavlink", "LONG.tlog", "--fast"], "no such file"),
+        (["fly", "--params", "LONG"], "unknown washout preset"),
+        (["fly", "--platform", "LONG"], "unknown rus6 preset"),
+        (["stream", "--signing-key", "LONG", "--mavlink", "udpin:127.0.0.1:14599"], "too long"),
+    ],
+    ids=["tune --out", "omct --out", "script", "tune --scripts", "log", "params", "platform",
+         "signing key"],
+)  # fmt: skip
+def test_a_file_name_too_long_is_one_line(tmp_path, run_cli, monkeypatch, args, needle):
+    """A name longer than the file system takes (300 characters): pathlib's ``is_file()``,
+    ``is_dir()`` and ``exists()`` raise for it where ``os.path``'s say False, and those
+    tests were OSError tracebacks (ENAMETOOLONG) for a script, a log, a preset name, and
+    tune's and omct's --out."""
+    monkeypatch.chdir(tmp_path)
+    long = "a" * 300
+    out = [] if "--out" in args else ["--out", tmp_path / "x.mcap"]
+    duration = ["--duration", "1"] if args[0] in ("fly", "stream") else []
+    code, _, err = run_cli(*[a.replace("LONG", long) for a in args], *duration, *out)
+    assert code == 2, err
+    one_line(err, needle)
+    assert not (tmp_path / "x.mcap").exists()
+
+
+@pytest.mark.parametrize("field", ["rb", "crank"])
+def test_a_rus6_geometry_of_astronomical_size_is_one_line(tmp_path, run_cli, field):
+    """``rb = 1e300`` with a ``neutral_height`` (as in a recording's stored settings too):
+    numpy's overflow warning (two lines) came before the error; ``crank = 1e300`` printed
+    the rod length it needs with 300 digits."""
+    import tomllib
+
+    import tomli_w
+
+    from motionbase.config import preset_path
+
+    with open(preset_path("rus6", "ceart"), "rb") as fh:
+        geometry = tomllib.load(fh)
+    del geometry["neutral_angle_deg"]
+    geometry.update({field: 1e300, "neutral_height": 0.65})
+    path = tmp_path / "huge_ceart.toml"
+    path.write_bytes(tomli_w.dumps(geometry).encode())
+    code, err = run_process("workspace", "--platform", path)
+    assert code == 2, err
+    line = one_line(err, "huge_ceart.toml", "field 'rod'", "needs >=")
+    assert len(line) < 300, line

@@ -556,19 +556,6 @@ def test_neutral_angle_the_inverse_kinematics_never_commands_is_refused(angle, s
     assert says in str(caught.value)
 
 
-@pytest.mark.parametrize("at", ["min", "max"])
-def test_a_neutral_angle_at_a_crank_limit_loads(at):
-    """neutral_angle_deg = 0 with angle_min_deg = 0 was refused: the crank angle derived
-    back from the neutral height came out -0.00 deg (rounding), "outside its limits
-    0 .. 60 deg", naming neutral_height, a field the file does not have."""
-    data = GEOMETRY.to_dict()
-    del data["neutral_height"], data["angle_min"], data["angle_max"], data["park_angle"]
-    lo, hi = (0.0, 60.0) if at == "min" else (-60.0, 0.0)
-    data.update(neutral_angle_deg=0.0, angle_min_deg=lo, angle_max_deg=hi, park_angle_deg=0.0)
-    g = Rus6Geometry.from_dict(data, source="g.toml")
-    np.testing.assert_allclose(Rus6(g).inverse(np.zeros(6)), 0.0, atol=1e-9)
-
-
 @pytest.mark.parametrize("unit", ["mm", "m"])
 def test_a_linear_drive_unit_for_cranks_is_refused(unit):
     """unit = "mm" loaded on the 6-RUS: the drives got 1000 x the motor angle in rad as mm."""

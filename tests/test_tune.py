@@ -672,7 +672,8 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
 )
 def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):
     args = ["tune", "--scripts", "c1723@0:5", "--holdout", "none", "--budget", "2"]
-    args += ["--workers", "1", "--out", str(tmp_path / "o.toml"), *argv]
+    workers = [] if "--scheduler" in argv else ["--workers", "1"]  # (not both: refused)
+    args += [*workers, "--out", str(tmp_path / "o.toml"), *argv]
     try:
         code = cli.main(args)
     except SystemExit as exc:  # argparse's own errors exit through SystemExit

@@ -1575,7 +1575,8 @@ def tune(
     seed : int
         CMA-ES seed (>= 0); the same seed and inputs give the same result.
     workers : int, optional
-        Local worker processes (default: the processors available; 1: this process).
+        Local worker processes (default: the processors available; 1: this process); not
+        with ``scheduler``.
     scheduler : str, optional
         A Dask distributed scheduler, ``tcp://HOST:PORT``, instead of local processes.
     progress : bool
@@ -1618,6 +1619,11 @@ def tune(
     knobs = tuning.knobs_for(cueing)
     if preview:
         _check_preview(cueing)
+    if workers is not None and scheduler is not None:  # (the workers were ignored)
+        raise ConfigError(
+            f"--workers {workers} and --scheduler {scheduler}: the evaluations run in local "
+            "processes or on a Dask cluster, not both; give one of them"
+        )
     if budget is None and time_budget_s is None:
         budget = DEFAULT_TUNE_BUDGET
     if budget is not None and (
@@ -1635,7 +1641,7 @@ def tune(
     out_path = Path(out)
     if out_path.suffix.lower() != ".toml":
         raise ConfigError(f"--out {out}: the result is a washout TOML file; name it *.toml")
-    if out_path.is_dir():
+    if os.path.isdir(out_path):  # (pathlib's is_dir raises for a name too long)
         raise ConfigError(f"--out {out} is a folder; give a file name ending in .toml")
     _writable_folder(out_path.parent, out_path)  # before the tuning's minutes, not after them
     platform_name = platform or DEFAULT_RUS6
@@ -1648,10 +1654,13 @@ def tune(
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
     fallback = getattr(start, "fallback", None)
-    if isinstance(fallback, str):  # (--out may be the start set itself, not its fallback)
-        refuse_out_over_inputs(
-            out_path, ("start set's solver.fallback", fallback), writing="the tuned set"
-        )
+    # (--out may be the start set itself, not the geometry nor the start set's fallback)
+    refuse_out_over_inputs(
+        out_path,
+        ("--platform", platform),
+        ("start set's solver.fallback", fallback if isinstance(fallback, str) else None),
+        writing="the tuned set",
+    )
     if profile is not None:
         from motionbase.washout.params import PROFILES
 

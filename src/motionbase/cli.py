@@ -735,6 +735,7 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--scripts",
         type=_names,
+        action="extend",  # (given twice: both, as --recordings; the first was dropped)
         metavar="NAME,NAME,...",
         help="JSBSim scripts to tune on, NAME or NAME@START:END seconds (default: c1723, "
         "c172_elevator_doublet, rudder_kick, 737_cruise_steady_turn, c172_cross_wind, unless "
@@ -750,6 +751,7 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--holdout",
         type=_names,
+        action="extend",
         metavar="NAME,...|none",
         help="scripts or recordings scored before and after but not tuned on "
         "(default: b737_runway_new, c172_elevator_doublet@20.5:40)",

@@ -472,6 +472,7 @@ class SweepSource(Iterator[Command]):
         targets, motor = sweep_profile(
             robot.park_angles, self.neutral, lim.lower, lim.upper, range_rad=range_,
             speed=self.speed, accel=self.accel, dt=self.dt, dwell_s=0.2,
+            linear=robot.actuator_unit == "m",
         )  # fmt: skip
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))

@@ -21,12 +21,22 @@ import tomli_w
 
 from motionbase.errors import ConfigError
 
+#: The largest configuration file read, bytes: a file past it is not one (a device such as
+#: /dev/zero or /dev/urandom never ends, and was read until the memory ran out).
+MAX_TOML_BYTES = 16 * 1024 * 1024
+
 
 def read_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning a missing file or a syntax error into ConfigError."""
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        with p.open("rb") as fh:
+            raw = fh.read(MAX_TOML_BYTES + 1)
+        if len(raw) > MAX_TOML_BYTES:
+            raise ConfigError(
+                f"{p}: larger than {MAX_TOML_BYTES // 2**20} MB, not a configuration file "
+                "(give a .toml file)"
+            )
         # A byte-order mark (Windows Notepad writes one) is not TOML; take the text after it.
         return tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError:
@@ -35,6 +45,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: is a directory, expected a .toml file") from None
     except PermissionError:
         raise ConfigError(f"{p}: permission denied (check the file's permissions)") from None
+    except OSError as exc:  # a read that fails (EIO: a failing disk or stick)
+        raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc} (fix the syntax there)") from None
     except UnicodeDecodeError as exc:
@@ -74,7 +86,7 @@ def preset_names(kind: str) -> list[str]:
 def preset_path(kind: str, name: str) -> Path:
     """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
     candidate = _preset_dir() / f"{kind}_{name}.toml"
-    if not candidate.is_file():
+    if not os.path.isfile(candidate):  # (pathlib's raises for a name too long)
         known = preset_names(kind)
         raise ConfigError(
             f"unknown {kind} preset {name!r}: choose one of {', '.join(known) or '(none)'} "
@@ -97,7 +109,7 @@ def names_a_file(name_or_path: str | Path) -> bool:
     s = str(name_or_path)
     if s.endswith(".toml") or "/" in s:
         return True
-    if not Path(s).is_file():
+    if not os.path.isfile(s):  # (pathlib's raises for a name too long)
         return False
     if any(q.stem.partition("_")[2] == s for q in _preset_dir().glob("*.toml")):
         raise ConfigError(
@@ -121,7 +133,7 @@ def refuse_out_over_inputs(
     path that is None or no file, a preset's name, is skipped): ``writing`` (what goes to
     ``--out``) would overwrite it. One file through symlinks, ``..`` and hard links counts."""
     for flag, path in given:
-        if path is not None and Path(path).is_file() and same_file(path, out):
+        if path is not None and os.path.isfile(path) and same_file(path, out):
             raise ConfigError(
                 f"--out {out} is the {flag} file ({path}): writing {writing} would destroy it; "
                 "give another file"

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from motionbase.config import is_number
 from motionbase.errors import ConfigError, LogFormatError
 from motionbase.state import PHASES
 from motionbase.washout.perception import (
@@ -281,8 +282,18 @@ def _array(msgs: Sequence[Mapping[str, Any]], key: str, width: int, topic: str) 
         v = m.get(key)
         if v is None:
             continue
+        if not isinstance(v, list):  # (a number or a string: a traceback once)
+            shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:37] + "..."
+            raise LogFormatError(
+                f"{topic}: message {i + 1}: field {key!r} is {shown}, expected {width} numbers"
+            )
         if len(v) != width:
             raise LogFormatError(f"{topic}: field {key!r} has {len(v)} values, expected {width}")
+        bad = next((x for x in v if x is not None and not is_number(x)), None)
+        if bad is not None:
+            raise LogFormatError(
+                f"{topic}: message {i + 1}: field {key!r} holds {bad!r:.40}, not a number"
+            )
         out[i] = [np.nan if x is None else x for x in v]
     return out
 

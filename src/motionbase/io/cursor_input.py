@@ -68,6 +68,10 @@ class _Base:
         return {"kind": type(self).__name__}
 
 
+#: The longest line of a cursor CSV, characters (a ``t,x,y`` row takes a few dozen).
+MAX_CSV_LINE = 1024
+
+
 class FileCursor(_Base):
     """Cursor positions replayed from a CSV of ``t,x,y`` (s, pixels; header optional).
 
@@ -86,7 +90,7 @@ class FileCursor(_Base):
         try:
             # UTF-8, with or without the byte order mark spreadsheets write ("CSV UTF-8")
             with self.path.open(newline="", encoding="utf-8-sig") as fh:
-                for n, rec in enumerate(csv.reader(fh), start=1):
+                for n, rec in enumerate(csv.reader(self._lines(fh)), start=1):
                     if not rec or not "".join(rec).strip() or rec[0].lstrip().startswith("#"):
                         continue
                     if n == 1 and rec[0].strip().lower() == "t":
@@ -117,6 +121,18 @@ class FileCursor(_Base):
         self.times = [r[0] - t0 for r in rows]
         self.pixels = [(r[1], r[2]) for r in rows]
         self.duration_s = self.times[-1]
+
+    def _lines(self, fh: Any) -> Any:
+        """The file's lines, each at most :data:`MAX_CSV_LINE` characters: a longer one
+        is no ``t,x,y`` row (/dev/zero's one line never ends, and was read until the
+        memory ran out)."""
+        for n, line in enumerate(iter(lambda: fh.readline(MAX_CSV_LINE + 1), ""), start=1):
+            if len(line) > MAX_CSV_LINE:
+                raise SourceError(
+                    f"{self.path}: line {n} is longer than {MAX_CSV_LINE} characters: not a "
+                    "CSV of cursor positions; --input file: takes 't,x,y' lines (s, pixels)"
+                )
+            yield line
 
     def read(self, t: float) -> tuple[float, float] | None:
         k = bisect.bisect_right(self.times, t + 1e-9) - 1

@@ -118,8 +118,9 @@ def open_evaluator(
     if n > MAX_WORKERS_PER_PROCESSOR * default_workers():
         raise ConfigError(
             f"--workers {n}: this process may use {default_workers()} processors, and more "
-            "workers than processors only slow each other down; give at most "
-            f"{default_workers()} (the default), or --scheduler for a cluster"
+            f"than {MAX_WORKERS_PER_PROCESSOR} workers per processor only slow each other "
+            f"down; give at most {MAX_WORKERS_PER_PROCESSOR * default_workers()} (the default, "
+            f"{default_workers()}, is one per processor), or --scheduler for a cluster"
         )
     if n == 1:
 

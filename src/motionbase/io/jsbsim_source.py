@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Mapping
@@ -102,6 +103,8 @@ def _script_timing(path: Path) -> tuple[float, float, float]:
         run = ET.parse(path).getroot().find("run")
     except ET.ParseError as exc:
         raise SourceError(f"{path}: not a valid JSBSim script: {exc}") from None
+    except OSError as exc:  # (no read permission, a failing disk: a traceback once)
+        raise SourceError(f"{path}: cannot read the JSBSim script: {exc.strerror or exc}") from None
     if run is None:
         raise SourceError(f"{path}: not a JSBSim script (no <run> element)")
     try:
@@ -221,7 +224,7 @@ class JsbsimSource:
         self.root = Path(root) if root is not None else default_root()
         self.script_path = None
         self.script = None
-        if not (self.root / "aircraft" / aircraft).is_dir():
+        if not os.path.isdir(self.root / "aircraft" / aircraft):
             known = sorted(p.name for p in (self.root / "aircraft").iterdir() if p.is_dir())
             close = difflib.get_close_matches(aircraft, known, n=3)
             hint = f" (did you mean {', '.join(close)}?)" if close else ""
@@ -244,13 +247,14 @@ class JsbsimSource:
         s = str(script)
         if s.endswith(".xml") or "/" in s or "\\" in s:
             path = Path(s)
-            if path.is_dir():
+            # (os.path's tests: pathlib's raise for a name too long, a traceback once)
+            if os.path.isdir(path):
                 raise SourceError(f"{path}: a folder, not a JSBSim script (give its .xml file)")
-            if not path.is_file():
+            if not os.path.isfile(path):
                 raise SourceError(f"{path}: JSBSim script not found (check the path)")
             return path.resolve()
         path = self.root / "scripts" / f"{s}.xml"
-        if path.is_file():
+        if os.path.isfile(path):
             return path
         names = available_scripts(self.root)
         close = difflib.get_close_matches(s, names, n=3)

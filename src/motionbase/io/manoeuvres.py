@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from motionbase.config import same_file
 from motionbase.errors import ConfigError
 from motionbase.io.whole_files import whole_file
 from motionbase.state import AircraftState
@@ -158,7 +159,8 @@ class Manoeuvre:
 
     def shares_samples_with(self, other: Manoeuvre) -> bool:
         """Whether ``other`` holds some of the same samples: windows of one script that
-        overlap in time, or the same recording file (however each was named)."""
+        overlap in time, or the same recording (however each was named: through a symlink,
+        a hard link, or a copy of the file, whose samples are the same to the bit)."""
 
         def origin(m: Manoeuvre) -> str:
             if m.source.startswith("jsbsim:"):
@@ -166,8 +168,16 @@ class Manoeuvre:
             return str(Path(m.source).resolve())
 
         if origin(self) != origin(other):
-            return False
+            scripts = self.source.startswith("jsbsim:") or other.source.startswith("jsbsim:")
+            if scripts or not (same_file(self.source, other.source) or self._same_samples(other)):
+                return False
         return bool(self.t[0] <= other.t[-1] and other.t[0] <= self.t[-1])
+
+    def _same_samples(self, other: Manoeuvre) -> bool:
+        return all(
+            np.array_equal(getattr(self, k), getattr(other, k))
+            for k in ("t", "specific_force", "angular_velocity", "attitude")
+        )
 
     def states(self) -> list[AircraftState]:
         """The samples as :class:`~motionbase.state.AircraftState` objects (what sources yield)."""

@@ -219,6 +219,10 @@ MavlinkTick = LiveTick
 """The freshness of a tick (the name this module exported before the live sources shared it)."""
 
 
+#: The most of a signing key file read, bytes (64 hex digits and whitespace fit many times).
+_MAX_KEY_FILE = 4096
+
+
 def load_signing_key(path: str | os.PathLike[str]) -> bytes:
     """Read a 32-byte MAVLink 2 signing key from a file.
 
@@ -240,7 +244,8 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
     """
     p = Path(path)
     try:
-        data = p.read_bytes()
+        with p.open("rb") as fh:  # (a device such as /dev/urandom never ends)
+            data = fh.read(_MAX_KEY_FILE + 1)
     except OSError as exc:
         raise ConfigError(
             f"signing key {p}: cannot read ({exc.strerror}); give the path of a 32-byte key file"
@@ -249,6 +254,11 @@ def load_signing_key(path: str | os.PathLike[str]) -> bytes:
         return data
     text = data.strip()
     make = "(make one with: head -c 32 /dev/urandom > key.bin)"
+    if len(data) > _MAX_KEY_FILE:
+        raise ConfigError(
+            f"signing key {p}: expected 32 raw bytes or 64 hex digits, got more than "
+            f"{_MAX_KEY_FILE} bytes {make}"
+        )
     if len(text) == 64 and text.isascii():
         chars = text.decode("ascii")
         bad = next((i for i, c in enumerate(chars) if c not in string.hexdigits), None)
@@ -819,7 +829,7 @@ class MavlinkSource(SampleHoldSource):
         """
         if self._conn is not None:
             return
-        if self.is_log and not Path(self.url).is_file():
+        if self.is_log and not os.path.isfile(self.url):  # (pathlib: raises for a long name)
             raise SourceError(f"mavlink log {self.url}: no such file (check the path)")
         if not self.is_log:
             _check_link_address(self.url, self.free_port)
@@ -851,6 +861,8 @@ class MavlinkSource(SampleHoldSource):
                 "(udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device or a log file)"
             ) from None
         self._conn = conn
+        if self.is_log:  # before the run opens its log: a file without them is refused
+            self._check_log_has_messages()
         if not self.is_log:
             _end_tcp_at_eof(conn)
             if getattr(conn, "udp_server", False):
@@ -1002,18 +1014,60 @@ class MavlinkSource(SampleHoldSource):
 
         return read_one, getattr(conn, "fd", None)
 
+    @staticmethod
+    def _log_types(conn: Any) -> list[str]:
+        """The messages a log's states are made of (a DataFlash log's, or a telemetry log's)."""
+        if isinstance(conn, DFReader.DFReader):
+            return ["IMU", "ATT"]
+        return [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
+
+    def _no_messages(self, types: list[str]) -> SourceError:
+        return SourceError(
+            f"mavlink log {self.url}: no {' or '.join(types)} messages (is it a "
+            "telemetry .tlog or a DataFlash .bin with IMU and ATT?)"
+        )
+
+    def _check_log_has_messages(self) -> None:
+        """A log without a message of the states is refused when opened, before a run
+        writes its own log (over an existing file, too), not at the run's first tick: a
+        DataFlash log by the index pymavlink made of it, a telemetry log read through a
+        connection of its own up to its first such message."""
+        conn = self._conn
+        types = self._log_types(conn)
+        if isinstance(conn, DFReader.DFReader):
+            counts, ids = getattr(conn, "counts", None), getattr(conn, "name_to_id", None)
+            if not isinstance(counts, list) or not isinstance(ids, dict):
+                return  # (a text DataFlash log: found at the first tick)
+            found = any(counts[ids[t]] for t in types if t in ids)
+        else:
+            try:
+                with _quiet(fds=True):
+                    probe = mavutil.mavlink_connection(self.url)
+                    try:
+                        found = probe.recv_match(type=types) is not None
+                    finally:
+                        probe.close()
+            except Exception as exc:  # noqa: BLE001 - pymavlink's parser raises many types
+                self.close()
+                raise SourceError(
+                    f"mavlink log {self.url}: cannot read it as a MAVLink log ({exc}); is it "
+                    "a whole telemetry .tlog or DataFlash .bin?"
+                ) from None
+        if not found:
+            self.close()
+            raise self._no_messages(types)
+
     def _iter_log(self) -> Iterator[AircraftState]:
         conn = self._conn
         period = 1.0 / self.rate_hz
         n_max = self._tick_count()
+        types = self._log_types(conn)
         if isinstance(conn, DFReader.DFReader):
-            types = ["IMU", "ATT"]
             handle = self._handle_dataflash
             # DataFlash times already come from the vehicle's clock; its gaps are shortened too
             clock: _VehicleClock | None = _VehicleClock(self.sysid)
             dataflash = True
         else:
-            types = [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
             handle = self._handle
             clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
             dataflash = False
@@ -1040,11 +1094,8 @@ class MavlinkSource(SampleHoldSource):
         self._iterating = True
         try:
             pending, t_pending = next_msg()
-            if pending is None:
-                raise SourceError(
-                    f"mavlink log {self.url}: no {' or '.join(types)} messages (is it a "
-                    "telemetry .tlog or a DataFlash .bin with IMU and ATT?)"
-                )
+            if pending is None:  # (checked when opened: the file changed since)
+                raise self._no_messages(types)
             t0 = t_pending
             k = 0
             self.ended = ""

@@ -228,6 +228,8 @@ def _scan(
                 return _Ending(truncated=False, trailing=max(0, size - end - len(MCAP_MAGIC)))
             crc = zlib.crc32(body, zlib.crc32(head, crc))
             start = end
+    except OSError as exc:  # a read that fails (EIO: a failing disk or stick): a traceback once
+        raise SourceError(f"{path}: cannot read: {exc.strerror or exc}") from None
     finally:
         fh.close()
 

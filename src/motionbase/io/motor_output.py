@@ -132,6 +132,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: The text format of a URL without ``format``, for six motors; :func:`default_text` gives
+#: the same for any number (the 3-RRR's three servos: ``A{1}B{2}C{3}\\n``).
 DEFAULT_TEXT = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"
 
 
@@ -143,6 +145,9 @@ def default_text(n: int) -> str:
 
 
 DEFAULT_RATE_HZ = 100.0
+#: The slowest frame rate, Hz: at 1e-320 Hz the sender's wait for its next frame overflowed
+#: (a traceback in its thread, one frame sent, exit 0).
+MIN_RATE_HZ = 1.0
 #: Seconds of sends without an error before a link that was down counts as back (UDP reports
 #: a refused datagram on a later send).
 LINK_PROBATION_S = 1.0
@@ -833,8 +838,11 @@ class MotorOutput:
         command_dt: float | None = None,
         url: str = "",
     ) -> None:
-        if not (rate_hz > 0 and math.isfinite(rate_hz)) or rate_hz > 10_000:
-            raise ConfigError(f"output {url}: rate must be in (0, 10000] Hz, got {rate_hz!r}")
+        if not MIN_RATE_HZ <= rate_hz <= 10_000:  # (a NaN too)
+            raise ConfigError(
+                f"output {url}: rate must be in [{MIN_RATE_HZ:g}, 10000] Hz, got {rate_hz!r} "
+                f"(below {MIN_RATE_HZ:g} frame a second a drive hears of a stop seconds late)"
+            )
         command_dt = 1.0 / rate_hz if command_dt is None else float(command_dt)
         if not (command_dt > 0 and math.isfinite(command_dt)):
             raise ConfigError(f"output {url}: the commands' tick must be > 0 s, got {command_dt!r}")

@@ -52,7 +52,8 @@ def open_serial_port(
         return serial.serial_for_url(
             url, baudrate=int(baud), timeout=timeout, write_timeout=write_timeout
         )
-    except (serial.SerialException, OSError, ValueError) as exc:
+    except (serial.SerialException, OSError, ValueError, OverflowError) as exc:
+        # (OverflowError: a baud rate past a C long, baud=99999999999999999999)
         raise SinkError(
             f"cannot open serial port {url!r}: {exc} (check the device or URL, "
             "and that you may use it: e.g. membership of the 'dialout' group)"

@@ -26,8 +26,11 @@ def folder_problem(folder: str | os.PathLike[str]) -> str:
     """Why files cannot be written in ``folder`` (created if missing), or ``""``: the
     nearest part of its path that exists must be a folder, writable. Creates nothing."""
     existing = Path(folder)
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent  # the nearest part of the path that is there
+    try:
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent  # the nearest part of the path that is there
+    except OSError as exc:  # (a name too long: pathlib raises where os.path says False)
+        return f"{existing}: {exc.strerror or exc}"
     if not existing.is_dir():
         return f"{existing} is not a folder"
     if not os.access(existing, os.W_OK | os.X_OK):

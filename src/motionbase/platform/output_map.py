@@ -398,12 +398,21 @@ class OutputMapping:
 # --------------------------------------------------------------------------- wiring check
 
 
+#: The longest wiring check, s: a slower sweep is a mistyped speed (1e-6 deg/s took years).
+MAX_SWEEP_S = 3600.0
+
+
+def _move_duration(dist: float, vmax: float, amax: float) -> float:
+    """How long a cosine move over ``dist`` takes within ``vmax`` and ``amax``, s."""
+    return max(math.pi * dist / (2 * vmax), math.pi * math.sqrt(dist / (2 * amax)))
+
+
 def _move(a: np.ndarray, b: np.ndarray, vmax: float, amax: float, dt: float) -> np.ndarray:
     """A cosine move from a to b (rad, shape (n,)) within vmax (rad/s) and amax (rad/s^2)."""
     dist = float(np.max(np.abs(b - a)))
     if dist == 0.0:
         return a[None, :].copy()
-    duration = max(math.pi * dist / (2 * vmax), math.pi * math.sqrt(dist / (2 * amax)))
+    duration = _move_duration(dist, vmax, amax)
     steps = max(1, math.ceil(duration / dt))
     s = (1 - np.cos(np.pi * np.arange(1, steps + 1) / steps)) / 2
     return a + s[:, None] * (b - a)
@@ -420,6 +429,7 @@ def sweep_profile(
     accel: float,
     dt: float,
     dwell_s: float = 0.0,
+    linear: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Crank commands of the wiring check: park -> neutral, each motor in turn through
     ``+range, -range`` about neutral, neutral -> park.
@@ -441,6 +451,9 @@ def sweep_profile(
         Sample period, s.
     dwell_s : float
         Rest this long at each end of a sweep, s (so a slow sender or a watcher sees it).
+    linear : bool
+        Linear actuators (m, m/s, m/s^2): the messages then say mm and ``--range-mm``,
+        ``--speed-mm-s``.
 
     Returns
     -------
@@ -453,10 +466,23 @@ def sweep_profile(
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     if not (range_rad > 0 and speed > 0 and accel > 0 and dt > 0):
         raise ConfigError("output test: range, speed, acceleration and dt must be > 0")
+    unit, per_unit, what = (
+        ("mm", 1e3, "actuators' stroke") if linear else ("deg", 180 / math.pi, "crank limits")
+    )
     if np.any(neutral + range_rad > upper) or np.any(neutral - range_rad < lower):
         raise ConfigError(
-            f"output test: +-{math.degrees(range_rad):g} deg about neutral leaves the crank "
-            "limits (choose a smaller --range-deg)"
+            f"output test: +-{range_rad * per_unit:g} {unit} about neutral leaves the "
+            f"{what} (choose a smaller --range-{unit})"
+        )
+    # (the moves: park -> neutral, each actuator +range, -range, back, neutral -> park)
+    dists = [float(np.max(np.abs(neutral - park)))] * 2 + [range_rad, 2 * range_rad, range_rad]
+    total = sum(_move_duration(d, speed, accel) for d in dists[:2]) + park.size * (
+        sum(_move_duration(d, speed, accel) for d in dists[2:]) + 2 * dwell_s
+    )
+    if not total <= MAX_SWEEP_S:
+        raise ConfigError(
+            f"output test: at {speed * per_unit:g} {unit}/s the sweep would take "
+            f"{total:.3g} s, more than an hour (give a faster --speed-{unit}-s)"
         )
     parts = [park[None, :], _move(park, neutral, speed, accel, dt)]
     labels = [np.zeros(1 + len(parts[1]), dtype=int)]

@@ -162,8 +162,7 @@ class Rus6Geometry:
         self._check_rods(src)
         neutral = self.neutral_angle
         for i in range(N_LEGS):
-            # (1e-9 rad: a neutral angle set at a limit, then derived through the height)
-            if not lo[i] - 1e-9 <= neutral[i] <= hi[i] + 1e-9:
+            if not lo[i] <= neutral[i] <= hi[i]:
                 raise ConfigError(
                     f"{src}: field 'neutral_height': leg {i + 1} crank angle at neutral is "
                     f"{math.degrees(neutral[i]):.2f} deg, outside its limits "
@@ -200,19 +199,20 @@ class Rus6Geometry:
             b = -rel[2]
             off = rel - a * cdir[i] - np.array([0.0, 0.0, -b])
             rho = math.hypot(a, b)
-            across = float(np.linalg.norm(off))
+            with np.errstate(over="ignore"):  # (joint circles of 1e300 m: inf, said below)
+                across = float(np.linalg.norm(off))
             dmin = math.hypot(abs(rho - r[i]), across)
             dmax = math.hypot(rho + r[i], across)
             rod = self.rod[i]
             if rod < dmin:
                 raise ConfigError(
                     f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too short to reach its "
-                    f"platform joint at the neutral pose (needs >= {dmin:.4f} m)"
+                    f"platform joint at the neutral pose (needs >= {dmin:.6g} m)"
                 )
             if rod > dmax:
                 raise ConfigError(
                     f"{src}: field 'rod': leg {i + 1} rod {rod:g} m is too long to meet its "
-                    f"platform joint at the neutral pose (needs <= {dmax:.4f} m)"
+                    f"platform joint at the neutral pose (needs <= {dmax:.6g} m)"
                 )
 
     def _check_lines(self, src: str, neutral: np.ndarray) -> None:
@@ -471,11 +471,16 @@ class Rus6Geometry:
                 )
             ang = math.radians(as_float(source, "neutral_angle_deg", data["neutral_angle_deg"]))
             for i, (lo, hi) in enumerate(zip(kw["angle_min"], kw["angle_max"], strict=True)):
-                if lo < hi and not lo <= ang <= hi:  # (the constructor names bad limits)
+                # (the constructor names bad limits). On a limit is refused too: the angle
+                # the height gives back differs by a rounding, which fell outside and was
+                # blamed on neutral_height, a field the file did not have.
+                if lo < hi and not lo < ang < hi:
+                    where = "outside" if not lo <= ang <= hi else "on one of"
                     raise ConfigError(
                         f"{source}: field 'neutral_angle_deg': {math.degrees(ang):g} deg is "
-                        f"outside leg {i + 1}'s limits {math.degrees(lo):g} .. "
-                        f"{math.degrees(hi):g} deg (fix the angle or the limits)"
+                        f"{where} leg {i + 1}'s limits {math.degrees(lo):g} .. "
+                        f"{math.degrees(hi):g} deg (fix the angle or the limits: neutral lies "
+                        "between them)"
                     )
             geo = {
                 k: kw[k] for k in ("rb", "d", "rp", "e", "chi_a", "chi_j", "beta", "crank", "rod")

@@ -228,7 +228,8 @@ class Stewart6Geometry:
                     f"{src}: fields 'length_min'/'length_max': leg {i + 1} needs min < max, got "
                     f"{lo[i]:g} .. {hi[i]:g} m (swap or fix the limits)"
                 )
-        neutral = self.neutral_lengths
+        with np.errstate(over="ignore", invalid="ignore"):  # (radii of 1e300: said below)
+            neutral = self.neutral_lengths
         for i in range(N_LEGS):
             if not lo[i] < neutral[i] < hi[i]:
                 raise ConfigError(
@@ -326,7 +327,7 @@ class Stewart6Geometry:
         height is ``sqrt(length^2 - d^2)``.
         """
         base, plat = _leg_layout(base_radius, base_half_angle, platform_radius, platform_half_angle)
-        d = float(np.linalg.norm(plat[0] - base[0, :2]))
+        d = math.hypot(*(plat[0] - base[0, :2]))  # (no overflow warning for radii of 1e300)
         h2 = length * length - d * d
         return math.sqrt(h2) if h2 > 0.0 else math.nan
 
@@ -424,6 +425,11 @@ class Stewart6Geometry:
                     f"{source}: field 'neutral_length': {length:g} m cannot span the "
                     "horizontal distance between a base joint and its platform joint "
                     "(give a longer length or other radii)"
+                )
+            if h == math.inf:  # (its square overflows: it was blamed on neutral_height)
+                raise ConfigError(
+                    f"{source}: field 'neutral_length': {length:g} m is past any actuator's "
+                    "length (fix the value)"
                 )
             kw["neutral_height"] = h
         elif "neutral_height" in data:
