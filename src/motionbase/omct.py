@@ -260,12 +260,6 @@ def _test(test: str | OmctTest) -> OmctTest:
         raise ConfigError(f"OMCT: unknown test {test!r} (one of {', '.join(_BY_NAME)})") from None
 
 
-#: The smallest amplitude scale (``omct --scale``): at 1e-12 the heave column was rounding
-#: noise (0.014 at 0.1 rad/s against 5.5e-05), marked as a limit acting; at 1e-300 the plots
-#: failed with a traceback. Down to 1e-6 the table is the one at 1.
-MIN_SCALE = 1e-6
-
-
 @dataclass(frozen=True)
 class Amplitudes:
     """Input amplitudes of the tests (module docstring: why these, and what they are not).
