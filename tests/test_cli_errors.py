@@ -1147,7 +1147,7 @@ def test_an_omct_scale_too_small_to_measure_is_one_line(tmp_path, run_cli, scale
     out = tmp_path / "omct"
     code, _, err = run_cli("omct", "--scale", scale, "--out", out)
     assert code == 2, err
-    one_line(err, f"--scale {float(scale):g}", "at least 1e-06")
+    one_line(err, f"--scale {float(scale):g}", "is below 1e-06")
     assert not out.exists()
 
 
