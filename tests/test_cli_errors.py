@@ -1431,18 +1431,6 @@ def test_a_file_that_cannot_be_read_is_one_line(tmp_path, run_cli, args, needle)
     assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "x.toml").exists()
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root reads a file without read permission")
-def test_a_script_without_read_permission_is_one_line(tmp_path, run_cli):
-    import jsbsim
-
-    script = tmp_path / "mine.xml"
-    script.write_bytes((Path(jsbsim.get_default_root_dir()) / "scripts" / "c1723.xml").read_bytes())
-    script.chmod(0)
-    code, _, err = run_cli("fly", script, "--duration", "1", "--out", tmp_path / "x.mcap")
-    assert code == 2, err
-    one_line(err, "mine.xml: cannot read the JSBSim script", "permission denied")
-
-
 @pytest.mark.parametrize(
     "args, needle",
     [
