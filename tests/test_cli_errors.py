@@ -1482,3 +1482,20 @@ def test_a_rus6_geometry_of_astronomical_size_is_one_line(tmp_path, run_cli, fie
     assert code == 2, err
     line = one_line(err, "huge_ceart.toml", "field 'rod'", "needs >=")
     assert len(line) < 300, line
+
+
+@pytest.mark.parametrize("second", ["udp:127.0.0.1:{port}?rate=50", "serial:{link}"])
+def test_one_drive_given_twice_as_an_output_is_refused(tmp_path, run_cli, second):
+    """``--output`` twice to the same drive (another rate, or a serial port by a symlink
+    such as /dev/serial/by-id/...) opened two senders on one link: each ramps from the frames
+    it sent, so the drive got two interleaved command streams. Refused before the run."""
+    first = "udp:127.0.0.1:{port}" if second.startswith("udp") else "serial:/dev/null"
+    (tmp_path / "port").symlink_to("/dev/null")
+    urls = [u.format(port=49999, link=tmp_path / "port") for u in (first, second)]
+    out = tmp_path / "x.mcap"
+    out.write_bytes(b"kept")
+    args = ["fly", "c1723", "--duration", "1", "--out", out]
+    code, _, err = run_cli(*args, "--output", urls[0], "--output", urls[1])
+    assert code == 2, err
+    one_line(err, "both send to", "give each drive once")
+    assert out.read_bytes() == b"kept"

@@ -92,6 +92,7 @@ import functools
 import logging
 import math
 import operator
+import os
 import re
 import socket
 import threading
@@ -1209,9 +1210,26 @@ def open_outputs(
         return []
     mapping = mapping_for(robot)
     sinks = [open_output(u, mapping, limits=robot.limits, command_dt=command_dt) for u in urls]
+    seen: dict[str, str] = {}
     for sink in sinks:
+        drive = _drive_key(sink.label)
+        if drive in seen:  # two senders, each ramping from its own frames, on one line
+            raise ConfigError(
+                f"--output {sink.url!r} and {seen[drive]!r} both send to {sink.label}: give "
+                "each drive once"
+            )
+        seen[drive] = sink.url
         check_sendable(sink, robot)
     return sinks
+
+
+def _drive_key(label: str) -> str:
+    """What identifies a drive's link: ``udp:HOST:PORT``, or a serial device by its real
+    path (a symlink such as ``/dev/serial/by-id/...`` names the same port)."""
+    kind, _, rest = label.partition(":")
+    if kind == "serial" and rest.startswith("/"):
+        return f"serial:{os.path.realpath(rest.split('?')[0])}"
+    return label
 
 
 def check_sendable(sink: MotorOutput, robot: Robot) -> None:
