@@ -595,7 +595,7 @@ def output_test(
             if motor is not None and motor != moving:
                 moving = motor
                 if motor:
-                    say(_sweep_line(mapping, sweep.neutral, motor - 1, rng, unit, scale, linear))
+                    say(_sweep_line(mapping, sweep.neutral, motor - 1, rng, unit, scale, robot))
                 else:
                     say("moving from neutral back to park")
             if stop and out.phase in ("stopping", "parked"):
@@ -642,15 +642,22 @@ def _check_sweep_sendable(
 
 
 def _sweep_line(
-    mapping: Any, neutral: np.ndarray, i: int, rng: float, unit: str, scale: float, linear: bool
+    mapping: Any, neutral: np.ndarray, i: int, rng: float, unit: str, scale: float, robot: Any
 ) -> str:
     """What the sweep of actuator ``i`` (0-based) does, with its drive values."""
+    from motionbase.platform.robot import robot_spec
+
     up, dn = neutral.copy(), neutral.copy()
     up[i] += rng * scale
     dn[i] -= rng * scale
     d0, d1, d2 = (float(np.round(mapping.to_drive(a)[i], 6)) + 0.0 for a in (neutral, up, dn))
-    what = "length" if linear else "crank"
-    sense = "longer" if linear else "tip up"
+    if robot.actuator_unit == "m":
+        what, sense = "length", "longer"
+    elif robot_spec(robot.name).planar:  # (joint angles grow counterclockwise in the base
+        # frame, whose motors 1, 2, 3 at (0, 0), (L, 0), (L/2, L sqrt(3)/2) go round that way)
+        what, sense = "arm", "turning the way motors 1, 2, 3 go round the base"
+    else:
+        what, sense = "crank", "tip up"
     return (
         f"motor {i + 1}: {what} +{rng:g} {unit} ({sense}), -{rng:g} {unit}, back to neutral; "
         f"drive value {d0:g} -> {d1:g} -> {d2:g} -> {d0:g}"
