@@ -174,7 +174,11 @@ def ramp_step(n: int = 20000) -> None:
     for i in range(n):
         now = sink._drive.t + 1e-3
         t0 = time.perf_counter_ns()
-        q, v, _ = sink._ramp(command, now)
+        q, v, _ = motor_output.ramp_step(
+            sink._drive, command, now, period=1e-3, command_dt=sink.command_dt, limits=sink.limits
+        )
+        if q is not command.angles:  # what the sender does with a frame short of the command
+            sink._encode(sink.mapping.to_drive(q))
         t[i] = time.perf_counter_ns() - t0
         sink._drive = Drive(q, v, now)
         if q is command.angles:
