@@ -31,6 +31,7 @@ from motionbase.config import preset_path
 from motionbase.errors import ConfigError, SinkError
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.io.motor_output import (
+    MotorOutput,
     crc16_ccitt,
     crc16_modbus,
     mapping_for,
@@ -811,6 +812,28 @@ def _flight(pipeline: Pipeline, states, sink, progress) -> threading.Thread:
     return threading.Thread(target=flight, daemon=True)
 
 
+#: Cranks of +-60 deg at 30 deg/s and 50 deg/s^2: the tests of narrow drive ranges.
+NARROW_TEST_LIMITS = ActuatorLimits.broadcast(
+    6, -math.radians(60), math.radians(60), math.radians(30.0), math.radians(50.0)
+)
+
+
+def _paced_to_drive(
+    drive: UdpDrive, url: str, mapping: OutputMapping, commands: np.ndarray, dt: float = 0.01
+) -> MotorOutput:
+    """Write ``commands`` (one angle, rad, for every motor) every ``dt`` s to ``url``, a
+    sender ramping within :data:`NARROW_TEST_LIMITS`, closed after the last; the frames are
+    ``drive``'s (drained). The sink."""
+    sink = open_output(url, mapping, limits=NARROW_TEST_LIMITS, command_dt=dt)
+    with sink:
+        start = time.monotonic()
+        for k, c in enumerate(commands):
+            sink.write(np.full(6, c))
+            time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+    drive.drain()
+    return sink
+
+
 def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     """An ``[output]`` drive range of -20..20 deg on cranks limited to +-60 deg: commands
     within the limits (speeding up at 50 deg/s^2 to 30 deg/s) run past 20 deg. The frames
@@ -818,8 +841,8 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     from 30 deg/s at once: 4.9 rad/s^2 over 0.1 s windows on the wire, against a limit of
     0.87. It now brakes within the limit before the edge (it needs 30^2 / (2 * 50) = 9 deg),
     every frame within -20..20 deg, and ends on the last command it could be sent."""
-    vmax, amax = math.radians(30.0), math.radians(50.0)
-    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    limits = NARROW_TEST_LIMITS
+    vmax, amax = limits.max_speed[0], limits.max_accel[0]
     mapping = OutputMapping.from_dict(
         {"unit": "deg", "drive_min": -20.0, "drive_max": 20.0},
         angle_min=limits.lower, angle_max=limits.upper,
@@ -828,15 +851,9 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     speed = np.minimum(vmax, amax * dt * np.arange(1, 251))  # within the limits
     commands = np.cumsum(speed * dt)  # to 66 deg in 2.5 s
     drive = UdpDrive()
-    try:
-        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=dt)
-        with sink:
-            start = time.monotonic()
-            for k, c in enumerate(commands):
-                sink.write(np.full(6, c))
-                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
-            time.sleep(0.5)  # the last command held: the drive comes to rest
-        drive.drain()
+    try:  # the last command held 0.5 s: the drive comes to rest
+        held = [*commands, *[commands[-1]] * 50]
+        sink = _paced_to_drive(drive, drive.url(100.0), mapping, np.array(held), dt)
     finally:
         drive.close()
     t, q = drive.angles()
@@ -853,19 +870,14 @@ def test_a_command_at_a_limit_reaches_the_drive_exactly(caplog):
     at a crank limit (a clamped pose can put one there) is sent as it is, the ramp's limits
     untouched by the braking for narrower drive ranges (cut a hair inside, they held such a
     command: the drive stopped at 59.9855 deg, "may not be at the last command")."""
-    vmax, amax = math.radians(30.0), math.radians(50.0)
-    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    limits = NARROW_TEST_LIMITS
     mapping = OutputMapping.default(limits.lower, limits.upper)
     commands = np.linspace(math.radians(55.0), limits.upper[0], 60)  # 5 deg in 0.6 s
     drive = UdpDrive()
     try:
-        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=0.01)
-        with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"), sink:
-            start = time.monotonic()
-            for k, c in enumerate([*commands, *[commands[-1]] * 30]):
-                sink.write(np.full(6, c))
-                time.sleep(max(0.0, start + (k + 1) * 0.01 - time.monotonic()))
-        drive.drain()
+        with caplog.at_level(logging.WARNING, logger="motionbase.io.motor_output"):
+            held = np.array([*commands, *[commands[-1]] * 30])
+            _paced_to_drive(drive, drive.url(100.0), mapping, held)
     finally:
         drive.close()
     _, q = drive.angles()
@@ -878,8 +890,7 @@ def test_a_command_sent_at_the_edge_of_a_narrow_drive_range_is_reached():
     the drive can be sent: the ramp's edge was put a hair inside 3 deg, and a command a hair
     less than 3 deg (drive value <= 3, sent) lay beyond it, so the ramp held the drive at
     2.99 deg. The edge is now the last position sent, and the drive reaches the command."""
-    vmax, amax = math.radians(30.0), math.radians(50.0)
-    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    limits = NARROW_TEST_LIMITS
     mapping = OutputMapping.from_dict(
         {"unit": "deg", "drive_min": -60.0, "drive_max": 3.0},
         angle_min=limits.lower, angle_max=limits.upper,
@@ -890,13 +901,8 @@ def test_a_command_sent_at_the_edge_of_a_narrow_drive_range_is_reached():
     assert 3.0 - 1e-12 < mapping.to_drive(np.full(6, top))[0] <= 3.0
     drive = UdpDrive()
     try:
-        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=0.01)
-        with sink:
-            start = time.monotonic()
-            for k, c in enumerate([*np.linspace(0.0, top, 40), *[top] * 40]):
-                sink.write(np.full(6, c))
-                time.sleep(max(0.0, start + (k + 1) * 0.01 - time.monotonic()))
-        drive.drain()
+        commands = np.array([*np.linspace(0.0, top, 40), *[top] * 40])
+        sink = _paced_to_drive(drive, drive.url(100.0), mapping, commands)
     finally:
         drive.close()
     _, q = drive.angles()
@@ -910,8 +916,8 @@ def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
     value past 65.535 - 60 = 5.535 deg. Commands within the limits at 30 deg/s ran past it
     and the drive stopped there at once (4.9 rad/s^2 on the wire against 0.87). It now
     brakes within the limits, every frame, read here by ``struct``, at most 5.535 deg."""
-    vmax, amax = math.radians(30.0), math.radians(50.0)
-    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(60), vmax, amax)
+    limits = NARROW_TEST_LIMITS
+    vmax, amax = limits.max_speed[0], limits.max_accel[0]
     mapping = OutputMapping.from_dict(
         {"unit": "deg", "zero_offset_deg": 60.0}, angle_min=limits.lower, angle_max=limits.upper
     )
@@ -921,14 +927,7 @@ def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
     drive = UdpDrive()  # (its frames as they came; decoded here)
     try:
         url = f"udp:127.0.0.1:{drive.port}?rate=100&format=bin:6xu16be*1000"
-        sink = open_output(url, mapping, limits=limits, command_dt=dt)
-        with sink:
-            start = time.monotonic()
-            for k, c in enumerate(commands):
-                sink.write(np.full(6, c))
-                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
-            time.sleep(0.5)
-        drive.drain()
+        sink = _paced_to_drive(drive, url, mapping, np.array([*commands, *[commands[-1]] * 50]))
     finally:
         drive.close()
     t = np.array([a for a, _ in drive.frames])
