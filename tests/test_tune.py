@@ -668,6 +668,8 @@ def test_tune_takes_a_stewart_platform(tmp_path, kick):
         (["--platform", "udesc"], "tune scores 6-DOF platforms"),  # a 3-RRR preset
         (["--seed", "4294967295"], "--seed must be a whole number from 0 to 4294967294"),
         (["--workers", "1000"], "--workers 1000: this process may use"),
+        # checked before the manoeuvres are flown (it came after them, and after their errors)
+        (["--scripts", "no_such_script", "--workers", "1000"], "--workers 1000: this process"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):

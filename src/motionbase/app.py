@@ -1607,7 +1607,7 @@ def tune(
         and ``replay --preview``, not for real-time runs.
     """
     from motionbase import tuning
-    from motionbase.io.executors import open_evaluator
+    from motionbase.io.executors import check_workers, open_evaluator
     from motionbase.io.manoeuvres import (
         DEFAULT_HOLDOUT,
         DEFAULT_MANOEUVRES,
@@ -1631,6 +1631,8 @@ def tune(
             f"--workers {workers} and --scheduler {scheduler}: the evaluations run in local "
             "processes or on a Dask cluster, not both; give one of them"
         )
+    if scheduler is None:
+        check_workers(workers)  # before the manoeuvres are flown, not after
     if budget is None and time_budget_s is None:
         budget = DEFAULT_TUNE_BUDGET
     if budget is not None and (

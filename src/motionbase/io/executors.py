@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from motionbase.tuning import EvaluateMany, SetScore, TuningProblem
     from motionbase.washout.params import WashoutParams
 
-__all__ = ["default_workers", "open_evaluator"]
+__all__ = ["check_workers", "default_workers", "open_evaluator"]
 
 #: Seconds to wait for a Dask scheduler to answer.
 CONNECT_TIMEOUT_S = 10.0
@@ -61,6 +61,27 @@ STOP_POLL_S = 0.05
 
 #: Local workers allowed per processor (more is a mistake: each evaluation is CPU bound).
 MAX_WORKERS_PER_PROCESSOR = 4
+
+
+def check_workers(workers: int | None) -> int:
+    """The number of local worker processes ``workers`` asks for (None: one per processor).
+
+    Raises
+    ------
+    ConfigError
+        Not a whole number >= 1, or more than four per processor.
+    """
+    n = default_workers() if workers is None else workers
+    if isinstance(n, bool) or not (isinstance(n, int) and n >= 1):
+        raise ConfigError(f"--workers must be a whole number >= 1, got {workers!r}")
+    if n > MAX_WORKERS_PER_PROCESSOR * default_workers():
+        raise ConfigError(
+            f"--workers {n}: this process may use {default_workers()} processors, and more "
+            f"than {MAX_WORKERS_PER_PROCESSOR} workers per processor only slow each other "
+            f"down; give at most {MAX_WORKERS_PER_PROCESSOR * default_workers()} (the default, "
+            f"{default_workers()}, is one per processor), or --scheduler for a cluster"
+        )
+    return n
 
 
 def default_workers() -> int:
@@ -112,16 +133,7 @@ def open_evaluator(
         with _dask(problem, scheduler, stop) as evaluate_many:
             yield evaluate_many
         return
-    n = default_workers() if workers is None else workers
-    if not (isinstance(n, int) and n >= 1):
-        raise ConfigError(f"--workers must be a whole number >= 1, got {workers!r}")
-    if n > MAX_WORKERS_PER_PROCESSOR * default_workers():
-        raise ConfigError(
-            f"--workers {n}: this process may use {default_workers()} processors, and more "
-            f"than {MAX_WORKERS_PER_PROCESSOR} workers per processor only slow each other "
-            f"down; give at most {MAX_WORKERS_PER_PROCESSOR * default_workers()} (the default, "
-            f"{default_workers()}, is one per processor), or --scheduler for a cluster"
-        )
+    n = check_workers(workers)
     if n == 1:
 
         def evaluate_here(candidates: list[WashoutParams]) -> list[SetScore]:
