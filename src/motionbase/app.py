@@ -1707,16 +1707,22 @@ def tune(
     problem = tuning.TuningProblem(
         geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name, preview=preview
     )
-    time_left_s = (  # after the loading
-        None if time_budget_s is None else max(1e-9, time_budget_s - (time.monotonic() - called))
-    )
-    bar = EvaluationProgress(time_budget_s=time_left_s) if progress else None
+    bar = None
     t0 = time.monotonic()
     stopped_by = ""  # the reason of a stop after the start set was scored
     try:
         with open_evaluator(
             problem, workers=workers, scheduler=scheduler, stop=stop
         ) as evaluate_many:
+            # what the loading and the workers' start (a minute or more on a loaded machine
+            # with an empty numba cache) left of the budget: it used to be reckoned before
+            # the workers started, and their start-up ran over it
+            time_left_s = (
+                None
+                if time_budget_s is None
+                else max(1e-9, time_budget_s - (time.monotonic() - called))
+            )
+            bar = EvaluationProgress(time_budget_s=time_left_s) if progress else None
             result = tuning.tune(
                 start,
                 evaluate_many,

@@ -1045,12 +1045,12 @@ class MotorOutput:
             now = time.monotonic()
         if there and self._last_sent is not None:
             self._send(self._last_sent, time.monotonic(), final=True)
-        else:
+        else:  # (the time waited: it used to say the ramp's time alone, ``bound``)
             log.warning(
                 "output %s: the drive may not be at the last command (park at the end of a "
                 "run): its link was down or it could not get there within %.1f s",
                 self.label,
-                bound,
+                time.monotonic() - start,
             )
 
     def _send(self, frame: bytes, now: float, final: bool = False) -> bool:
