@@ -848,6 +848,39 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     np.testing.assert_allclose(q[-1], last, rtol=0, atol=math.radians(1e-4))
 
 
+def test_a_drive_range_holding_neither_the_middle_nor_the_limits_is_braked_for():
+    """Crank limits -60..90 deg (their middle 15 deg) and a drive range of -58..5 deg: it
+    holds park and neutral but neither limit nor their middle. The cut of the ramp's limits
+    looked for a position sent only there, found none and left the limits whole, so the
+    commands speeding up past 5 deg were held and the drive stopped at 5 deg from 30 deg/s
+    at once. It must brake within the limits, every frame within -58..5 deg."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(90), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": -58.0, "drive_max": 5.0},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+    dt = 0.01
+    speed = np.minimum(vmax, amax * dt * np.arange(1, 201))  # within the limits
+    commands = math.radians(-20.0) + np.cumsum(speed * dt)  # -20 deg to about 30 deg
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=dt)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate(commands):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+            time.sleep(0.5)
+        drive.drain()
+    finally:
+        drive.close()
+    t, q = drive.angles()
+    assert sink.held > 0 and len(q) > 100
+    assert np.degrees(q).max() <= 5.0 + 1e-4
+    check_wire_limits(t, q, vmax, amax, "braking for a drive range off the middle")
+
+
 def test_a_command_at_a_limit_reaches_the_drive_exactly(caplog):
     """The drive range of the default mapping is the limits' own image: a command exactly
     at a crank limit (a clamped pose can put one there) is sent as it is, the ramp's limits

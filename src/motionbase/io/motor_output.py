@@ -97,7 +97,7 @@ import re
 import socket
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 from urllib.parse import parse_qsl, urlencode
@@ -730,7 +730,10 @@ def _longest_frame(fmt: FrameFormat, mapping: OutputMapping) -> int:
 
 
 def drive_limits(
-    limits: ActuatorLimits, mapping: OutputMapping, frame_format: FrameFormat | None = None
+    limits: ActuatorLimits,
+    mapping: OutputMapping,
+    frame_format: FrameFormat | None = None,
+    inside: np.ndarray | None = None,
 ) -> ActuatorLimits:
     """The ramp's limits: ``limits`` with each actuator's range cut to the positions that
     are sent: whose drive values are within the drive range (``mapping.drive_min..
@@ -744,6 +747,13 @@ def drive_limits(
     edge is the last position sent (by bisection to adjacent floats: a position sent is
     within it, one beyond is not); the limits are returned unchanged when both of an
     actuator's limits are sent (the default mapping: the drive range is their image).
+
+    The bisection starts from a position that is sent: ``inside`` (a command that was sent,
+    shape (n,)) when given, else the first sent of the middle of the limits, the limits
+    themselves, the positions of the drive range's middle and ends, and a grid across the
+    limits. (It tried only the middle and the limits: a drive range that held neither, 605
+    ..790 mm of 600..1000 mm actuators, left the limits uncut, and the drive was stopped at
+    its edge from full speed.)
     """
     axes = set(frame_format.axes) if frame_format is not None else set()
     probe = np.array(limits.lower, dtype=float)
@@ -761,8 +771,8 @@ def drive_limits(
         lo_ok, hi_ok = sent(i, lo), sent(i, hi)
         if lo_ok and hi_ok:
             continue
-        good = next((x for x in (0.5 * (lo + hi), lo, hi) if sent(i, x)), None)
-        if good is None:  # nothing sent (check_sendable refuses such an output)
+        good = next((x for x in _seeds(i, lo, hi, mapping, inside) if sent(i, x)), None)
+        if good is None:  # nothing found sent (check_sendable refuses such an output)
             continue
         for bad, side in ((lo, lo_ok), (hi, hi_ok)):
             if side:
@@ -783,6 +793,24 @@ def drive_limits(
     if np.array_equal(lower, limits.lower) and np.array_equal(upper, limits.upper):
         return limits
     return ActuatorLimits(lower, upper, limits.max_speed, limits.max_accel)
+
+
+def _seeds(
+    i: int, lo: float, hi: float, mapping: OutputMapping, inside: np.ndarray | None
+) -> Iterator[float]:
+    """Positions of actuator ``i`` within ``lo..hi`` to try for one that is sent."""
+    if inside is not None and lo <= float(inside[i]) <= hi:
+        yield float(inside[i])
+    yield 0.5 * (lo + hi)
+    yield lo
+    yield hi
+    dmin, dmax = mapping.drive_min[i], mapping.drive_max[i]
+    for value in (0.5 * (dmin + dmax), dmin, dmax, 0.0):
+        values = np.full(mapping.n, float(value))
+        x = float(mapping.from_drive(values)[i])
+        if lo <= x <= hi:  # (False for NaN)
+            yield x
+    yield from (float(x) for x in np.linspace(lo, hi, 4097)[1:-1])
 
 
 # --------------------------------------------------------------------------- the sink
@@ -862,6 +890,9 @@ class MotorOutput:
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
         self.limits = None if limits is None else drive_limits(limits, mapping, frame_format)
+        # the limits as given: cut again from the first command sent (a position that is
+        # sent, whatever the drive range), on the sender's thread
+        self._given_limits = limits
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
@@ -986,6 +1017,11 @@ class MotorOutput:
         if self.limits is None:
             self._send(command.frame, now)
             return True
+        if self._given_limits is not None:  # (once: the first command is sent)
+            self.limits = drive_limits(
+                self._given_limits, self.mapping, self.format, inside=command.angles
+            )
+            self._given_limits = None
         # the next frame toward the command (:func:`ramp_step`)
         step = ramp_step(
             self._drive, command, now,
