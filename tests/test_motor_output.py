@@ -485,6 +485,24 @@ def test_frames_the_serial_line_cannot_carry_are_refused_before_the_run(caplog):
     assert not caplog.records
 
 
+def test_a_text_frame_longer_between_the_ends_than_at_them_counts_at_its_longest():
+    """The line's check took the longest of the frames of zeros and of the drive range's
+    ends. A ``{1:g}`` field writes -60 at a crank limit but -2.84184e-14 at the 6-RUS's
+    neutral (its cranks a rounding hair from 0 deg): frames of 71 bytes were taken for 25,
+    and 400 Hz passed on a 115200-baud line that carries 162 of them a second."""
+    robot = Pipeline(load_config()).robot
+    neutral = np.degrees(robot.inverse(robot.neutral_pose))
+    frame = "".join(f"{'ABCDEF'[i]}{v:g}" for i, v in enumerate(neutral)) + "\n"
+    assert len(frame) * 10 * 400 > 115200  # (a frame of the run, by Python's own format)
+    fmt = quote("text:A{1:g}B{2:g}C{3:g}D{4:g}E{5:g}F{6:g}\\n", safe="")
+    url = "serial:loop://?baud=115200&rate={}&format=" + fmt
+    with pytest.raises(ConfigError, match="need .* baud, more than the line's 115200"):
+        open_outputs([url.format(400)], robot)
+    for sink in open_outputs([url.format(100)], robot):  # 100 of the longest frames fit
+        with sink:
+            sink.write(robot.park_angles)
+
+
 @pytest.mark.parametrize("baud", ["0", "-5"])
 def test_a_baud_rate_of_zero_is_one_error_and_no_warning(baud, caplog):
     """``baud=0`` used to print the frames-will-be-dropped warning (0 baud is less than any
