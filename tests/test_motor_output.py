@@ -503,6 +503,23 @@ def test_a_text_frame_longer_between_the_ends_than_at_them_counts_at_its_longest
             sink.write(robot.park_angles)
 
 
+def test_one_udp_drive_named_by_its_host_name_and_its_address_is_refused_twice():
+    """``--output udp:127.0.0.1:P`` and ``--output udp:localhost:P`` send to one drive (its
+    datagrams go to the same address): two senders, each ramping from its own frames, would
+    interleave two command streams on it. Only the same text was refused."""
+    resolved = {
+        socket.getaddrinfo(h, 4123, type=socket.SOCK_DGRAM)[0][4]
+        for h in ("127.0.0.1", "localhost")
+    }
+    if len(resolved) != 1:
+        pytest.skip(f"localhost is not 127.0.0.1 here: {resolved}")
+    robot = Pipeline(load_config()).robot
+    urls = ["udp:127.0.0.1:4123", "udp:localhost:4123?rate=50"]
+    with pytest.raises(ConfigError, match="both send to"):
+        open_outputs(urls, robot)
+    assert len(open_outputs(["udp:127.0.0.1:4123", "udp:127.0.0.1:4124"], robot)) == 2
+
+
 @pytest.mark.parametrize("baud", ["0", "-5"])
 def test_a_baud_rate_of_zero_is_one_error_and_no_warning(baud, caplog):
     """``baud=0`` used to print the frames-will-be-dropped warning (0 baud is less than any

@@ -1281,11 +1281,20 @@ def open_outputs(
 
 
 def _drive_key(label: str) -> str:
-    """What identifies a drive's link: ``udp:HOST:PORT``, or a serial device by its real
-    path (a symlink such as ``/dev/serial/by-id/...`` names the same port)."""
+    """What identifies a drive's link: a UDP drive by the address its datagrams go to (the
+    first of its host's, as the sender takes; ``localhost`` and ``127.0.0.1`` are one
+    drive), a serial device by its real path (a symlink such as ``/dev/serial/by-id/...``
+    names the same port)."""
     kind, _, rest = label.partition(":")
     if kind == "serial" and rest.startswith("/"):
         return f"serial:{os.path.realpath(rest.split('?')[0])}"
+    if kind == "udp":
+        host, _, port = rest.rpartition(":")
+        try:
+            addr = socket.getaddrinfo(host.strip("[]"), int(port), type=socket.SOCK_DGRAM)[0][4]
+        except (OSError, ValueError):  # (the sender says so when it opens)
+            return label
+        return f"udp:{addr[0]}:{addr[1]}"
     return label
 
 
