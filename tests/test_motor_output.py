@@ -486,6 +486,41 @@ def test_frames_the_serial_line_cannot_carry_are_refused_before_the_run(caplog):
     assert not caplog.records
 
 
+def test_a_text_frame_longer_between_the_ends_than_at_them_counts_at_its_longest():
+    """The line's check took the longest of the frames of zeros and of the drive range's
+    ends. A ``{1:g}`` field writes -60 at a crank limit but -2.84184e-14 at the 6-RUS's
+    neutral (its cranks a rounding hair from 0 deg): frames of 71 bytes were taken for 25,
+    and 400 Hz passed on a 115200-baud line that carries 162 of them a second."""
+    robot = Pipeline(load_config()).robot
+    neutral = np.degrees(robot.inverse(robot.neutral_pose))
+    frame = "".join(f"{'ABCDEF'[i]}{v:g}" for i, v in enumerate(neutral)) + "\n"
+    assert len(frame) * 10 * 400 > 115200  # (a frame of the run, by Python's own format)
+    fmt = quote("text:A{1:g}B{2:g}C{3:g}D{4:g}E{5:g}F{6:g}\\n", safe="")
+    url = "serial:loop://?baud=115200&rate={}&format=" + fmt
+    with pytest.raises(ConfigError, match="need .* baud, more than the line's 115200"):
+        open_outputs([url.format(400)], robot)
+    for sink in open_outputs([url.format(100)], robot):  # 100 of the longest frames fit
+        with sink:
+            sink.write(robot.park_angles)
+
+
+def test_one_udp_drive_named_by_its_host_name_and_its_address_is_refused_twice():
+    """``--output udp:127.0.0.1:P`` and ``--output udp:localhost:P`` send to one drive (its
+    datagrams go to the same address): two senders, each ramping from its own frames, would
+    interleave two command streams on it. Only the same text was refused."""
+    resolved = {
+        socket.getaddrinfo(h, 4123, type=socket.SOCK_DGRAM)[0][4]
+        for h in ("127.0.0.1", "localhost")
+    }
+    if len(resolved) != 1:
+        pytest.skip(f"localhost is not 127.0.0.1 here: {resolved}")
+    robot = Pipeline(load_config()).robot
+    urls = ["udp:127.0.0.1:4123", "udp:localhost:4123?rate=50"]
+    with pytest.raises(ConfigError, match="both send to"):
+        open_outputs(urls, robot)
+    assert len(open_outputs(["udp:127.0.0.1:4123", "udp:127.0.0.1:4124"], robot)) == 2
+
+
 @pytest.mark.parametrize("baud", ["0", "-5"])
 def test_a_baud_rate_of_zero_is_one_error_and_no_warning(baud, caplog):
     """``baud=0`` used to print the frames-will-be-dropped warning (0 baud is less than any
@@ -863,6 +898,39 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     # at rest, last, on the last command it could be sent (the frames' four decimals)
     last = commands[np.degrees(commands) <= 20.0].max()
     np.testing.assert_allclose(q[-1], last, rtol=0, atol=math.radians(1e-4))
+
+
+def test_a_drive_range_holding_neither_the_middle_nor_the_limits_is_braked_for():
+    """Crank limits -60..90 deg (their middle 15 deg) and a drive range of -58..5 deg: it
+    holds park and neutral but neither limit nor their middle. The cut of the ramp's limits
+    looked for a position sent only there, found none and left the limits whole, so the
+    commands speeding up past 5 deg were held and the drive stopped at 5 deg from 30 deg/s
+    at once. It must brake within the limits, every frame within -58..5 deg."""
+    vmax, amax = math.radians(30.0), math.radians(50.0)
+    limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(90), vmax, amax)
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": -58.0, "drive_max": 5.0},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+    dt = 0.01
+    speed = np.minimum(vmax, amax * dt * np.arange(1, 201))  # within the limits
+    commands = math.radians(-20.0) + np.cumsum(speed * dt)  # -20 deg to about 30 deg
+    drive = UdpDrive()
+    try:
+        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=dt)
+        with sink:
+            start = time.monotonic()
+            for k, c in enumerate(commands):
+                sink.write(np.full(6, c))
+                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
+            time.sleep(0.5)
+        drive.drain()
+    finally:
+        drive.close()
+    t, q = drive.angles()
+    assert sink.held > 0 and len(q) > 100
+    assert np.degrees(q).max() <= 5.0 + 1e-4
+    check_wire_limits(t, q, vmax, amax, "braking for a drive range off the middle")
 
 
 def test_a_command_at_a_limit_reaches_the_drive_exactly(caplog):

@@ -97,7 +97,7 @@ import re
 import socket
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 from urllib.parse import parse_qsl, urlencode
@@ -315,6 +315,25 @@ class TextFormat:
         """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
         return all(self._text(f, value) is not None for f in self.fields if f.axis == axis)
 
+    def longest(self, drive_min: Sequence[float], drive_max: Sequence[float]) -> int:
+        """Bytes of the longest frame of drive values within ``drive_min..drive_max``: each
+        field at its longest on its own (a number is longest at an end of its range, or,
+        written ``e`` or ``g``, as a value with every digit and the widest exponent:
+        ``-2.84184e-14``, a crank at neutral, against ``-60`` at a limit)."""
+        total = sum(len(lit) for lit in self._literals)
+        for f in self.fields:
+            lo, hi = float(drive_min[f.axis]), float(drive_max[f.axis])
+            values = [lo, hi] + ([0.0, -0.0] if lo <= 0.0 <= hi else [])
+            if not f.integer:
+                values += [
+                    v
+                    for e in range(-325, 310)
+                    for m in (1.2345678901234567, -1.2345678901234567)
+                    if lo <= (v := m * 10.0**e if e < 308 else m * 1e308) <= hi
+                ]
+            total += max((len(t) for v in values if (t := self._text(f, v)) is not None), default=0)
+        return total
+
     def describe(self) -> str:
         return f"text:{self.template}"
 
@@ -434,6 +453,11 @@ class BinaryFormat:
             return None
         iv = int(round(v))
         return None if iv < i.lo or iv > i.hi else iv
+
+    @property
+    def size(self) -> int:
+        """Bytes of a frame (the same for every frame)."""
+        return sum(len(i.data) if i.kind == "lit" else i.size for i in self.items)
 
     def axis_ok(self, axis: int, value: float) -> bool:
         """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
@@ -718,19 +742,19 @@ def ramp_step(
 
 
 def _longest_frame(fmt: FrameFormat, mapping: OutputMapping) -> int:
-    """Bytes of the longest frame ``fmt`` makes of the drive values ``mapping`` sends (a text
-    frame's numbers are longest at an end of the drive range, or at zero)."""
-    longest = 0
-    for values in (np.zeros(mapping.n), mapping.drive_min, mapping.drive_max):
-        try:
-            longest = max(longest, len(fmt.encode(values) or b""))
-        except (ValueError, OverflowError):  # (a value the fields cannot carry: never sent)
-            continue
-    return longest
+    """Bytes of the longest frame ``fmt`` makes of the drive values ``mapping`` sends. (It
+    took the longest of the frames of zeros and of the drive range's ends: a text field
+    ``{1:g}`` of a 6-RUS at neutral writes ``-2.84184e-14``, 71 bytes a frame, not 25.)"""
+    if isinstance(fmt, TextFormat):
+        return fmt.longest(mapping.drive_min, mapping.drive_max)
+    return fmt.size
 
 
 def drive_limits(
-    limits: ActuatorLimits, mapping: OutputMapping, frame_format: FrameFormat | None = None
+    limits: ActuatorLimits,
+    mapping: OutputMapping,
+    frame_format: FrameFormat | None = None,
+    inside: np.ndarray | None = None,
 ) -> ActuatorLimits:
     """The ramp's limits: ``limits`` with each actuator's range cut to the positions that
     are sent: whose drive values are within the drive range (``mapping.drive_min..
@@ -744,6 +768,13 @@ def drive_limits(
     edge is the last position sent (by bisection to adjacent floats: a position sent is
     within it, one beyond is not); the limits are returned unchanged when both of an
     actuator's limits are sent (the default mapping: the drive range is their image).
+
+    The bisection starts from a position that is sent: ``inside`` (a command that was sent,
+    shape (n,)) when given, else the first sent of the middle of the limits, the limits
+    themselves, the positions of the drive range's middle and ends, and a grid across the
+    limits. (It tried only the middle and the limits: a drive range that held neither, 605
+    ..790 mm of 600..1000 mm actuators, left the limits uncut, and the drive was stopped at
+    its edge from full speed.)
     """
     axes = set(frame_format.axes) if frame_format is not None else set()
     probe = np.array(limits.lower, dtype=float)
@@ -761,8 +792,8 @@ def drive_limits(
         lo_ok, hi_ok = sent(i, lo), sent(i, hi)
         if lo_ok and hi_ok:
             continue
-        good = next((x for x in (0.5 * (lo + hi), lo, hi) if sent(i, x)), None)
-        if good is None:  # nothing sent (check_sendable refuses such an output)
+        good = next((x for x in _seeds(i, lo, hi, mapping, inside) if sent(i, x)), None)
+        if good is None:  # nothing found sent (check_sendable refuses such an output)
             continue
         for bad, side in ((lo, lo_ok), (hi, hi_ok)):
             if side:
@@ -783,6 +814,24 @@ def drive_limits(
     if np.array_equal(lower, limits.lower) and np.array_equal(upper, limits.upper):
         return limits
     return ActuatorLimits(lower, upper, limits.max_speed, limits.max_accel)
+
+
+def _seeds(
+    i: int, lo: float, hi: float, mapping: OutputMapping, inside: np.ndarray | None
+) -> Iterator[float]:
+    """Positions of actuator ``i`` within ``lo..hi`` to try for one that is sent."""
+    if inside is not None and lo <= float(inside[i]) <= hi:
+        yield float(inside[i])
+    yield 0.5 * (lo + hi)
+    yield lo
+    yield hi
+    dmin, dmax = mapping.drive_min[i], mapping.drive_max[i]
+    for value in (0.5 * (dmin + dmax), dmin, dmax, 0.0):
+        values = np.full(mapping.n, float(value))
+        x = float(mapping.from_drive(values)[i])
+        if lo <= x <= hi:  # (False for NaN)
+            yield x
+    yield from (float(x) for x in np.linspace(lo, hi, 4097)[1:-1])
 
 
 # --------------------------------------------------------------------------- the sink
@@ -862,6 +911,9 @@ class MotorOutput:
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
         self.limits = None if limits is None else drive_limits(limits, mapping, frame_format)
+        # the limits as given: cut again from the first command sent (a position that is
+        # sent, whatever the drive range), on the sender's thread
+        self._given_limits = limits
         self.command_dt = command_dt
         self.url = url or transport.label
         self.label = transport.label  # the URL without its query, for messages
@@ -986,6 +1038,11 @@ class MotorOutput:
         if self.limits is None:
             self._send(command.frame, now)
             return True
+        if self._given_limits is not None:  # (once: the first command is sent)
+            self.limits = drive_limits(
+                self._given_limits, self.mapping, self.format, inside=command.angles
+            )
+            self._given_limits = None
         # the next frame toward the command (:func:`ramp_step`)
         step = ramp_step(
             self._drive, command, now,
@@ -1224,11 +1281,20 @@ def open_outputs(
 
 
 def _drive_key(label: str) -> str:
-    """What identifies a drive's link: ``udp:HOST:PORT``, or a serial device by its real
-    path (a symlink such as ``/dev/serial/by-id/...`` names the same port)."""
+    """What identifies a drive's link: a UDP drive by the address its datagrams go to (the
+    first of its host's, as the sender takes; ``localhost`` and ``127.0.0.1`` are one
+    drive), a serial device by its real path (a symlink such as ``/dev/serial/by-id/...``
+    names the same port)."""
     kind, _, rest = label.partition(":")
     if kind == "serial" and rest.startswith("/"):
         return f"serial:{os.path.realpath(rest.split('?')[0])}"
+    if kind == "udp":
+        host, _, port = rest.rpartition(":")
+        try:
+            addr = socket.getaddrinfo(host.strip("[]"), int(port), type=socket.SOCK_DGRAM)[0][4]
+        except (OSError, ValueError):  # (the sender says so when it opens)
+            return label
+        return f"udp:{addr[0]}:{addr[1]}"
     return label
 
 
