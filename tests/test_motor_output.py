@@ -854,12 +854,17 @@ NARROW_TEST_LIMITS = ActuatorLimits.broadcast(
 
 
 def _paced_to_drive(
-    drive: UdpDrive, url: str, mapping: OutputMapping, commands: np.ndarray, dt: float = 0.01
+    drive: UdpDrive,
+    url: str,
+    mapping: OutputMapping,
+    commands: np.ndarray,
+    dt: float = 0.01,
+    limits: ActuatorLimits = NARROW_TEST_LIMITS,
 ) -> MotorOutput:
     """Write ``commands`` (one angle, rad, for every motor) every ``dt`` s to ``url``, a
-    sender ramping within :data:`NARROW_TEST_LIMITS`, closed after the last; the frames are
-    ``drive``'s (drained). The sink."""
-    sink = open_output(url, mapping, limits=NARROW_TEST_LIMITS, command_dt=dt)
+    sender ramping within ``limits``, closed after the last; the frames are ``drive``'s
+    (drained). The sink."""
+    sink = open_output(url, mapping, limits=limits, command_dt=dt)
     with sink:
         start = time.monotonic()
         for k, c in enumerate(commands):
@@ -916,15 +921,9 @@ def test_a_drive_range_holding_neither_the_middle_nor_the_limits_is_braked_for()
     speed = np.minimum(vmax, amax * dt * np.arange(1, 201))  # within the limits
     commands = math.radians(-20.0) + np.cumsum(speed * dt)  # -20 deg to about 30 deg
     drive = UdpDrive()
-    try:
-        sink = open_output(drive.url(100.0), mapping, limits=limits, command_dt=dt)
-        with sink:
-            start = time.monotonic()
-            for k, c in enumerate(commands):
-                sink.write(np.full(6, c))
-                time.sleep(max(0.0, start + (k + 1) * dt - time.monotonic()))
-            time.sleep(0.5)
-        drive.drain()
+    try:  # the last command held 0.5 s
+        held = np.array([*commands, *[commands[-1]] * 50])
+        sink = _paced_to_drive(drive, drive.url(100.0), mapping, held, dt, limits)
     finally:
         drive.close()
     t, q = drive.angles()
