@@ -1379,7 +1379,8 @@ def test_report_of_a_recording_with_a_malformed_field_is_one_line(
     tmp_path, run_cli, topic, key, value, needle
 ):
     """A recording whose message held a number, a bool or a string where a list of numbers
-    goes: ``report`` answered with a TypeError or ValueError traceback."""
+    goes: ``report`` answered with a TypeError or ValueError traceback. The line names the
+    recording too (it named only the topic)."""
     rec = tmp_path / "flight.mcap"
     code, _, err = run_cli("fly", "--duration", "3", "--out", rec)
     assert code == 0, err
@@ -1387,7 +1388,7 @@ def test_report_of_a_recording_with_a_malformed_field_is_one_line(
     out = tmp_path / "report"
     code, _, err = run_cli("report", bad, "--out", out)
     assert code == 2, err
-    one_line(err, f"{topic}: message 10", needle)
+    one_line(err, f"bad.mcap: {topic}: message 10", needle)
     assert not out.exists()
 
 

@@ -364,6 +364,16 @@ def build_report(
     ConfigError
         The recorded configuration is missing or invalid.
     """
+    try:
+        return _build_report(messages, metadata, name)
+    except LogFormatError as exc:  # a malformed message: say in which recording
+        msg = str(exc)
+        raise LogFormatError(msg if msg.startswith(name) else f"{name}: {msg}") from None
+
+
+def _build_report(
+    messages: Mapping[str, Sequence[Mapping[str, Any]]], metadata: Mapping[str, Any], name: str
+) -> Report:
     from motionbase.pipeline import PipelineConfig
     from motionbase.platform.robot import robot_spec
 
