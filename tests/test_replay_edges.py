@@ -256,6 +256,15 @@ def test_another_platform_alone_keeps_the_recorded_washout(tmp_path, capfd, fres
     assert WashoutParams.from_dict(recorded) == WashoutParams.preset("gentle")
     cue = [m["pose"] for m in read_messages(rec)["/washout/pose"]]
     assert cue == [m["pose"] for m in read_messages(out)["/washout/pose"]]
+    # only the parameters are read: a recorded geometry that no longer loads (a rule
+    # added since, say) does not stop a replay on the platform asked for
+    meta = read_metadata(rec)
+    meta["pipeline_config"]["geometry"]["crank"] = -1.0
+    odd = write_states(tmp_path / "odd.mcap", config=meta)
+    code, _, err = _cli(capfd, "replay", odd, "--platform", "ceart", "--out", out)
+    assert code == 0, err
+    recorded = read_metadata(out)["pipeline_config"]["cueing_params"]
+    assert WashoutParams.from_dict(recorded) == WashoutParams.preset("gentle")
     # --params still changes them
     code, _, err = _cli(
         capfd, "replay", rec, "--platform", "ceart", "--params", "default", "--out", out

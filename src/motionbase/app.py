@@ -918,12 +918,18 @@ def _replay(
                 cueing=cueing or recorded_cueing,  # the recorded cueing unless given
                 rate_hz=source.rate_hz,
             )
-            if recorded is not None and washout is None and config.cueing == recorded_cueing:
+            kept = (recorded or {}).get("cueing_params", (recorded or {}).get("washout"))
+            if kept is not None and washout is None and config.cueing == recorded_cueing:
                 # and its parameters: another platform alone must not bring another set (a
                 # recording of --params gentle replayed to motors with --platform got the
-                # platform's tuned default, harder, without a word)
-                kept = PipelineConfig.from_dict(recorded, source=f"{src_path}: metadata")
-                config = replace(config, cueing_params=kept.cueing_params)
+                # platform's tuned default, harder, without a word). Only they are read:
+                # the recorded geometry is not the one asked for.
+                from motionbase.washout.cueing import cueing_spec
+
+                params = cueing_spec(config.cueing).params_type.from_dict(
+                    kept, source=f"{src_path}: metadata: cueing_params"
+                )
+                config = replace(config, cueing_params=params)
         if out is not None:
             _refuse_out_over_cueing_files(out, config)
         as_recorded = preview is None
