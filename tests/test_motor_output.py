@@ -853,6 +853,21 @@ NARROW_TEST_LIMITS = ActuatorLimits.broadcast(
 )
 
 
+def _deg_drive(limits: ActuatorLimits, drive_min: float, drive_max: float) -> OutputMapping:
+    """Degrees to drives whose range is ``drive_min..drive_max`` deg."""
+    return OutputMapping.from_dict(
+        {"unit": "deg", "drive_min": drive_min, "drive_max": drive_max},
+        angle_min=limits.lower, angle_max=limits.upper,
+    )  # fmt: skip
+
+
+def _speeding_up(start: float, n: int, limits: ActuatorLimits, dt: float = 0.01) -> np.ndarray:
+    """``n`` commands every ``dt`` s from ``start`` (rad), speeding up within ``limits``'
+    acceleration to their speed, then on at it."""
+    vmax, amax = limits.max_speed[0], limits.max_accel[0]
+    return start + np.cumsum(np.minimum(vmax, amax * dt * np.arange(1, n + 1)) * dt)
+
+
 def _paced_to_drive(
     drive: UdpDrive,
     url: str,
@@ -883,13 +898,9 @@ def test_a_drive_range_narrower_than_the_limits_is_braked_for_not_hit(caplog):
     every frame within -20..20 deg, and ends on the last command it could be sent."""
     limits = NARROW_TEST_LIMITS
     vmax, amax = limits.max_speed[0], limits.max_accel[0]
-    mapping = OutputMapping.from_dict(
-        {"unit": "deg", "drive_min": -20.0, "drive_max": 20.0},
-        angle_min=limits.lower, angle_max=limits.upper,
-    )  # fmt: skip
+    mapping = _deg_drive(limits, -20.0, 20.0)
     dt = 0.01
-    speed = np.minimum(vmax, amax * dt * np.arange(1, 251))  # within the limits
-    commands = np.cumsum(speed * dt)  # to 66 deg in 2.5 s
+    commands = _speeding_up(0.0, 250, limits, dt)  # to 66 deg in 2.5 s
     drive = UdpDrive()
     try:  # the last command held 0.5 s: the drive comes to rest
         held = [*commands, *[commands[-1]] * 50]
@@ -913,13 +924,9 @@ def test_a_drive_range_holding_neither_the_middle_nor_the_limits_is_braked_for()
     at once. It must brake within the limits, every frame within -58..5 deg."""
     vmax, amax = math.radians(30.0), math.radians(50.0)
     limits = ActuatorLimits.broadcast(6, -math.radians(60), math.radians(90), vmax, amax)
-    mapping = OutputMapping.from_dict(
-        {"unit": "deg", "drive_min": -58.0, "drive_max": 5.0},
-        angle_min=limits.lower, angle_max=limits.upper,
-    )  # fmt: skip
+    mapping = _deg_drive(limits, -58.0, 5.0)
     dt = 0.01
-    speed = np.minimum(vmax, amax * dt * np.arange(1, 201))  # within the limits
-    commands = math.radians(-20.0) + np.cumsum(speed * dt)  # -20 deg to about 30 deg
+    commands = _speeding_up(math.radians(-20.0), 200, limits, dt)  # -20 deg to about 30 deg
     drive = UdpDrive()
     try:  # the last command held 0.5 s
         held = np.array([*commands, *[commands[-1]] * 50])
@@ -958,10 +965,7 @@ def test_a_command_sent_at_the_edge_of_a_narrow_drive_range_is_reached():
     less than 3 deg (drive value <= 3, sent) lay beyond it, so the ramp held the drive at
     2.99 deg. The edge is now the last position sent, and the drive reaches the command."""
     limits = NARROW_TEST_LIMITS
-    mapping = OutputMapping.from_dict(
-        {"unit": "deg", "drive_min": -60.0, "drive_max": 3.0},
-        angle_min=limits.lower, angle_max=limits.upper,
-    )  # fmt: skip
+    mapping = _deg_drive(limits, -60.0, 3.0)
     top = math.radians(3.0)
     while mapping.to_drive(np.full(6, top))[0] > 3.0:  # the largest angle sent as <= 3 deg
         top = np.nextafter(top, 0.0)
@@ -989,8 +993,7 @@ def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit():
         {"unit": "deg", "zero_offset_deg": 60.0}, angle_min=limits.lower, angle_max=limits.upper
     )
     dt = 0.01
-    speed = np.minimum(vmax, amax * dt * np.arange(1, 301))  # within the limits
-    commands = math.radians(-30.0) + np.cumsum(speed * dt)  # -30 deg to about 50 deg
+    commands = _speeding_up(math.radians(-30.0), 300, limits, dt)  # -30 deg to about 50 deg
     drive = UdpDrive()  # (its frames as they came; decoded here)
     try:
         url = f"udp:127.0.0.1:{drive.port}?rate=100&format=bin:6xu16be*1000"
