@@ -360,8 +360,10 @@ SWEEP_CHECK_STEPS = 200
 
 def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
     """A ConfigError unless the wiring check can move each actuator alone ``+-range_``
-    about ``neutral``, the others held there: within the actuator limits, and through
-    poses the robot can take (:meth:`Robot.reachable`), along the assembly it is in.
+    about ``neutral``, the others held there, through poses the robot can take
+    (:meth:`Robot.reachable`), along the assembly it is in. The range must be one that
+    :func:`~motionbase.platform.output_map.sweep_profile` has found within the actuator
+    limits.
 
     A parallel robot whose actuator moves alone moves its platform: past some offset no
     pose has every leg at its length (the 3-RRR's servos at about 12 deg from home),
@@ -380,16 +382,8 @@ def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
     unit, scale, option = (
         ("mm", 1e3, "--range-mm") if linear else ("deg", 180 / math.pi, "--range-deg")
     )
-    what = "length" if linear else "crank"
     shown = f"+-{range_ * scale:g} {unit}"
     lim = robot.limits
-    if not range_ > 0:
-        raise ConfigError(f"output test: the sweep range must be > 0, got {shown} ({option})")
-    if np.any(neutral + range_ > lim.upper) or np.any(neutral - range_ < lim.lower):
-        raise ConfigError(
-            f"output test: {shown} about neutral leaves the {what} limits (choose a "
-            f"smaller {option})"
-        )
     neutral_pose = np.asarray(robot.neutral_pose, dtype=float)
     fractions = np.arange(1, SWEEP_CHECK_STEPS + 1) / SWEEP_CHECK_STEPS
     for i in range(robot.n):
@@ -468,12 +462,12 @@ class SweepSource(Iterator[Command]):
         self.accel = 0.5 * float(lim.max_accel.min())
         self.dt = 1.0 / rate_hz
         self.neutral = np.asarray(robot.inverse(robot.neutral_pose), dtype=float)
-        check_sweep_range(robot, self.neutral, range_)
         targets, motor = sweep_profile(
             robot.park_angles, self.neutral, lim.lower, lim.upper, range_rad=range_,
             speed=self.speed, accel=self.accel, dt=self.dt, dwell_s=0.2,
             linear=robot.actuator_unit == "m",
         )  # fmt: skip
+        check_sweep_range(robot, self.neutral, range_)  # (within the limits, sweep_profile says)
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))
         self.targets = np.pad(targets, ((lead, rest), (0, 0)), mode="edge")  # rest at both ends

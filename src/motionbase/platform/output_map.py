@@ -467,7 +467,7 @@ def sweep_profile(
     if not (range_rad > 0 and speed > 0 and accel > 0 and dt > 0):
         raise ConfigError("output test: range, speed, acceleration and dt must be > 0")
     unit, per_unit, what = (
-        ("mm", 1e3, "actuators' stroke") if linear else ("deg", 180 / math.pi, "crank limits")
+        ("mm", 1e3, "length limits") if linear else ("deg", 180 / math.pi, "crank limits")
     )
     if np.any(neutral + range_rad > upper) or np.any(neutral - range_rad < lower):
         raise ConfigError(
