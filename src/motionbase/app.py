@@ -918,7 +918,8 @@ def _replay(
                 cueing=cueing or recorded_cueing,  # the recorded cueing unless given
                 rate_hz=source.rate_hz,
             )
-            kept = (recorded or {}).get("cueing_params", (recorded or {}).get("washout"))
+            key = PipelineConfig.cueing_params_key(recorded or {})
+            kept = (recorded or {}).get(key)
             if kept is not None and washout is None and config.cueing == recorded_cueing:
                 # and its parameters: another platform alone must not bring another set (a
                 # recording of --params gentle replayed to motors with --platform got the
@@ -927,7 +928,7 @@ def _replay(
                 from motionbase.washout.cueing import cueing_spec
 
                 params = cueing_spec(config.cueing).params_type.from_dict(
-                    kept, source=f"{src_path}: metadata: cueing_params"
+                    kept, source=f"{src_path}: metadata: {key}"
                 )
                 config = replace(config, cueing_params=params)
         if out is not None:

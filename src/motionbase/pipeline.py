@@ -197,6 +197,12 @@ class PipelineConfig:
             "version": __version__,
         }
 
+    @staticmethod
+    def cueing_params_key(data: dict[str, Any]) -> str:
+        """Where :meth:`to_dict`'s plain data holds the cueing's parameters:
+        ``"cueing_params"``, or ``"washout"`` in logs from before the cueing plug-ins."""
+        return "cueing_params" if "cueing_params" in data or "washout" not in data else "washout"
+
     @classmethod
     def from_dict(
         cls, data: dict[str, Any], source: str = "recorded configuration"
@@ -217,9 +223,7 @@ class PipelineConfig:
                 f"{source}: field 'cueing': {cueing!r} is not a known cueing "
                 f"({', '.join(sorted(CUEINGS))}); register its plug-in first"
             )
-        params_key = (
-            "cueing_params" if "cueing_params" in data or "washout" not in data else "washout"
-        )
+        params_key = cls.cueing_params_key(data)
         pipe = data.get("pipeline", {})
         limits = pipe.get("input_limits", {}) if isinstance(pipe, dict) else None
         if not isinstance(limits, dict):
