@@ -1,8 +1,10 @@
 """motionbase: motion-platform middleware for flight simulators.
 
-Aircraft states (JSBSim, MAVLink, MCAP replays) go through a classical washout
-filter (:mod:`motionbase.washout`) into the inverse kinematics of a 6-RUS rotary
-platform or a planar 3-RRR robot (:mod:`motionbase.platform`); the edges
+Aircraft states (JSBSim, MAVLink, FlightGear, X-Plane, MCAP replays) go through a
+cueing plug-in, the classical washout or model-predictive cueing
+(:mod:`motionbase.washout`), into the inverse kinematics of a robot plug-in, the
+6-RUS rotary platform, the 6-UPS Stewart platform or the planar 3-RRR robot
+(:mod:`motionbase.platform`); the edges
 (:mod:`motionbase.io`) read sources and write sinks; :mod:`motionbase.pipeline`
 ties them together at a fixed rate.
 

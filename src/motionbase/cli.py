@@ -74,9 +74,10 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="motionbase",
-        description="Motion-platform middleware for flight simulators: JSBSim or MAVLink "
-        "aircraft states through a classical washout into a 6-RUS platform or a planar "
-        "3-RRR robot, logged to MCAP.",
+        description="Motion-platform middleware for flight simulators: aircraft states from "
+        "JSBSim, MAVLink, FlightGear, X-Plane or a recording, through a cueing algorithm "
+        "(classical washout or MPC) into a 6-RUS or Stewart platform or a planar 3-RRR "
+        "robot, logged to MCAP.",
     )
     parser.add_argument("--version", action="version", version=f"motionbase {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
