@@ -13,6 +13,7 @@ import math
 import os
 import re
 import socket
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -1090,6 +1091,40 @@ def test_a_toml_path_that_never_ends_is_one_line(tmp_path, args):
     code, err = run_process(*args, setup=_AS_LIMIT, cwd=tmp_path)
     assert code == 2, err
     one_line(err, f"{args[-1]}: larger than", "not a configuration file")
+
+
+def test_a_geometry_given_through_a_pipe_is_read_once(tmp_path):
+    """``--platform <(cat rig.toml)`` (a shell's process substitution: a pipe that can be
+    read once) was read again for each use of the file, and the second read found it empty:
+    "missing field 'rb'", of a complete geometry. It is read once and kept: the same reach
+    as from the file itself."""
+    import subprocess
+    import sys
+
+    import motionbase
+
+    text = resources.files("motionbase.presets").joinpath("rus6_ceart.toml").read_bytes()
+    plain = tmp_path / "rig.toml"
+    plain.write_bytes(text)
+    here = str(Path(motionbase.__file__).parents[1])  # the motionbase under test
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}
+
+    def workspace(platform: str, fds: tuple[int, ...] = ()) -> str:
+        out = subprocess.run(
+            [sys.executable, "-m", "motionbase", "workspace", "--platform", platform],
+            capture_output=True, text=True, pass_fds=fds, env=env, timeout=300,
+        )  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        return out.stdout.replace(platform, "RIG")
+
+    r, w = os.pipe()
+    try:
+        os.write(w, text)  # (a few kB: within the pipe's buffer)
+        os.close(w)
+        piped = workspace(f"/dev/fd/{r}", (r,))
+    finally:
+        os.close(r)
+    assert piped == workspace(str(plain))
 
 
 @pytest.mark.parametrize(

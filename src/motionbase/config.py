@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import math
 import os
+import stat
 import tomllib
 from collections.abc import Iterable, Mapping
 from importlib import resources
@@ -25,13 +26,30 @@ from motionbase.errors import ConfigError
 #: /dev/zero or /dev/urandom never ends, and was read until the memory ran out).
 MAX_TOML_BYTES = 16 * 1024 * 1024
 
+#: The text of each pipe read so far, by (device, inode): a pipe (``--platform <(cat
+#: rig.toml)``) can be read once, and a command reads a geometry file more than once (to
+#: tell which robot it is for, then to load it). A second read found it empty.
+_PIPES_READ: dict[tuple[int, int], bytes] = {}
+
+
+def _read_bytes(p: Path) -> bytes:
+    """At most ``MAX_TOML_BYTES + 1`` bytes of a file; a pipe's only once."""
+    with p.open("rb") as fh:
+        st = os.fstat(fh.fileno())
+        key = (st.st_dev, st.st_ino)
+        if stat.S_ISFIFO(st.st_mode) and key in _PIPES_READ:
+            return _PIPES_READ[key]
+        raw = fh.read(MAX_TOML_BYTES + 1)
+    if stat.S_ISFIFO(st.st_mode):
+        _PIPES_READ[key] = raw
+    return raw
+
 
 def read_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning a missing file or a syntax error into ConfigError."""
     p = Path(path)
     try:
-        with p.open("rb") as fh:
-            raw = fh.read(MAX_TOML_BYTES + 1)
+        raw = _read_bytes(p)
         if len(raw) > MAX_TOML_BYTES:
             raise ConfigError(
                 f"{p}: larger than {MAX_TOML_BYTES // 2**20} MB, not a configuration file "
