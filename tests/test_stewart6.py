@@ -211,6 +211,36 @@ def test_mirror_solutions_are_not_reachable():
         assert clamped and HEX.reachable(out)
 
 
+def _line_conditioning(pose: np.ndarray) -> float:
+    """Independently: 1 / cond of the legs' unit lines ``[u_i, (R q_i x u_i) / L_NEUTRAL]``
+    (the README's measure: moments over the mean leg length at neutral)."""
+    centre = ORIGIN + pose[:3]
+    joints = centre + LOCAL @ _rot(*pose[3:]).T
+    u = joints - BASE
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    s = np.linalg.svd(np.hstack([u, np.cross(joints - centre, u) / L_NEUTRAL]), compute_uv=False)
+    return float(s[-1] / s[0])
+
+
+def test_a_singular_pose_within_the_stroke_is_not_reachable():
+    """Heave 0.21 m down and yaw 90 deg: every actuator inside its stroke (0.629 and
+    0.898 m), but at the quarter turn the legs' lines cannot hold the platform (a hexapod's
+    classic singularity; forward kinematics there does not converge). It was reachable, and
+    the clamp returned it as it was: the platform commanded into a singularity. A pose is
+    reachable now only where the legs hold it as firmly as a geometry must at neutral
+    (line conditioning at least 0.01)."""
+    pose = np.array([0.0, 0.0, 0.21, 0.0, 0.0, math.pi / 2])
+    assert _within(pose)
+    assert _line_conditioning(pose) < 1e-9
+    assert not HEX.reachable(pose)
+    out, clamped = HEX.clamp(pose)
+    assert clamped and HEX.reachable(out) and _within(out, L_MIN - 1e-12, L_MAX + 1e-12)
+    assert _line_conditioning(out) >= 0.01
+    # the pose scaled toward neutral: still pure heave and yaw, short of the quarter turn
+    assert out[[0, 1, 3, 4]].tolist() == [0.0] * 4 and 0.0 < out[5] < math.pi / 2
+    assert out[2] / out[5] == pytest.approx(pose[2] / pose[5], rel=1e-12)
+
+
 def test_batch_shapes_match_single_calls():
     rng = np.random.default_rng(2)
     poses = rng.uniform(-0.1, 0.1, (2, 3, 6))

@@ -108,6 +108,7 @@ class Stewart6:
             geometry.platform_origin,
             geometry.length_min,
             geometry.length_max,
+            geometry.line_scale,
         )
         self._limits = ActuatorLimits.broadcast(
             6, geometry.length_min, geometry.length_max, geometry.max_speed, geometry.max_accel
@@ -172,8 +173,12 @@ class Stewart6:
 
         Also required: every platform joint above its base joint and the platform upright
         (tilted less than 90 deg), which rules out the mirror solutions of the length
-        equations (platform below the base or upside down). A bool for one pose, a bool array
-        of shape (...) for a batch. NaN/inf poses are not reachable.
+        equations (platform below the base or upside down), and legs that hold the platform:
+        their line conditioning (:mod:`motionbase.platform.conditioning`) at least
+        ``MIN_LINE_CONDITIONING``, the bound a geometry must meet at neutral, which keeps
+        the platform away from its singularities (yawed 90 deg, say, where the legs cannot
+        resist some motion and the forward kinematics has no unique answer). A bool for one
+        pose, a bool array of shape (...) for a batch. NaN/inf poses are not reachable.
         """
         return run_reachable(_k.reachable_batch, self._G, pose)
 

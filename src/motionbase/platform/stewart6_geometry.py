@@ -237,7 +237,7 @@ class Stewart6Geometry:
                     f"the neutral pose, not inside its stroke {lo[i]:g} .. {hi[i]:g} m (fix "
                     "neutral_height, neutral_length or the length limits)"
                 )
-        length = float(np.mean(neutral))
+        length = self.line_scale
         c = line_conditioning(self.platform_joints_local, self._neutral_lines(), length)
         if c < MIN_LINE_CONDITIONING:
             # The actuators' lines meet near one point: the joints of the smaller circle.
@@ -306,6 +306,12 @@ class Stewart6Geometry:
         return np.linalg.norm(
             self.platform_origin + self.platform_joints_local - self.base_joints, axis=1
         )
+
+    @property
+    def line_scale(self) -> float:
+        """The length, m, that turns the legs' moments into forces in their line conditioning
+        (:mod:`motionbase.platform.conditioning`): the mean actuator length at neutral."""
+        return float(np.mean(self.neutral_lengths))
 
     @property
     def park_lengths(self) -> np.ndarray:
