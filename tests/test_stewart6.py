@@ -411,6 +411,26 @@ def test_output_table_maps_the_stroke_to_the_range(tmp_path):
     assert Stewart6Geometry.from_toml(tmp_path / "again.toml") == g
 
 
+@pytest.mark.parametrize(
+    "extra", ["drive_max = 400", "drive_min = -5", "drive_max = [300, 300, 300, 300, 300, 301]"]
+)
+def test_output_drive_range_past_the_integer_range_is_refused(tmp_path, extra):
+    """README: "no value past range_lo..range_hi is ever sent". With the span 0.65..0.85 m on
+    0..300 and drive_max = 400, the fully extended actuator (0.90 m) mapped to
+    (0.90 - 0.65) / 0.20 * 300 = 375, and the drive range let it through."""
+    path = tmp_path / "out.toml"
+    path.write_text(
+        _preset_text()
+        + '\n[output]\nunit = "range"\nrange_lo = 0\nrange_hi = 300\n'
+        + f"span_min = 0.65\nspan_max = 0.85\n{extra}\n"
+    )
+    with pytest.raises(ConfigError) as err:
+        Stewart6Geometry.from_toml(path)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(f"{path}: [output]: fields 'drive_min'/'drive_max'")
+    assert "range_lo..range_hi 0..300" in msg
+
+
 def _preset_text() -> str:
     from importlib import resources
 

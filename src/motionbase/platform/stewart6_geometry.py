@@ -366,7 +366,8 @@ class Stewart6Geometry:
         (the only unit for lengths), ``range_lo``/``range_hi`` (integers), optional ``sign``
         (1, or -1 for a drive that counts from the extended end), ``span_min``/``span_max``
         (the lengths, m, at ``range_lo``/``range_hi``; default the stroke) and
-        ``drive_min``/``drive_max`` (drive units; default the stroke's image).
+        ``drive_min``/``drive_max`` (drive units, within ``range_lo``..``range_hi``;
+        default the stroke's image there).
 
         Raises
         ------
