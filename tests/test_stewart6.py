@@ -591,3 +591,20 @@ def test_base_joints_at_one_point_are_refused_naming_the_base():
     data["base_radius"] = 1e-6
     with pytest.raises(ConfigError, match=r"^g\.toml: field 'base_radius': the actuators"):
         Stewart6Geometry.from_dict(data, source="g.toml")
+
+
+def test_vertical_actuators_are_refused_as_parallel_not_as_joints_at_one_point():
+    """Both circles 0.35 m and both half angles 30 deg: base joint k at -30 deg and its
+    platform joint at -(60 - 30) = -30 deg on the same radius, straight above it. Every
+    actuator vertical: nothing holds sideways motion or yaw. It was refused saying the
+    platform joints (radius 0.35 m) were 'too close to one point'."""
+    data = GEOMETRY.to_dict()
+    data.update(base_radius=0.35, base_half_angle=math.radians(30.0))
+    data["platform_half_angle"] = math.radians(30.0)
+    data.pop("neutral_height")
+    data["neutral_length"] = 0.75
+    with pytest.raises(ConfigError) as err:
+        Stewart6Geometry.from_dict(data, source="g.toml")
+    msg = str(err.value)
+    assert msg.startswith("g.toml: fields 'base_radius'/'platform_radius' and the half angles:")
+    assert "nearly parallel" in msg and "0 m sideways" in msg and "one point" not in msg

@@ -240,9 +240,21 @@ class Stewart6Geometry:
         length = self.line_scale
         c = line_conditioning(self.platform_joints_local, self._neutral_lines(), length)
         if c < MIN_LINE_CONDITIONING:
-            # The actuators' lines meet near one point: the joints of the smaller circle.
             side = "platform" if self.platform_radius <= self.base_radius else "base"
             radius = getattr(self, f"{side}_radius")
+            # Either the lines meet near one point (the joints of the smaller circle), or they
+            # run nearly parallel: each platform joint (nearly) straight above its base joint
+            # (the same sideways offset on every leg of this layout).
+            offset = float(np.hypot(*self._neutral_lines()[0, :2]))
+            if offset < radius:
+                raise ConfigError(
+                    f"{src}: fields 'base_radius'/'platform_radius' and the half angles: the "
+                    f"actuators barely hold the platform at the neutral pose (line conditioning "
+                    f"{c:.2g} < {MIN_LINE_CONDITIONING:g}): they stand nearly parallel, each "
+                    f"platform joint {offset:.3g} m sideways of its base joint on a {length:g} m "
+                    "actuator, and hardly resist the platform's sideways motion or yaw (offset "
+                    "the joints: radii or half angles that differ more)"
+                )
             raise ConfigError(
                 f"{src}: field '{side}_radius': the actuators barely hold the platform's "
                 f"rotations at the neutral pose (line conditioning {c:.2g} < "
