@@ -372,6 +372,38 @@ def test_heave_reach_is_where_the_stroke_ends():
     assert ENVELOPE["heave"].positive == pytest.approx(down, abs=1e-8)
 
 
+def test_the_readme_gives_the_preset_s_reach():
+    """The README's single-axis reach of ``seat``, each figure to its printed digits. It said
+    "surge and sway about +-0.3 m"; sway reaches 0.282 m (leg pairs at 0, 120, 240 deg)."""
+    import re
+    from pathlib import Path
+
+    text = " ".join((Path(__file__).parents[1] / "README.md").read_text().split())
+    found = re.search(
+        r"reaches surge ([\d.]+) m back and forward, sway \+-([\d.]+) m, heave ([\d.]+) m up "
+        r"and ([\d.]+) m down, roll \+-([\d.]+) deg, pitch ([\d.]+) deg nose up and ([\d.]+) "
+        r"down, yaw \+-([\d.]+) deg from the stroke alone",
+        text,
+    )
+    assert found, "the README's sentence on the seat preset's reach"
+    e = ENVELOPE
+    deg = math.degrees
+    expected = [
+        (e["surge"].negative, e["surge"].positive),
+        (e["sway"].negative, e["sway"].positive),
+        (e["heave"].negative,),
+        (e["heave"].positive,),
+        (deg(e["roll"].negative), deg(e["roll"].positive)),
+        (deg(e["pitch"].positive),),
+        (deg(e["pitch"].negative),),
+        (deg(e["yaw"].negative), deg(e["yaw"].positive)),
+    ]
+    for printed, values in zip(found.groups(), expected, strict=True):
+        half_digit = 0.5 * 10.0 ** -len(printed.split(".")[1])
+        for v in values:
+            assert abs(v - float(printed)) <= half_digit + 1e-12, (printed, v)
+
+
 @pytest.mark.parametrize("j", range(6))
 def test_every_single_axis_edge_is_an_actuator_limit(j):
     a = ENVELOPE[AXES[j]]
