@@ -640,3 +640,26 @@ def test_vertical_actuators_are_refused_as_parallel_not_as_joints_at_one_point()
     msg = str(err.value)
     assert msg.startswith("g.toml: fields 'base_radius'/'platform_radius' and the half angles:")
     assert "nearly parallel" in msg and "0 m sideways" in msg and "one point" not in msg
+
+
+def test_a_kind_field_the_other_fields_contradict_is_named(tmp_path, capsys):
+    """``kind = "rus6"`` over the seat preset's fields was refused as "a 6-UPS Stewart platform
+    geometry file ..., not a 6-RUS geometry", and ``kind = "stewart6"`` over ceart's fields
+    as "unknown field 'angle_max_deg'": the field at fault, kind, went unnamed."""
+    from importlib import resources
+
+    from motionbase.cli import main
+
+    ceart = (resources.files("motionbase") / "presets" / "rus6_ceart.toml").read_text()
+    cases = (
+        (_edit(_preset_text(), "kind", '"rus6"'), "'rus6'", "6-UPS Stewart", "'stewart6'"),
+        (_edit(ceart, "kind", '"stewart6"'), "'stewart6'", "6-RUS", "'rus6'"),
+    )
+    for i, (text, said, fields, fix) in enumerate(cases):
+        path = tmp_path / f"k{i}.toml"
+        path.write_text(text)
+        assert main(["workspace", "--platform", str(path)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err
+        assert f"{path}: field 'kind': {said}, but the other fields are those of a {fields}" in err
+        assert f"fix kind = {fix} or the fields" in err

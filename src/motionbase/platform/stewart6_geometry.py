@@ -75,6 +75,7 @@ import numpy as np
 
 from motionbase.config import (
     as_float,
+    check_file_kind,
     check_keys,
     read_toml,
     resolve_preset_or_path,
@@ -394,6 +395,7 @@ class Stewart6Geometry:
                 f"{source}: field 'kind': this is a {kind!r} file, not a 'stewart6' geometry "
                 "(give a stewart6 geometry file)"
             )
+        check_file_kind(source, data, "stewart6")
         allowed = {"name", "kind", "output", "neutral_length", "park_margin"}
         allowed |= set(_LENGTH_SCALARS) | set(_PER_LEG)
         allowed |= set(_ANGLE_SCALARS) | {f + "_deg" for f in _ANGLE_SCALARS}
