@@ -663,3 +663,45 @@ def test_a_kind_field_the_other_fields_contradict_is_named(tmp_path, capsys):
         assert "\n" not in err
         assert f"{path}: field 'kind': {said}, but the other fields are those of a {fields}" in err
         assert f"fix kind = {fix} or the fields" in err
+
+
+def test_a_park_pose_near_a_singularity_is_refused_saying_so():
+    """A small platform (0.117 m circle) on a wide base (1.44 m): the legs hold it at neutral
+    but, retracted to length_min + 0.01 m, lean so far that they barely hold its rotations.
+    That park pose exists (pure heave, every leg the same length) and the old message said
+    "no reachable pose holds the actuators" there."""
+    data = {
+        "base_radius": 1.44,
+        "base_half_angle_deg": 23.5,
+        "platform_radius": 0.117,
+        "platform_half_angle_deg": 51.26,
+        "neutral_length": 1.8227,
+        "length_min": 1.4096,
+        "length_max": 2.5558,
+        "max_speed": 0.3,
+        "max_accel": 3.0,
+    }
+    geometry = Stewart6Geometry.from_dict(data, source="p.toml")  # the file's checks pass
+    # independently: the layout of the geometry docstring, each leg from base angle
+    # c - 23.5 deg to platform angle c - (60 - 51.26) deg, c = 0, 120, 240 deg (and mirrored)
+    c = np.repeat([0.0, 120.0, 240.0], 2)
+    side = np.tile([-1.0, 1.0], 3)
+    base = _ring(1.44, list(c + side * 23.5), 0.0)
+    plat = _ring(0.117, list(c + side * (60.0 - 51.26)), 0.0)
+    d = float(np.hypot(*(plat - base)[0, :2]))
+    park_height = math.sqrt((1.4096 + 0.01) ** 2 - d * d)
+
+    def conditioning(height: float) -> float:
+        joints = plat - [0.0, 0.0, height]
+        u = joints - base
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        m = np.cross(joints - joints.mean(axis=0), u) / geometry.line_scale
+        s = np.linalg.svd(np.hstack([u, m]), compute_uv=False)
+        return float(s[-1] / s[0])
+
+    assert conditioning(math.sqrt(1.8227**2 - d * d)) >= 0.01 > conditioning(park_height)
+    with pytest.raises(ConfigError) as err:
+        Stewart6(geometry)
+    msg = str(err.value)
+    assert "field 'park_margin': the parked pose" in msg and "barely hold" in msg
+    assert "no reachable pose" not in msg and "\n" not in msg

@@ -37,6 +37,7 @@ from motionbase.platform._pose_kernels import (
     run_inverse,
     run_reachable,
 )
+from motionbase.platform.conditioning import MIN_LINE_CONDITIONING, line_conditioning
 from motionbase.platform.robot import Robot
 from motionbase.platform.stewart6_geometry import Stewart6Geometry
 from motionbase.safety import ActuatorLimits
@@ -124,10 +125,29 @@ class Stewart6:
         park_lengths = geometry.park_lengths
         # the parked platform sinks straight down on this symmetric layout; start from neutral
         park_pose = self.forward(park_lengths)
-        if not (np.isfinite(park_pose).all() and self.reachable(park_pose)):
+        margin = f"length_min + {geometry.park_margin:g} m"
+        if not np.isfinite(park_pose).all():
             raise ConfigError(
-                f"{src}: field 'park_margin': no reachable pose holds the actuators at "
-                f"length_min + {geometry.park_margin:g} m (choose another margin)"
+                f"{src}: field 'park_margin': no pose holds the actuators at {margin} "
+                "(choose another margin)"
+            )
+        if not self.reachable(park_pose):
+            joints = self.joint_points(park_pose).platform_joints
+            held = line_conditioning(
+                joints - (geometry.platform_origin + park_pose[:3]),
+                joints - geometry.base_joints,
+                geometry.line_scale,
+            )
+            why = (
+                f"the legs barely hold the platform there (line conditioning {held:.2g} < "
+                f"{MIN_LINE_CONDITIONING:g}: near a singularity)"
+                if held < MIN_LINE_CONDITIONING
+                else "it is not reachable"
+            )
+            raise ConfigError(
+                f"{src}: field 'park_margin': the parked pose, the actuators at {margin} "
+                f"({park_pose[2]:.3g} m below neutral), is no place to park: {why} (choose a "
+                "larger margin)"
             )
         self._park = Park(_read_only(park_lengths), _read_only(park_pose))
 
