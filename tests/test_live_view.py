@@ -499,6 +499,20 @@ def test_layout_names_fields_the_log_has(tmp_path):
     assert sorted(re.findall(r'"(\w+![\w]+)"', tree)) == sorted(layout["configById"])
 
 
+def test_layout_and_help_name_a_linear_actuator_s_lengths(capsys):
+    """Every robot's log has ``/platform/actuators.angles``; a Stewart platform's holds lengths
+    in m. The shipped layout titled that plot "actuator angles (rad)" with lines "crank 1".."crank
+    6", and ``--output``'s help said it sends "crank angles", whatever the robot."""
+    layout = json.loads((ROOT / "layouts" / "motionbase_layout.json").read_text())
+    plot = layout["configById"]["Plot!actuators"]
+    assert "(m)" in plot["title"] and "(rad)" in plot["title"]
+    assert [p["label"] for p in plot["paths"]] == [f"actuator {i}" for i in range(1, 7)]
+    with pytest.raises(SystemExit):
+        main(["fly", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "send the safe actuator commands (crank angles, or lengths of linear" in text
+
+
 # --------------------------------------------------------------------------- user mistakes
 
 

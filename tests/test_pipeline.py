@@ -268,6 +268,8 @@ def test_the_summary_reports_the_flight_and_the_parking_apart(flight):
     stopping = ~running & ~starting
     assert s.running_samples == running.sum() > 0
     np.testing.assert_allclose(s.peak_angle, np.abs(q[running]).max(axis=0), rtol=1e-12)
+    np.testing.assert_array_equal(s.angle_range[0], q[running].min(axis=0))
+    np.testing.assert_array_equal(s.angle_range[1], q[running].max(axis=0))
     np.testing.assert_allclose(s.peak_speed, v[running].max(axis=0), rtol=1e-9)
     np.testing.assert_allclose(s.start_peak_speed, v[starting].max(axis=0), rtol=1e-9)
     np.testing.assert_allclose(s.stop_peak_speed, v[stopping].max(axis=0), rtol=1e-9)
@@ -278,7 +280,8 @@ def test_the_summary_reports_the_flight_and_the_parking_apart(flight):
     assert np.all(s.peak_angle < abs(config.geometry.park_angle) - np.radians(5))
     text = result.summary_text()
     assert f"flight ({s.running_samples} samples at full motion)" in text
-    assert f"{np.degrees(s.peak_angle[0]):7.1f} (" in text
+    low, high = np.degrees(q[running].min(axis=0)), np.degrees(q[running].max(axis=0))
+    assert f"{low[0]:7.1f}..{high[0]:<7.1f} (" in text
     assert "parking: start ramp" in text and "way back to park" in text
 
 

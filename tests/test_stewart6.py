@@ -211,6 +211,36 @@ def test_mirror_solutions_are_not_reachable():
         assert clamped and HEX.reachable(out)
 
 
+def _line_conditioning(pose: np.ndarray) -> float:
+    """Independently: 1 / cond of the legs' unit lines ``[u_i, (R q_i x u_i) / L_NEUTRAL]``
+    (the README's measure: moments over the mean leg length at neutral)."""
+    centre = ORIGIN + pose[:3]
+    joints = centre + LOCAL @ _rot(*pose[3:]).T
+    u = joints - BASE
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    s = np.linalg.svd(np.hstack([u, np.cross(joints - centre, u) / L_NEUTRAL]), compute_uv=False)
+    return float(s[-1] / s[0])
+
+
+def test_a_singular_pose_within_the_stroke_is_not_reachable():
+    """Heave 0.21 m down and yaw 90 deg: every actuator inside its stroke (0.629 and
+    0.898 m), but at the quarter turn the legs' lines cannot hold the platform (a hexapod's
+    classic singularity; forward kinematics there does not converge). It was reachable, and
+    the clamp returned it as it was: the platform commanded into a singularity. A pose is
+    reachable now only where the legs hold it as firmly as a geometry must at neutral
+    (line conditioning at least 0.01)."""
+    pose = np.array([0.0, 0.0, 0.21, 0.0, 0.0, math.pi / 2])
+    assert _within(pose)
+    assert _line_conditioning(pose) < 1e-9
+    assert not HEX.reachable(pose)
+    out, clamped = HEX.clamp(pose)
+    assert clamped and HEX.reachable(out) and _within(out, L_MIN - 1e-12, L_MAX + 1e-12)
+    assert _line_conditioning(out) >= 0.01
+    # the pose scaled toward neutral: still pure heave and yaw, short of the quarter turn
+    assert out[[0, 1, 3, 4]].tolist() == [0.0] * 4 and 0.0 < out[5] < math.pi / 2
+    assert out[2] / out[5] == pytest.approx(pose[2] / pose[5], rel=1e-12)
+
+
 def test_batch_shapes_match_single_calls():
     rng = np.random.default_rng(2)
     poses = rng.uniform(-0.1, 0.1, (2, 3, 6))
@@ -342,6 +372,38 @@ def test_heave_reach_is_where_the_stroke_ends():
     assert ENVELOPE["heave"].positive == pytest.approx(down, abs=1e-8)
 
 
+def test_the_readme_gives_the_preset_s_reach():
+    """The README's single-axis reach of ``seat``, each figure to its printed digits. It said
+    "surge and sway about +-0.3 m"; sway reaches 0.282 m (leg pairs at 0, 120, 240 deg)."""
+    import re
+    from pathlib import Path
+
+    text = " ".join((Path(__file__).parents[1] / "README.md").read_text().split())
+    found = re.search(
+        r"reaches surge ([\d.]+) m back and forward, sway \+-([\d.]+) m, heave ([\d.]+) m up "
+        r"and ([\d.]+) m down, roll \+-([\d.]+) deg, pitch ([\d.]+) deg nose up and ([\d.]+) "
+        r"down, yaw \+-([\d.]+) deg from the stroke alone",
+        text,
+    )
+    assert found, "the README's sentence on the seat preset's reach"
+    e = ENVELOPE
+    deg = math.degrees
+    expected = [
+        (e["surge"].negative, e["surge"].positive),
+        (e["sway"].negative, e["sway"].positive),
+        (e["heave"].negative,),
+        (e["heave"].positive,),
+        (deg(e["roll"].negative), deg(e["roll"].positive)),
+        (deg(e["pitch"].positive),),
+        (deg(e["pitch"].negative),),
+        (deg(e["yaw"].negative), deg(e["yaw"].positive)),
+    ]
+    for printed, values in zip(found.groups(), expected, strict=True):
+        half_digit = 0.5 * 10.0 ** -len(printed.split(".")[1])
+        for v in values:
+            assert abs(v - float(printed)) <= half_digit + 1e-12, (printed, v)
+
+
 @pytest.mark.parametrize("j", range(6))
 def test_every_single_axis_edge_is_an_actuator_limit(j):
     a = ENVELOPE[AXES[j]]
@@ -379,6 +441,26 @@ def test_output_table_maps_the_stroke_to_the_range(tmp_path):
     assert Stewart6Geometry.from_dict(g.to_dict()) == g
     g.to_toml(tmp_path / "again.toml")
     assert Stewart6Geometry.from_toml(tmp_path / "again.toml") == g
+
+
+@pytest.mark.parametrize(
+    "extra", ["drive_max = 400", "drive_min = -5", "drive_max = [300, 300, 300, 300, 300, 301]"]
+)
+def test_output_drive_range_past_the_integer_range_is_refused(tmp_path, extra):
+    """README: "no value past range_lo..range_hi is ever sent". With the span 0.65..0.85 m on
+    0..300 and drive_max = 400, the fully extended actuator (0.90 m) mapped to
+    (0.90 - 0.65) / 0.20 * 300 = 375, and the drive range let it through."""
+    path = tmp_path / "out.toml"
+    path.write_text(
+        _preset_text()
+        + '\n[output]\nunit = "range"\nrange_lo = 0\nrange_hi = 300\n'
+        + f"span_min = 0.65\nspan_max = 0.85\n{extra}\n"
+    )
+    with pytest.raises(ConfigError) as err:
+        Stewart6Geometry.from_toml(path)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(f"{path}: [output]: fields 'drive_min'/'drive_max'")
+    assert "range_lo..range_hi 0..300" in msg
 
 
 def _preset_text() -> str:
@@ -541,3 +623,85 @@ def test_base_joints_at_one_point_are_refused_naming_the_base():
     data["base_radius"] = 1e-6
     with pytest.raises(ConfigError, match=r"^g\.toml: field 'base_radius': the actuators"):
         Stewart6Geometry.from_dict(data, source="g.toml")
+
+
+def test_vertical_actuators_are_refused_as_parallel_not_as_joints_at_one_point():
+    """Both circles 0.35 m and both half angles 30 deg: base joint k at -30 deg and its
+    platform joint at -(60 - 30) = -30 deg on the same radius, straight above it. Every
+    actuator vertical: nothing holds sideways motion or yaw. It was refused saying the
+    platform joints (radius 0.35 m) were 'too close to one point'."""
+    data = GEOMETRY.to_dict()
+    data.update(base_radius=0.35, base_half_angle=math.radians(30.0))
+    data["platform_half_angle"] = math.radians(30.0)
+    data.pop("neutral_height")
+    data["neutral_length"] = 0.75
+    with pytest.raises(ConfigError) as err:
+        Stewart6Geometry.from_dict(data, source="g.toml")
+    msg = str(err.value)
+    assert msg.startswith("g.toml: fields 'base_radius'/'platform_radius' and the half angles:")
+    assert "nearly parallel" in msg and "0 m sideways" in msg and "one point" not in msg
+
+
+def test_a_kind_field_the_other_fields_contradict_is_named(tmp_path, capsys):
+    """``kind = "rus6"`` over the seat preset's fields was refused as "a 6-UPS Stewart platform
+    geometry file ..., not a 6-RUS geometry", and ``kind = "stewart6"`` over ceart's fields
+    as "unknown field 'angle_max_deg'": the field at fault, kind, went unnamed."""
+    from importlib import resources
+
+    from motionbase.cli import main
+
+    ceart = (resources.files("motionbase") / "presets" / "rus6_ceart.toml").read_text()
+    cases = (
+        (_edit(_preset_text(), "kind", '"rus6"'), "'rus6'", "6-UPS Stewart", "'stewart6'"),
+        (_edit(ceart, "kind", '"stewart6"'), "'stewart6'", "6-RUS", "'rus6'"),
+    )
+    for i, (text, said, fields, fix) in enumerate(cases):
+        path = tmp_path / f"k{i}.toml"
+        path.write_text(text)
+        assert main(["workspace", "--platform", str(path)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err
+        assert f"{path}: field 'kind': {said}, but the other fields are those of a {fields}" in err
+        assert f"fix kind = {fix} or the fields" in err
+
+
+def test_a_park_pose_near_a_singularity_is_refused_saying_so():
+    """A small platform (0.117 m circle) on a wide base (1.44 m): the legs hold it at neutral
+    but, retracted to length_min + 0.01 m, lean so far that they barely hold its rotations.
+    That park pose exists (pure heave, every leg the same length) and the old message said
+    "no reachable pose holds the actuators" there."""
+    data = {
+        "base_radius": 1.44,
+        "base_half_angle_deg": 23.5,
+        "platform_radius": 0.117,
+        "platform_half_angle_deg": 51.26,
+        "neutral_length": 1.8227,
+        "length_min": 1.4096,
+        "length_max": 2.5558,
+        "max_speed": 0.3,
+        "max_accel": 3.0,
+    }
+    geometry = Stewart6Geometry.from_dict(data, source="p.toml")  # the file's checks pass
+    # independently: the layout of the geometry docstring, each leg from base angle
+    # c - 23.5 deg to platform angle c - (60 - 51.26) deg, c = 0, 120, 240 deg (and mirrored)
+    c = np.repeat([0.0, 120.0, 240.0], 2)
+    side = np.tile([-1.0, 1.0], 3)
+    base = _ring(1.44, list(c + side * 23.5), 0.0)
+    plat = _ring(0.117, list(c + side * (60.0 - 51.26)), 0.0)
+    d = float(np.hypot(*(plat - base)[0, :2]))
+    park_height = math.sqrt((1.4096 + 0.01) ** 2 - d * d)
+
+    def conditioning(height: float) -> float:
+        joints = plat - [0.0, 0.0, height]
+        u = joints - base
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        m = np.cross(joints - joints.mean(axis=0), u) / geometry.line_scale
+        s = np.linalg.svd(np.hstack([u, m]), compute_uv=False)
+        return float(s[-1] / s[0])
+
+    assert conditioning(math.sqrt(1.8227**2 - d * d)) >= 0.01 > conditioning(park_height)
+    with pytest.raises(ConfigError) as err:
+        Stewart6(geometry)
+    msg = str(err.value)
+    assert "field 'park_margin': the parked pose" in msg and "barely hold" in msg
+    assert "no reachable pose" not in msg and "\n" not in msg

@@ -212,6 +212,27 @@ def test_fly_logs_lengths_within_the_stroke_and_limits(flight):
         np.testing.assert_allclose(q[k], _lengths(poses[k]), atol=1e-9)
 
 
+def test_the_summary_sets_each_actuator_s_range_used_against_its_stroke(tmp_path):
+    """The end-of-run summary printed ``peak |length|`` per actuator: the longest length
+    only, so a leg that retracted toward its 600 mm minimum and never extended past neutral
+    showed 750 mm. It prints the range each actuator used in the flight now, the lowest and
+    highest lengths logged in the running phase."""
+    from motionbase import app
+
+    out = tmp_path / "f.mcap"
+    result = app.fly("c1723", platform="stewart6", duration_s=20.0, out=out, progress=False)
+    messages = read_complete_log(out)
+    running = np.array([m["phase"] == "running" for m in messages["/platform/pose"]])
+    q = np.array([m["angles"] for m in messages["/platform/actuators"]])[running]
+    low, high = 1000.0 * q.min(axis=0), 1000.0 * q.max(axis=0)
+    leg = int(np.argmin(low))
+    assert low[leg] < 700.0 < 745.0 < high[leg] < 760.0  # (this flight: leg 4, 661..750 mm)
+    text = result.summary_text()
+    assert "length used mm (limits)" in text
+    for i in range(6):
+        assert f"{i + 1:>8}  {low[i]:7.1f}..{high[i]:<7.1f} ( 600.0..900.0)" in text
+
+
 def test_the_scene_draws_each_leg_at_the_logged_pose(flight):
     """``/platform/scene``: each leg is a line from its base joint to its platform joint at
     the logged pose, whose length is the logged actuator length (by the independent leg

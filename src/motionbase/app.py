@@ -173,14 +173,15 @@ class JobResult:
                 return 1000.0 * x if linear else math.degrees(x)
 
             if s.running_samples:
+                low, high = s.angle_range
                 lines.append(
                     f"flight ({s.running_samples} sample{'s' * (s.running_samples != 1)} at "
                     "full motion), per actuator: "
-                    f"peak |{what}| {unit} (limits), peak speed {unit}/s (limit)"
+                    f"{what} used {unit} (limits), peak speed {unit}/s (limit)"
                 )
                 for i in range(len(s.peak_angle)):
                     lines.append(
-                        f"{i + 1:>8}  {deg(s.peak_angle[i]):7.1f} "
+                        f"{i + 1:>8}  {deg(low[i]):7.1f}..{deg(high[i]):<7.1f} "
                         f"({deg(lo[i]):6.1f}..{deg(hi[i]):5.1f})   "
                         f"{deg(s.peak_speed[i]):10.1f} ({deg(s.max_speed[i]):.1f})"
                     )

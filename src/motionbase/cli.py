@@ -242,7 +242,8 @@ _SHARED_OPTIONS: dict[str, dict[str, object]] = {
     "--output": {
         "action": "append",
         "metavar": "URL",
-        "help": "send the safe crank angles to motor drives (repeatable): "
+        "help": "send the safe actuator commands (crank angles, or lengths of linear actuators) "
+        "to motor drives (repeatable): "
         "serial:/dev/ttyUSB0?baud=250000&rate=500&format=... or udp:HOST:PORT?format=... "
         "(format: text:A{1}B{2}...\\n or bin:0xFFFE,6xi16be*100,sum8@2; see "
         "motionbase.io.motor_output); the run then goes in real time, paced by the pipeline",

@@ -366,7 +366,8 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
     ------
     ConfigError
         ``table`` has fields only another kind of file has and none of ``expected``'s, or
-        more of another kind's than of ``expected``'s.
+        more of another kind's than of ``expected``'s (its ``kind`` field, if it says
+        ``expected``, is then named as the fault).
     """
     if not isinstance(table, Mapping):
         return
@@ -383,6 +384,11 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
     if not found:
         return
     other = found[0]
+    if declared == expected:  # the fields say otherwise: the kind is what is wrong
+        raise ConfigError(
+            f"{source}: field 'kind': {declared!r}, but the other fields are those of "
+            f"{_FILE_KINDS[other][1]}; fix kind = {other!r} or the fields"
+        )
     raise ConfigError(f"{source}: this is {_FILE_KINDS[other][1]}, not {_KIND_NAMES[expected]}")
 
 

@@ -713,6 +713,17 @@ def _track_peaks(peak_angle, peak_speed, angles, speeds):  # pragma: no cover - 
                 peak[i] = a
 
 
+@numba.njit(cache=True)
+def _track_range(low, high, angles):  # pragma: no cover - compiled
+    """np.minimum(low, q, out=low) and np.maximum(high, q, out=high) (NaN sticks)."""
+    for i in range(angles.shape[0]):
+        x = angles[i]
+        if low[i] == low[i] and not (x >= low[i]):
+            low[i] = x
+        if high[i] == high[i] and not (x <= high[i]):
+            high[i] = x
+
+
 @dataclass
 class RunSummary:
     """What a run did, for the end-of-run report.
@@ -734,6 +745,11 @@ class RunSummary:
     peak_angle, peak_speed : ndarray, shape (n,)
         Largest |angle| (rad) and |speed| (rad/s) per actuator in the ``running`` phase
         (zeros when the run never got there).
+    angle_range : tuple of ndarray
+        (lowest, highest) actuator position per actuator in the ``running`` phase, in the
+        robot's unit (rad or m; inf and -inf when the run never got there): what the summary
+        sets against the limits, since |position| says nothing of a limit below neutral (a
+        linear actuator's stroke, or crank limits not centred on 0).
     start_s, stop_s : float
         Length of the soft start (``starting`` ticks) and of the way back to park
         (``stopping`` and ``parked`` ticks), s of pipeline time.
@@ -757,6 +773,7 @@ class RunSummary:
     clamped: int = 0
     peak_angle: np.ndarray | None = None
     peak_speed: np.ndarray | None = None
+    angle_range: tuple[np.ndarray, np.ndarray] | None = None
     start_s: float = 0.0
     stop_s: float = 0.0
     start_peak_speed: np.ndarray | None = None
@@ -866,6 +883,7 @@ def run(
         dt = pipeline.dt
         n = robot.n
         run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
+        run_low, run_high = np.full(n, np.inf), np.full(n, -np.inf)  # and range used
         ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
         ramp_speed = {"starting": np.zeros(n), "stopping": np.zeros(n)}  # the ramps' peak speeds
         ticks = dict.fromkeys(ramp_speed, 0)  # and lengths
@@ -924,6 +942,7 @@ def run(
             if phase == "running":
                 summary.running_samples += 1
                 _track_peaks(run_angle, run_speed, out.angles, speeds)
+                _track_range(run_low, run_high, out.angles)
             else:
                 ramp = "starting" if phase == "starting" else "stopping"
                 ticks[ramp] += 1
@@ -1017,6 +1036,7 @@ def run(
         summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
         summary.peak_angle = run_angle
         summary.peak_speed = run_speed
+        summary.angle_range = (run_low, run_high)
         summary.start_s = ticks["starting"] * dt
         summary.stop_s = ticks["stopping"] * dt
         summary.start_peak_speed = ramp_speed["starting"]

@@ -23,23 +23,27 @@ import numpy as np
 from numba import njit
 
 from motionbase.platform._pose_kernels import close_legs_batch, rotation, wrap
+from motionbase.platform.conditioning import MIN_LINE_CONDITIONING
 
-# Columns of the packed geometry array.
-BX, BY, BZ, QX, QY, QZ, OX, OY, OZ, LO, HI = range(11)
-NG = 11
+# Columns of the packed geometry array (SCALE: the length dividing the legs' moments in
+# the line conditioning, m, the same in every row).
+BX, BY, BZ, QX, QY, QZ, OX, OY, OZ, LO, HI, SCALE = range(12)
+NG = 12
 
 #: Upward scan of the clamp: samples of the scale s in (0, 1] before bisection.
 N_SCAN = 32
 
 
-def pack_geometry(base, local, origin, lo, hi) -> np.ndarray:
-    """Pack the per-leg geometry into a contiguous (6, 11) float64 array."""
+def pack_geometry(base, local, origin, lo, hi, scale) -> np.ndarray:
+    """Pack the per-leg geometry into a contiguous (6, 12) float64 array (``scale``: the
+    length, m, that turns the legs' moments into forces in the line conditioning)."""
     g = np.zeros((6, NG))
     g[:, BX : BZ + 1] = base
     g[:, QX : QZ + 1] = local
     g[:, OX : OZ + 1] = origin
     g[:, LO] = lo
     g[:, HI] = hi
+    g[:, SCALE] = scale
     return np.ascontiguousarray(g)
 
 
@@ -66,12 +70,111 @@ def _lengths(p, G, R, J, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _diagonalise(A):
+    """Turn the symmetric 6x6 ``A`` into the diagonal of its eigenvalues (to rounding) by
+    cyclic Jacobi rotations."""
+    for _ in range(50):
+        off = 0.0
+        diag = 0.0
+        for i in range(6):
+            diag += A[i, i] * A[i, i]
+            for j in range(i + 1, 6):
+                off += A[i, j] * A[i, j]
+        if not off > 1e-32 * diag:
+            break
+        for i in range(5):
+            for j in range(i + 1, 6):
+                aij = A[i, j]
+                if aij == 0.0:
+                    continue
+                theta = (A[j, j] - A[i, i]) / (2.0 * aij)
+                if abs(theta) > 1e150:
+                    t = 0.5 / theta
+                else:
+                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                    if theta < 0.0:
+                        t = -t
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                sn = t * c
+                for k in range(6):
+                    aki, akj = A[k, i], A[k, j]
+                    A[k, i] = c * aki - sn * akj
+                    A[k, j] = sn * aki + c * akj
+                for k in range(6):
+                    aik, ajk = A[i, k], A[j, k]
+                    A[i, k] = c * aik - sn * ajk
+                    A[j, k] = sn * aik + c * ajk
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _holds(p, G, J, L):
+    """Whether the legs' lines at the platform joints ``J`` (lengths ``L``, both of pose ``p``)
+    hold the platform: ``1 / cond_2`` of the rows ``M_i = [u_i, (R q_i x u_i) / scale]`` at
+    least :data:`~motionbase.platform.conditioning.MIN_LINE_CONDITIONING` (``c``), the
+    measure and the bound the geometry check applies at the neutral pose
+    (:func:`~motionbase.platform.conditioning.line_conditioning`). Near 0 the platform is at a
+    singularity (yawed 90 deg, say): the legs cannot resist some motion of it.
+
+    On ``A = M^T M`` (eigenvalues the squared singular values): ``lambda_min >= c^2
+    lambda_max``. Fast path: ``A - c^2 trace(A) I`` positive definite (a Cholesky
+    factorisation), since ``trace(A) >= lambda_max``; else the least and largest eigenvalues
+    by Jacobi rotations."""
+    M = np.empty((6, 6))
+    for i in range(6):
+        ux = (J[i, 0] - G[i, BX]) / L[i]
+        uy = (J[i, 1] - G[i, BY]) / L[i]
+        uz = (J[i, 2] - G[i, BZ]) / L[i]
+        rx = J[i, 0] - G[i, OX] - p[0]  # R q_i: the joint from the platform centre
+        ry = J[i, 1] - G[i, OY] - p[1]
+        rz = J[i, 2] - G[i, OZ] - p[2]
+        M[i, 0], M[i, 1], M[i, 2] = ux, uy, uz
+        M[i, 3] = (ry * uz - rz * uy) / G[i, SCALE]
+        M[i, 4] = (rz * ux - rx * uz) / G[i, SCALE]
+        M[i, 5] = (rx * uy - ry * ux) / G[i, SCALE]
+    A = np.empty((6, 6))
+    trace = 0.0
+    for a in range(6):
+        for b in range(a, 6):
+            v = 0.0
+            for i in range(6):
+                v += M[i, a] * M[i, b]
+            A[a, b] = v
+            A[b, a] = v
+        trace += A[a, a]
+    c2 = MIN_LINE_CONDITIONING * MIN_LINE_CONDITIONING
+    # Cholesky of A - c^2 trace I (in M's storage): every pivot > 0 -> positive definite
+    definite = True
+    for j in range(6):
+        d = A[j, j] - c2 * trace
+        for k in range(j):
+            d -= M[j, k] * M[j, k]
+        if not d > 0.0:
+            definite = False
+            break
+        M[j, j] = math.sqrt(d)
+        for i in range(j + 1, 6):
+            v = A[i, j]
+            for k in range(j):
+                v -= M[i, k] * M[j, k]
+            M[i, j] = v / M[j, j]
+    if definite:
+        return True
+    _diagonalise(A)
+    least = largest = A[0, 0]
+    for i in range(1, 6):
+        least = min(least, A[i, i])
+        largest = max(largest, A[i, i])
+    return least >= c2 * largest
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ok(p, G, R, J, L):
     """Reachable: every length within its limits, every platform joint above its base joint
-    (FRD: smaller z) and the platform upright (its normal points up, ``R[2, 2] > 0``).
+    (FRD: smaller z), the platform upright (its normal points up, ``R[2, 2] > 0``) and the
+    legs holding it (:func:`_holds`: not at or near a singularity).
 
-    The last two exclude the mirror solutions of the length equations (the platform below the
-    base, or upside down) that no real hexapod reaches. False for NaN.
+    The second and third exclude the mirror solutions of the length equations (the platform
+    below the base, or upside down) that no real hexapod reaches. False for NaN.
     """
     _lengths(p, G, R, J, L)
     if not R[2, 2] > 0.0:
@@ -81,7 +184,7 @@ def _ok(p, G, R, J, L):
             return False
         if not J[i, 2] < G[i, BZ]:
             return False
-    return True
+    return _holds(p, G, J, L)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

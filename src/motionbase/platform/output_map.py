@@ -39,7 +39,8 @@ TOML (an ``[output]`` table of the 6-RUS geometry file)::
     # counts_per_rev = 10000          (unit = "counts")
     # span_min_deg / span_max_deg     (unit = "range"; default: the crank range)
     # drive_min / drive_max           (drive units; default: the crank range's image,
-    #                                  within range_lo..range_hi for unit "range")
+    #                                  within range_lo..range_hi for unit "range", where
+    #                                  given ones must lie within it too)
 """
 
 from __future__ import annotations
@@ -353,6 +354,18 @@ class OutputMapping:
                 dmax = np.where(np.isnan(dmax), hi, dmax)
             kw["drive_min"], kw["drive_max"] = dmin, dmax
             mapping = cls(**kw)
+            if mapping.unit == "range":
+                # the range is the drive's: a drive_max of 400 on a 0..300 range sent 375 for
+                # the longest actuator of a span narrower than the stroke
+                lo, hi = mapping.range_lo, mapping.range_hi
+                for i in range(n):
+                    if not lo <= mapping.drive_min[i] < mapping.drive_max[i] <= hi:
+                        raise ConfigError(
+                            f"output mapping: fields 'drive_min'/'drive_max': motor {i + 1}'s "
+                            f"drive range {mapping.drive_min[i]:g} .. {mapping.drive_max[i]:g} "
+                            f"passes range_lo..range_hi {lo}..{hi}, past which no value is "
+                            "sent (keep them within it)"
+                        )
             # Past 2^53 a double no longer holds every whole number: a gear ratio or counts
             # per revolution of 1e300 sent 300-digit values of rounding noise to the drive.
             ends = np.stack([mapping.to_drive(qmin), mapping.to_drive(qmax)])

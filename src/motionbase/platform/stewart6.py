@@ -37,6 +37,7 @@ from motionbase.platform._pose_kernels import (
     run_inverse,
     run_reachable,
 )
+from motionbase.platform.conditioning import MIN_LINE_CONDITIONING, line_conditioning
 from motionbase.platform.robot import Robot
 from motionbase.platform.stewart6_geometry import Stewart6Geometry
 from motionbase.safety import ActuatorLimits
@@ -108,6 +109,7 @@ class Stewart6:
             geometry.platform_origin,
             geometry.length_min,
             geometry.length_max,
+            geometry.line_scale,
         )
         self._limits = ActuatorLimits.broadcast(
             6, geometry.length_min, geometry.length_max, geometry.max_speed, geometry.max_accel
@@ -123,10 +125,29 @@ class Stewart6:
         park_lengths = geometry.park_lengths
         # the parked platform sinks straight down on this symmetric layout; start from neutral
         park_pose = self.forward(park_lengths)
-        if not (np.isfinite(park_pose).all() and self.reachable(park_pose)):
+        margin = f"length_min + {geometry.park_margin:g} m"
+        if not np.isfinite(park_pose).all():
             raise ConfigError(
-                f"{src}: field 'park_margin': no reachable pose holds the actuators at "
-                f"length_min + {geometry.park_margin:g} m (choose another margin)"
+                f"{src}: field 'park_margin': no pose holds the actuators at {margin} "
+                "(choose another margin)"
+            )
+        if not self.reachable(park_pose):
+            joints = self.joint_points(park_pose).platform_joints
+            held = line_conditioning(
+                joints - (geometry.platform_origin + park_pose[:3]),
+                joints - geometry.base_joints,
+                geometry.line_scale,
+            )
+            why = (
+                f"the legs barely hold the platform there (line conditioning {held:.2g} < "
+                f"{MIN_LINE_CONDITIONING:g}: near a singularity)"
+                if held < MIN_LINE_CONDITIONING
+                else "it is not reachable"
+            )
+            raise ConfigError(
+                f"{src}: field 'park_margin': the parked pose, the actuators at {margin} "
+                f"({park_pose[2]:.3g} m below neutral), is no place to park: {why} (choose a "
+                "larger margin)"
             )
         self._park = Park(_read_only(park_lengths), _read_only(park_pose))
 
@@ -172,8 +193,12 @@ class Stewart6:
 
         Also required: every platform joint above its base joint and the platform upright
         (tilted less than 90 deg), which rules out the mirror solutions of the length
-        equations (platform below the base or upside down). A bool for one pose, a bool array
-        of shape (...) for a batch. NaN/inf poses are not reachable.
+        equations (platform below the base or upside down), and legs that hold the platform:
+        their line conditioning (:mod:`motionbase.platform.conditioning`) at least
+        ``MIN_LINE_CONDITIONING``, the bound a geometry must meet at neutral, which keeps
+        the platform away from its singularities (yawed 90 deg, say, where the legs cannot
+        resist some motion and the forward kinematics has no unique answer). A bool for one
+        pose, a bool array of shape (...) for a batch. NaN/inf poses are not reachable.
         """
         return run_reachable(_k.reachable_batch, self._G, pose)
 

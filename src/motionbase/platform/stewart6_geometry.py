@@ -75,6 +75,7 @@ import numpy as np
 
 from motionbase.config import (
     as_float,
+    check_file_kind,
     check_keys,
     read_toml,
     resolve_preset_or_path,
@@ -237,12 +238,24 @@ class Stewart6Geometry:
                     f"the neutral pose, not inside its stroke {lo[i]:g} .. {hi[i]:g} m (fix "
                     "neutral_height, neutral_length or the length limits)"
                 )
-        length = float(np.mean(neutral))
+        length = self.line_scale
         c = line_conditioning(self.platform_joints_local, self._neutral_lines(), length)
         if c < MIN_LINE_CONDITIONING:
-            # The actuators' lines meet near one point: the joints of the smaller circle.
             side = "platform" if self.platform_radius <= self.base_radius else "base"
             radius = getattr(self, f"{side}_radius")
+            # Either the lines meet near one point (the joints of the smaller circle), or they
+            # run nearly parallel: each platform joint (nearly) straight above its base joint
+            # (the same sideways offset on every leg of this layout).
+            offset = float(np.hypot(*self._neutral_lines()[0, :2]))
+            if offset < radius:
+                raise ConfigError(
+                    f"{src}: fields 'base_radius'/'platform_radius' and the half angles: the "
+                    f"actuators barely hold the platform at the neutral pose (line conditioning "
+                    f"{c:.2g} < {MIN_LINE_CONDITIONING:g}): they stand nearly parallel, each "
+                    f"platform joint {offset:.3g} m sideways of its base joint on a {length:g} m "
+                    "actuator, and hardly resist the platform's sideways motion or yaw (offset "
+                    "the joints: radii or half angles that differ more)"
+                )
             raise ConfigError(
                 f"{src}: field '{side}_radius': the actuators barely hold the platform's "
                 f"rotations at the neutral pose (line conditioning {c:.2g} < "
@@ -308,6 +321,12 @@ class Stewart6Geometry:
         )
 
     @property
+    def line_scale(self) -> float:
+        """The length, m, that turns the legs' moments into forces in their line conditioning
+        (:mod:`motionbase.platform.conditioning`): the mean actuator length at neutral."""
+        return float(np.mean(self.neutral_lengths))
+
+    @property
     def park_lengths(self) -> np.ndarray:
         """Actuator lengths of the parked platform, ``length_min + park_margin``, m, (6,)."""
         return np.array(self.length_min) + self.park_margin
@@ -360,7 +379,8 @@ class Stewart6Geometry:
         (the only unit for lengths), ``range_lo``/``range_hi`` (integers), optional ``sign``
         (1, or -1 for a drive that counts from the extended end), ``span_min``/``span_max``
         (the lengths, m, at ``range_lo``/``range_hi``; default the stroke) and
-        ``drive_min``/``drive_max`` (drive units; default the stroke's image).
+        ``drive_min``/``drive_max`` (drive units, within ``range_lo``..``range_hi``;
+        default the stroke's image there).
 
         Raises
         ------
@@ -375,6 +395,7 @@ class Stewart6Geometry:
                 f"{source}: field 'kind': this is a {kind!r} file, not a 'stewart6' geometry "
                 "(give a stewart6 geometry file)"
             )
+        check_file_kind(source, data, "stewart6")
         allowed = {"name", "kind", "output", "neutral_length", "park_margin"}
         allowed |= set(_LENGTH_SCALARS) | set(_PER_LEG)
         allowed |= set(_ANGLE_SCALARS) | {f + "_deg" for f in _ANGLE_SCALARS}
