@@ -52,6 +52,7 @@ flown, and counts what it cut).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -180,7 +181,7 @@ class ForesightPlanner:
     w : ndarray, shape (N, 3)
         Its body rates, rad/s.
     dt : float
-        Sample period, s.
+        Sample period, s (> 0, finite).
     robot : Robot
         A 6-DOF robot plug-in (:mod:`motionbase.platform.robot`): its ``inverse``,
         ``reachable`` and actuator ``limits``.
@@ -223,6 +224,8 @@ class ForesightPlanner:
             raise ConfigError(f"foresight plan: f and w must be (N, 3), got {f.shape}, {w.shape}")
         if not (np.isfinite(f).all() and np.isfinite(w).all()):
             raise ConfigError("foresight plan: f and w must be finite")
+        if not (isinstance(dt, Real) and 0 < dt < np.inf):
+            raise ConfigError(f"foresight plan: dt must be > 0 s and finite, got {dt!r}")
         self.reach = np.asarray(reach, dtype=float)
         if (
             self.reach.shape != (2, 6)
