@@ -102,8 +102,9 @@ def _pct(x: float, y: float) -> str:
 def _table(title: str, rows: list[tuple[str, tuning.SetScore, int | None]]) -> None:
     print(title)
     names = [s.name for s in rows[0][1].scores]
+    wide = max(26, 2 + max(map(len, names)))  # (a longer name ran into the cueing's)
     print(
-        f"  {'manoeuvre':<26}{'cueing':<18}{'sf RMSE x / y / z (sum) m/s^2':>36}"
+        f"  {'manoeuvre':<{wide}}{'cueing':<18}{'sf RMSE x / y / z (sum) m/s^2':>36}"
         f"{'ang deg/s':>11}{'false %':>9}{'clamp %':>9}{'limited %':>11}{'crank %':>9}"
     )
     for i, name in enumerate([*names, "total (mean)"]):
@@ -120,7 +121,7 @@ def _table(title: str, rows: list[tuple[str, tuning.SetScore, int | None]]) -> N
                 else float(np.max(sc.crank_usage))
             )
             print(
-                f"  {name:<26}{label:<18}"
+                f"  {name:<{wide}}{label:<18}"
                 f"{' / '.join(f'{v:.2f}' for v in axes):>26} ({sc.error_specific_force:6.3f})"
                 f"{math.degrees(sc.error_angular_velocity):>11.2f}"
                 f"{100 * sc.false_cue_share:>9.1f}{100 * sc.clamped:>9.2f}"

@@ -277,6 +277,13 @@ def test_bad_input_is_refused(ceart) -> None:
         foresight.ForesightPlanner(f, w, DT, robot, reach, -rate, acc, start)
     with pytest.raises(ConfigError, match="start"):
         foresight.ForesightPlanner(f, w, DT, robot, reach, rate, acc, np.zeros((n, 3)))
+    for dt in (0.0, -DT, np.inf, np.nan):  # (0 and inf were a ZeroDivisionError)
+        with pytest.raises(ConfigError, match="dt must be > 0 s and finite"):
+            foresight.ForesightPlanner(f, w, dt, robot, reach, rate, acc, start)
+    jump = np.zeros((n, 6))
+    jump[2:, 0] = 0.1  # 0.1 m in one sample (3 m/s) among the held poses: the plan was the
+    with pytest.raises(ConfigError, match="speed or acceleration limit"):  # start, silently
+        foresight.ForesightPlanner(f, w, DT, robot, reach, rate, acc, jump)
     far = np.zeros((n, 6))
     far[:, 0] = 5.0  # 5 m forward: not reachable
     with pytest.raises(ConfigError, match="reachable"):

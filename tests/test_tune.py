@@ -6,14 +6,20 @@ few evaluations, so that the whole file runs in well under a minute.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
+import json
 import math
 import os
 import re
 import signal
+import socket
+import subprocess
+import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -716,6 +722,191 @@ def test_process_pool_and_dask_cluster_give_the_same_scores(kick, ceart):
             a.scores[0].rmse_specific_force, c.scores[0].rmse_specific_force
         )
     assert len({s.cost for s in here}) == 3  # three different sets, three different scores
+
+
+@contextlib.contextmanager
+def _dask_scheduler(tmp_path: Path) -> Iterator[tuple[subprocess.Popen, str]]:
+    """A Dask scheduler in a process of its own, on loopback: the process and its address."""
+    file = tmp_path / "scheduler.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+         "--port", "0", "--no-dashboard", "--scheduler-file", str(file)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline:
+            try:
+                address = json.loads(file.read_text())["address"]
+                break
+            except (OSError, ValueError, KeyError):  # not written yet, or not whole
+                time.sleep(0.1)
+        else:
+            raise AssertionError("the Dask scheduler did not start")
+        yield proc, address
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def _dask_worker(address: str, site: Path | None = None) -> subprocess.Popen:
+    """A Dask worker process (no nanny: killing it kills the worker), registered with the
+    scheduler at ``address``; ``site``: a folder put first on its PYTHONPATH (a
+    ``sitecustomize.py`` there changes the machine it stands for)."""
+    env = dict(os.environ)
+    if site is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(site), env.get("PYTHONPATH", "")])
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+         "--no-nanny", "--no-dashboard"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    import distributed
+
+    with distributed.Client(address, timeout=30, set_as_default=False) as client:
+        client.wait_for_workers(1, timeout=60)
+    return proc
+
+
+#: ``sitecustomize.py`` of a worker's machine: without motionbase, with another version.
+_WORKER_MACHINES = {
+    "cannot run motionbase (ModuleNotFoundError": """
+import sys
+class NoMotionbase:
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] == "motionbase":
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+sys.meta_path.insert(0, NoMotionbase())
+""",
+    "runs motionbase 0.0.1, this is motionbase": """
+import motionbase
+motionbase.__version__ = "0.0.1"
+""",
+}
+
+
+def test_a_cluster_that_cannot_run_the_tuning_is_one_line_and_exit_2(tmp_path, capsys):
+    """A scheduler without workers, a worker without motionbase, one with another version:
+    one line each, exit 2, before anything is evaluated. (The first was a TimeoutError
+    traceback, ten seconds on; the second a traceback from the problem's scatter; the
+    third was not checked.)"""
+    args = ["tune", "--scripts", "rudder_kick@0:2", "--holdout", "none", "--budget", "2",
+            "--out", str(tmp_path / "o.toml"), "--scheduler"]  # fmt: skip
+    with _dask_scheduler(tmp_path) as (_, address):
+        assert cli.main([*args, address]) == 2
+        err = capsys.readouterr().err
+        assert err.strip() == (
+            f"motionbase tune: error: --scheduler {address}: the scheduler has no workers; "
+            f"start them (dask worker {address}) on machines with motionbase installed"
+        )
+        for needle, site in _WORKER_MACHINES.items():
+            machine = tmp_path / needle.split()[0]
+            machine.mkdir()
+            (machine / "sitecustomize.py").write_text(site)
+            worker = _dask_worker(address, machine)
+            try:
+                assert cli.main([*args, address]) == 2
+            finally:
+                worker.kill()
+                worker.wait()
+            err = capsys.readouterr().err
+            assert needle in err and len(err.strip().splitlines()) == 1, err[-2000:]
+            assert "install this version on every machine" in err
+    assert not (tmp_path / "o.toml").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processor time from /proc")
+@pytest.mark.parametrize("lost", ["scheduler", "worker"])
+def test_a_cluster_lost_while_tuning_is_one_line_and_exit_2(lost, tmp_path):
+    """The scheduler, or its only worker (the problem scattered to it with it), goes away
+    while ``tune`` evaluates: one line, exit 2, nothing written. (It was a CancelledError
+    traceback, or, when the scheduler went after a task had finished and before its result
+    came back, a wait that never ended.)"""
+    out = tmp_path / "o.toml"
+    args = ["tune", "--scripts", "rudder_kick@0:6", "--holdout", "none", "--budget",
+            "100000", "--out", str(out)]  # fmt: skip
+    with _dask_scheduler(tmp_path) as (scheduler, address):
+        worker = _dask_worker(address)
+        try:
+            started = _cpu_seconds(worker.pid)
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "motionbase.cli", *args, "--scheduler", address],
+                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            )  # fmt: skip
+            deadline = time.monotonic() + 60  # evaluations under way: the worker computes
+            while _cpu_seconds(worker.pid) < started + 2.0 and time.monotonic() < deadline:
+                time.sleep(0.1)
+            (scheduler if lost == "scheduler" else worker).kill()
+            try:
+                _, err = proc.communicate(timeout=60)
+            finally:
+                proc.kill()
+        finally:
+            worker.kill()
+            worker.wait()
+    assert err.decode().strip() == (
+        f"motionbase tune: error: --scheduler {address}: the cluster lost the evaluations "
+        "(the scheduler or all its workers went away); nothing was written; run again once "
+        "the scheduler and its workers are back"
+    )
+    assert proc.returncode == 2
+    assert not out.exists()
+
+
+@pytest.fixture
+def silent_peer() -> Iterator[tuple[str, threading.Event]]:
+    """A loopback port that takes connections and never says a word (another program on
+    the scheduler's port): its address, and an event set once something connects."""
+    server = socket.create_server(("127.0.0.1", 0))
+    taken: list[socket.socket] = []
+    connected = threading.Event()
+
+    def serve() -> None:
+        while True:
+            try:
+                taken.append(server.accept()[0])
+            except OSError:  # closed
+                return
+            connected.set()
+
+    threading.Thread(target=serve, daemon=True).start()
+    yield f"tcp://127.0.0.1:{server.getsockname()[1]}", connected
+    server.shutdown(socket.SHUT_RDWR)
+    server.close()
+    for conn in taken:
+        conn.close()
+
+
+def test_a_scheduler_address_where_nothing_answers_is_one_line_and_exit_2(silent_peer, tmp_path):
+    """A port that takes the connection and says nothing: Dask's client waited for it
+    forever, and Ctrl-C did not end the wait. Now the connection's timeout ends it."""
+    address, _ = silent_peer
+    proc = subprocess.run(
+        [sys.executable, "-m", "motionbase.cli", "tune", "--scripts", "rudder_kick@0:2",
+         "--holdout", "none", "--budget", "2", "--out", str(tmp_path / "o.toml"),
+         "--scheduler", address],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (
+        f"motionbase tune: error: --scheduler {address}: no Dask scheduler answers there "
+        "(no answer within 11 s); start one (dask scheduler) or check the address and the "
+        "firewall"
+    )
+    assert not (tmp_path / "o.toml").exists()
+
+
+def test_a_signal_while_tune_connects_to_the_scheduler_ends_it(silent_peer, tmp_path):
+    """Ctrl-C while the client waits for the scheduler's answer: one line, exit 130, at
+    once. (The signal was held until the connection's timeout, then the run said that no
+    scheduler answers, exit 2; with a peer that says nothing, it was not ended at all.)"""
+    address, connected = silent_peer
+    args = ["tune", "--scripts", "rudder_kick@0:2", "--holdout", "none", "--budget", "2",
+            "--out", str(tmp_path / "o.toml"), "--scheduler", address]  # fmt: skip
+    status, err = signalled(args, lambda _: connected.wait(60))
+    assert err.strip() == "motionbase tune: interrupted"
+    assert status == 130
+    assert not (tmp_path / "o.toml").exists()
 
 
 @pytest.mark.parametrize("workers", [1, 2])

@@ -21,22 +21,25 @@ order of the candidates, whatever finishes first), the function
   pipeline, an MPC one solves thousands of programmes); they exit on their own when the
   main process dies (a kill), instead of waiting for work forever. A worker that dies
   anyway (killed, out of memory) ends the run with a one-line error;
-- ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler, through the
-  ``concurrent.futures`` interface of its client (``Client.get_executor``); the problem
-  is scattered to every worker once and each evaluation refers to it. The workers need
-  motionbase (the same version) installed; ``pip install 'motionbase[cluster]'``
-  installs Dask on the machine running ``tune``.
+- ``scheduler="tcp://HOST:8786"``: a Dask distributed scheduler; the problem is
+  scattered to every worker once and each evaluation refers to it. The workers need
+  motionbase (the same version) installed, which is checked before the tuning starts;
+  ``pip install 'motionbase[cluster]'`` installs Dask on the machine running ``tune``.
+  A scheduler that goes away, or takes the workers with it, ends the run with a one-line
+  error.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import signal
 import tempfile
 import threading
+import time
 from collections.abc import Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
@@ -48,6 +51,9 @@ from motionbase.errors import ConfigError, MotionbaseError, SourceError
 from motionbase.stopping import STOP_SIGNALS, StopRequest, raise_if_stopped
 
 if TYPE_CHECKING:
+    from distributed import Client
+    from distributed import Future as DaskFuture
+
     from motionbase.tuning import EvaluateMany, SetScore, TuningProblem
     from motionbase.washout.params import WashoutParams
 
@@ -291,24 +297,141 @@ def _dask(problem: TuningProblem, address: str, stop: StopRequest | None) -> Ite
         )
     try:
         from distributed import Client
+        from distributed.comm import CommClosedError
     except ImportError:
         raise ConfigError(
             "--scheduler needs Dask distributed: pip install 'motionbase[cluster]'"
         ) from None
-    try:
-        client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
-    except OSError as exc:
-        raise SourceError(
-            f"--scheduler {address}: no Dask scheduler answers there ({exc}); start one "
-            "(dask scheduler) or check the address and the firewall"
-        ) from None
-    try:
-        shared = client.scatter(problem, broadcast=True)
-        executor = client.get_executor(pure=False)
+    with _dask_logs_off():
+        try:
+            client = _connect(Client, address, stop)
+        except OSError as exc:
+            raise SourceError(
+                f"--scheduler {address}: no Dask scheduler answers there ({exc}); start one "
+                "(dask scheduler) or check the address and the firewall"
+            ) from None
+        try:
+            _check_cluster(client, address)
+            shared = client.scatter(problem, broadcast=True)
 
-        def evaluate_many(candidates: list[WashoutParams]) -> list[SetScore]:
-            return _results([executor.submit(_evaluate, shared, p) for p in candidates], stop)
+            def evaluate_many(candidates: list[WashoutParams]) -> list[SetScore]:
+                futures = [client.submit(_evaluate, shared, p, pure=False) for p in candidates]
+                try:
+                    return _results([_concurrent(f) for f in futures], stop)
+                except (CancelledError, CommClosedError):  # (it used to be a traceback)
+                    raise SourceError(
+                        f"--scheduler {address}: the cluster lost the evaluations (the "
+                        "scheduler or all its workers went away); nothing was written; run "
+                        "again once the scheduler and its workers are back"
+                    ) from None
 
-        yield evaluate_many
+            yield evaluate_many
+        finally:
+            client.close()
+
+
+@contextmanager
+def _dask_logs_off() -> Iterator[None]:
+    """Dask's log lines off while the tuning uses it: a lost scheduler logged warnings and
+    tracebacks of its own around the one-line error that says so."""
+    loggers = [
+        logging.getLogger(name)
+        for name in list(logging.root.manager.loggerDict)
+        if name.partition(".")[0] in ("distributed", "tornado")
+    ]
+    levels = [log.level for log in loggers]
+    for log in loggers:
+        log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
     finally:
-        client.close()
+        for log, level in zip(loggers, levels, strict=True):
+            log.setLevel(level)
+
+
+def _concurrent(future: DaskFuture) -> Future:
+    """A :class:`concurrent.futures.Future` that ends as the Dask ``future`` does. (Dask's
+    own, from ``Client.get_executor``, never ended when the result was lost with the
+    scheduler after the task had finished: the tuning then waited forever.)"""
+    concurrent: Future = Future()
+    concurrent.set_running_or_notify_cancel()  # (a stop leaves it: the client's close ends it)
+
+    def settle(done: DaskFuture) -> None:  # (in Dask's callback thread)
+        try:
+            concurrent.set_result(done.result())
+        except BaseException as exc:  # the task's error, or its loss
+            concurrent.set_exception(exc)
+
+    future.add_done_callback(settle)
+    return concurrent
+
+
+def _connect(client_class: type[Client], address: str, stop: StopRequest | None) -> Client:
+    """A client of the scheduler at ``address``, connected in a thread of its own, so that
+    a stop need not wait for the connection (a Ctrl-C waited out its timeout, then was
+    told that no scheduler answers, exit 2) and nothing waits much past
+    :data:`CONNECT_TIMEOUT_S` (Dask waits forever for a peer that takes the connection
+    and says nothing, Ctrl-C or not).
+
+    Raises
+    ------
+    OSError
+        No scheduler answered in time.
+    Stopped
+        ``stop`` was set meanwhile.
+    """
+    connected: Future = Future()
+
+    def connect() -> None:
+        try:
+            client = client_class(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+        except BaseException as exc:  # handed to the waiting thread, if it still waits
+            if connected.set_running_or_notify_cancel():
+                connected.set_exception(exc)
+            return
+        if connected.set_running_or_notify_cancel():
+            connected.set_result(client)
+        else:  # given up: nobody will close it
+            client.close()
+
+    threading.Thread(target=connect, name="motionbase-dask-connect", daemon=True).start()
+    patience_s = CONNECT_TIMEOUT_S + 1.0  # (Dask's own timeout, where it keeps it, first)
+    deadline = time.monotonic() + patience_s
+    while not wait_futures([connected], timeout=STOP_POLL_S).done:
+        if (stop or time.monotonic() > deadline) and connected.cancel():
+            raise_if_stopped(stop)
+            raise OSError(f"no answer within {patience_s:g} s")
+    return connected.result()
+
+
+def _check_cluster(client: Client, address: str) -> None:
+    """Raise unless the scheduler has workers and each runs this version of motionbase
+    (a worker without it failed the problem's scatter with a traceback; with none, the
+    scatter timed out with one)."""
+    from motionbase import __version__
+
+    found = client.run(_motionbase_version, on_error="return")
+    if not found:
+        raise SourceError(
+            f"--scheduler {address}: the scheduler has no workers; start them "
+            f"(dask worker {address}) on machines with motionbase installed"
+        )
+    for worker, version in sorted(found.items()):
+        if version != __version__:
+            has = (
+                f"cannot run motionbase ({version})"
+                if isinstance(version, BaseException)
+                else f"runs motionbase {version}"
+            )
+            raise ConfigError(
+                f"--scheduler {address}: the worker {worker} {has}, this is motionbase "
+                f"{__version__}; install this version on every machine (pip install "
+                f"'motionbase[cluster]=={__version__}')"
+            )
+
+
+def _motionbase_version() -> str:
+    """This process's motionbase version (run on each Dask worker by :func:`_check_cluster`)."""
+    from motionbase import __version__
+
+    return __version__

@@ -52,6 +52,7 @@ flown, and counts what it cut).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -180,7 +181,7 @@ class ForesightPlanner:
     w : ndarray, shape (N, 3)
         Its body rates, rad/s.
     dt : float
-        Sample period, s.
+        Sample period, s (> 0, finite).
     robot : Robot
         A 6-DOF robot plug-in (:mod:`motionbase.platform.robot`): its ``inverse``,
         ``reachable`` and actuator ``limits``.
@@ -193,7 +194,8 @@ class ForesightPlanner:
         through the inverse kinematics at neutral).
     start : ndarray, shape (N, 6)
         The motion a plan starts from and keeps the first :data:`HELD` poses of
-        (reachable: a washout's realised poses).
+        (reachable, those within the speed and acceleration limits: a washout's realised
+        poses).
     g : float
         Gravity, m/s^2.
     tol : float
@@ -223,6 +225,8 @@ class ForesightPlanner:
             raise ConfigError(f"foresight plan: f and w must be (N, 3), got {f.shape}, {w.shape}")
         if not (np.isfinite(f).all() and np.isfinite(w).all()):
             raise ConfigError("foresight plan: f and w must be finite")
+        if not (isinstance(dt, Real) and 0 < dt < np.inf):
+            raise ConfigError(f"foresight plan: dt must be > 0 s and finite, got {dt!r}")
         self.reach = np.asarray(reach, dtype=float)
         if (
             self.reach.shape != (2, 6)
@@ -241,6 +245,16 @@ class ForesightPlanner:
         self.n, self.dt, self.g = n, float(dt), float(g)
         self.f, self.w = f, w
         self._D1, self._D2 = difference_operators(n, dt)
+        # the speeds and accelerations of the first rows come from the held poses alone: past
+        # a limit there, every convex step is infeasible, and the plan was the start, silently
+        early = slice(0, HELD - 1)
+        if (np.abs(self._D1 @ self.start)[early] > self.rate_limit * (1 + 1e-6)).any() or (
+            np.abs(self._D2 @ self.start)[early] > self.accel_limit * (1 + 1e-6)
+        ).any():
+            raise ConfigError(
+                f"foresight plan: the start's first {HELD} poses, which every plan keeps, "
+                "pass a pose axis's speed or acceleration limit; no plan can keep them"
+            )
         num, den = otolith_tf()
         otolith = model_operator(np.asarray(num) / OTOLITH_K, den, n, dt)
         self._models = [otolith] * 3 + [model_operator(*canal_tf(t), n, dt) for t in CANAL_TAU_L]
