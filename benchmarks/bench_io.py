@@ -5,6 +5,7 @@ Run: python benchmarks/bench_io.py
 
 from __future__ import annotations
 
+import argparse
 import os
 import tempfile
 import time
@@ -160,4 +161,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     main()

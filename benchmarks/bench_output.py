@@ -12,6 +12,7 @@ pipeline's commands at about their own rate with jitter.
 
 from __future__ import annotations
 
+import argparse
 import os
 import pty
 import select
@@ -299,6 +300,10 @@ def sustained(rate_hz: float = 1000.0, seconds: float = 5.0, ramped: bool = True
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     per_frame()
     ramp_step()
     print("ramp at the drive, offline (commands and frames each up to 0.3 of a period late):")

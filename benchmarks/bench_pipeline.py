@@ -17,6 +17,7 @@ Run: ``python benchmarks/bench_pipeline.py`` (about two minutes). Prints
 
 from __future__ import annotations
 
+import argparse
 import os
 import resource
 import subprocess
@@ -260,4 +261,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     main()

@@ -8,6 +8,7 @@ Run: python benchmarks/bench_rus6.py
 
 from __future__ import annotations
 
+import argparse
 import os
 import resource
 import time
@@ -114,4 +115,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     main()

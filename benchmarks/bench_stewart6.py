@@ -9,6 +9,7 @@ Run: .venv/bin/python benchmarks/bench_stewart6.py
 
 from __future__ import annotations
 
+import argparse
 import resource
 import time
 
@@ -79,4 +80,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     main()

@@ -11,6 +11,8 @@ Run: .venv/bin/python benchmarks/bench_stops.py
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 from motionbase.app import load_config
@@ -68,4 +70,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     main()

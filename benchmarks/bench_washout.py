@@ -5,6 +5,7 @@ Run: python benchmarks/bench_washout.py
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
@@ -81,4 +82,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    # (no options: --help prints what it measures instead of running it)
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     main()
