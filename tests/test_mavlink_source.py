@@ -831,9 +831,15 @@ def test_a_tick_stops_reading_when_its_drain_budget_is_spent() -> None:
     assert stats.received == n and stats.per_type["HIGHRES_IMU"] == n
 
 
-def _crafted_tlog(path: Path, boot_ms_of: Callable[[int], int], n: int = 600) -> Path:
+def _crafted_tlog(
+    path: Path,
+    boot_ms_of: Callable[[int], int],
+    n: int = 600,
+    values: Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]] = imu_values,
+) -> Path:
     """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
-    vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``."""
+    vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``, its specific force and
+    body rates by ``values(i)`` (level attitude)."""
 
     class Capture:
         def __init__(self) -> None:
@@ -848,7 +854,7 @@ def _crafted_tlog(path: Path, boot_ms_of: Callable[[int], int], n: int = 600) ->
     with open(path, "wb") as fh:
         for i in range(n):
             boot_ms = boot_ms_of(i)
-            f, w = imu_values(i)
+            f, w = values(i)
             cap.frames.clear()
             mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
             mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
