@@ -82,8 +82,11 @@ import logging
 import math
 import os
 import select
+import struct
 import subprocess
 import sys
+import termios
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -620,11 +623,8 @@ class McapLogger:
 
     def _answer(self) -> dict[str, Any]:
         """The writer process's next answer; a failure it reports raises, as does its end."""
-        if (
-            self._patience is not None
-            and not select.select((self._reply,), (), (), self._patience)[0]
-        ):
-            self._writer_stalled()
+        if self._patience is not None:
+            self._await_answer(self._patience)
         line = self._reply.readline()
         if not line:
             status = self._process.wait()
@@ -637,6 +637,22 @@ class McapLogger:
         if "error" in answer:
             self._failed(ConfigError if answer["kind"] == "config" else SinkError, answer["error"])
         return answer
+
+    def _await_answer(self, patience: float) -> None:
+        """Wait for the writer process's answer while it takes records from its pipe (a
+        writer at a lower priority on a busy machine may take seconds to empty it); raise
+        once it took nothing for ``patience`` s."""
+        left, since = self._in_pipe(), time.monotonic()
+        while not select.select((self._reply,), (), (), 0.1)[0]:
+            now = self._in_pipe()
+            if now < left:
+                left, since = now, time.monotonic()
+            elif time.monotonic() - since > patience:
+                self._writer_stalled()
+
+    def _in_pipe(self) -> int:
+        """Bytes the writer process has not yet read from its pipe."""
+        return struct.unpack("i", fcntl.ioctl(self._data_fd, termios.FIONREAD, b"\0\0\0\0"))[0]
 
     def _writer_stalled(self) -> None:
         self._stalled = True
