@@ -1,7 +1,8 @@
 """A fake Arduino for serial tests: the far end of a real pseudo-terminal pair.
 
 It prints the sketch's ready line (``Rolling``) until the host first speaks, then records
-every byte it receives; :meth:`Board.close` makes the port vanish as an unplugged board does.
+every byte it receives (and, in ``chunks``, when each read returned it); :meth:`Board.close`
+makes the port vanish as an unplugged board does.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import os
 import pty
 import select
 import threading
+import time
 import tty
 
 
@@ -22,6 +24,7 @@ class Board:
         self.path = os.ttyname(self.slave)
         self.ready = ready
         self.data = bytearray()
+        self.chunks: list[tuple[float, bytes]] = []  # (time.monotonic() of the read, bytes)
         self.stop = threading.Event()
         self.got_first = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -38,8 +41,12 @@ class Board:
                 except OSError:
                     return
                 if chunk:
-                    self.data += chunk
+                    self._keep(chunk)
                     self.got_first.set()
+
+    def _keep(self, chunk: bytes) -> None:
+        self.chunks.append((time.monotonic(), chunk))
+        self.data += chunk
 
     def close(self) -> None:
         """Stop reading, take the bytes still in the pty (a host that has finished wrote
@@ -57,7 +64,7 @@ class Board:
                 break
             if not chunk:
                 break
-            self.data += chunk
+            self._keep(chunk)
         for fd in (self.master, self.slave):
             try:
                 os.close(fd)

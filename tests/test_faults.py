@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from drive_wire import UdpDrive, check_wire_limits, read_complete_log
+from drive_wire import UdpDrive, check_wire_limits, read_complete_log, states_of_a_killed_run
 from pty_board import Board
 
 from motionbase import app, cli
@@ -199,6 +199,71 @@ def test_a_cueing_bug_parks_softly_without_calling_it_again_then_propagates(when
     assert (np.abs(v) - lim.max_speed).max() <= SPEED_TOL
     a = np.diff(v, axis=0) / config.dt
     assert (np.abs(a) - lim.max_accel).max() <= ACCEL_TOL
+
+
+LATE_BUG_SCRIPT = """
+import sys
+
+from motionbase.__main__ import main
+from motionbase.washout.classical import ClassicalWashout
+from motionbase.washout.cueing import CUEINGS, CueingSpec, register_cueing
+
+
+class LateBug(ClassicalWashout):
+    \"\"\"The classical washout, until call {fail_after} since its reset: then it raises.\"\"\"
+
+    name = "late_bug"
+    step_kernel = None  # the pipeline calls advance
+    calls = 0
+
+    def reset(self):
+        super().reset()
+        self.calls = 0
+
+    def advance(self, u, out):
+        self.calls += 1
+        if self.calls > {fail_after}:
+            raise ZeroDivisionError("a bug in a cueing plug-in")
+        return super().advance(u, out)
+
+
+classical = CUEINGS["classical"]
+register_cueing(CueingSpec("late_bug", LateBug, classical.params_class, classical.preset_kind))
+sys.exit(main())
+"""
+
+
+def test_a_cueing_bug_that_shows_only_in_the_park_ramp_still_parks_the_drive(tmp_path):
+    """A cueing plug-in whose bug shows only once the flight has ended (here: on its call
+    half a second into the ramp back to park; the flight is 3 s at 120 Hz, 360 calls) is
+    handled as one that fails in flight: the ramp goes on without it and parks the drive,
+    then the exception propagates unchanged. The park ramp used to call the plug-in
+    unguarded: the exception left the loop at once, and the drive stayed where the ramp
+    was (50 deg from park), its last frame not the park command. Run as a script that
+    registers the plug-in and calls the ``motionbase`` command, as the README shows; a
+    loopback UDP drive."""
+    script = tmp_path / "late_bug.py"
+    script.write_text(LATE_BUG_SCRIPT.format(fail_after=3 * 120 + 60))
+    drive, out = UdpDrive(), tmp_path / "bug.mcap"
+    cmd = [sys.executable, str(script), "fly", "c1723", "--duration", "3", "--cueing"]
+    cmd += ["late_bug", "--out", str(out), "--output", drive.url()]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        drive.drain()
+    finally:
+        drive.close()
+    assert proc.returncode == 1, proc.stderr  # a bug: raised unchanged (a traceback)
+    assert proc.stderr.rstrip().endswith("ZeroDivisionError: a bug in a cueing plug-in")
+    geometry = Rus6Geometry.preset("ceart")
+    t, q = drive.angles()
+    assert np.abs(q - geometry.park_angle).max() > math.radians(20)  # it flew
+    np.testing.assert_allclose(q[-1], geometry.park_angle, atol=math.radians(1e-4))
+    check_wire_limits(t, q, geometry.max_speed, geometry.max_accel, "late cueing bug")
+    log = read_complete_log(out)
+    assert len(log["/aircraft/state"]) == 360
+    assert log["/platform/pose"][-1]["phase"] == "parked"
+    assert log["/health"][-1]["estops"] == 0  # a soft stop: the plug-in's bug is no E-stop
+    assert np.array_equal(log["/platform/actuators"][-1]["angles"], np.full(6, geometry.park_angle))
 
 
 # --------------------------------------------------------------------------- serial port
@@ -380,6 +445,49 @@ def test_a_vanished_log_writer_parks_through_the_drives_then_one_clear_error(tmp
         states = list(src)
         assert src.truncated
     assert len(states) < 360  # (how much is on disk depends on how far the writer had got)
+
+
+def test_a_stopped_log_writer_at_the_end_of_a_run_gives_one_line_not_a_hang(tmp_path):
+    """``fly --output URL``, its log's writer process stopped (SIGSTOP: as a disk that does
+    not answer holds it), then Ctrl-C: the drive parks within the limits, and the run ends
+    with one line naming the writer, exit status 2. It used to park and then wait for the
+    stopped writer forever to close the log, deaf to SIGINT and SIGTERM alike (only
+    SIGKILL ended it). Once it runs again the writer finishes the file on its own."""
+    from test_signals import wait_for
+
+    drive, out = UdpDrive(), tmp_path / "stalled.mcap"
+    cmd = [sys.executable, "-m", "motionbase", "fly", "c1723", "--duration", "60"]
+    cmd += ["--out", str(out), "--output", drive.url()]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    writers: list[int] = []
+    try:
+        wait_for(lambda: drive.count() >= 250, proc, "motion")  # 2.5 s of frames at 100 Hz
+        children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
+        writers = [int(pid) for pid in children]
+        assert len(writers) == 1  # the log's writer process, the run's only child
+        os.kill(writers[0], signal.SIGSTOP)
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=60)  # a watchdog against the hang, not a timing check
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            pytest.fail("the run never ended once parked (it waited for the stopped writer)")
+    finally:
+        for pid in writers:  # the writer holds the run's stdout and stderr too
+            os.kill(pid, signal.SIGCONT)
+        if proc.poll() is None:
+            proc.kill()
+        stdout, stderr = proc.communicate(timeout=60)
+        drive.drain()
+        drive.close()
+    assert proc.returncode == 2, (stdout, stderr)
+    assert_one_line_error(stderr, str(out), "writer process", "readable up to")
+    geometry = Rus6Geometry.preset("ceart")
+    t, q = drive.angles()
+    np.testing.assert_allclose(q[-1], geometry.park_angle, atol=math.radians(1e-4))
+    check_wire_limits(t, q, geometry.max_speed, geometry.max_accel, "a stalled log")
+    assert len(states_of_a_killed_run(out)) > 200  # the writer, continued, finished it
 
 
 def test_a_log_whose_folder_vanishes_mid_run_is_said_to_be_gone_and_exits_1(tmp_path):

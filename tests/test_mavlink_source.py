@@ -37,6 +37,7 @@ from motionbase.io.mavlink_source import (
     load_signing_key,
     mavutil,
 )
+from motionbase.io.mcap_source import read_messages
 
 G = 9.80665
 # Real flight logs, not shipped with the repository: tests that read them take the
@@ -831,9 +832,15 @@ def test_a_tick_stops_reading_when_its_drain_budget_is_spent() -> None:
     assert stats.received == n and stats.per_type["HIGHRES_IMU"] == n
 
 
-def _crafted_tlog(path: Path, boot_ms_of: Callable[[int], int], n: int = 600) -> Path:
+def _crafted_tlog(
+    path: Path,
+    boot_ms_of: Callable[[int], int],
+    n: int = 600,
+    values: Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]] = imu_values,
+) -> Path:
     """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
-    vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``."""
+    vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``, its specific force and
+    body rates by ``values(i)`` (level attitude)."""
 
     class Capture:
         def __init__(self) -> None:
@@ -848,7 +855,7 @@ def _crafted_tlog(path: Path, boot_ms_of: Callable[[int], int], n: int = 600) ->
     with open(path, "wb") as fh:
         for i in range(n):
             boot_ms = boot_ms_of(i)
-            f, w = imu_values(i)
+            f, w = values(i)
             cap.frames.clear()
             mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
             mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
@@ -898,8 +905,12 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
 
 
-def _crafted_bin(path: Path, times_us: list[int]) -> Path:
-    """A DataFlash log of IMU and ATT records stamped ``times_us`` (its FMT records first)."""
+def _crafted_bin(
+    path: Path, times_us: list[int], att: tuple[str, str] = ("Qfff", "TimeUS,Roll,Pitch,Yaw")
+) -> Path:
+    """A DataFlash log of IMU and ATT records stamped ``times_us`` (its FMT records first);
+    ``att``: the ATT record's FMT format and columns (its values 2, 1 and 30 deg, packed
+    by that format)."""
 
     def fmt(typ: int, name: str, form: str, columns: str) -> bytes:
         sizes = {"Q": 8, "f": 4, "B": 1, "n": 4, "N": 16, "Z": 64}
@@ -911,10 +922,11 @@ def _crafted_bin(path: Path, times_us: list[int]) -> Path:
 
     out = bytearray(fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
     out += fmt(129, "IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I")
-    out += fmt(130, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")
+    out += fmt(130, "ATT", *att)
+    roll = b"2" if att[0][1] == "N" else 2.0  # (a 16-character text column: "2")
     for t in times_us:
         out += b"\xa3\x95\x81" + struct.pack("<QffffffB", t, 0.01, 0.0, 0.0, 0.1, 0.0, -9.8, 0)
-        out += b"\xa3\x95\x82" + struct.pack("<Qfff", t, 2.0, 1.0, 30.0)
+        out += b"\xa3\x95\x82" + struct.pack("<" + att[0].replace("N", "16s"), t, roll, 1.0, 30.0)
     path.write_bytes(bytes(out))
     return path
 
@@ -927,6 +939,31 @@ def test_a_dataflash_log_whose_clock_jumps_hours_ahead_holds_the_gap_briefly(tmp
     span = times[-1] - times[0]
     assert 6.0 + MAX_LOG_GAP_S - 0.1 < span < 6.0 + MAX_LOG_GAP_S + 0.1, span
     assert 580 <= fresh <= 600 + 50 + 5
+
+
+@pytest.mark.parametrize(
+    "att",
+    [("Qfff", "TimeUS,Rol,Pitch,Yaw"), ("QNff", "TimeUS,Roll,Pitch,Yaw")],
+    ids=["a column renamed", "a text column"],
+)
+def test_a_dataflash_log_whose_att_format_is_damaged_is_rejected_not_a_traceback(att, tmp_path):
+    """A DataFlash log whose ATT FMT record is damaged (its Roll column renamed, or made
+    text): each ATT record is invalid input, rejected and counted, and the stream goes on
+    (the attitude never fresh: the platform stays at neutral) to the end of the log, exit
+    0. The first one used to end the run (parked) with an AttributeError or TypeError
+    traceback, exit status 1, a damaged file taken for a bug."""
+    times = [10_000_000 + i * 10_000 for i in range(300)]
+    log = _crafted_bin(tmp_path / "damaged.bin", times, att=att)
+    out = tmp_path / "run.mcap"
+    cmd = [sys.executable, "-m", "motionbase", "stream", "--mavlink", str(log), "--fast"]
+    done = subprocess.run(cmd + ["--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
+    assert "stopped by end of source" in done.stdout
+    assert "invalid 300)" in done.stdout  # every ATT record
+    msgs = read_messages(out)
+    assert msgs["/platform/pose"][-1]["phase"] == "parked"
+    assert not any(m["fresh"] for m in msgs["/aircraft/state"])  # no attitude: all stale
 
 
 # --------------------------------------------------------------------------- real logs

@@ -34,6 +34,8 @@ GEOMETRY = Rus6Geometry.preset("ceart")
 PARK = np.full(6, GEOMETRY.park_angle)
 WIRE_TOL = np.radians(1e-4)  # the drive frame's four decimals of a degree
 STOP_SIGNALS = ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"]
+#: in flight Ctrl-Z (SIGTSTP) stops too: it used to suspend the run, the platform moving
+IN_FLIGHT = [*STOP_SIGNALS, "SIGTSTP"]
 
 
 @dataclass
@@ -188,10 +190,11 @@ def test_a_stop_signal_while_the_program_loads_moves_nothing(tmp_path):
 
 @pytest.fixture(scope="module")
 def stopped_in_flight(tmp_path_factory) -> dict[str, Run]:
-    """Runs stopped in full flight: by each stop signal, by SIGINT twice (the second while
-    parking), by closing the run's terminal, and a live MAVLink ``stream`` by Ctrl-C."""
+    """Runs stopped in full flight: by each stop signal (Ctrl-Z too), by SIGINT twice (the
+    second while parking), by closing the run's terminal, and a live MAVLink ``stream`` by
+    Ctrl-C."""
     tmp = tmp_path_factory.mktemp("signals")
-    runs = {name: start_fly(tmp, name) for name in [*STOP_SIGNALS, "SIGINT twice"]}
+    runs = {name: start_fly(tmp, name) for name in [*IN_FLIGHT, "SIGINT twice"]}
     runs["terminal closed"] = start_fly(tmp, "tty", on_pty=True)
     runs["stream SIGINT"] = start_stream(tmp, "stream")
     for name, run in runs.items():
@@ -210,7 +213,7 @@ def stopped_in_flight(tmp_path_factory) -> dict[str, Run]:
     return runs
 
 
-@pytest.mark.parametrize("name", [*STOP_SIGNALS, "terminal closed", "stream SIGINT"])
+@pytest.mark.parametrize("name", [*IN_FLIGHT, "terminal closed", "stream SIGINT"])
 def test_a_stop_signal_in_flight_parks_at_the_soft_start_pace(stopped_in_flight, name):
     run = stopped_in_flight[name]
     if name != "terminal closed":  # (a closed terminal hears nothing more)

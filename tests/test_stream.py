@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import socket
 import threading
@@ -159,6 +160,62 @@ def test_a_log_streamed_in_real_time_is_paced_by_the_loop(flight_data, tmp_path)
     assert McapSource(out).metadata["source"]["realtime"] is True
     assert result.summary.stopped_by == "duration"  # the log goes on beyond the 2 s
     check_actuators_safe(out)
+
+
+def _swaying(i: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Strong planar manoeuvring at 100 Hz (surge, sway and yaw at 0.5 Hz): the 3-RRR's
+    servos travel tens of degrees each way."""
+    s = math.sin(math.pi * i / 100)
+    return (8.0 * s, 8.0 * s, -9.80665), (0.0, 0.0, 1.5 * s)
+
+
+def test_a_log_streamed_fast_to_the_3rrr_board_still_moves_it_in_real_time(tmp_path):
+    """``stream LOG --fast --planar --serial PORT``: the servos are motors, so the run goes
+    at the pipeline's pace in real time, as with ``--output`` (``--fast`` aside). It ran as
+    fast as the processor went: 3 s of the log and the ramps in about 0.1 s of wall time,
+    the board's servos travelling hundreds of degrees at several times their speed limit.
+    Checked on the frames the board received (a pty), with their arrival times: their
+    travel over the wall time, and their speed and acceleration over sliding windows; the
+    last frame is park (the home pose, every servo at 90 deg: the udesc_symmetric
+    geometry's servo zero)."""
+    import subprocess
+    import sys
+
+    from drive_wire import check_wire_limits
+    from pty_board import Board
+    from test_mavlink_source import _crafted_tlog
+
+    from motionbase.io.servo_protocol import ServoDecoder
+
+    log = _crafted_tlog(tmp_path / "sway.tlog", lambda i: i * 10, n=300, values=_swaying)
+    board = Board()
+    try:
+        cmd = [sys.executable, "-m", "motionbase", "stream", "--mavlink", str(log), "--fast"]
+        cmd += ["--planar", "--serial", board.path, "--out", str(tmp_path / "run.mcap")]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    finally:
+        board.close()
+    assert proc.returncode == 0, proc.stderr
+    assert "stopped by end of source" in proc.stdout
+    decoder, servo, stamps = ServoDecoder(), [], []
+    for arrival, chunk in board.chunks:
+        for motor, deg in decoder.feed(chunk):
+            if motor == 0:
+                servo.append([])
+            servo[-1].append(deg)
+            if motor == 2:
+                stamps.append(arrival)
+    servo = [s for s in servo if len(s) == 3]  # (a frame whose start the board missed)
+    t, deg = np.array(stamps), np.array(servo, dtype=float)
+    assert len(t) == len(deg) > 50
+    assert tuple(deg[-1]) == (90.0, 90.0, 90.0)  # home
+    vmax, amax = 4.5, 20.0  # udesc_symmetric's limits: rad/s, rad/s^2
+    travel = np.radians(np.abs(np.diff(deg, axis=0)).sum(axis=0))
+    assert travel.max() > 1.0  # it swayed
+    # 0.05 s: the board's reads may lag (a loaded machine); 2 deg: whole servo degrees
+    allowed = vmax * (t[-1] - t[0] + 0.05) + np.radians(2.0)
+    assert np.all(travel <= allowed), f"{travel} rad in {t[-1] - t[0]:.3f} s on the board"
+    check_wire_limits(t, np.radians(deg), vmax, amax, "the 3-RRR's board")
 
 
 # --------------------------------------------------------------------------- where the log goes

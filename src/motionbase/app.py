@@ -1139,7 +1139,8 @@ def stream(
         ``telemetry`` preset (an input low-pass for sparse telemetry and the gentle gains:
         real flights stay inside the platform's reach).
     serial : str, optional
-        Planar mode: a pyserial URL of the 3-RRR's Arduino.
+        Planar mode: a pyserial URL of the 3-RRR's Arduino. Its servos are motors: a log
+        file then replays in real time, as with ``outputs`` (``realtime`` aside).
     duration_s : float, optional
         Stop (and park) after this long, s.
     out : path, optional
@@ -1245,7 +1246,7 @@ def _stream(
                 config,
                 source,
                 Path(out),
-                paced=bool(realtime),
+                paced=bool(realtime or serial),  # the board's servos move in real time only
                 busy_wait=busy_wait,
                 progress=False,
                 extra_sinks=extra,

@@ -36,6 +36,7 @@ try:  # numpy and the rest take a few tenths of a second to import
     from motionbase.console import tell
     from motionbase.errors import ConfigError, MotionbaseError
     from motionbase.stopping import (
+        STOP_SIGNALS,
         Stopped,
         insistent_ctrl_c,
         interrupting_signal,
@@ -809,7 +810,8 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
     _args_tune,
 )
 def run_tune(args: argparse.Namespace) -> int:
-    with stop_on_signals() as stop:  # a stop cancels the evaluations, keeps the best so far
+    # a stop cancels the evaluations, keeps the best so far (Ctrl-Z suspends: nothing moves)
+    with stop_on_signals(signals=STOP_SIGNALS) as stop:
         from motionbase import app
 
         result = app.tune(

@@ -817,7 +817,8 @@ def run(
     to its message; a sink's other exception as a
     :class:`~motionbase.errors.SinkError` naming the sink (one line; the original
     is its ``__cause__``); a source's other exception unchanged (a bug). When the
-    pipeline's own step raises (a plug-in's bug), the ramp to park calls no plug-in
+    pipeline's own step raises (a plug-in's bug), in flight or on the ramp to park itself
+    (a bug that shows on held samples only), the ramp to park calls no plug-in
     (:meth:`PipelineCore.park_step`: the last cue pose held), and the exception then
     propagates in the same way.
 
@@ -1016,7 +1017,15 @@ def run(
                     pipeline.estop()
                 if paced:
                     pace(True)
-                emit(park_tick())
+                try:
+                    out = park_tick()
+                except Exception as exc:  # noqa: BLE001 - a plug-in's bug on the way back
+                    if park_tick == pipeline.park_step:
+                        raise  # (the tick without the plug-in: nothing else parks)
+                    fail(exc, "pipeline")  # park without it, as after a bug in flight
+                    park_tick = pipeline.park_step
+                    continue
+                emit(out)
         summary.stopped_by = stopped_by(summary.stopped_by, stop)  # (then an E-stop, if any)
         if failure is not None:
             # parked first; then the failure in one line (a source's bug propagates as is)

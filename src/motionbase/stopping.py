@@ -7,9 +7,10 @@ still loading then stops the run before it moves anything, instead of being lost
 
 Two kinds of stop (see the README's Safety section):
 
-* a *stop* (the first SIGINT, SIGTERM, SIGHUP or SIGQUIT; the end of the input; a failing
-  source or sink): the platform ramps back to park at the soft-start pace, over
-  ``soft_start_s`` (2 s by default), as gently as it started;
+* a *stop* (the first SIGINT, SIGTERM, SIGHUP or SIGQUIT, and for a job that moves the
+  platform SIGTSTP, Ctrl-Z; the end of the input; a failing source or sink): the platform
+  ramps back to park at the soft-start pace, over ``soft_start_s`` (2 s by default), as
+  gently as it started;
 * an *E-stop* (:meth:`motionbase.pipeline.Pipeline.estop`, a second stop signal while the
   run is stopping, teleop's E-stop key): the command heads for park at once, as fast as
   the actuators' speed and acceleration limits of the geometry allow (``max_speed``,
@@ -27,6 +28,7 @@ from contextlib import contextmanager
 from typing import Any
 
 __all__ = [
+    "MOTION_STOP_SIGNALS",
     "STOP_SIGNALS",
     "StopRequest",
     "Stopped",
@@ -45,6 +47,12 @@ STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
     getattr(signal, name)
     for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
     if hasattr(signal, name)
+)
+#: The signals that stop a job that moves the platform: those, and Ctrl-Z (SIGTSTP), whose
+#: default action suspends the process: the platform stayed where it was, moving, and its
+#: drives were sent nothing more until the process was continued.
+MOTION_STOP_SIGNALS: tuple[signal.Signals, ...] = STOP_SIGNALS + tuple(
+    getattr(signal, name) for name in ("SIGTSTP",) if hasattr(signal, name)
 )
 
 
@@ -206,12 +214,12 @@ def install_signal_stop(
     ----------
     stop : StopRequest
     signals : iterable of int, optional
-        Default :data:`STOP_SIGNALS` (SIGINT, SIGTERM, SIGHUP, SIGQUIT where the platform
-        has them).
+        Default :data:`MOTION_STOP_SIGNALS` (SIGINT, SIGTERM, SIGHUP, SIGQUIT and SIGTSTP
+        where the platform has them).
     """
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
-    sigs = tuple(STOP_SIGNALS if signals is None else signals)
+    sigs = tuple(MOTION_STOP_SIGNALS if signals is None else signals)
     old = _handlers(sigs)
 
     def handler(signum: int, _frame: object) -> None:
@@ -234,7 +242,9 @@ def install_signal_stop(
 
 
 @contextmanager
-def stop_on_signals(stop: StopRequest | None = None) -> Iterator[StopRequest]:
+def stop_on_signals(
+    stop: StopRequest | None = None, signals: Iterable[int] | None = None
+) -> Iterator[StopRequest]:
     """A job's stop request, with the stop signals routed to it for the job's length.
 
     Entered first, before the job loads its modules (numba and the compiled kernels take a
@@ -246,12 +256,16 @@ def stop_on_signals(stop: StopRequest | None = None) -> Iterator[StopRequest]:
     stop : StopRequest, optional
         A request the caller has already routed the signals to (the command line does,
         before it loads anything): used as it is. Default: a new one, routed here.
+    signals : iterable of int, optional
+        The signals routed (:func:`install_signal_stop`'s default: a job that moves the
+        platform's; a job that moves nothing gives :data:`STOP_SIGNALS`, and Ctrl-Z then
+        suspends it).
     """
     if stop is not None:
         yield stop
         return
     stop = StopRequest()
-    restore = install_signal_stop(stop)
+    restore = install_signal_stop(stop, signals)
     try:
         yield stop
     finally:

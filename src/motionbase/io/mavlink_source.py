@@ -1187,21 +1187,29 @@ class MavlinkSource(SampleHoldSource):
         return replace(state, on_ground=self._on_ground)
 
     def _handle_dataflash(self, msg: Any, arrival: float) -> None:
-        """Fold one DataFlash IMU or ATT record into the state."""
+        """Fold one DataFlash IMU or ATT record into the state. A record without its type's
+        fields, or with text in them (its FMT record damaged, or a text log's), is invalid
+        input: counted and left out, as a NaN is."""
         c = self._c
         mtype = msg.get_type()
         c["received"] += 1
         c["accepted"] += 1
         self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
+        try:
+            if mtype == "IMU":
+                if getattr(msg, "I", 0) != 0:
+                    return
+                acc = (float(msg.AccX), float(msg.AccY), float(msg.AccZ))
+                gyr = (float(msg.GyrX), float(msg.GyrY), float(msg.GyrZ))
+            else:  # ATT, degrees
+                att = (math.radians(msg.Roll), math.radians(msg.Pitch), math.radians(msg.Yaw))
+        except (AttributeError, TypeError, ValueError):
+            c["rejected_invalid"] += 1
+            return
         if mtype == "IMU":
-            if getattr(msg, "I", 0) != 0:
-                return
-            acc = (msg.AccX, msg.AccY, msg.AccZ)
-            gyr = (msg.GyrX, msg.GyrY, msg.GyrZ)
             if self._store_imu(acc, gyr, arrival):
                 self._imu_name = "IMU"
-        else:  # ATT, degrees
-            att = (math.radians(msg.Roll), math.radians(msg.Pitch), math.radians(msg.Yaw))
+        else:
             self._store_attitude(att, arrival)
 
     def _store_imu(self, acc: tuple[float, ...], gyr: tuple[float, ...], arrival: float) -> bool:

@@ -28,7 +28,11 @@ Never waiting for the writer (real-time runs)
     pipe's 1 MiB is full) waits in memory for the next call. A backlog past
     :data:`BACKLOG_BYTES` (8 MiB: tens of seconds of a run) is a :class:`SinkError`, as a
     full disk is (the pipeline parks), and ``finish()`` then waits a few seconds at most
-    for the writer, which finishes the file on its own once it runs again. Without it (runs
+    for the writer, which finishes the file on its own once it runs again. A writer that
+    stops before the backlog grows that long (at the end of the run, say) is waited for
+    by ``finish()`` as long as it takes more of the log, and a :class:`SinkError` once it
+    took nothing for ``_FAILED_WRITER_WAIT_S`` (5 s): the run, parked, then ends (it used
+    to wait for it forever). Without it (runs
     as fast as they go) a call waits for the pipe, so the writer's pace sets the run's.
 
 Live view
@@ -78,8 +82,11 @@ import logging
 import math
 import os
 import select
+import struct
 import subprocess
 import sys
+import termios
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -124,7 +131,9 @@ _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
 #: real-time runs: the most bytes of records the writer process may leave in this process
 #: (the pipe full) before the log counts as failed
 BACKLOG_BYTES = 8 << 20
-_FAILED_WRITER_WAIT_S = 5.0  # finish() after such a failure: the writer may be stopped
+#: finish() after such a failure (the writer may be stopped), and in a real-time run the
+#: longest it waits for a writer process that takes nothing more, s
+_FAILED_WRITER_WAIT_S = 5.0
 _Items = Sequence[tuple[str, Mapping[str, Any]]]  # (topic, message) pairs
 #: The most messages per second of source time a live client gets on one topic.
 LIVE_RATE_HZ = 60.0
@@ -342,6 +351,10 @@ class McapLogger:
         self._failure = ""
         self._pending = bytearray()  # records not yet written to the writer process
         self._pending_ns = -1  # log time of the first of them
+        #: how long a wait on the writer process may go without progress, s (None: as long
+        #: as it takes); a real-time run's finish() never waits for a writer forever
+        self._patience: float | None = None
+        self._stalled = False  # the writer took nothing within the patience
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> McapLogger:
@@ -413,6 +426,8 @@ class McapLogger:
         if self._state in ("new", "finished"):
             self._state = "finished"
             return
+        if self.realtime:  # a run that parked must end: never wait for a stopped writer
+            self._patience = _FAILED_WRITER_WAIT_S
         try:
             if self._state != "failed":
                 self._request(OP_CLOSE)
@@ -421,8 +436,9 @@ class McapLogger:
             os.close(self._data_fd)  # the writer ends at the end of its input
             self._data_fd = -1
             # a writer stopped or stuck (after a failure) finishes the file on its own
+            wait = 0.0 if self._stalled else _FAILED_WRITER_WAIT_S if failed else None
             with contextlib.suppress(subprocess.TimeoutExpired):
-                self._process.wait(timeout=_FAILED_WRITER_WAIT_S if failed else None)
+                self._process.wait(timeout=wait)
             self._reply.close()
 
     def __enter__(self) -> McapLogger:
@@ -588,7 +604,9 @@ class McapLogger:
                     except BlockingIOError:  # the pipe is full
                         if not wait:
                             break
-                        select.select((), (self._data_fd,), ())
+                        if not select.select((), (self._data_fd,), (), self._patience)[1]:
+                            self._pending.clear()
+                            self._writer_stalled()
         except BrokenPipeError:  # the writer failed and closed its end: its answer says why
             self._pending.clear()
             self._answer()
@@ -605,6 +623,8 @@ class McapLogger:
 
     def _answer(self) -> dict[str, Any]:
         """The writer process's next answer; a failure it reports raises, as does its end."""
+        if self._patience is not None:
+            self._await_answer(self._patience)
         line = self._reply.readline()
         if not line:
             status = self._process.wait()
@@ -617,6 +637,31 @@ class McapLogger:
         if "error" in answer:
             self._failed(ConfigError if answer["kind"] == "config" else SinkError, answer["error"])
         return answer
+
+    def _await_answer(self, patience: float) -> None:
+        """Wait for the writer process's answer while it takes records from its pipe (a
+        writer at a lower priority on a busy machine may take seconds to empty it); raise
+        once it took nothing for ``patience`` s."""
+        left, since = self._in_pipe(), time.monotonic()
+        while not select.select((self._reply,), (), (), 0.1)[0]:
+            now = self._in_pipe()
+            if now < left:
+                left, since = now, time.monotonic()
+            elif time.monotonic() - since > patience:
+                self._writer_stalled()
+
+    def _in_pipe(self) -> int:
+        """Bytes the writer process has not yet read from its pipe."""
+        return struct.unpack("i", fcntl.ioctl(self._data_fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+    def _writer_stalled(self) -> None:
+        self._stalled = True
+        self._failed(
+            SinkError,
+            f"{self.path}: the MCAP log's writer process took nothing more for "
+            f"{self._patience:g} s (it is stopped, or its disk does not answer); the file is "
+            "readable up to its last complete chunk (the writer finishes it if it runs again)",
+        )
 
     def _failed(self, kind: type[Exception], message: str) -> None:
         self._failure = message
