@@ -195,8 +195,8 @@ class RobotSpec:
     Attributes
     ----------
     name : str
-        Also the preset prefix: geometry presets ship as
-        ``motionbase/presets/<name>_<preset>.toml``.
+        Also the preset prefix: geometry presets ship as ``<preset_dir>/<name>_<preset>.toml``
+        and a geometry file says it is this robot's with ``kind = "<name>"``.
     robot_class, geometry_class : str
         ``"module:Class"`` of the :class:`Robot` subclass and of its geometry (with
         ``preset``, ``from_toml``, ``from_dict`` and ``to_dict``), imported on use.
@@ -205,6 +205,10 @@ class RobotSpec:
     planar : bool
         True for robots that render surge, sway and yaw only (``--planar``).
     description : str
+        How messages name the robot (``"6-RUS"``).
+    preset_dir : str or None
+        The folder of the robot's geometry presets; None: motionbase's own
+        (``motionbase/presets``). A plug-in outside the package ships its presets there.
     """
 
     name: str
@@ -213,6 +217,7 @@ class RobotSpec:
     default_preset: str
     planar: bool = False
     description: str = ""
+    preset_dir: str | None = None
 
     @property
     def geometry_type(self) -> Any:
@@ -230,7 +235,9 @@ class RobotSpec:
 
 
 #: Every robot motionbase drives, by name. A new robot: one module with a :class:`Robot`
-#: subclass and its geometry, a preset TOML, and one entry here.
+#: subclass and its geometry, a preset TOML, and one entry here (a plug-in outside the
+#: package adds its entry at run time, ``ROBOTS["mine"] = RobotSpec(...)``, with its own
+#: ``preset_dir``).
 ROBOTS: dict[str, RobotSpec] = {
     spec.name: spec
     for spec in (
@@ -276,21 +283,31 @@ DEFAULT_ROBOT = "rus6"
 
 
 def _robot_of_file(path: str) -> str | None:
-    """The robot a geometry TOML file is for (its ``kind``, else its fields), or None."""
+    """The robot a geometry TOML file is for (its ``kind`` naming a robot of
+    :data:`ROBOTS`, else its fields), or None."""
     from motionbase.config import file_kind, read_toml
 
     try:
-        kind = file_kind(read_toml(path))
+        table = read_toml(path)
     except ConfigError:  # unreadable: the geometry class says so, with its own message
         return None
+    declared = table.get("kind")
+    if isinstance(declared, str) and declared in ROBOTS:  # a plug-in's too
+        return declared
+    kind = file_kind(table)
     return kind if kind in ROBOTS else None
+
+
+def _presets(robot: str) -> list[str]:
+    """The geometry presets ``robot`` ships (in its :attr:`RobotSpec.preset_dir`)."""
+    from motionbase.config import preset_names
+
+    return preset_names(robot, ROBOTS[robot].preset_dir)
 
 
 def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     """The first of ``robots`` that ships a geometry preset ``name``, or None."""
-    from motionbase.config import preset_names
-
-    return next((robot for robot in robots if name in preset_names(robot)), None)
+    return next((robot for robot in robots if name in _presets(robot)), None)
 
 
 def robot_named(name_or_path: str | None) -> str | None:
@@ -349,7 +366,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     ConfigError
         Unknown preset, or a file or robot of the other mode.
     """
-    from motionbase.config import preset_names, resolve_preset_or_path
+    from motionbase.config import resolve_preset_or_path
 
     candidates = [name for name, spec in ROBOTS.items() if spec.planar == planar]
     default = candidates[0] if planar else DEFAULT_ROBOT
@@ -369,7 +386,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
             # the mode's robots first; a preset of the other mode's is refused by name
             found = _robot_of_preset(text, candidates) or _robot_of_preset(text, list(ROBOTS))
             if found is None:
-                names = sorted({name for r in candidates for name in preset_names(r)})
+                names = sorted({name for r in candidates for name in _presets(r)})
                 raise ConfigError(
                     f"unknown {default} preset {text!r} (nor any other robot's): choose a "
                     f"robot ({', '.join(candidates)}), a preset ({', '.join(names)}) or give "
@@ -379,5 +396,5 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
                 raise _other_mode(text, f"a preset of the {ROBOTS[found].description},", planar)
             robot = found
     spec = ROBOTS[robot]
-    path = resolve_preset_or_path(robot, value or spec.default_preset)
+    path = resolve_preset_or_path(robot, value or spec.default_preset, spec.preset_dir)
     return robot, spec.geometry_type.from_toml(path)
