@@ -109,6 +109,19 @@ class Robot(ABC):
         ``guess`` (rows of NaN where it does not converge)."""
         return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
 
+    def cue_reachable(self, cue: np.ndarray) -> np.ndarray | bool:
+        """Whether each cue pose ``(..., 6)`` is rendered as it is: its robot pose reachable
+        and every axis of it realised (an axis the robot lacks, the 3-actuator platform's
+        surge say, is rendered only at 0). The workspace sweeps
+        (:func:`~motionbase.platform.rus6_workspace.single_axis_envelope`) use it, so a
+        robot's reach is in cue terms whatever its own coordinates."""
+        cue = np.asarray(cue, dtype=float)
+        pose = self.pose_from_cue(cue)
+        ok = np.asarray(self.reachable(pose), dtype=bool)
+        back = self.cue_from_pose(pose, np.zeros_like(cue))
+        ok = ok & np.all(np.abs(back - cue) <= 1e-9 * (1.0 + np.abs(cue)), axis=-1)
+        return bool(ok) if ok.ndim == 0 else ok
+
     # -- cue pose <-> robot pose -------------------------------------------------------
     def pose_from_cue(self, cue: np.ndarray) -> np.ndarray:
         """Robot pose of a cue pose (identity for the 6-DOF platforms)."""
