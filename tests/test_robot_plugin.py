@@ -1,0 +1,295 @@
+"""A robot plug-in written outside motionbase (``heave3_robot.py``), through every command.
+
+The robot is the hobbyist's first platform: a plate on three vertical linear actuators (one
+at the front centre, two at the rear corners) that renders heave, roll and pitch. It is
+registered as a user would, at run time (``ROBOTS["heave3"] = SPEC``), with its preset in
+``tests/data``, and motionbase's source names it nowhere.
+
+Expectations are independent of the code under test: actuator lengths from the plate's
+corners rotated by rotation matrices written out here, the single-axis reach from the
+stroke and the lever arms by hand (``asin(half stroke / arm)``), speed and acceleration
+limits measured on the frames a loopback UDP drive received.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from motionbase import app
+from motionbase.cli import main
+from motionbase.config import check_file_kind, read_toml
+from motionbase.errors import ConfigError
+from motionbase.io.mcap_source import read_messages, read_metadata
+from motionbase.io.schemas import TOPIC_SCHEMAS
+from motionbase.pipeline import PipelineConfig
+from motionbase.platform.robot import ROBOTS, load_geometry, robot_spec
+from motionbase.report import robot_reach
+
+HERE = Path(__file__).parent
+sys.path.insert(0, str(HERE))
+import heave3_robot  # noqa: E402
+from drive_wire import UdpDrive, check_wire_limits  # noqa: E402
+
+# the preset, as its file says (tests/data/heave3_garage.toml)
+WHEELBASE, TRACK, L0, L_MIN, L_MAX = 0.90, 0.80, 0.475, 0.40, 0.55
+V_MAX, A_MAX, PARK = 0.20, 2.0, 0.41
+HALF_STROKE = 0.075  # the neutral length sits mid-stroke
+# attachment points in the plate frame (origin: their centroid), m: front, rear left, right
+CORNERS = np.array(
+    [[2 * WHEELBASE / 3, 0, 0], [-WHEELBASE / 3, -TRACK / 2, 0], [-WHEELBASE / 3, TRACK / 2, 0]]
+)
+
+
+@pytest.fixture
+def registered(monkeypatch):
+    """The plug-in registered for one test (and gone after it, for the other tests)."""
+    monkeypatch.setitem(ROBOTS, "heave3", heave3_robot.SPEC)
+    return robot_spec("heave3").make(load_geometry("heave3")[1])
+
+
+def _rx(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _ry(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _lengths(z, roll, pitch):
+    """Each actuator's length: the neutral length plus the height of its corner of the tilted
+    plate (FRD: height is -z)."""
+    corners = (_ry(pitch) @ _rx(roll) @ CORNERS.T).T + [0, 0, z]
+    return L0 - corners[:, 2]
+
+
+def _within(q):
+    return bool(np.all((q >= L_MIN) & (q <= L_MAX)))
+
+
+#: The robot built directly (its kinematics need no registration)
+ROBOT = heave3_robot.Heave3Robot(heave3_robot.Heave3Geometry.preset("garage"))
+POSES = st.tuples(st.floats(-0.2, 0.2), st.floats(-0.5, 0.5), st.floats(-0.5, 0.5))
+
+
+# --------------------------------------------------------------------------- the robot
+def test_plugin_robot_values(registered):
+    robot = registered
+    assert robot.n == 3 and robot.actuator_unit == "m"
+    np.testing.assert_array_equal(robot.limits.lower, L_MIN)
+    np.testing.assert_array_equal(robot.limits.max_speed, V_MAX)
+    np.testing.assert_allclose(robot.park_angles, PARK, atol=1e-15)
+    np.testing.assert_allclose(_lengths(*robot.park_pose), PARK, atol=1e-15)
+    np.testing.assert_allclose(robot.park_cue, [0, 0, L0 - PARK, 0, 0, 0], atol=1e-15)
+
+
+@settings(max_examples=150, deadline=None)
+@given(POSES, st.tuples(*[st.floats(-1, 1)] * 3))
+def test_solve_kernel_renders_heave_roll_pitch_and_drops_the_rest(p, other):
+    robot = ROBOT
+    cue_in = np.array([other[0], other[1], p[0], p[1], p[2], other[2]])
+    cue, pose, q = np.empty(6), np.empty(3), np.empty(3)
+    clamped = robot.solve_kernel(robot.kernel_params, cue_in, cue, pose, q)
+    # the commanded lengths are the pose's, by hand, inside the stroke
+    np.testing.assert_allclose(q, _lengths(*pose), atol=1e-12)
+    assert _within(q)
+    # a target inside the stroke is rendered as it is; surge, sway, yaw never count as clamped
+    if _within(_lengths(*p)):
+        assert not clamped and np.array_equal(pose, p)
+    else:
+        assert clamped
+        # scaled toward neutral as a whole, never one axis alone
+        k = int(np.argmax(np.abs(p)))
+        scale = pose[k] / p[k]
+        assert 0 <= scale < 1
+        np.testing.assert_allclose(pose, scale * np.array(p), atol=1e-15)
+        # to the edge of the stroke: a little further out is past it
+        assert not _within(_lengths(*(np.array(p) * (scale + 1e-9))))
+    # the cue it realises: its own axes the pose, the others the cue's (no wind-up there)
+    np.testing.assert_array_equal(cue[[2, 3, 4]], pose)
+    np.testing.assert_array_equal(cue[[0, 1, 5]], cue_in[[0, 1, 5]])
+
+
+@settings(max_examples=150, deadline=None)
+@given(POSES)
+def test_forward_of_inverse_is_the_pose(p):
+    robot = ROBOT
+    pose = robot.clamp(np.array(p))[0]
+    np.testing.assert_allclose(robot.forward(robot.inverse(pose)), pose, atol=1e-12)
+
+
+def test_clamp_of_far_and_non_finite_poses_is_reachable():
+    robot = ROBOT
+    for p in ([np.nan, 0, 0], [np.inf, 0, 0], [1e300, 1e300, -1e300], [-5, 0, 0], [0, 3, 3]):
+        pose, clamped = robot.clamp(np.array(p, dtype=float))
+        assert clamped and np.isfinite(pose).all() and _within(_lengths(*pose))
+
+
+# --------------------------------------------------------------------------- --platform
+def test_the_plugins_presets_and_files_select_it(registered, tmp_path):
+    """The plug-in's presets live in its own folder (RobotSpec.preset_dir), and a file of its
+    geometry says which robot it is for by its kind, though its fields (length_min,
+    park_margin) are also a Stewart platform's."""
+    expected = heave3_robot.Heave3Geometry.preset("garage")
+    assert load_geometry("heave3") == ("heave3", expected)
+    assert load_geometry("garage") == ("heave3", expected)
+    path = tmp_path / "mine.toml"
+    path.write_text((HERE / "data" / "heave3_garage.toml").read_text())
+    assert load_geometry(str(path)) == ("heave3", expected)
+    with pytest.raises(ConfigError, match="unknown rus6 preset 'nosuch'.*garage"):
+        load_geometry("nosuch")
+
+
+def test_a_plugin_geometry_refuses_other_files_by_name(registered):
+    presets = Path(app.__file__).parent / "presets"
+    washout = presets / "washout_default.toml"
+    with pytest.raises(ConfigError, match=r"washout_default.toml: this is a washout .*heave3"):
+        heave3_robot.Heave3Geometry.from_toml(washout)
+    with pytest.raises(ConfigError, match="this is a 6-UPS Stewart platform geometry file"):
+        heave3_robot.Heave3Geometry.from_toml(presets / "stewart6_seat.toml")
+    # a heave3 table without kind, whose fields a Stewart platform's file also has, is its own
+    table = read_toml(HERE / "data" / "heave3_garage.toml")
+    del table["kind"]
+    check_file_kind("mine.toml", table, "heave3")
+
+
+# --------------------------------------------------------------------------- commands
+def test_fly_logs_the_plugin_robot(registered, tmp_path):
+    """fly: the log holds the robot's own pose (3 values) and its lengths, both valid
+    against the topics' schemas; the lengths are the pose's by hand unless the limiter held
+    them; no platform transform is made of a pose that is not [x, y, z, roll, pitch, yaw]."""
+    out = tmp_path / "fly.mcap"
+    result = app.fly("c1723", platform="heave3", duration_s=12, out=out, progress=False)
+    assert not result.failed and result.actuator_unit == "m"
+    log = read_messages(out)
+    poses, actuators = log["/platform/pose"], log["/platform/actuators"]
+    assert len(poses) == len(actuators) > 1000
+    for topic in ("/platform/pose", "/platform/actuators"):
+        for msg in log[topic][::50]:
+            jsonschema.validate(msg, TOPIC_SCHEMAS[topic][1])
+    q = np.array([m["angles"] for m in actuators])
+    assert _within(q)
+    free = [i for i, m in enumerate(poses) if not m["rate_limited"] and not m["held"]]
+    by_hand = np.array([_lengths(*poses[i]["pose"]) for i in free])
+    np.testing.assert_allclose(q[free], by_hand, atol=1e-12)
+    assert not log.get("/tf")
+    assert log["/platform/scene"]
+
+
+def test_replay_check_report_workspace_omct_through_the_cli(registered, tmp_path, capsys):
+    rec = tmp_path / "fly.mcap"
+    assert main(["fly", "c1723", "--platform", "heave3", "--duration", "8", "--out", str(rec)]) == 0
+    assert read_metadata(rec)["pipeline_config"]["robot"] == "heave3"
+    again = tmp_path / "again.mcap"
+    assert main(["replay", str(rec), "--out", str(again), "--check"]) == 0
+    assert "check: identical to the recording" in capsys.readouterr().out
+    assert main(["report", str(rec), "--out", str(tmp_path / "report")]) == 0
+    summary = (tmp_path / "report" / "summary.txt").read_text()
+    assert "reach (+) [m | deg]" in summary and "n/a" in summary
+    assert main(["workspace", "--platform", "heave3"]) == 0
+    assert "heave        0.075      0.075" in capsys.readouterr().out
+    assert main(["omct", "--platform", "garage", "--out", str(tmp_path / "omct")]) == 0
+    assert (tmp_path / "omct" / "omct.json").is_file()
+
+
+def test_reach_is_in_cue_terms(registered):
+    """The single-axis reach of the plug-in, by hand: heave half the stroke, roll and pitch
+    the angle that takes one corner half the stroke up (its lever arm: half the track, two
+    thirds of the wheelbase), surge, sway and yaw nothing."""
+    reach = robot_reach(registered)
+    expected = [0, 0, HALF_STROKE, math.asin(HALF_STROKE / (TRACK / 2))]
+    expected += [math.asin(HALF_STROKE / (2 * WHEELBASE / 3)), 0]
+    np.testing.assert_allclose(reach[1], expected, atol=1e-5)
+    np.testing.assert_allclose(reach[0], -np.array(expected), atol=1e-5)
+
+
+def test_a_plugin_with_read_only_kernel_params_runs(registered, monkeypatch):
+    """A plug-in that freezes its packed parameters (the docs: "do not change them") and
+    does not call the shipped robots' private _finish() still drives the pipeline."""
+
+    class Frozen(heave3_robot.Heave3Robot):
+        def __init__(self, geometry):
+            super().__init__(geometry)
+            self.kernel_params.setflags(write=False)
+
+    monkeypatch.setattr(heave3_robot, "Frozen", Frozen, raising=False)
+    spec = heave3_robot.SPEC
+    frozen = type(spec)(**{**spec.__dict__, "robot_class": "heave3_robot:Frozen"})
+    monkeypatch.setitem(ROBOTS, "heave3", frozen)
+    config = PipelineConfig.from_dict(
+        {**_config_dict(registered), "robot": "heave3"}, source="test"
+    )
+    from motionbase.pipeline import Pipeline
+
+    pipeline = Pipeline(config)
+    assert _within(pipeline.command)
+
+
+def _config_dict(robot):
+    from motionbase.washout import WashoutParams
+
+    return PipelineConfig(
+        robot="heave3", geometry=robot.geometry, cueing_params=WashoutParams.preset("default")
+    ).to_dict()
+
+
+def test_a_recording_of_an_unregistered_robot_says_to_register_it(registered, tmp_path):
+    data = _config_dict(registered)
+    ROBOTS.pop("heave3")
+    with pytest.raises(ConfigError, match=r"got 'heave3' \(a robot plug-in's\? register it"):
+        PipelineConfig.from_dict(data, source="rec.mcap: metadata")
+
+
+# --------------------------------------------------------------------------- drives
+def _mm_frames(drive):
+    frames = [
+        (t, np.array(f.decode().strip().split(","), dtype=float) / 1000) for t, f in drive.frames
+    ]
+    return np.array([t for t, _ in frames]), np.array([q for _, q in frames])
+
+
+def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
+    """The user's way: a script registers the plug-in and calls motionbase.cli.main();
+    the drive (three lengths in mm on loopback UDP) gets frames inside the stroke, within
+    the speed and acceleration limits."""
+    script = tmp_path / "mb.py"
+    script.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(HERE)!r})\n"
+        "import heave3_robot\n"
+        "heave3_robot.register()\n"
+        "from motionbase.cli import main\n"
+        "sys.exit(main())\n"
+    )
+    src = str(Path(app.__file__).parents[1])
+    env = {"PYTHONPATH": src, "PATH": "/usr/bin:/bin"}
+    for args in (
+        ["output", "--test", "URL", "--platform", "heave3", "--range-mm", "20",
+         "--speed-mm-s", "40"],
+        ["fly", "c1723", "--platform", "heave3", "--duration", "4", "--realtime", "--output", "URL",
+         "--out", str(tmp_path / "o.mcap")],
+    ):  # fmt: skip
+        drive = UdpDrive(n=3)
+        try:
+            run = [a.replace("URL", drive.url(100)) for a in args]
+            done = subprocess.run(
+                [sys.executable, str(script), *run], env=env, capture_output=True, text=True,
+                timeout=300,
+            )  # fmt: skip
+            assert done.returncode == 0, done.stderr
+            t, q = _mm_frames(drive)
+        finally:
+            drive.close()
+        assert len(q) > 100 and _within(q)
+        np.testing.assert_allclose(q[-1], PARK, atol=1e-7)  # parked at the end
+        check_wire_limits(t, q, V_MAX, A_MAX, what=args[0])
