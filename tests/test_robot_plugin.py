@@ -73,8 +73,10 @@ def _lengths(z, roll, pitch):
     return L0 - corners[:, 2]
 
 
-def _within(q):
-    return bool(np.all((q >= L_MIN) & (q <= L_MAX)))
+def _within(q, slack=0.0):
+    """Every length within the stroke (``slack``, m: the rounding of the lengths by hand
+    against the robot's own, for a pose the clamp put on the stroke's edge)."""
+    return bool(np.all((q >= L_MIN - slack) & (q <= L_MAX + slack)))
 
 
 #: The robot built directly (its kinematics need no registration)
@@ -132,7 +134,8 @@ def test_clamp_of_far_and_non_finite_poses_is_reachable():
     robot = ROBOT
     for p in ([np.nan, 0, 0], [np.inf, 0, 0], [1e300, 1e300, -1e300], [-5, 0, 0], [0, 3, 3]):
         pose, clamped = robot.clamp(np.array(p, dtype=float))
-        assert clamped and np.isfinite(pose).all() and _within(_lengths(*pose))
+        assert clamped and np.isfinite(pose).all() and _within(_lengths(*pose), 1e-15)
+        assert robot.reachable(pose)
 
 
 # --------------------------------------------------------------------------- --platform
@@ -293,3 +296,45 @@ def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
         assert len(q) > 100 and _within(q)
         np.testing.assert_allclose(q[-1], PARK, atol=1e-7)  # parked at the end
         check_wire_limits(t, q, V_MAX, A_MAX, what=args[0])
+
+
+# --------------------------------------------------------------------------- the README
+def _readme_robot() -> str:
+    """The code block of the README's "Adding a robot" example."""
+    text = (HERE.parent / "README.md").read_text()
+    start = text.index("Adding a robot takes")
+    block = text[text.index("```python\n", start) + len("```python\n") :]
+    return block[: block.index("```\n")]
+
+
+def test_the_readme_robot_example_runs(tmp_path, monkeypatch, capsys):
+    """The README's example, saved as my_robot.py with its preset beside it, imported (which
+    registers it) and flown, replayed with --check; its lengths, forward kinematics, clamp
+    and reach as this file computes them by hand."""
+    (tmp_path / "my_robot.py").write_text(_readme_robot())
+    (tmp_path / "presets").mkdir()
+    preset = (HERE / "data" / "heave3_garage.toml").read_text()
+    preset = "\n".join(x for x in preset.splitlines() if not x.startswith("park_margin"))
+    (tmp_path / "presets" / "heave3_garage.toml").write_text(preset)
+    monkeypatch.setitem(ROBOTS, "heave3", heave3_robot.SPEC)  # (restored after the test)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "my_robot", raising=False)
+    import my_robot
+
+    assert ROBOTS["heave3"].robot_class == "my_robot:Heave3Robot"
+    robot = robot_spec("heave3").make(load_geometry("garage")[1])
+    assert isinstance(robot, my_robot.Heave3Robot)
+    rng = np.random.default_rng(7)
+    poses = rng.uniform([-0.2, -0.5, -0.5], [0.2, 0.5, 0.5], (300, 3))
+    np.testing.assert_allclose(robot.inverse(poses), [_lengths(*p) for p in poses], atol=1e-12)
+    safe, moved = robot.clamp(poses)
+    assert all(_within(_lengths(*p), 1e-15) for p in safe) and robot.reachable(safe).all()
+    assert np.array_equal(moved, [not _within(_lengths(*p)) for p in poses])
+    np.testing.assert_allclose(robot.forward(robot.inverse(safe)), safe, atol=1e-12)
+    pose, moved = robot.clamp(np.array([np.nan, 0.0, 0.0]))
+    assert moved and np.array_equal(pose, np.zeros(3))
+    np.testing.assert_allclose(robot_reach(robot), robot_reach(ROBOT), atol=1e-5)
+    rec = tmp_path / "fly.mcap"
+    assert main(["fly", "c1723", "--platform", "heave3", "--duration", "6", "--out", str(rec)]) == 0
+    assert main(["replay", str(rec), "--out", str(tmp_path / "again.mcap"), "--check"]) == 0
+    assert "check: identical to the recording" in capsys.readouterr().out

@@ -3,7 +3,9 @@
 A robot turns the cueing's pose (``[x, y, z, roll, pitch, yaw]``, m and rad, base axes
 FRD, the *cue pose*) into actuator commands. The pipeline knows nothing else about it:
 the 6-RUS rotary platform, the 6-UPS Stewart platform and the planar 3-RRR robot each
-implement :class:`Robot` in their own module and are listed in :data:`ROBOTS`.
+implement :class:`Robot` in their own module and are listed in :data:`ROBOTS`; a robot
+outside the package adds its entry at run time (the README's "Adding a robot":
+``tests/heave3_robot.py`` is one).
 
 Actuator coordinates are the robot's own: crank or servo angles in rad for rotary
 actuators, leg lengths in m for linear ones (``Robot.actuator_unit``). Speeds and
