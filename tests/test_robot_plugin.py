@@ -205,6 +205,18 @@ def test_replay_check_report_workspace_omct_through_the_cli(registered, tmp_path
     assert (tmp_path / "omct" / "omct.json").is_file()
 
 
+def test_tune_refuses_a_robot_that_lacks_axes_by_name(registered, tmp_path, capsys):
+    """The tuner scores the cue on all six axes against the robot's reach: a robot that
+    drops three of them is refused, naming them (it failed deep in the scoring, on the
+    robot pose's shape)."""
+    out = tmp_path / "tuned.toml"
+    args = ["tune", "--platform", "heave3", "--scripts", "c1723@0:20", "--holdout", "none"]
+    assert main([*args, "--budget", "2", "--workers", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "does not render surge, sway, yaw" in err
+    assert not out.exists()
+
+
 def test_reach_is_in_cue_terms(registered):
     """The single-axis reach of the plug-in, by hand: heave half the stroke, roll and pitch
     the angle that takes one corner half the stroke up (its lever arm: half the track, two
