@@ -73,11 +73,17 @@ class Robot(ABC):
         Packed parameters of :attr:`solve_kernel` (do not change them).
     solve_kernel : numba dispatcher
         Clamp + inverse kinematics, compiled with :data:`SOLVE_SIGNATURE`.
-    kin : object
+    kin : object, optional
         The robot's kinematics class (:class:`~motionbase.platform.rus6.Rus6`,
         :class:`~motionbase.platform.stewart6.Stewart6`,
         :class:`~motionbase.platform.rrr3.Rrr3`). The kinematics methods below call its
-        methods of the same names; a robot whose coordinates differ overrides them.
+        methods of the same names; a robot whose coordinates differ overrides them (and a
+        robot that overrides them all needs no ``kin``).
+
+    A robot of fewer axes than the cue pose (robot pose shape (m,), m < 6) overrides
+    :meth:`pose_from_cue` and :meth:`cue_from_pose`; its ``/platform/pose`` is logged as its
+    own pose, without a ``/tf`` platform frame. The README's "Adding a robot" lists what is
+    required and what optional; ``tests/heave3_robot.py`` is a plug-in outside the package.
     """
 
     name: ClassVar[str]
