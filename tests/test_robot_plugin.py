@@ -250,6 +250,49 @@ def test_a_plugin_with_read_only_kernel_params_runs(registered, monkeypatch):
     assert _within(pipeline.command)
 
 
+class _CueOf3(heave3_robot.Heave3Robot):  # the robot pose given as the park cue
+    def __init__(self, geometry):
+        super().__init__(geometry)
+        self.park_cue = self.park_pose
+
+
+class _ParkPastTheStop(heave3_robot.Heave3Robot):
+    def __init__(self, geometry):
+        super().__init__(geometry)
+        self.park_angles = np.full(3, L_MIN - 0.01)
+
+
+class _LimitsOf6(heave3_robot.Heave3Robot):
+    def __init__(self, geometry):
+        super().__init__(geometry)
+        self.limits = type(self.limits).broadcast(6, L_MIN, L_MAX, V_MAX, A_MAX)
+
+
+@pytest.mark.parametrize(
+    "cls, needle",
+    [
+        (_CueOf3, "park_cue has 3 values, expected 6: the cue pose"),
+        (_ParkPastTheStop, "park_angles [0.39, 0.39, 0.39] are outside the actuator limits"),
+        (_LimitsOf6, "limits.lower has 6 values, expected 3"),
+    ],
+    ids=["park cue of 3", "park past the stop", "limits of 6"],
+)
+def test_a_plugin_mistake_is_one_line_naming_it(registered, monkeypatch, tmp_path, cls, needle):
+    """A robot class whose attributes the pipeline cannot use is refused when it is made,
+    naming the plug-in: before, a park cue of the robot pose's 3 values ran from a wrong
+    park (heave read as surge), a park past the stop held every park command, and limits
+    of the wrong size were a traceback."""
+    monkeypatch.setattr(heave3_robot, cls.__name__, cls, raising=False)
+    spec = heave3_robot.SPEC
+    wrong = type(spec)(**{**spec.__dict__, "robot_class": f"heave3_robot:{cls.__name__}"})
+    monkeypatch.setitem(ROBOTS, "heave3", wrong)
+    out = tmp_path / "x.mcap"
+    with pytest.raises(ConfigError) as err:
+        app.fly("c1723", platform="heave3", duration_s=1, out=out, progress=False)
+    assert f"robot 'heave3' (heave3_robot:{cls.__name__}): {needle}" in str(err.value)
+    assert not out.exists()
+
+
 def _config_dict(robot):
     from motionbase.washout import WashoutParams
 

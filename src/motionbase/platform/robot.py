@@ -251,8 +251,71 @@ class RobotSpec:
         return import_plugin(self.robot_class, f"robot {self.name!r}")
 
     def make(self, geometry: Any, **options: Any) -> Robot:
-        """The robot for ``geometry`` (options: the planar mapping's scales)."""
-        return self.robot_type(geometry, **options)
+        """The robot for ``geometry`` (options: the planar mapping's scales), its attributes
+        checked (:func:`check_robot`)."""
+        robot = self.robot_type(geometry, **options)
+        check_robot(robot, f"robot {self.name!r} ({self.robot_class})")
+        return robot
+
+
+#: The most actuators, and robot pose axes, the pipeline's stages have room for.
+MAX_AXES = 6
+
+
+def check_robot(robot: Any, what: str) -> None:
+    """A ConfigError naming ``what`` (the plug-in) when ``robot`` lacks what the pipeline
+    reads or has it in the wrong shape: ``n`` actuators (at most :data:`MAX_AXES`) with
+    ``limits`` of that size, ``park_angles`` (n,) finite and within the limits,
+    ``park_pose`` and ``neutral_pose`` (m,) finite, m at most 6, ``park_cue`` (6,) finite
+    (the cue pose, not the robot pose), ``kernel_params`` a vector of numbers and a
+    ``solve_kernel``. A plug-in's mistake there is otherwise a traceback deep in the
+    pipeline, or worse a run that starts from a wrong park (every command held)."""
+
+    def fail(problem: str) -> ConfigError:
+        return ConfigError(f"{what}: {problem} (fix the robot class)")
+
+    missing = [
+        name
+        for name in ("n", "limits", "park_angles", "park_pose", "park_cue", "neutral_pose")
+        + ("kernel_params", "solve_kernel", "actuator_unit")
+        if not hasattr(robot, name)
+    ]
+    if missing:
+        raise fail(f"no attribute {', '.join(missing)}")
+    n = robot.n
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_AXES:
+        raise fail(f"n is {n!r}: the number of actuators, 1 to {MAX_AXES}")
+    if robot.actuator_unit not in ("rad", "m"):
+        raise fail(f"actuator_unit is {robot.actuator_unit!r}, not 'rad' or 'm'")
+
+    def vector(name: str, value: Any, size: int | None, what_it_is: str) -> np.ndarray:
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise fail(f"{name} is not numbers: {what_it_is}") from None
+        if a.ndim != 1 or (size is not None and a.size != size) or not 1 <= a.size <= MAX_AXES:
+            shape = f"{a.size} values" if a.ndim == 1 else f"shape {a.shape}"
+            want = f"{size}" if size is not None else f"1 to {MAX_AXES}"
+            raise fail(f"{name} has {shape}, expected {want}: {what_it_is}")
+        if not np.isfinite(a).all():
+            raise fail(f"{name} is not finite: {what_it_is}")
+        return a
+
+    lim = robot.limits
+    for name in ("lower", "upper", "max_speed", "max_accel"):
+        vector(f"limits.{name}", getattr(lim, name, None), n, f"one per actuator, n = {n}")
+    park_q = vector("park_angles", robot.park_angles, n, "the actuators' park command")
+    pose = vector("park_pose", robot.park_pose, None, "the parked robot pose")
+    vector("neutral_pose", robot.neutral_pose, pose.size, "the robot pose of the zero cue")
+    vector("park_cue", robot.park_cue, 6, "the cue pose [x, y, z, roll, pitch, yaw] of park")
+    if not np.all((park_q >= lim.lower) & (park_q <= lim.upper)):
+        raise fail(
+            f"park_angles {park_q.tolist()} are outside the actuator limits "
+            f"{np.asarray(lim.lower).tolist()} .. {np.asarray(lim.upper).tolist()}"
+        )
+    params = np.asarray(robot.kernel_params)
+    if params.ndim != 1 or not np.issubdtype(params.dtype, np.number):
+        raise fail(f"kernel_params is not a vector of numbers (shape {params.shape})")
 
 
 #: Every robot motionbase drives, by name. A new robot: one module with a :class:`Robot`
