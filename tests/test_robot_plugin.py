@@ -153,6 +153,16 @@ def test_the_plugins_presets_and_files_select_it(registered, tmp_path):
         load_geometry("nosuch")
 
 
+def test_a_file_named_as_a_plugin_preset_is_refused(registered, tmp_path, monkeypatch):
+    """A bare name that is a file in the working directory and a plug-in's preset is
+    refused, as for motionbase's own presets (before, the stray file silently won)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "garage").write_text((HERE / "data" / "heave3_garage.toml").read_text())
+    with pytest.raises(ConfigError, match=r"'garage' is both a preset and a file.*\./garage"):
+        load_geometry("garage")
+    assert load_geometry("./garage")[0] == "heave3"
+
+
 def test_a_plugin_geometry_refuses_other_files_by_name(registered):
     presets = Path(app.__file__).parent / "presets"
     washout = presets / "washout_default.toml"

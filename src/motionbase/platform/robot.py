@@ -394,6 +394,22 @@ def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     return next((robot for robot in robots if name in _presets(robot)), None)
 
 
+def _names_a_file(text: str) -> bool:
+    """:func:`motionbase.config.names_a_file`, which knows motionbase's own presets, and a
+    plug-in's too: a bare name that is both a file in the working directory and a preset
+    in a robot's :attr:`RobotSpec.preset_dir` is refused the same way."""
+    if not names_a_file(text):
+        return False
+    bare = not (text.endswith(".toml") or "/" in text)
+    plugins = [r for r, spec in ROBOTS.items() if spec.preset_dir is not None]
+    if bare and _robot_of_preset(text, plugins) is not None:
+        raise ConfigError(
+            f"{text!r} is both a preset and a file in the working directory: write ./{text} "
+            "for the file, or rename it to use the preset"
+        )
+    return True
+
+
 def robot_named(name_or_path: str | None) -> str | None:
     """The robot a ``--platform`` value names (the robot's name, one of its geometry presets
     or a TOML file of its geometry), or None when it names none that is known."""
@@ -402,7 +418,7 @@ def robot_named(name_or_path: str | None) -> str | None:
     text = str(name_or_path)
     if text in ROBOTS:
         return text
-    if names_a_file(text):
+    if _names_a_file(text):
         return _robot_of_file(text)
     return _robot_of_preset(text, list(ROBOTS))
 
@@ -462,7 +478,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
         robot, value = value, None
     elif value is not None:
         text = str(value)
-        if names_a_file(text):
+        if _names_a_file(text):
             found = _robot_of_file(text)
             if found is not None and ROBOTS[found].planar == planar:
                 robot = found
