@@ -37,7 +37,7 @@ from motionbase.report import robot_reach
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
 import heave3_robot  # noqa: E402
-from drive_wire import UdpDrive, check_wire_limits  # noqa: E402
+from drive_wire import UdpDrive  # noqa: E402
 
 # the preset, as its file says (tests/data/heave3_garage.toml)
 WHEELBASE, TRACK, L0, L_MIN, L_MAX = 0.90, 0.80, 0.475, 0.40, 0.55
@@ -320,16 +320,16 @@ def test_a_recording_of_an_unregistered_robot_says_to_register_it(registered, tm
 
 # --------------------------------------------------------------------------- drives
 def _mm_frames(drive):
-    frames = [
-        (t, np.array(f.decode().strip().split(","), dtype=float) / 1000) for t, f in drive.frames
-    ]
-    return np.array([t for t, _ in frames]), np.array([q for _, q in frames])
+    """The lengths of every frame the drive received, m."""
+    return np.array([np.array(f.decode().split(","), dtype=float) / 1000 for _, f in drive.frames])
 
 
 def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
     """The user's way: a script registers the plug-in and calls motionbase.cli.main();
-    the drive (three lengths in mm on loopback UDP) gets frames inside the stroke, within
-    the speed and acceleration limits."""
+    the drive (three lengths in mm on loopback UDP) gets frames inside the stroke that end
+    parked: the wiring check sweeps each motor to neutral +- 20 mm, the others at neutral;
+    the flight's logged commands keep the speed and acceleration limits (measured on the
+    log's source times, not on arrival times)."""
     script = tmp_path / "mb.py"
     script.write_text(
         "import sys\n"
@@ -341,11 +341,13 @@ def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
     )
     src = str(Path(app.__file__).parents[1])
     env = {"PYTHONPATH": src, "PATH": "/usr/bin:/bin"}
+    log = tmp_path / "o.mcap"
+    frames = []
     for args in (
         ["output", "--test", "URL", "--platform", "heave3", "--range-mm", "20",
          "--speed-mm-s", "40"],
         ["fly", "c1723", "--platform", "heave3", "--duration", "4", "--realtime", "--output", "URL",
-         "--out", str(tmp_path / "o.mcap")],
+         "--out", str(log)],
     ):  # fmt: skip
         drive = UdpDrive(n=3)
         try:
@@ -355,12 +357,24 @@ def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
                 timeout=300,
             )  # fmt: skip
             assert done.returncode == 0, done.stderr
-            t, q = _mm_frames(drive)
+            q = _mm_frames(drive)
         finally:
             drive.close()
         assert len(q) > 100 and _within(q)
         np.testing.assert_allclose(q[-1], PARK, atol=1e-7)  # parked at the end
-        check_wire_limits(t, q, V_MAX, A_MAX, what=args[0])
+        frames.append(q)
+    sweep = frames[0]
+    for i in range(3):
+        others = np.delete(sweep, i, axis=1)
+        for end in (L0 - 0.02, L0 + 0.02):
+            held = np.abs(sweep[:, i] - end) < 1e-7
+            assert held.any() and np.allclose(others[held], L0, atol=1e-7), (i, end)
+    msgs = read_messages(log)["/platform/actuators"]
+    t = np.array([m["t"] for m in msgs])
+    q = np.array([m["angles"] for m in msgs])
+    v = np.diff(q, axis=0) / np.diff(t)[:, None]
+    a = np.diff(v, axis=0) / np.diff(t)[1:, None]
+    assert np.abs(v).max() <= V_MAX * (1 + 1e-9) and np.abs(a).max() <= A_MAX * (1 + 1e-6)
 
 
 # --------------------------------------------------------------------------- the README
