@@ -77,6 +77,12 @@ class Heave3Geometry:
         d, w = self.wheelbase, self.rear_track
         return np.array([[2 * d / 3, 0.0], [-d / 3, -w / 2], [-d / 3, w / 2]])
 
+    @property
+    def platform_origin(self) -> np.ndarray:
+        """The plate frame's origin at neutral in base axes, m (the log's ``/tf``): the
+        actuators' feet are at z = 0, the plate ``neutral_length`` above them."""
+        return np.array([0.0, 0.0, -self.neutral_length])
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 

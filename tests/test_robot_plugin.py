@@ -180,7 +180,7 @@ def test_a_plugin_geometry_refuses_other_files_by_name(registered):
 def test_fly_logs_the_plugin_robot(registered, tmp_path):
     """fly: the log holds the robot's own pose (3 values) and its lengths, both valid
     against the topics' schemas; the lengths are the pose's by hand unless the limiter held
-    them; no platform transform is made of a pose that is not [x, y, z, roll, pitch, yaw]."""
+    them; /tf is the plate frame of that pose, by hand."""
     out = tmp_path / "fly.mcap"
     result = app.fly("c1723", platform="heave3", duration_s=12, out=out, progress=False)
     assert not result.failed and result.actuator_unit == "m"
@@ -195,7 +195,23 @@ def test_fly_logs_the_plugin_robot(registered, tmp_path):
     free = [i for i, m in enumerate(poses) if not m["rate_limited"] and not m["held"]]
     by_hand = np.array([_lengths(*poses[i]["pose"]) for i in free])
     np.testing.assert_allclose(q[free], by_hand, atol=1e-12)
-    assert not log.get("/tf")
+    # /tf: the plate frame at its neutral origin plus the heave, turned by roll and pitch
+    tf = [m for m in log["/tf"] if m["child_frame_id"] == "platform"]
+    assert len(tf) == len(poses)
+    for msg, pose in list(zip(tf, poses, strict=True))[::50]:
+        z, roll, pitch = pose["pose"]
+        x = msg["translation"]
+        np.testing.assert_allclose([x["x"], x["y"], x["z"]], [0, 0, z - L0], atol=1e-12)
+        cr, sr, cp, sp = (
+            math.cos(roll / 2),
+            math.sin(roll / 2),
+            math.cos(pitch / 2),
+            math.sin(pitch / 2),
+        )
+        q = msg["rotation"]
+        np.testing.assert_allclose(
+            [q["w"], q["x"], q["y"], q["z"]], [cr * cp, sr * cp, cr * sp, -sr * sp], atol=1e-12
+        )
     assert log["/platform/scene"]
 
 

@@ -82,8 +82,10 @@ class Robot(ABC):
 
     A robot of fewer axes than the cue pose (robot pose shape (m,), m < 6) overrides
     :meth:`pose_from_cue` and :meth:`cue_from_pose`; its ``/platform/pose`` is logged as its
-    own pose, without a ``/tf`` platform frame. The README's "Adding a robot" lists what is
-    required and what optional; ``tests/heave3_robot.py`` is a plug-in outside the package.
+    own pose, and ``/tf`` as the cue pose it realises with its other axes at neutral (about
+    ``geometry.platform_origin``, when the geometry has one). The README's "Adding a robot"
+    lists what is required and what optional; ``tests/heave3_robot.py`` is a plug-in outside
+    the package.
     """
 
     name: ClassVar[str]
