@@ -1626,7 +1626,7 @@ def tune(
         write_washout,
     )
     from motionbase.platform.robot import load_geometry, names_planar_robot, robot_spec
-    from motionbase.report import robot_reach
+    from motionbase.report import AXES6, robot_reach
     from motionbase.stopping import Stopped, raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
 
@@ -1669,6 +1669,16 @@ def tune(
             "Stewart platform (rus6, stewart6, a preset or a TOML path)"
         )
     robot_name, geometry = load_geometry(platform_name)
+    robot = robot_spec(robot_name).make(geometry)
+    # an axis the robot lacks: not even 1 mm or 1 mrad of it either way is rendered
+    moves = np.asarray(robot.cue_reachable(np.concatenate([np.eye(6), -np.eye(6)]) * 1e-3))
+    lacking = [axis for axis, ok in zip(AXES6, moves[:6] | moves[6:], strict=True) if not ok]
+    if lacking:  # the score weighs every axis of the cue against the robot's reach
+        raise ConfigError(
+            f"--platform {platform_name}: tune scores the cue on all six axes, and the "
+            f"{robot_spec(robot_name).description} does not render {', '.join(lacking)}; "
+            "tune it on a 6-DOF platform"
+        )
     start_name = washout or spec.default_preset
     start = spec.load_params(start_name)
     fallback = getattr(start, "fallback", None)
@@ -1712,7 +1722,7 @@ def tune(
                     f"--holdout {h.name} is also in the tuning set{same}; a held-out "
                     "manoeuvre must not be tuned on (drop it from one of them)"
                 )
-    reach = robot_reach(robot_spec(robot_name).make(geometry))
+    reach = robot_reach(robot)
     problem = tuning.TuningProblem(
         geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name, preview=preview
     )

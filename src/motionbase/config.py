@@ -96,16 +96,21 @@ def _preset_dir() -> Path:
     return Path(str(resources.files("motionbase") / "presets"))
 
 
-def preset_names(kind: str) -> list[str]:
-    """The names of the presets shipped for ``kind`` (``<kind>_<name>.toml``), sorted."""
-    return sorted(q.name[len(kind) + 1 : -5] for q in _preset_dir().glob(f"{kind}_*.toml"))
+def preset_names(kind: str, folder: str | Path | None = None) -> list[str]:
+    """The names of the presets shipped for ``kind`` (``<kind>_<name>.toml``), sorted.
+
+    ``folder``: where they are, for a plug-in that ships its own (default: motionbase's
+    ``presets``)."""
+    where = _preset_dir() if folder is None else Path(folder)
+    return sorted(q.name[len(kind) + 1 : -5] for q in where.glob(f"{kind}_*.toml"))
 
 
-def preset_path(kind: str, name: str) -> Path:
-    """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml``."""
-    candidate = _preset_dir() / f"{kind}_{name}.toml"
+def preset_path(kind: str, name: str, folder: str | Path | None = None) -> Path:
+    """Path of a preset shipped in ``motionbase/presets/<kind>_<name>.toml`` (or in
+    ``folder``, a plug-in's own presets)."""
+    candidate = (_preset_dir() if folder is None else Path(folder)) / f"{kind}_{name}.toml"
     if not os.path.isfile(candidate):  # (pathlib's raises for a name too long)
-        known = preset_names(kind)
+        known = preset_names(kind, folder)
         raise ConfigError(
             f"unknown {kind} preset {name!r}: choose one of {', '.join(known) or '(none)'} "
             "or give a path to a .toml file"
@@ -137,11 +142,14 @@ def names_a_file(name_or_path: str | Path) -> bool:
     return True
 
 
-def resolve_preset_or_path(kind: str, name_or_path: str | Path) -> Path:
-    """A preset name (``ceart``) or a path to a TOML file (``my.toml``)."""
+def resolve_preset_or_path(
+    kind: str, name_or_path: str | Path, folder: str | Path | None = None
+) -> Path:
+    """A preset name (``ceart``) or a path to a TOML file (``my.toml``); ``folder``: where
+    the presets are, for a plug-in's own (default: motionbase's)."""
     if names_a_file(name_or_path):
         return Path(name_or_path)
-    return preset_path(kind, str(name_or_path))
+    return preset_path(kind, str(name_or_path), folder)
 
 
 def refuse_out_over_inputs(
@@ -359,8 +367,10 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
         Named in the message (the file).
     table : mapping
         The parsed file.
-    expected : {"washout", "mpc", "rus6", "rrr3", "stewart6"}
-        What the caller reads.
+    expected : str
+        What the caller reads: ``"washout"``, ``"mpc"``, ``"rus6"``, ``"rrr3"``,
+        ``"stewart6"``, or a plug-in robot's name (its geometry files are then told apart
+        from the kinds above by their ``kind`` field and those kinds' fields).
 
     Raises
     ------
@@ -373,9 +383,16 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
         return
     keys = set(table)
     score = {k: len(keys & marks) for k, (marks, _) in _FILE_KINDS.items()}
+    declared = table.get("kind")
+    if expected not in _FILE_KINDS:  # a plug-in robot's kind: its fields are not known here
+        if declared == expected:
+            return
+        # and it may share the shipped geometries' generic names (length_min): only their
+        # kind field, or a cueing file's tables, tell another file apart
+        score = {k: v if k in ("washout", "mpc") else 0 for k, v in score.items()}
+        score[expected] = 0
     if score[expected] and max(score.values()) == score[expected]:
         return  # its own fields are there: the field checks say what is wrong
-    declared = table.get("kind")
     # the other kinds whose fields it has, the one with the most of them first (an MPC file
     # has a [tilt] table as a washout file does, and five tables only it has)
     found = sorted((k for k in score if k != expected and score[k]), key=lambda k: -score[k])
@@ -389,7 +406,8 @@ def check_file_kind(source: str, table: Any, expected: str) -> None:
             f"{source}: field 'kind': {declared!r}, but the other fields are those of "
             f"{_FILE_KINDS[other][1]}; fix kind = {other!r} or the fields"
         )
-    raise ConfigError(f"{source}: this is {_FILE_KINDS[other][1]}, not {_KIND_NAMES[expected]}")
+    wanted = _KIND_NAMES.get(expected, f"a {expected} geometry")
+    raise ConfigError(f"{source}: this is {_FILE_KINDS[other][1]}, not {wanted}")
 
 
 def _plain(obj: Any) -> Any:

@@ -213,9 +213,15 @@ class PipelineConfig:
             raise ConfigError(f"{source}: expected a table of settings, got {data!r:.60}")
         robot = data.get("robot")
         if robot not in ROBOTS:
+            plugin = (
+                " (a robot plug-in's? register it, ROBOTS[name] = RobotSpec(...), before "
+                "running motionbase)"
+                if isinstance(robot, str)
+                else ""
+            )
             raise ConfigError(
                 f"{source}: field 'robot': expected one of {', '.join(sorted(ROBOTS))}, "
-                f"got {robot!r}"
+                f"got {robot!r}{plugin}"
             )
         cueing = data.get("cueing", "classical")
         if cueing not in CUEINGS:
@@ -479,7 +485,9 @@ class Pipeline(PipelineCore):
         self.state = np.zeros(1, dtype=stages.STATE)  # (reset below)
         self._m = m = len(self.robot.park_pose)  # the size of a robot pose
         self._solve = stages.kernel_list(self.robot.solve_kernel, stages.SOLVE_LIST)
-        self._G = self.robot.kernel_params
+        # (the pipeline's own writable copy: numba binds the stages to a writable array, and
+        # a plug-in may hand over a read-only one, or a list)
+        self._G = np.array(self.robot.kernel_params, dtype=np.float64, order="C")
         self._u = np.empty(6)
         self._target = np.empty(6)
         self._cue_out = np.empty(6)

@@ -402,8 +402,10 @@ def _build_report(
         raise LogFormatError(f"{name}: no {pose_topic} messages (the {config.robot} output)")
 
     # every tick: platform side ------------------------------------------------
+    robot = None if planar else config.make_robot()
     tick_t = _times(pose_msgs, pose_topic)
-    platform_pose = _array(pose_msgs, "pose", 3 if planar else 6, pose_topic)
+    m = 3 if robot is None else len(robot.neutral_pose)  # (a plug-in's pose may be < 6)
+    platform_pose = _array(pose_msgs, "pose", m, pose_topic)
     if not np.isfinite(platform_pose).all():
         raise LogFormatError(f"{name}: {pose_topic} holds non-finite poses")
     wo_msgs = list(messages.get("/washout/pose") or [])
@@ -427,7 +429,7 @@ def _build_report(
         limits = np.array([g.servo_min_deg, g.servo_max_deg], dtype=float)
         unit, label = "deg", "servo command"
     else:
-        robot = config.make_robot()
+        assert robot is not None
         actuators = _array(act_msgs, "angles", robot.n, act_topic)
         limits = np.array([robot.limits.lower, robot.limits.upper], dtype=float)
         unit = robot.actuator_unit
@@ -487,8 +489,12 @@ def _build_report(
             "surge/sway force is washed out to zero."
         )
     else:
-        cab_all = platform_pose
+        assert robot is not None
+        # the cue pose the robot realises (the pose itself on the 6-DOF robots; a plug-in
+        # of fewer axes holds the others at neutral)
+        cab_all = robot.cue_from_pose(platform_pose, np.zeros((len(platform_pose), 6)))
         reach = robot_reach(robot)
+        reach[:, (reach == 0.0).all(axis=0)] = np.nan  # axes the robot lacks
         kind = robot_spec(config.robot).description.split(" (")[0]
         compared = (
             f"{kind}: the aircraft's specific force at the pilot and body rates against the cab's "
@@ -518,7 +524,7 @@ def _build_report(
         reach=reach_for_metrics,
         g=gravity,
     )
-    if planar:
+    if not np.isfinite(reach).all():  # axes the robot lacks: no usage
         usage = metrics.workspace_usage.copy()
         usage[~np.isfinite(reach).all(axis=0)] = np.nan
         metrics = replace(metrics, workspace_usage=usage)

@@ -59,7 +59,8 @@ def pack(out: Any, diagnostics: Any, topic: str, encode: Callable[[Any], bytes])
 
 def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[float] | None]:
     """The ``(topic, message)`` pairs of one tick's record, in the order they are logged,
-    and the platform pose for ``/tf`` (None in planar mode).
+    and the platform pose for ``/tf`` (None in planar mode, and for a robot whose pose is
+    not ``[x, y, z, roll, pitch, yaw]``: a plug-in's of fewer axes, drawn by its scene).
 
     The topics are those of :mod:`motionbase.io.pipeline_log`: ``/aircraft/state`` (a tick
     with a sample), ``/washout/pose``, ``/platform/pose`` and ``/platform/actuators`` (or
@@ -110,7 +111,7 @@ def messages(record: bytes) -> tuple[list[tuple[str, dict[str, Any]]], list[floa
     )  # fmt: skip
     if diagnostics is not None:
         items.append((topic, diagnostics if "t" in diagnostics else {"t": t, **diagnostics}))
-    return items, None if servo else pose
+    return items, None if servo or m != 6 else pose
 
 
 def json_float(v: float) -> float | str:

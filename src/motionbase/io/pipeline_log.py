@@ -10,7 +10,9 @@ Topics written per tick (``t`` in seconds, ``log_time`` = ``t`` in ns):
   status (a profiled cueing: ``profile`` and ``profile_weights``).
 * 6-RUS: ``/platform/pose`` (after clamping and safety, with ``clamped``,
   ``phase``, ``fade``, ``rate_limited``, ``held``), ``/platform/actuators``
-  (crank angles, rad) and a ``foxglove.FrameTransform`` on ``/tf``.
+  (crank angles, rad) and a ``foxglove.FrameTransform`` on ``/tf``. A robot plug-in of
+  fewer axes logs its own pose there, and ``/tf`` from the cue pose it realises, its
+  other axes at neutral (its ``cue_from_pose``).
 * planar mode: ``/planar/pose`` and ``/planar/actuators`` (with ``servo_deg``).
 * ``/cueing/<name>``: the cueing's own per-tick diagnostics, for a cueing that has them
   (``/cueing/mpc``: solver status, iterations, solve time, fallback, blend weight).
@@ -115,6 +117,12 @@ class PipelineLog:
             platform_origin=origin,
         )
         self._scene = SceneBuilder(robot) if robot is not None else None
+        # a robot of fewer axes than the cue (not planar): the tick record's pose is its
+        # own, and /tf is the cue pose it realises with its other axes at neutral
+        self._tf_robot = None
+        if robot is not None and len(robot.neutral_pose) != 6 and self._scene is not None:
+            if not self._scene.planar:
+                self._tf_robot = robot
         self._scene_period = 1.0 / SCENE_RATE_HZ
         self._next_scene_t = -math.inf  # the first tick draws the scene
         self._scene_t: float | None = None  # time of the last scene drawn
@@ -166,6 +174,9 @@ class PipelineLog:
         self._last_t = t
         diagnostics = None if self._cueing is None else self._cueing.diagnostics()
         logger.add_tick(t, pack(out, diagnostics, self._cueing_topic, encode_message))
+        if self._tf_robot is not None:
+            zero = [0.0] * 6
+            logger.add_transform(t, self._tf_robot.cue_from_pose(out.platform_pose, zero))
         if self._scene is not None:
             self._last_out = out
             if t >= self._next_scene_t - 1e-6:  # on a 30 Hz grid of source time (1 us slack)

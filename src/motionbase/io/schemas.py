@@ -40,12 +40,16 @@ _NUMBER_OR_NONFINITE = {
 }
 
 
-def _vector(n: int, description: str, item: dict[str, Any] | None = None) -> dict[str, Any]:
+def _vector(
+    n: int | tuple[int, int], description: str, item: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """An array of ``n`` items (or between ``n[0]`` and ``n[1]``)."""
+    lo, hi = n if isinstance(n, tuple) else (n, n)
     return {
         "type": "array",
         "items": dict(item or _NUMBER),
-        "minItems": n,
-        "maxItems": n,
+        "minItems": lo,
+        "maxItems": hi,
         "description": description,
     }
 
@@ -112,9 +116,12 @@ WASHOUT_POSE = _topic(
 PLATFORM_POSE = _topic(
     "motionbase.PlatformPose",
     "Platform pose after clamping (reachable): [x, y, z] m and [roll, pitch, yaw] rad "
-    "(Z-Y-X), base axes FRD.",
+    "(Z-Y-X), base axes FRD; a plug-in robot of fewer axes logs its own pose (the "
+    "metadata's pipeline_config.robot says which).",
     {
-        "pose": _vector(6, "[x, y, z, roll, pitch, yaw], m and rad"),
+        "pose": _vector(
+            (1, 6), "[x, y, z, roll, pitch, yaw], m and rad (a plug-in robot's own pose)"
+        ),
         "clamped": {"type": "boolean", "description": "true when the pose was scaled back"},
     },
     ["pose", "clamped"],
@@ -124,8 +131,13 @@ PLATFORM_ACTUATORS = _topic(
     "motionbase.PlatformActuators",
     "Actuator positions sent to the 6-DOF platform: 6-RUS crank angles, rad (0 = crank "
     "horizontal); 6-UPS Stewart actuator lengths joint centre to joint centre, m (the "
-    "metadata's pipeline_config.robot says which).",
-    {"angles": _vector(6, "crank angles, rad (6-RUS), or actuator lengths, m (6-UPS)")},
+    "metadata's pipeline_config.robot says which; a plug-in robot's actuators, up to 6, "
+    "in its actuator unit).",
+    {
+        "angles": _vector(
+            (1, 6), "crank angles, rad (6-RUS), or actuator lengths, m (6-UPS; a plug-in's)"
+        )
+    },
     ["angles"],
 )
 

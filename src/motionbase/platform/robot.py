@@ -3,7 +3,9 @@
 A robot turns the cueing's pose (``[x, y, z, roll, pitch, yaw]``, m and rad, base axes
 FRD, the *cue pose*) into actuator commands. The pipeline knows nothing else about it:
 the 6-RUS rotary platform, the 6-UPS Stewart platform and the planar 3-RRR robot each
-implement :class:`Robot` in their own module and are listed in :data:`ROBOTS`.
+implement :class:`Robot` in their own module and are listed in :data:`ROBOTS`; a robot
+outside the package adds its entry at run time (the README's "Adding a robot":
+``tests/heave3_robot.py`` is one).
 
 Actuator coordinates are the robot's own: crank or servo angles in rad for rotary
 actuators, leg lengths in m for linear ones (``Robot.actuator_unit``). Speeds and
@@ -71,11 +73,19 @@ class Robot(ABC):
         Packed parameters of :attr:`solve_kernel` (do not change them).
     solve_kernel : numba dispatcher
         Clamp + inverse kinematics, compiled with :data:`SOLVE_SIGNATURE`.
-    kin : object
+    kin : object, optional
         The robot's kinematics class (:class:`~motionbase.platform.rus6.Rus6`,
         :class:`~motionbase.platform.stewart6.Stewart6`,
         :class:`~motionbase.platform.rrr3.Rrr3`). The kinematics methods below call its
-        methods of the same names; a robot whose coordinates differ overrides them.
+        methods of the same names; a robot whose coordinates differ overrides them (and a
+        robot that overrides them all needs no ``kin``).
+
+    A robot of fewer axes than the cue pose (robot pose shape (m,), m < 6) overrides
+    :meth:`pose_from_cue` and :meth:`cue_from_pose`; its ``/platform/pose`` is logged as its
+    own pose, and ``/tf`` as the cue pose it realises with its other axes at neutral (about
+    ``geometry.platform_origin``, when the geometry has one). The README's "Adding a robot"
+    lists what is required and what optional; ``tests/heave3_robot.py`` is a plug-in outside
+    the package.
     """
 
     name: ClassVar[str]
@@ -108,6 +118,19 @@ class Robot(ABC):
         """Robot poses ``(..., m)`` of actuator positions ``(..., n)``, by Newton from
         ``guess`` (rows of NaN where it does not converge)."""
         return np.asarray(self.kin.forward(q, guess=guess), dtype=float)
+
+    def cue_reachable(self, cue: np.ndarray) -> np.ndarray | bool:
+        """Whether each cue pose ``(..., 6)`` is rendered as it is: its robot pose reachable
+        and every axis of it realised (an axis the robot lacks, the 3-actuator platform's
+        surge say, is rendered only at 0). The workspace sweeps
+        (:func:`~motionbase.platform.rus6_workspace.single_axis_envelope`) use it, so a
+        robot's reach is in cue terms whatever its own coordinates."""
+        cue = np.asarray(cue, dtype=float)
+        pose = self.pose_from_cue(cue)
+        ok = np.asarray(self.reachable(pose), dtype=bool)
+        back = self.cue_from_pose(pose, np.zeros_like(cue))
+        ok = ok & np.all(np.abs(back - cue) <= 1e-9 * (1.0 + np.abs(cue)), axis=-1)
+        return bool(ok) if ok.ndim == 0 else ok
 
     # -- cue pose <-> robot pose -------------------------------------------------------
     def pose_from_cue(self, cue: np.ndarray) -> np.ndarray:
@@ -195,8 +218,8 @@ class RobotSpec:
     Attributes
     ----------
     name : str
-        Also the preset prefix: geometry presets ship as
-        ``motionbase/presets/<name>_<preset>.toml``.
+        Also the preset prefix: geometry presets ship as ``<preset_dir>/<name>_<preset>.toml``
+        and a geometry file says it is this robot's with ``kind = "<name>"``.
     robot_class, geometry_class : str
         ``"module:Class"`` of the :class:`Robot` subclass and of its geometry (with
         ``preset``, ``from_toml``, ``from_dict`` and ``to_dict``), imported on use.
@@ -205,6 +228,10 @@ class RobotSpec:
     planar : bool
         True for robots that render surge, sway and yaw only (``--planar``).
     description : str
+        How messages name the robot (``"6-RUS"``).
+    preset_dir : str or None
+        The folder of the robot's geometry presets; None: motionbase's own
+        (``motionbase/presets``). A plug-in outside the package ships its presets there.
     """
 
     name: str
@@ -213,6 +240,7 @@ class RobotSpec:
     default_preset: str
     planar: bool = False
     description: str = ""
+    preset_dir: str | None = None
 
     @property
     def geometry_type(self) -> Any:
@@ -225,12 +253,77 @@ class RobotSpec:
         return import_plugin(self.robot_class, f"robot {self.name!r}")
 
     def make(self, geometry: Any, **options: Any) -> Robot:
-        """The robot for ``geometry`` (options: the planar mapping's scales)."""
-        return self.robot_type(geometry, **options)
+        """The robot for ``geometry`` (options: the planar mapping's scales), its attributes
+        checked (:func:`check_robot`)."""
+        robot = self.robot_type(geometry, **options)
+        check_robot(robot, f"robot {self.name!r} ({self.robot_class})")
+        return robot
+
+
+#: The most actuators, and robot pose axes, the pipeline's stages have room for.
+MAX_AXES = 6
+
+
+def check_robot(robot: Any, what: str) -> None:
+    """A ConfigError naming ``what`` (the plug-in) when ``robot`` lacks what the pipeline
+    reads or has it in the wrong shape: ``n`` actuators (at most :data:`MAX_AXES`) with
+    ``limits`` of that size, ``park_angles`` (n,) finite and within the limits,
+    ``park_pose`` and ``neutral_pose`` (m,) finite, m at most 6, ``park_cue`` (6,) finite
+    (the cue pose, not the robot pose), ``kernel_params`` a vector of numbers and a
+    ``solve_kernel``. A plug-in's mistake there is otherwise a traceback deep in the
+    pipeline, or worse a run that starts from a wrong park (every command held)."""
+
+    def fail(problem: str) -> ConfigError:
+        return ConfigError(f"{what}: {problem} (fix the robot class)")
+
+    missing = [
+        name
+        for name in ("n", "limits", "park_angles", "park_pose", "park_cue", "neutral_pose")
+        + ("kernel_params", "solve_kernel", "actuator_unit")
+        if not hasattr(robot, name)
+    ]
+    if missing:
+        raise fail(f"no attribute {', '.join(missing)}")
+    n = robot.n
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_AXES:
+        raise fail(f"n is {n!r}: the number of actuators, 1 to {MAX_AXES}")
+    if robot.actuator_unit not in ("rad", "m"):
+        raise fail(f"actuator_unit is {robot.actuator_unit!r}, not 'rad' or 'm'")
+
+    def vector(name: str, value: Any, size: int | None, what_it_is: str) -> np.ndarray:
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise fail(f"{name} is not numbers: {what_it_is}") from None
+        if a.ndim != 1 or (size is not None and a.size != size) or not 1 <= a.size <= MAX_AXES:
+            shape = f"{a.size} values" if a.ndim == 1 else f"shape {a.shape}"
+            want = f"{size}" if size is not None else f"1 to {MAX_AXES}"
+            raise fail(f"{name} has {shape}, expected {want}: {what_it_is}")
+        if not np.isfinite(a).all():
+            raise fail(f"{name} is not finite: {what_it_is}")
+        return a
+
+    lim = robot.limits
+    for name in ("lower", "upper", "max_speed", "max_accel"):
+        vector(f"limits.{name}", getattr(lim, name, None), n, f"one per actuator, n = {n}")
+    park_q = vector("park_angles", robot.park_angles, n, "the actuators' park command")
+    pose = vector("park_pose", robot.park_pose, None, "the parked robot pose")
+    vector("neutral_pose", robot.neutral_pose, pose.size, "the robot pose of the zero cue")
+    vector("park_cue", robot.park_cue, 6, "the cue pose [x, y, z, roll, pitch, yaw] of park")
+    if not np.all((park_q >= lim.lower) & (park_q <= lim.upper)):
+        raise fail(
+            f"park_angles {park_q.tolist()} are outside the actuator limits "
+            f"{np.asarray(lim.lower).tolist()} .. {np.asarray(lim.upper).tolist()}"
+        )
+    params = np.asarray(robot.kernel_params)
+    if params.ndim != 1 or not np.issubdtype(params.dtype, np.number):
+        raise fail(f"kernel_params is not a vector of numbers (shape {params.shape})")
 
 
 #: Every robot motionbase drives, by name. A new robot: one module with a :class:`Robot`
-#: subclass and its geometry, a preset TOML, and one entry here.
+#: subclass and its geometry, a preset TOML, and one entry here (a plug-in outside the
+#: package adds its entry at run time, ``ROBOTS["mine"] = RobotSpec(...)``, with its own
+#: ``preset_dir``).
 ROBOTS: dict[str, RobotSpec] = {
     spec.name: spec
     for spec in (
@@ -276,21 +369,47 @@ DEFAULT_ROBOT = "rus6"
 
 
 def _robot_of_file(path: str) -> str | None:
-    """The robot a geometry TOML file is for (its ``kind``, else its fields), or None."""
+    """The robot a geometry TOML file is for (its ``kind`` naming a robot of
+    :data:`ROBOTS`, else its fields), or None."""
     from motionbase.config import file_kind, read_toml
 
     try:
-        kind = file_kind(read_toml(path))
+        table = read_toml(path)
     except ConfigError:  # unreadable: the geometry class says so, with its own message
         return None
+    declared = table.get("kind")
+    if isinstance(declared, str) and declared in ROBOTS:  # a plug-in's too
+        return declared
+    kind = file_kind(table)
     return kind if kind in ROBOTS else None
+
+
+def _presets(robot: str) -> list[str]:
+    """The geometry presets ``robot`` ships (in its :attr:`RobotSpec.preset_dir`)."""
+    from motionbase.config import preset_names
+
+    return preset_names(robot, ROBOTS[robot].preset_dir)
 
 
 def _robot_of_preset(name: str, robots: list[str]) -> str | None:
     """The first of ``robots`` that ships a geometry preset ``name``, or None."""
-    from motionbase.config import preset_names
+    return next((robot for robot in robots if name in _presets(robot)), None)
 
-    return next((robot for robot in robots if name in preset_names(robot)), None)
+
+def _names_a_file(text: str) -> bool:
+    """:func:`motionbase.config.names_a_file`, which knows motionbase's own presets, and a
+    plug-in's too: a bare name that is both a file in the working directory and a preset
+    in a robot's :attr:`RobotSpec.preset_dir` is refused the same way."""
+    if not names_a_file(text):
+        return False
+    bare = not (text.endswith(".toml") or "/" in text)
+    plugins = [r for r, spec in ROBOTS.items() if spec.preset_dir is not None]
+    if bare and _robot_of_preset(text, plugins) is not None:
+        raise ConfigError(
+            f"{text!r} is both a preset and a file in the working directory: write ./{text} "
+            "for the file, or rename it to use the preset"
+        )
+    return True
 
 
 def robot_named(name_or_path: str | None) -> str | None:
@@ -301,7 +420,7 @@ def robot_named(name_or_path: str | None) -> str | None:
     text = str(name_or_path)
     if text in ROBOTS:
         return text
-    if names_a_file(text):
+    if _names_a_file(text):
         return _robot_of_file(text)
     return _robot_of_preset(text, list(ROBOTS))
 
@@ -349,7 +468,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
     ConfigError
         Unknown preset, or a file or robot of the other mode.
     """
-    from motionbase.config import preset_names, resolve_preset_or_path
+    from motionbase.config import resolve_preset_or_path
 
     candidates = [name for name, spec in ROBOTS.items() if spec.planar == planar]
     default = candidates[0] if planar else DEFAULT_ROBOT
@@ -361,7 +480,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
         robot, value = value, None
     elif value is not None:
         text = str(value)
-        if names_a_file(text):
+        if _names_a_file(text):
             found = _robot_of_file(text)
             if found is not None and ROBOTS[found].planar == planar:
                 robot = found
@@ -369,7 +488,7 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
             # the mode's robots first; a preset of the other mode's is refused by name
             found = _robot_of_preset(text, candidates) or _robot_of_preset(text, list(ROBOTS))
             if found is None:
-                names = sorted({name for r in candidates for name in preset_names(r)})
+                names = sorted({name for r in candidates for name in _presets(r)})
                 raise ConfigError(
                     f"unknown {default} preset {text!r} (nor any other robot's): choose a "
                     f"robot ({', '.join(candidates)}), a preset ({', '.join(names)}) or give "
@@ -379,5 +498,5 @@ def load_geometry(name_or_path: str | None, *, planar: bool = False) -> tuple[st
                 raise _other_mode(text, f"a preset of the {ROBOTS[found].description},", planar)
             robot = found
     spec = ROBOTS[robot]
-    path = resolve_preset_or_path(robot, value or spec.default_preset)
+    path = resolve_preset_or_path(robot, value or spec.default_preset, spec.preset_dir)
     return robot, spec.geometry_type.from_toml(path)

@@ -5,7 +5,9 @@ kinematics at each; :func:`reachability_grid` does that for any grid, :func:`wor
 gives the three planes through neutral for a plot, and :func:`single_axis_envelope` finds how
 far each axis reaches alone (both directions). Any robot with a batch ``reachable(poses)``
 method works: the 6-RUS (every leg closes and every crank is within its limits,
-:meth:`Rus6.reachable`) and the Stewart platform (:meth:`Stewart6.reachable`). Pure math:
+:meth:`Rus6.reachable`) and the Stewart platform (:meth:`Stewart6.reachable`); a robot
+plug-in is swept by cue poses (:meth:`~motionbase.platform.robot.Robot.cue_reachable`: an
+axis it lacks reaches 0 both ways). Pure math:
 plotting lives in :mod:`motionbase.io.workspace_plots`.
 """
 
@@ -13,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -91,7 +93,14 @@ def reachability_grid(
     poses = np.empty(X.shape + (6,))
     poses[..., 0], poses[..., 1], poses[..., 2] = X, Y, Z
     poses[..., 3:] = np.asarray(orientation, dtype=float)
-    return np.asarray(robot.reachable(poses))
+    return np.asarray(_reachable(robot, poses))
+
+
+def _reachable(robot: Reachable, poses: np.ndarray) -> Any:
+    """``robot.reachable`` of cue poses ``(..., 6)``: a robot plug-in's
+    :meth:`~motionbase.platform.robot.Robot.cue_reachable` (its own poses may have other
+    axes), a kinematics class's ``reachable``."""
+    return getattr(robot, "cue_reachable", robot.reachable)(poses)
 
 
 def _reach_along(robot: Reachable, axis: int, sign: float, limit: float, tol: float) -> float:
@@ -100,7 +109,7 @@ def _reach_along(robot: Reachable, axis: int, sign: float, limit: float, tol: fl
     t = np.linspace(0.0, limit, n)
     poses = np.zeros((n, 6))
     poses[:, axis] = sign * t
-    ok = np.asarray(robot.reachable(poses))
+    ok = np.asarray(_reachable(robot, poses))
     if not ok[0]:
         return 0.0
     bad = np.flatnonzero(~ok)
@@ -111,7 +120,7 @@ def _reach_along(robot: Reachable, axis: int, sign: float, limit: float, tol: fl
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
         pose[axis] = sign * mid
-        if robot.reachable(pose):
+        if _reachable(robot, pose):
             lo = mid
         else:
             hi = mid
