@@ -319,6 +319,29 @@ def test_write_omct_without_a_linear_reference(tmp_path):
     assert len([f for f in files.files if f.suffix == ".png"]) == 1
 
 
+def test_an_earlier_tests_plots_do_not_stay_beside_a_new_ones(tmp_path):
+    """``omct --out DIR`` over the folder of an earlier test with other channels kept that
+    test's Bode plots beside the new ones, where they read as this test's. They are removed;
+    a file of the user's there is kept."""
+    config = PipelineConfig("rus6", _huge(), WashoutParams.preset("default"))
+
+    def measure(test: str) -> omct.OmctResult:
+        return omct.run_omct(
+            config, frequencies=[3.0], tests=[test], settle_s=0.0,
+            cueing=lambda: PureGain(config.dt), cueing_name="pure gain",
+        )  # fmt: skip
+
+    write_omct(measure("yaw"), tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    (tmp_path / "bode_mine.png").write_bytes(b"mine")
+    assert (tmp_path / "bode_yaw.png").exists()
+    write_omct(measure("roll"), tmp_path)
+    plots = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert plots == ["bode_mine.png", "bode_roll.png"], plots
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+    assert list(json.loads((tmp_path / "omct.json").read_text())["tests"]) == ["roll"]
+
+
 def test_params_is_the_washout_file_option():
     args = build_parser().parse_args(["omct", "--params", "mine.toml", "--out", "d"])
     assert args.washout == "mine.toml"

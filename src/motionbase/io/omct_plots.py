@@ -66,10 +66,23 @@ def _file_stem(name: str) -> str:
     return "bode_" + name.replace("->", "-")
 
 
+def _plots_of_earlier_test(out_dir: Path) -> list[Path]:
+    """The Bode plots an earlier test wrote into ``out_dir``: those of the tests its
+    ``omct.json`` lists (none when there is no such file, or it is not one)."""
+    try:
+        tests = json.loads((out_dir / "omct.json").read_text(encoding="utf-8"))["tests"]
+        names = [str(name) for name in tests]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [out_dir / f"{_file_stem(n)}.png" for n in names if "/" not in n and "\\" not in n]
+
+
 def write_omct(result: OmctResult, out: str | os.PathLike[str]) -> OmctFiles:
     """Write the test's JSON file, tables and Bode plots into the folder ``out`` (created),
     all of them or none (:func:`~motionbase.io.whole_files.whole_folder`: a stop while the
-    plots are drawn leaves the folder as it was).
+    plots are drawn leaves the folder as it was). The Bode plots of an earlier test there
+    that this one did not run are removed (they would read as this test's); other files
+    are kept.
 
     Raises
     ------
@@ -82,6 +95,7 @@ def write_omct(result: OmctResult, out: str | os.PathLike[str]) -> OmctFiles:
         raise SinkError(f"{out_dir}: cannot write the test's files: {problem}")
     names = ["omct.json", "table.md", "table.txt"]
     names += [f"{_file_stem(r.test.name)}.png" for r in result.results]
+    stale = [p for p in _plots_of_earlier_test(out_dir) if p.name not in names]
     try:
         with whole_folder(out_dir) as staging:
             (staging / "omct.json").write_text(
@@ -91,6 +105,8 @@ def write_omct(result: OmctResult, out: str | os.PathLike[str]) -> OmctFiles:
             (staging / "table.txt").write_text(result.table_text() + "\n", encoding="utf-8")
             for r, name in zip(result.results, names[3:], strict=True):
                 bode_figure(result, r).savefig(staging / name)
+        for path in stale:  # (the new omct.json no longer lists them)
+            path.unlink(missing_ok=True)
     except OSError as exc:
         raise SinkError(f"{out_dir}: cannot write the test's files: {exc.strerror}") from None
     return OmctFiles(result, out_dir, tuple(out_dir / name for name in names))
