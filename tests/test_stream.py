@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import re
 import socket
 import threading
@@ -219,6 +220,21 @@ def test_a_log_streamed_fast_to_the_3rrr_board_still_moves_it_in_real_time(tmp_p
 
 
 # --------------------------------------------------------------------------- where the log goes
+
+
+@pytest.mark.parametrize("home", ["", "relative/dir"])
+def test_an_empty_or_relative_home_logs_under_the_accounts_home(home, monkeypatch):
+    """With ``HOME=""`` the default log folder was ``/.local/share/...`` (``expanduser``
+    gives "/" for an empty HOME), outside any user's folder; a relative HOME would put it
+    under the working directory. The account's home (the password database) is used."""
+    import pwd
+
+    from motionbase.app import user_recordings_dir
+
+    monkeypatch.delenv("XDG_DATA_HOME", raising=False)
+    monkeypatch.setenv("HOME", home)
+    account = Path(pwd.getpwuid(os.getuid()).pw_dir)
+    assert user_recordings_dir() == account / ".local/share/motionbase/recordings"
 
 
 @pytest.mark.parametrize("xdg", [False, True], ids=["home", "XDG_DATA_HOME"])

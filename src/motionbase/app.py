@@ -45,7 +45,12 @@ def user_recordings_dir() -> Path:
     """
     base = os.environ.get("XDG_DATA_HOME", "")
     if not os.path.isabs(base):  # unset, empty or relative: the XDG default
-        base = os.path.join(os.path.expanduser("~"), ".local", "share")
+        home = os.environ.get("HOME", "")
+        if not os.path.isabs(home):  # empty or relative: the account's (it was "/" for "")
+            import pwd
+
+            home = pwd.getpwuid(os.getuid()).pw_dir
+        base = os.path.join(home, ".local", "share")
     return Path(base) / "motionbase" / "recordings"
 
 
