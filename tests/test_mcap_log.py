@@ -657,3 +657,30 @@ def test_actuator_schema_gives_the_stewart_platforms_unit():
     _, schema = TOPIC_SCHEMAS["/platform/actuators"]
     text = schema["description"] + " " + schema["properties"]["angles"]["description"]
     assert "rad" in text and ", m" in text and "Stewart" in text
+
+
+def test_a_writer_stopped_with_its_pipe_full_ends_a_real_time_finish_with_a_sink_error(
+    tmp_path: Path,
+) -> None:
+    """The writer process stopped with its pipe full and a backlog short of BACKLOG_BYTES
+    (a run's last seconds): a real-time finish() gives up after its patience with the one
+    SinkError naming the writer, and the writer, run again, still finishes the file. (The
+    give-up cleared the backlog while a view of it was held: a BufferError, a traceback.)"""
+    path = tmp_path / "full.mcap"
+    logger = McapLogger(path, CONFIG, realtime=True).start()
+    pid = logger.writer_pid
+    assert pid is not None
+    os.kill(pid, signal.SIGSTOP)
+    rescue = threading.Timer(60.0, os.kill, (pid, signal.SIGCONT))  # (against a hang)
+    rescue.start()
+    try:
+        for k in range(1, 40_001):  # about 4 MB: the 1 MiB pipe full, the rest waiting
+            logger.add("/washout/pose", k / 1000, {"pose": [k * 1e-3] * 6})
+        with pytest.raises(SinkError) as err:
+            logger.finish()
+    finally:
+        rescue.cancel()
+        os.kill(pid, signal.SIGCONT)
+    msg = str(err.value)
+    assert str(path) in msg and "writer process" in msg and "\n" not in msg
+    assert _finished_summary(path, timeout_s=30) is not None  # finished on its own

@@ -595,7 +595,7 @@ class McapLogger:
         rest stays pending; past :data:`BACKLOG_BYTES` the log fails)."""
         wait = wait or not self.realtime
         self._pending_ns = -1
-        sent = 0
+        sent, stalled = 0, False
         try:
             with memoryview(self._pending) as view:
                 while sent < len(view):
@@ -605,12 +605,15 @@ class McapLogger:
                         if not wait:
                             break
                         if not select.select((), (self._data_fd,), (), self._patience)[1]:
-                            self._pending.clear()
-                            self._writer_stalled()
+                            stalled = True  # (cleared once the view is released)
+                            break
         except BrokenPipeError:  # the writer failed and closed its end: its answer says why
             self._pending.clear()
             self._answer()
             raise SinkError(f"{self.path}: the MCAP log's writer process stopped") from None
+        if stalled:
+            self._pending.clear()
+            self._writer_stalled()
         del self._pending[:sent]
         if len(self._pending) > BACKLOG_BYTES:
             self._pending.clear()
