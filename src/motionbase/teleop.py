@@ -343,9 +343,12 @@ def teleop_job(
     Without ``calibration_path`` the mouse window uses its own view (the target sits under
     the pointer) and file/UDP input maps their screen (1310 x 715 px unless the source says
     otherwise) onto the largest valid rectangle at phi = 0 (:meth:`CursorCalibration.default`).
-    SIGINT, SIGTERM, SIGHUP and SIGQUIT stop the robot (brake, then home, within the limits),
-    from the start of this call on: during start-up too. ``live`` (``[HOST:]PORT``) also
-    serves the log's topics to Foxglove while running (needs ``out``).
+    SIGINT, SIGTERM, SIGHUP, SIGQUIT and SIGTSTP (Ctrl-Z) stop the robot (brake, then home,
+    within the limits), from the start of this call on: during start-up too. ``live``
+    (``[HOST:]PORT``) also serves the log's topics to Foxglove while running (needs
+    ``out``). With a ``serial_url`` the run is paced in real time whatever ``realtime``
+    says: the board's servos are motors, and move in real time only (as ``stream``'s
+    ``serial``).
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
@@ -385,6 +388,7 @@ def teleop_job(
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()
                 cleanup.callback(sink.close)
+                realtime = True  # the board's servos move in real time only
             if out is not None:
                 logger = McapLogger(
                     out,
