@@ -684,3 +684,20 @@ def test_a_writer_stopped_with_its_pipe_full_ends_a_real_time_finish_with_a_sink
     msg = str(err.value)
     assert str(path) in msg and "writer process" in msg and "\n" not in msg
     assert _finished_summary(path, timeout_s=30) is not None  # finished on its own
+
+
+def test_the_platform_schemas_take_six_values_exactly_and_a_plugins_its_own():
+    """/platform/pose and /platform/actuators of the 6-DOF platforms take 6 values, no fewer
+    (a robot plug-in of fewer axes had made them take 1 to 6 for every robot); a plug-in's
+    log stores its own, sized to it (``platform_topics``)."""
+    from motionbase.io.schemas import platform_topics
+
+    for sizes, good in (((6, 6), 6), ((3, 3), 3)):
+        topics = TOPIC_SCHEMAS if sizes == (6, 6) else platform_topics(*sizes)
+        for topic, field in (("/platform/pose", "pose"), ("/platform/actuators", "angles")):
+            schema = topics[topic][1]
+            jsonschema.validate({"t": 0.0, "clamped": False, field: [0.0] * good}, schema)
+            for wrong in (good - 1, good + 1):
+                with pytest.raises(jsonschema.ValidationError):
+                    bad = {"t": 0.0, "clamped": False, field: [0.0] * wrong}
+                    jsonschema.validate(bad, schema)

@@ -281,7 +281,9 @@ class McapLogger:
         More topics than :data:`~motionbase.io.schemas.TOPIC_SCHEMAS`: topic ->
         (schema name, JSON Schema of its messages), e.g. a cueing plug-in's
         diagnostics (:attr:`motionbase.washout.cueing.Cueing.diagnostics_schema`).
-        A topic of ``TOPIC_SCHEMAS`` keeps its own schema.
+        A topic of ``TOPIC_SCHEMAS`` keeps its own schema, unless given one of the same
+        name (a robot plug-in's platform topics, sized to it:
+        :func:`~motionbase.io.schemas.platform_topics`).
     platform_origin : array_like, shape (3,), optional
         The platform frame's origin (the centroid of the platform joints) in the base frame
         at the neutral pose, m (the robot geometry's ``platform_origin``): ``/tf`` places
@@ -326,6 +328,9 @@ class McapLogger:
                     f"object), got {entry!r:.80}"
                 )
         self.topics = {**(topics or {}), **TOPIC_SCHEMAS}
+        for topic, entry in (topics or {}).items():  # the same message, sized to a robot
+            if topic in TOPIC_SCHEMAS and entry[0] == TOPIC_SCHEMAS[topic][0]:
+                self.topics[topic] = entry
         self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
