@@ -16,11 +16,12 @@ braking, going home) are in :mod:`motionbase.commanding`; what teleop adds:
   ``stale_ticks``. A file source replays its own timing and has no watchdog.
 * Every stop ends the same way, at home and at rest: the end of the input (file end,
   ``duration_s``, window closed), a stop or E-stop (a
-  :class:`~motionbase.stopping.StopRequest`: SIGINT, SIGTERM, SIGHUP or SIGQUIT via
-  :func:`motionbase.stopping.install_signal_stop`, Escape/space in the mouse window, or a
-  caller) first brake the robot to rest within the speed and acceleration limits, then
-  drive it home within them, then the run ends. The cursor is ignored from the stop on.
-  When home is not reached within ``max_park_s`` the robot brakes to rest where it is. A
+  :class:`~motionbase.stopping.StopRequest`: SIGINT, SIGTERM, SIGHUP or SIGQUIT, and
+  SIGTSTP with a board, via :func:`motionbase.stopping.install_signal_stop`, Escape/space
+  in the mouse window, or a caller) first brake the robot to rest within the speed and
+  acceleration limits, then drive it home within them, then the run ends. The cursor is
+  ignored from the stop on. When home is not reached within ``max_park_s`` the robot
+  brakes to rest where it is. A
   stop asked before the run starts (``teleop_job`` routes the signals before it opens
   anything) sends one home command and ends.
 * A failing source or sink (a socket error, a full disk) stops the run the same way,
