@@ -657,3 +657,47 @@ def test_actuator_schema_gives_the_stewart_platforms_unit():
     _, schema = TOPIC_SCHEMAS["/platform/actuators"]
     text = schema["description"] + " " + schema["properties"]["angles"]["description"]
     assert "rad" in text and ", m" in text and "Stewart" in text
+
+
+def test_a_writer_stopped_with_its_pipe_full_ends_a_real_time_finish_with_a_sink_error(
+    tmp_path: Path,
+) -> None:
+    """The writer process stopped with its pipe full and a backlog short of BACKLOG_BYTES
+    (a run's last seconds): a real-time finish() gives up after its patience with the one
+    SinkError naming the writer, and the writer, run again, still finishes the file. (The
+    give-up cleared the backlog while a view of it was held: a BufferError, a traceback.)"""
+    path = tmp_path / "full.mcap"
+    logger = McapLogger(path, CONFIG, realtime=True).start()
+    pid = logger.writer_pid
+    assert pid is not None
+    os.kill(pid, signal.SIGSTOP)
+    rescue = threading.Timer(60.0, os.kill, (pid, signal.SIGCONT))  # (against a hang)
+    rescue.start()
+    try:
+        for k in range(1, 40_001):  # about 4 MB: the 1 MiB pipe full, the rest waiting
+            logger.add("/washout/pose", k / 1000, {"pose": [k * 1e-3] * 6})
+        with pytest.raises(SinkError) as err:
+            logger.finish()
+    finally:
+        rescue.cancel()
+        os.kill(pid, signal.SIGCONT)
+    msg = str(err.value)
+    assert str(path) in msg and "writer process" in msg and "\n" not in msg
+    assert _finished_summary(path, timeout_s=30) is not None  # finished on its own
+
+
+def test_the_platform_schemas_take_six_values_exactly_and_a_plugins_its_own():
+    """/platform/pose and /platform/actuators of the 6-DOF platforms take 6 values, no fewer
+    (a robot plug-in of fewer axes had made them take 1 to 6 for every robot); a plug-in's
+    log stores its own, sized to it (``platform_topics``)."""
+    from motionbase.io.schemas import platform_topics
+
+    for sizes, good in (((6, 6), 6), ((3, 3), 3)):
+        topics = TOPIC_SCHEMAS if sizes == (6, 6) else platform_topics(*sizes)
+        for topic, field in (("/platform/pose", "pose"), ("/platform/actuators", "angles")):
+            schema = topics[topic][1]
+            jsonschema.validate({"t": 0.0, "clamped": False, field: [0.0] * good}, schema)
+            for wrong in (good - 1, good + 1):
+                with pytest.raises(jsonschema.ValidationError):
+                    bad = {"t": 0.0, "clamped": False, field: [0.0] * wrong}
+                    jsonschema.validate(bad, schema)

@@ -13,6 +13,7 @@ limits measured on the frames a loopback UDP drive received.
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -23,13 +24,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from mcap.reader import make_reader
 
 from motionbase import app
 from motionbase.cli import main
 from motionbase.config import check_file_kind, read_toml
 from motionbase.errors import ConfigError
 from motionbase.io.mcap_source import read_messages, read_metadata
-from motionbase.io.schemas import TOPIC_SCHEMAS
 from motionbase.pipeline import PipelineConfig
 from motionbase.platform.robot import ROBOTS, load_geometry, robot_spec
 from motionbase.report import robot_reach
@@ -179,17 +180,26 @@ def test_a_plugin_geometry_refuses_other_files_by_name(registered):
 # --------------------------------------------------------------------------- commands
 def test_fly_logs_the_plugin_robot(registered, tmp_path):
     """fly: the log holds the robot's own pose (3 values) and its lengths, both valid
-    against the topics' schemas; the lengths are the pose's by hand unless the limiter held
-    them; /tf is the plate frame of that pose, by hand."""
+    against the schemas the file stores for them, which take 3 values, no more or fewer;
+    the lengths are the pose's by hand unless the limiter held them; /tf is the plate
+    frame of that pose, by hand."""
     out = tmp_path / "fly.mcap"
     result = app.fly("c1723", platform="heave3", duration_s=12, out=out, progress=False)
     assert not result.failed and result.actuator_unit == "m"
     log = read_messages(out)
     poses, actuators = log["/platform/pose"], log["/platform/actuators"]
     assert len(poses) == len(actuators) > 1000
-    for topic in ("/platform/pose", "/platform/actuators"):
+    with open(out, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    stored = {
+        c.topic: json.loads(summary.schemas[c.schema_id].data) for c in summary.channels.values()
+    }
+    for topic, field in (("/platform/pose", "pose"), ("/platform/actuators", "angles")):
         for msg in log[topic][::50]:
-            jsonschema.validate(msg, TOPIC_SCHEMAS[topic][1])
+            jsonschema.validate(msg, stored[topic])
+        for wrong in (2, 6):  # the 6-DOF platforms' six is not this robot's
+            with pytest.raises(jsonschema.ValidationError):
+                jsonschema.validate({**log[topic][0], field: [0.0] * wrong}, stored[topic])
     q = np.array([m["angles"] for m in actuators])
     assert _within(q)
     free = [i for i, m in enumerate(poses) if not m["rate_limited"] and not m["held"]]

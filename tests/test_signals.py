@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from drive_wire import UdpDrive, check_wire_limits, read_complete_log, states_of_a_killed_run
 from test_faults import check_logged_commands
+from test_mcap_log import _process_state
 
 from motionbase import app
 from motionbase.platform import Rus6Geometry
@@ -296,3 +297,33 @@ def test_sigkill_leaves_a_readable_log_whose_commands_are_all_safe(tmp_path):
     check_logged_commands(out)  # whatever survived is a safe, gap-free command sequence
     result = app.replay(out, progress=False)
     assert result.summary.samples >= len(states)
+
+
+def test_ctrl_z_suspends_a_run_that_drives_no_motors(tmp_path):
+    """``fly --realtime`` without ``--output`` drives nothing: Ctrl-Z (SIGTSTP) suspends it as
+    it does any program, and once continued it flies to its end. It used to stop it (a
+    ``replay --check`` stopped so said "check: not made" and exited 1), though only a run
+    that drives motors has a platform to leave moving."""
+    out = tmp_path / "offline.mcap"
+    cmd = [sys.executable, "-m", "motionbase", "fly", "c1723", "--realtime", "--duration", "4"]
+    proc = subprocess.Popen(
+        [*cmd, "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # a group of its own whose parent is in its session, as a shell's job: Linux lets
+        # no SIGTSTP suspend a process in an orphaned group (pytest's may be one)
+        process_group=0,
+    )
+    try:
+        wait_for(out.exists, proc, "the log")  # (the signals are routed before it is made)
+        proc.send_signal(signal.SIGTSTP)
+        wait_for(lambda: _process_state(proc.pid) == "T", proc, "the run suspended")
+        proc.send_signal(signal.SIGCONT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, stderr
+    assert "stopped by duration" in stdout

@@ -621,3 +621,26 @@ def test_a_flood_of_cursor_datagrams_cannot_hold_a_read_back():
         src.close()
     assert first is not None and after_one <= 20 * 16 and reads > 1
     assert src.received == 100 * 20
+
+
+def test_teleop_job_to_the_board_goes_in_real_time_even_when_not_asked(tmp_path):
+    """``teleop_job(..., serial_url=BOARD, realtime=False)``: the board's servos are motors,
+    so the run is paced in real time all the same, as ``stream --fast --serial`` is. It ran
+    as fast as the processor went: 1.2 s of cursor input, its braking and the way home on
+    the board in a few hundredths of a second. (The frames' spread on the board is a lower
+    bound: a slow machine only spreads them more.)"""
+    from motionbase.teleop import teleop_job
+
+    write_csv(tmp_path / "fast.csv", duration=1.2, omega=2.0)
+    write_calibration(tmp_path / "cal.toml")
+    board = Board()
+    try:
+        stats = teleop_job(
+            f"file:{tmp_path / 'fast.csv'}", serial_url=board.path,
+            calibration_path=str(tmp_path / "cal.toml"), rate_hz=50.0, realtime=False,
+        )  # fmt: skip
+    finally:
+        board.close()
+    assert stats.stopped_by == "end of input" and stats.ticks > 60
+    spread = board.chunks[-1][0] - board.chunks[0][0]
+    assert spread >= 1.0, f"1.2 s of input reached the board in {spread:.3f} s"

@@ -505,8 +505,8 @@ def output_test(
     :func:`motionbase.io.motor_output.open_output` (ramped at the drive within the same
     limits). Prints (``echo``) which actuator moves and its drive values.
 
-    A stop (SIGINT, SIGTERM, SIGHUP or SIGQUIT, or ``stop`` raised by the caller) at any
-    moment, start-up included, ends the sweep as it ends a flight: one line says so, the
+    A stop (SIGINT, SIGTERM, SIGHUP, SIGQUIT or SIGTSTP, or ``stop`` raised by the caller) at
+    any moment, start-up included, ends the sweep as it ends a flight: one line says so, the
     sweep holds where it is and the pipeline blends back to park over its soft-start time
     (a second signal: an E-stop, to park at once within the limits, said in a second line
     in the words of a flight's summary, :func:`motionbase.stopping.stopped_by`); the last

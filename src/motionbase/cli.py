@@ -43,6 +43,7 @@ try:  # numpy and the rest take a few tenths of a second to import
         keep_what_ctrl_c_cut_short,
         other_signals_as_ctrl_c,
         stop_on_signals,
+        stop_signals_for,
     )
 except KeyboardInterrupt:
     sys.exit(_interrupted_at_start())
@@ -226,8 +227,10 @@ def _print_result(result) -> int:
 
 def _job(name: str, *args: object, **kwargs: object) -> int:
     """Run a job that moves the platform, with the stop signals routed to it from now on:
-    the first one parks the platform at the soft-start pace, a second one E-stops it."""
-    with stop_on_signals() as stop:
+    the first one parks the platform at the soft-start pace, a second one E-stops it (Ctrl-Z
+    among them when the job drives motors: ``outputs``, a board's ``serial``)."""
+    drives = bool(kwargs.get("outputs") or kwargs.get("serial"))
+    with stop_on_signals(signals=stop_signals_for(drives)) as stop:
         from motionbase import app
 
         return _print_result(getattr(app, name)(*args, **kwargs, stop=stop))
@@ -467,7 +470,9 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
 
 @command("teleop", "teleoperate the planar 3-RRR robot from a cursor", _args_teleop)
 def run_teleop(args: argparse.Namespace) -> int:
-    with stop_on_signals() as stop:  # before the slow imports: a stop then is one park tick
+    drives = args.serial not in (None, "none")  # (Ctrl-Z stops the board's servos too)
+    # before the slow imports: a stop then is one park tick
+    with stop_on_signals(signals=stop_signals_for(drives)) as stop:
         from motionbase.teleop import teleop_job
 
         stats = teleop_job(

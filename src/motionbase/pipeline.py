@@ -382,9 +382,9 @@ class PipelineCore(ABC):
 
     def stop(self) -> None:
         """Head for park at the soft-start pace (the end of the input, a stop signal: SIGINT,
-        SIGTERM, SIGHUP, SIGQUIT; a failing source or sink): the phase becomes stopping (for
-        :class:`Pipeline`, the blend from the live pose to park runs back over
-        ``soft_start_s``)."""
+        SIGTERM, SIGHUP, SIGQUIT, SIGTSTP when it drives motors; a failing source or sink):
+        the phase becomes stopping (for :class:`Pipeline`, the blend from the live pose to
+        park runs back over ``soft_start_s``)."""
         s = self.state[0]
         if s["phase"] in (stages.STARTING, stages.RUNNING):
             s["phase"] = stages.STOPPING

@@ -7,8 +7,8 @@ still loading then stops the run before it moves anything, instead of being lost
 
 Two kinds of stop (see the README's Safety section):
 
-* a *stop* (the first SIGINT, SIGTERM, SIGHUP or SIGQUIT, and for a job that moves the
-  platform SIGTSTP, Ctrl-Z; the end of the input; a failing source or sink): the platform
+* a *stop* (the first SIGINT, SIGTERM, SIGHUP or SIGQUIT, and for a job that drives
+  motors SIGTSTP, Ctrl-Z; the end of the input; a failing source or sink): the platform
   ramps back to park at the soft-start pace, over ``soft_start_s`` (2 s by default), as
   gently as it started;
 * an *E-stop* (:meth:`motionbase.pipeline.Pipeline.estop`, a second stop signal while the
@@ -39,6 +39,7 @@ __all__ = [
     "other_signals_as_ctrl_c",
     "raise_if_stopped",
     "stop_on_signals",
+    "stop_signals_for",
     "stopped_by",
 ]
 
@@ -54,6 +55,14 @@ STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
 MOTION_STOP_SIGNALS: tuple[signal.Signals, ...] = STOP_SIGNALS + tuple(
     getattr(signal, name) for name in ("SIGTSTP",) if hasattr(signal, name)
 )
+
+
+def stop_signals_for(drives: bool) -> tuple[signal.Signals, ...]:
+    """The signals that stop a job: :data:`MOTION_STOP_SIGNALS` when it drives motors
+    (``--output``, a board's ``--serial``), else :data:`STOP_SIGNALS`: Ctrl-Z then suspends
+    it, as any program, since nothing is left moving (an offline ``fly``, a ``replay
+    --check``)."""
+    return MOTION_STOP_SIGNALS if drives else STOP_SIGNALS
 
 
 class StopRequest:

@@ -16,11 +16,12 @@ braking, going home) are in :mod:`motionbase.commanding`; what teleop adds:
   ``stale_ticks``. A file source replays its own timing and has no watchdog.
 * Every stop ends the same way, at home and at rest: the end of the input (file end,
   ``duration_s``, window closed), a stop or E-stop (a
-  :class:`~motionbase.stopping.StopRequest`: SIGINT, SIGTERM, SIGHUP or SIGQUIT via
-  :func:`motionbase.stopping.install_signal_stop`, Escape/space in the mouse window, or a
-  caller) first brake the robot to rest within the speed and acceleration limits, then
-  drive it home within them, then the run ends. The cursor is ignored from the stop on.
-  When home is not reached within ``max_park_s`` the robot brakes to rest where it is. A
+  :class:`~motionbase.stopping.StopRequest`: SIGINT, SIGTERM, SIGHUP or SIGQUIT, and
+  SIGTSTP with a board, via :func:`motionbase.stopping.install_signal_stop`, Escape/space
+  in the mouse window, or a caller) first brake the robot to rest within the speed and
+  acceleration limits, then drive it home within them, then the run ends. The cursor is
+  ignored from the stop on. When home is not reached within ``max_park_s`` the robot
+  brakes to rest where it is. A
   stop asked before the run starts (``teleop_job`` routes the signals before it opens
   anything) sends one home command and ends.
 * A failing source or sink (a socket error, a full disk) stops the run the same way,
@@ -343,15 +344,18 @@ def teleop_job(
     Without ``calibration_path`` the mouse window uses its own view (the target sits under
     the pointer) and file/UDP input maps their screen (1310 x 715 px unless the source says
     otherwise) onto the largest valid rectangle at phi = 0 (:meth:`CursorCalibration.default`).
-    SIGINT, SIGTERM, SIGHUP and SIGQUIT stop the robot (brake, then home, within the limits),
-    from the start of this call on: during start-up too. ``live`` (``[HOST:]PORT``) also
-    serves the log's topics to Foxglove while running (needs ``out``).
+    SIGINT, SIGTERM, SIGHUP, SIGQUIT and, with a board, SIGTSTP (Ctrl-Z) stop the robot
+    (brake, then home, within the limits), from the start of this call on: during start-up
+    too. ``live`` (``[HOST:]PORT``) also serves the log's topics to Foxglove while running
+    (needs ``out``). With a ``serial_url`` the run is paced in real time whatever
+    ``realtime`` says: the board's servos are motors, and move in real time only (as
+    ``stream``'s ``serial``).
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
     from motionbase.io.mcap_log import LiveAddress, McapLogger
     from motionbase.platform.rrr3_geometry import Rrr3Geometry
-    from motionbase.stopping import install_signal_stop
+    from motionbase.stopping import install_signal_stop, stop_signals_for
 
     if live is not None and out is None:
         raise ConfigError("--live serves the run's log: add --out FILE.mcap")
@@ -367,7 +371,9 @@ def teleop_job(
     stop = stop if stop is not None else StopRequest()
     sink = logger = None
     with contextlib.ExitStack() as cleanup:  # (undone in reverse: the log, the link, the signals)
-        cleanup.callback(install_signal_stop(stop))  # first: a stop during start-up parks too
+        drives = serial_url not in (None, "none")  # (Ctrl-Z stops the board's servos too)
+        # first: a stop during start-up parks too
+        cleanup.callback(install_signal_stop(stop, stop_signals_for(drives)))
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
         source = open_cursor_source(input_spec, rrr3)
@@ -385,6 +391,7 @@ def teleop_job(
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()
                 cleanup.callback(sink.close)
+                realtime = True  # the board's servos move in real time only
             if out is not None:
                 logger = McapLogger(
                     out,

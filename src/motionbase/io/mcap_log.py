@@ -32,8 +32,11 @@ Never waiting for the writer (real-time runs)
     stops before the backlog grows that long (at the end of the run, say) is waited for
     by ``finish()`` as long as it takes more of the log, and a :class:`SinkError` once it
     took nothing for ``_FAILED_WRITER_WAIT_S`` (5 s): the run, parked, then ends (it used
-    to wait for it forever). Without it (runs
-    as fast as they go) a call waits for the pipe, so the writer's pace sets the run's.
+    to wait for it forever). Without it (runs as fast as they go) a call waits for the
+    pipe, so the writer's pace sets the run's; a writer that takes nothing for 5 s is
+    then a :class:`SinkError` too (a run whose writer stopped waited for it forever, deaf
+    to Ctrl-C and SIGTERM). Only the start waits for the writer as long as it takes (the
+    writer's own start-up: a Python process and its imports).
 
 Live view
     With ``live=`` (``--live [HOST:]PORT``) the writer process also serves the log's
@@ -131,8 +134,8 @@ _MAX_NS = 2**64  # MCAP log times are u64 nanoseconds
 #: real-time runs: the most bytes of records the writer process may leave in this process
 #: (the pipe full) before the log counts as failed
 BACKLOG_BYTES = 8 << 20
-#: finish() after such a failure (the writer may be stopped), and in a real-time run the
-#: longest it waits for a writer process that takes nothing more, s
+#: finish() after such a failure (the writer may be stopped), and the longest any call
+#: after the start waits for a writer process that takes nothing more, s
 _FAILED_WRITER_WAIT_S = 5.0
 _Items = Sequence[tuple[str, Mapping[str, Any]]]  # (topic, message) pairs
 #: The most messages per second of source time a live client gets on one topic.
@@ -281,7 +284,9 @@ class McapLogger:
         More topics than :data:`~motionbase.io.schemas.TOPIC_SCHEMAS`: topic ->
         (schema name, JSON Schema of its messages), e.g. a cueing plug-in's
         diagnostics (:attr:`motionbase.washout.cueing.Cueing.diagnostics_schema`).
-        A topic of ``TOPIC_SCHEMAS`` keeps its own schema.
+        A topic of ``TOPIC_SCHEMAS`` keeps its own schema, unless given one of the same
+        name (a robot plug-in's platform topics, sized to it:
+        :func:`~motionbase.io.schemas.platform_topics`).
     platform_origin : array_like, shape (3,), optional
         The platform frame's origin (the centroid of the platform joints) in the base frame
         at the neutral pose, m (the robot geometry's ``platform_origin``): ``/tf`` places
@@ -326,6 +331,9 @@ class McapLogger:
                     f"object), got {entry!r:.80}"
                 )
         self.topics = {**(topics or {}), **TOPIC_SCHEMAS}
+        for topic, entry in (topics or {}).items():  # the same message, sized to a robot
+            if topic in TOPIC_SCHEMAS and entry[0] == TOPIC_SCHEMAS[topic][0]:
+                self.topics[topic] = entry
         self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")
@@ -352,7 +360,7 @@ class McapLogger:
         self._pending = bytearray()  # records not yet written to the writer process
         self._pending_ns = -1  # log time of the first of them
         #: how long a wait on the writer process may go without progress, s (None: as long
-        #: as it takes); a real-time run's finish() never waits for a writer forever
+        #: as it takes, until it answered the start)
         self._patience: float | None = None
         self._stalled = False  # the writer took nothing within the patience
 
@@ -385,6 +393,7 @@ class McapLogger:
         self._state = "open"
         try:
             self._port = self._request(OP_START, json.dumps(config).encode()).get("port")
+            self._patience = _FAILED_WRITER_WAIT_S  # from now on, never wait forever
         except BaseException:
             self._state = "failed"  # reported by this exception, not again by finish()
             self.finish()
@@ -426,8 +435,6 @@ class McapLogger:
         if self._state in ("new", "finished"):
             self._state = "finished"
             return
-        if self.realtime:  # a run that parked must end: never wait for a stopped writer
-            self._patience = _FAILED_WRITER_WAIT_S
         try:
             if self._state != "failed":
                 self._request(OP_CLOSE)
@@ -595,7 +602,7 @@ class McapLogger:
         rest stays pending; past :data:`BACKLOG_BYTES` the log fails)."""
         wait = wait or not self.realtime
         self._pending_ns = -1
-        sent = 0
+        sent, stalled = 0, False
         try:
             with memoryview(self._pending) as view:
                 while sent < len(view):
@@ -605,12 +612,15 @@ class McapLogger:
                         if not wait:
                             break
                         if not select.select((), (self._data_fd,), (), self._patience)[1]:
-                            self._pending.clear()
-                            self._writer_stalled()
+                            stalled = True  # (cleared once the view is released)
+                            break
         except BrokenPipeError:  # the writer failed and closed its end: its answer says why
             self._pending.clear()
             self._answer()
             raise SinkError(f"{self.path}: the MCAP log's writer process stopped") from None
+        if stalled:
+            self._pending.clear()
+            self._writer_stalled()
         del self._pending[:sent]
         if len(self._pending) > BACKLOG_BYTES:
             self._pending.clear()

@@ -43,7 +43,7 @@ from typing import Any
 from motionbase.errors import SinkError
 from motionbase.io.mcap_log import LIVE_RATE_HZ, LiveAddress, McapLogger, encode_message
 from motionbase.io.scene import SCENE_RATE_HZ, SceneBuilder
-from motionbase.io.schemas import CUEING_DIAGNOSTICS
+from motionbase.io.schemas import CUEING_DIAGNOSTICS, platform_topics
 from motionbase.state import PipelineOutput
 from motionbase.tick_record import pack
 
@@ -103,7 +103,17 @@ class PipelineLog:
         #: the cueing whose diagnostics go on ``/cueing/<name>`` (None: it has no schema)
         self._cueing = cueing if schema is not None else None
         self._cueing_topic = f"/cueing/{cueing.name}" if schema is not None else ""
-        topics = {self._cueing_topic: schema} if schema is not None else None
+        topics = {self._cueing_topic: schema} if schema is not None else {}
+        self._scene = SceneBuilder(robot) if robot is not None else None
+        # a robot of fewer axes than the cue (not planar): the tick record's pose is its
+        # own, and /tf is the cue pose it realises with its other axes at neutral
+        self._tf_robot = None
+        if self._scene is not None and not self._scene.planar:
+            axes = len(robot.neutral_pose)
+            if axes != 6:
+                self._tf_robot = robot
+            if (axes, robot.n) != (6, 6):  # its platform topics' schemas, sized to it
+                topics.update(platform_topics(axes, robot.n))
         # /tf places the platform frame at its origin (the centroid of its joints, at
         # neutral_height above the base) plus the pose, as the scene draws the platform
         origin = getattr(getattr(robot, "geometry", None), "platform_origin", None)
@@ -116,13 +126,6 @@ class PipelineLog:
             topics=topics,
             platform_origin=origin,
         )
-        self._scene = SceneBuilder(robot) if robot is not None else None
-        # a robot of fewer axes than the cue (not planar): the tick record's pose is its
-        # own, and /tf is the cue pose it realises with its other axes at neutral
-        self._tf_robot = None
-        if robot is not None and len(robot.neutral_pose) != 6 and self._scene is not None:
-            if not self._scene.planar:
-                self._tf_robot = robot
         self._scene_period = 1.0 / SCENE_RATE_HZ
         self._next_scene_t = -math.inf  # the first tick draws the scene
         self._scene_t: float | None = None  # time of the last scene drawn

@@ -40,16 +40,12 @@ _NUMBER_OR_NONFINITE = {
 }
 
 
-def _vector(
-    n: int | tuple[int, int], description: str, item: dict[str, Any] | None = None
-) -> dict[str, Any]:
-    """An array of ``n`` items (or between ``n[0]`` and ``n[1]``)."""
-    lo, hi = n if isinstance(n, tuple) else (n, n)
+def _vector(n: int, description: str, item: dict[str, Any] | None = None) -> dict[str, Any]:
     return {
         "type": "array",
         "items": dict(item or _NUMBER),
-        "minItems": lo,
-        "maxItems": hi,
+        "minItems": n,
+        "maxItems": n,
         "description": description,
     }
 
@@ -113,33 +109,57 @@ WASHOUT_POSE = _topic(
     ["pose"],
 )
 
-PLATFORM_POSE = _topic(
-    "motionbase.PlatformPose",
-    "Platform pose after clamping (reachable): [x, y, z] m and [roll, pitch, yaw] rad "
-    "(Z-Y-X), base axes FRD; a plug-in robot of fewer axes logs its own pose (the "
-    "metadata's pipeline_config.robot says which).",
-    {
-        "pose": _vector(
-            (1, 6), "[x, y, z, roll, pitch, yaw], m and rad (a plug-in robot's own pose)"
-        ),
-        "clamped": {"type": "boolean", "description": "true when the pose was scaled back"},
-    },
-    ["pose", "clamped"],
-)
 
-PLATFORM_ACTUATORS = _topic(
-    "motionbase.PlatformActuators",
-    "Actuator positions sent to the 6-DOF platform: 6-RUS crank angles, rad (0 = crank "
-    "horizontal); 6-UPS Stewart actuator lengths joint centre to joint centre, m (the "
-    "metadata's pipeline_config.robot says which; a plug-in robot's actuators, up to 6, "
-    "in its actuator unit).",
-    {
-        "angles": _vector(
-            (1, 6), "crank angles, rad (6-RUS), or actuator lengths, m (6-UPS; a plug-in's)"
-        )
-    },
-    ["angles"],
-)
+def platform_topics(axes: int = 6, actuators: int = 6) -> dict[str, tuple[str, dict[str, Any]]]:
+    """``/platform/pose`` and ``/platform/actuators`` (topic -> (schema name, JSON Schema))
+    for a robot of ``axes`` pose axes and ``actuators`` actuators: the 6-DOF platforms' 6
+    and 6 in :data:`TOPIC_SCHEMAS`, a robot plug-in of fewer its own (its log's, through
+    :class:`~motionbase.io.mcap_log.McapLogger`'s ``topics``), each exactly that long."""
+    own = axes != 6 or actuators != 6
+    pose = _topic(
+        "motionbase.PlatformPose",
+        "Platform pose after clamping (reachable): [x, y, z] m and [roll, pitch, yaw] rad "
+        "(Z-Y-X), base axes FRD"
+        + (
+            "; here a robot plug-in's own pose (the metadata's pipeline_config.robot)."
+            if own
+            else "."
+        ),
+        {
+            "pose": _vector(
+                axes,
+                f"the robot's own pose, {axes} values"
+                if own
+                else "[x, y, z, roll, pitch, yaw], m and rad",
+            ),
+            "clamped": {"type": "boolean", "description": "true when the pose was scaled back"},
+        },
+        ["pose", "clamped"],
+    )
+    angles = _topic(
+        "motionbase.PlatformActuators",
+        "Actuator positions sent to the 6-DOF platform: 6-RUS crank angles, rad (0 = crank "
+        "horizontal); 6-UPS Stewart actuator lengths joint centre to joint centre, m (the "
+        "metadata's pipeline_config.robot says which"
+        + ("; here a robot plug-in's, in its actuator unit)." if own else ")."),
+        {
+            "angles": _vector(
+                actuators,
+                f"the plug-in's {actuators} actuator positions"
+                if own
+                else "crank angles, rad (6-RUS), or actuator lengths, m (6-UPS)",
+            )
+        },
+        ["angles"],
+    )
+    return {
+        "/platform/pose": ("motionbase.PlatformPose", pose),
+        "/platform/actuators": ("motionbase.PlatformActuators", angles),
+    }
+
+
+PLATFORM_POSE = platform_topics()["/platform/pose"][1]
+PLATFORM_ACTUATORS = platform_topics()["/platform/actuators"][1]
 
 PLANAR_POSE = _topic(
     "motionbase.PlanarPose",
@@ -403,4 +423,5 @@ __all__ = [
     "SCENE_UPDATE",
     "SCHEMA_DIALECT",
     "TOPIC_SCHEMAS",
+    "platform_topics",
 ]
