@@ -118,15 +118,18 @@ def preset_path(kind: str, name: str, folder: str | Path | None = None) -> Path:
     return candidate
 
 
-def names_a_file(name_or_path: str | Path) -> bool:
+def names_a_file(name_or_path: str | Path, folders: Iterable[str | Path | None] = ()) -> bool:
     """True when a preset-or-path value is a path (``my.toml``, ``dir/x``, an existing file),
     not a preset name (``ceart``).
+
+    ``folders``: more preset folders than motionbase's own (plug-ins' presets; None is
+    skipped), whose names a file in the working directory must not shadow either.
 
     Raises
     ------
     ConfigError
-        A bare name that is both a file in the working directory and a shipped preset (of
-        any kind): which one is meant cannot be told, and a stray file must not silently
+        A bare name that is both a file in the working directory and a preset (of any
+        kind): which one is meant cannot be told, and a stray file must not silently
         replace a preset.
     """
     s = str(name_or_path)
@@ -134,11 +137,13 @@ def names_a_file(name_or_path: str | Path) -> bool:
         return True
     if not os.path.isfile(s):  # (pathlib's raises for a name too long)
         return False
-    if any(q.stem.partition("_")[2] == s for q in _preset_dir().glob("*.toml")):
-        raise ConfigError(
-            f"{s!r} is both a shipped preset and a file in the working directory: write "
-            f"./{s} for the file, or rename it to use the preset"
-        )
+    for folder in (_preset_dir(), *(Path(f) for f in folders if f is not None)):
+        if any(q.stem.partition("_")[2] == s for q in folder.glob("*.toml")):
+            shipped = "shipped " if folder == _preset_dir() else ""
+            raise ConfigError(
+                f"{s!r} is both a {shipped}preset and a file in the working directory: write "
+                f"./{s} for the file, or rename it to use the preset"
+            )
     return True
 
 
@@ -147,7 +152,7 @@ def resolve_preset_or_path(
 ) -> Path:
     """A preset name (``ceart``) or a path to a TOML file (``my.toml``); ``folder``: where
     the presets are, for a plug-in's own (default: motionbase's)."""
-    if names_a_file(name_or_path):
+    if names_a_file(name_or_path, (folder,)):
         return Path(name_or_path)
     return preset_path(kind, str(name_or_path), folder)
 

@@ -397,19 +397,9 @@ def _robot_of_preset(name: str, robots: list[str]) -> str | None:
 
 
 def _names_a_file(text: str) -> bool:
-    """:func:`motionbase.config.names_a_file`, which knows motionbase's own presets, and a
-    plug-in's too: a bare name that is both a file in the working directory and a preset
-    in a robot's :attr:`RobotSpec.preset_dir` is refused the same way."""
-    if not names_a_file(text):
-        return False
-    bare = not (text.endswith(".toml") or "/" in text)
-    plugins = [r for r, spec in ROBOTS.items() if spec.preset_dir is not None]
-    if bare and _robot_of_preset(text, plugins) is not None:
-        raise ConfigError(
-            f"{text!r} is both a preset and a file in the working directory: write ./{text} "
-            "for the file, or rename it to use the preset"
-        )
-    return True
+    """:func:`motionbase.config.names_a_file`, with the plug-ins' preset folders
+    (:attr:`RobotSpec.preset_dir`) beside motionbase's own."""
+    return names_a_file(text, (spec.preset_dir for spec in ROBOTS.values()))
 
 
 def robot_named(name_or_path: str | None) -> str | None:
