@@ -299,15 +299,26 @@ def test_sigkill_leaves_a_readable_log_whose_commands_are_all_safe(tmp_path):
     assert result.summary.samples >= len(states)
 
 
-def test_ctrl_z_suspends_a_run_that_drives_no_motors(tmp_path):
+_FLY_FROM_A_SCRIPT = (
+    "import sys\nfrom motionbase import app\n"
+    "r = app.fly('c1723', realtime=True, duration_s=4, out=sys.argv[1], progress=False)\n"
+    "print(r.summary_text())"
+)
+
+
+@pytest.mark.parametrize("via", ["cli", "library"])
+def test_ctrl_z_suspends_a_run_that_drives_no_motors(via, tmp_path):
     """``fly --realtime`` without ``--output`` drives nothing: Ctrl-Z (SIGTSTP) suspends it as
     it does any program, and once continued it flies to its end. It used to stop it (a
     ``replay --check`` stopped so said "check: not made" and exited 1), though only a run
-    that drives motors has a platform to leave moving."""
+    that drives motors has a platform to leave moving. The same from a script calling
+    ``app.fly`` (whose own signal routing stopped it on Ctrl-Z)."""
     out = tmp_path / "offline.mcap"
     cmd = [sys.executable, "-m", "motionbase", "fly", "c1723", "--realtime", "--duration", "4"]
+    if via == "library":
+        cmd = [sys.executable, "-c", _FLY_FROM_A_SCRIPT]
     proc = subprocess.Popen(
-        [*cmd, "--out", str(out)],
+        [*cmd, *(["--out"] if via == "cli" else []), str(out)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

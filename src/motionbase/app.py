@@ -31,7 +31,7 @@ from motionbase.pipeline import (
     StopRequest,
     run,
 )
-from motionbase.stopping import stop_on_signals, stopped_by
+from motionbase.stopping import stop_on_signals, stop_signals_for, stopped_by
 
 _log = logging.getLogger("motionbase")
 
@@ -738,7 +738,7 @@ def fly(
     """
     from motionbase.io.jsbsim_source import JsbsimSource
 
-    with stop_on_signals(stop) as stop:
+    with stop_on_signals(stop, stop_signals_for(bool(outputs))) as stop:
         _check_duration(duration_s)
         if busy_wait and not (realtime or outputs):
             raise ConfigError("--busy-wait paces a real-time flight: add --realtime")
@@ -856,7 +856,7 @@ def replay(
         ``out`` is the recording itself; ``outputs`` without ``platform``; a recorded
         configuration with wrong, non-finite or inverted limits.
     """
-    with stop_on_signals(stop) as stop:
+    with stop_on_signals(stop, stop_signals_for(bool(outputs))) as stop:
         return _replay(
             path, out=out, check=check, platform=platform, washout=washout, cueing=cueing,
             planar=planar, progress=progress, outputs=outputs, stop=stop, live=live,
@@ -1173,7 +1173,7 @@ def stream(
             "--preview looks at the flight's future: a live stream has none; drop --preview "
             "(replay a recording with --preview instead)"
         )
-    with stop_on_signals(stop) as stop:
+    with stop_on_signals(stop, stop_signals_for(bool(outputs or serial))) as stop:
         return _stream(
             mavlink, sysid=sysid, compid=compid, signing_key=signing_key, rate_hz=rate_hz,
             platform=platform, washout=washout, cueing=cueing, planar=planar, serial=serial,
