@@ -395,7 +395,7 @@ class PipelineCore(ABC):
         health, self.health = self.health, Health()  # the warm-up ticks count elsewhere
         self._warm_ticks()
         scratch = np.zeros(self.robot.n)
-        _track_peaks(scratch, scratch.copy(), scratch, scratch)  # run()'s summary of a tick
+        _track_run(scratch, scratch.copy(), scratch.copy(), scratch, scratch)  # run()'s summary
         self.parked  # noqa: B018 - loads the check that the loop makes at the end of a run
         self.reset()
         self.health = health
@@ -712,24 +712,17 @@ SWITCH_INTERVAL_S = 2e-4
 
 
 @numba.njit(cache=True)
-def _track_peaks(peak_angle, peak_speed, angles, speeds):  # pragma: no cover - compiled
-    """np.maximum(peak, |x|, out=peak) for both, in one call (NaN sticks, as there)."""
+def _track_run(low, high, peak_speed, angles, speeds):  # pragma: no cover - compiled
+    """np.minimum(low, q, out=low), np.maximum(high, q, out=high) and
+    np.maximum(peak_speed, |v|, out=peak_speed), in one call (NaN sticks, as there)."""
     for i in range(angles.shape[0]):
-        for peak, x in ((peak_angle, angles[i]), (peak_speed, speeds[i])):
-            a = abs(x)
-            if peak[i] == peak[i] and not (a <= peak[i]):
-                peak[i] = a
-
-
-@numba.njit(cache=True)
-def _track_range(low, high, angles):  # pragma: no cover - compiled
-    """np.minimum(low, q, out=low) and np.maximum(high, q, out=high) (NaN sticks)."""
-    for i in range(angles.shape[0]):
-        x = angles[i]
+        x, a = angles[i], abs(speeds[i])
         if low[i] == low[i] and not (x >= low[i]):
             low[i] = x
         if high[i] == high[i] and not (x <= high[i]):
             high[i] = x
+        if peak_speed[i] == peak_speed[i] and not (a <= peak_speed[i]):
+            peak_speed[i] = a
 
 
 @dataclass
@@ -750,8 +743,11 @@ class RunSummary:
         Simulated (source) and wall-clock duration, s.
     clamped_share : float
         Share of ticks whose pose the workspace clamp moved.
-    peak_angle, peak_speed : ndarray, shape (n,)
-        Largest |angle| (rad) and |speed| (rad/s) per actuator in the ``running`` phase
+    peak_speed : ndarray, shape (n,)
+        Largest |speed| (rad/s, or m/s) per actuator in the ``running`` phase (zeros when
+        the run never got there).
+    peak_angle : ndarray, shape (n,)
+        Largest |position| per actuator in the ``running`` phase, from ``angle_range``
         (zeros when the run never got there).
     angle_range : tuple of ndarray
         (lowest, highest) actuator position per actuator in the ``running`` phase, in the
@@ -779,7 +775,6 @@ class RunSummary:
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     clamped: int = 0
-    peak_angle: np.ndarray | None = None
     peak_speed: np.ndarray | None = None
     angle_range: tuple[np.ndarray, np.ndarray] | None = None
     start_s: float = 0.0
@@ -794,6 +789,15 @@ class RunSummary:
     @property
     def clamped_share(self) -> float:
         return self.clamped / self.samples if self.samples else 0.0
+
+    @property
+    def peak_angle(self) -> np.ndarray | None:
+        if self.angle_range is None:
+            return None
+        low, high = self.angle_range
+        if not self.running_samples:
+            return np.zeros_like(low)
+        return np.maximum(high, -low)  # (NaN stays NaN)
 
 
 def _sink_name(sink: Any) -> str:
@@ -891,9 +895,9 @@ def run(
         health = pipeline.health
         dt = pipeline.dt
         n = robot.n
-        run_angle, run_speed = np.zeros(n), np.zeros(n)  # the flight's peaks
+        run_speed = np.zeros(n)  # the flight's peak speeds
         run_low, run_high = np.full(n, np.inf), np.full(n, -np.inf)  # and range used
-        ramp_angle = np.zeros(n)  # (the ramps' angles: not reported, park is known)
+        ramp_low, ramp_high = np.zeros(n), np.zeros(n)  # (not reported: park is known)
         ramp_speed = {"starting": np.zeros(n), "stopping": np.zeros(n)}  # the ramps' peak speeds
         ticks = dict.fromkeys(ramp_speed, 0)  # and lengths
         wall0 = time.perf_counter()
@@ -950,12 +954,11 @@ def run(
             phase = out.phase
             if phase == "running":
                 summary.running_samples += 1
-                _track_peaks(run_angle, run_speed, out.angles, speeds)
-                _track_range(run_low, run_high, out.angles)
+                _track_run(run_low, run_high, run_speed, out.angles, speeds)
             else:
                 ramp = "starting" if phase == "starting" else "stopping"
                 ticks[ramp] += 1
-                _track_peaks(ramp_angle, ramp_speed[ramp], out.angles, speeds)
+                _track_run(ramp_low, ramp_high, ramp_speed[ramp], out.angles, speeds)
             if t_first is None:
                 t_first = out.t
             t_last = out.t
@@ -1051,7 +1054,6 @@ def run(
             raise failure
         summary.wall_time_s = time.perf_counter() - wall0
         summary.sim_time_s = (t_last - t_first) if t_first is not None else 0.0
-        summary.peak_angle = run_angle
         summary.peak_speed = run_speed
         summary.angle_range = (run_low, run_high)
         summary.start_s = ticks["starting"] * dt
