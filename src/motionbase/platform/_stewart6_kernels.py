@@ -70,43 +70,6 @@ def _lengths(p, G, R, J, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _diagonalise(A):
-    """Turn the symmetric 6x6 ``A`` into the diagonal of its eigenvalues (to rounding) by
-    cyclic Jacobi rotations."""
-    for _ in range(50):
-        off = 0.0
-        diag = 0.0
-        for i in range(6):
-            diag += A[i, i] * A[i, i]
-            for j in range(i + 1, 6):
-                off += A[i, j] * A[i, j]
-        if not off > 1e-32 * diag:
-            break
-        for i in range(5):
-            for j in range(i + 1, 6):
-                aij = A[i, j]
-                if aij == 0.0:
-                    continue
-                theta = (A[j, j] - A[i, i]) / (2.0 * aij)
-                if abs(theta) > 1e150:
-                    t = 0.5 / theta
-                else:
-                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-                    if theta < 0.0:
-                        t = -t
-                c = 1.0 / math.sqrt(t * t + 1.0)
-                sn = t * c
-                for k in range(6):
-                    aki, akj = A[k, i], A[k, j]
-                    A[k, i] = c * aki - sn * akj
-                    A[k, j] = sn * aki + c * akj
-                for k in range(6):
-                    aik, ajk = A[i, k], A[j, k]
-                    A[i, k] = c * aik - sn * ajk
-                    A[j, k] = sn * aik + c * ajk
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _holds(p, G, J, L):
     """Whether the legs' lines at the platform joints ``J`` (lengths ``L``, both of pose ``p``)
     hold the platform: ``1 / cond_2`` of the rows ``M_i = [u_i, (R q_i x u_i) / scale]`` at
@@ -118,7 +81,7 @@ def _holds(p, G, J, L):
     On ``A = M^T M`` (eigenvalues the squared singular values): ``lambda_min >= c^2
     lambda_max``. Fast path: ``A - c^2 trace(A) I`` positive definite (a Cholesky
     factorisation), since ``trace(A) >= lambda_max``; else the least and largest eigenvalues
-    by Jacobi rotations."""
+    (``np.linalg.eigvalsh``)."""
     M = np.empty((6, 6))
     for i in range(6):
         ux = (J[i, 0] - G[i, BX]) / L[i]
@@ -159,12 +122,8 @@ def _holds(p, G, J, L):
             M[i, j] = v / M[j, j]
     if definite:
         return True
-    _diagonalise(A)
-    least = largest = A[0, 0]
-    for i in range(1, 6):
-        least = min(least, A[i, i])
-        largest = max(largest, A[i, i])
-    return least >= c2 * largest
+    w = np.linalg.eigvalsh(A)  # (ascending; LAPACK's, through numba)
+    return w[0] >= c2 * w[5]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
