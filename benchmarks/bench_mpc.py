@@ -1,7 +1,7 @@
 """Model-predictive cueing (issue 16): solve time, and quality against the classical washout.
 
 (a) Time: the real-time mode (no preview) at 100 Hz with the preset's horizon, on one core:
-    the MPC alone (``MpcCueing.advance``, the ceart robot bound) over the tuning manoeuvres
+    the MPC alone (``MpcCueing.advance``, the platform's robot bound) over the tuning manoeuvres
     resampled to 100 Hz; per tick the linearisation of the actuator rows + OSQP update
     (a numeric refactorisation) + solve time (``info.solve_time_s``) and the whole tick,
     p50 / p99 / max, iterations, fallbacks. Goal: solve p99 <= 5 ms, no fallback.
@@ -9,11 +9,13 @@
     held-out set, the whole pipeline (``Pipeline.run_batch``) and the tuner's scoring
     (:func:`motionbase.tuning.score_motion`: perceived specific-force and angular-velocity
     RMSE, false cues, clamping, crank use) for the default classical washout, the tuned one
-    (``washout_tuned_ceart``), the MPC in real-time mode and the MPC in preview mode (the
+    (the platform's: ``washout_tuned_ceart`` on ceart, ``washout_tuned_seat`` on stewart6),
+    the MPC in real-time mode and the MPC in preview mode (the
     recorded future of the reference). Goals: specific-force RMSE at least 15 % below the
     tuned classical, angular RMSE no worse, false cues no more frequent.
 
-Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc tuned_ceart|ceart|PATH] [--platform ceart]
+Run: .venv/bin/python benchmarks/bench_mpc.py [--mpc tuned_ceart|ceart|seat|PATH]
+     [--platform ceart|stewart6|PRESET|PATH] (the MPC set: the platform's default unless given)
      [--preview-mpc PRESET|PATH] [--no-preview] [--no-quality] [--no-time]
 """
 
@@ -28,11 +30,13 @@ import time
 import numpy as np
 
 from motionbase import tuning
+from motionbase.app import tuned_preset
 from motionbase.io.manoeuvres import DEFAULT_HOLDOUT, DEFAULT_MANOEUVRES, load_spec
 from motionbase.pipeline import PipelineConfig
-from motionbase.platform import Rus6Geometry
-from motionbase.report import rus6_reach
+from motionbase.platform.robot import load_geometry
+from motionbase.report import robot_reach
 from motionbase.washout import WashoutParams
+from motionbase.washout.cueing import cueing_spec
 from motionbase.washout.mpc import MpcCueing
 from motionbase.washout.mpc_params import MpcParams
 
@@ -44,7 +48,7 @@ def score_set(problem: tuning.TuningProblem, cueing: str, params, preview: bool 
     fallbacks = 0
     for m in problem.manoeuvres:
         config = PipelineConfig(
-            robot="rus6",
+            robot=problem.robot,
             geometry=problem.geometry,
             cueing=cueing,
             cueing_params=params,
@@ -65,12 +69,14 @@ def _resample(m, rate_hz: float):
     return f, w
 
 
-def time_realtime(params: MpcParams, manoeuvres, geometry, rate_hz: float = 100.0) -> dict:
+def time_realtime(
+    params: MpcParams, manoeuvres, robot: str, geometry, rate_hz: float = 100.0
+) -> dict:
     """Per-tick solve and tick times of the real-time mode at ``rate_hz``, the robot bound
     (its actuator rows re-linearised and OSQP refactorised every tick)."""
     cue = MpcCueing(params, 1.0 / rate_hz)
     cue.bind_robot(
-        PipelineConfig(robot="rus6", geometry=geometry, cueing_params=params).make_robot()
+        PipelineConfig(robot=robot, geometry=geometry, cueing_params=params).make_robot()
     )
     solve, tick, iters = [], [], []
     out = np.empty(6)
@@ -140,7 +146,7 @@ def _table(title: str, rows: list[tuple[str, tuning.SetScore, int | None]]) -> N
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mpc", default="tuned_ceart", help="MPC preset or TOML path")
+    ap.add_argument("--mpc", help="MPC preset or TOML path (default: the platform's)")
     ap.add_argument("--platform", default="ceart")
     ap.add_argument(
         "--preview-mpc",
@@ -157,14 +163,20 @@ def main() -> None:
         f"{time.strftime('%Y-%m-%d')}, {_platform.node()}, {_platform.processor() or ''} "
         f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; one core pinned"
     )
-    mpc = MpcParams.load(args.mpc)
+    robot, geometry = load_geometry(args.platform)
+    spec = cueing_spec("mpc")
+    mpc_name = args.mpc or tuned_preset(spec, robot, geometry) or spec.default_preset
+    mpc = MpcParams.load(mpc_name)
     preview_mpc = MpcParams.load(args.preview_mpc) if args.preview_mpc else mpc
-    print(f"MPC: {args.mpc}; preview rows: {args.preview_mpc or args.mpc}")
-    geometry = Rus6Geometry.preset(args.platform)
+    tuned_name = tuned_preset(cueing_spec("classical"), robot, geometry) or "default"
+    print(
+        f"platform: {args.platform} ({robot}); MPC: {mpc_name}; preview rows: "
+        f"{args.preview_mpc or mpc_name}; classical tuned: {tuned_name}"
+    )
     tuning_set = tuple(load_spec(s) for s in DEFAULT_MANOEUVRES)
 
     if not args.no_time:
-        r = time_realtime(mpc, tuning_set, geometry)
+        r = time_realtime(mpc, tuning_set, robot, geometry)
         s, tk = 1e3 * r["solve"], 1e3 * r["tick"]
         print(
             f"\n(a) real-time mode, 100 Hz, horizon {r['horizon_s']:.2f} s ({mpc.steps} steps), "
@@ -182,14 +194,16 @@ def main() -> None:
 
     if args.no_quality:
         return
-    reach = rus6_reach(geometry)
+    reach = robot_reach(
+        PipelineConfig(robot=robot, geometry=geometry, cueing_params=None).make_robot()
+    )
     default = WashoutParams.preset("default")
-    tuned = WashoutParams.preset("tuned_ceart")
+    tuned = WashoutParams.preset(tuned_name)
     for title, manoeuvres in (
         ("(b) tuning set", tuning_set),
         ("(c) held out", tuple(load_spec(s) for s in DEFAULT_HOLDOUT)),
     ):
-        problem = tuning.TuningProblem(geometry, manoeuvres, reach)
+        problem = tuning.TuningProblem(geometry, manoeuvres, reach, robot=robot)
         rows = [
             ("classical default", score_set(problem, "classical", default)[0], None),
             ("classical tuned", score_set(problem, "classical", tuned)[0], None),

@@ -148,7 +148,7 @@ class CueingSpec:
         The preset used when none is given, except on a geometry of ``tuned_presets``.
     description : str
     tuned_presets : dict of (str, str) to str
-        Presets tuned for one robot geometry (``motionbase tune``):
+        Presets made for one robot geometry (``motionbase tune``, the MPC's limits):
         ``{(robot, geometry preset): cueing preset}``; on that geometry the tuned preset is
         the default.
     """
@@ -224,6 +224,7 @@ CUEINGS: dict[str, CueingSpec] = {
         preset_kind="mpc",
         default_preset="tuned_ceart",
         description="model-predictive cueing (vestibular models, platform limits; OSQP)",
+        tuned_presets={("stewart6", "seat"): "seat"},
     ),
 }
 
