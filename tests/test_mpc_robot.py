@@ -1,5 +1,6 @@
 """The model-predictive cueing against the robot it drives: its default set on the Stewart
-platform (``mpc_seat``).
+platform (``mpc_seat``), the warning when a pose box exceeds the robot's reach, and the
+refusal of robots that lack a pose axis.
 
 Expectations are independent of the code under test: reach from ``robot.reachable`` on
 poses along each axis, the stroke and crank ranges from the geometry files' own numbers.
@@ -16,15 +17,18 @@ import numpy as np
 import pytest
 
 from motionbase import app
-from motionbase.config import read_toml
-from motionbase.pipeline import Pipeline
-from motionbase.platform.robot import load_geometry, robot_spec
+from motionbase.cli import main
+from motionbase.config import read_toml, write_toml
+from motionbase.errors import ConfigError
+from motionbase.pipeline import Pipeline, PipelineConfig
+from motionbase.platform.robot import ROBOTS, load_geometry, robot_spec
 from motionbase.washout import mpc
 from motionbase.washout.mpc_params import MpcParams
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
 
+import heave3_robot  # noqa: E402
 from test_mpc import _inputs  # noqa: E402
 
 AXES = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -128,3 +132,87 @@ def test_a_short_stewart6_mpc_flight_stays_within_the_robot():
     assert (q >= seat["length_min"]).all() and (q <= seat["length_max"]).all()
     assert (np.abs(np.diff(q, axis=0)) / DT <= seat["max_speed"] * (1 + 1e-9)).all()
     assert np.ptp(q) > 0.05  # (and it moved: legs over more than 5 cm)
+
+
+# --------------------------------------------------------------------------- the warning
+def test_ceart_box_on_the_stewart_platform_warns_once_naming_the_axes(fresh_warnings):
+    tuned_ceart = MpcParams.load("tuned_ceart")
+    name, geometry = load_geometry("stewart6")
+    config = PipelineConfig(robot=name, geometry=geometry, cueing="mpc", cueing_params=tuned_ceart)
+    Pipeline(config)
+    Pipeline(config)  # (once: the tuner builds many pipelines)
+    warned = _reach_warnings(fresh_warnings)
+    assert len(warned) == 1 and "\n" not in warned[0]
+    beyond = _beyond_reach(tuned_ceart, _robot("stewart6"))
+    assert beyond >= {"surge", "heave"}  # (ceart reaches further forward and up)
+    for axis in AXES:
+        assert (f" {axis} " in warned[0]) == (axis in beyond), axis
+    assert "--params seat" in warned[0] and "limits_from_robot" in warned[0]
+
+
+@pytest.mark.parametrize("platform,preset", [("stewart6", "seat"), ("ceart", "tuned_ceart")])
+def test_a_set_made_for_the_platform_does_not_warn(fresh_warnings, platform, preset):
+    config = app.load_config(platform=platform, cueing="mpc")
+    assert config.cueing_params == MpcParams.load(preset)
+    Pipeline(config)
+    assert _reach_warnings(fresh_warnings) == []
+
+
+def test_a_hand_written_box_past_the_reach_warns_on_the_command_line(tmp_path, capsys, monkeypatch):
+    """ceart's own set with a yaw box of 60 deg (ceart's cranks turn it 48.9 deg, as
+    robot.reachable says here): one warning line naming yaw and the fix; the flight runs."""
+    data = MpcParams.load("tuned_ceart").to_dict()
+    data["limits"]["angle_lower_deg"][2] = -60.0
+    data["limits"]["angle_upper_deg"][2] = 60.0
+    path = tmp_path / "wide_yaw.toml"
+    write_toml(path, data)
+    robot = _robot("ceart")
+    assert not robot.reachable([0, 0, 0, 0, 0, math.radians(60.0)])
+    assert robot.reachable([0, 0, 0, 0, 0, math.radians(40.0)])
+    monkeypatch.setattr(mpc, "_WARNED", set())
+    out = tmp_path / "wide.mcap"
+    args = ["fly", "c1723", "--cueing", "mpc", "--params", str(path), "--duration", "1"]
+    assert main([*args, "--out", str(out)]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "single-axis reach" in ln]
+    assert len(lines) == 1
+    assert "wide_yaw.toml" in lines[0] and " yaw -60.0..60.0 deg" in lines[0]
+    assert not any(f" {axis} " in lines[0] for axis in AXES[:5])
+    assert "limits_from_robot" in lines[0]
+    assert out.is_file()
+
+
+# --------------------------------------------------------------------------- lacking axes
+def test_planar_robot_with_mpc_is_one_line_and_exit_2(tmp_path, capsys):
+    out = tmp_path / "planar.mcap"
+    args = ["fly", "c1723", "--planar", "--cueing", "mpc", "--duration", "1"]
+    assert main([*args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "does not render heave, roll, pitch" in err
+    assert "--cueing classical" in err
+    assert not out.exists()
+
+
+def test_a_plugin_robot_lacking_axes_is_refused_by_name(monkeypatch):
+    monkeypatch.setitem(ROBOTS, "heave3", heave3_robot.SPEC)
+    name, geometry = load_geometry("heave3")
+    config = PipelineConfig(
+        robot=name, geometry=geometry, cueing="mpc", cueing_params=MpcParams.load("tuned_ceart")
+    )
+    with pytest.raises(ConfigError, match=r"does not render surge, sway, yaw; the MPC plans"):
+        Pipeline(config)
+    # the classical washout still drives it
+    Pipeline(app.load_config(platform="heave3"))
+
+
+def test_tune_of_the_mpc_on_the_seat_starts_from_the_seats_set(tmp_path, capsys, monkeypatch):
+    """The tuner leaves an MPC set's limits as they are: on the seat it starts from the set
+    made for the seat (it started from ceart's and kept its box), without a reach warning."""
+    monkeypatch.setattr(mpc, "_WARNED", set())
+    out = tmp_path / "tuned.toml"
+    args = ["tune", "--cueing", "mpc", "--platform", "stewart6", "--scripts", "rudder_kick@0:3",
+            "--holdout", "none", "--budget", "1", "--workers", "1", "--out", str(out)]  # fmt: skip
+    assert main(args) == 0
+    assert "single-axis reach" not in capsys.readouterr().err
+    tuned = MpcParams.from_toml(out)
+    assert tuned.to_dict()["limits"] == MpcParams.load("seat").to_dict()["limits"]
+    assert "from the parameters seat" in out.read_text()

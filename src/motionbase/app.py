@@ -79,8 +79,9 @@ def load_config(
     washout : str, optional
         The cueing's parameters: a preset name (classical: ``default``, ``gentle``,
         ``telemetry``, ``tuned_ceart``) or a TOML path (``--params``, ``--washout``).
-        By default the preset tuned for the geometry where one ships (classical on the
-        ``ceart`` geometry: ``tuned_ceart``), else the cueing's ``default`` preset.
+        By default the preset made for the geometry where one ships (classical on the
+        ``ceart`` geometry: ``tuned_ceart``; mpc on the stewart6 ``seat``: ``seat``), else
+        the cueing's default preset.
     cueing : str
         The cueing plug-in (``--cueing``), ``classical`` by default.
     rate_hz : float
@@ -1577,7 +1578,9 @@ def tune(
         The platform: a 6-DOF robot's name (``rus6``, ``stewart6``), geometry preset name
         or TOML path (default ``ceart``); a planar robot is refused.
     washout : str, optional
-        The start set: the cueing's preset or TOML path (default: its default preset).
+        The start set: the cueing's preset or TOML path (default: its default preset; for
+        the MPC, whose sets hold a platform's limits, the one made for ``platform`` where
+        one ships: ``seat`` on the stewart6 seat).
     cueing : str
         The cueing algorithm (a name of :data:`~motionbase.washout.cueing.CUEINGS` with
         knobs in :data:`motionbase.tuning.KNOBS_BY_CUEING`: classical, mpc).
@@ -1631,7 +1634,8 @@ def tune(
         write_washout,
     )
     from motionbase.platform.robot import load_geometry, names_planar_robot, robot_spec
-    from motionbase.report import AXES6, robot_reach
+    from motionbase.platform.rus6_workspace import lacking_axes
+    from motionbase.report import robot_reach
     from motionbase.stopping import Stopped, raise_if_stopped
     from motionbase.washout.cueing import cueing_spec
 
@@ -1675,16 +1679,17 @@ def tune(
         )
     robot_name, geometry = load_geometry(platform_name)
     robot = robot_spec(robot_name).make(geometry)
-    # an axis the robot lacks: not even 1 mm or 1 mrad of it either way is rendered
-    moves = np.asarray(robot.cue_reachable(np.concatenate([np.eye(6), -np.eye(6)]) * 1e-3))
-    lacking = [axis for axis, ok in zip(AXES6, moves[:6] | moves[6:], strict=True) if not ok]
+    lacking = lacking_axes(robot)
     if lacking:  # the score weighs every axis of the cue against the robot's reach
         raise ConfigError(
             f"--platform {platform_name}: tune scores the cue on all six axes, and the "
             f"{robot_spec(robot_name).description} does not render {', '.join(lacking)}; "
             "tune it on a 6-DOF platform"
         )
-    start_name = washout or spec.default_preset
+    # an MPC set holds its platform's limits, which the tuner leaves as they are: by default
+    # it starts from the set made for this geometry where one ships
+    made_for = tuned_preset(spec, robot_name, geometry) if cueing == "mpc" else None
+    start_name = washout or made_for or spec.default_preset
     start = spec.load_params(start_name)
     fallback = getattr(start, "fallback", None)
     # (--out may be the start set itself, not the geometry nor the start set's fallback)

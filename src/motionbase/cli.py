@@ -289,7 +289,8 @@ def _add_cueing(
         else "cueing parameters: preset (classical: default, gentle, telemetry, tuned_ceart, "
         "tuned_seat, profiles_example; unless given: the set tuned for the platform, "
         "tuned_ceart on ceart and tuned_seat on seat, else default; stream: telemetry; mpc: "
-        "tuned_ceart, the default, ceart, preview_ceart for --preview) or TOML path",
+        "tuned_ceart, the default, seat, the default on the stewart6 seat, ceart, "
+        "preview_ceart for --preview) or TOML path",
     )
     if not preview:
         return
@@ -738,7 +739,7 @@ def _args_tune(p: argparse.ArgumentParser) -> None:
         dest="washout",
         metavar="START.toml",
         help="the start set: the cueing's preset or TOML path (default: classical default, "
-        "mpc tuned_ceart)",
+        "mpc tuned_ceart, seat on the stewart6 seat)",
     )
     p.add_argument(
         "--scripts",

@@ -26,6 +26,7 @@ __all__ = [
     "AxisReach",
     "WorkspaceSlices",
     "format_envelope",
+    "lacking_axes",
     "reachability_grid",
     "single_axis_envelope",
     "workspace_slices",
@@ -156,6 +157,14 @@ def single_axis_envelope(
         return found
 
     return [AxisReach(name, reach(j, -1.0), reach(j, +1.0)) for j, name in enumerate(AXES)]
+
+
+def lacking_axes(robot: Reachable, step: float = 1e-3) -> list[str]:
+    """The pose axes (:data:`AXES`) a robot does not render: not even ``step`` (m or rad: 1 mm,
+    1 mrad) of it either way from neutral (the 3-actuator plug-in's surge, sway and yaw; the
+    planar robot's heave, roll and pitch)."""
+    moves = np.asarray(_reachable(robot, np.concatenate([np.eye(6), -np.eye(6)]) * step))
+    return [axis for axis, ok in zip(AXES, moves[:6] | moves[6:], strict=True) if not ok]
 
 
 #: How far a translation scan of :func:`single_axis_envelope` goes at most, in units of its

@@ -88,9 +88,11 @@ out, and tells the fallback washout the same.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -111,7 +113,7 @@ from motionbase.washout.perception import (
     otolith_tf,
 )
 
-__all__ = ["MpcCueing", "MpcInfo", "MpcModel", "build_model"]
+__all__ = ["MpcCueing", "MpcInfo", "MpcModel", "build_model", "check_reach"]
 
 #: The eight double integrators, in state order.
 DOFS = ("x", "y", "z", "roll_tilt", "pitch_tilt", "roll_rot", "pitch_rot", "yaw")
@@ -495,9 +497,16 @@ class MpcCueing(Cueing):
         tick), within their limits less ``[robot] actuator_margin`` of their range, and the
         actuator speeds and accelerations within ``speed_share`` and ``accel_share`` of
         theirs (see :class:`_LegConstraint`). The pose box stays. Called once by the
-        pipeline, after the cueing is made."""
+        pipeline, after the cueing is made.
+
+        Raises
+        ------
+        ConfigError
+            The robot lacks a pose axis (:func:`check_reach`, which also warns when the
+            pose box exceeds the robot's reach)."""
         if robot is None or robot.n < 1:
             return
+        check_reach(self.params, robot)
         self.robot = robot
         # soft: each leg row has a slack (free, cost violation_weight * slack^2): a state
         # the new linearisation puts past a limit (a tick cannot undo it) leaves the
@@ -857,6 +866,59 @@ class _LegConstraint:
         qq = np.asarray(robot.inverse(robot.pose_from_cue(cue)), dtype=float)
         qq = qq.reshape(2, len(poses), -1)
         return np.nan_to_num((qq[0] - 2.0 * q + qq[1]) / (h * h))
+
+
+#: The reach warnings given in this process (each once: the tuner builds many pipelines).
+_WARNED: set[str] = set()
+
+
+def check_reach(params: MpcParams, robot: Any) -> None:
+    """The MPC against the robot it drives: a ConfigError when the robot lacks a pose axis
+    (the MPC plans all six, sustained forces by tilt included, and would count on cues the
+    robot drops), and a warning (once) naming each axis where the pose box ``[limits]``
+    exceeds the robot's single-axis reach
+    (:func:`~motionbase.platform.rus6_workspace.single_axis_envelope`, a few milliseconds):
+    the clamp then cuts what the MPC plans, so the box is another platform's or wrong."""
+    from motionbase.platform.robot import ROBOTS
+    from motionbase.platform.rus6_workspace import AXES, lacking_axes, single_axis_envelope
+    from motionbase.washout.cueing import LOADED_FROM, cueing_spec
+
+    spec = ROBOTS.get(robot.name)
+    what = spec.description if spec is not None else f"{robot.name} robot"
+    lacking = lacking_axes(robot)
+    if lacking:
+        raise ConfigError(
+            f"mpc: the {what} does not render {', '.join(lacking)}; the MPC plans all six "
+            "axes of the pose (sustained forces by tilt included) and would count on cues "
+            "this robot drops: use --cueing classical"
+        )
+    env = single_axis_envelope(robot, tol=1e-6)
+    reach = np.array([[-a.negative for a in env], [a.positive for a in env]])
+    box = np.array([params.pose_lower, params.pose_upper])
+    over = np.flatnonzero((box[0] < reach[0] - 1e-6) | (box[1] > reach[1] + 1e-6))
+    if not over.size:
+        return
+
+    def span(k: int, b: np.ndarray) -> str:
+        lo, hi = (1e3 * b, "mm") if k < 3 else (np.degrees(b), "deg")
+        return f"{lo[0]:.1f}..{lo[1]:.1f} {hi}"
+
+    axes = ", ".join(f"{AXES[k]} {span(k, box[:, k])} (reach {span(k, reach[:, k])})" for k in over)
+    source = getattr(params, LOADED_FROM, None)
+    shipped = [
+        f"--params {preset} for the {name} geometry {geometry}; "
+        for (name, geometry), preset in cueing_spec("mpc").tuned_presets.items()
+        if name == robot.name
+    ]
+    message = (
+        f"mpc: the pose box of {Path(source).name if source else 'the parameters'} exceeds the "
+        f"{what}'s single-axis reach on {axes}; the clamp will cut what the MPC plans there: "
+        f"give MPC parameters made for this platform ({''.join(shipped)}their [limits] from "
+        "motionbase.washout.mpc_params.limits_from_robot)"
+    )
+    if message not in _WARNED:
+        _WARNED.add(message)
+        logging.getLogger(__name__).warning(message)
 
 
 def constrained_steps(steps: int, count: int) -> np.ndarray:
