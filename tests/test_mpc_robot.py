@@ -23,7 +23,7 @@ from motionbase.errors import ConfigError
 from motionbase.pipeline import Pipeline, PipelineConfig
 from motionbase.platform.robot import ROBOTS, load_geometry, robot_spec
 from motionbase.washout import mpc
-from motionbase.washout.mpc_params import MpcParams
+from motionbase.washout.mpc_params import MpcParams, limits_from_robot
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
@@ -155,6 +155,19 @@ def test_a_set_made_for_the_platform_does_not_warn(fresh_warnings, platform, pre
     config = app.load_config(platform=platform, cueing="mpc")
     assert config.cueing_params == MpcParams.load(preset)
     Pipeline(config)
+    assert _reach_warnings(fresh_warnings) == []
+
+
+def test_the_whole_reach_as_limits_from_robot_writes_it_does_not_warn(fresh_warnings):
+    """margin=1: the box is the reach, its 4 digits rounded up past it by up to 0.05 mm or
+    mrad on some axes (measured here with robot.reachable), which is no reason to warn."""
+    name, geometry = load_geometry("ceart")
+    robot = robot_spec(name).make(geometry)
+    data = MpcParams.load("tuned_ceart").to_dict()
+    data["limits"] = limits_from_robot(robot, margin=1.0)
+    full = MpcParams.from_dict(data)
+    assert _beyond_reach(full, robot)  # (rounded past the reach)
+    Pipeline(PipelineConfig(robot=name, geometry=geometry, cueing="mpc", cueing_params=full))
     assert _reach_warnings(fresh_warnings) == []
 
 

@@ -69,10 +69,11 @@ Every table is required but for ``[reference]`` (gains 1, no limits), ``[robot]`
 (defaults as above), ``description``, ``g`` and ``mode``. The dataclass fields mirror the
 file one to one, so ``from_dict(p.to_dict()) == p``.
 The pose box, speed and acceleration limits of ``[limits]`` are the robot's, written by
-:func:`limits_from_robot` when the preset is made for a platform (the ``ceart`` preset's
-header says how); they hold with or without a robot. When the pipeline binds its robot
-(:meth:`~motionbase.washout.cueing.Cueing.bind_robot`) the actuators are constrained too
-(``[robot]``).
+:func:`limits_from_robot` when the preset is made for a platform (the ``ceart`` and
+``seat`` presets' headers say how); they hold with or without a robot. When the pipeline
+binds its robot (:meth:`~motionbase.washout.cueing.Cueing.bind_robot`) the actuators are
+constrained too (``[robot]``), and a box past the robot's reach is warned of
+(:func:`motionbase.washout.mpc.check_reach`).
 """
 
 from __future__ import annotations
