@@ -376,7 +376,7 @@ def teleop_job(
         cleanup.callback(install_signal_stop(stop, stop_signals_for(drives)))
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
-        source = open_cursor_source(input_spec, rrr3)
+        source = open_cursor_source(input_spec, rrr3, stale_timeout_s)
         with source:
             if calibration_path is not None:
                 cal = CursorCalibration.from_toml(calibration_path)

@@ -12,8 +12,9 @@ teleop loop can hold position when the input goes stale.
 - :class:`FileCursor`: a CSV of ``t,x,y`` rows (seconds, pixels), looked up by time, so a
   replay gives the same targets at the same loop ticks however the loop is paced.
 - :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
-  127.0.0.1 by default; malformed lines are counted and ignored, and a read takes 16
-  datagrams at most (a flood on the port cannot hold the loop back).
+  127.0.0.1 by default; malformed lines (not two numbers), datagrams longer than 4096 bytes
+  and those of a second sender are counted and ignored (one warning each), and a read takes
+  16 datagrams at most (a flood on the port cannot hold the loop back).
 - :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
   a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
   tick while it is inside the window (a resting pointer is live input; outside the window the
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import bisect
 import csv
+import logging
 import math
 import socket
 from pathlib import Path
@@ -35,6 +37,8 @@ from motionbase.errors import SourceError
 from motionbase.io.net_address import check_host_port
 
 __all__ = ["FileCursor", "UdpCursor", "TkCursor", "open_cursor_source", "DEFAULT_SIZE_PX"]
+
+_log = logging.getLogger("motionbase")
 
 #: Window size assumed for file and UDP input without a calibration (the thesis's window).
 DEFAULT_SIZE_PX = (1310, 715)
@@ -147,6 +151,9 @@ class FileCursor(_Base):
 
 #: Datagrams one :meth:`UdpCursor.read` takes at most (Opengazer sends some 30 a second).
 MAX_DATAGRAMS_PER_READ = 16
+#: The longest cursor datagram taken, bytes; a longer one is refused whole (cut there, its
+#: last line would read as another number).
+MAX_DATAGRAM = 4096
 
 
 class UdpCursor(_Base):
@@ -158,12 +165,26 @@ class UdpCursor(_Base):
         Address to bind (127.0.0.1 by default: not reachable from other machines).
     size_px : (int, int)
         Screen size the pixels refer to (for a default calibration).
+    stale_timeout_s : float
+        One sender at a time: while the sender of the latest point sent one within this
+        time, s (of loop time), the datagrams of any other address are refused; two
+        interleaved streams would make the robot shake between their points.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 20320, size_px=DEFAULT_SIZE_PX) -> None:
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 20320,
+        size_px: tuple[int, int] = DEFAULT_SIZE_PX,
+        stale_timeout_s: float = 0.5,
+    ) -> None:
         self.host, self.port, self.size_px = host, int(port), size_px
+        self.stale_timeout_s = stale_timeout_s
         self._sock: socket.socket | None = None
         self._latest: tuple[float, float] | None = None
+        self._sender: Any = None  # the address of the latest point
+        self._sender_t = -math.inf  # its loop time, s
+        self._warned: set[str] = set()
         self.received = 0
         self.rejected = 0
         self.watchdog = True
@@ -196,30 +217,46 @@ class UdpCursor(_Base):
             raise SourceError("UDP cursor source is not open")
         for _ in range(MAX_DATAGRAMS_PER_READ):
             try:
-                data = self._sock.recv(4096)
+                data, _, flags, sender = self._sock.recvmsg(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as exc:
                 raise SourceError(f"udp:{self.host}:{self.port}: receive failed: {exc}") from None
+            if flags & socket.MSG_TRUNC:
+                self._refuse("long", f"datagrams longer than {MAX_DATAGRAM} bytes")
+                continue
+            if sender != self._sender and t - self._sender_t <= self.stale_timeout_s + 1e-9:
+                self._refuse("sender", f"datagrams from {sender}, while {self._sender} sends")
+                continue
             for line in data.decode("ascii", errors="replace").splitlines():
                 p = parse_point(line)
                 if p is None:
                     if line.strip():
-                        self.rejected += 1
+                        self._refuse("line", f"lines that are not 'x y' pixels, such as {line!r}")
                 else:
-                    self._latest = p
-                    self.received += 1
+                    self._latest, self._sender, self._sender_t = p, sender, t
                     self.updated_t = t
+                    self.received += 1
         return self._latest
+
+    def _refuse(self, kind: str, what: str) -> None:
+        """Count a refused line or datagram; warn once for each ``kind``."""
+        self.rejected += 1
+        if kind not in self._warned:
+            self._warned.add(kind)
+            _log.warning(
+                "udp:%s:%d: ignoring %s (further ones are not reported)", self.host, self.port, what
+            )
 
     def describe(self) -> dict[str, Any]:
         return {"kind": "udp", "host": self.host, "port": self.port}
 
 
 def parse_point(line: str) -> tuple[float, float] | None:
-    """``"x y"`` (or ``"x,y"``) in pixels -> (x, y); None when malformed or not finite."""
+    """``"x y"`` (or ``"x,y"``) in pixels -> (x, y); None when malformed or not finite, or
+    not exactly two numbers (``"t x y"`` would read its time as x)."""
     parts = line.replace(",", " ").split()
-    if len(parts) < 2:
+    if len(parts) != 2:
         return None
     try:
         x, y = float(parts[0]), float(parts[1])
@@ -420,8 +457,9 @@ class TkCursor(_Base):
         return {"kind": "mouse", "size_px": list(self.size_px)}
 
 
-def open_cursor_source(spec: str, rrr3: Any = None) -> Any:
-    """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``.
+def open_cursor_source(spec: str, rrr3: Any = None, stale_timeout_s: float = 0.5) -> Any:
+    """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``
+    (``stale_timeout_s``: a UDP source's, see :class:`UdpCursor`).
 
     Raises
     ------
@@ -436,7 +474,7 @@ def open_cursor_source(spec: str, rrr3: Any = None) -> Any:
             parts.insert(0, "127.0.0.1")
         # a port out of range or a host that does not resolve, said as such
         host, port = check_host_port(f"--input {spec!r}", parts[0] or "127.0.0.1", parts[1])
-        return UdpCursor(host, port)
+        return UdpCursor(host, port, stale_timeout_s=stale_timeout_s)
     if spec.startswith("file:"):
         return FileCursor(spec[5:])
     raise SourceError(f"--input {spec!r}: expected mouse, udp:HOST:PORT or file:PATH.csv")
