@@ -644,3 +644,41 @@ def test_teleop_job_to_the_board_goes_in_real_time_even_when_not_asked(tmp_path)
     assert stats.stopped_by == "end of input" and stats.ticks > 60
     spread = board.chunks[-1][0] - board.chunks[0][0]
     assert spread >= 1.0, f"1.2 s of input reached the board in {spread:.3f} s"
+
+
+def test_a_board_that_vanishes_mid_motion_is_not_said_parked(tmp_path):
+    """The board's pseudo-terminal closes (a USB cable pulled) while the robot moves fast:
+    the run braked and went home in its log, then said "(the robot was parked at home)",
+    while the robot, which got no command since, was wherever the last frame had put it.
+    One line saying it was not parked, exit status 2; the frames the board got before it
+    vanished kept the speed limit."""
+    import subprocess
+    import sys
+
+    write_csv(tmp_path / "fast.csv", duration=60.0, omega=8.0)
+    write_calibration(tmp_path / "cal.toml")
+    board = Board()
+    cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input"]
+    cmd += [f"file:{tmp_path / 'fast.csv'}", "--calibration", str(tmp_path / "cal.toml")]
+    cmd += ["--rrr3", "udesc", "--serial", board.path]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(3000):  # until about a second of motion reached the board
+            if len(board.data) > 50 * 12 or proc.poll() is not None:
+                break
+            threading.Event().wait(0.01)
+        board.close()
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 2, (stdout, stderr)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and board.path in lines[0], lines
+    assert "not parked" in lines[0] and "parked at home" not in lines[0], lines[0]
+    got = decode(bytes(board.data))
+    frames = np.array([[v for _, v in got[i : i + 3]] for i in range(0, len(got) // 3 * 3, 3)])
+    assert len(set(map(tuple, frames))) > 10  # it moved
+    step = math.degrees(Rrr3Geometry.preset("udesc").max_speed * DT) + 1
+    assert np.abs(np.diff(frames, axis=0)).max() <= step

@@ -162,10 +162,15 @@ class _ServoSink:
         self.link = link
         self.label = getattr(link, "url", None) or type(link).__name__
         self.frames_sent = 0
+        self.failed = False  # (then the robot is where its last frame put it)
 
     def write(self, out: PipelineOutput) -> None:
-        if self.link.write([int(d) for d in out.servo_deg], t=out.t):
-            self.frames_sent += 1
+        try:
+            sent = self.link.write([int(d) for d in out.servo_deg], t=out.t)
+        except Exception:
+            self.failed = True
+            raise
+        self.frames_sent += bool(sent)
 
 
 class _TeleopLog:
@@ -312,6 +317,8 @@ def run_teleop(
         # one clear line, saying where the robot was left
         home = np.array_equal(pipeline.command, robot.park_angles) and not pipeline.speed.any()
         where = "parked at home" if home else "stopped at rest"
+        if servo is not None and servo.failed:  # parked in the log only
+            where = "not parked: it was left where the last command the board got put it"
         raise type(cause)(f"{cause} (the robot was {where})") from cause
     stopped_by = summary.stopped_by  # the commands' end: "duration" or "end of input"
     asked = bool(stop) and stopped_by.startswith(stop.reason) and "failure" not in stop.reason
