@@ -110,3 +110,37 @@ def test_a_cursor_csv_saved_by_a_spreadsheet_is_read(tmp_path, capfd, fresh_logg
     assert "stopped by end of input" in stdout
     pixels = [m["pixel"] for m in read_messages(out)["/cursor"]]
     assert pixels[0] == [655.0, 357.0] and pixels[-1] == [700.0, 357.0]
+
+
+@pytest.mark.parametrize("rows", ["0,655,357\n", "t,x,y\n2,655,357\n2,700,300\n"])
+def test_a_cursor_csv_that_lasts_no_time_is_one_line(tmp_path, capfd, fresh_logger, rows):
+    """One row (or all at one time): the run ended on its first tick and said "stopped by
+    end of input", exit 0, the robot a tick away from home and back: nothing told the
+    user the file had no motion in it."""
+    csv = tmp_path / "cursor.csv"
+    csv.write_text(rows)
+    code, stdout, err = _cli(capfd, "teleop", "--input", f"file:{csv}")
+    assert code == 2 and not stdout, stdout
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(csv) in lines[0] and "no time" in lines[0], err
+
+
+@pytest.mark.parametrize("host", ["in use", "10.1.2.3", "::1"])
+def test_a_listen_address_that_cannot_be_bound_says_what_to_change(capfd, fresh_logger, host):
+    """Every bind failure said "(choose another port)": for an address that is not this
+    machine's (10.1.2.3) or not IPv4 (::1), another port does not help."""
+    busy = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    busy.bind(("127.0.0.1", 0))
+    port = busy.getsockname()[1]
+    try:
+        spec = f"udp:127.0.0.1:{port}" if host == "in use" else f"udp:{host}:{port}"
+        code, _, err = _cli(capfd, "teleop", "--input", spec, "--duration", "0.1")
+    finally:
+        busy.close()
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    if host == "in use":
+        assert "choose another port" in lines[0]
+    else:
+        assert "another port" not in lines[0] and "127.0.0.1" in lines[0], lines[0]

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import bisect
 import csv
+import errno
 import logging
 import math
 import socket
@@ -121,6 +122,11 @@ class FileCursor(_Base):
             ) from None
         if not rows:
             raise SourceError(f"{self.path}: no cursor rows (expected 't,x,y' lines)")
+        if rows[-1][0] == rows[0][0]:  # the run would end on its first tick
+            raise SourceError(
+                f"{self.path}: every row ({len(rows)}) is at t = {rows[0][0]:g} s, so the input "
+                "lasts no time; add a row with a later time, s (the last row's time ends it)"
+            )
         t0 = rows[0][0]
         self.times = [r[0] - t0 for r in rows]
         self.pixels = [(r[1], r[2]) for r in rows]
@@ -196,9 +202,14 @@ class UdpCursor(_Base):
             s.bind((self.host, self.port))
         except OSError as exc:
             s.close()
+            fix = (
+                "another program listens there: choose another port"
+                if exc.errno == errno.EADDRINUSE
+                else "give an IPv4 address of this machine: 127.0.0.1, or 0.0.0.0 for all"
+            )
             raise SourceError(
                 f"cannot listen for cursor points on udp:{self.host}:{self.port}: "
-                f"{exc.strerror or exc} (choose another port)"
+                f"{exc.strerror or exc} ({fix})"
             ) from None
         s.setblocking(False)
         self._sock = s
