@@ -63,10 +63,15 @@ def write_csv(path, duration=1.2, omega=2.0):
     return rows
 
 
+def linear_cal():
+    """The calibration of :func:`cal_xy`, fitted over pixels far beyond the tests' cursor
+    paths (off its pixels' box a calibration holds the box's edge)."""
+    px = np.array([[u, v] for u in (-9000.0, U0, 9000.0) for v in (-9000.0, V0, 9000.0)])
+    return CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+
+
 def write_calibration(path):
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    pts = np.array([cal_xy(u, v) for u, v in px])
-    CursorCalibration.fit(px, pts).to_toml(path)
+    linear_cal().to_toml(path)
 
 
 def test_teleop_file_to_pty_sends_exactly_the_predicted_servo_commands(tmp_path):
@@ -123,8 +128,7 @@ def far_file(tmp_path, target_px):
 
 def test_unreachable_targets_are_clamped_or_held(tmp_path):
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    cal = linear_cal()
 
     class Recorder:
         def __init__(self):
@@ -153,8 +157,7 @@ def test_unreachable_targets_are_clamped_or_held(tmp_path):
 
 def test_joint_speed_and_acceleration_are_limited(tmp_path):
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    cal = linear_cal()
     from motionbase.io.mcap_log import McapLogger
 
     out = tmp_path / "jump.mcap"
@@ -223,8 +226,7 @@ def _sender(port, points, period_s, stop):
 
 def test_stale_udp_input_holds_position_then_resumes():
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    cal = linear_cal()
     goal = (U0 + 1200, V0 - 400)  # 2.4 cm right, 0.8 cm up: reachable, about 0.4 s away
     assert rrr3.reachable(np.array([*cal_xy(*goal), 0.0]))
     src = UdpCursor("127.0.0.1", 0).open()
@@ -404,8 +406,7 @@ def test_end_of_input_brakes_to_rest_within_the_limits_then_goes_home(tmp_path):
 @pytest.mark.parametrize("how", ["estop", "duration", "before start"])
 def test_a_stop_at_any_moment_parks_at_home_within_the_limits(tmp_path, how):
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    cal = linear_cal()
     write_csv(tmp_path / "fast.csv", duration=5.0, omega=8.0)
     stop = StopRequest()
     if how == "before start":
@@ -442,8 +443,7 @@ def test_a_stop_at_any_moment_parks_at_home_within_the_limits(tmp_path, how):
 
 def test_no_time_left_to_go_home_still_comes_to_rest_within_the_limits(tmp_path):
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    cal = linear_cal()
     write_csv(tmp_path / "fast.csv", duration=5.0, omega=8.0)
     log = DictLog()
     run_teleop(
@@ -573,8 +573,7 @@ def test_a_serial_link_failing_mid_motion_parks_through_the_log_then_says_so(tmp
     from motionbase.errors import SinkError
 
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
-    px = np.array([[u, v] for u in (0.0, 600.0, 1310.0) for v in (0.0, 400.0, 715.0)])
-    cal = CursorCalibration.fit(px, np.array([cal_xy(u, v) for u, v in px]))
+    cal = linear_cal()
     write_csv(tmp_path / "fast.csv", duration=5.0, omega=8.0)
 
     class FailingLink:
