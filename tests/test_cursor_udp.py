@@ -6,6 +6,7 @@ import logging
 import select
 import socket
 
+import numpy as np
 import pytest
 
 from motionbase.io.cursor_input import UdpCursor
@@ -98,3 +99,67 @@ def test_each_kind_of_refusal_is_said_once(udp, caplog):
     assert src.rejected == 4
     warnings = [r.getMessage() for r in caplog.records if "udp:" in r.getMessage()]
     assert len(warnings) == 1 and "'640;360'" in warnings[0], warnings
+
+
+def test_the_deadband_keeps_the_point_in_use_through_jitter_but_not_a_move(udp):
+    """``deadband_px``: a point closer than it to the one in use is not taken, yet it is
+    fresh input (the watchdog is fed); a point as far or farther is taken."""
+    src, sender, send = udp
+    src.close()
+    src = UdpCursor("127.0.0.1", 0, deadband_px=20.0).open()
+    tx = sender()
+    try:
+        for k, (point, used) in enumerate([
+            ((600, 400), (600, 400)),
+            ((610, 395), (600, 400)),  # 11.2 px away
+            ((614, 414), (600, 400)),  # 19.8 px
+            ((600, 420), (600, 420)),  # 20 px: taken
+            ((590, 410), (600, 420)),  # 14.1 px from the new one
+        ]):  # fmt: skip
+            tx.sendto(f"{point[0]} {point[1]}\n".encode(), ("127.0.0.1", src.port))
+            assert select.select([src._sock], [], [], 5.0)[0]
+            assert src.read(0.02 * k) == used and src.updated_t == 0.02 * k
+    finally:
+        src.close()
+
+
+@pytest.mark.parametrize("deadband_px", [0.0, 12.0])
+def test_eye_tracker_jitter_moves_the_servos_only_without_a_deadband(deadband_px):
+    """A gaze held on one point, with a tracker's jitter (3 px standard deviation, one
+    datagram a tick over loopback UDP): without a dead band the servo commands flip by a
+    degree many times a second (15 changes a second at 50 Hz on the wire); with one of
+    four times the jitter they stay put once the robot has arrived."""
+    from motionbase.platform import CursorCalibration, Rrr3, Rrr3Geometry
+    from motionbase.teleop import run_teleop
+
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
+    cal = CursorCalibration.default(rrr3, 1310, 715)
+    src = UdpCursor("127.0.0.1", 0, deadband_px=deadband_px).open()
+    gaze = np.array([800.0, 400.0]) + np.random.default_rng(7).normal(0.0, 3.0, (200, 2))
+
+    class Tracker:
+        """The servo sink's place: records the commands, then sends the next gaze point."""
+
+        def __init__(self):
+            self.tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.commands = []
+
+        def write(self, servo, t=None):
+            self.commands.append(tuple(servo))
+            u, v = gaze[min(len(self.commands), len(gaze)) - 1]
+            self.tx.sendto(f"{u:.2f} {v:.2f}\n".encode(), ("127.0.0.1", src.port))
+            assert select.select([src._sock], [], [], 5.0)[0]
+            return True
+
+    tracker = Tracker()
+    try:
+        run_teleop(src, rrr3, cal, sink=tracker, realtime=False, duration_s=3.0)
+    finally:
+        tracker.tx.close()
+        src.close()
+    held = tracker.commands[75:150]  # from 1.5 s on: arrived (a 4 mm move), gaze held
+    changes = sum(a != b for a, b in zip(held, held[1:], strict=False))
+    if deadband_px:
+        assert changes == 0, held
+    else:
+        assert changes > 10, held  # the jitter alone moved the servos

@@ -144,3 +144,18 @@ def test_a_listen_address_that_cannot_be_bound_says_what_to_change(capfd, fresh_
         assert "choose another port" in lines[0]
     else:
         assert "another port" not in lines[0] and "127.0.0.1" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("value", ["-3", "nan", "x"])
+def test_a_deadband_that_is_no_distance_or_without_udp_input_is_one_line(
+    tmp_path, capfd, fresh_logger, value
+):
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    for args in (["--input", "udp:127.0.0.1:9", "--deadband", value],
+                 ["--input", f"file:{csv}", "--deadband", "10"]):  # fmt: skip
+        try:
+            code, _, err = _cli(capfd, "teleop", *args, "--duration", "0.1")
+        except SystemExit as exc:  # (argparse's refusal of the option)
+            code, err = exc.code, capfd.readouterr().err
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert code == 2 and "--deadband" in lines[-1] and "Traceback" not in err, err

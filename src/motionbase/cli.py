@@ -465,6 +465,14 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold unreachable targets instead of clamping them toward home",
     )
+    p.add_argument(
+        "--deadband",
+        type=_positive_float,
+        default=0.0,
+        metavar="PX",
+        help="udp input: ignore points closer than PX pixels to the one in use (an eye "
+        "tracker's jitter: about four times its standard deviation)",
+    )
     _add_shared(p, "--live")
 
 
@@ -478,7 +486,7 @@ def run_teleop(args: argparse.Namespace) -> int:
         stats = teleop_job(
             args.input, serial_url=args.serial, calibration_path=args.calibration,
             rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
-            clamp=not args.no_clamp, live=args.live, stop=stop,
+            clamp=not args.no_clamp, live=args.live, stop=stop, deadband_px=args.deadband,
         )  # fmt: skip
     tell(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "

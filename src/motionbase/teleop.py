@@ -345,6 +345,7 @@ def teleop_job(
     stale_timeout_s: float = 0.5,
     stop: StopRequest | None = None,
     live: str | None = None,
+    deadband_px: float = 0.0,
 ) -> TeleopStats:
     """The ``motionbase teleop`` command: build source, calibration, sink and log; run.
 
@@ -356,7 +357,8 @@ def teleop_job(
     too. ``live`` (``[HOST:]PORT``) also serves the log's topics to Foxglove while running
     (needs ``out``). With a ``serial_url`` the run is paced in real time whatever
     ``realtime`` says: the board's servos are motors, and move in real time only (as
-    ``stream``'s ``serial``).
+    ``stream``'s ``serial``). ``deadband_px``: UDP input ignores points closer than this to
+    the one in use, pixels (:class:`~motionbase.io.cursor_input.UdpCursor`).
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
@@ -383,7 +385,7 @@ def teleop_job(
         cleanup.callback(install_signal_stop(stop, stop_signals_for(drives)))
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
-        source = open_cursor_source(input_spec, rrr3, stale_timeout_s)
+        source = open_cursor_source(input_spec, rrr3, stale_timeout_s, deadband_px)
         with source:
             if calibration_path is not None:
                 cal = CursorCalibration.from_toml(calibration_path)

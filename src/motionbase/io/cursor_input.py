@@ -175,6 +175,9 @@ class UdpCursor(_Base):
         One sender at a time: while the sender of the latest point sent one within this
         time, s (of loop time), the datagrams of any other address are refused; two
         interleaved streams would make the robot shake between their points.
+    deadband_px : float
+        A point less than this far from the one in use, pixels, is not taken (it still
+        counts as fresh input): an eye tracker's jitter then leaves the robot still. 0: off.
     """
 
     def __init__(
@@ -183,9 +186,10 @@ class UdpCursor(_Base):
         port: int = 20320,
         size_px: tuple[int, int] = DEFAULT_SIZE_PX,
         stale_timeout_s: float = 0.5,
+        deadband_px: float = 0.0,
     ) -> None:
         self.host, self.port, self.size_px = host, int(port), size_px
-        self.stale_timeout_s = stale_timeout_s
+        self.stale_timeout_s, self.deadband_px = stale_timeout_s, deadband_px
         self._sock: socket.socket | None = None
         self._latest: tuple[float, float] | None = None
         self._sender: Any = None  # the address of the latest point
@@ -245,7 +249,9 @@ class UdpCursor(_Base):
                     if line.strip():
                         self._refuse("line", f"lines that are not 'x y' pixels, such as {line!r}")
                 else:
-                    self._latest, self._sender, self._sender_t = p, sender, t
+                    if self._latest is None or math.dist(p, self._latest) >= self.deadband_px:
+                        self._latest = p
+                    self._sender, self._sender_t = sender, t
                     self.updated_t = t
                     self.received += 1
         return self._latest
@@ -260,7 +266,12 @@ class UdpCursor(_Base):
             )
 
     def describe(self) -> dict[str, Any]:
-        return {"kind": "udp", "host": self.host, "port": self.port}
+        return {
+            "kind": "udp",
+            "host": self.host,
+            "port": self.port,
+            "deadband_px": self.deadband_px,
+        }
 
 
 def parse_point(line: str) -> tuple[float, float] | None:
@@ -468,15 +479,19 @@ class TkCursor(_Base):
         return {"kind": "mouse", "size_px": list(self.size_px)}
 
 
-def open_cursor_source(spec: str, rrr3: Any = None, stale_timeout_s: float = 0.5) -> Any:
+def open_cursor_source(
+    spec: str, rrr3: Any = None, stale_timeout_s: float = 0.5, deadband_px: float = 0.0
+) -> Any:
     """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``
-    (``stale_timeout_s``: a UDP source's, see :class:`UdpCursor`).
+    (``stale_timeout_s``, ``deadband_px``: a UDP source's, see :class:`UdpCursor`).
 
     Raises
     ------
     SourceError
         An unknown or malformed spec.
     """
+    if deadband_px and not spec.startswith("udp:"):
+        raise SourceError(f"--deadband is for udp: input (an eye tracker), not --input {spec!r}")
     if spec == "mouse":
         return TkCursor(rrr3)
     if spec.startswith("udp:"):
@@ -485,7 +500,7 @@ def open_cursor_source(spec: str, rrr3: Any = None, stale_timeout_s: float = 0.5
             parts.insert(0, "127.0.0.1")
         # a port out of range or a host that does not resolve, said as such
         host, port = check_host_port(f"--input {spec!r}", parts[0] or "127.0.0.1", parts[1])
-        return UdpCursor(host, port, stale_timeout_s=stale_timeout_s)
+        return UdpCursor(host, port, stale_timeout_s=stale_timeout_s, deadband_px=deadband_px)
     if spec.startswith("file:"):
         return FileCursor(spec[5:])
     raise SourceError(f"--input {spec!r}: expected mouse, udp:HOST:PORT or file:PATH.csv")
