@@ -125,10 +125,11 @@ def test_a_cursor_csv_that_lasts_no_time_is_one_line(tmp_path, capfd, fresh_logg
     assert len(lines) == 1 and str(csv) in lines[0] and "no time" in lines[0], err
 
 
-@pytest.mark.parametrize("host", ["in use", "10.1.2.3", "::1"])
+@pytest.mark.parametrize("host", ["in use", "10.1.2.3", "::1", "[::1]"])
 def test_a_listen_address_that_cannot_be_bound_says_what_to_change(capfd, fresh_logger, host):
     """Every bind failure said "(choose another port)": for an address that is not this
-    machine's (10.1.2.3) or not IPv4 (::1), another port does not help."""
+    machine's (10.1.2.3) or not IPv4 (::1), another port does not help; [::1] was said not to
+    resolve."""
     busy = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     busy.bind(("127.0.0.1", 0))
     port = busy.getsockname()[1]

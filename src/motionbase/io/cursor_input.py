@@ -499,7 +499,8 @@ def open_cursor_source(
         if len(parts) == 1:
             parts.insert(0, "127.0.0.1")
         # a port out of range or a host that does not resolve, said as such
-        host, port = check_host_port(f"--input {spec!r}", parts[0] or "127.0.0.1", parts[1])
+        host = parts[0].removeprefix("[").removesuffix("]") or "127.0.0.1"  # ([::1]: IPv6)
+        host, port = check_host_port(f"--input {spec!r}", host, parts[1])
         return UdpCursor(host, port, stale_timeout_s=stale_timeout_s, deadband_px=deadband_px)
     if spec.startswith("file:"):
         return FileCursor(spec[5:])
