@@ -14,7 +14,7 @@ teleop loop can hold position when the input goes stale.
 - :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
   127.0.0.1 by default; malformed lines (not two numbers), datagrams longer than 4096 bytes
   and those of a second sender are counted and ignored (one warning each), and a read takes
-  16 datagrams at most (a flood on the port cannot hold the loop back).
+  256 datagrams or 64 kB at most (a flood on the port cannot hold the loop back).
 - :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
   a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
   tick while it is inside the window (a resting pointer is live input; outside the window the
@@ -155,8 +155,11 @@ class FileCursor(_Base):
         return {"kind": "file", "path": str(self.path), "rows": len(self.times)}
 
 
-#: Datagrams one :meth:`UdpCursor.read` takes at most (Opengazer sends some 30 a second).
-MAX_DATAGRAMS_PER_READ = 16
+#: Datagrams one :meth:`UdpCursor.read` takes at most: Opengazer sends some 30 a second,
+#: research trackers 1000 or more (at 16 a read, a 50 Hz loop fell a quarter second behind).
+MAX_DATAGRAMS_PER_READ = 256
+#: Bytes one read takes at most (then a datagram of many lines, or none), 16 of the longest.
+MAX_BYTES_PER_READ = 65536
 #: The longest cursor datagram taken, bytes; a longer one is refused whole (cut there, its
 #: last line would read as another number).
 MAX_DATAGRAM = 4096
@@ -227,16 +230,21 @@ class UdpCursor(_Base):
 
     def read(self, t: float) -> tuple[float, float] | None:
         """The latest point, after reading at most :data:`MAX_DATAGRAMS_PER_READ` datagrams
-        (a flood on the port cannot hold the loop back: the rest waits for the next read)."""
+        and :data:`MAX_BYTES_PER_READ` (a flood on the port cannot hold the loop back: the
+        rest waits for the next read)."""
         if self._sock is None:
             raise SourceError("UDP cursor source is not open")
+        budget = MAX_BYTES_PER_READ
         for _ in range(MAX_DATAGRAMS_PER_READ):
+            if budget <= 0:
+                break
             try:
                 data, _, flags, sender = self._sock.recvmsg(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as exc:
                 raise SourceError(f"udp:{self.host}:{self.port}: receive failed: {exc}") from None
+            budget -= len(data)
             if flags & socket.MSG_TRUNC:
                 self._refuse("long", f"datagrams longer than {MAX_DATAGRAM} bytes")
                 continue
