@@ -14,7 +14,7 @@ teleop loop can hold position when the input goes stale.
 - :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
   127.0.0.1 by default; malformed lines (not two numbers), datagrams longer than 4096 bytes
   and those of a second sender are counted and ignored (one warning each), and a read takes
-  256 datagrams or 64 kB at most (a flood on the port cannot hold the loop back).
+  256 datagrams or 16 kB at most (a flood on the port cannot hold the loop back).
 - :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
   a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
   tick while it is inside the window (a resting pointer is live input; outside the window the
@@ -158,8 +158,8 @@ class FileCursor(_Base):
 #: Datagrams one :meth:`UdpCursor.read` takes at most: Opengazer sends some 30 a second,
 #: research trackers 1000 or more (at 16 a read, a 50 Hz loop fell a quarter second behind).
 MAX_DATAGRAMS_PER_READ = 256
-#: Bytes one read takes at most (then a datagram of many lines, or none), 16 of the longest.
-MAX_BYTES_PER_READ = 65536
+#: Bytes one read takes at most (a datagram of many lines is slow to parse: 4 of the longest).
+MAX_BYTES_PER_READ = 16384
 #: The longest cursor datagram taken, bytes; a longer one is refused whole (cut there, its
 #: last line would read as another number).
 MAX_DATAGRAM = 4096
