@@ -163,3 +163,12 @@ def test_eye_tracker_jitter_moves_the_servos_only_without_a_deadband(deadband_px
         assert changes == 0, held
     else:
         assert changes > 10, held  # the jitter alone moved the servos
+
+
+@pytest.mark.parametrize("deadband_px", [float("nan"), -1.0, float("inf")])
+def test_a_deadband_that_is_no_distance_is_refused(deadband_px):
+    """A NaN dead band took the first point and then none (every comparison false)."""
+    from motionbase.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--deadband"):
+        UdpCursor("127.0.0.1", 0, deadband_px=deadband_px)

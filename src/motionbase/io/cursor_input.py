@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.errors import SourceError
+from motionbase.errors import ConfigError, SourceError
 from motionbase.io.net_address import check_host_port
 
 __all__ = ["FileCursor", "UdpCursor", "TkCursor", "open_cursor_source", "DEFAULT_SIZE_PX"]
@@ -191,8 +191,10 @@ class UdpCursor(_Base):
         stale_timeout_s: float = 0.5,
         deadband_px: float = 0.0,
     ) -> None:
+        if not (math.isfinite(deadband_px) and deadband_px >= 0):  # (NaN: no point taken)
+            raise ConfigError(f"--deadband must be >= 0 pixels, got {deadband_px!r}")
         self.host, self.port, self.size_px = host, int(port), size_px
-        self.stale_timeout_s, self.deadband_px = stale_timeout_s, deadband_px
+        self.stale_timeout_s, self.deadband_px = stale_timeout_s, float(deadband_px)
         self._sock: socket.socket | None = None
         self._latest: tuple[float, float] | None = None
         self._sender: Any = None  # the address of the latest point
