@@ -160,3 +160,26 @@ def test_a_deadband_that_is_no_distance_or_without_udp_input_is_one_line(
             code, err = exc.code, capfd.readouterr().err
         lines = [ln for ln in err.splitlines() if ln.strip()]
         assert code == 2 and "--deadband" in lines[-1] and "Traceback" not in err, err
+
+
+def test_screen_names_the_size_the_cursor_pixels_are_on(tmp_path, capfd, fresh_logger):
+    """A 1920 x 1080 screen without a calibration: the default map assumed the thesis's
+    1310 x 715 window, so the right and lower parts of the screen were off the map. With
+    ``--screen 1920x1080`` the screen's centre is the valid rectangle's centre and its
+    corner the rectangle's corner."""
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("0,960,540\n0.5,1920,1080\n1.0,1920,1080\n")
+    out = tmp_path / "out.mcap"
+    code, _, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--screen", "1920x1080",
+                        "--rrr3", "udesc", "--out", out)  # fmt: skip
+    assert code == 0, err
+    x0, x1, y0, y1 = Rrr3(Rrr3Geometry.preset("udesc")).inscribed_rectangle(0.0)
+    targets = [m["target"] for m in read_messages(out)["/cursor"]]
+    assert targets[0] == pytest.approx([(x0 + x1) / 2, (y0 + y1) / 2], abs=1e-12)
+    assert targets[-1] == pytest.approx([x1, y0], abs=1e-12)
+    with pytest.raises(SystemExit):
+        _cli(capfd, "teleop", "--input", f"file:{csv}", "--screen", "1920")
+    err = capfd.readouterr().err
+    assert "--screen" in err and "WIDTHxHEIGHT" in err and "Traceback" not in err

@@ -346,6 +346,7 @@ def teleop_job(
     stop: StopRequest | None = None,
     live: str | None = None,
     deadband_px: float = 0.0,
+    screen_px: tuple[int, int] | None = None,
 ) -> TeleopStats:
     """The ``motionbase teleop`` command: build source, calibration, sink and log; run.
 
@@ -358,7 +359,8 @@ def teleop_job(
     (needs ``out``). With a ``serial_url`` the run is paced in real time whatever
     ``realtime`` says: the board's servos are motors, and move in real time only (as
     ``stream``'s ``serial``). ``deadband_px``: UDP input ignores points closer than this to
-    the one in use, pixels (:class:`~motionbase.io.cursor_input.UdpCursor`).
+    the one in use, pixels (:class:`~motionbase.io.cursor_input.UdpCursor`); ``screen_px``:
+    the source's screen (or window) size, pixels, for the default calibration.
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
@@ -385,7 +387,7 @@ def teleop_job(
         cleanup.callback(install_signal_stop(stop, stop_signals_for(drives)))
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
-        source = open_cursor_source(input_spec, rrr3, stale_timeout_s, deadband_px)
+        source = open_cursor_source(input_spec, rrr3, stale_timeout_s, deadband_px, screen_px)
         with source:
             if calibration_path is not None:
                 cal = CursorCalibration.from_toml(calibration_path)

@@ -490,10 +490,15 @@ class TkCursor(_Base):
 
 
 def open_cursor_source(
-    spec: str, rrr3: Any = None, stale_timeout_s: float = 0.5, deadband_px: float = 0.0
+    spec: str,
+    rrr3: Any = None,
+    stale_timeout_s: float = 0.5,
+    deadband_px: float = 0.0,
+    size_px: tuple[int, int] | None = None,
 ) -> Any:
     """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``
-    (``stale_timeout_s``, ``deadband_px``: a UDP source's, see :class:`UdpCursor`).
+    (``stale_timeout_s``, ``deadband_px``: a UDP source's, see :class:`UdpCursor`;
+    ``size_px``: the screen or window size, pixels, unless the source's default).
 
     Raises
     ------
@@ -502,8 +507,9 @@ def open_cursor_source(
     """
     if deadband_px and not spec.startswith("udp:"):
         raise SourceError(f"--deadband is for udp: input (an eye tracker), not --input {spec!r}")
+    sized: dict[str, Any] = {} if size_px is None else {"size_px": tuple(size_px)}
     if spec == "mouse":
-        return TkCursor(rrr3)
+        return TkCursor(rrr3, **sized)
     if spec.startswith("udp:"):
         parts = spec[4:].rsplit(":", 1)
         if len(parts) == 1:
@@ -511,7 +517,9 @@ def open_cursor_source(
         # a port out of range or a host that does not resolve, said as such
         host = parts[0].removeprefix("[").removesuffix("]") or "127.0.0.1"  # ([::1]: IPv6)
         host, port = check_host_port(f"--input {spec!r}", host, parts[1])
-        return UdpCursor(host, port, stale_timeout_s=stale_timeout_s, deadband_px=deadband_px)
+        return UdpCursor(
+            host, port, stale_timeout_s=stale_timeout_s, deadband_px=deadband_px, **sized
+        )
     if spec.startswith("file:"):
-        return FileCursor(spec[5:])
+        return FileCursor(spec[5:], **sized)
     raise SourceError(f"--input {spec!r}: expected mouse, udp:HOST:PORT or file:PATH.csv")
