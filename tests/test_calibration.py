@@ -127,3 +127,36 @@ def test_default_maps_window_onto_valid_rectangle_with_y_down():
     xy = cal(px)
     poses = np.concatenate([xy, np.zeros((len(xy), 1))], axis=1)
     assert rrr3.reachable(poses).all()
+
+
+def test_a_pixel_off_the_calibrated_screen_is_taken_at_its_edge():
+    """A 9-point calibration measured on the robot (positions read to about half a
+    millimetre) is a bi-quadratic with some curvature; beyond its points it bent back, so
+    a gaze moving on off the screen (an eye tracker reports such points) moved the robot
+    back, and a tracker's "lost" value (-32768, -32768) went anywhere. Off the screen the
+    map now holds the screen's edge: monotonic, and bounded by the edge's points."""
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc"))
+    x0, x1, y0, y1 = rrr3.inscribed_rectangle(0.0)
+    px = grid(3)
+    ideal = np.stack([x0 + px[:, 0] / 1310 * (x1 - x0), y1 - px[:, 1] / 715 * (y1 - y0)], -1)
+    measured = ideal + np.random.default_rng(3).normal(0.0, 0.0005, ideal.shape)
+    cal = CursorCalibration.fit(px, measured)
+    # rays from the screen's centre through its corners and mid-edges to three half-screens
+    # beyond: the robot's progress along each (as the ideal map moves it) never turns
+    # back, and off the screen it holds the point where the ray left it
+    k = np.linspace(0.0, 3.0, 601)[:, None]  # (k = 1: the screen's edge)
+    scale = np.array([(x1 - x0) / 1310, -(y1 - y0) / 715])  # the ideal map's m per pixel
+    rays = []
+    for angle in np.radians(np.arange(0, 360, 45)):
+        d = np.array([655 * np.cos(angle), 357.5 * np.sin(angle)])
+        d /= np.abs(d / [655, 357.5]).max()  # to the edge or corner at k = 1
+        rays.append((d, cal(np.array([655.0, 357.5]) + k * d)))
+    for d, xy in rays:
+        progress = (xy - xy[0]) @ (scale * d)
+        assert np.all(np.diff(progress) >= 0.0), f"turns back toward {d.round()} px"
+    for d, xy in rays:
+        assert np.abs(xy[200:] - xy[200]).max() <= 1e-15  # (k[200] = 1)
+        np.testing.assert_allclose(cal.map_one(*(np.array([655.0, 357.5]) + 3 * d)), xy[-1])
+    np.testing.assert_allclose(cal([-32768.0, -32768.0]), cal([0.0, 0.0]), rtol=0, atol=1e-15)
+    # on the screen, the fit itself (its own points)
+    np.testing.assert_allclose(cal(px), measured, atol=1e-12)

@@ -110,3 +110,76 @@ def test_a_cursor_csv_saved_by_a_spreadsheet_is_read(tmp_path, capfd, fresh_logg
     assert "stopped by end of input" in stdout
     pixels = [m["pixel"] for m in read_messages(out)["/cursor"]]
     assert pixels[0] == [655.0, 357.0] and pixels[-1] == [700.0, 357.0]
+
+
+@pytest.mark.parametrize("rows", ["0,655,357\n", "t,x,y\n2,655,357\n2,700,300\n"])
+def test_a_cursor_csv_that_lasts_no_time_is_one_line(tmp_path, capfd, fresh_logger, rows):
+    """One row (or all at one time): the run ended on its first tick and said "stopped by
+    end of input", exit 0, the robot a tick away from home and back: nothing told the
+    user the file had no motion in it."""
+    csv = tmp_path / "cursor.csv"
+    csv.write_text(rows)
+    code, stdout, err = _cli(capfd, "teleop", "--input", f"file:{csv}")
+    assert code == 2 and not stdout, stdout
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(csv) in lines[0] and "no time" in lines[0], err
+
+
+@pytest.mark.parametrize("host", ["in use", "10.1.2.3", "::1", "[::1]"])
+def test_a_listen_address_that_cannot_be_bound_says_what_to_change(capfd, fresh_logger, host):
+    """Every bind failure said "(choose another port)": for an address that is not this
+    machine's (10.1.2.3) or not IPv4 (::1), another port does not help; [::1] was said not to
+    resolve."""
+    busy = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    busy.bind(("127.0.0.1", 0))
+    port = busy.getsockname()[1]
+    try:
+        spec = f"udp:127.0.0.1:{port}" if host == "in use" else f"udp:{host}:{port}"
+        code, _, err = _cli(capfd, "teleop", "--input", spec, "--duration", "0.1")
+    finally:
+        busy.close()
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    if host == "in use":
+        assert "choose another port" in lines[0]
+    else:
+        assert "another port" not in lines[0] and "127.0.0.1" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("value", ["-3", "nan", "x"])
+def test_a_deadband_that_is_no_distance_or_without_udp_input_is_one_line(
+    tmp_path, capfd, fresh_logger, value
+):
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    for args in (["--input", "udp:127.0.0.1:9", "--deadband", value],
+                 ["--input", f"file:{csv}", "--deadband", "10"]):  # fmt: skip
+        try:
+            code, _, err = _cli(capfd, "teleop", *args, "--duration", "0.1")
+        except SystemExit as exc:  # (argparse's refusal of the option)
+            code, err = exc.code, capfd.readouterr().err
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert code == 2 and "--deadband" in lines[-1] and "Traceback" not in err, err
+
+
+def test_screen_names_the_size_the_cursor_pixels_are_on(tmp_path, capfd, fresh_logger):
+    """A 1920 x 1080 screen without a calibration: the default map assumed the thesis's
+    1310 x 715 window, so the right and lower parts of the screen were off the map. With
+    ``--screen 1920x1080`` the screen's centre is the valid rectangle's centre and its
+    corner the rectangle's corner."""
+    from motionbase.platform import Rrr3, Rrr3Geometry
+
+    csv = tmp_path / "cursor.csv"
+    csv.write_text("0,960,540\n0.5,1920,1080\n1.0,1920,1080\n")
+    out = tmp_path / "out.mcap"
+    code, _, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--screen", "1920x1080",
+                        "--rrr3", "udesc", "--out", out)  # fmt: skip
+    assert code == 0, err
+    x0, x1, y0, y1 = Rrr3(Rrr3Geometry.preset("udesc")).inscribed_rectangle(0.0)
+    targets = [m["target"] for m in read_messages(out)["/cursor"]]
+    assert targets[0] == pytest.approx([(x0 + x1) / 2, (y0 + y1) / 2], abs=1e-12)
+    assert targets[-1] == pytest.approx([x1, y0], abs=1e-12)
+    with pytest.raises(SystemExit):
+        _cli(capfd, "teleop", "--input", f"file:{csv}", "--screen", "1920")
+    err = capfd.readouterr().err
+    assert "--screen" in err and "WIDTHxHEIGHT" in err and "Traceback" not in err

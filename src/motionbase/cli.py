@@ -210,6 +210,13 @@ def _raised_by_ctrl_c(exc: BaseException) -> bool:
 # ``run`` function decorated with @command that only calls into the library.
 
 
+def _screen_size(text: str) -> tuple[int, int]:
+    w, _, h = text.lower().partition("x")
+    if not (w.isdigit() and h.isdigit() and int(w) > 0 and int(h) > 0):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, got {text!r}")
+    return int(w), int(h)
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -466,6 +473,21 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hold unreachable targets instead of clamping them toward home",
     )
+    p.add_argument(
+        "--deadband",
+        type=_positive_float,
+        default=0.0,
+        metavar="PX",
+        help="udp input: ignore points closer than PX pixels to the one in use (an eye "
+        "tracker's jitter: about four times its standard deviation)",
+    )
+    p.add_argument(
+        "--screen",
+        type=_screen_size,
+        metavar="WxH",
+        help="the screen the udp or file pixels are on, without --calibration (default "
+        "1310x715); the mouse window's size",
+    )
     _add_shared(p, "--live")
 
 
@@ -479,7 +501,8 @@ def run_teleop(args: argparse.Namespace) -> int:
         stats = teleop_job(
             args.input, serial_url=args.serial, calibration_path=args.calibration,
             rate_hz=args.rate, out=args.out, duration_s=args.duration, geometry=args.rrr3,
-            clamp=not args.no_clamp, live=args.live, stop=stop,
+            clamp=not args.no_clamp, live=args.live, stop=stop, deadband_px=args.deadband,
+            screen_px=args.screen,
         )  # fmt: skip
     tell(
         f"teleop: {stats.ticks} ticks, {stats.frames_sent} serial frames, {stats.clamps} clamped, "

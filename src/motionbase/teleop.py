@@ -162,10 +162,15 @@ class _ServoSink:
         self.link = link
         self.label = getattr(link, "url", None) or type(link).__name__
         self.frames_sent = 0
+        self.failed = False  # (then the robot is where its last frame put it)
 
     def write(self, out: PipelineOutput) -> None:
-        if self.link.write([int(d) for d in out.servo_deg], t=out.t):
-            self.frames_sent += 1
+        try:
+            sent = self.link.write([int(d) for d in out.servo_deg], t=out.t)
+        except Exception:
+            self.failed = True
+            raise
+        self.frames_sent += bool(sent)
 
 
 class _TeleopLog:
@@ -312,6 +317,8 @@ def run_teleop(
         # one clear line, saying where the robot was left
         home = np.array_equal(pipeline.command, robot.park_angles) and not pipeline.speed.any()
         where = "parked at home" if home else "stopped at rest"
+        if servo is not None and servo.failed:  # parked in the log only
+            where = "not parked: it was left where the last command the board got put it"
         raise type(cause)(f"{cause} (the robot was {where})") from cause
     stopped_by = summary.stopped_by  # the commands' end: "duration" or "end of input"
     asked = bool(stop) and stopped_by.startswith(stop.reason) and "failure" not in stop.reason
@@ -338,6 +345,8 @@ def teleop_job(
     stale_timeout_s: float = 0.5,
     stop: StopRequest | None = None,
     live: str | None = None,
+    deadband_px: float = 0.0,
+    screen_px: tuple[int, int] | None = None,
 ) -> TeleopStats:
     """The ``motionbase teleop`` command: build source, calibration, sink and log; run.
 
@@ -349,7 +358,9 @@ def teleop_job(
     too. ``live`` (``[HOST:]PORT``) also serves the log's topics to Foxglove while running
     (needs ``out``). With a ``serial_url`` the run is paced in real time whatever
     ``realtime`` says: the board's servos are motors, and move in real time only (as
-    ``stream``'s ``serial``).
+    ``stream``'s ``serial``). ``deadband_px``: UDP input ignores points closer than this to
+    the one in use, pixels (:class:`~motionbase.io.cursor_input.UdpCursor`); ``screen_px``:
+    the source's screen (or window) size, pixels, for the default calibration.
     """
     from motionbase.config import resolve_preset_or_path
     from motionbase.io.cursor_input import open_cursor_source
@@ -376,7 +387,7 @@ def teleop_job(
         cleanup.callback(install_signal_stop(stop, stop_signals_for(drives)))
         rrr3 = Rrr3(Rrr3Geometry.from_toml(resolve_preset_or_path("rrr3", geometry)))
         pipeline = teleop_pipeline(rrr3, rate_hz=rate_hz, clamp=clamp)  # before the window
-        source = open_cursor_source(input_spec, rrr3)
+        source = open_cursor_source(input_spec, rrr3, stale_timeout_s, deadband_px, screen_px)
         with source:
             if calibration_path is not None:
                 cal = CursorCalibration.from_toml(calibration_path)

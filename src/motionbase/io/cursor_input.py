@@ -12,8 +12,9 @@ teleop loop can hold position when the input goes stale.
 - :class:`FileCursor`: a CSV of ``t,x,y`` rows (seconds, pixels), looked up by time, so a
   replay gives the same targets at the same loop ticks however the loop is paced.
 - :class:`UdpCursor`: text datagrams of ``x y`` lines in pixels (Opengazer's format), bound to
-  127.0.0.1 by default; malformed lines are counted and ignored, and a read takes 16
-  datagrams at most (a flood on the port cannot hold the loop back).
+  127.0.0.1 by default; malformed lines (not two numbers), datagrams longer than 4096 bytes
+  and those of a second sender are counted and ignored (one warning each), and a read takes
+  256 datagrams or 16 kB at most (a flood on the port cannot hold the loop back).
 - :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
   a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
   tick while it is inside the window (a resting pointer is live input; outside the window the
@@ -24,6 +25,8 @@ from __future__ import annotations
 
 import bisect
 import csv
+import errno
+import logging
 import math
 import socket
 from pathlib import Path
@@ -31,10 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.errors import SourceError
+from motionbase.errors import ConfigError, SourceError
 from motionbase.io.net_address import check_host_port
 
 __all__ = ["FileCursor", "UdpCursor", "TkCursor", "open_cursor_source", "DEFAULT_SIZE_PX"]
+
+_log = logging.getLogger("motionbase")
 
 #: Window size assumed for file and UDP input without a calibration (the thesis's window).
 DEFAULT_SIZE_PX = (1310, 715)
@@ -117,6 +122,11 @@ class FileCursor(_Base):
             ) from None
         if not rows:
             raise SourceError(f"{self.path}: no cursor rows (expected 't,x,y' lines)")
+        if rows[-1][0] == rows[0][0]:  # the run would end on its first tick
+            raise SourceError(
+                f"{self.path}: every row ({len(rows)}) is at t = {rows[0][0]:g} s, so the input "
+                "lasts no time; add a row with a later time, s (the last row's time ends it)"
+            )
         t0 = rows[0][0]
         self.times = [r[0] - t0 for r in rows]
         self.pixels = [(r[1], r[2]) for r in rows]
@@ -145,8 +155,14 @@ class FileCursor(_Base):
         return {"kind": "file", "path": str(self.path), "rows": len(self.times)}
 
 
-#: Datagrams one :meth:`UdpCursor.read` takes at most (Opengazer sends some 30 a second).
-MAX_DATAGRAMS_PER_READ = 16
+#: Datagrams one :meth:`UdpCursor.read` takes at most: Opengazer sends some 30 a second,
+#: research trackers 1000 or more (at 16 a read, a 50 Hz loop fell a quarter second behind).
+MAX_DATAGRAMS_PER_READ = 256
+#: Bytes one read takes at most (a datagram of many lines is slow to parse: 4 of the longest).
+MAX_BYTES_PER_READ = 16384
+#: The longest cursor datagram taken, bytes; a longer one is refused whole (cut there, its
+#: last line would read as another number).
+MAX_DATAGRAM = 4096
 
 
 class UdpCursor(_Base):
@@ -158,12 +174,32 @@ class UdpCursor(_Base):
         Address to bind (127.0.0.1 by default: not reachable from other machines).
     size_px : (int, int)
         Screen size the pixels refer to (for a default calibration).
+    stale_timeout_s : float
+        One sender at a time: while the sender of the latest point sent one within this
+        time, s (of loop time), the datagrams of any other address are refused; two
+        interleaved streams would make the robot shake between their points.
+    deadband_px : float
+        A point less than this far from the one in use, pixels, is not taken (it still
+        counts as fresh input): an eye tracker's jitter then leaves the robot still. 0: off.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 20320, size_px=DEFAULT_SIZE_PX) -> None:
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 20320,
+        size_px: tuple[int, int] = DEFAULT_SIZE_PX,
+        stale_timeout_s: float = 0.5,
+        deadband_px: float = 0.0,
+    ) -> None:
+        if not (math.isfinite(deadband_px) and deadband_px >= 0):  # (NaN: no point taken)
+            raise ConfigError(f"--deadband must be >= 0 pixels, got {deadband_px!r}")
         self.host, self.port, self.size_px = host, int(port), size_px
+        self.stale_timeout_s, self.deadband_px = stale_timeout_s, float(deadband_px)
         self._sock: socket.socket | None = None
         self._latest: tuple[float, float] | None = None
+        self._sender: Any = None  # the address of the latest point
+        self._sender_t = -math.inf  # its loop time, s
+        self._warned: set[str] = set()
         self.received = 0
         self.rejected = 0
         self.watchdog = True
@@ -175,9 +211,14 @@ class UdpCursor(_Base):
             s.bind((self.host, self.port))
         except OSError as exc:
             s.close()
+            fix = (
+                "another program listens there: choose another port"
+                if exc.errno == errno.EADDRINUSE
+                else "give an IPv4 address of this machine: 127.0.0.1, or 0.0.0.0 for all"
+            )
             raise SourceError(
                 f"cannot listen for cursor points on udp:{self.host}:{self.port}: "
-                f"{exc.strerror or exc} (choose another port)"
+                f"{exc.strerror or exc} ({fix})"
             ) from None
         s.setblocking(False)
         self._sock = s
@@ -191,35 +232,63 @@ class UdpCursor(_Base):
 
     def read(self, t: float) -> tuple[float, float] | None:
         """The latest point, after reading at most :data:`MAX_DATAGRAMS_PER_READ` datagrams
-        (a flood on the port cannot hold the loop back: the rest waits for the next read)."""
+        and :data:`MAX_BYTES_PER_READ` (a flood on the port cannot hold the loop back: the
+        rest waits for the next read)."""
         if self._sock is None:
             raise SourceError("UDP cursor source is not open")
+        budget = MAX_BYTES_PER_READ
         for _ in range(MAX_DATAGRAMS_PER_READ):
+            if budget <= 0:
+                break
             try:
-                data = self._sock.recv(4096)
+                data, _, flags, sender = self._sock.recvmsg(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as exc:
                 raise SourceError(f"udp:{self.host}:{self.port}: receive failed: {exc}") from None
+            budget -= len(data)
+            if flags & socket.MSG_TRUNC:
+                self._refuse("long", f"datagrams longer than {MAX_DATAGRAM} bytes")
+                continue
+            if sender != self._sender and t - self._sender_t <= self.stale_timeout_s + 1e-9:
+                self._refuse("sender", f"datagrams from {sender}, while {self._sender} sends")
+                continue
             for line in data.decode("ascii", errors="replace").splitlines():
                 p = parse_point(line)
                 if p is None:
                     if line.strip():
-                        self.rejected += 1
+                        self._refuse("line", f"lines that are not 'x y' pixels, such as {line!r}")
                 else:
-                    self._latest = p
-                    self.received += 1
+                    if self._latest is None or math.dist(p, self._latest) >= self.deadband_px:
+                        self._latest = p
+                    self._sender, self._sender_t = sender, t
                     self.updated_t = t
+                    self.received += 1
         return self._latest
 
+    def _refuse(self, kind: str, what: str) -> None:
+        """Count a refused line or datagram; warn once for each ``kind``."""
+        self.rejected += 1
+        if kind not in self._warned:
+            self._warned.add(kind)
+            _log.warning(
+                "udp:%s:%d: ignoring %s (further ones are not reported)", self.host, self.port, what
+            )
+
     def describe(self) -> dict[str, Any]:
-        return {"kind": "udp", "host": self.host, "port": self.port}
+        return {
+            "kind": "udp",
+            "host": self.host,
+            "port": self.port,
+            "deadband_px": self.deadband_px,
+        }
 
 
 def parse_point(line: str) -> tuple[float, float] | None:
-    """``"x y"`` (or ``"x,y"``) in pixels -> (x, y); None when malformed or not finite."""
+    """``"x y"`` (or ``"x,y"``) in pixels -> (x, y); None when malformed or not finite, or
+    not exactly two numbers (``"t x y"`` would read its time as x)."""
     parts = line.replace(",", " ").split()
-    if len(parts) < 2:
+    if len(parts) != 2:
         return None
     try:
         x, y = float(parts[0]), float(parts[1])
@@ -420,23 +489,37 @@ class TkCursor(_Base):
         return {"kind": "mouse", "size_px": list(self.size_px)}
 
 
-def open_cursor_source(spec: str, rrr3: Any = None) -> Any:
-    """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``.
+def open_cursor_source(
+    spec: str,
+    rrr3: Any = None,
+    stale_timeout_s: float = 0.5,
+    deadband_px: float = 0.0,
+    size_px: tuple[int, int] | None = None,
+) -> Any:
+    """Build a source from ``mouse``, ``udp:HOST:PORT`` (or ``udp:PORT``) or ``file:PATH.csv``
+    (``stale_timeout_s``, ``deadband_px``: a UDP source's, see :class:`UdpCursor`;
+    ``size_px``: the screen or window size, pixels, unless the source's default).
 
     Raises
     ------
     SourceError
         An unknown or malformed spec.
     """
+    if deadband_px and not spec.startswith("udp:"):
+        raise SourceError(f"--deadband is for udp: input (an eye tracker), not --input {spec!r}")
+    sized: dict[str, Any] = {} if size_px is None else {"size_px": tuple(size_px)}
     if spec == "mouse":
-        return TkCursor(rrr3)
+        return TkCursor(rrr3, **sized)
     if spec.startswith("udp:"):
         parts = spec[4:].rsplit(":", 1)
         if len(parts) == 1:
             parts.insert(0, "127.0.0.1")
         # a port out of range or a host that does not resolve, said as such
-        host, port = check_host_port(f"--input {spec!r}", parts[0] or "127.0.0.1", parts[1])
-        return UdpCursor(host, port)
+        host = parts[0].removeprefix("[").removesuffix("]") or "127.0.0.1"  # ([::1]: IPv6)
+        host, port = check_host_port(f"--input {spec!r}", host, parts[1])
+        return UdpCursor(
+            host, port, stale_timeout_s=stale_timeout_s, deadband_px=deadband_px, **sized
+        )
     if spec.startswith("file:"):
-        return FileCursor(spec[5:])
+        return FileCursor(spec[5:], **sized)
     raise SourceError(f"--input {spec!r}: expected mouse, udp:HOST:PORT or file:PATH.csv")

@@ -16,6 +16,10 @@ coefficients come from least squares over 9 or more pairs, and the fit is refuse
 normalised design matrix is rank deficient or badly conditioned (points on a line, repeated
 points). ``residual`` is the RMS fit error in metres (zero for 9 exact points; large when the
 pairs are inconsistent with any bi-quadratic map).
+
+The map holds over the box of the fitted pixels (the screen the points were taken on): a
+pixel outside it is taken at the box's edge. A bi-quadratic is not extrapolated: beyond its
+points it bends back, so that a cursor moving on off the screen moved the robot back.
 """
 
 from __future__ import annotations
@@ -191,15 +195,16 @@ class CursorCalibration:
         if px.ndim == 0 or px.shape[-1] != 2:
             raise ConfigError(f"calibration: pixels must have shape (..., 2), got {px.shape}")
         F = _features(
-            (px[..., 0] - self.pixel_center[0]) / self.pixel_scale[0],
-            (px[..., 1] - self.pixel_center[1]) / self.pixel_scale[1],
+            np.clip((px[..., 0] - self.pixel_center[0]) / self.pixel_scale[0], -1.0, 1.0),
+            np.clip((px[..., 1] - self.pixel_center[1]) / self.pixel_scale[1], -1.0, 1.0),
         )
         return np.stack([F @ np.asarray(self.coef_x), F @ np.asarray(self.coef_y)], axis=-1)
 
     def map_one(self, u: float, v: float) -> tuple[float, float]:
         """Scalar fast path of ``__call__``: ``(x, y)`` in m for one cursor pixel."""
-        a = (u - self.pixel_center[0]) / self.pixel_scale[0]
-        b = (v - self.pixel_center[1]) / self.pixel_scale[1]
+        # (in this order a NaN stays NaN, as through np.clip)
+        a = min(max((u - self.pixel_center[0]) / self.pixel_scale[0], -1.0), 1.0)
+        b = min(max((v - self.pixel_center[1]) / self.pixel_scale[1], -1.0), 1.0)
         aa, bb = a * a, b * b
         f = (1.0, a, b, a * b, aa, bb, aa * b, a * bb, aa * bb)
         cx, cy = self.coef_x, self.coef_y
