@@ -218,6 +218,26 @@ def test_reads_a_file_written_by_the_mcap_library(tmp_path: Path) -> None:
     assert states[-1].angular_velocity[2] == 1.0
 
 
+def test_log_times_beyond_a_signed_64_bit_integer_replay(tmp_path: Path) -> None:
+    """MCAP's times are unsigned 64-bit nanoseconds: a writer's times past 2**63 (and a step
+    back among them) are read, not an OverflowError."""
+    path = tmp_path / "late.mcap"
+    base = 2**63 + 5
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        cid = writer.register_channel("/aircraft/state", "json", 0)
+        for k in range(1, 101):
+            ns = base + k * 10_000_000 if k != 50 else base - 1  # one message logged early
+            writer.add_message(cid, ns, json.dumps(_good_message(k / 100)).encode(), ns)
+        writer.finish()
+    source = McapSource(path)
+    assert source.count == 100
+    assert source.rate_hz == pytest.approx(100.0)  # 10 ms apart
+    assert source.duration_s == pytest.approx(0.99)
+    assert [s.t for s in source] == [k / 100 for k in range(1, 101)]
+
+
 def test_non_finite_and_null_values_read_back_as_floats(tmp_path: Path) -> None:
     path = tmp_path / "nan.mcap"
     with McapLogger(path, {"rate_hz": 10.0}) as logger:

@@ -607,7 +607,7 @@ class McapSource:
         self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
-        self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
+        self.rate_hz = self._find_rate(np.asarray(times, dtype=np.uint64))
         _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
 
@@ -645,7 +645,8 @@ class McapSource:
                     where = f"{name}." if name else ""
                     self.rate_from = f"its recorded configuration ({where}rate_hz)"
                     return float(rate)
-        steps = np.diff(times_ns)
+        # (MCAP's times are unsigned 64-bit: the steps modulo 2**64, back ones negative)
+        steps = np.diff(times_ns).view(np.int64)
         steps = steps[steps > 0]
         if steps.size == 0:
             raise LogFormatError(
