@@ -535,3 +535,25 @@ def test_a_state_sent_twice_costs_one_rejection_not_the_rest_of_the_recording(
     # the tick times still increase
     times = [m["t"] for m in log["/platform/pose"]]
     assert all(b > a for a, b in zip(times, times[1:], strict=False))
+
+
+def test_a_check_of_an_older_recording_with_a_tf_message_that_is_no_object_says_differs(
+    tmp_path, capfd, fresh_logger
+):
+    """An older log's /tf (log format "1", or a file that does not say) is shifted to the
+    platform's origin before the compare; a /tf message that is not a JSON object (a list)
+    ended ``replay --check`` in an AttributeError traceback."""
+    rec = tmp_path / "rec.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        states = writer.register_channel("/aircraft/state", "json", 0)
+        tf = writer.register_channel("/tf", "json", 0)
+        for k in range(200):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(states, ns, _state(k / 100), ns)
+            writer.add_message(tf, ns, b"[1, 2]" if k == 7 else b'{"child_frame_id": "x"}', ns)
+        writer.finish()
+    code, out, err = _cli(capfd, "replay", rec, "--check")
+    assert code == 1 and "Traceback" not in err, err
+    assert "check: DIFFERS" in out and "DIFF /tf" in out

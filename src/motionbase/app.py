@@ -1347,7 +1347,7 @@ def _tf_at_platform_origin(recording: dict[str, list[dict]], origin: Any) -> dic
     tfs = []
     for m in recording.get("/tf", []):
         tr = m.get("translation") if isinstance(m, dict) else None
-        if m.get("child_frame_id") == "platform" and isinstance(tr, dict):
+        if isinstance(tr, dict) and m.get("child_frame_id") == "platform":
             x, y, z = tr.get("x"), tr.get("y"), tr.get("z")
             if all(isinstance(v, int | float) and not isinstance(v, bool) for v in (x, y, z)):
                 m = {**m, "translation": {"x": ox + x, "y": oy + y, "z": oz + z}}
