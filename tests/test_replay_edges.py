@@ -557,3 +557,37 @@ def test_a_check_of_an_older_recording_with_a_tf_message_that_is_no_object_says_
     code, out, err = _cli(capfd, "replay", rec, "--check")
     assert code == 1 and "Traceback" not in err, err
     assert "check: DIFFERS" in out and "DIFF /tf" in out
+
+
+@pytest.mark.parametrize("usable_at", [None, 150])
+def test_a_recording_without_a_usable_state_is_refused_before_anything_moves(
+    tmp_path, capfd, fresh_logger, usable_at
+):
+    """Every aircraft state malformed or not finite: nothing to replay. The replay ran
+    anyway (exit 0, a warning): the platform went through its start and park with no cue,
+    and a --check compared nothing of use. One usable state is enough to replay."""
+    nan = {
+        "specific_force": [math.nan, 0, -9.8],
+        "angular_velocity": [0, 0, 0],
+        "attitude": [0] * 3,
+    }
+    payloads = [
+        b'{"t": 0.5, "specific_force": "abc"}'
+        if k % 2
+        else json.dumps({"t": k / 100, **nan}).encode()
+        for k in range(200)
+    ]
+    if usable_at is not None:
+        payloads[usable_at] = _state(usable_at / 100)
+    rec = write_states(tmp_path / "rec.mcap", payloads=payloads, config={"rate_hz": 100.0})
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--out", out)
+    if usable_at is not None:
+        assert code == 0, err
+        assert "100 malformed aircraft states" in stdout and "rejected inputs 199;" in stdout
+        return
+    assert code == 2
+    line = _one_line(err)
+    assert str(rec) in line and "none of its 200 aircraft states can be used" in line
+    assert "message 1: a number in it is not finite" in line and "re-record" in line
+    assert not out.exists()

@@ -22,7 +22,7 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.config import DEFAULT_RUS6, refuse_out_over_inputs, same_file
-from motionbase.errors import ConfigError
+from motionbase.errors import ConfigError, LogFormatError
 from motionbase.pipeline import (
     Pipeline,
     PipelineConfig,
@@ -896,6 +896,11 @@ def _replay(
         )
     live_at = _live_address(live)
     with McapSource(src_path) as source:
+        if source.unusable:
+            raise LogFormatError(
+                f"{src_path}: none of its {source.count} aircraft states can be used, each is "
+                f"malformed or not finite ({source.unusable}); nothing to replay: re-record it"
+            )
         source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):

@@ -488,6 +488,15 @@ def _state_from_message(msg: Any) -> AircraftState:
     )
 
 
+def _unusable(data: bytes) -> str:
+    """Why a state message cannot be used (malformed, non-finite); ``""`` when it can."""
+    try:
+        state = _state_from_message(decode_message(data))
+    except ValueError as exc:
+        return _short_reason(exc)
+    return "" if state.is_finite() else "a number in it is not finite"
+
+
 class McapSource:
     """Aircraft states from an MCAP recording, for replays.
 
@@ -526,6 +535,9 @@ class McapSource:
         States read so far that were malformed (each yielded as a sample of NaNs, which
         the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
         first one.
+    unusable : str
+        Why no state of the recording can be used (the first one's reason: malformed or
+        non-finite); ``""`` when one can.
 
     Raises
     ------
@@ -553,6 +565,7 @@ class McapSource:
         self.count = 0
         self.malformed = 0
         self.first_malformed = ""
+        self.unusable = ""
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.rate_from = ""  # where rate_hz came from, for messages
@@ -591,6 +604,10 @@ class McapSource:
                 state_in_tick[0] = True
                 if not first:
                     first.append(msg.data)
+                    why = _unusable(msg.data)  # until a usable state comes
+                    self.unusable = why and f"message 1: {why}"
+                elif self.unusable and not _unusable(msg.data):
+                    self.unusable = ""
             elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
                 if state_in_tick[0] and _STOPPING.search(msg.data):
                     self.recorded_stop = len(times)
