@@ -589,5 +589,5 @@ def test_a_recording_without_a_usable_state_is_refused_before_anything_moves(
     assert code == 2
     line = _one_line(err)
     assert str(rec) in line and "none of its 200 aircraft states can be used" in line
-    assert "message 1: a number in it is not finite" in line and "re-record" in line
+    assert "message 1: a number in it is not finite" in line and "a state needs a time t" in line
     assert not out.exists()

@@ -899,7 +899,8 @@ def _replay(
         if source.unusable:
             raise LogFormatError(
                 f"{src_path}: none of its {source.count} aircraft states can be used, each is "
-                f"malformed or not finite ({source.unusable}); nothing to replay: re-record it"
+                f"malformed or not finite ({source.unusable}); nothing to replay (a state needs "
+                "a time t and specific_force, angular_velocity and attitude, 3 numbers each)"
             )
         source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
