@@ -612,3 +612,45 @@ def test_check_of_a_cut_recording_says_the_message_counts_differ(tmp_path, capsy
         f"  DIFF {'/b':<22} 0 messages recorded, 4 replayed",
         f"  ok   {'/c':<22} messages 2 vs 2, largest difference 0",
     ]
+
+
+def _with_camera(path: Path, states: bool = True) -> Path:
+    """Aircraft states (JSON) and a camera's frames (protobuf), as a recording merged with
+    another tool's is (made with the mcap library)."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        cid = writer.register_channel("/aircraft/state", "json", 0)
+        image = writer.register_schema("foxglove.CompressedImage", "protobuf", b"\x0a\x00")
+        camera = writer.register_channel("/camera", "protobuf", image)
+        for k in range(1, 101):
+            ns = k * 10_000_000
+            if states:
+                writer.add_message(cid, ns, json.dumps(_good_message(k / 100)).encode(), ns)
+            if k % 10 == 0:
+                writer.add_message(camera, ns, b"\x0a\x04jpeg", ns)
+        writer.finish()
+    return path
+
+
+def test_a_report_leaves_out_another_tools_topic_that_is_not_json(tmp_path, caplog):
+    """``report`` reads its own topics: a recording merged with a camera's protobuf frames
+    was refused whole ("topic '/camera' is 'protobuf'-encoded"), and a file of the camera
+    alone was refused for its encoding, not for having no aircraft state."""
+    path = _with_camera(tmp_path / "merged.mcap")
+    with pytest.raises(LogFormatError, match="'/camera' is 'protobuf'-encoded"):
+        read_messages(path)  # replay --check: a topic it would not compare is refused
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        msgs = read_messages(path, require="/aircraft/state", json_only=False)
+    assert set(msgs) == {"/aircraft/state"} and len(msgs["/aircraft/state"]) == 100
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "skipped 10 messages that are not JSON" in warned[0]
+    assert "/camera: 'protobuf'-encoded" in warned[0]
+    with pytest.raises(LogFormatError, match=r"no /aircraft/state messages.*present: /camera\)"):
+        read_messages(
+            _with_camera(tmp_path / "camera.mcap", states=False),
+            require="/aircraft/state",
+            json_only=False,
+        )
+    with pytest.raises(LogFormatError, match="'/camera' is 'protobuf'-encoded"):
+        read_messages(path, require="/camera", json_only=False)  # the topic needed

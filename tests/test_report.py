@@ -537,3 +537,32 @@ def test_odd_values_a_report_can_do_without_leave_a_report(rus6_flight):
     assert np.flatnonzero(rep.rejected).tolist() == [k] and not whole.rejected.any()
     np.testing.assert_array_equal(rep.aircraft_f[k], rep.aircraft_f[k - 1])  # held
     assert rep.cueing_fallbacks is None
+
+
+def test_a_recording_merged_with_a_camera_is_reported(rus6_flight, tmp_path, capsys):
+    """A recording merged with another tool's protobuf topic (a camera, to view both in
+    Foxglove) is reported, the camera left out with a warning; it was refused whole."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    merged = tmp_path / "merged.mcap"
+    with open(rus6_flight, "rb") as src, open(merged, "wb") as fh:
+        reader, writer = make_reader(src), Writer(fh)
+        writer.start()
+        for meta in reader.iter_metadata():
+            writer.add_metadata(meta.name, meta.metadata)
+        camera = writer.register_channel("/camera", "protobuf", 0)
+        ids: dict[int, int] = {}
+        for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            if channel.id not in ids:
+                sid = writer.register_schema(schema.name, schema.encoding, schema.data)
+                ids[channel.id] = writer.register_channel(channel.topic, "json", sid)
+            writer.add_message(ids[channel.id], msg.log_time, msg.data, msg.publish_time)
+            writer.add_message(camera, msg.log_time, b"\x0a\x04jpeg", msg.log_time)
+        writer.finish()
+    assert main(["report", str(merged), "--out", str(tmp_path / "rep")]) == 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "/camera: 'protobuf'-encoded" in err
+    assert (tmp_path / "rep" / "summary.txt").read_text() == build_report(
+        read_messages(rus6_flight), read_metadata(rus6_flight), name="merged.mcap"
+    ).text

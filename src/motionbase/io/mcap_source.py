@@ -324,6 +324,7 @@ def read_messages(
     *,
     require: str | None = None,
     skip: Collection[str] = (),
+    json_only: bool = True,
 ) -> dict[str, list[dict[str, Any]]]:
     """Every JSON message of a recording, by topic, in file order.
 
@@ -341,6 +342,11 @@ def read_messages(
         Topics not decoded and left out of the result (``report`` skips the robot's
         drawing, ``/platform/scene``: about 75 kB a message decoded, 30 a second, most of
         a recording's memory once read).
+    json_only : bool
+        A channel that is not JSON-encoded raises (``replay --check``, which would not
+        compare it). When False its messages are left out with the warning that counts
+        messages that are not JSON (``report``, which reads its own topics: a recording merged
+        with another tool's camera, say); on ``require``, it still raises.
 
     Raises
     ------
@@ -354,14 +360,18 @@ def read_messages(
     topics: dict[int, str] = {}
     out: dict[str, list[dict[str, Any]]] = {}
 
+    foreign: dict[int, str] = {}  # channel id -> its encoding, not JSON (left out)
+
     def on_channel(ch: Channel) -> None:
         if ch.message_encoding != "json":
-            raise LogFormatError(
-                f"{p}: topic {ch.topic!r} is {ch.message_encoding!r}-encoded; "
-                "motionbase reads JSON channels only"
-            )
+            if json_only or ch.topic == require:
+                raise LogFormatError(
+                    f"{p}: topic {ch.topic!r} is {ch.message_encoding!r}-encoded; "
+                    "motionbase reads JSON channels only"
+                )
+            foreign[ch.id] = ch.message_encoding
         topics[ch.id] = ch.topic
-        if ch.topic not in skip:
+        if ch.topic not in skip and ch.id not in foreign:
             out.setdefault(ch.topic, [])
 
     skipped: list[str] = []
@@ -376,8 +386,10 @@ def read_messages(
             if not orphans:
                 orphans.append(msg.channel_id)
             return
-        if topic in skip:
+        if topic in skip or msg.channel_id in foreign:
             skipped_topics.add(topic)
+            if msg.channel_id in foreign:
+                skipped.append(f"{topic}: {foreign[msg.channel_id]!r}-encoded")
             return
         try:
             out[topic].append(decode_message(msg.data))
