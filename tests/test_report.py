@@ -566,3 +566,12 @@ def test_a_recording_merged_with_a_camera_is_reported(rus6_flight, tmp_path, cap
     assert (tmp_path / "rep" / "summary.txt").read_text() == build_report(
         read_messages(rus6_flight), read_metadata(rus6_flight), name="merged.mcap"
     ).text
+
+
+@pytest.mark.parametrize("source", ["jsbsim", [1, 2], None])
+def test_a_recorded_source_that_is_no_table_is_an_unknown_source(rus6_flight, source):
+    """The metadata's ``source`` that is not a JSON object (a string, a list) ended the
+    report in an AttributeError traceback; the pipeline configuration is all it needs."""
+    meta = {**read_metadata(rus6_flight), "source": source}
+    text = build_report(read_messages(rus6_flight, skip={"/platform/scene"}), meta).text
+    assert text.startswith("motionbase report: recording (6-RUS, source unknown source, ")
