@@ -591,3 +591,25 @@ def test_a_recording_without_a_usable_state_is_refused_before_anything_moves(
     assert str(rec) in line and "none of its 200 aircraft states can be used" in line
     assert "message 1: a number in it is not finite" in line and "a state needs a time t" in line
     assert not out.exists()
+
+
+def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capfd, fresh_logger):
+    """A recording with a topic that is not JSON (a camera merged in) cannot be compared:
+    ``replay --check`` ran the whole replay first (motors too, with --output), then said so
+    and exited 2."""
+    rec = tmp_path / "merged.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        states = writer.register_channel("/aircraft/state", "json", 0)
+        camera = writer.register_channel("/camera", "protobuf", 0)
+        for k in range(200):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(states, ns, _state(k / 100), ns)
+            writer.add_message(camera, ns, b"\x0a\x04jpeg", ns)
+        writer.finish()
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--check", "--out", out)
+    assert code == 2
+    assert "'/camera' is 'protobuf'-encoded" in _one_line(err)
+    assert not out.exists() and "replayed" not in stdout  # nothing ran

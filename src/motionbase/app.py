@@ -969,6 +969,9 @@ def _replay(
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")
         # (a truncated recording: the source itself warns, for every command that reads it)
+        # the check's reading of the recording, before anything moves: one it cannot read
+        # (a topic that is not JSON, say) is refused before the replay, not after it
+        recording = read_messages(src_path) if check else {}
         tmp = None
         out_path = Path(out) if out is not None else None
         if (check or live_at is not None) and out_path is None:  # a live view needs a log
@@ -1003,7 +1006,6 @@ def _replay(
                 result.notes.append("check: not made, the replay's log is gone")
                 result.failed = True
             elif check:
-                recording = read_messages(src_path)
                 if source.log_format in (None, "1"):  # its /tf: the pose alone (see below)
                     origin = getattr(config.geometry, "platform_origin", None)
                     if origin is not None:
