@@ -238,6 +238,22 @@ def test_log_times_beyond_a_signed_64_bit_integer_replay(tmp_path: Path) -> None
     assert [s.t for s in source] == [k / 100 for k in range(1, 101)]
 
 
+def test_log_times_that_run_backwards_still_give_the_rate(tmp_path: Path) -> None:
+    """A recording without a configuration whose log times fall by 20 ms a message (a
+    writer that counts down): its rate is their spacing, 50 Hz. It was refused: "fewer than
+    two distinct times", of which it has 100."""
+    path = tmp_path / "backwards.mcap"
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        cid = writer.register_channel("/aircraft/state", "json", 0)
+        for k in range(1, 101):
+            ns = (200 - k) * 20_000_000
+            writer.add_message(cid, ns, json.dumps(_good_message(k / 50)).encode(), ns)
+        writer.finish()
+    assert McapSource(path).rate_hz == pytest.approx(50.0)
+
+
 def test_non_finite_and_null_values_read_back_as_floats(tmp_path: Path) -> None:
     path = tmp_path / "nan.mcap"
     with McapLogger(path, {"rate_hz": 10.0}) as logger:

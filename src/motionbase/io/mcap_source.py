@@ -674,8 +674,9 @@ class McapSource:
                     where = f"{name}." if name else ""
                     self.rate_from = f"its recorded configuration ({where}rate_hz)"
                     return float(rate)
-        # (MCAP's times are unsigned 64-bit: the steps modulo 2**64, back ones negative)
-        steps = np.diff(times_ns).view(np.int64)
+        # (MCAP's times are unsigned 64-bit: the steps modulo 2**64, back ones negative; a
+        # writer's log times that run backwards are spaced as well as forward ones)
+        steps = np.abs(np.diff(times_ns).view(np.int64))
         steps = steps[steps > 0]
         if steps.size == 0:
             raise LogFormatError(
