@@ -613,3 +613,25 @@ def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capf
     assert code == 2
     assert "'/camera' is 'protobuf'-encoded" in _one_line(err)
     assert not out.exists() and "replayed" not in stdout  # nothing ran
+
+
+def test_a_preview_replay_of_a_cut_recording_warns_once(tmp_path, capfd, fresh_logger):
+    """``replay --preview`` read the recording twice, each time with its warnings: a cut
+    recording was said to be truncated twice, and its first malformed state malformed twice."""
+    rec = tmp_path / "cut.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh, chunk_size=4096)  # many chunks: the cut leaves most of them
+        writer.start()
+        channel = writer.register_channel("/aircraft/state", "json", 0)
+        for k in range(300):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(channel, ns, b"[]" if k == 50 else _state(k / 100), ns)
+        writer.finish()
+    rec.write_bytes(rec.read_bytes()[: rec.stat().st_size * 2 // 3])
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--cueing", "mpc", "--preview", "--out", out)
+    assert code == 0 and "Traceback" not in err, err
+    assert "preview: the mpc cueing saw the flight's future" in stdout
+    assert err.count("is truncated") == 1 and err.count("is malformed") == 1, err
+    assert "1 malformed aircraft states rejected" in stdout
+    assert [m["accepted"] for m in read_messages(out)["/aircraft/state"]].count(False) == 1

@@ -902,7 +902,6 @@ def _replay(
                 f"malformed or not finite ({source.unusable}); nothing to replay (a state needs "
                 "a time t and specific_force, angular_velocity and attitude, 3 numbers each)"
             )
-        source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
             raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
@@ -963,8 +962,8 @@ def _replay(
                     f"{config.cueing} cueing does not use: the metadata is wrong (replay it "
                     "with --cueing or --params given, which makes no preview)"
                 ) from None
-            with McapSource(src_path) as ahead:
-                reference = preview_reference(ahead, stop)
+            reference = preview_reference(source, stop)  # (one read more: no second warning)
+        source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         notes = []
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")

@@ -711,7 +711,7 @@ class McapSource:
             fh.seek(len(MCAP_MAGIC))
             records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
             ids: set[int] = set()
-            self.malformed = 0
+            self.malformed, self.fresh = 0, True  # (as a fresh source: a replay after a preview)
             while True:
                 try:
                     rec = next(records)
@@ -759,7 +759,7 @@ class McapSource:
                 raise _Malformed(f"'fresh' holds {_show(fresh)}, not true or false")
         except ValueError as exc:  # _Malformed, or bytes that are not UTF-8 JSON
             self.malformed += 1
-            if self.malformed == 1:
+            if not self.first_malformed:  # (said once: a preview read the states before)
                 self.first_malformed = f"message {index}: {_short_reason(exc)}"
                 log.warning(
                     "%s: message %d on %s is malformed (%s); rejected and held like any "
