@@ -218,6 +218,42 @@ def test_reads_a_file_written_by_the_mcap_library(tmp_path: Path) -> None:
     assert states[-1].angular_velocity[2] == 1.0
 
 
+def test_log_times_beyond_a_signed_64_bit_integer_replay(tmp_path: Path) -> None:
+    """MCAP's times are unsigned 64-bit nanoseconds: a writer's times past 2**63 (and a step
+    back among them) are read, not an OverflowError."""
+    path = tmp_path / "late.mcap"
+    base = 2**63 + 5
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        cid = writer.register_channel("/aircraft/state", "json", 0)
+        for k in range(1, 101):
+            ns = base + k * 10_000_000 if k != 50 else base - 1  # one message logged early
+            writer.add_message(cid, ns, json.dumps(_good_message(k / 100)).encode(), ns)
+        writer.finish()
+    source = McapSource(path)
+    assert source.count == 100
+    assert source.rate_hz == pytest.approx(100.0)  # 10 ms apart
+    assert source.duration_s == pytest.approx(0.99)
+    assert [s.t for s in source] == [k / 100 for k in range(1, 101)]
+
+
+def test_log_times_that_run_backwards_still_give_the_rate(tmp_path: Path) -> None:
+    """A recording without a configuration whose log times fall by 20 ms a message (a
+    writer that counts down): its rate is their spacing, 50 Hz. It was refused: "fewer than
+    two distinct times", of which it has 100."""
+    path = tmp_path / "backwards.mcap"
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        cid = writer.register_channel("/aircraft/state", "json", 0)
+        for k in range(1, 101):
+            ns = (200 - k) * 20_000_000
+            writer.add_message(cid, ns, json.dumps(_good_message(k / 50)).encode(), ns)
+        writer.finish()
+    assert McapSource(path).rate_hz == pytest.approx(50.0)
+
+
 def test_non_finite_and_null_values_read_back_as_floats(tmp_path: Path) -> None:
     path = tmp_path / "nan.mcap"
     with McapLogger(path, {"rate_hz": 10.0}) as logger:
@@ -592,3 +628,45 @@ def test_check_of_a_cut_recording_says_the_message_counts_differ(tmp_path, capsy
         f"  DIFF {'/b':<22} 0 messages recorded, 4 replayed",
         f"  ok   {'/c':<22} messages 2 vs 2, largest difference 0",
     ]
+
+
+def _with_camera(path: Path, states: bool = True) -> Path:
+    """Aircraft states (JSON) and a camera's frames (protobuf), as a recording merged with
+    another tool's is (made with the mcap library)."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        cid = writer.register_channel("/aircraft/state", "json", 0)
+        image = writer.register_schema("foxglove.CompressedImage", "protobuf", b"\x0a\x00")
+        camera = writer.register_channel("/camera", "protobuf", image)
+        for k in range(1, 101):
+            ns = k * 10_000_000
+            if states:
+                writer.add_message(cid, ns, json.dumps(_good_message(k / 100)).encode(), ns)
+            if k % 10 == 0:
+                writer.add_message(camera, ns, b"\x0a\x04jpeg", ns)
+        writer.finish()
+    return path
+
+
+def test_a_report_leaves_out_another_tools_topic_that_is_not_json(tmp_path, caplog):
+    """``report`` reads its own topics: a recording merged with a camera's protobuf frames
+    was refused whole ("topic '/camera' is 'protobuf'-encoded"), and a file of the camera
+    alone was refused for its encoding, not for having no aircraft state."""
+    path = _with_camera(tmp_path / "merged.mcap")
+    with pytest.raises(LogFormatError, match="'/camera' is 'protobuf'-encoded"):
+        read_messages(path)  # replay --check: a topic it would not compare is refused
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        msgs = read_messages(path, require="/aircraft/state", json_only=False)
+    assert set(msgs) == {"/aircraft/state"} and len(msgs["/aircraft/state"]) == 100
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "skipped 10 messages that are not JSON" in warned[0]
+    assert "/camera: 'protobuf'-encoded" in warned[0]
+    with pytest.raises(LogFormatError, match=r"no /aircraft/state messages.*present: /camera\)"):
+        read_messages(
+            _with_camera(tmp_path / "camera.mcap", states=False),
+            require="/aircraft/state",
+            json_only=False,
+        )
+    with pytest.raises(LogFormatError, match="'/camera' is 'protobuf'-encoded"):
+        read_messages(path, require="/camera", json_only=False)  # the topic needed

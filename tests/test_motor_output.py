@@ -521,6 +521,22 @@ def test_one_udp_drive_named_by_its_host_name_and_its_address_is_refused_twice()
     assert len(open_outputs(["udp:127.0.0.1:4123", "udp:127.0.0.1:4124"], robot)) == 2
 
 
+def test_a_udp_url_written_with_two_slashes_sends_to_its_drive():
+    """``udp://127.0.0.1:PORT``, as URLs are usually written, was refused: "host name
+    '//127.0.0.1' does not resolve"."""
+    peer = UdpPeer()
+    try:
+        with open_output(
+            f"udp://127.0.0.1:{peer.port}?format=bin:0x55,6xu8", mapping({"unit": "deg"})
+        ) as sink:
+            assert sink.label == f"udp:127.0.0.1:{peer.port}"
+            assert sink.write(np.zeros(6))
+            assert wait_until(lambda: len(peer.datagrams) >= 1)
+        assert peer.datagrams[0][0] == 0x55 and len(peer.datagrams[0]) == 7
+    finally:
+        peer.close()
+
+
 @pytest.mark.parametrize("baud", ["0", "-5"])
 def test_a_baud_rate_of_zero_is_one_error_and_no_warning(baud, caplog):
     """``baud=0`` used to print the frames-will-be-dropped warning (0 baud is less than any

@@ -535,3 +535,103 @@ def test_a_state_sent_twice_costs_one_rejection_not_the_rest_of_the_recording(
     # the tick times still increase
     times = [m["t"] for m in log["/platform/pose"]]
     assert all(b > a for a, b in zip(times, times[1:], strict=False))
+
+
+def test_a_check_of_an_older_recording_with_a_tf_message_that_is_no_object_says_differs(
+    tmp_path, capfd, fresh_logger
+):
+    """An older log's /tf (log format "1", or a file that does not say) is shifted to the
+    platform's origin before the compare; a /tf message that is not a JSON object (a list)
+    ended ``replay --check`` in an AttributeError traceback."""
+    rec = tmp_path / "rec.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        states = writer.register_channel("/aircraft/state", "json", 0)
+        tf = writer.register_channel("/tf", "json", 0)
+        for k in range(200):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(states, ns, _state(k / 100), ns)
+            writer.add_message(tf, ns, b"[1, 2]" if k == 7 else b'{"child_frame_id": "x"}', ns)
+        writer.finish()
+    code, out, err = _cli(capfd, "replay", rec, "--check")
+    assert code == 1 and "Traceback" not in err, err
+    assert "check: DIFFERS" in out and "DIFF /tf" in out
+
+
+@pytest.mark.parametrize("usable_at", [None, 150])
+def test_a_recording_without_a_usable_state_is_refused_before_anything_moves(
+    tmp_path, capfd, fresh_logger, usable_at
+):
+    """Every aircraft state malformed or not finite: nothing to replay. The replay ran
+    anyway (exit 0, a warning): the platform went through its start and park with no cue,
+    and a --check compared nothing of use. One usable state is enough to replay."""
+    nan = {
+        "specific_force": [math.nan, 0, -9.8],
+        "angular_velocity": [0, 0, 0],
+        "attitude": [0] * 3,
+    }
+    payloads = [
+        b'{"t": 0.5, "specific_force": "abc"}'
+        if k % 2
+        else json.dumps({"t": k / 100, **nan}).encode()
+        for k in range(200)
+    ]
+    if usable_at is not None:
+        payloads[usable_at] = _state(usable_at / 100)
+    rec = write_states(tmp_path / "rec.mcap", payloads=payloads, config={"rate_hz": 100.0})
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--out", out)
+    if usable_at is not None:
+        assert code == 0, err
+        assert "100 malformed aircraft states" in stdout and "rejected inputs 199;" in stdout
+        return
+    assert code == 2
+    line = _one_line(err)
+    assert str(rec) in line and "none of its 200 aircraft states can be used" in line
+    assert "message 1: a number in it is not finite" in line and "a state needs a time t" in line
+    assert not out.exists()
+
+
+def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capfd, fresh_logger):
+    """A recording with a topic that is not JSON (a camera merged in) cannot be compared:
+    ``replay --check`` ran the whole replay first (motors too, with --output), then said so
+    and exited 2."""
+    rec = tmp_path / "merged.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        states = writer.register_channel("/aircraft/state", "json", 0)
+        camera = writer.register_channel("/camera", "protobuf", 0)
+        for k in range(200):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(states, ns, _state(k / 100), ns)
+            writer.add_message(camera, ns, b"\x0a\x04jpeg", ns)
+        writer.finish()
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--check", "--out", out)
+    assert code == 2
+    assert "'/camera' is 'protobuf'-encoded" in _one_line(err)
+    assert not out.exists() and "replayed" not in stdout  # nothing ran
+
+
+def test_a_preview_replay_of_a_cut_recording_warns_once(tmp_path, capfd, fresh_logger):
+    """``replay --preview`` read the recording twice, each time with its warnings: a cut
+    recording was said to be truncated twice, and its first malformed state malformed twice."""
+    rec = tmp_path / "cut.mcap"
+    with open(rec, "wb") as fh:
+        writer = Writer(fh, chunk_size=4096)  # many chunks: the cut leaves most of them
+        writer.start()
+        channel = writer.register_channel("/aircraft/state", "json", 0)
+        for k in range(300):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(channel, ns, b"[]" if k == 50 else _state(k / 100), ns)
+        writer.finish()
+    rec.write_bytes(rec.read_bytes()[: rec.stat().st_size * 2 // 3])
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--cueing", "mpc", "--preview", "--out", out)
+    assert code == 0 and "Traceback" not in err, err
+    assert "preview: the mpc cueing saw the flight's future" in stdout
+    assert err.count("is truncated") == 1 and err.count("is malformed") == 1, err
+    assert "1 malformed aircraft states rejected" in stdout
+    assert [m["accepted"] for m in read_messages(out)["/aircraft/state"]].count(False) == 1

@@ -485,3 +485,93 @@ def test_the_report_leaves_the_robots_drawing_unread(rus6_flight):
     fewer = build_report(messages, metadata, name="r")
     whole = build_report(everything, read_metadata(rus6_flight), name="r")
     assert fewer.text == whole.text
+
+
+def _with(msgs, topic, k, change):
+    """``msgs`` with message ``k`` on ``topic`` replaced by ``change(message)``."""
+    changed = [*msgs.get(topic, [])]
+    changed[k] = change(changed[k])
+    return {**msgs, topic: changed}
+
+
+def _without(key):
+    return lambda m: {f: v for f, v in m.items() if f != key}
+
+
+@pytest.mark.parametrize(
+    ("topic", "change", "said"),
+    [
+        ("/washout/pose", _without("t"), "/washout/pose: a message has no numeric 't'"),
+        ("/washout/pose", lambda m: {**m, "t": "soon"}, "/washout/pose: a message has no numeric"),
+        ("/washout/pose", lambda m: [1, 2], "/washout/pose: message 51 is [1, 2], not a JSON"),
+        ("/platform/actuators", lambda m: "x", "/platform/actuators: message 51 is 'x', not a"),
+        ("/platform/pose", lambda m: None, "/platform/pose: message 51 is None, not a JSON obj"),
+        ("/platform/pose", lambda m: {**m, "fade": "abc"}, "field 'fade' holds 'abc', not a nu"),
+        ("/aircraft/state", lambda m: {**m, "t": 10**400}, "/aircraft/state: a message has no"),
+    ],
+)
+def test_a_message_of_the_wrong_shape_is_a_one_line_error_not_a_traceback(
+    rus6_flight, topic, change, said
+):
+    """Messages a report reads that are not JSON objects, or hold a field it cannot read,
+    ended ``report`` in a KeyError, TypeError, ValueError or OverflowError traceback."""
+    msgs = read_messages(rus6_flight, skip={"/platform/scene"})
+    with pytest.raises(LogFormatError, match=re.escape(said)) as err:
+        build_report(_with(msgs, topic, 50, change), read_metadata(rus6_flight), name="r.mcap")
+    assert str(err.value).startswith("r.mcap: ") and "\n" not in str(err.value)
+
+
+def test_odd_values_a_report_can_do_without_leave_a_report(rus6_flight):
+    """A fade of null, a number beyond any float and a /cueing/ topic of strings do not stop a
+    report (each was a traceback): the null is no fade, the huge number a rejected sample
+    held like a NaN, the strings no solver's messages."""
+    msgs = read_messages(rus6_flight, skip={"/platform/scene"})
+    meta = read_metadata(rus6_flight)
+    whole = build_report(msgs, meta)
+    k = int(np.flatnonzero(whole.running)[10])  # an aircraft sample while running
+    msgs = _with(msgs, "/platform/pose", 50, lambda m: {**m, "fade": None})
+    msgs = _with(msgs, "/aircraft/state", k, lambda m: {**m, "specific_force": [10**400, 0, 0]})
+    msgs = {**msgs, "/cueing/mpc": ["fallback", "fallback"]}
+    rep = build_report(msgs, meta)
+    assert np.isnan(rep.fade[50]) and (rep.fade[:50] == 1.0).all()
+    assert np.flatnonzero(rep.rejected).tolist() == [k] and not whole.rejected.any()
+    np.testing.assert_array_equal(rep.aircraft_f[k], rep.aircraft_f[k - 1])  # held
+    assert rep.cueing_fallbacks is None
+
+
+def test_a_recording_merged_with_a_camera_is_reported(rus6_flight, tmp_path, capsys):
+    """A recording merged with another tool's protobuf topic (a camera, to view both in
+    Foxglove) is reported, the camera left out with a warning; it was refused whole."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    merged = tmp_path / "merged.mcap"
+    with open(rus6_flight, "rb") as src, open(merged, "wb") as fh:
+        reader, writer = make_reader(src), Writer(fh)
+        writer.start()
+        for meta in reader.iter_metadata():
+            writer.add_metadata(meta.name, meta.metadata)
+        camera = writer.register_channel("/camera", "protobuf", 0)
+        ids: dict[int, int] = {}
+        for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            if channel.id not in ids:
+                sid = writer.register_schema(schema.name, schema.encoding, schema.data)
+                ids[channel.id] = writer.register_channel(channel.topic, "json", sid)
+            writer.add_message(ids[channel.id], msg.log_time, msg.data, msg.publish_time)
+            writer.add_message(camera, msg.log_time, b"\x0a\x04jpeg", msg.log_time)
+        writer.finish()
+    assert main(["report", str(merged), "--out", str(tmp_path / "rep")]) == 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "/camera: 'protobuf'-encoded" in err
+    assert (tmp_path / "rep" / "summary.txt").read_text() == build_report(
+        read_messages(rus6_flight), read_metadata(rus6_flight), name="merged.mcap"
+    ).text
+
+
+@pytest.mark.parametrize("source", ["jsbsim", [1, 2], None])
+def test_a_recorded_source_that_is_no_table_is_an_unknown_source(rus6_flight, source):
+    """The metadata's ``source`` that is not a JSON object (a string, a list) ended the
+    report in an AttributeError traceback; the pipeline configuration is all it needs."""
+    meta = {**read_metadata(rus6_flight), "source": source}
+    text = build_report(read_messages(rus6_flight, skip={"/platform/scene"}), meta).text
+    assert text.startswith("motionbase report: recording (6-RUS, source unknown source, ")

@@ -22,7 +22,7 @@ import numpy as np
 
 from motionbase import __version__
 from motionbase.config import DEFAULT_RUS6, refuse_out_over_inputs, same_file
-from motionbase.errors import ConfigError
+from motionbase.errors import ConfigError, LogFormatError
 from motionbase.pipeline import (
     Pipeline,
     PipelineConfig,
@@ -897,7 +897,12 @@ def _replay(
         )
     live_at = _live_address(live)
     with McapSource(src_path) as source:
-        source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
+        if source.unusable:
+            raise LogFormatError(
+                f"{src_path}: none of its {source.count} aircraft states can be used, each is "
+                f"malformed or not finite ({source.unusable}); nothing to replay (a state needs "
+                "a time t and specific_force, angular_velocity and attitude, 3 numbers each)"
+            )
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
             raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
@@ -958,12 +963,15 @@ def _replay(
                     f"{config.cueing} cueing does not use: the metadata is wrong (replay it "
                     "with --cueing or --params given, which makes no preview)"
                 ) from None
-            with McapSource(src_path) as ahead:
-                reference = preview_reference(ahead, stop)
+            reference = preview_reference(source, stop)  # (one read more: no second warning)
+        source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         notes = []
         if recorded is None:
             notes.append(f"{src_path}: no recorded configuration; used the defaults")
         # (a truncated recording: the source itself warns, for every command that reads it)
+        # the check's reading of the recording, before anything moves: one it cannot read
+        # (a topic that is not JSON, say) is refused before the replay, not after it
+        recording = read_messages(src_path) if check else {}
         tmp = None
         out_path = Path(out) if out is not None else None
         if (check or live_at is not None) and out_path is None:  # a live view needs a log
@@ -998,7 +1006,6 @@ def _replay(
                 result.notes.append("check: not made, the replay's log is gone")
                 result.failed = True
             elif check:
-                recording = read_messages(src_path)
                 if source.log_format in (None, "1"):  # its /tf: the pose alone (see below)
                     origin = getattr(config.geometry, "platform_origin", None)
                     if origin is not None:
@@ -1348,7 +1355,7 @@ def _tf_at_platform_origin(recording: dict[str, list[dict]], origin: Any) -> dic
     tfs = []
     for m in recording.get("/tf", []):
         tr = m.get("translation") if isinstance(m, dict) else None
-        if m.get("child_frame_id") == "platform" and isinstance(tr, dict):
+        if isinstance(tr, dict) and m.get("child_frame_id") == "platform":
             x, y, z = tr.get("x"), tr.get("y"), tr.get("z")
             if all(isinstance(v, int | float) and not isinstance(v, bool) for v in (x, y, z)):
                 m = {**m, "translation": {"x": ox + x, "y": oy + y, "z": oz + z}}

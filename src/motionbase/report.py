@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from motionbase.config import is_number
+from motionbase.config import is_number, to_float
 from motionbase.errors import ConfigError, LogFormatError
 from motionbase.state import PHASES
 from motionbase.washout.perception import (
@@ -294,14 +294,24 @@ def _array(msgs: Sequence[Mapping[str, Any]], key: str, width: int, topic: str) 
             raise LogFormatError(
                 f"{topic}: message {i + 1}: field {key!r} holds {bad!r:.40}, not a number"
             )
-        out[i] = [np.nan if x is None else x for x in v]
+        out[i] = [np.nan if x is None else to_float(x) for x in v]
     return out
+
+
+def _objects(messages: Mapping[str, Sequence[Any]], topic: str) -> list[Mapping[str, Any]]:
+    """The messages on ``topic``; a LogFormatError names the first that is not a JSON object."""
+    msgs = list(messages.get(topic) or [])
+    for i, m in enumerate(msgs):
+        if not isinstance(m, Mapping):
+            shown = repr(m) if len(repr(m)) <= 40 else repr(m)[:37] + "..."
+            raise LogFormatError(f"{topic}: message {i + 1} is {shown}, not a JSON object")
+    return msgs
 
 
 def _times(msgs: Sequence[Mapping[str, Any]], topic: str) -> np.ndarray:
     try:
         t = np.array([float(m["t"]) for m in msgs])
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, OverflowError):
         raise LogFormatError(f"{topic}: a message has no numeric 't'") from None
     return t
 
@@ -377,7 +387,7 @@ def _build_report(
     from motionbase.pipeline import PipelineConfig
     from motionbase.platform.robot import robot_spec
 
-    air_msgs = list(messages.get("/aircraft/state") or [])
+    air_msgs = _objects(messages, "/aircraft/state")
     if not air_msgs:
         present = ", ".join(sorted(k for k, v in messages.items() if v)) or "none"
         raise LogFormatError(
@@ -396,8 +406,8 @@ def _build_report(
         if planar
         else ("/platform/pose", "/platform/actuators")
     )
-    pose_msgs = list(messages.get(pose_topic) or [])
-    act_msgs = list(messages.get(act_topic) or [])
+    pose_msgs = _objects(messages, pose_topic)
+    act_msgs = _objects(messages, act_topic)
     if not pose_msgs:
         raise LogFormatError(f"{name}: no {pose_topic} messages (the {config.robot} output)")
 
@@ -408,8 +418,8 @@ def _build_report(
     platform_pose = _array(pose_msgs, "pose", m, pose_topic)
     if not np.isfinite(platform_pose).all():
         raise LogFormatError(f"{name}: {pose_topic} holds non-finite poses")
-    wo_msgs = list(messages.get("/washout/pose") or [])
-    wo_index = {float(m["t"]): i for i, m in enumerate(wo_msgs)}
+    wo_msgs = _objects(messages, "/washout/pose")
+    wo_index = {float(x): i for i, x in enumerate(_times(wo_msgs, "/washout/pose"))}
     washout_pose = np.full((tick_t.size, 6), np.nan)
     wo_all = _array(wo_msgs, "pose", 6, "/washout/pose") if wo_msgs else None
     for k, tk in enumerate(tick_t):
@@ -420,7 +430,8 @@ def _build_report(
     clamped = _flags(pose_msgs, "clamped")
     rate_limited = _flags(pose_msgs, "rate_limited")
     held = _flags(pose_msgs, "held")
-    fade = np.array([float(m.get("fade", 1.0)) for m in pose_msgs])
+    fades = [{"fade": [m.get("fade", 1.0)]} for m in pose_msgs]  # (a number each: 1 wide)
+    fade = _array(fades, "fade", 1, pose_topic)[:, 0]
 
     g = config.geometry
     if planar:
@@ -573,8 +584,9 @@ def _cueing_fallbacks(
     """The cueing's name, its ticks that fell back and its ticks logged, from the first
     ``/cueing/<name>`` topic whose messages have a ``fallback`` field (the MPC's)."""
     for topic, msgs in messages.items():
-        if topic.startswith("/cueing/") and msgs and "fallback" in msgs[0]:
-            failed = sum(1 for m in msgs if m.get("fallback") is True)
+        first = msgs[0] if msgs else None
+        if topic.startswith("/cueing/") and isinstance(first, Mapping) and "fallback" in first:
+            failed = sum(1 for m in msgs if isinstance(m, Mapping) and m.get("fallback") is True)
             return topic.removeprefix("/cueing/"), failed, len(msgs)
     return None
 
@@ -597,7 +609,8 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
     r = report
     m = r.metrics
     robot = r.robot_title
-    src = (metadata or {}).get("source") or {}
+    src = (metadata or {}).get("source")
+    src = src if isinstance(src, Mapping) else {}  # (another tool's metadata: anything)
     what = src.get("script") or src.get("kind") or "unknown source"
     n_run = int(r.running.sum())
     lines = [

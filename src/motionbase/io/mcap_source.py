@@ -324,6 +324,7 @@ def read_messages(
     *,
     require: str | None = None,
     skip: Collection[str] = (),
+    json_only: bool = True,
 ) -> dict[str, list[dict[str, Any]]]:
     """Every JSON message of a recording, by topic, in file order.
 
@@ -341,6 +342,11 @@ def read_messages(
         Topics not decoded and left out of the result (``report`` skips the robot's
         drawing, ``/platform/scene``: about 75 kB a message decoded, 30 a second, most of
         a recording's memory once read).
+    json_only : bool
+        A channel that is not JSON-encoded raises (``replay --check``, which would not
+        compare it). When False its messages are left out with the warning that counts
+        messages that are not JSON (``report``, which reads its own topics: a recording merged
+        with another tool's camera, say); on ``require``, it still raises.
 
     Raises
     ------
@@ -354,14 +360,18 @@ def read_messages(
     topics: dict[int, str] = {}
     out: dict[str, list[dict[str, Any]]] = {}
 
+    foreign: dict[int, str] = {}  # channel id -> its encoding, not JSON (left out)
+
     def on_channel(ch: Channel) -> None:
         if ch.message_encoding != "json":
-            raise LogFormatError(
-                f"{p}: topic {ch.topic!r} is {ch.message_encoding!r}-encoded; "
-                "motionbase reads JSON channels only"
-            )
+            if json_only or ch.topic == require:
+                raise LogFormatError(
+                    f"{p}: topic {ch.topic!r} is {ch.message_encoding!r}-encoded; "
+                    "motionbase reads JSON channels only"
+                )
+            foreign[ch.id] = ch.message_encoding
         topics[ch.id] = ch.topic
-        if ch.topic not in skip:
+        if ch.topic not in skip and ch.id not in foreign:
             out.setdefault(ch.topic, [])
 
     skipped: list[str] = []
@@ -376,8 +386,10 @@ def read_messages(
             if not orphans:
                 orphans.append(msg.channel_id)
             return
-        if topic in skip:
+        if topic in skip or msg.channel_id in foreign:
             skipped_topics.add(topic)
+            if msg.channel_id in foreign:
+                skipped.append(f"{topic}: {foreign[msg.channel_id]!r}-encoded")
             return
         try:
             out[topic].append(decode_message(msg.data))
@@ -488,6 +500,15 @@ def _state_from_message(msg: Any) -> AircraftState:
     )
 
 
+def _unusable(data: bytes) -> str:
+    """Why a state message cannot be used (malformed, non-finite); ``""`` when it can."""
+    try:
+        state = _state_from_message(decode_message(data))
+    except ValueError as exc:
+        return _short_reason(exc)
+    return "" if state.is_finite() else "a number in it is not finite"
+
+
 class McapSource:
     """Aircraft states from an MCAP recording, for replays.
 
@@ -526,6 +547,9 @@ class McapSource:
         States read so far that were malformed (each yielded as a sample of NaNs, which
         the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
         first one.
+    unusable : str
+        Why no state of the recording can be used (the first one's reason: malformed or
+        non-finite); ``""`` when one can.
 
     Raises
     ------
@@ -553,6 +577,7 @@ class McapSource:
         self.count = 0
         self.malformed = 0
         self.first_malformed = ""
+        self.unusable = ""
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.rate_from = ""  # where rate_hz came from, for messages
@@ -591,6 +616,10 @@ class McapSource:
                 state_in_tick[0] = True
                 if not first:
                     first.append(msg.data)
+                    why = _unusable(msg.data)  # until a usable state comes
+                    self.unusable = why and f"message 1: {why}"
+                elif self.unusable and not _unusable(msg.data):
+                    self.unusable = ""
             elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
                 if state_in_tick[0] and _STOPPING.search(msg.data):
                     self.recorded_stop = len(times)
@@ -607,7 +636,7 @@ class McapSource:
         self._check_clock(first[0])
         self.count = len(times)
         self.duration_s = (times[-1] - times[0]) / 1e9
-        self.rate_hz = self._find_rate(np.asarray(times, dtype=np.int64))
+        self.rate_hz = self._find_rate(np.asarray(times, dtype=np.uint64))
         _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
 
@@ -645,7 +674,9 @@ class McapSource:
                     where = f"{name}." if name else ""
                     self.rate_from = f"its recorded configuration ({where}rate_hz)"
                     return float(rate)
-        steps = np.diff(times_ns)
+        # (MCAP's times are unsigned 64-bit: the steps modulo 2**64, back ones negative; a
+        # writer's log times that run backwards are spaced as well as forward ones)
+        steps = np.abs(np.diff(times_ns).view(np.int64))
         steps = steps[steps > 0]
         if steps.size == 0:
             raise LogFormatError(
@@ -680,7 +711,7 @@ class McapSource:
             fh.seek(len(MCAP_MAGIC))
             records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
             ids: set[int] = set()
-            self.malformed = 0
+            self.malformed, self.fresh = 0, True  # (as a fresh source: a replay after a preview)
             while True:
                 try:
                     rec = next(records)
@@ -728,7 +759,7 @@ class McapSource:
                 raise _Malformed(f"'fresh' holds {_show(fresh)}, not true or false")
         except ValueError as exc:  # _Malformed, or bytes that are not UTF-8 JSON
             self.malformed += 1
-            if self.malformed == 1:
+            if not self.first_malformed:  # (said once: a preview read the states before)
                 self.first_malformed = f"message {index}: {_short_reason(exc)}"
                 log.warning(
                     "%s: message %d on %s is malformed (%s); rejected and held like any "

@@ -1249,7 +1249,8 @@ def open_output(
         host, colon, port = base.rpartition(":")
         if not colon:
             raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")
-        host, port_no = check_host_port(f"output {url!r}", host.strip("[]"), port)
+        host = host.removeprefix("//").strip("[]")  # (udp://HOST:PORT, as URLs are written)
+        host, port_no = check_host_port(f"output {url!r}", host, port)
         transport = _UdpTransport(host, port_no)
     return MotorOutput(
         transport, fmt, mapping, rate_hz=rate, limits=limits, command_dt=command_dt, url=url

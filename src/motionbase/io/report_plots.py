@@ -106,7 +106,7 @@ def read_recording(
 
     src = Path(recording)
     # nothing to report: the error alone, without a warning that the file is cut short
-    messages = read_messages(src, require="/aircraft/state", skip=UNREAD_TOPICS)
+    messages = read_messages(src, require="/aircraft/state", skip=UNREAD_TOPICS, json_only=False)
     return messages, read_metadata(src)
 
 
