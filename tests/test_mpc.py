@@ -977,3 +977,43 @@ def test_replay_overrides_keep_the_recorded_cueing(tmp_path):
     assert json.loads(_read_mcap(out)[2]["motionbase"]["config"])["pipeline_config"]["cueing"] == (
         "classical"
     )
+
+
+def test_the_look_ahead_holds_what_the_pipeline_rejects():
+    """The preview is the reference the cueing will be fed. A sample the pipeline's input
+    validation rejects (an absurd specific force of 1e300 m/s^2, a rate past the input
+    limits, a time that does not advance) is held there; the look-ahead held only
+    non-finite ones, so the MPC planned toward 1e300 m/s^2 the flight never gave it."""
+    from motionbase.io.manoeuvres import preview_reference
+    from motionbase.safety import InputLimits
+    from motionbase.state import AircraftState
+
+    g = [0.0, 0.0, -9.80665]
+    good = [
+        AircraftState(
+            t=0.01 * k,
+            specific_force=[0.1 * k, 0, -9.8],
+            angular_velocity=[0, 0, 0.01 * k],
+            attitude=[0, 0, 0],
+        )
+        for k in range(6)
+    ]
+    states = [
+        good[0],
+        good[1],
+        AircraftState(
+            t=0.02, specific_force=[1e300, 0, 0], angular_velocity=[0, 0, 0], attitude=[0, 0, 0]
+        ),
+        AircraftState(t=0.03, specific_force=g, angular_velocity=[25.0, 0, 0], attitude=[0, 0, 0]),
+        AircraftState(t=0.01, specific_force=g, angular_velocity=[0, 0, 0], attitude=[0, 0, 0]),
+        good[5],
+    ]
+    f, w = preview_reference(iter(states), limits=InputLimits())
+    assert f.shape == w.shape == (6, 3)
+    for k in (2, 3, 4):  # held: the last usable sample, good[1]
+        np.testing.assert_array_equal(f[k], good[1].specific_force)
+        np.testing.assert_array_equal(w[k], good[1].angular_velocity)
+    np.testing.assert_array_equal(f[5], good[5].specific_force)
+    # a wider limit lets the 25 rad/s through, as the pipeline with that limit would
+    _, w = preview_reference(iter(states), limits=InputLimits(max_angular_velocity=30.0))
+    assert w[3][0] == 25.0

@@ -791,7 +791,7 @@ def fly(
 
                 _check_preview(config.cueing)
                 with JsbsimSource(script, duration_s=duration_s) as ahead:
-                    reference = preview_reference(ahead, stop)
+                    reference = preview_reference(ahead, stop, config.input_limits)
             return _drive(
                 f"flew {name} on the {robot_title(config)}",
                 config,
@@ -963,7 +963,7 @@ def _replay(
                     f"{config.cueing} cueing does not use: the metadata is wrong (replay it "
                     "with --cueing or --params given, which makes no preview)"
                 ) from None
-            reference = preview_reference(source, stop)  # (one read more: no second warning)
+            reference = preview_reference(source, stop, config.input_limits)  # one read more
         source.reproduce_stop(stop)  # a run stopped while its source went on stops here too
         notes = []
         if recorded is None:

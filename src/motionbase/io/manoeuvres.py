@@ -35,6 +35,7 @@ import tomli_w
 from motionbase.config import same_file
 from motionbase.errors import ConfigError
 from motionbase.io.whole_files import whole_file
+from motionbase.safety import InputLimits, input_problem
 from motionbase.state import AircraftState
 from motionbase.washout.params import STANDARD_GRAVITY, WashoutParams
 
@@ -319,12 +320,15 @@ def write_washout(path: str | Path, params: WashoutParams, header: list[str]) ->
         raise ConfigError(f"{p}: cannot write: {exc.strerror}") from None
 
 
-def preview_reference(source: Any, stop: Any = None) -> tuple[np.ndarray, np.ndarray]:
+def preview_reference(
+    source: Any, stop: Any = None, limits: InputLimits | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Every sample of an (entered) offline source, as the preview of a cueing
     (:meth:`motionbase.washout.mpc.MpcCueing.set_preview`): specific force (N, 3), m/s^2,
-    and body rates (N, 3), rad/s, one row per sample the source gives. A non-finite
-    sample holds the last finite one (level flight before any), as the pipeline holds a
-    rejected sample.
+    and body rates (N, 3), rad/s, one row per sample the source gives. A sample the
+    pipeline rejects (:func:`motionbase.safety.input_problem` with ``limits``, the run's
+    input limits: non-finite, absurd, its time not after the last usable one) holds the
+    last usable one (level flight before any), as the pipeline holds it.
 
     ``stop`` (the run's :class:`~motionbase.stopping.StopRequest`): once it is set, the
     rest of the source is not read, and the run this prepares stops before its first
@@ -337,15 +341,18 @@ def preview_reference(source: Any, stop: Any = None) -> tuple[np.ndarray, np.nda
     ConfigError
         The source gave no sample.
     """
+    limits = limits or InputLimits()
     f, w = [], []
     last_f, last_w = np.array([0.0, 0.0, -STANDARD_GRAVITY]), np.zeros(3)
+    last_t = None
     for state in source:
         if stop is not None and stop.is_set():
             break
         sf = np.asarray(state.specific_force, dtype=float)
         av = np.asarray(state.angular_velocity, dtype=float)
-        if np.isfinite(sf).all() and np.isfinite(av).all():
-            last_f, last_w = sf, av
+        att = np.asarray(state.attitude, dtype=float)
+        if input_problem(state.t, sf, av, att, last_t, limits) is None:
+            last_f, last_w, last_t = sf, av, state.t
         f.append(last_f)
         w.append(last_w)
     if not f:
