@@ -635,3 +635,47 @@ def test_a_preview_replay_of_a_cut_recording_warns_once(tmp_path, capfd, fresh_l
     assert err.count("is truncated") == 1 and err.count("is malformed") == 1, err
     assert "1 malformed aircraft states rejected" in stdout
     assert [m["accepted"] for m in read_messages(out)["/aircraft/state"]].count(False) == 1
+
+
+def test_a_check_of_a_newer_log_format_is_refused_before_the_replay_runs(
+    tmp_path, capfd, fresh_logger
+):
+    """A recording whose metadata says a log format this version does not write (made by a
+    newer motionbase) cannot be compared message for message: ``replay --check`` says so,
+    and which version made it, in one line before anything moves (it compared the layouts
+    anyway and said DIFFERS, which reads as a fault of the replay)."""
+    from mcap.reader import make_reader
+
+    made = tmp_path / "made.mcap"
+    assert cli.main(["fly", "c1723", "--duration", "1", "--out", str(made)]) == 0
+    capfd.readouterr()
+    rec = tmp_path / "newer.mcap"
+    with open(made, "rb") as src, open(rec, "wb") as fh:
+        reader = make_reader(src)
+        writer = Writer(fh)
+        writer.start()
+        for meta in reader.iter_metadata():
+            writer.add_metadata(meta.name, {**meta.metadata, "log_format": "9", "version": "9.0"})
+        ids: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.id not in ids:
+                sid = (
+                    writer.register_schema(schema.name, schema.encoding, schema.data)
+                    if schema
+                    else 0
+                )
+                ids[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, sid
+                )
+            writer.add_message(
+                ids[channel.id], message.log_time, message.data, message.publish_time
+            )
+        writer.finish()
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--check", "--out", out)
+    assert code == 2
+    line = _one_line(err)
+    assert "log format '9' (motionbase 9.0)" in line and "cannot check it" in line, line
+    assert not out.exists() and "replayed" not in stdout  # nothing ran
+    # the replay itself (no check) still runs: the state messages are as this version reads them
+    assert _cli(capfd, "replay", rec, "--out", out)[0] == 0
