@@ -544,3 +544,51 @@ def test_fly_live_needs_realtime(capsys):
     assert main(["fly", "c1723", "--live", "8765"]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "--realtime" in err
+
+
+def _stalled_client(ws, topics: set[str]) -> None:
+    """Subscribe ``ws`` (:func:`_slow_connection`) to ``topics``; it reads nothing more."""
+    channels: dict[str, int] = {}
+    while set(channels) != topics:
+        msg = json.loads(ws.recv(timeout=30))
+        if msg["op"] == "advertise":
+            channels.update({c["topic"]: c["id"] for c in msg["channels"] if c["topic"] in topics})
+    subs = [{"id": i, "channelId": c} for i, c in enumerate(channels.values(), start=1)]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+
+def _slow_connection(port: int):
+    """A client connection that reads as little as it can: a tiny socket receive buffer, one
+    message read ahead at most, no keepalive (it never leaves on its own)."""
+    import socket
+
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(("127.0.0.1", port))
+    url = f"ws://127.0.0.1:{port}"
+    return connect(url, sock=sock, subprotocols=SUBPROTOCOLS, max_size=None, max_queue=1,
+                   ping_interval=None)  # fmt: skip
+
+
+def test_a_client_that_stops_reading_does_not_hold_the_logs_end(tmp_path):
+    """A client that subscribes and then stops reading (a frozen Foxglove, a dead link): the
+    log finishes as usual, every message in the file, and its writer process ends. The
+    server's stop waited for such a client to leave (forever, without keepalive): the log's
+    close then failed after 5 s ("the writer process took nothing more"), the run ended with
+    status 2 and the writer process stayed on, holding the port."""
+    logger = McapLogger(tmp_path / "slow.mcap", {}, live=LiveAddress("127.0.0.1", 0)).start()
+    with _slow_connection(logger.live_port) as ws:
+        _stalled_client(ws, {"/platform/scene", "/health"})
+        scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
+        n = 3000  # 100 s of scenes at 30 Hz, about 15 MB: far more than the sockets hold
+        for k in range(n):
+            t = k / 30
+            pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 * math.sin(t)])
+            logger.add_scene(t, scene.parts(t, pose, np.zeros(6)))
+            if k % 30 == 0:
+                logger.add("/health", t, {"t": t, "samples": k})
+        pid = logger.writer_pid
+        logger.finish()  # raised SinkError
+    with pytest.raises(ChildProcessError):  # the writer is gone (reaped by finish)
+        os.waitpid(pid, os.WNOHANG)
+    assert len(_logged(tmp_path / "slow.mcap", {"/platform/scene"})["/platform/scene"]) == n
