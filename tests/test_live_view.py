@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive
 from mcap.reader import make_reader
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
@@ -47,6 +48,7 @@ from motionbase.platform.rus6 import Rus6Robot
 from motionbase.state import AircraftState
 
 ROOT = Path(__file__).resolve().parents[1]
+SRC = Path(app.__file__).resolve().parents[1]
 PLANAR_RECORDING = ROOT / "recordings" / "c1723_planar_15s.mcap"
 RUS6_RECORDING = ROOT / "recordings" / "c1723_30s.mcap"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -67,7 +69,8 @@ def _start(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        # this motionbase, not an installed one (a relative PYTHONPATH misses from tmp_path)
+        env={**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(SRC)},
     )
     lines = []
     for line in proc.stderr:  # the run says where it serves before its loop starts
@@ -550,13 +553,20 @@ def test_fly_live_needs_realtime(capsys):
     assert len(err.strip().splitlines()) == 1 and "--realtime" in err
 
 
-def _stalled_client(ws, topics: set[str]) -> None:
-    """Subscribe ``ws`` (:func:`_slow_connection`) to ``topics``; it reads nothing more."""
+def _stalled_client(ws, topics: set[str] | None = None) -> None:
+    """Subscribe ``ws`` (:func:`_slow_connection`) to ``topics`` (None: every one of the
+    first advertise); it reads nothing more."""
     channels: dict[str, int] = {}
-    while set(channels) != topics:
+    while not channels or (topics is not None and set(channels) != topics):
         msg = json.loads(ws.recv(timeout=30))
         if msg["op"] == "advertise":
-            channels.update({c["topic"]: c["id"] for c in msg["channels"] if c["topic"] in topics})
+            channels.update(
+                {
+                    c["topic"]: c["id"]
+                    for c in msg["channels"]
+                    if c["topic"] in (topics or [c["topic"]])
+                }
+            )
     subs = [{"id": i, "channelId": c} for i, c in enumerate(channels.values(), start=1)]
     ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
@@ -727,3 +737,28 @@ def _rotation(w: float, x: float, y: float, z: float) -> np.ndarray:
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+def test_a_stalled_client_does_not_stop_a_flight_that_drives_motors(tmp_path):
+    """``fly --realtime --output`` to a drive with ``--live``, and a client that subscribes
+    to every topic and then reads nothing: the flight runs to its end and parks, the drive
+    gets every command to park, the log holds every tick, and the run ends with status 0
+    (it ended with status 2: "the MCAP log's writer process took nothing more for 5 s")."""
+    drive = UdpDrive(n=6)
+    out = tmp_path / "f.mcap"
+    args = ["fly", "c1723", "--platform", "stewart6", "--realtime", "--duration", "8"]
+    proc, url = _start([*args, "--output", drive.url(100), "--out", str(out)], tmp_path)
+    try:
+        with _slow_connection(int(url.rsplit(":", 1)[1])) as ws:
+            _stalled_client(ws)
+            summary = _finish(proc)
+    finally:
+        proc.kill()
+        drive.close()
+    assert "stopped by duration" in summary
+    msgs = read_messages(out)
+    ticks = len(msgs["/platform/actuators"])
+    assert ticks == len(msgs["/platform/pose"]) and msgs["/platform/actuators"][-1]["t"] > 8.0
+    park = np.array(msgs["/platform/actuators"][-1]["angles"]) * 1000  # mm
+    last = np.array(drive.frames[-1][1].decode().split(","), dtype=float)
+    np.testing.assert_allclose(last, park, atol=1e-4)
