@@ -48,7 +48,6 @@ from motionbase.platform.rus6 import Rus6Robot
 from motionbase.state import AircraftState
 
 ROOT = Path(__file__).resolve().parents[1]
-SRC = Path(app.__file__).resolve().parents[1]
 PLANAR_RECORDING = ROOT / "recordings" / "c1723_planar_15s.mcap"
 RUS6_RECORDING = ROOT / "recordings" / "c1723_30s.mcap"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -69,8 +68,7 @@ def _start(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        # this motionbase, not an installed one (a relative PYTHONPATH misses from tmp_path)
-        env={**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(SRC)},
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     lines = []
     for line in proc.stderr:  # the run says where it serves before its loop starts
