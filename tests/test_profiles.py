@@ -297,6 +297,25 @@ def test_the_phase_known_before_the_first_sample_starts_there():
             assert np.array_equal(out, ground.step(u[:3], u[3:])), k
 
 
+def test_a_rejected_samples_phase_is_not_taken():
+    """A sample the pipeline rejects (a NaN, a time that goes back: a late packet of the
+    ground run) is replaced by the held one, its flight phase too: on the ground, one
+    rejected sample that says "in the air" started a blend toward the air profile."""
+    config = with_overrides(load_config(rate_hz=RATE), cueing_params=profiled_params())
+    pipe = Pipeline(config)
+    level = (0.0, 0.0, -G)
+    for k in range(1, 240):
+        pipe.step(AircraftState(k * DT, level, (0.0, 0.0, 0.0), on_ground=True))
+    for bad in (
+        AircraftState(240 * DT, (math.nan, 0.0, -G), (0.0, 0.0, 0.0), on_ground=False),
+        AircraftState(100 * DT, level, (0.0, 0.0, 0.0), on_ground=False),  # time goes back
+    ):
+        pipe.step(bad)
+        assert pipe.health.rejected_inputs and pipe.cueing.profile == "ground"
+    pipe.step(AircraftState(241 * DT, level, (0.0, 0.0, 0.0), on_ground=False))
+    assert pipe.cueing.profile == "air"  # an accepted one is taken
+
+
 def test_without_a_phase_the_files_own_values_run():
     """A source that gives no phase (an old recording, X-Plane): the base values, exactly
     the classical washout of the file without its profiles."""
