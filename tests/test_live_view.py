@@ -740,8 +740,9 @@ def _rotation(w: float, x: float, y: float, z: float) -> np.ndarray:
 def test_a_stalled_client_does_not_stop_a_flight_that_drives_motors(tmp_path):
     """``fly --realtime --output`` to a drive with ``--live``, and a client that subscribes
     to every topic and then reads nothing: the flight runs to its end and parks, the drive
-    gets every command to park, the log holds every tick, and the run ends with status 0
-    (it ended with status 2: "the MCAP log's writer process took nothing more for 5 s")."""
+    gets every command to park, the log holds every tick, another client gets the live feed
+    whole, and the run ends with status 0 (it ended with status 2: "the MCAP log's writer
+    process took nothing more for 5 s")."""
     drive = UdpDrive(n=6)
     out = tmp_path / "f.mcap"
     args = ["fly", "c1723", "--platform", "stewart6", "--realtime", "--duration", "8"]
@@ -749,10 +750,15 @@ def test_a_stalled_client_does_not_stop_a_flight_that_drives_motors(tmp_path):
     try:
         with _slow_connection(int(url.rsplit(":", 1)[1])) as ws:
             _stalled_client(ws)
+            other = _Client(url, {"/platform/actuators"})  # and one that reads
+            other.start()
             summary = _finish(proc)
     finally:
         proc.kill()
         drive.close()
+    other.join(60)
+    logged = _logged(out, {"/platform/actuators"})["/platform/actuators"]
+    _assert_every_other_tick(other.got["/platform/actuators"], logged, "/platform/actuators")
     assert "stopped by duration" in summary
     msgs = read_messages(out)
     ticks = len(msgs["/platform/actuators"])
