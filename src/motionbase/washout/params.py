@@ -65,8 +65,9 @@ the values they give replace the file's own for that flight phase
 (:meth:`WashoutParams.for_profile`). A missing profile runs the file's own values. The
 cueing switches between them by the source's flight phase
 (:attr:`motionbase.state.AircraftState.on_ground`) with a smoothstep blend of
-``[profile] blend_s`` seconds (:mod:`motionbase.washout.profiles`); until the source gives
-a phase, the file's own values run.
+``[profile] blend_s`` seconds, at least :data:`MIN_PROFILE_BLEND_S`
+(:mod:`motionbase.washout.profiles`); until the source gives a phase, the file's own values
+run.
 """
 
 from __future__ import annotations
