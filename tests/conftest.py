@@ -18,6 +18,12 @@ Ctrl-C as a terminal gives it
     see nothing happen. :func:`pytest_configure` gives the test run Python's own SIGINT handler
     back; the processes the tests start get the default disposition (a handler does not
     survive ``exec``), so Python installs its handler in them too.
+
+The code under test in the processes the tests start
+    ``PYTHONPATH=src pytest ...`` names the worktree's code relative to the current folder; a
+    process a test starts in another folder (``cwd=tmp_path``) then imported the installed
+    ``motionbase`` instead, another checkout's. :func:`pytest_configure` makes the entries
+    absolute.
 """
 
 from __future__ import annotations
@@ -39,9 +45,13 @@ REQUIRE_DISPLAY_ENV = "MOTIONBASE_REQUIRE_DISPLAY"
 
 
 def pytest_configure(config):
-    """Undo an inherited ``SIGINT`` ignore (a background start; see the module notes)."""
+    """Undo an inherited ``SIGINT`` ignore (a background start); make ``PYTHONPATH``
+    absolute (see the module notes)."""
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    if os.environ.get("PYTHONPATH"):
+        parts = os.environ["PYTHONPATH"].split(os.pathsep)
+        os.environ["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) for p in parts if p)
 
 
 @pytest.fixture(scope="session")

@@ -14,6 +14,7 @@ robot's own ``joint_points`` of the logged pose, computed here from the logged m
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_wire import UdpDrive
 from mcap.reader import make_reader
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
@@ -55,10 +57,13 @@ MESSAGE_DATA = 0x01
 # --------------------------------------------------------------------------- helpers
 
 
-def _start(args: list[str], tmp_path: Path) -> tuple[subprocess.Popen, str]:
-    """Start ``motionbase ARGS --live 127.0.0.1:0``; return it and the URL it prints."""
+def _start(
+    args: list[str], tmp_path: Path, program: list[str] | None = None
+) -> tuple[subprocess.Popen, str]:
+    """Start ``motionbase ARGS --live 127.0.0.1:0`` (or ``PROGRAM ARGS ...``, a script that
+    calls the command line); return it and the URL it prints."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "motionbase.cli", *args, "--live", "127.0.0.1:0"],
+        [sys.executable, *(program or ["-m", "motionbase.cli"]), *args, "--live", "127.0.0.1:0"],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -544,3 +549,220 @@ def test_fly_live_needs_realtime(capsys):
     assert main(["fly", "c1723", "--live", "8765"]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "--realtime" in err
+
+
+def _stalled_client(ws, topics: set[str] | None = None) -> None:
+    """Subscribe ``ws`` (:func:`_slow_connection`) to ``topics`` (None: every one of the
+    first advertise); it reads nothing more."""
+    channels: dict[str, int] = {}
+    while not channels or (topics is not None and set(channels) != topics):
+        msg = json.loads(ws.recv(timeout=30))
+        if msg["op"] == "advertise":
+            channels.update(
+                {
+                    c["topic"]: c["id"]
+                    for c in msg["channels"]
+                    if c["topic"] in (topics or [c["topic"]])
+                }
+            )
+    subs = [{"id": i, "channelId": c} for i, c in enumerate(channels.values(), start=1)]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+
+def _slow_connection(port: int):
+    """A client connection that reads as little as it can: a tiny socket receive buffer, one
+    message read ahead at most, no keepalive (it never leaves on its own)."""
+    import socket
+
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(("127.0.0.1", port))
+    url = f"ws://127.0.0.1:{port}"
+    return connect(url, sock=sock, subprotocols=SUBPROTOCOLS, max_size=None, max_queue=1,
+                   ping_interval=None)  # fmt: skip
+
+
+def test_a_client_that_stops_reading_does_not_hold_the_logs_end(tmp_path):
+    """A client that subscribes and then stops reading (a frozen Foxglove, a dead link): the
+    log finishes as usual, every message in the file, and its writer process ends. The
+    server's stop waited for such a client to leave (forever, without keepalive): the log's
+    close then failed after 5 s ("the writer process took nothing more"), the run ended with
+    status 2 and the writer process stayed on, holding the port."""
+    logger = McapLogger(tmp_path / "slow.mcap", {}, live=LiveAddress("127.0.0.1", 0)).start()
+    with _slow_connection(logger.live_port) as ws:
+        _stalled_client(ws, {"/platform/scene", "/health"})
+        scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
+        n = 3000  # 100 s of scenes at 30 Hz, about 15 MB: far more than the sockets hold
+        for k in range(n):
+            t = k / 30
+            pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 * math.sin(t)])
+            logger.add_scene(t, scene.parts(t, pose, np.zeros(6)))
+            if k % 30 == 0:
+                logger.add("/health", t, {"t": t, "samples": k})
+        pid = logger.writer_pid
+        logger.finish()  # raised SinkError
+    with pytest.raises(ChildProcessError):  # the writer is gone (reaped by finish)
+        os.waitpid(pid, os.WNOHANG)
+    assert len(_logged(tmp_path / "slow.mcap", {"/platform/scene"})["/platform/scene"]) == n
+
+
+class _Client(threading.Thread):
+    """A client on its own thread: subscribes to every topic advertised (all of them, or
+    ``topics``) and keeps (log time, payload) per topic and each topic's advertised channel."""
+
+    def __init__(self, url: str, topics: set[str] | None = None) -> None:
+        super().__init__(daemon=True)
+        self.url, self.topics = url, topics
+        self.channels: dict[str, dict] = {}
+        self.got: dict[str, list[tuple[int, bytes]]] = {}
+
+    def run(self) -> None:
+        with connect(self.url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            assert json.loads(ws.recv(timeout=30))["op"] == "serverInfo"
+            msg = json.loads(ws.recv(timeout=30))  # all channels come in the first advertise
+            assert msg["op"] == "advertise"
+            wanted = [
+                c for c in msg["channels"] if self.topics is None or c["topic"] in self.topics
+            ]
+            self.channels = {c["topic"]: c for c in wanted}
+            by_sub = {i: c["topic"] for i, c in enumerate(wanted, start=1)}
+            self.got = {t: [] for t in self.channels}
+            subs = [{"id": i, "channelId": self.channels[t]["id"]} for i, t in by_sub.items()]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            with contextlib.suppress(ConnectionClosed):
+                while True:
+                    msg = ws.recv(timeout=60)
+                    if isinstance(msg, bytes):
+                        sub, log_time = struct.unpack_from("<IQ", msg, 1)
+                        self.got[by_sub[sub]].append((log_time, bytes(msg[13:])))
+
+
+@pytest.mark.parametrize("robot", ["stewart6", "heave3"])
+def test_live_view_of_a_robot_with_linear_actuators(robot, tmp_path):
+    """A 6-UPS Stewart platform and the plug-in robot of tests/heave3_robot.py (registered by
+    a script that imports it, as the README's "Adding a robot" says), flown live with two
+    clients, the second connecting mid-run: every message matches its advertised JSON Schema
+    and is the log's, byte for byte; the scene draws one straight leg per actuator, base
+    joint to platform joint, as long as the length logged for that tick (m), the base
+    joints fixed and the platform joints fixed in the platform frame of the /tf served."""
+    import jsonschema
+
+    script = tmp_path / "run.py"
+    script.write_text(
+        f"import sys\nsys.path.insert(0, {str(ROOT / 'tests')!r})\nimport heave3_robot\n"
+        "heave3_robot.register()\nfrom motionbase.cli import main\nsys.exit(main())\n"
+    )
+    out = tmp_path / "live.mcap"
+    args = ["fly", "c1723", "--platform", robot, "--realtime", "--duration", "60"]
+    proc, url = _start([*args, "--out", str(out)], tmp_path, program=[str(script)])
+    try:
+        first = _Client(url)
+        first.start()
+        late = None
+        deadline = time.monotonic() + 120  # a watchdog, not a bound
+        while late is None or len(late.got.get("/platform/actuators", ())) < 30:
+            assert time.monotonic() < deadline and first.is_alive()
+            if late is None and len(first.got.get("/platform/actuators", ())) >= 60:
+                late = _Client(url, {"/platform/actuators", "/tf"})
+                late.start()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _finish(proc)
+    except BaseException:
+        proc.kill()
+        raise
+    first.join(60)
+    late.join(60)
+    for client in (first, late):
+        logged = _logged(out, set(client.got))
+        for topic, got in client.got.items():
+            schema = json.loads(client.channels[topic]["schema"])
+            for _, payload in got:
+                jsonschema.validate(json.loads(payload), schema)
+            if topic == "/tf":  # two transforms at some times: each one of the file's
+                with open(out, "rb") as fh:
+                    tf = {
+                        (m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages(["/tf"])
+                    }
+                assert got and set(got) <= tf
+            elif got:
+                _received_as_logged(got, logged[topic], topic)
+    assert late.got["/tf"][0][0] > first.got["/tf"][0][0]  # it came late ...
+    world = [t for t, p in late.got["/tf"] if json.loads(p)["child_frame_id"] == "base"]
+    assert world and world[0] - late.got["/tf"][0][0] <= 1_000_000_000  # ... and got the world
+    # the scene, against the logged lengths and the served /tf
+    msgs = read_messages(out)
+    lengths = {m["t"]: np.array(m["angles"]) for m in msgs["/platform/actuators"]}
+    frames = {
+        m["timestamp"]["sec"] + m["timestamp"]["nsec"] / 1e9: m
+        for m in msgs["/tf"]
+        if m["child_frame_id"] == "platform"
+    }
+    scenes = [json.loads(p) for _, p in first.got["/platform/scene"]]
+    assert len(scenes) >= 10
+    # heave3 takes its actuators as vertical (it neglects their lean at a tilt, see its file):
+    # its drawn tops move in the plate frame by the cosine error of the tilt, under 1 mm here
+    atol = 1e-9 if robot == "stewart6" else 1e-3
+    local = None
+    for scene in scenes:
+        q = lengths[scene["t"]]
+        legs = [e for e in scene["entities"] if e["id"].startswith("leg")]
+        assert [e["id"] for e in legs] == [f"leg{i + 1}" for i in range(len(q))]
+        ends = []
+        for leg in legs:
+            (line,) = leg["lines"]  # no crank: one straight actuator
+            (a, b) = [np.array([p["x"], p["y"], p["z"]]) for p in line["points"]]
+            ends.append((a, b))
+            assert leg["frame_id"] == "base" and len(leg["spheres"]) == 2
+        base, top = (np.array(v) for v in zip(*ends, strict=True))
+        np.testing.assert_allclose(np.linalg.norm(top - base, axis=1), q, rtol=0, atol=1e-9)
+        tf = min(frames.items(), key=lambda kv: abs(kv[0] - scene["t"]))[1]
+        r, x = tf["rotation"], tf["translation"]
+        rot = _rotation(r["w"], r["x"], r["y"], r["z"])
+        in_platform = (top - [x["x"], x["y"], x["z"]]) @ rot  # R^T (p - t), row by row
+        if local is None:
+            local, base0 = in_platform, base
+        np.testing.assert_allclose(base, base0, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(in_platform, local, rtol=0, atol=atol)
+
+
+def _rotation(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """The rotation matrix of a unit quaternion (w, x, y, z), written out."""
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def test_a_stalled_client_does_not_stop_a_flight_that_drives_motors(tmp_path):
+    """``fly --realtime --output`` to a drive with ``--live``, and a client that subscribes
+    to every topic and then reads nothing: the flight runs to its end and parks, the drive
+    gets every command to park, the log holds every tick, another client gets the live feed
+    whole, and the run ends with status 0 (it ended with status 2: "the MCAP log's writer
+    process took nothing more for 5 s")."""
+    drive = UdpDrive(n=6)
+    out = tmp_path / "f.mcap"
+    args = ["fly", "c1723", "--platform", "stewart6", "--realtime", "--duration", "8"]
+    proc, url = _start([*args, "--output", drive.url(100), "--out", str(out)], tmp_path)
+    try:
+        with _slow_connection(int(url.rsplit(":", 1)[1])) as ws:
+            _stalled_client(ws)
+            other = _Client(url, {"/platform/actuators"})  # and one that reads
+            other.start()
+            summary = _finish(proc)
+    finally:
+        proc.kill()
+        drive.close()
+    other.join(60)
+    logged = _logged(out, {"/platform/actuators"})["/platform/actuators"]
+    _assert_every_other_tick(other.got["/platform/actuators"], logged, "/platform/actuators")
+    assert "stopped by duration" in summary
+    msgs = read_messages(out)
+    ticks = len(msgs["/platform/actuators"])
+    assert ticks == len(msgs["/platform/pose"]) and msgs["/platform/actuators"][-1]["t"] > 8.0
+    park = np.array(msgs["/platform/actuators"][-1]["angles"]) * 1000  # mm
+    last = np.array(drive.frames[-1][1].decode().split(","), dtype=float)
+    np.testing.assert_allclose(last, park, atol=1e-4)

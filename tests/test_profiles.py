@@ -28,7 +28,7 @@ from motionbase.io.pipeline_log import PipelineLog
 from motionbase.pipeline import Pipeline, run, with_overrides
 from motionbase.state import AircraftState
 from motionbase.washout.classical import ClassicalWashout
-from motionbase.washout.params import WashoutParams
+from motionbase.washout.params import MIN_PROFILE_BLEND_S, WashoutParams
 from motionbase.washout.profiles import ProfiledCueing
 
 G = 9.80665
@@ -297,6 +297,25 @@ def test_the_phase_known_before_the_first_sample_starts_there():
             assert np.array_equal(out, ground.step(u[:3], u[3:])), k
 
 
+def test_a_rejected_samples_phase_is_not_taken():
+    """A sample the pipeline rejects (a NaN, a time that goes back: a late packet of the
+    ground run) is replaced by the held one, its flight phase too: on the ground, one
+    rejected sample that says "in the air" started a blend toward the air profile."""
+    config = with_overrides(load_config(rate_hz=RATE), cueing_params=profiled_params())
+    pipe = Pipeline(config)
+    level = (0.0, 0.0, -G)
+    for k in range(1, 240):
+        pipe.step(AircraftState(k * DT, level, (0.0, 0.0, 0.0), on_ground=True))
+    for bad in (
+        AircraftState(240 * DT, (math.nan, 0.0, -G), (0.0, 0.0, 0.0), on_ground=False),
+        AircraftState(100 * DT, level, (0.0, 0.0, 0.0), on_ground=False),  # time goes back
+    ):
+        pipe.step(bad)
+        assert pipe.health.rejected_inputs and pipe.cueing.profile == "ground"
+    pipe.step(AircraftState(241 * DT, level, (0.0, 0.0, 0.0), on_ground=False))
+    assert pipe.cueing.profile == "air"  # an accepted one is taken
+
+
 def test_without_a_phase_the_files_own_values_run():
     """A source that gives no phase (an old recording, X-Plane): the base values, exactly
     the classical washout of the file without its profiles."""
@@ -355,7 +374,8 @@ def test_profile_tables_round_trip_and_override_only_what_they_name(tmp_path):
         ({"cruise": {}}, ["unknown field 'cruise'", "[profile]"]),
         ({"ground": {"tilt": {"angle_limit_deg": 95}}}, ["[profile.ground]", "angle_limit_deg"]),
         ({"air": {"tilt": {"wm": 1.0}}}, ["[profile.air] [tilt]", "'wm'"]),
-        ({"blend_s": -1.0}, ["profile.blend_s", ">= 0"]),
+        ({"blend_s": -1.0}, ["profile.blend_s", ">= 0.5 s"]),
+        ({"blend_s": 0}, ["profile.blend_s", ">= 0.5 s"]),  # a switch at once: a step
         ({"ground": {"translational": {"accel_limit": [1, -1, 0]}}}, ["accel_limit", ">= 0"]),
     ],
 )
@@ -368,6 +388,37 @@ def test_bad_profile_tables_are_one_line_naming_the_file_and_field(tmp_path, pro
     assert "\n" not in msg and msg.startswith("my.toml")
     for word in words:
         assert word in msg
+
+
+def test_a_blend_too_short_to_be_smooth_is_refused():
+    """A blend of 0 s (or of a tick) switched at once: on a bouncing landing, whose phase
+    flips every tick, the cue jumped by the profiles' difference every tick (0.46 m a tick in
+    surge here, against the ground profile's 0.1 m/s). The shortest blend allowed keeps the
+    cue's speed within the faster profile's own plus the blend's share of their difference."""
+    d = profiled_params().to_dict()
+    limits = {"accel_limit": [1.0, 0, 0], "velocity_limit": [0.1, 0, 0]}
+    d["profile"]["ground"]["translational"] = limits
+    for short in (0.0, DT / 2):
+        d["profile"]["blend_s"] = short
+        with pytest.raises(ConfigError, match=r"profile\.blend_s.*>= 0\.5 s"):
+            WashoutParams.from_dict(d, source="bounce.toml")
+    d["profile"]["blend_s"] = MIN_PROFILE_BLEND_S
+    params = WashoutParams.from_dict(d, source="bounce.toml")
+    cueing = ProfiledCueing(ClassicalWashout, params, DT)
+    alone = {n: ClassicalWashout(params.for_profile(n), DT) for n in ("ground", "air")}
+    out, cue, poses = np.empty(6), [], {"ground": [], "air": []}
+    for k in range(1200):  # on the ground 2 s, then a bounce: the phase flips every tick
+        u = np.array([3.0 * math.sin(k / 100), 0.5, -G, 0.0, 0.05, 0.0])
+        cueing.set_flight_phase(k < 240 or k % 2 == 0)
+        cueing.advance(u, out)
+        cue.append(out.copy())
+        for name, washout in alone.items():
+            poses[name].append(washout.step(u[:3], u[3:]))
+    ground, air = np.array(poses["ground"]), np.array(poses["air"])
+    rate = np.abs(np.diff(cue, axis=0))
+    alone_rate = np.maximum(np.abs(np.diff(ground, axis=0)), np.abs(np.diff(air, axis=0)))
+    dh = 1.5 * DT / MIN_PROFILE_BLEND_S  # largest smoothstep change per tick
+    assert (rate <= alone_rate + dh * np.abs(ground - air)[1:] + 1e-12).all()
 
 
 def test_a_bad_profile_on_the_command_line_exits_2_in_one_line(tmp_path):

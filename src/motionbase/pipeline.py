@@ -546,8 +546,8 @@ class Pipeline(PipelineCore):
         else:
             f, w, att = state.specific_force, state.angular_velocity, state.attitude
             flags = self._input_stage(P, S, True, state.t, f, w, att, bool(fresh), u)
-            if state.on_ground is not None:  # the flight phase, for profiled cueings
-                self.cueing.set_flight_phase(state.on_ground)
+            if state.on_ground is not None and not flags & stages.PROBLEM:  # accepted: its
+                self.cueing.set_flight_phase(state.on_ground)  # phase, for profiled cueings
         cue = np.empty(6)
         cueing = self.cueing
         if not self._cue_step(cueing.kernel_params, cueing.kernel_state, u, cue):

@@ -47,6 +47,7 @@ import os
 import signal
 import struct
 import sys
+import threading
 from typing import Any, BinaryIO
 
 import orjson
@@ -67,6 +68,7 @@ _SEC = 1_000_000_000
 _WORLD_TO_BASE = (1.0, 0.0, 0.0, 0.0)  # half a turn about x: FRD base in a z-up world
 _FIRST = -(2**63)  # the live grid of a topic starts at its first message
 _LIVE_SLACK_NS = 1_000  # a tick 1 us before its grid point is on it (rounded tick times)
+_STOP_WAIT_S = 1.0  # the server's stop waits for a client that stopped reading: this long
 
 
 class LogFile:
@@ -241,8 +243,10 @@ class Writer:
 
     def stop_server(self) -> None:
         server, self._server = self._server, None
-        if server is not None:
-            server.stop()
+        if server is not None:  # a client that reads nothing holds stop() until it leaves:
+            stop = threading.Thread(target=server.stop, daemon=True)  # the exit drops it
+            stop.start()
+            stop.join(_STOP_WAIT_S)
 
     def log(self, index: int, data: bytes, ns: int, flags: int) -> None:
         """Log one message; finish the chunk when it spans the flush interval."""

@@ -34,7 +34,7 @@ A preset file (``src/motionbase/presets/washout_<name>.toml``) looks like::
     lowpass_wn = 8.0             # rad/s; 0 (or no [input] table) turns it off
 
     [profile]                    # optional: flight-phase profiles
-    blend_s = 3.0                # s, the smoothstep blend when the phase changes
+    blend_s = 3.0                # s (>= 0.5), the smoothstep blend when the phase changes
     [profile.ground.scaling]     # on the ground: these values override the ones above
     specific_force_gain = [0.7, 0.7, 0.6]
     [profile.air.tilt]           # in the air
@@ -65,8 +65,9 @@ the values they give replace the file's own for that flight phase
 (:meth:`WashoutParams.for_profile`). A missing profile runs the file's own values. The
 cueing switches between them by the source's flight phase
 (:attr:`motionbase.state.AircraftState.on_ground`) with a smoothstep blend of
-``[profile] blend_s`` seconds (:mod:`motionbase.washout.profiles`); until the source gives
-a phase, the file's own values run.
+``[profile] blend_s`` seconds, at least :data:`MIN_PROFILE_BLEND_S`
+(:mod:`motionbase.washout.profiles`); until the source gives a phase, the file's own values
+run.
 """
 
 from __future__ import annotations
@@ -130,6 +131,9 @@ _TILT_PAIRS = ("rate_limit_deg_s", "angle_limit_deg", "accel_limit_deg_s2")
 PROFILES = ("ground", "air")
 #: Blend time between profiles when a file does not give one, s.
 DEFAULT_PROFILE_BLEND_S = 3.0
+#: The shortest blend, s: a switch at once steps the cue by the profiles' difference (on a
+#: bouncing landing, every tick), far beyond any cue or actuator limit.
+MIN_PROFILE_BLEND_S = 0.5
 
 _TOP_OPTIONAL = ("profile",)
 
@@ -220,7 +224,13 @@ class WashoutParams:
         object.__setattr__(
             self,
             "profile_blend_s",
-            as_float("WashoutParams", "profile.blend_s", self.profile_blend_s, min_value=0.0),
+            as_float(
+                "WashoutParams",
+                "profile.blend_s",
+                self.profile_blend_s,
+                min_value=MIN_PROFILE_BLEND_S,
+                unit="s",
+            ),
         )
         profiles = _profile_tables(
             "WashoutParams", {name: _unflatten(items) for name, items in self.profiles}
@@ -362,7 +372,7 @@ class WashoutParams:
             source,
             "profile.blend_s",
             profile.get("blend_s", DEFAULT_PROFILE_BLEND_S),
-            min_value=0.0,
+            min_value=MIN_PROFILE_BLEND_S,
             unit="s",
         )
         tables = {name: profile[name] for name in profile if name != "blend_s"}
