@@ -470,7 +470,9 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     here = s["pose"][:m].copy()
     neutral = np.asarray(robot.neutral_pose, dtype=float)
     on_way = s["v"][:n].any() and np.array_equal(s["wanted"][:n], robot.inverse(neutral))
-    routed = on_way or blocked_at(robot, here, goal) is not None
+    routed = not np.array_equal(goal, neutral) and (
+        on_way or blocked_at(robot, here, goal) is not None
+    )
     if routed:  # via neutral, to rest there (no corner at speed)
         goal = neutral
     goal_q = np.asarray(robot.inverse(goal), dtype=float)
