@@ -91,3 +91,32 @@ def test_random_far_jumps_over_the_whole_workspace_keep_every_rod_and_the_limits
     assert np.abs(v).max() <= geometry.max_speed * (1 + 1e-9)
     assert np.abs(a).max() <= geometry.max_accel * (1 + 1e-6)
     assert (behind > 10) == (preset == "udesc")  # the pocket was jumped to, on udesc
+
+
+def test_a_target_behind_the_band_is_clamped_toward_home_or_refused():
+    """udesc: a valid pose whose straight line from home crosses invalid ones (the pocket
+    below the band near a type II singularity). With the clamp the robot goes to where
+    that line first leaves the valid poses and rests there; without it the target is
+    refused and the robot stays home."""
+    robot = Rrr3Robot(Rrr3Geometry.preset("udesc"))
+    home = np.asarray(robot.neutral_pose)
+    goal = next(
+        p
+        for p in np.random.default_rng(3).uniform([0.08, 0.03, 0], [0.18, 0.07, 0], (2000, 3))
+        if robot.reachable(p) and not seen_from(robot, home, p)
+    )
+    first_bad = next(
+        f for f in np.linspace(0, 1, 2001) if not robot.reachable(home + f * (goal - home))
+    )
+    for clamp in (True, False):
+        pipe = CommandPipeline(robot, rate_hz=RATE_HZ, mode="poses", clamp=clamp)
+        poses = [pipe.step(Command(k * DT, goal)).platform_pose for k in range(int(3.0 / DT))]
+        end = poses[-1]
+        assert not pipe.speed.any()
+        if clamp:
+            along = np.dot(end - home, goal - home) / np.dot(goal - home, goal - home)
+            np.testing.assert_allclose(end, home + along * (goal - home), atol=1e-9)
+            assert first_bad - 1e-3 < along < first_bad and robot.reachable(end)
+        else:
+            np.testing.assert_array_equal(np.array(poses), np.broadcast_to(home, (len(poses), 3)))
+            assert pipe.health.unsafe_commands == len(poses)
