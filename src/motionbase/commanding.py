@@ -173,7 +173,9 @@ class CommandPipeline(PipelineCore):
         # pushed against itself). 400 jumps in teleop's default rectangle, either preset:
         # at 80 %, 9 jumps of udesc had ticks no pose held; at 60 %, none. (Across udesc's
         # whole phi = 0 workspace, not convex, 76 of 200 random jumps had some: their straight
-        # path left it. Via neutral, none: tests/test_teleop_jumps.py)
+        # path left it. Via neutral, none: tests/test_teleop_jumps.py. Not fixed: a new far
+        # target every 0.3 s, the robot turning at speed: 99 of 300 jumps on udesc (175
+        # before), 8 of 300 on udesc_symmetric (8 before) still have some)
         self._path_limits = ActuatorLimits.broadcast(
             1, -1e3, 1e3, 0.6 * float(lim.max_speed.min()), 0.6 * float(lim.max_accel.min())
         )
