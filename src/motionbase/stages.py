@@ -426,6 +426,14 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     axis (:func:`path_step` with ``path_limits``). The limits themselves are enforced by
     :func:`limit_stage` alone, which every command passes.
 
+    A workspace need not be convex (udesc's phi = 0 one has a band near a type II
+    singularity across it): when the straight segment to the goal leaves the valid poses
+    (:func:`blocked_at`), the stage heads for the robot's neutral pose instead, and keeps
+    on to rest there (turning at speed, the limiter's trims of the planned path went off
+    the assembly near that band). From neutral a goal seen from it (its segment from
+    neutral clear, as :class:`~motionbase.commanding.CommandPipeline` keeps them) is one
+    straight segment away.
+
     Python, not compiled: it calls the robot's inverse kinematics.
 
     Parameters
@@ -436,9 +444,9 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
         ``v`` and ``wanted`` are updated as by :func:`limit_stage` (``wanted`` becomes the
         goal's actuators, fed forward next tick, unless the command was held).
     robot : Robot
-        ``inverse`` and ``reachable`` (robot coordinates).
+        ``inverse``, ``reachable`` and ``neutral_pose`` (robot coordinates).
     goal : ndarray, shape (m,)
-        A reachable robot pose.
+        A reachable robot pose, seen from neutral.
     q : ndarray, shape (n,)
         Receives the command (rad or m).
     path_limits : ActuatorLimits
@@ -450,7 +458,8 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     flags : int
         :func:`limit_stage`'s bits for the command sent.
     limited : bool
-        The goal was out of one tick's reach (the limiter cut the direct command).
+        The goal was out of one tick's reach (the limiter cut the direct command, or the
+        stage headed for neutral).
     pose : ndarray or None
         The robot pose (m,) the command realises; None when it is not a pose the stage
         asked for (the limiter changed the command: forward kinematics tells).
@@ -458,6 +467,14 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     p = P[0]
     s = S[0]
     n, m = int(p["n"]), int(p["m"])
+    here = s["pose"][:m].copy()
+    neutral = np.asarray(robot.neutral_pose, dtype=float)
+    on_way = s["v"][:n].any() and np.array_equal(s["wanted"][:n], robot.inverse(neutral))
+    routed = not np.array_equal(goal, neutral) and (
+        on_way or blocked_at(robot, here, goal) is not None
+    )
+    if routed:  # via neutral, to rest there (no corner at speed)
+        goal = neutral
     goal_q = np.asarray(robot.inverse(goal), dtype=float)
     saved = S.copy()  # the state before: its command and speed
     q_prev, v_prev = saved[0]["q"][:n], saved[0]["v"][:n]
@@ -469,7 +486,7 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
         dist = float(np.max(np.abs(goal_q - q_prev)))
         step = path_step(dist, float(np.max(np.abs(v_prev))), float(p["dt"]), path_limits)
         if 0.0 < step < dist:  # else braking or overshooting: the limiter's own output
-            found = _point_along(robot, s["pose"][:m].copy(), goal, q_prev, step)
+            found = _point_along(robot, here, goal, q_prev, step)
             if found is not None:
                 pose, wanted = found
                 S[0] = saved[0]
@@ -480,7 +497,17 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
         s["wanted"][:n] = goal_q  # the goal's own speed is fed forward next tick
     if not np.array_equal(q, wanted):
         pose = None
-    return int(flags), limited, pose
+    return int(flags), limited or routed, pose
+
+
+def blocked_at(robot, a: np.ndarray, b: np.ndarray, n: int = 100) -> np.ndarray | None:
+    """The first of ``n + 1`` evenly spaced points of the pose segment ``a -> b`` that is
+    not a valid pose (``robot.reachable``) after one that is, or None: the straight path
+    does not leave the valid poses (it may start outside them, after a trim)."""
+    points = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+    bad = ~np.asarray(robot.reachable(points), dtype=bool)
+    bad[: int(np.argmin(bad))] = False
+    return points[int(np.argmax(bad))] if bad.any() else None
 
 
 def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) -> float:
