@@ -183,3 +183,12 @@ def test_screen_names_the_size_the_cursor_pixels_are_on(tmp_path, capfd, fresh_l
         _cli(capfd, "teleop", "--input", f"file:{csv}", "--screen", "1920")
     err = capfd.readouterr().err
     assert "--screen" in err and "WIDTHxHEIGHT" in err and "Traceback" not in err
+
+
+def test_a_deadband_of_zero_is_the_default_off(tmp_path, capfd, fresh_logger):
+    """``--deadband 0`` is the default (off), as a script may say: it was refused as "not
+    a positive number" (exit 2), a file input's run never started."""
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    code, _, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--serial", "none",
+                        "--deadband", "0")  # fmt: skip
+    assert code == 0 and "--deadband" not in err, err
