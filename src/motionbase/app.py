@@ -971,7 +971,6 @@ def _replay(
         # (a truncated recording: the source itself warns, for every command that reads it)
         # the check's reading of the recording, before anything moves: one it cannot read
         # (a topic that is not JSON, say) is refused before the replay, not after it
-        recording = read_messages(src_path) if check else {}
         from motionbase.io.mcap_log import LOG_FORMAT
 
         if check and source.log_format not in (None, "1", LOG_FORMAT):
@@ -980,6 +979,7 @@ def _replay(
                 f"{source.version or 'unsaid'}); this motionbase ({__version__}) writes format "
                 f"{LOG_FORMAT} and cannot check it: check it with the version that made it"
             )
+        recording = read_messages(src_path) if check else {}  # (its format's topics known)
         tmp = None
         out_path = Path(out) if out is not None else None
         if (check or live_at is not None) and out_path is None:  # a live view needs a log
