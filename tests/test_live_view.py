@@ -571,7 +571,8 @@ def _stalled_client(ws, topics: set[str] | None = None) -> None:
 
 def _slow_connection(port: int):
     """A client connection that reads as little as it can: a tiny socket receive buffer, one
-    message read ahead at most, no keepalive (it never leaves on its own)."""
+    message read ahead at most, no keepalive (it never leaves on its own). Its close does not
+    wait for the server's (gone, behind the unread data): it waited 10 s, most of a test."""
     import socket
 
     sock = socket.socket()
@@ -579,7 +580,7 @@ def _slow_connection(port: int):
     sock.connect(("127.0.0.1", port))
     url = f"ws://127.0.0.1:{port}"
     return connect(url, sock=sock, subprotocols=SUBPROTOCOLS, max_size=None, max_queue=1,
-                   ping_interval=None)  # fmt: skip
+                   ping_interval=None, close_timeout=0.1)  # fmt: skip
 
 
 def test_a_client_that_stops_reading_does_not_hold_the_logs_end(tmp_path):
