@@ -593,6 +593,36 @@ def test_a_recording_without_a_usable_state_is_refused_before_anything_moves(
     assert not out.exists()
 
 
+@pytest.mark.parametrize("limits", [None, {"max_specific_force": 2e4}])
+def test_a_recording_whose_every_state_is_absurd_is_refused_unless_its_limits_allow_them(
+    tmp_path, capfd, fresh_logger, limits
+):
+    """Every state finite but beyond the input limits (another tool's file in other units:
+    a specific force in cm/s^2, 1000 of them): the pipeline rejects each one, and the replay
+    ran its start and park with no cue, exit 0, as for malformed states. With the limits
+    recorded for the run that allow them, it replays them."""
+    payloads = [
+        json.dumps({"t": k / 100, "specific_force": [0.0, 0.0, -981.0],
+                    "angular_velocity": [0.0] * 3, "attitude": [0.0] * 3}).encode()
+        for k in range(200)
+    ]  # fmt: skip
+    config: dict = {"rate_hz": 100.0}
+    if limits is not None:
+        recorded = app.load_config(rate_hz=100.0).to_dict()
+        recorded["pipeline"]["input_limits"] = limits
+        config["pipeline_config"] = recorded
+    rec = write_states(tmp_path / "rec.mcap", payloads=payloads, config=config)
+    out = tmp_path / "out.mcap"
+    code, stdout, err = _cli(capfd, "replay", rec, "--out", out)
+    if limits is not None:
+        assert code == 0 and "rejected inputs 0;" in stdout, err
+        return
+    assert code == 2 and not out.exists()
+    line = _one_line(err)
+    assert "none of its 200 aircraft states can be used" in line, line
+    assert "message 1: specific force beyond its bound" in line, line
+
+
 def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capfd, fresh_logger):
     """A recording with a topic that is not JSON (a camera merged in) cannot be compared:
     ``replay --check`` ran the whole replay first (motors too, with --output), then said so
@@ -643,7 +673,8 @@ def test_a_check_of_a_newer_log_format_is_refused_before_the_replay_runs(
     """A recording whose metadata says a log format this version does not write (made by a
     newer motionbase) cannot be compared message for message: ``replay --check`` says so,
     and which version made it, in one line before anything moves (it compared the layouts
-    anyway and said DIFFERS, which reads as a fault of the replay)."""
+    anyway and said DIFFERS, which reads as a fault of the replay). Its format may hold
+    topics this version cannot read (here one not JSON): the format is named, not them."""
     from mcap.reader import make_reader
 
     made = tmp_path / "made.mcap"
@@ -670,6 +701,7 @@ def test_a_check_of_a_newer_log_format_is_refused_before_the_replay_runs(
             writer.add_message(
                 ids[channel.id], message.log_time, message.data, message.publish_time
             )
+        writer.add_message(writer.register_channel("/camera", "cbor", 0), 1, b"\xa0", 1)
         writer.finish()
     out = tmp_path / "out.mcap"
     code, stdout, err = _cli(capfd, "replay", rec, "--check", "--out", out)

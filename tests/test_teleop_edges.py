@@ -183,3 +183,27 @@ def test_screen_names_the_size_the_cursor_pixels_are_on(tmp_path, capfd, fresh_l
         _cli(capfd, "teleop", "--input", f"file:{csv}", "--screen", "1920")
     err = capfd.readouterr().err
     assert "--screen" in err and "WIDTHxHEIGHT" in err and "Traceback" not in err
+
+
+def test_a_deadband_of_zero_is_the_default_off(tmp_path, capfd, fresh_logger):
+    """``--deadband 0`` is the default (off), as a script may say: it was refused as "not
+    a positive number" (exit 2), a file input's run never started."""
+    csv = _cursor_csv(tmp_path / "cursor.csv")
+    code, _, err = _cli(capfd, "teleop", "--input", f"file:{csv}", "--serial", "none",
+                        "--deadband", "0")  # fmt: skip
+    assert code == 0 and "--deadband" not in err, err
+
+
+def test_a_port_that_needs_privileges_says_to_choose_another_port(tmp_path):
+    """udp:127.0.0.1:80 without the privilege to listen below 1024 (as root: with it taken
+    away): "Permission denied" said to give another address, which does not help."""
+    drop = ["setpriv", "--bounding-set", "-net_bind_service"] if os.geteuid() == 0 else []
+    run = subprocess.run(
+        [*drop, sys.executable, "-m", "motionbase.cli", "teleop", "--input", "udp:127.0.0.1:80",
+         "--serial", "none", "--duration", "0.1"],
+        cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "Permission denied" in lines[0] and "port from 1024 up" in lines[0], lines[0]
+    assert "address" not in lines[0].split("Permission denied")[1], lines[0]

@@ -120,3 +120,30 @@ def test_a_target_behind_the_band_is_clamped_toward_home_or_refused():
         else:
             np.testing.assert_array_equal(np.array(poses), np.broadcast_to(home, (len(poses), 3)))
             assert pipe.health.unsafe_commands == len(poses)
+
+
+def test_a_target_jittering_at_the_edge_of_udescs_pocket_is_held_there_not_via_home():
+    """A gaze resting on udesc's pocket: its target, 0.1 mm of jitter about one point, is
+    clamped to where home's line of sight leaves the valid poses, each tick to a slightly
+    other point of that edge, between which the straight path grazes invalid poses. Each
+    such move, a tick's reach, was routed via home: the robot went home and back some 4
+    times a second, never staying. It stays at the edge, every command a pose."""
+    robot = Rrr3Robot(Rrr3Geometry.preset("udesc"))
+    home = np.asarray(robot.neutral_pose)
+    goal = next(
+        p
+        for p in np.random.default_rng(3).uniform([0.08, 0.03, 0], [0.18, 0.07, 0], (2000, 3))
+        if robot.reachable(p) and not seen_from(robot, home, p)
+    )
+    edge = home + next(  # where home's line of sight toward the goal leaves the valid poses
+        f for f in np.linspace(0, 1, 2001) if not robot.reachable(home + f * (goal - home))
+    ) * (goal - home)
+    pipe = CommandPipeline(robot, rate_hz=RATE_HZ, mode="poses")
+    jitter = np.random.default_rng(1).normal(0.0, 1e-4, (int(4.0 / DT), 2))
+    outs = [pipe.step(Command(k * DT, goal + [*d, 0.0])) for k, d in enumerate(jitter)]
+    poses = np.array([o.platform_pose for o in outs])
+    off_edge = np.linalg.norm(poses[:, :2] - edge[:2], axis=1)
+    arrived = int(np.argmax(off_edge < 3e-4))  # (the edge is 2.5 mm from home)
+    assert arrived > 0 and off_edge[arrived:].max() < 3e-4, off_edge[arrived:].max()
+    angles = np.array([o.angles for o in outs])
+    assert np.abs(rod_errors(robot.geometry, poses, angles)).max() < ROD_TOL

@@ -897,12 +897,6 @@ def _replay(
         )
     live_at = _live_address(live)
     with McapSource(src_path) as source:
-        if source.unusable:
-            raise LogFormatError(
-                f"{src_path}: none of its {source.count} aircraft states can be used, each is "
-                f"malformed or not finite ({source.unusable}); nothing to replay (a state needs "
-                "a time t and specific_force, angular_velocity and attitude, 3 numbers each)"
-            )
         recorded = source.metadata.get("pipeline_config") if source.metadata else None
         if recorded is not None and not isinstance(recorded, dict):
             raise ConfigError(f"{src_path}: metadata: 'pipeline_config' is not a table")
@@ -943,6 +937,16 @@ def _replay(
                     kept, source=f"{src_path}: metadata: {key}"
                 )
                 config = replace(config, cueing_params=params)
+        from motionbase.safety import InputLimits
+
+        why = source.unusable  # (a bound: the default limits', unless the run has others)
+        if why and (config.input_limits == InputLimits() or "bound" not in why):
+            raise LogFormatError(
+                f"{src_path}: none of its {source.count} aircraft states can be used, each is "
+                f"malformed, not finite or beyond the input limits ({why}); nothing to replay "
+                "(a state needs a time t, s, and specific_force, angular_velocity and attitude, "
+                "3 numbers each, SI units)"
+            )
         if out is not None:
             _refuse_out_over_cueing_files(out, config)
         as_recorded = preview is None
@@ -971,7 +975,6 @@ def _replay(
         # (a truncated recording: the source itself warns, for every command that reads it)
         # the check's reading of the recording, before anything moves: one it cannot read
         # (a topic that is not JSON, say) is refused before the replay, not after it
-        recording = read_messages(src_path) if check else {}
         from motionbase.io.mcap_log import LOG_FORMAT
 
         if check and source.log_format not in (None, "1", LOG_FORMAT):
@@ -980,6 +983,7 @@ def _replay(
                 f"{source.version or 'unsaid'}); this motionbase ({__version__}) writes format "
                 f"{LOG_FORMAT} and cannot check it: check it with the version that made it"
             )
+        recording = read_messages(src_path) if check else {}  # (its format's topics known)
         tmp = None
         out_path = Path(out) if out is not None else None
         if (check or live_at is not None) and out_path is None:  # a live view needs a log

@@ -227,6 +227,16 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value + 0.0  # (-0 is 0)
+
+
 def _print_result(result) -> int:
     tell(result.summary_text())  # (a closed terminal: the run itself ended properly)
     return 1 if result.failed else 0
@@ -475,11 +485,11 @@ def _args_teleop(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--deadband",
-        type=_positive_float,
+        type=_non_negative_float,
         default=0.0,
         metavar="PX",
         help="udp input: ignore points closer than PX pixels to the one in use (an eye "
-        "tracker's jitter: about four times its standard deviation)",
+        "tracker's jitter: about four times its standard deviation; 0, the default: off)",
     )
     p.add_argument(
         "--screen",

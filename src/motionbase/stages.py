@@ -427,12 +427,12 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     :func:`limit_stage` alone, which every command passes.
 
     A workspace need not be convex (udesc's phi = 0 one has a band near a type II
-    singularity across it): when the straight segment to the goal leaves the valid poses
-    (:func:`blocked_at`), the stage heads for the robot's neutral pose instead, and keeps
-    on to rest there (turning at speed, the limiter's trims of the planned path went off
-    the assembly near that band). From neutral a goal seen from it (its segment from
-    neutral clear, as :class:`~motionbase.commanding.CommandPipeline` keeps them) is one
-    straight segment away.
+    singularity across it): when the goal is out of one tick's reach and the straight
+    segment to it leaves the valid poses (:func:`blocked_at`), the stage heads for the
+    robot's neutral pose instead, and keeps on to rest there (turning at speed, the
+    limiter's trims of the planned path went off the assembly near that band). From neutral
+    a goal seen from it (its segment from neutral clear, as
+    :class:`~motionbase.commanding.CommandPipeline` keeps them) is one straight segment away.
 
     Python, not compiled: it calls the robot's inverse kinematics.
 
@@ -470,15 +470,20 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     here = s["pose"][:m].copy()
     neutral = np.asarray(robot.neutral_pose, dtype=float)
     on_way = s["v"][:n].any() and np.array_equal(s["wanted"][:n], robot.inverse(neutral))
-    routed = not np.array_equal(goal, neutral) and (
-        on_way or blocked_at(robot, here, goal) is not None
-    )
-    if routed:  # via neutral, to rest there (no corner at speed)
-        goal = neutral
     goal_q = np.asarray(robot.inverse(goal), dtype=float)
     saved = S.copy()  # the state before: its command and speed
     q_prev, v_prev = saved[0]["q"][:n], saved[0]["v"][:n]
     flags = limit_stage(P, S, goal_q, q)
+    # a goal one tick reaches is commanded as its own pose: not routed (a goal jittering on
+    # the valid poses' edge went home and back, again and again, never reached)
+    routed = not np.array_equal(goal, neutral) and (
+        on_way or bool(flags & RATE_LIMITED) and blocked_at(robot, here, goal) is not None
+    )
+    if routed:  # via neutral, to rest there (no corner at speed)
+        goal = neutral
+        goal_q = np.asarray(robot.inverse(goal), dtype=float)
+        S[0] = saved[0]
+        flags = limit_stage(P, S, goal_q, q)
     limited = not flags & HELD and bool(flags & RATE_LIMITED)
     pose: np.ndarray | None = None if flags & HELD else goal
     wanted = goal_q

@@ -211,11 +211,10 @@ class UdpCursor(_Base):
             s.bind((self.host, self.port))
         except OSError as exc:
             s.close()
-            fix = (
-                "another program listens there: choose another port"
-                if exc.errno == errno.EADDRINUSE
-                else "give an IPv4 address of this machine: 127.0.0.1, or 0.0.0.0 for all"
-            )
+            fix = {
+                errno.EADDRINUSE: "another program listens there: choose another port",
+                errno.EACCES: "a port below 1024 needs privileges: choose a port from 1024 up",
+            }.get(exc.errno, "give an IPv4 address of this machine: 127.0.0.1, or 0.0.0.0 for all")
             raise SourceError(
                 f"cannot listen for cursor points on udp:{self.host}:{self.port}: "
                 f"{exc.strerror or exc} ({fix})"

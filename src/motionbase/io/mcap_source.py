@@ -501,12 +501,19 @@ def _state_from_message(msg: Any) -> AircraftState:
 
 
 def _unusable(data: bytes) -> str:
-    """Why a state message cannot be used (malformed, non-finite); ``""`` when it can."""
+    """Why a state message cannot be used (malformed, non-finite, rejected by the input
+    validation with the default limits: a time no log holds, a value beyond its bound);
+    ``""`` when it can."""
+    from motionbase.safety import InputLimits, input_problem
+
     try:
         state = _state_from_message(decode_message(data))
     except ValueError as exc:
         return _short_reason(exc)
-    return "" if state.is_finite() else "a number in it is not finite"
+    if not state.is_finite():
+        return "a number in it is not finite"
+    f, w, att = state.specific_force, state.angular_velocity, state.attitude
+    return input_problem(state.t, f, w, att, None, InputLimits()) or ""
 
 
 class McapSource:
@@ -548,8 +555,8 @@ class McapSource:
         the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
         first one.
     unusable : str
-        Why no state of the recording can be used (the first one's reason: malformed or
-        non-finite); ``""`` when one can.
+        Why no state of the recording can be used (the first one's reason: malformed,
+        non-finite, beyond the default input limits); ``""`` when one can.
 
     Raises
     ------
