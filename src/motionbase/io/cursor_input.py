@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import bisect
 import csv
-import errno
 import logging
 import math
 import socket
@@ -35,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from motionbase.errors import ConfigError, SourceError
-from motionbase.io.net_address import check_host_port
+from motionbase.io.net_address import bind_fix, check_host_port
 
 __all__ = ["FileCursor", "UdpCursor", "TkCursor", "open_cursor_source", "DEFAULT_SIZE_PX"]
 
@@ -211,10 +210,9 @@ class UdpCursor(_Base):
             s.bind((self.host, self.port))
         except OSError as exc:
             s.close()
-            fix = {
-                errno.EADDRINUSE: "another program listens there: choose another port",
-                errno.EACCES: "a port below 1024 needs privileges: choose a port from 1024 up",
-            }.get(exc.errno, "give an IPv4 address of this machine: 127.0.0.1, or 0.0.0.0 for all")
+            fix = bind_fix(
+                exc, "give an IPv4 address of this machine: 127.0.0.1, or 0.0.0.0 for all"
+            )
             raise SourceError(
                 f"cannot listen for cursor points on udp:{self.host}:{self.port}: "
                 f"{exc.strerror or exc} ({fix})"

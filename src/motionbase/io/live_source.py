@@ -49,7 +49,7 @@ from types import MappingProxyType
 from typing import Any, Self
 
 from motionbase.errors import ConfigError, SourceError
-from motionbase.io.net_address import check_port
+from motionbase.io.net_address import bind_fix, check_port
 from motionbase.pacing import wait_until
 from motionbase.physics import STANDARD_GRAVITY
 from motionbase.state import AircraftState
@@ -647,8 +647,8 @@ class UdpLiveSource(SampleHoldSource):
         except OSError as exc:
             sock.close()
             raise SourceError(
-                f"{self.kind} {self.url}: cannot listen on {host}:{port} ({exc.strerror}); is "
-                "another program using the port, or is the address not on this machine?"
+                f"{self.kind} {self.url}: cannot listen on {host}:{port} ({exc.strerror}); "
+                + bind_fix(exc, "is the address not on this machine?")
             ) from None
         sock.setblocking(False)
         self._reset_state()

@@ -2,16 +2,18 @@
 
 One place says what is wrong with an address, so every URL (a motor-drive output, a MAVLink
 link, a simulator source, a cursor source) gets the same one-line message: a port out of
-range, a port that is not a number, a host name that does not resolve.
+range, a port that is not a number, a host name that does not resolve; and
+:func:`bind_fix` what to do about a port that cannot be bound (a listening source's).
 """
 
 from __future__ import annotations
 
+import errno
 import socket
 
 from motionbase.errors import ConfigError
 
-__all__ = ["check_host_port", "check_port"]
+__all__ = ["bind_fix", "check_host_port", "check_port"]
 
 
 def _port_number(port: str, free_port: bool) -> tuple[int | None, str | None]:
@@ -79,3 +81,13 @@ def check_host_port(what: str, host: str, port: str, *, free_port: bool = False)
         raise ConfigError(f"{what}: {'; '.join(problems)}")
     assert number is not None
     return host, number
+
+
+def bind_fix(exc: OSError, otherwise: str) -> str:
+    """What to do about a socket that cannot be bound, by its error: a port in use, a port
+    that needs privileges; ``otherwise`` for any other error (an address not on this
+    machine, say)."""
+    return {
+        errno.EADDRINUSE: "another program listens there: choose another port",
+        errno.EACCES: "a port below 1024 needs privileges: choose a port from 1024 up",
+    }.get(exc.errno, otherwise)
