@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -175,6 +176,22 @@ def write_states(
         for k, data in enumerate(payloads):
             ns = round(k / 100 * ns_per_s)
             writer.add_message(channel, ns, data, ns)
+        writer.finish()
+    return path
+
+
+def _states_and(path: Path, topic: str, encoding: str, payload: Callable[[int], bytes]) -> Path:
+    """200 aircraft states at 100 Hz and, at each one's time, the message ``payload(k)`` on
+    another ``topic`` (its ``encoding``), made with the mcap library."""
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        states = writer.register_channel("/aircraft/state", "json", 0)
+        other = writer.register_channel(topic, encoding, 0)
+        for k in range(200):
+            ns = round(k / 100 * 1e9)
+            writer.add_message(states, ns, _state(k / 100), ns)
+            writer.add_message(other, ns, payload(k), ns)
         writer.finish()
     return path
 
@@ -543,17 +560,12 @@ def test_a_check_of_an_older_recording_with_a_tf_message_that_is_no_object_says_
     """An older log's /tf (log format "1", or a file that does not say) is shifted to the
     platform's origin before the compare; a /tf message that is not a JSON object (a list)
     ended ``replay --check`` in an AttributeError traceback."""
-    rec = tmp_path / "rec.mcap"
-    with open(rec, "wb") as fh:
-        writer = Writer(fh)
-        writer.start()
-        states = writer.register_channel("/aircraft/state", "json", 0)
-        tf = writer.register_channel("/tf", "json", 0)
-        for k in range(200):
-            ns = round(k / 100 * 1e9)
-            writer.add_message(states, ns, _state(k / 100), ns)
-            writer.add_message(tf, ns, b"[1, 2]" if k == 7 else b'{"child_frame_id": "x"}', ns)
-        writer.finish()
+    rec = _states_and(
+        tmp_path / "rec.mcap",
+        "/tf",
+        "json",
+        lambda k: b"[1, 2]" if k == 7 else b'{"child_frame_id": "x"}',
+    )
     code, out, err = _cli(capfd, "replay", rec, "--check")
     assert code == 1 and "Traceback" not in err, err
     assert "check: DIFFERS" in out and "DIFF /tf" in out
@@ -627,17 +639,7 @@ def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capf
     """A recording with a topic that is not JSON (a camera merged in) cannot be compared:
     ``replay --check`` ran the whole replay first (motors too, with --output), then said so
     and exited 2."""
-    rec = tmp_path / "merged.mcap"
-    with open(rec, "wb") as fh:
-        writer = Writer(fh)
-        writer.start()
-        states = writer.register_channel("/aircraft/state", "json", 0)
-        camera = writer.register_channel("/camera", "protobuf", 0)
-        for k in range(200):
-            ns = round(k / 100 * 1e9)
-            writer.add_message(states, ns, _state(k / 100), ns)
-            writer.add_message(camera, ns, b"\x0a\x04jpeg", ns)
-        writer.finish()
+    rec = _states_and(tmp_path / "merged.mcap", "/camera", "protobuf", lambda k: b"\x0a\x04jpeg")
     out = tmp_path / "out.mcap"
     code, stdout, err = _cli(capfd, "replay", rec, "--check", "--out", out)
     assert code == 2
