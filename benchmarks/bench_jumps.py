@@ -17,8 +17,9 @@ rest within 8 s.
 from __future__ import annotations
 
 import argparse
-import math
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -26,19 +27,16 @@ from motionbase.commanding import Command, CommandPipeline
 from motionbase.platform import Rrr3Geometry
 from motionbase.platform.rrr3 import Rrr3Robot
 
+# the tests' own rod-length closure (written from the thesis, not the package): one for both
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from test_teleop_jumps import rod_errors as tick_rod_errors  # noqa: E402
+
 TOL_M = 1e-6
 
 
 def rod_errors(g: Rrr3Geometry, pose: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """``|C_i - B_i| - rod`` (3,), m, of a pose ``[x, y, phi]`` and crank angles (rad)."""
-    side, h = g.base_side, g.platform_side
-    base = np.array([[0.0, 0.0], [side, 0.0], [side / 2, side * math.sqrt(3) / 2]])
-    x, y, phi = pose
-    r = h / math.sqrt(3)
-    c1 = np.array([x - r * math.cos(math.pi / 6 + phi), y - r * math.sin(math.pi / 6 + phi)])
-    c = [c1] + [c1 + h * np.array([math.cos(phi + a), math.sin(phi + a)]) for a in (0, math.pi / 3)]
-    tips = base + g.crank * np.stack([np.cos(theta), np.sin(theta)], -1)
-    return np.linalg.norm(np.array(c) - tips, axis=1) - g.rod
+    return tick_rod_errors(g, np.asarray(pose)[None], np.asarray(theta)[None])[0]
 
 
 def closure(g: Rrr3Geometry, theta: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, float]:

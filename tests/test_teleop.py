@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pty_board import Board
+from test_teleop_jumps import rod_errors
 
 from motionbase.cli import main
 from motionbase.errors import SourceError
@@ -720,13 +721,6 @@ def test_far_jumps_across_the_screen_keep_every_leg_at_its_rod_length(tmp_path):
     poses = np.array([d["pose"] for _, d in log.m["/planar/pose"]])
     q = np.array([d["angles"] for _, d in log.m["/planar/actuators"]])
     assert len(poses) > 8 * 45
-    r = H / math.sqrt(3)
-    worst = 0.0
-    for (x, y, phi), th in zip(poses, q, strict=True):
-        c1 = np.array([x - r * math.cos(math.pi / 6 + phi), y - r * math.sin(math.pi / 6 + phi)])
-        C = [c1 + H * np.array([math.cos(phi + a), math.sin(phi + a)]) for a in (0, math.pi / 3)]
-        B = BASE + A_LEN * np.stack([np.cos(th), np.sin(th)], -1)
-        rods = np.linalg.norm(np.array([c1, *C]) - B, axis=1)
-        worst = max(worst, float(np.abs(rods - B_LEN).max()))
+    worst = float(np.abs(rod_errors(rrr3.geometry, poses, q)).max())
     assert worst < 1e-9, f"a rod {worst * 1e3:.3f} mm off its length"
     assert_stops_within_limits(q, rrr3.geometry)
