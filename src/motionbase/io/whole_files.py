@@ -74,8 +74,8 @@ def whole_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     fresh = not final.exists()
     # beside a new folder (renamed onto it at the end); inside one that is there
     staging = _part_name(final) if fresh else final / f".motionbase.{os.getpid()}.part"
-    staging.mkdir(parents=True)
-    try:
+    try:  # (made inside: a stop signal as mkdir returns still removes it)
+        staging.mkdir(parents=True)
         yield staging
         held = _hold(STOP_SIGNALS)
         try:
