@@ -606,18 +606,22 @@ def test_a_recording_without_a_usable_state_is_refused_before_anything_moves(
 
 
 @pytest.mark.parametrize("limits", [None, {"max_specific_force": 2e4}])
+@pytest.mark.parametrize("first_malformed", [False, True])
 def test_a_recording_whose_every_state_is_absurd_is_refused_unless_its_limits_allow_them(
-    tmp_path, capfd, fresh_logger, limits
+    tmp_path, capfd, fresh_logger, limits, first_malformed
 ):
     """Every state finite but beyond the input limits (another tool's file in other units:
     a specific force in cm/s^2, 1000 of them): the pipeline rejects each one, and the replay
     ran its start and park with no cue, exit 0, as for malformed states. With the limits
-    recorded for the run that allow them, it replays them."""
+    recorded for the run that allow them, it replays them, also when the first state is
+    malformed (the refusal went by the first state's reason alone and refused them)."""
     payloads = [
         json.dumps({"t": k / 100, "specific_force": [0.0, 0.0, -981.0],
                     "angular_velocity": [0.0] * 3, "attitude": [0.0] * 3}).encode()
         for k in range(200)
     ]  # fmt: skip
+    if first_malformed:
+        payloads[0] = b"[]"
     config: dict = {"rate_hz": 100.0}
     if limits is not None:
         recorded = app.load_config(rate_hz=100.0).to_dict()
@@ -627,12 +631,17 @@ def test_a_recording_whose_every_state_is_absurd_is_refused_unless_its_limits_al
     out = tmp_path / "out.mcap"
     code, stdout, err = _cli(capfd, "replay", rec, "--out", out)
     if limits is not None:
-        assert code == 0 and "rejected inputs 0;" in stdout, err
+        assert code == 0 and f"rejected inputs {int(first_malformed)};" in stdout, err
         return
     assert code == 2 and not out.exists()
     line = _one_line(err)
     assert "none of its 200 aircraft states can be used" in line, line
-    assert "message 1: specific force beyond its bound" in line, line
+    why = (
+        "the message is [], not a JSON object"
+        if first_malformed
+        else "specific force beyond its bound"
+    )
+    assert f"message 1: {why}" in line, line
 
 
 def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capfd, fresh_logger):

@@ -939,8 +939,8 @@ def _replay(
                 config = replace(config, cueing_params=params)
         from motionbase.safety import InputLimits
 
-        why = source.unusable  # (a bound: the default limits', unless the run has others)
-        if why and (config.input_limits == InputLimits() or "bound" not in why):
+        why = source.unusable  # (with the default limits: a run with others may use some)
+        if why and (config.input_limits == InputLimits() or not source.beyond_limits):
             raise LogFormatError(
                 f"{src_path}: none of its {source.count} aircraft states can be used, each is "
                 f"malformed, not finite or beyond the input limits ({why}); nothing to replay "

@@ -557,6 +557,9 @@ class McapSource:
     unusable : str
         Why no state of the recording can be used (the first one's reason: malformed,
         non-finite, beyond the default input limits); ``""`` when one can.
+    beyond_limits : bool
+        Some state was refused only for a value beyond the default input limits (a run
+        with other limits may use it).
 
     Raises
     ------
@@ -585,6 +588,7 @@ class McapSource:
         self.malformed = 0
         self.first_malformed = ""
         self.unusable = ""
+        self.beyond_limits = False
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.rate_from = ""  # where rate_hz came from, for messages
@@ -612,6 +616,8 @@ class McapSource:
                     )
                 self._channel_ids.add(ch.id)
 
+        from motionbase.safety import LIMIT_PROBLEMS
+
         first: list[bytes] = []
         # a tick logs its state (when it has one) before its poses
         state_in_tick = [False]
@@ -621,12 +627,14 @@ class McapSource:
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
                 state_in_tick[0] = True
-                if not first:
-                    first.append(msg.data)
-                    why = _unusable(msg.data)  # until a usable state comes
-                    self.unusable = why and f"message 1: {why}"
-                elif self.unusable and not _unusable(msg.data):
-                    self.unusable = ""
+                if not first or self.unusable:  # until a usable state comes
+                    why = _unusable(msg.data)
+                    self.beyond_limits |= why in LIMIT_PROBLEMS
+                    if not first:
+                        first.append(msg.data)
+                        self.unusable = why and f"message 1: {why}"
+                    elif not why:
+                        self.unusable = ""
             elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
                 if state_in_tick[0] and _STOPPING.search(msg.data):
                     self.recorded_stop = len(times)
