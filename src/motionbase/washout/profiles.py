@@ -16,7 +16,9 @@ where they are to the new phase's profile along the C1 smoothstep
 at zero. Each profile's pose is continuous and so is the blend: a phase change adds no
 step in pose or velocity beyond what either profile gives alone. A phase change in the
 middle of a blend starts the next one from the weights reached (continuous; its rate
-then restarts from zero).
+then restarts from zero). The blend's own rate is up to ``1.5 / blend_s`` times the
+profiles' difference: each profile's cue limits (tilt rate, translational velocity) hold
+for its own pose, not for that share.
 
 Until the source gives a phase, the file's own values run (the profile ``"base"``); an
 unknown phase (``on_ground`` None) keeps the current profile. A phase known before the
