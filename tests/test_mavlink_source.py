@@ -494,9 +494,12 @@ def test_signing_key_file_errors(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- stream requests
 
 
-def _vehicle(port: int, *, ack: bool, stop: threading.Event, got: list[Any]) -> None:
+def _vehicle(
+    port: int, *, ack: bool, stop: threading.Event, got: list[Any], attitude: bool = False
+) -> None:
     """A silent ArduPilot-like vehicle: heartbeats; answers SET_MESSAGE_INTERVAL only
-    when ``ack``, then streams HIGHRES_IMU and ATTITUDE at the interval asked."""
+    when ``ack``, then streams HIGHRES_IMU and ATTITUDE at the interval asked. With
+    ``attitude`` it sends ATTITUDE at 50 Hz unasked until then (silent on the IMU only)."""
     conn = mavutil.mavlink_connection(
         f"udpout:127.0.0.1:{port}", source_system=1, source_component=1
     )
@@ -525,6 +528,10 @@ def _vehicle(port: int, *, ack: bool, stop: threading.Event, got: list[Any]) -> 
                 send_good(mav, i)
                 i += 1
                 next_data = now + interval
+            elif attitude and interval is None and now >= next_data:
+                mav.attitude_send(i * 10, *att_values(i), 0.0, 0.0, 0.0)
+                i += 1
+                next_data = now + 0.02
             stop.wait(0.002)
     finally:
         conn.close()
@@ -567,6 +574,34 @@ def test_stream_request_to_a_silent_vehicle(ack: bool, caplog: pytest.LogCapture
         assert len(warned) == 1 and warned[0].levelno == logging.WARNING
         assert len(requests) >= 4  # asked again after the timeout
         assert not any(t.fresh for _, t in ticks)
+
+
+def test_a_vehicle_that_sends_attitude_alone_is_asked_for_the_imu() -> None:
+    """ATTITUDE arriving unasked, no IMU message (the platform moves on neither alone): the
+    vehicle was never asked for HIGHRES_IMU, nothing warned, and every tick was stale, since
+    the attitude kept the link from counting as silent. It is asked, and the ticks turn
+    fresh once the IMU arrives."""
+    stop = threading.Event()
+    got: list[Any] = []
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=2.4, request_timeout_s=0.8
+    ) as src:
+        port = src.local_address[1]
+        kw = dict(ack=True, stop=stop, got=got, attitude=True)
+        th = threading.Thread(target=_vehicle, args=(port,), kwargs=kw)
+        th.start()
+        try:
+            ticks = run_live(src)
+        finally:
+            stop.set()
+            th.join(timeout=5)
+    asked = {
+        int(m.param1)
+        for m in got
+        if m.get_type() == "COMMAND_LONG" and m.command == ML.MAV_CMD_SET_MESSAGE_INTERVAL
+    }
+    assert ML.MAVLINK_MSG_ID_HIGHRES_IMU in asked
+    assert ticks[-1][1].fresh
 
 
 def test_a_vehicle_that_refuses_again_and_again_is_reported_once(

@@ -1257,8 +1257,8 @@ class MavlinkSource(SampleHoldSource):
             self._warned_ignored = False
             return
         state = self._req_state
-        if state in ("idle", "streaming"):
-            silent_since = max(self._imu_time, self._att_time, self._live_start)
+        if state in ("idle", "streaming"):  # silent: either of them (one alone moves nothing)
+            silent_since = max(min(self._imu_time, self._att_time), self._live_start)
             if now - silent_since >= _REQUEST_AFTER_S and self._req_count < _MAX_REQUESTS:
                 self._send_requests(conn, now)
         elif state in ("sent", "acknowledged", "ignored") and (
@@ -1295,11 +1295,14 @@ class MavlinkSource(SampleHoldSource):
                     )
             elif not self._warned_ignored:
                 self._warned_ignored = True
+                slots = (("IMU", self._imu_time), ("attitude", self._att_time))
+                missing = " and ".join(n for n, t in slots if now - t > timeout)
                 _log.warning(
-                    "MAVLink: system %d ignored MAV_CMD_SET_MESSAGE_INTERVAL (%s, no IMU and "
-                    "attitude data %.1f s later); check the link and the vehicle's stream settings",
+                    "MAVLink: system %d ignored MAV_CMD_SET_MESSAGE_INTERVAL (%s, no %s data "
+                    "%.1f s later); check the link and the vehicle's stream settings",
                     self.sysid,
                     "acknowledged" if state == "acknowledged" else "no COMMAND_ACK",
+                    missing,
                     self.request_timeout_s,
                 )
             self._req_state = "ignored"
