@@ -472,6 +472,36 @@ def test_signing_rejects_unsigned_and_badly_signed(tmp_path: Path) -> None:
     assert key.hex() not in repr(description) and "key.bin" in repr(description)
 
 
+def test_a_forged_frame_stamped_far_ahead_does_not_stop_a_signed_stream(tmp_path: Path) -> None:
+    """One frame signed with another key, on the vehicle's link id, system and component,
+    its signing timestamp near the largest there is: pymavlink kept that timestamp although
+    the signature failed, and rejected every genuine frame after it as older (no state
+    reached the pipeline; a keyless sender could stop a signed stream for good)."""
+    key = bytes(range(32))
+    key_file = tmp_path / "key.bin"
+    key_file.write_bytes(key)
+    with MavlinkSource(
+        "udpin:127.0.0.1:0",
+        rate_hz=100.0,
+        duration_s=1.5,
+        signing_key=key_file,
+        request_streams=False,
+    ) as src:
+        port = src.local_address[1]
+        forger = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=1, source_component=1
+        )
+        forger.setup_signing(bytes(32 * [0xAA]), sign_outgoing=True, link_id=1)
+        forger.mav.signing.timestamp = 2**48 - 100  # (10 us units: the 48-bit field's end)
+        forger.mav.heartbeat_send(ML.MAV_TYPE_FIXED_WING, ML.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+        forger.close()
+        with sender(port, send_good, key=key, link_id=1) as sent:
+            ticks = run_live(src)
+        stats = src.stats
+    assert stats.rejected_bad_signature == 1
+    assert check_states_match_sent(ticks, len(sent) + 1) > 50
+
+
 def test_signing_key_file_errors(tmp_path: Path) -> None:
     short = tmp_path / "short.key"
     short.write_bytes(b"secret")

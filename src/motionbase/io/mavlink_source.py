@@ -873,6 +873,7 @@ class MavlinkSource(SampleHoldSource):
                 conn.setup_signing(
                     self._key, sign_outgoing=True, allow_unsigned_callback=_reject_unsigned
                 )
+                _forgeries_leave_stream_times(conn.mav)
             host = self._bind_host()
             if host is not None and not is_loopback(host):
                 _log.warning("MAVLink: listening on %s (not loopback), as requested", host)
@@ -1396,6 +1397,28 @@ def _end_tcp_at_eof(conn: Any) -> None:
 
     conn.handle_eof = eof
     conn.handle_disconnect = lambda: None
+
+
+def _forgeries_leave_stream_times(mav: Any) -> None:
+    """A frame that fails its signature check leaves its stream's last timestamp as it was.
+    pymavlink records a signed frame's timestamp before it checks the signature: one forged
+    frame (no key needed) stamped far ahead, with the link id, system and component of the
+    vehicle's stream, made every genuine frame after it "old", for good."""
+    check = mav.check_signature
+
+    def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        stamps = mav.signing.stream_timestamps
+        stream = (msgbuf[-13], src_system, src_component)  # (link id, system, component)
+        before = stamps.get(stream)
+        if check(msgbuf, src_system, src_component):
+            return True
+        if before is None:
+            stamps.pop(stream, None)
+        else:
+            stamps[stream] = before
+        return False
+
+    mav.check_signature = checked
 
 
 def _reject_unsigned(mav: Any, msgid: int) -> bool:
