@@ -902,10 +902,13 @@ def _crafted_tlog(
     boot_ms_of: Callable[[int], int],
     n: int = 600,
     values: Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]] = imu_values,
+    gimbal_ms_of: Callable[[int], int] | None = None,
 ) -> Path:
     """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
     vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``, its specific force and
-    body rates by ``values(i)`` (level attitude)."""
+    body rates by ``values(i)`` (level attitude). With ``gimbal_ms_of``, another component
+    of the system (154, a gimbal) sends an ATTITUDE after each pair, stamped with its own
+    boot time ``gimbal_ms_of(i)``."""
 
     class Capture:
         def __init__(self) -> None:
@@ -916,6 +919,7 @@ def _crafted_tlog(
 
     cap = Capture()
     mav = ML.MAVLink(cap, srcSystem=1, srcComponent=1)
+    gimbal = ML.MAVLink(cap, srcSystem=1, srcComponent=154)
     rx0_us = 1_700_000_000 * 10**6
     with open(path, "wb") as fh:
         for i in range(n):
@@ -924,13 +928,15 @@ def _crafted_tlog(
             cap.frames.clear()
             mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
             mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
+            if gimbal_ms_of is not None:
+                gimbal.attitude_send(gimbal_ms_of(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             for frame in cap.frames:
                 fh.write(struct.pack(">Q", rx0_us + i * 10_000) + frame)
     return path
 
 
-def _replay_times(path: Path) -> tuple[list[float], int]:
-    with MavlinkSource(str(path), rate_hz=100.0, realtime=False) as src:
+def _replay_times(path: Path, compid: int | None = None) -> tuple[list[float], int]:
+    with MavlinkSource(str(path), rate_hz=100.0, realtime=False, compid=compid) as src:
         times, fresh = [], 0
         for state in src:
             times.append(state.t)
@@ -968,6 +974,19 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     )
     times, fresh = _replay_times(reboot)
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
+
+
+@pytest.mark.parametrize("compid", [None, 1])
+def test_another_component_with_its_own_boot_time_leaves_the_vehicle_clock_alone(tmp_path, compid):
+    """A gimbal of the vehicle's system sending ATTITUDE on its own clock (booted an hour
+    earlier): the log's clock took every component's time, jumped an hour ahead and back at
+    each of its messages, and a 6 s log replayed as 20 minutes, 95 % of it stale, even with
+    ``compid`` 1 (which keeps the gimbal's values out). One component's clock times it."""
+    log = _crafted_tlog(
+        tmp_path / "gimbal.tlog", lambda i: i * 10, gimbal_ms_of=lambda i: 3_600_000 + i * 10
+    )
+    times, fresh = _replay_times(log, compid)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
 
 
 def _crafted_bin(

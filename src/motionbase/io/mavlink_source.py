@@ -402,20 +402,22 @@ MAX_LOG_GAP_S = 10.0
 class _VehicleClock:
     """Sample times of a telemetry log from the vehicle's own clock, s.
 
-    A ``.tlog`` stamps each message with the ground station's receive time,
-    which bunches up when the radio link is bursty. The vehicle's
-    ``time_boot_ms`` / ``time_usec`` fields give the true, evenly spaced sample
-    times. Messages without them (HEARTBEAT), or from other systems, keep the
-    last time. The result never goes backwards: a reboot (boot time jumping
-    back, and the next sample going on from there) re-anchors the clock where it
-    was; one sample behind the clock with the next one back on it is an outlier,
-    given the clock's time. A jump ahead of more than :data:`MAX_LOG_GAP_S` is
-    shortened to it (``gaps_shortened`` counts them). A DataFlash log's times
-    (already the vehicle's) take the same path through :meth:`advance`.
+    A ``.tlog`` stamps each message with the ground station's receive time, which bunches up
+    when the radio link is bursty. The vehicle's ``time_boot_ms`` / ``time_usec`` fields
+    give the true, evenly spaced sample times. Messages without them (HEARTBEAT), or from
+    other systems or components, keep the last time: the clock is that of ``compid``, else
+    of the first component of ``sysid`` to give a time (each component counts from its own
+    boot). The result never goes backwards: a reboot (boot time jumping back, and the next
+    sample going on from there) re-anchors the clock where it was; one sample behind the
+    clock with the next one back on it is an outlier, given the clock's time. A jump ahead
+    of more than :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them).
+    A DataFlash log's times (already the vehicle's) take the same path through
+    :meth:`advance`.
     """
 
-    def __init__(self, sysid: int) -> None:
+    def __init__(self, sysid: int, compid: int | None = None) -> None:
         self.sysid = sysid
+        self.compid = compid
         self.last = -math.inf
         self.offset = 0.0
         self.gaps_shortened = 0
@@ -423,7 +425,7 @@ class _VehicleClock:
 
     def __call__(self, msg: Any) -> float:
         t = None
-        if msg.get_srcSystem() == self.sysid:
+        if msg.get_srcSystem() == self.sysid and self.compid in (None, msg.get_srcComponent()):
             ms = getattr(msg, "time_boot_ms", None)
             if ms is not None:
                 t = ms * 1e-3
@@ -433,6 +435,7 @@ class _VehicleClock:
                     t = us * 1e-6
         if t is None:
             return self.last if math.isfinite(self.last) else msg._timestamp
+        self.compid = msg.get_srcComponent()
         if not math.isfinite(self.last):
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
         return self.advance(t)
@@ -1070,7 +1073,7 @@ class MavlinkSource(SampleHoldSource):
             dataflash = True
         else:
             handle = self._handle
-            clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
+            clock = _VehicleClock(self.sysid, self.compid) if self.log_clock == "vehicle" else None
             dataflash = False
 
         def next_msg() -> tuple[Any, float]:
