@@ -976,6 +976,15 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
 
 
+def test_a_log_whose_boot_times_are_all_zero_is_timed_by_its_receive_times(tmp_path):
+    """A sender that leaves time_boot_ms and time_usec at 0 (not filled in): every sample
+    had the same time, and the 6 s log replayed as one tick. It falls back to the ground
+    station's receive times (10 ms apart here)."""
+    log = _crafted_tlog(tmp_path / "zero.tlog", lambda i: 0)
+    times, fresh = _replay_times(log)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
+
+
 @pytest.mark.parametrize("compid", [None, 1])
 def test_another_component_with_its_own_boot_time_leaves_the_vehicle_clock_alone(tmp_path, compid):
     """A gimbal of the vehicle's system sending ATTITUDE on its own clock (booted an hour

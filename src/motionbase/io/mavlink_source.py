@@ -427,7 +427,7 @@ class _VehicleClock:
         t = None
         if msg.get_srcSystem() == self.sysid and self.compid in (None, msg.get_srcComponent()):
             ms = getattr(msg, "time_boot_ms", None)
-            if ms is not None:
+            if ms:  # (0: not filled in, as a simulator may leave it)
                 t = ms * 1e-3
             else:
                 us = getattr(msg, "time_usec", None)
