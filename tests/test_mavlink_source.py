@@ -634,6 +634,29 @@ def test_a_vehicle_that_sends_attitude_alone_is_asked_for_the_imu() -> None:
     assert ticks[-1][1].fresh
 
 
+def test_a_vehicle_that_comes_after_the_requests_ran_out_is_asked() -> None:
+    """The vehicle starts after the stream (SITL started second): the stream requests all
+    went out before it was there, and it was never asked again, so a vehicle that streams
+    only when asked gave nothing for ever. Its first heartbeat opens a new round."""
+    stop = threading.Event()
+    got: list[Any] = []
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=4.5, request_timeout_s=0.3
+    ) as src:
+        port = src.local_address[1]
+        kw = dict(ack=True, stop=stop, got=got)
+        th = threading.Timer(2.5, _vehicle, args=(port,), kwargs=kw)  # (all 3 asked by 1.9 s)
+        th.start()
+        try:
+            ticks = run_live(src)
+        finally:
+            stop.set()
+            th.cancel()
+            th.join(timeout=5)
+    assert any(m.get_type() == "COMMAND_LONG" for m in got)
+    assert ticks[-1][1].fresh
+
+
 def test_a_vehicle_that_refuses_again_and_again_is_reported_once(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

@@ -150,6 +150,9 @@ _FRAME_STARTS = (mavutil.mavlink.PROTOCOL_MARKER_V2, mavutil.mavlink.PROTOCOL_MA
 _REQUEST_AFTER_S = 1.0  # silence on a live link before asking for streams
 _MAX_REQUESTS = 3
 _HEARTBEAT_PERIOD_S = 1.0
+#: Heartbeats of the vehicle missing this long, s: the next one is a vehicle that (re)appears
+#: (started after us, rebooted), asked for its streams anew.
+_VEHICLE_GONE_S = 3.0
 _GCS_SYSID = 255
 _GCS_COMPID = 190  # MAV_COMP_ID_MISSIONPLANNER
 
@@ -666,9 +669,10 @@ class MavlinkSource(SampleHoldSource):
         sleeping: one processor at 100 %, fewer late ticks at 1 kHz (see
         :mod:`motionbase.pacing`).
     request_streams : bool
-        On a live link, ask a silent vehicle for HIGHRES_IMU and ATTITUDE at
-        ``rate_hz`` with MAV_CMD_SET_MESSAGE_INTERVAL, and send a ground-station
-        HEARTBEAT once a second.
+        On a live link, ask a vehicle silent on either for HIGHRES_IMU and ATTITUDE at
+        ``rate_hz`` with MAV_CMD_SET_MESSAGE_INTERVAL (three times at most, and anew when
+        its heartbeats come back after a pause: started later, rebooted), and send a
+        ground-station HEARTBEAT once a second.
     stale_timeout_s : float
         A tick is stale when its IMU or attitude sample is older than this, s
         (> 0).
@@ -806,6 +810,7 @@ class MavlinkSource(SampleHoldSource):
         self._req_count = 0
         self._warned_ignored = False
         self._last_hb = -math.inf
+        self._vehicle_hb = -math.inf  # arrival of the vehicle's last HEARTBEAT
         self._vehicle_addr: Any = None  # udpin: where the last message from sysid came from
         self._on_ground: bool | None = None
 
@@ -1180,6 +1185,10 @@ class MavlinkSource(SampleHoldSource):
         elif mtype == "HEARTBEAT":
             if msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:  # not a GCS/companion
                 self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+                if arrival - self._vehicle_hb > _VEHICLE_GONE_S:  # (re)appears: ask anew
+                    self._req_count = 0
+                    self._warned_ignored = False
+                self._vehicle_hb = arrival
         elif mtype == "COMMAND_ACK":
             self._on_command_ack(msg)
 
