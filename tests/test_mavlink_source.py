@@ -265,6 +265,37 @@ def test_other_system_and_component_are_rejected_and_counted() -> None:
     assert stats.accepted < stats.received
 
 
+def test_a_second_vehicle_with_the_same_ids_is_kept_out_while_the_first_sends(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A second vehicle (system 1, component 1 too, from another address) joins 0.3 s in:
+    the states were the one or the other vehicle's, whichever message came last before a
+    tick (two flights mixed on the platform, nothing said). Its messages are now counted
+    and warned about once while the first vehicle sends; once the first falls silent (for
+    longer than the stale timeout), the second one is used."""
+    caplog.set_level(logging.WARNING, logger="motionbase")
+
+    def marker(mav: Any, i: int) -> None:
+        mav.highres_imu_send(i, 7.0, 7.0, -7.0, 1.0, 1.0, 1.0, 0, 0, 0, 0, 0, 0, 0, 0x3F)
+        mav.attitude_send(i, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0)
+
+    with MavlinkSource("udpin:127.0.0.1:0", duration_s=2.5, request_streams=False) as src:
+        port = src.local_address[1]
+        with (
+            sender(port, send_good, phases=((0.0, 1.2),)) as sent,
+            sender(port, marker, rate_hz=37.0, phases=((0.3, 3.0),)),
+        ):
+            ticks = run_live(src)
+        stats = src.stats
+    second = [state.specific_force[0] == 7.0 for state, _ in ticks]
+    took_over = second.index(True)
+    assert all(second[took_over:])  # never the first vehicle again: it stopped at 1.2 s
+    assert check_states_match_sent(ticks[:took_over], len(sent) + 1) > 50
+    assert stats.rejected_sysid > 0
+    warned = [r for r in caplog.records if "is heard from" in r.getMessage()]
+    assert len(warned) == 1
+
+
 def test_random_garbage_is_counted_and_never_reaches_the_state() -> None:
     rng = np.random.default_rng(6)
     with MavlinkSource(

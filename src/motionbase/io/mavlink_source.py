@@ -49,7 +49,9 @@ ticks stale; the vehicle clock gives 94 % fresh), a DataFlash log on its
 Filtering and safety
 --------------------
 Only messages from ``sysid`` (and ``compid`` when given) are used
-(``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter).
+(``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter), each
+component's from one UDP address at a time: the first, until it is silent for
+``stale_timeout_s`` (a second vehicle with the same ids is rejected, with a warning).
 With a signing key, unsigned and badly signed messages are rejected. Bytes that
 do not parse are counted as ``bad_data`` (runs of them) and ``bad_bytes``; they
 never take good frames down with them (see :class:`_FrameReader`: a frame may
@@ -172,8 +174,9 @@ class MavlinkStats(TickStats):
     used : int
         Accepted IMU and attitude messages whose values entered the state.
     rejected_sysid, rejected_compid : int
-        Messages from another system id, or from another component id when
-        ``compid`` is set.
+        Messages from another system id (or with our system and component ids from a
+        second address while the first one sends: a second vehicle with the same ids), or
+        from another component id when ``compid`` is set.
     rejected_unsigned, rejected_bad_signature : int
         With signing on: unsigned messages, and signed messages whose signature
         or timestamp is wrong. ``rejected_signature`` is their sum.
@@ -812,6 +815,8 @@ class MavlinkSource(SampleHoldSource):
         self._last_hb = -math.inf
         self._vehicle_hb = -math.inf  # arrival of the vehicle's last HEARTBEAT
         self._vehicle_addr: Any = None  # udpin: where the last message from sysid came from
+        self._senders: dict[int, tuple[Any, float]] = {}  # compid: address, last arrival
+        self._warned_twin = False
         self._on_ground: bool | None = None
 
     @property
@@ -1147,8 +1152,25 @@ class MavlinkSource(SampleHoldSource):
         if self.compid is not None and msg.get_srcComponent() != self.compid:
             c["rejected_compid"] += 1
             return
+        addr = getattr(self._conn, "last_address", None)
+        comp = msg.get_srcComponent()
+        first, seen = self._senders.get(comp, (addr, -math.inf))
+        if addr != first and arrival - seen <= self.stale_timeout_s:
+            c["rejected_sysid"] += 1  # the same ids from a second address: one vehicle at a time
+            if not self._warned_twin:
+                self._warned_twin = True
+                _log.warning(
+                    "MAVLink: system %d is heard from %s and from %s (two vehicles with the "
+                    "same system id, or one over two routes); only the first is used while it "
+                    "sends: give each vehicle its own id (ArduPilot SYSID_THISMAV, PX4 "
+                    "MAV_SYS_ID) and pick one with --sysid",
+                    self.sysid,
+                    _address(first),
+                    _address(addr),
+                )
+            return
         c["accepted"] += 1
-        self._vehicle_addr = getattr(self._conn, "last_address", None)
+        self._vehicle_addr, self._senders[comp] = addr, (addr, arrival)
         self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
 
         imu = _IMU_TYPES.get(mtype)
@@ -1431,6 +1453,11 @@ def _forgeries_leave_stream_times(mav: Any) -> None:
         return False
 
     mav.check_signature = checked
+
+
+def _address(addr: Any) -> str:
+    """A UDP peer's (host, port) as ``host:port``."""
+    return f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
 
 
 def _reject_unsigned(mav: Any, msgid: int) -> bool:
