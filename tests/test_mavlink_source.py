@@ -1193,6 +1193,15 @@ def test_clear_errors_for_misuse(tmp_path: Path) -> None:
     assert d["mavlink_version"] == "2.0"
 
 
+def test_a_duration_too_long_to_count_in_ticks_runs_without_an_end() -> None:
+    """``stream --duration 1e308``: its ticks (1e308 s times the rate) overflowed to
+    infinity and the first tick raised OverflowError, a traceback. It runs until stopped."""
+    import itertools
+
+    with MavlinkSource("udpin:127.0.0.1:0", duration_s=1e308, request_streams=False) as src:
+        assert len(list(itertools.islice(src, 3))) == 3
+
+
 def test_a_serial_device_is_a_character_device(tmp_path: Path) -> None:
     """A real pseudo-terminal opens as a serial link and its messages are used; an ordinary
     file not named as a log (once opened as a serial port: nothing, forever) is refused, and
