@@ -1188,6 +1188,11 @@ def test_clear_errors_for_misuse(tmp_path: Path) -> None:
         MavlinkSource(str(tmp_path / "missing.tlog")).open()
     with pytest.raises(SourceError, match="not open"):
         iter(MavlinkSource(str(TLOG)))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:  # (a ground station's)
+        taken.bind(("127.0.0.1", 0))
+        url = f"udpin:127.0.0.1:{taken.getsockname()[1]}"
+        with pytest.raises(SourceError, match="in use.*another program listens there"):
+            MavlinkSource(url).open()
     d = MavlinkSource().describe()
     assert d["url"] == "udpin:127.0.0.1:14550" and d["signing"] is False
     assert d["mavlink_version"] == "2.0"

@@ -101,7 +101,7 @@ from motionbase.io.live_source import (  # noqa: E402
     positive_number,
     wrap_pi,
 )
-from motionbase.io.net_address import check_host_port  # noqa: E402
+from motionbase.io.net_address import bind_fix, check_host_port  # noqa: E402
 from motionbase.physics import (  # noqa: E402
     MAX_ANGULAR_VELOCITY,
     MAX_SPECIFIC_FORCE,
@@ -869,10 +869,10 @@ class MavlinkSource(SampleHoldSource):
                     f"mavlink log {self.url}: cannot read it as a MAVLink log ({exc}); is it "
                     "a whole telemetry .tlog or DataFlash .bin?"
                 ) from None
-            raise SourceError(
-                f"mavlink {self.url}: cannot open ({exc}); check the connection string "
-                "(udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device or a log file)"
-            ) from None
+            fix = f"check the connection string ({_FORMS})"
+            if isinstance(exc, OSError):  # (a port in use: a ground station listens there?)
+                fix = bind_fix(exc, fix)
+            raise SourceError(f"mavlink {self.url}: cannot open ({exc}); {fix}") from None
         self._conn = conn
         if self.is_log:  # before the run opens its log: a file without them is refused
             self._check_log_has_messages()
