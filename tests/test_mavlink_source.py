@@ -265,6 +265,37 @@ def test_other_system_and_component_are_rejected_and_counted() -> None:
     assert stats.accepted < stats.received
 
 
+def test_a_second_vehicle_with_the_same_ids_is_kept_out_while_the_first_sends(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A second vehicle (system 1, component 1 too, from another address) joins 0.3 s in:
+    the states were the one or the other vehicle's, whichever message came last before a
+    tick (two flights mixed on the platform, nothing said). Its messages are now counted
+    and warned about once while the first vehicle sends; once the first falls silent (for
+    longer than the stale timeout), the second one is used."""
+    caplog.set_level(logging.WARNING, logger="motionbase")
+
+    def marker(mav: Any, i: int) -> None:
+        mav.highres_imu_send(i, 7.0, 7.0, -7.0, 1.0, 1.0, 1.0, 0, 0, 0, 0, 0, 0, 0, 0x3F)
+        mav.attitude_send(i, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0)
+
+    with MavlinkSource("udpin:127.0.0.1:0", duration_s=2.5, request_streams=False) as src:
+        port = src.local_address[1]
+        with (
+            sender(port, send_good, phases=((0.0, 1.2),)) as sent,
+            sender(port, marker, rate_hz=37.0, phases=((0.3, 3.0),)),
+        ):
+            ticks = run_live(src)
+        stats = src.stats
+    second = [state.specific_force[0] == 7.0 for state, _ in ticks]
+    took_over = second.index(True)
+    assert all(second[took_over:])  # never the first vehicle again: it stopped at 1.2 s
+    assert check_states_match_sent(ticks[:took_over], len(sent) + 1) > 50
+    assert stats.rejected_sysid > 0
+    warned = [r for r in caplog.records if "is heard from" in r.getMessage()]
+    assert len(warned) == 1
+
+
 def test_random_garbage_is_counted_and_never_reaches_the_state() -> None:
     rng = np.random.default_rng(6)
     with MavlinkSource(
@@ -472,6 +503,36 @@ def test_signing_rejects_unsigned_and_badly_signed(tmp_path: Path) -> None:
     assert key.hex() not in repr(description) and "key.bin" in repr(description)
 
 
+def test_a_forged_frame_stamped_far_ahead_does_not_stop_a_signed_stream(tmp_path: Path) -> None:
+    """One frame signed with another key, on the vehicle's link id, system and component,
+    its signing timestamp near the largest there is: pymavlink kept that timestamp although
+    the signature failed, and rejected every genuine frame after it as older (no state
+    reached the pipeline; a keyless sender could stop a signed stream for good)."""
+    key = bytes(range(32))
+    key_file = tmp_path / "key.bin"
+    key_file.write_bytes(key)
+    with MavlinkSource(
+        "udpin:127.0.0.1:0",
+        rate_hz=100.0,
+        duration_s=1.5,
+        signing_key=key_file,
+        request_streams=False,
+    ) as src:
+        port = src.local_address[1]
+        forger = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=1, source_component=1
+        )
+        forger.setup_signing(bytes(32 * [0xAA]), sign_outgoing=True, link_id=1)
+        forger.mav.signing.timestamp = 2**48 - 100  # (10 us units: the 48-bit field's end)
+        forger.mav.heartbeat_send(ML.MAV_TYPE_FIXED_WING, ML.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+        forger.close()
+        with sender(port, send_good, key=key, link_id=1) as sent:
+            ticks = run_live(src)
+        stats = src.stats
+    assert stats.rejected_bad_signature == 1
+    assert check_states_match_sent(ticks, len(sent) + 1) > 50
+
+
 def test_signing_key_file_errors(tmp_path: Path) -> None:
     short = tmp_path / "short.key"
     short.write_bytes(b"secret")
@@ -494,9 +555,12 @@ def test_signing_key_file_errors(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- stream requests
 
 
-def _vehicle(port: int, *, ack: bool, stop: threading.Event, got: list[Any]) -> None:
+def _vehicle(
+    port: int, *, ack: bool, stop: threading.Event, got: list[Any], attitude: bool = False
+) -> None:
     """A silent ArduPilot-like vehicle: heartbeats; answers SET_MESSAGE_INTERVAL only
-    when ``ack``, then streams HIGHRES_IMU and ATTITUDE at the interval asked."""
+    when ``ack``, then streams HIGHRES_IMU and ATTITUDE at the interval asked. With
+    ``attitude`` it sends ATTITUDE at 50 Hz unasked until then (silent on the IMU only)."""
     conn = mavutil.mavlink_connection(
         f"udpout:127.0.0.1:{port}", source_system=1, source_component=1
     )
@@ -525,6 +589,10 @@ def _vehicle(port: int, *, ack: bool, stop: threading.Event, got: list[Any]) -> 
                 send_good(mav, i)
                 i += 1
                 next_data = now + interval
+            elif attitude and interval is None and now >= next_data:
+                mav.attitude_send(i * 10, *att_values(i), 0.0, 0.0, 0.0)
+                i += 1
+                next_data = now + 0.02
             stop.wait(0.002)
     finally:
         conn.close()
@@ -567,6 +635,57 @@ def test_stream_request_to_a_silent_vehicle(ack: bool, caplog: pytest.LogCapture
         assert len(warned) == 1 and warned[0].levelno == logging.WARNING
         assert len(requests) >= 4  # asked again after the timeout
         assert not any(t.fresh for _, t in ticks)
+
+
+def test_a_vehicle_that_sends_attitude_alone_is_asked_for_the_imu() -> None:
+    """ATTITUDE arriving unasked, no IMU message (the platform moves on neither alone): the
+    vehicle was never asked for HIGHRES_IMU, nothing warned, and every tick was stale, since
+    the attitude kept the link from counting as silent. It is asked, and the ticks turn
+    fresh once the IMU arrives."""
+    stop = threading.Event()
+    got: list[Any] = []
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=2.4, request_timeout_s=0.8
+    ) as src:
+        port = src.local_address[1]
+        kw = dict(ack=True, stop=stop, got=got, attitude=True)
+        th = threading.Thread(target=_vehicle, args=(port,), kwargs=kw)
+        th.start()
+        try:
+            ticks = run_live(src)
+        finally:
+            stop.set()
+            th.join(timeout=5)
+    asked = {
+        int(m.param1)
+        for m in got
+        if m.get_type() == "COMMAND_LONG" and m.command == ML.MAV_CMD_SET_MESSAGE_INTERVAL
+    }
+    assert ML.MAVLINK_MSG_ID_HIGHRES_IMU in asked
+    assert ticks[-1][1].fresh
+
+
+def test_a_vehicle_that_comes_after_the_requests_ran_out_is_asked() -> None:
+    """The vehicle starts after the stream (SITL started second): the stream requests all
+    went out before it was there, and it was never asked again, so a vehicle that streams
+    only when asked gave nothing for ever. Its first heartbeat opens a new round."""
+    stop = threading.Event()
+    got: list[Any] = []
+    with MavlinkSource(
+        "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=4.5, request_timeout_s=0.3
+    ) as src:
+        port = src.local_address[1]
+        kw = dict(ack=True, stop=stop, got=got)
+        th = threading.Timer(2.5, _vehicle, args=(port,), kwargs=kw)  # (all 3 asked by 1.9 s)
+        th.start()
+        try:
+            ticks = run_live(src)
+        finally:
+            stop.set()
+            th.cancel()
+            th.join(timeout=5)
+    assert any(m.get_type() == "COMMAND_LONG" for m in got)
+    assert ticks[-1][1].fresh
 
 
 def test_a_vehicle_that_refuses_again_and_again_is_reported_once(
@@ -837,10 +956,13 @@ def _crafted_tlog(
     boot_ms_of: Callable[[int], int],
     n: int = 600,
     values: Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]] = imu_values,
+    gimbal_ms_of: Callable[[int], int] | None = None,
 ) -> Path:
     """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
     vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``, its specific force and
-    body rates by ``values(i)`` (level attitude)."""
+    body rates by ``values(i)`` (level attitude). With ``gimbal_ms_of``, another component
+    of the system (154, a gimbal) sends an ATTITUDE after each pair, stamped with its own
+    boot time ``gimbal_ms_of(i)``."""
 
     class Capture:
         def __init__(self) -> None:
@@ -851,6 +973,7 @@ def _crafted_tlog(
 
     cap = Capture()
     mav = ML.MAVLink(cap, srcSystem=1, srcComponent=1)
+    gimbal = ML.MAVLink(cap, srcSystem=1, srcComponent=154)
     rx0_us = 1_700_000_000 * 10**6
     with open(path, "wb") as fh:
         for i in range(n):
@@ -859,13 +982,15 @@ def _crafted_tlog(
             cap.frames.clear()
             mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
             mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
+            if gimbal_ms_of is not None:
+                gimbal.attitude_send(gimbal_ms_of(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             for frame in cap.frames:
                 fh.write(struct.pack(">Q", rx0_us + i * 10_000) + frame)
     return path
 
 
-def _replay_times(path: Path) -> tuple[list[float], int]:
-    with MavlinkSource(str(path), rate_hz=100.0, realtime=False) as src:
+def _replay_times(path: Path, compid: int | None = None) -> tuple[list[float], int]:
+    with MavlinkSource(str(path), rate_hz=100.0, realtime=False, compid=compid) as src:
         times, fresh = [], 0
         for state in src:
             times.append(state.t)
@@ -903,6 +1028,28 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     )
     times, fresh = _replay_times(reboot)
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
+
+
+def test_a_log_whose_boot_times_are_all_zero_is_timed_by_its_receive_times(tmp_path):
+    """A sender that leaves time_boot_ms and time_usec at 0 (not filled in): every sample
+    had the same time, and the 6 s log replayed as one tick. It falls back to the ground
+    station's receive times (10 ms apart here)."""
+    log = _crafted_tlog(tmp_path / "zero.tlog", lambda i: 0)
+    times, fresh = _replay_times(log)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
+
+
+@pytest.mark.parametrize("compid", [None, 1])
+def test_another_component_with_its_own_boot_time_leaves_the_vehicle_clock_alone(tmp_path, compid):
+    """A gimbal of the vehicle's system sending ATTITUDE on its own clock (booted an hour
+    earlier): the log's clock took every component's time, jumped an hour ahead and back at
+    each of its messages, and a 6 s log replayed as 20 minutes, 95 % of it stale, even with
+    ``compid`` 1 (which keeps the gimbal's values out). One component's clock times it."""
+    log = _crafted_tlog(
+        tmp_path / "gimbal.tlog", lambda i: i * 10, gimbal_ms_of=lambda i: 3_600_000 + i * 10
+    )
+    times, fresh = _replay_times(log, compid)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
 
 
 def _crafted_bin(
@@ -1041,9 +1188,23 @@ def test_clear_errors_for_misuse(tmp_path: Path) -> None:
         MavlinkSource(str(tmp_path / "missing.tlog")).open()
     with pytest.raises(SourceError, match="not open"):
         iter(MavlinkSource(str(TLOG)))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:  # (a ground station's)
+        taken.bind(("127.0.0.1", 0))
+        url = f"udpin:127.0.0.1:{taken.getsockname()[1]}"
+        with pytest.raises(SourceError, match="in use.*another program listens there"):
+            MavlinkSource(url).open()
     d = MavlinkSource().describe()
     assert d["url"] == "udpin:127.0.0.1:14550" and d["signing"] is False
     assert d["mavlink_version"] == "2.0"
+
+
+def test_a_duration_too_long_to_count_in_ticks_runs_without_an_end() -> None:
+    """``stream --duration 1e308``: its ticks (1e308 s times the rate) overflowed to
+    infinity and the first tick raised OverflowError, a traceback. It runs until stopped."""
+    import itertools
+
+    with MavlinkSource("udpin:127.0.0.1:0", duration_s=1e308, request_streams=False) as src:
+        assert len(list(itertools.islice(src, 3))) == 3
 
 
 def test_a_serial_device_is_a_character_device(tmp_path: Path) -> None:

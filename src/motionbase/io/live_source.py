@@ -423,7 +423,8 @@ class SampleHoldSource:
         """Ticks in ``duration_s`` (at least one), or None without a duration."""
         if self.duration_s is None:
             return None
-        return max(1, round(self.duration_s * self.rate_hz))
+        n = self.duration_s * self.rate_hz  # (inf for a duration such as 1e308 s: no end)
+        return max(1, round(n)) if math.isfinite(n) else None
 
     def _iter_live(self) -> Iterator[AircraftState]:
         """Ticks on the wall clock, reading the link between them."""

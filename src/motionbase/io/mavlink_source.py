@@ -49,7 +49,9 @@ ticks stale; the vehicle clock gives 94 % fresh), a DataFlash log on its
 Filtering and safety
 --------------------
 Only messages from ``sysid`` (and ``compid`` when given) are used
-(``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter).
+(``msg.get_srcSystem()``: pymavlink's ``recv_match`` has no system filter), each
+component's from one UDP address at a time: the first, until it is silent for
+``stale_timeout_s`` (a second vehicle with the same ids is rejected, with a warning).
 With a signing key, unsigned and badly signed messages are rejected. Bytes that
 do not parse are counted as ``bad_data`` (runs of them) and ``bad_bytes``; they
 never take good frames down with them (see :class:`_FrameReader`: a frame may
@@ -99,7 +101,7 @@ from motionbase.io.live_source import (  # noqa: E402
     positive_number,
     wrap_pi,
 )
-from motionbase.io.net_address import check_host_port  # noqa: E402
+from motionbase.io.net_address import bind_fix, check_host_port  # noqa: E402
 from motionbase.physics import (  # noqa: E402
     MAX_ANGULAR_VELOCITY,
     MAX_SPECIFIC_FORCE,
@@ -150,6 +152,9 @@ _FRAME_STARTS = (mavutil.mavlink.PROTOCOL_MARKER_V2, mavutil.mavlink.PROTOCOL_MA
 _REQUEST_AFTER_S = 1.0  # silence on a live link before asking for streams
 _MAX_REQUESTS = 3
 _HEARTBEAT_PERIOD_S = 1.0
+#: Heartbeats of the vehicle missing this long, s: the next one is a vehicle that (re)appears
+#: (started after us, rebooted), asked for its streams anew.
+_VEHICLE_GONE_S = 3.0
 _GCS_SYSID = 255
 _GCS_COMPID = 190  # MAV_COMP_ID_MISSIONPLANNER
 
@@ -169,8 +174,9 @@ class MavlinkStats(TickStats):
     used : int
         Accepted IMU and attitude messages whose values entered the state.
     rejected_sysid, rejected_compid : int
-        Messages from another system id, or from another component id when
-        ``compid`` is set.
+        Messages from another system id (or with our system and component ids from a
+        second address while the first one sends: a second vehicle with the same ids), or
+        from another component id when ``compid`` is set.
     rejected_unsigned, rejected_bad_signature : int
         With signing on: unsigned messages, and signed messages whose signature
         or timestamp is wrong. ``rejected_signature`` is their sum.
@@ -402,20 +408,22 @@ MAX_LOG_GAP_S = 10.0
 class _VehicleClock:
     """Sample times of a telemetry log from the vehicle's own clock, s.
 
-    A ``.tlog`` stamps each message with the ground station's receive time,
-    which bunches up when the radio link is bursty. The vehicle's
-    ``time_boot_ms`` / ``time_usec`` fields give the true, evenly spaced sample
-    times. Messages without them (HEARTBEAT), or from other systems, keep the
-    last time. The result never goes backwards: a reboot (boot time jumping
-    back, and the next sample going on from there) re-anchors the clock where it
-    was; one sample behind the clock with the next one back on it is an outlier,
-    given the clock's time. A jump ahead of more than :data:`MAX_LOG_GAP_S` is
-    shortened to it (``gaps_shortened`` counts them). A DataFlash log's times
-    (already the vehicle's) take the same path through :meth:`advance`.
+    A ``.tlog`` stamps each message with the ground station's receive time, which bunches up
+    when the radio link is bursty. The vehicle's ``time_boot_ms`` / ``time_usec`` fields
+    give the true, evenly spaced sample times. Messages without them (HEARTBEAT), or from
+    other systems or components, keep the last time: the clock is that of ``compid``, else
+    of the first component of ``sysid`` to give a time (each component counts from its own
+    boot). The result never goes backwards: a reboot (boot time jumping back, and the next
+    sample going on from there) re-anchors the clock where it was; one sample behind the
+    clock with the next one back on it is an outlier, given the clock's time. A jump ahead
+    of more than :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them).
+    A DataFlash log's times (already the vehicle's) take the same path through
+    :meth:`advance`.
     """
 
-    def __init__(self, sysid: int) -> None:
+    def __init__(self, sysid: int, compid: int | None = None) -> None:
         self.sysid = sysid
+        self.compid = compid
         self.last = -math.inf
         self.offset = 0.0
         self.gaps_shortened = 0
@@ -423,9 +431,9 @@ class _VehicleClock:
 
     def __call__(self, msg: Any) -> float:
         t = None
-        if msg.get_srcSystem() == self.sysid:
+        if msg.get_srcSystem() == self.sysid and self.compid in (None, msg.get_srcComponent()):
             ms = getattr(msg, "time_boot_ms", None)
-            if ms is not None:
+            if ms:  # (0: not filled in, as a simulator may leave it)
                 t = ms * 1e-3
             else:
                 us = getattr(msg, "time_usec", None)
@@ -433,6 +441,7 @@ class _VehicleClock:
                     t = us * 1e-6
         if t is None:
             return self.last if math.isfinite(self.last) else msg._timestamp
+        self.compid = msg.get_srcComponent()
         if not math.isfinite(self.last):
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
         return self.advance(t)
@@ -663,9 +672,10 @@ class MavlinkSource(SampleHoldSource):
         sleeping: one processor at 100 %, fewer late ticks at 1 kHz (see
         :mod:`motionbase.pacing`).
     request_streams : bool
-        On a live link, ask a silent vehicle for HIGHRES_IMU and ATTITUDE at
-        ``rate_hz`` with MAV_CMD_SET_MESSAGE_INTERVAL, and send a ground-station
-        HEARTBEAT once a second.
+        On a live link, ask a vehicle silent on either for HIGHRES_IMU and ATTITUDE at
+        ``rate_hz`` with MAV_CMD_SET_MESSAGE_INTERVAL (three times at most, and anew when
+        its heartbeats come back after a pause: started later, rebooted), and send a
+        ground-station HEARTBEAT once a second.
     stale_timeout_s : float
         A tick is stale when its IMU or attitude sample is older than this, s
         (> 0).
@@ -803,7 +813,10 @@ class MavlinkSource(SampleHoldSource):
         self._req_count = 0
         self._warned_ignored = False
         self._last_hb = -math.inf
+        self._vehicle_hb = -math.inf  # arrival of the vehicle's last HEARTBEAT
         self._vehicle_addr: Any = None  # udpin: where the last message from sysid came from
+        self._senders: dict[int, tuple[Any, float]] = {}  # compid: address, last arrival
+        self._warned_twin = False
         self._on_ground: bool | None = None
 
     @property
@@ -856,10 +869,10 @@ class MavlinkSource(SampleHoldSource):
                     f"mavlink log {self.url}: cannot read it as a MAVLink log ({exc}); is it "
                     "a whole telemetry .tlog or DataFlash .bin?"
                 ) from None
-            raise SourceError(
-                f"mavlink {self.url}: cannot open ({exc}); check the connection string "
-                "(udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device or a log file)"
-            ) from None
+            fix = f"check the connection string ({_FORMS})"
+            if isinstance(exc, OSError):  # (a port in use: a ground station listens there?)
+                fix = bind_fix(exc, fix)
+            raise SourceError(f"mavlink {self.url}: cannot open ({exc}); {fix}") from None
         self._conn = conn
         if self.is_log:  # before the run opens its log: a file without them is refused
             self._check_log_has_messages()
@@ -873,6 +886,7 @@ class MavlinkSource(SampleHoldSource):
                 conn.setup_signing(
                     self._key, sign_outgoing=True, allow_unsigned_callback=_reject_unsigned
                 )
+                _forgeries_leave_stream_times(conn.mav)
             host = self._bind_host()
             if host is not None and not is_loopback(host):
                 _log.warning("MAVLink: listening on %s (not loopback), as requested", host)
@@ -1069,7 +1083,7 @@ class MavlinkSource(SampleHoldSource):
             dataflash = True
         else:
             handle = self._handle
-            clock = _VehicleClock(self.sysid) if self.log_clock == "vehicle" else None
+            clock = _VehicleClock(self.sysid, self.compid) if self.log_clock == "vehicle" else None
             dataflash = False
 
         def next_msg() -> tuple[Any, float]:
@@ -1138,8 +1152,25 @@ class MavlinkSource(SampleHoldSource):
         if self.compid is not None and msg.get_srcComponent() != self.compid:
             c["rejected_compid"] += 1
             return
+        addr = getattr(self._conn, "last_address", None)
+        comp = msg.get_srcComponent()
+        first, seen = self._senders.get(comp, (addr, -math.inf))
+        if addr != first and arrival - seen <= self.stale_timeout_s:
+            c["rejected_sysid"] += 1  # the same ids from a second address: one vehicle at a time
+            if not self._warned_twin:
+                self._warned_twin = True
+                _log.warning(
+                    "MAVLink: system %d is heard from %s and from %s (two vehicles with the "
+                    "same system id, or one over two routes); only the first is used while it "
+                    "sends: give each vehicle its own id (ArduPilot SYSID_THISMAV, PX4 "
+                    "MAV_SYS_ID) and pick one with --sysid",
+                    self.sysid,
+                    _address(first),
+                    _address(addr),
+                )
+            return
         c["accepted"] += 1
-        self._vehicle_addr = getattr(self._conn, "last_address", None)
+        self._vehicle_addr, self._senders[comp] = addr, (addr, arrival)
         self._per_type[mtype] = self._per_type.get(mtype, 0) + 1
 
         imu = _IMU_TYPES.get(mtype)
@@ -1176,6 +1207,10 @@ class MavlinkSource(SampleHoldSource):
         elif mtype == "HEARTBEAT":
             if msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:  # not a GCS/companion
                 self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+                if arrival - self._vehicle_hb > _VEHICLE_GONE_S:  # (re)appears: ask anew
+                    self._req_count = 0
+                    self._warned_ignored = False
+                self._vehicle_hb = arrival
         elif mtype == "COMMAND_ACK":
             self._on_command_ack(msg)
 
@@ -1257,8 +1292,8 @@ class MavlinkSource(SampleHoldSource):
             self._warned_ignored = False
             return
         state = self._req_state
-        if state in ("idle", "streaming"):
-            silent_since = max(self._imu_time, self._att_time, self._live_start)
+        if state in ("idle", "streaming"):  # silent: either of them (one alone moves nothing)
+            silent_since = max(min(self._imu_time, self._att_time), self._live_start)
             if now - silent_since >= _REQUEST_AFTER_S and self._req_count < _MAX_REQUESTS:
                 self._send_requests(conn, now)
         elif state in ("sent", "acknowledged", "ignored") and (
@@ -1295,11 +1330,14 @@ class MavlinkSource(SampleHoldSource):
                     )
             elif not self._warned_ignored:
                 self._warned_ignored = True
+                slots = (("IMU", self._imu_time), ("attitude", self._att_time))
+                missing = " and ".join(n for n, t in slots if now - t > timeout)
                 _log.warning(
-                    "MAVLink: system %d ignored MAV_CMD_SET_MESSAGE_INTERVAL (%s, no IMU and "
-                    "attitude data %.1f s later); check the link and the vehicle's stream settings",
+                    "MAVLink: system %d ignored MAV_CMD_SET_MESSAGE_INTERVAL (%s, no %s data "
+                    "%.1f s later); check the link and the vehicle's stream settings",
                     self.sysid,
                     "acknowledged" if state == "acknowledged" else "no COMMAND_ACK",
+                    missing,
                     self.request_timeout_s,
                 )
             self._req_state = "ignored"
@@ -1393,6 +1431,33 @@ def _end_tcp_at_eof(conn: Any) -> None:
 
     conn.handle_eof = eof
     conn.handle_disconnect = lambda: None
+
+
+def _forgeries_leave_stream_times(mav: Any) -> None:
+    """A frame that fails its signature check leaves its stream's last timestamp as it was.
+    pymavlink records a signed frame's timestamp before it checks the signature: one forged
+    frame (no key needed) stamped far ahead, with the link id, system and component of the
+    vehicle's stream, made every genuine frame after it "old", for good."""
+    check = mav.check_signature
+
+    def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        stamps = mav.signing.stream_timestamps
+        stream = (msgbuf[-13], src_system, src_component)  # (link id, system, component)
+        before = stamps.get(stream)
+        if check(msgbuf, src_system, src_component):
+            return True
+        if before is None:
+            stamps.pop(stream, None)
+        else:
+            stamps[stream] = before
+        return False
+
+    mav.check_signature = checked
+
+
+def _address(addr: Any) -> str:
+    """A UDP peer's (host, port) as ``host:port``."""
+    return f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
 
 
 def _reject_unsigned(mav: Any, msgid: int) -> bool:
