@@ -537,7 +537,7 @@ class McapSource:
         configuration (top level, then ``pipeline``, then ``source``), else the
         median spacing of the messages.
     duration_s : float
-        Time from the first to the last state, s.
+        Time from the first to the last state, s (by their log times).
     metadata : dict
         The recorded configuration (``{}`` when there is none).
     truncated : bool
@@ -643,7 +643,7 @@ class McapSource:
             raise _no_messages(self.path, topic, present, ending.truncated)
         self._check_clock(first[0])
         self.count = len(times)
-        self.duration_s = (times[-1] - times[0]) / 1e9
+        self.duration_s = abs(times[-1] - times[0]) / 1e9  # (log times may run backwards)
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.uint64))
         _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
