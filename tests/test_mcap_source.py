@@ -251,7 +251,9 @@ def test_log_times_that_run_backwards_still_give_the_rate(tmp_path: Path) -> Non
             ns = (200 - k) * 20_000_000
             writer.add_message(cid, ns, json.dumps(_good_message(k / 50)).encode(), ns)
         writer.finish()
-    assert McapSource(path).rate_hz == pytest.approx(50.0)
+    source = McapSource(path)
+    assert source.rate_hz == pytest.approx(50.0)
+    assert source.duration_s == pytest.approx(99 * 0.02)  # (it was -1.98 s: a progress bar's)
 
 
 def test_non_finite_and_null_values_read_back_as_floats(tmp_path: Path) -> None:

@@ -158,10 +158,23 @@ def test_a_set_made_for_the_platform_does_not_warn(fresh_warnings, platform, pre
     assert _reach_warnings(fresh_warnings) == []
 
 
-def test_the_whole_reach_as_limits_from_robot_writes_it_does_not_warn(fresh_warnings):
-    """margin=1: the box is the reach, its 4 digits rounded up past it by up to 0.05 mm or
-    mrad on some axes (measured here with robot.reachable), which is no reason to warn."""
-    name, geometry = load_geometry("ceart")
+@pytest.mark.parametrize("scale", [None, 4.0])
+def test_the_whole_reach_as_limits_from_robot_writes_it_does_not_warn(
+    fresh_warnings, tmp_path, scale
+):
+    """margin=1: the box is the reach, its 4 significant digits rounded up past it on some
+    axes (measured here with robot.reachable): by up to 0.05 mm or mrad on ceart, 0.5 mm on
+    a Stewart platform 4 times the seat (a surge reach of 1.2 m), which warned; no reason to
+    warn."""
+    platform = "ceart"
+    if scale is not None:  # the seat's lengths times scale
+        seat = _preset_file("stewart6_seat")
+        for key in ("base_radius", "platform_radius", "neutral_length", "length_min",
+                    "length_max", "park_margin"):  # fmt: skip
+            seat[key] *= scale
+        platform = str(tmp_path / "big.toml")
+        write_toml(platform, seat)
+    name, geometry = load_geometry(platform)
     robot = robot_spec(name).make(geometry)
     data = MpcParams.load("tuned_ceart").to_dict()
     data["limits"] = limits_from_robot(robot, margin=1.0)

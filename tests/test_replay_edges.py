@@ -644,6 +644,35 @@ def test_a_recording_whose_every_state_is_absurd_is_refused_unless_its_limits_al
     assert f"message 1: {why}" in line, line
 
 
+@pytest.mark.parametrize(
+    ("limit", "force"),
+    [(5.0, 9.80665), (2e4, 1e5)],  # tighter than the default 150 m/s^2; wider, not enough
+)
+def test_a_recording_whose_every_state_is_beyond_its_recorded_limits_is_refused(
+    tmp_path, capfd, fresh_logger, limit, force
+):
+    """The refusal of a recording without a usable state goes by the limits the run has,
+    the recorded ones: states within the default limits but beyond tighter recorded ones,
+    or beyond both the default and wider recorded ones, were each rejected by the run,
+    which ran its start and park with no cue, exit 0 (the scan judged them by the default
+    limits alone)."""
+    payloads = [
+        json.dumps({"t": k / 100, "specific_force": [0.0, 0.0, -force],
+                    "angular_velocity": [0.0] * 3, "attitude": [0.0] * 3}).encode()
+        for k in range(200)
+    ]  # fmt: skip
+    recorded = app.load_config(rate_hz=100.0).to_dict()
+    recorded["pipeline"]["input_limits"] = {"max_specific_force": limit}
+    config = {"rate_hz": 100.0, "pipeline_config": recorded}
+    rec = write_states(tmp_path / "rec.mcap", payloads=payloads, config=config)
+    out = tmp_path / "out.mcap"
+    code, _, err = _cli(capfd, "replay", rec, "--out", out)
+    assert code == 2 and not out.exists(), err
+    line = _one_line(err)
+    assert "none of its 200 aircraft states can be used" in line, line
+    assert "message 1: specific force beyond its bound" in line, line
+
+
 def test_a_check_it_cannot_make_is_refused_before_the_replay_runs(tmp_path, capfd, fresh_logger):
     """A recording with a topic that is not JSON (a camera merged in) cannot be compared:
     ``replay --check`` ran the whole replay first (motors too, with --output), then said so

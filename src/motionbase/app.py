@@ -937,10 +937,8 @@ def _replay(
                     kept, source=f"{src_path}: metadata: {key}"
                 )
                 config = replace(config, cueing_params=params)
-        from motionbase.safety import InputLimits
-
-        why = source.unusable  # (with the default limits: a run with others may use some)
-        if why and (config.input_limits == InputLimits() or not source.beyond_limits):
+        why = source.unusable_with(config.input_limits)
+        if why:
             raise LogFormatError(
                 f"{src_path}: none of its {source.count} aircraft states can be used, each is "
                 f"malformed, not finite or beyond the input limits ({why}); nothing to replay "

@@ -318,8 +318,6 @@ INPUT_PROBLEMS = (
     "attitude beyond its bound",
     f"time is outside 0..{MAX_SAMPLE_TIME_S:.3g} s (a log time must fit 64-bit nanoseconds)",
 )
-#: The problems that depend on the :class:`InputLimits` (other limits may accept the sample).
-LIMIT_PROBLEMS = frozenset(INPUT_PROBLEMS[4:9:2])
 
 
 @numba.njit(cache=True)

@@ -500,10 +500,10 @@ def _state_from_message(msg: Any) -> AircraftState:
     )
 
 
-def _unusable(data: bytes) -> str:
+def _unusable(data: bytes, limits: Any = None) -> str:
     """Why a state message cannot be used (malformed, non-finite, rejected by the input
-    validation with the default limits: a time no log holds, a value beyond its bound);
-    ``""`` when it can."""
+    validation with ``limits``, the default ones when None: a time no log holds, a value
+    beyond its bound); ``""`` when it can."""
     from motionbase.safety import InputLimits, input_problem
 
     try:
@@ -513,7 +513,7 @@ def _unusable(data: bytes) -> str:
     if not state.is_finite():
         return "a number in it is not finite"
     f, w, att = state.specific_force, state.angular_velocity, state.attitude
-    return input_problem(state.t, f, w, att, None, InputLimits()) or ""
+    return input_problem(state.t, f, w, att, None, limits or InputLimits()) or ""
 
 
 class McapSource:
@@ -537,7 +537,7 @@ class McapSource:
         configuration (top level, then ``pipeline``, then ``source``), else the
         median spacing of the messages.
     duration_s : float
-        Time from the first to the last state, s.
+        Time from the first to the last state, s (by their log times).
     metadata : dict
         The recorded configuration (``{}`` when there is none).
     truncated : bool
@@ -556,10 +556,8 @@ class McapSource:
         first one.
     unusable : str
         Why no state of the recording can be used (the first one's reason: malformed,
-        non-finite, beyond the default input limits); ``""`` when one can.
-    beyond_limits : bool
-        Some state was refused only for a value beyond the default input limits (a run
-        with other limits may use it).
+        non-finite, beyond the default input limits); ``""`` when one can. With other
+        limits: :meth:`unusable_with`.
 
     Raises
     ------
@@ -588,7 +586,6 @@ class McapSource:
         self.malformed = 0
         self.first_malformed = ""
         self.unusable = ""
-        self.beyond_limits = False
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.rate_from = ""  # where rate_hz came from, for messages
@@ -616,8 +613,6 @@ class McapSource:
                     )
                 self._channel_ids.add(ch.id)
 
-        from motionbase.safety import LIMIT_PROBLEMS
-
         first: list[bytes] = []
         # a tick logs its state (when it has one) before its poses
         state_in_tick = [False]
@@ -627,14 +622,12 @@ class McapSource:
             if msg.channel_id in self._channel_ids:
                 times.append(msg.log_time)
                 state_in_tick[0] = True
-                if not first or self.unusable:  # until a usable state comes
-                    why = _unusable(msg.data)
-                    self.beyond_limits |= why in LIMIT_PROBLEMS
-                    if not first:
-                        first.append(msg.data)
-                        self.unusable = why and f"message 1: {why}"
-                    elif not why:
-                        self.unusable = ""
+                if not first:
+                    first.append(msg.data)
+                    why = _unusable(msg.data)  # until a usable state comes
+                    self.unusable = why and f"message 1: {why}"
+                elif self.unusable and not _unusable(msg.data):
+                    self.unusable = ""
             elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
                 if state_in_tick[0] and _STOPPING.search(msg.data):
                     self.recorded_stop = len(times)
@@ -650,7 +643,7 @@ class McapSource:
             raise _no_messages(self.path, topic, present, ending.truncated)
         self._check_clock(first[0])
         self.count = len(times)
-        self.duration_s = (times[-1] - times[0]) / 1e9
+        self.duration_s = abs(times[-1] - times[0]) / 1e9  # (log times may run backwards)
         self.rate_hz = self._find_rate(np.asarray(times, dtype=np.uint64))
         _warn_ending(self.path, ending, f"{self.count} aircraft states")
         self._open = False
@@ -718,15 +711,39 @@ class McapSource:
     ) -> None:
         self._open = False
 
+    def unusable_with(self, limits: Any) -> str:
+        """:attr:`unusable` for a run with the input ``limits``
+        (:class:`~motionbase.safety.InputLimits`): with other than the default ones, the
+        states are read again until one is usable (the first, in a usable recording)."""
+        from motionbase.safety import InputLimits
+
+        if limits == InputLimits():
+            return self.unusable
+        first = ""
+        for _, data in self._messages():
+            why = _unusable(data, limits)
+            if not why:
+                return ""
+            first = first or f"message 1: {why}"
+        return first
+
     def __iter__(self) -> Iterator[AircraftState]:
         """The recorded states in file order (the order they were logged)."""
+        self.malformed, self.fresh = 0, True  # (as a fresh source: a replay after a preview)
+        for index, data in self._messages():
+            state = self._read_state(data, index)
+            if index == self.recorded_stop and self._stop_request is not None:
+                self._stop_request.set(RECORDED_STOP)
+            yield state
+
+    def _messages(self) -> Iterator[tuple[int, bytes]]:
+        """The state messages' payloads in file order, numbered from 1."""
         fh = _open(self.path)
         index = 0
         try:
             fh.seek(len(MCAP_MAGIC))
             records = StreamReader(fh, skip_magic=True, validate_crcs=True).records
             ids: set[int] = set()
-            self.malformed, self.fresh = 0, True  # (as a fresh source: a replay after a preview)
             while True:
                 try:
                     rec = next(records)
@@ -738,10 +755,7 @@ class McapSource:
                 if isinstance(rec, Message):
                     if rec.channel_id in ids:
                         index += 1
-                        state = self._read_state(rec.data, index)
-                        if index == self.recorded_stop and self._stop_request is not None:
-                            self._stop_request.set(RECORDED_STOP)
-                        yield state
+                        yield index, rec.data
                 elif isinstance(rec, Channel):
                     if rec.topic == self.topic:
                         ids.add(rec.id)
