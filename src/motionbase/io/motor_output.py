@@ -1231,14 +1231,15 @@ def open_output(
     ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
     other = [(k, v) for k, v in pairs if k not in ours]
     fmt, extra = parse_format(ours.get("format", default_text(mapping.n)), mapping.n)
+    given = ours.get("rate", extra.get("rate_hz"))  # the URL's (or its format file's)
     try:
-        rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
+        rate = float(DEFAULT_RATE_HZ if given is None else given)
     except (TypeError, ValueError):
         raise ConfigError(f"output {url!r}: rate must be a number of frames per second") from None
     if rate_hz is not None:
-        if "rate" in ours and float(rate_hz) != rate:  # (a NaN in the URL differs too)
+        if given is not None and float(rate_hz) != rate:  # (a NaN in the URL differs too)
             raise ConfigError(
-                f"output {url!r}: the URL's rate={ours['rate']} and the {rate_hz:g} Hz asked "
+                f"output {url!r}: the URL's rate {given} Hz and the {rate_hz:g} Hz asked "
                 "for differ: give the rate once"
             )
         rate = float(rate_hz)
