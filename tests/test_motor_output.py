@@ -1287,3 +1287,38 @@ def test_an_output_whose_rounding_puts_park_past_a_limit_is_refused(tmp_path, ca
             sock.recv(4096)
     finally:
         sock.close()
+
+
+def test_a_motor_that_no_output_carries_is_refused_before_the_run(tmp_path, capsys):
+    """A frame format made for a three-actuator robot (``A{1}B{2}C{3}\\n``) on the Stewart
+    platform's six: the flight sent lengths for actuators 1 to 3 and nothing for 4 to 6,
+    which stood still while the others moved. Refused before anything is sent, in one line
+    naming them, exit 2. Two drives that share the motors between them are fine."""
+    from motionbase.platform import Stewart6Geometry
+    from motionbase.platform.robot import robot_spec
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    port = sock.getsockname()[1]
+    try:
+        url = f"udp:127.0.0.1:{port}?format=" + quote("A{1}B{2}C{3}\n", safe="")
+        args = ["fly", "c1723", "--platform", "stewart6", "--duration", "1"]
+        code = main([*args, "--out", str(tmp_path / "f.mcap"), "--output", url])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert "motors 4, 5, 6" in err, err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)
+        robot = robot_spec("stewart6").make(Stewart6Geometry.preset("seat"))
+        other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        other.bind(("127.0.0.1", 0))
+        try:
+            second = f"udp:127.0.0.1:{other.getsockname()[1]}?format=" + quote(
+                "A{4}B{5}C{6}\n", safe=""
+            )
+            assert len(open_outputs([url, second], robot)) == 2
+        finally:
+            other.close()
+    finally:
+        sock.close()

@@ -1297,6 +1297,13 @@ def open_outputs(
             )
         seen[drive] = sink.url
         check_sendable(sink, robot)
+    unsent = sorted(set(range(robot.n)).difference(*(s.format.axes for s in sinks)))
+    if unsent:  # (a format for a 3-actuator robot on six: 4..6 stood still as 1..3 moved)
+        raise ConfigError(
+            f"--output: motors {', '.join(str(i + 1) for i in unsent)} of the {robot.n} are in "
+            "no output's frame format, so they would stand still while the others move: give "
+            "each motor a field, e.g. " + default_text(robot.n).replace("\\n", "")
+        )
     return sinks
 
 
