@@ -1232,3 +1232,93 @@ def test_a_format_that_can_never_send_is_refused_before_the_run(fmt, needle, cap
         assert len(open_outputs([url], robot)) == 1
     finally:
         sock.close()
+
+
+#: A frame of whole drive units, as the default format writes them: ``A-60B...``.
+WHOLE_UNITS = rb"A(-?\d+)B(-?\d+)C(-?\d+)D(-?\d+)E(-?\d+)F(-?\d+)\n"
+
+
+def test_a_field_that_rounds_never_puts_a_value_past_the_drive_range():
+    """Motors whose zero is 0.3 deg off (``zero_offset_deg = 0.3``: drive values -59.7..60.3
+    deg across the +-60 deg cranks) and the default frame format, whole degrees. The
+    commands run down to the lower crank limit and rest there. The drive range's check took
+    the value before the frame rounded it: -59.7 went out as -60, the crank at -60.3 deg,
+    past its limit. Read back here (the wire's whole degrees less the offset), every frame
+    is within the limits: the drive stops at the last whole degree within them, -59."""
+    limits = NARROW_TEST_LIMITS
+    mapping = OutputMapping.from_dict(
+        {"unit": "deg", "zero_offset_deg": 0.3}, angle_min=limits.lower, angle_max=limits.upper
+    )
+    down = -_speeding_up(0.0, 300, limits)  # 0 to past -60 deg at 30 deg/s
+    commands = np.maximum(down, limits.lower[0])  # clamped at the limit, as a flight's are
+    drive = UdpDrive()
+    try:
+        url = f"udp:127.0.0.1:{drive.port}?rate=100"  # the default format: A{1}B{2}...
+        _paced_to_drive(drive, url, mapping, np.array([*commands, *[commands[-1]] * 50]))
+    finally:
+        drive.close()
+    wire = np.array(
+        [[int(x) for x in re.fullmatch(WHOLE_UNITS, f).groups()] for _, f in drive.frames]
+    )
+    crank_deg = wire - 0.3
+    assert len(wire) > 100 and crank_deg.min() >= -60.0, crank_deg.min()
+    np.testing.assert_array_equal(wire[-1], np.full(6, -59))
+
+
+def test_an_output_whose_rounding_puts_park_past_a_limit_is_refused(tmp_path, capsys):
+    """``unit = "rad"`` with the default format (whole radians) on cranks limited to
+    -57..60 deg, parked at -52 deg: park is written -1 rad, -57.3 deg, past the lower limit.
+    The wiring check sent it 100 times a second; it is refused before a frame is sent, in
+    one line, exit status 2."""
+    text = preset_path("rus6", "ceart").read_text()
+    text = text.replace("angle_min_deg = -60.0", "angle_min_deg = -57.0")
+    text = re.sub(r"park_angle_deg = -55\.0.*", "park_angle_deg = -52.0", text)
+    geo = tmp_path / "rad.toml"
+    geo.write_text(text + '\n[output]\nunit = "rad"\n')
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    try:
+        url = f"udp:127.0.0.1:{sock.getsockname()[1]}"
+        code = main(["output", "--test", url, "--platform", str(geo)])
+        err = capsys.readouterr().err
+        assert code == 2 and "park command" in err and len(err.strip().splitlines()) == 1, err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)
+    finally:
+        sock.close()
+
+
+def test_a_motor_that_no_output_carries_is_refused_before_the_run(tmp_path, capsys):
+    """A frame format made for a three-actuator robot (``A{1}B{2}C{3}\\n``) on the Stewart
+    platform's six: the flight sent lengths for actuators 1 to 3 and nothing for 4 to 6,
+    which stood still while the others moved. Refused before anything is sent, in one line
+    naming them, exit 2. Two drives that share the motors between them are fine."""
+    from motionbase.platform import Stewart6Geometry
+    from motionbase.platform.robot import robot_spec
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    port = sock.getsockname()[1]
+    try:
+        url = f"udp:127.0.0.1:{port}?format=" + quote("A{1}B{2}C{3}\n", safe="")
+        args = ["fly", "c1723", "--platform", "stewart6", "--duration", "1"]
+        code = main([*args, "--out", str(tmp_path / "f.mcap"), "--output", url])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert "motors 4, 5, 6" in err, err
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)
+        robot = robot_spec("stewart6").make(Stewart6Geometry.preset("seat"))
+        other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        other.bind(("127.0.0.1", 0))
+        try:
+            second = f"udp:127.0.0.1:{other.getsockname()[1]}?format=" + quote(
+                "A{4}B{5}C{6}\n", safe=""
+            )
+            assert len(open_outputs([url, second], robot)) == 2
+        finally:
+            other.close()
+    finally:
+        sock.close()

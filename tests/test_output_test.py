@@ -591,11 +591,15 @@ def test_a_url_without_a_format_drives_the_3rrr_s_three_servos():
         assert dev[:, i].max() >= 4 and dev[:, i].min() <= -4, i
 
 
-def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_refused(capsys):
+def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_refused(
+    capsys, tmp_path
+):
     """``output --test 'udp:...?rate=R'`` used to run at 100 Hz whatever R was (``rate=nan``
     too): the command line's default overrode the URL. The URL's rate is now the sweep's
     when ``--rate`` is not given, and a URL rate that is not a number, or differs from
-    ``--rate``, is one line, exit 2, with nothing sent."""
+    ``--rate``, is one line, exit 2, with nothing sent. So is the ``rate_hz`` of the URL's
+    frame-format file (``--rate`` overrode it without a word: 50 Hz frames to a drive
+    whose file said 200)."""
     from motionbase import cli
     from motionbase.app import output_test
     from motionbase.pipeline import StopRequest
@@ -609,15 +613,18 @@ def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_
     finally:
         rx.close()
     assert "frames sent at 50 Hz" in lines[-1], lines
-    for url_rate, extra, needle in [
-        ("nan", [], "rate"),
-        ("50", ["--rate", "100"], "give the rate once"),
+    drive_file = tmp_path / "drive.toml"
+    drive_file.write_text('text = "A{1}B{2}C{3}D{4}E{5}F{6}\\n"\nrate_hz = 200.0\n')
+    for query, extra, needle in [
+        ("rate=nan", [], "rate"),
+        ("rate=50", ["--rate", "100"], "give the rate once"),
+        (f"format={drive_file}", ["--rate", "50"], "give the rate once"),
     ]:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", 0))
         sock.settimeout(0.3)
         try:
-            url = f"udp:127.0.0.1:{sock.getsockname()[1]}?rate={url_rate}"
+            url = f"udp:127.0.0.1:{sock.getsockname()[1]}?{query}"
             code = cli.main(["output", "--test", url, *extra])
             err = capsys.readouterr().err
             assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err

@@ -403,6 +403,40 @@ def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
     assert np.abs(v).max() <= V_MAX * (1 + 1e-9) and np.abs(a).max() <= A_MAX * (1 + 1e-6)
 
 
+def test_a_stop_signal_while_the_user_s_script_imports_stops_the_job_as_it_starts(tmp_path):
+    """The README's way to begin the user's script: ``catch_early_stops()`` first. A SIGTERM
+    that comes while it imports the plug-in (numpy, numba) stops the wiring check as it
+    starts: the drive gets park alone, the command says so and exits 0. Without that line
+    the signal killed the process (a Ctrl-C: a traceback)."""
+    script = tmp_path / "mb.py"
+    script.write_text(
+        "import os, signal, sys\n"
+        "from motionbase.stopping import catch_early_stops\n"
+        "catch_early_stops()\n"
+        "os.kill(os.getpid(), signal.SIGTERM)  # (as if it came now, while importing)\n"
+        f"sys.path.insert(0, {str(HERE)!r})\n"
+        "import heave3_robot\n"
+        "heave3_robot.register()\n"
+        "from motionbase.cli import main\n"
+        "sys.exit(main())\n"
+    )
+    env = {"PYTHONPATH": str(Path(app.__file__).parents[1]), "PATH": "/usr/bin:/bin"}
+    drive = UdpDrive(n=3)
+    try:
+        args = ["output", "--test", drive.url(100), "--platform", "heave3"]
+        done = subprocess.run(
+            [sys.executable, str(script), *args], env=env, capture_output=True, text=True,
+            timeout=300,
+        )  # fmt: skip
+        drive.drain()
+        q = _mm_frames(drive)
+    finally:
+        drive.close()
+    assert done.returncode == 0, done.stderr
+    assert "stopped by SIGTERM" in done.stdout and "Traceback" not in done.stderr
+    assert len(q) >= 1 and np.all(np.abs(q - PARK) < 1e-7)
+
+
 # --------------------------------------------------------------------------- the README
 def _readme_robot() -> str:
     """The code block of the README's "Adding a robot" example."""

@@ -31,8 +31,8 @@ Mover style): ``text:A{1}B{2}C{3}D{4}E{5}F{6}\n``.
   ``i24``/``u32``/``i32`` followed by ``be`` (big endian) or ``le`` (little endian); the value
   sent is ``round(drive value * SCALE)`` (default SCALE 1; e.g. ``i16le*100`` sends
   centidegrees for ``unit = "deg"``). Without ``N:`` a field takes the next motor;
-  ``6xTYPE`` repeats a field for the next 6 motors. A value that does not fit the type is never
-  sent;
+  ``6xTYPE`` repeats a field for the next 6 motors. A value that does not fit the type, or
+  that its rounding puts past the drive range (as any field's), is never sent;
 * a checksum ``sum8`` (sum of bytes mod 256), ``xor8``, ``crc16`` (CRC-16/MODBUS, appended
   little endian) or ``crc16ccitt`` (CRC-16/CCITT-FALSE, appended big endian), over every byte
   before it, or from byte offset K with ``sum8@K`` (e.g. ``@2`` to skip a 2-byte header).
@@ -222,6 +222,7 @@ class _TextField:
     integer: bool
     unsigned: bool
     exact_width: int | None
+    rounding: str  # a float field's spec of the value it writes (its precision and type)
 
 
 class TextFormat:
@@ -234,6 +235,9 @@ class TextFormat:
     n_axes : int
         Number of motors; a placeholder above it is an error.
     """
+
+    #: The drive range (drive_min, drive_max) no value is written past: the sink's mapping's.
+    bounds: tuple[Sequence[float], Sequence[float]] | None = None
 
     def __init__(self, template: str, n_axes: int = 6) -> None:
         self.template = template
@@ -286,7 +290,8 @@ class TextFormat:
                 )
         zero = bool(m.group("zero")) or (m.group("fill") == "0" and m.group("align") in "=>")
         exact = width if zero and width else None
-        return _TextField(int(num) - 1, spec, integer, typ in "xXob", exact)
+        rounding = f".{m.group('prec')}{typ}" if m.group("prec") else typ
+        return _TextField(int(num) - 1, spec, integer, typ in "xXob", exact, rounding)
 
     def encode(self, values: Sequence[float]) -> bytes | None:
         """The frame for drive values (one per motor), or None when a value cannot be written."""
@@ -298,8 +303,7 @@ class TextFormat:
             out[2 * k + 1] = text
         return "".join(out).encode("latin-1")
 
-    @staticmethod
-    def _text(f: _TextField, v: float) -> str | None:
+    def _text(self, f: _TextField, v: float) -> str | None:
         if v != v:  # NaN
             return None
         if f.integer:
@@ -309,7 +313,8 @@ class TextFormat:
         text = format(v, f.spec)
         if f.exact_width is not None and len(text) != f.exact_width:
             return None
-        return text
+        written = v if f.integer else float(format(v, f.rounding))
+        return text if _within(self.bounds, f.axis, written) else None
 
     def axis_ok(self, axis: int, value: float) -> bool:
         """Whether every field of motor ``axis`` (0-based) can carry drive value ``value``."""
@@ -366,6 +371,8 @@ class BinaryFormat:
     n_axes : int
         Number of motors.
     """
+
+    bounds: tuple[Sequence[float], Sequence[float]] | None = None  # (as TextFormat's)
 
     def __init__(self, spec: str, n_axes: int = 6) -> None:
         self.spec = spec
@@ -446,13 +453,13 @@ class BinaryFormat:
                 out += fn(bytes(out[i.start :])).to_bytes(size, order)
         return bytes(out)
 
-    @staticmethod
-    def _int(i: _BinField, value: float) -> int | None:
+    def _int(self, i: _BinField, value: float) -> int | None:
         v = value * i.scale
         if not (i.lo - 0.5 <= v <= i.hi + 0.5):  # False for NaN
             return None
         iv = int(round(v))
-        return None if iv < i.lo or iv > i.hi else iv
+        ok = i.lo <= iv <= i.hi and _within(self.bounds, i.axis, iv / i.scale)
+        return iv if ok else None
 
     @property
     def size(self) -> int:
@@ -472,6 +479,16 @@ class BinaryFormat:
 
 
 FrameFormat = TextFormat | BinaryFormat
+
+
+def _within(bounds: tuple[Sequence[float], Sequence[float]] | None, axis: int, v: float) -> bool:
+    """Whether drive value ``v`` as a field writes it (rounded: ``{1}`` to whole units) is
+    within the drive range ``bounds`` (drive_min, drive_max; to its floating-point noise).
+    The range was checked before the rounding alone: -59.7 deg went out as -60."""
+    if bounds is None:
+        return True
+    lo, hi = bounds[0][axis], bounds[1][axis]
+    return lo - 1e-9 * (hi - lo) <= v <= hi + 1e-9 * (hi - lo)
 
 
 def parse_format(text: str, n_axes: int = 6) -> tuple[FrameFormat, dict[str, Any]]:
@@ -907,6 +924,7 @@ class MotorOutput:
                 f"{mapping.n}"
             )
         self.transport = transport
+        frame_format.bounds = (mapping.drive_min, mapping.drive_max)  # (written, rounded)
         self.format = frame_format
         self.mapping = mapping
         self.rate_hz = float(rate_hz)
@@ -1213,14 +1231,15 @@ def open_output(
     ours = {k: v for k, v in pairs if k in ("format", "rate", "baud")}  # (the last one counts)
     other = [(k, v) for k, v in pairs if k not in ours]
     fmt, extra = parse_format(ours.get("format", default_text(mapping.n)), mapping.n)
+    given = ours.get("rate", extra.get("rate_hz"))  # the URL's (or its format file's)
     try:
-        rate = float(ours.get("rate", extra.get("rate_hz", DEFAULT_RATE_HZ)))
+        rate = float(DEFAULT_RATE_HZ if given is None else given)
     except (TypeError, ValueError):
         raise ConfigError(f"output {url!r}: rate must be a number of frames per second") from None
     if rate_hz is not None:
-        if "rate" in ours and float(rate_hz) != rate:  # (a NaN in the URL differs too)
+        if given is not None and float(rate_hz) != rate:  # (a NaN in the URL differs too)
             raise ConfigError(
-                f"output {url!r}: the URL's rate={ours['rate']} and the {rate_hz:g} Hz asked "
+                f"output {url!r}: the URL's rate {given} Hz and the {rate_hz:g} Hz asked "
                 "for differ: give the rate once"
             )
         rate = float(rate_hz)
@@ -1278,6 +1297,13 @@ def open_outputs(
             )
         seen[drive] = sink.url
         check_sendable(sink, robot)
+    unsent = sorted(set(range(robot.n)).difference(*(s.format.axes for s in sinks)))
+    if unsent:  # (a format for a 3-actuator robot on six: 4..6 stood still as 1..3 moved)
+        raise ConfigError(
+            f"--output: motors {', '.join(str(i + 1) for i in unsent)} of the {robot.n} are in "
+            "no output's frame format, so they would stand still while the others move: give "
+            "each motor a field, e.g. " + default_text(robot.n).replace("\\n", "")
+        )
     return sinks
 
 
@@ -1319,7 +1345,8 @@ def check_sendable(sink: MotorOutput, robot: Robot) -> None:
             raise ConfigError(
                 f"output {sink.url!r}: the {what} command's drive values ({shown}) do not fit "
                 f"the frame format {sink.format.describe()!r}; no frame would be sent: use "
-                "fields that hold them (signed ones for negative values: i16, {1:d}), or map "
+                "fields that hold them (signed ones for negative values: i16, {1:d}; decimals "
+                "where whole units round past the drive range: {1:.3f}, i16*1000), or map "
                 "them into the fields' range with an [output] table in the geometry (unit = "
                 '"range", range_lo, range_hi)'
             )
