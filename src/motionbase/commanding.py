@@ -26,8 +26,9 @@ park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the 
   invalid ones (udesc's pocket beyond a band near a type II singularity, which no path of
   valid poses reaches) is clamped from its first invalid point, or refused. A refused
   target (non-finite, unreachable), no input yet, or stale input (the source marks it not
-  fresh) brakes the robot to rest where it is
-  (:func:`motionbase.stages.brake_stage`) until a usable target comes.
+  fresh) brakes the robot to rest where it is until a usable target comes: along the
+  straight pose line of the approach it is moving on (below), else with every actuator's
+  speed scaled alike (:func:`motionbase.stages.brake_stage`).
 * Approach (far jumps): a parallel robot's actuators must move together, or the mechanism
   leaves its assembly during a large jump. When the limiter cannot reach the target in one
   tick, the target it is given is the point of the straight pose segment from the current
@@ -343,20 +344,23 @@ class CommandPipeline(PipelineCore):
                 goal = np.array(robot.park_pose, dtype=float)
         q = np.empty(n)
         before = self._pose
-        if goal is None:
+        # no goal: to rest where it is, along the approach's line if it moves on one
+        along = goal is None and s["v"][:n].any() and not np.isnan(s["leg"][0])
+        if goal is None and not along:
             q_prev = s["q"][:n].copy()
             flags = stages.brake_stage(P, S, q)
             new_pose = before if np.array_equal(q, q_prev) else None
         else:  # the approach toward a valid pose, counted in the health while running
             flags, limited, new_pose = stages.approach_stage(
-                P, S, robot, goal, q, self._path_limits
+                P, S, robot, before if along else goal, q, self._path_limits
             )
+            counted = running and not along
             if limited:
-                health.rate_limited += running
+                health.rate_limited += counted
                 if flags:  # the limiter changed the approach's command too
-                    self.trims += running
+                    self.trims += counted
             elif flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
-                health.unsafe_commands += running
+                health.unsafe_commands += counted
         if new_pose is None:  # the actuators realise another pose than the one asked
             achieved = np.asarray(robot.forward(q, guess=before), dtype=float)
             new_pose = achieved if np.isfinite(achieved).all() else before

@@ -435,7 +435,9 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     on (the state's ``leg``: the segment's goal, or past a goal one tick reached) with the
     plan's own law, or stops at once if the limiter allows; the new segment is tried again
     every tick. Only when none of these is kept is the least trimmed sent (from rest: the
-    limiter's own approach).
+    limiter's own approach). A goal that is the state's pose brakes to rest along the leg
+    (never via neutral): how :class:`~motionbase.commanding.CommandPipeline` stops a robot
+    moving on one.
 
     A workspace need not be convex (udesc's phi = 0 one has a band near a type II
     singularity across it): when the goal is out of one tick's reach and the straight
@@ -493,7 +495,7 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
         moving and np.array_equal(leg, neutral)
         or bool(flags & RATE_LIMITED) and not np.array_equal(goal, leg)
         and blocked_at(robot, here, goal) is not None
-    ) and not np.array_equal(goal, neutral)  # fmt: skip
+    ) and not (np.array_equal(goal, neutral) or np.array_equal(goal, here))  # fmt: skip
     if routed:  # via neutral, to rest there (no corner at speed)
         goal = neutral
         goal_q = np.asarray(robot.inverse(goal), dtype=float)
