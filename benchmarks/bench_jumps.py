@@ -1,6 +1,7 @@
 """3-RRR far jumps over the whole valid phi = 0 workspace: ticks whose command no pose holds.
 
 Run: python benchmarks/bench_jumps.py [--preset udesc] [--jumps 200] [--seed 0] [--hold S]
+     python benchmarks/bench_jumps.py [--preset udesc] --circle R,HZ
 
 Random valid poses (uniform over the base triangle's box, kept where ``reachable``) are
 jumped between in a chain through the real pose-mode pipeline
@@ -11,7 +12,9 @@ the last one by damped Gauss-Newton on the three rod-length closures
 ``|C_i(pose) - B_i(theta_i)| = rod`` (the thesis's appendix A.1 joints); a tick whose worst
 rod stays more than 1 um off its length is one no pose near the mechanism's holds (the
 linkage would bind). Also counted: ticks over the speed or acceleration limit, jumps not at
-rest within 8 s.
+rest within 8 s. ``--circle``: instead, a target circling home (radius R m, HZ turns a
+second) for 6 s, then home for 3 s (a cursor swept round): the same counts, and the mean
+distance from the robot's pose to the target after the first 2 s (the lag).
 """
 
 from __future__ import annotations
@@ -57,17 +60,25 @@ def closure(g: Rrr3Geometry, theta: np.ndarray, guess: np.ndarray) -> tuple[np.n
     return p, float(np.abs(rod_errors(g, p, theta)).max())
 
 
-def main(preset: str, jumps: int, seed: int, hold_s: float | None) -> None:
+def main(preset: str, jumps: int, seed: int, hold_s: float | None, circle: str | None) -> None:
     g = Rrr3Geometry.preset(preset)
     robot = Rrr3Robot(g)
     pipe = CommandPipeline(robot, rate_hz=50.0, mode="poses")
     dt, lim = pipe.dt, robot.limits
     rng = np.random.default_rng(seed)
     goals: list[np.ndarray] = []
-    while len(goals) < jumps + 1:
+    while circle is None and len(goals) < jumps + 1:
         p = np.array([*rng.uniform([0.0, 0.0], [g.base_side, 0.87 * g.base_side]), 0.0])
         if robot.reachable(p):
             goals.append(p)
+    if circle is not None:  # one target a tick, each a "jump" of one tick
+        radius, hz = (float(v) for v in circle.split(","))
+        home, tc = np.asarray(robot.neutral_pose), np.arange(int(6.0 / dt)) * dt
+        turn = 2 * np.pi * hz * tc
+        goals = [*(home + radius * np.stack([np.cos(turn), np.sin(turn), 0 * tc], -1))]
+        goals = [home, *goals, *[home] * int(3.0 / dt)]
+        hold_s, jumps = dt, len(goals) - 1
+    lags = []
     mech, q_prev, v_prev = np.array(robot.park_pose), np.array(robot.park_angles), np.zeros(3)
     bad_jumps = bad_ticks = over = late = ticks = 0
     worst, t, t0 = 0.0, 0.0, time.perf_counter()
@@ -86,6 +97,8 @@ def main(preset: str, jumps: int, seed: int, hold_s: float | None) -> None:
                 bad, worst, bad_ticks = True, max(worst, err), bad_ticks + (j > 0)
             else:
                 mech = pose
+            if circle is not None and 2.0 <= t <= 6.0:
+                lags.append(np.linalg.norm(mech[:2] - goal[:2]))
             rest = 0 if pipe.speed.any() else rest + 1
             if rest == 10 or hold_s is not None and k + 1 >= round(hold_s / dt):
                 break
@@ -95,7 +108,7 @@ def main(preset: str, jumps: int, seed: int, hold_s: float | None) -> None:
         f"{preset}: {bad_jumps}/{jumps} jumps with ticks no pose holds ({bad_ticks} ticks, "
         f"worst rod {worst * 1e3:.3f} mm), {late} not at rest in 8 s, {over} ticks over a "
         f"limit; {ticks} ticks, {1e6 * (time.perf_counter() - t0) / ticks:.0f} us a tick "
-        f"(with the check)"
+        f"(with the check)" + (f"; mean lag {1e3 * np.mean(lags):.1f} mm" if lags else "")
     )
 
 
@@ -107,5 +120,6 @@ if __name__ == "__main__":
     ap.add_argument("--jumps", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--hold", type=float, default=None, help="hold each goal this long, s")
+    ap.add_argument("--circle", default=None, metavar="R,HZ", help="a circling target instead")
     a = ap.parse_args()
-    main(a.preset, a.jumps, a.seed, a.hold)
+    main(a.preset, a.jumps, a.seed, a.hold, a.circle)

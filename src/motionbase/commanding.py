@@ -26,8 +26,9 @@ park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the 
   invalid ones (udesc's pocket beyond a band near a type II singularity, which no path of
   valid poses reaches) is clamped from its first invalid point, or refused. A refused
   target (non-finite, unreachable), no input yet, or stale input (the source marks it not
-  fresh) brakes the robot to rest where it is
-  (:func:`motionbase.stages.brake_stage`) until a usable target comes.
+  fresh) brakes the robot to rest where it is until a usable target comes: along the
+  straight pose line of the approach it is moving on (below), else with every actuator's
+  speed scaled alike (:func:`motionbase.stages.brake_stage`).
 * Approach (far jumps): a parallel robot's actuators must move together, or the mechanism
   leaves its assembly during a large jump. When the limiter cannot reach the target in one
   tick, the target it is given is the point of the straight pose segment from the current
@@ -35,7 +36,11 @@ park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the 
   limiter's own law on one virtual axis at 60 % of the limits
   (:func:`motionbase.stages.approach_stage`). When that segment leaves the valid poses (a
   workspace that is not convex), the robot goes to neutral first, to rest there, then on.
-  The limits themselves are enforced by the limiter alone, which every command passes.
+  A target that changes while the robot moves (a turn at speed the actuators cannot make
+  together), or comes nearer than the robot can stop, is not approached at once: the robot
+  brakes along the straight pose line it is on, each command a pose of it, until the new
+  segment can be followed. The limits themselves are enforced by the limiter alone, which
+  every command passes.
 * Stopping (a stop or an E-stop, the end of the input): brake to rest where the robot is,
   then go home (the park pose) along the approach above, then parked. Home, not where the
   input left it: the next run starts there. When home is not reached within
@@ -173,9 +178,9 @@ class CommandPipeline(PipelineCore):
         # pushed against itself). 400 jumps in teleop's default rectangle, either preset:
         # at 80 %, 9 jumps of udesc had ticks no pose held; at 60 %, none. (Across udesc's
         # whole phi = 0 workspace, not convex, 76 of 200 random jumps had some: their straight
-        # path left it. Via neutral, none: tests/test_teleop_jumps.py. Not fixed: a new far
-        # target every 0.3 s, the robot turning at speed: 99 of 300 jumps on udesc (175
-        # before), 8 of 300 on udesc_symmetric (8 before) still have some)
+        # path left it. Via neutral, none: tests/test_teleop_jumps.py. A new far target every
+        # 0.3 s, the robot turning at speed: 99 of 300 jumps on udesc, 8 on udesc_symmetric,
+        # until a trimmed plan was no longer sent while braking along the path could be)
         self._path_limits = ActuatorLimits.broadcast(
             1, -1e3, 1e3, 0.6 * float(lim.max_speed.min()), 0.6 * float(lim.max_accel.min())
         )
@@ -199,6 +204,7 @@ class CommandPipeline(PipelineCore):
         self._sub = _BRAKE
         self._ticks = self._deadline = 0
         self._stale = False
+        self._seen: tuple[Any, np.ndarray | None] = (None, None)  # a target, its blocked_at
         self.no_input = self.stale_ticks = self.trims = self.park_ticks = 0
 
     def _warm_ticks(self) -> None:
@@ -313,7 +319,9 @@ class CommandPipeline(PipelineCore):
                     pose = np.asarray(pose, dtype=float)
                     clamped = bool(moved)
                 # a valid pose behind invalid ones, seen from neutral: clamped (refused) too
-                edge = stages.blocked_at(robot, robot.neutral_pose, pose)
+                if not np.array_equal(pose, self._seen[0]):  # the check, once per target
+                    self._seen = (pose.copy(), stages.blocked_at(robot, robot.neutral_pose, pose))
+                edge = self._seen[1]
                 if edge is not None and self.clamp:
                     pose, clamped = np.asarray(robot.clamp(edge)[0], dtype=float), True
                 health.clamps += clamped
@@ -336,20 +344,23 @@ class CommandPipeline(PipelineCore):
                 goal = np.array(robot.park_pose, dtype=float)
         q = np.empty(n)
         before = self._pose
-        if goal is None:
+        # no goal: to rest where it is, along the approach's line if it moves on one
+        along = goal is None and s["v"][:n].any() and not np.isnan(s["leg"][0])
+        if goal is None and not along:
             q_prev = s["q"][:n].copy()
             flags = stages.brake_stage(P, S, q)
             new_pose = before if np.array_equal(q, q_prev) else None
         else:  # the approach toward a valid pose, counted in the health while running
             flags, limited, new_pose = stages.approach_stage(
-                P, S, robot, goal, q, self._path_limits
+                P, S, robot, before if along else goal, q, self._path_limits
             )
+            counted = running and not along
             if limited:
-                health.rate_limited += running
+                health.rate_limited += counted
                 if flags:  # the limiter changed the approach's command too
-                    self.trims += running
+                    self.trims += counted
             elif flags & stages.HELD:  # valid by the kinematics, yet a hair outside a limit
-                health.unsafe_commands += running
+                health.unsafe_commands += counted
         if new_pose is None:  # the actuators realise another pose than the one asked
             achieved = np.asarray(robot.forward(q, guess=before), dtype=float)
             new_pose = achieved if np.isfinite(achieved).all() else before

@@ -30,7 +30,7 @@ import numba
 import numpy as np
 from numba import types
 
-from motionbase.physics import STANDARD_GRAVITY, smoothstep, track_toward
+from motionbase.physics import STANDARD_GRAVITY, brake_speed, smoothstep, track_toward
 from motionbase.platform.robot import SOLVE_SIGNATURE
 from motionbase.safety import ActuatorLimits, input_code, limit_command, limit_kernel
 from motionbase.washout.cueing import STEP_SIGNATURE, TRACK_SIGNATURE
@@ -63,6 +63,7 @@ STATE = np.dtype(
         ("v", "f8", (6,)),  # its speed, per s
         ("wanted", "f8", (6,)),  # last target the limiter accepted
         ("pose", "f8", (6,)),  # robot pose the last command realises (first m used)
+        ("leg", "f8", (6,)),  # approach: goal pose of the straight segment followed (NaN: none)
     ],
     align=True,
 )
@@ -222,7 +223,7 @@ def reset_state(S: np.ndarray, P: np.ndarray) -> None:
     s = S[0]
     s["q"] = P[0]["park_q"]
     s["wanted"] = P[0]["park_q"]
-    s["pose"] = P[0]["park_pose"]
+    s["pose"] = s["leg"] = P[0]["park_pose"]
     s["phase"] = STARTING
     s["fade"] = 1.0
 
@@ -411,6 +412,7 @@ def brake_stage(P, S, q):  # pragma: no cover - compiled
     flags = limit_stage(P, S, wanted, q)
     for i in range(n):
         s.wanted[i] = q[i]
+    s.leg[:] = np.nan  # off the approach's segment
     return flags
 
 
@@ -426,6 +428,17 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     axis (:func:`path_step` with ``path_limits``). The limits themselves are enforced by
     :func:`limit_stage` alone, which every command passes.
 
+    A plan is taken only when the limiter sends it unchanged (a command it trims is no pose
+    of the segment, and may be none at all: a target that changed while the robot moved
+    asked for a turn at speed, and the trims went off the assembly) and when it can still
+    stop on the segment. Else, moving, the robot brakes along the straight pose line it is
+    on (the state's ``leg``: the segment's goal, or past a goal one tick reached) with the
+    plan's own law, or stops at once if the limiter allows; the new segment is tried again
+    every tick. Only when none of these is kept is the least trimmed sent (from rest: the
+    limiter's own approach). A goal that is the state's pose brakes to rest along the leg
+    (never via neutral): how :class:`~motionbase.commanding.CommandPipeline` stops a robot
+    moving on one.
+
     A workspace need not be convex (udesc's phi = 0 one has a band near a type II
     singularity across it): when the goal is out of one tick's reach and the straight
     segment to it leaves the valid poses (:func:`blocked_at`), the stage heads for the
@@ -440,9 +453,10 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     ----------
     P, S : ndarray
         The :data:`PARAMS` and :data:`STATE` records. Read: the state's command ``q``, its
-        speed ``v`` and the robot pose ``pose`` (first m) the last command realises; ``q``,
-        ``v`` and ``wanted`` are updated as by :func:`limit_stage` (``wanted`` becomes the
-        goal's actuators, fed forward next tick, unless the command was held).
+        speed ``v``, the robot pose ``pose`` (first m) the last command realises and
+        ``leg``; ``q``, ``v`` and ``wanted`` are updated as by :func:`limit_stage`
+        (``wanted`` becomes the goal's actuators, fed forward next tick, unless the command
+        was held), and ``leg``.
     robot : Robot
         ``inverse``, ``reachable`` and ``neutral_pose`` (robot coordinates).
     goal : ndarray, shape (m,)
@@ -467,18 +481,21 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     p = P[0]
     s = S[0]
     n, m = int(p["n"]), int(p["m"])
-    here = s["pose"][:m].copy()
+    here, leg = s["pose"][:m].copy(), s["leg"][:m].copy()
     neutral = np.asarray(robot.neutral_pose, dtype=float)
-    on_way = s["v"][:n].any() and np.array_equal(s["wanted"][:n], robot.inverse(neutral))
+    moving = bool(s["v"][:n].any())
     goal_q = np.asarray(robot.inverse(goal), dtype=float)
     saved = S.copy()  # the state before: its command and speed
     q_prev, v_prev = saved[0]["q"][:n], saved[0]["v"][:n]
     flags = limit_stage(P, S, goal_q, q)
     # a goal one tick reaches is commanded as its own pose: not routed (a goal jittering on
-    # the valid poses' edge went home and back, again and again, never reached)
-    routed = not np.array_equal(goal, neutral) and (
-        on_way or bool(flags & RATE_LIMITED) and blocked_at(robot, here, goal) is not None
-    )
+    # the valid poses' edge went home and back, again and again, never reached); the leg's
+    # own goal was checked when the leg began
+    routed = (
+        moving and np.array_equal(leg, neutral)
+        or bool(flags & RATE_LIMITED) and not np.array_equal(goal, leg)
+        and blocked_at(robot, here, goal) is not None
+    ) and not (np.array_equal(goal, neutral) or np.array_equal(goal, here))  # fmt: skip
     if routed:  # via neutral, to rest there (no corner at speed)
         goal = neutral
         goal_q = np.asarray(robot.inverse(goal), dtype=float)
@@ -487,29 +504,54 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     limited = not flags & HELD and bool(flags & RATE_LIMITED)
     pose: np.ndarray | None = None if flags & HELD else goal
     wanted = goal_q
-    if limited:
-        dist = float(np.max(np.abs(goal_q - q_prev)))
-        step = path_step(dist, float(np.max(np.abs(v_prev))), float(p["dt"]), path_limits)
-        if 0.0 < step < dist:  # else braking or overshooting: the limiter's own output
-            found = _point_along(robot, here, goal, q_prev, step)
-            if found is not None:
-                pose, wanted = found
+    dt = float(p["dt"])
+    u = float(path_limits.max_accel[0]) * dt  # the plan's speed change a tick
+    if limited:  # on the new segment, else braking along the leg, if the limiter keeps it
+        speed = float(np.max(np.abs(v_prev)))
+        dist = float(np.max(np.abs(goal_q - q_prev)))  # (the plan must stop on the segment)
+        stoppable = (1.0 + 1e-9) * dt * brake_speed(dist, u, dt)
+        plans = [(goal, path_step(dist, speed, dt, path_limits))]
+        plans += [(leg, path_step(0.0, speed, dt, path_limits)), (here, 0.0)] * moving
+        trimmed = []  # (how far the limiter moved the command, plan, state, command, bits)
+        for i, (end, step) in enumerate(plans):
+            found = _point_along(robot, here, end, q_prev, step) if step > 0 else None
+            found = (here, q_prev) if step == 0 else found
+            if found is not None and (i or step < dist and step <= stoppable):
                 S[0] = saved[0]
                 s["wanted"][:n] = q_prev  # from the current command: no feed-forward
-                flags = limit_stage(P, S, wanted, q)
-            # else the segment leaves the valid region: the limiter's own approach
+                flags = limit_stage(P, S, found[1], q)
+                if not flags:
+                    pose, wanted = found
+                    goal = leg if i else goal
+                    break
+                trimmed.append((float(np.max(np.abs(q - found[1]))), i, S.copy(), q.copy(), flags))
+        else:  # none kept: the least trimmed (braking: still by the leg), else its own approach
+            S[0] = saved[0]
+            flags, i = limit_stage(P, S, goal_q, q), 0
+            if trimmed:
+                _, i, S[:], q[:], flags = min(trimmed, key=lambda c: c[0])
+            goal = leg if i else np.full(m, np.nan)
     if not flags & HELD:
         s["wanted"][:n] = goal_q  # the goal's own speed is fed forward next tick
+        if not limited:  # a tick's reach: the line of its move, as far as the plan brakes
+            goal = goal + (goal - here) * (1.0 + path_limits.max_speed[0] / u)
+        s["leg"][:m] = goal
     if not np.array_equal(q, wanted):
         pose = None
     return int(flags), limited or routed, pose
 
 
-def blocked_at(robot, a: np.ndarray, b: np.ndarray, n: int = 100) -> np.ndarray | None:
-    """The first of ``n + 1`` evenly spaced points of the pose segment ``a -> b`` that is
-    not a valid pose (``robot.reachable``) after one that is, or None: the straight path
-    does not leave the valid poses (it may start outside them, after a trim)."""
-    points = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+_FRACTIONS = np.linspace(0.0, 1.0, 101)[:, None]  # (made once: linspace costs 10 us)
+
+
+def blocked_at(
+    robot, a: np.ndarray, b: np.ndarray, f: np.ndarray = _FRACTIONS
+) -> np.ndarray | None:
+    """The first of the points ``a + f (b - a)`` (``f``: rising fractions, shape (k, 1);
+    101 evenly spaced by default) that is not a valid pose (``robot.reachable``) after one
+    that is, or None: the straight path does not leave the valid poses (it may start outside
+    them, after a trim)."""
+    points = a + f * (b - a)
     bad = ~np.asarray(robot.reachable(points), dtype=bool)
     bad[: int(np.argmin(bad))] = False
     return points[int(np.argmax(bad))] if bad.any() else None
