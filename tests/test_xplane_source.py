@@ -54,10 +54,28 @@ LEVEL = {
 }
 
 
+# X-Plane's aircraft axes (DataRefs.txt: ACF X right, "fside_plug_acf ... positive pushes airplane
+# to the right"; ACF Y up; ACF Z aft, "faxil_plug_acf ... positive pushes airplane backward").
+# g_side, g_nrml, g_axil are the total force on ACF X, Y, Z over the weight (Laminar's
+# MotionPlatformData sample sums the same fside/fnrml/faxil forces over the mass). Body FRD:
+# forward = -Z, right = +X, down = -Y.
+FRD_FROM_ACF = np.array([[0, 0, -1], [1, 0, 0], [0, -1, 0]])
+
+
+def g_loads(force_acf_n, mass_kg: float) -> dict[str, float]:
+    """X-Plane's g-load datarefs for a total non-gravitational force (ACF X, Y, Z, N)."""
+    fx, fy, fz = np.asarray(force_acf_n, float) / (mass_kg * G0)
+    return {
+        "sim/flightmodel/forces/g_axil": fz,
+        "sim/flightmodel/forces/g_side": fx,
+        "sim/flightmodel/forces/g_nrml": fy,
+    }
+
+
 def expected(values: dict[str, float]):
-    """The state the source must give, from the documented units and signs."""
-    g = [f32(values[f"sim/flightmodel/forces/{n}"]) for n in ("g_axil", "g_side", "g_nrml")]
-    f = [-G0 * x for x in g]  # an accelerometer reads minus the load (load 1 g up = -g down)
+    """The state the source must give, from the documented units and axes."""
+    g = [f32(values[f"sim/flightmodel/forces/{n}"]) for n in ("g_side", "g_nrml", "g_axil")]
+    f = FRD_FROM_ACF @ (G0 * np.array(g))  # specific force: force over mass, in FRD
     w = [f32(values[f"sim/flightmodel/position/{n}"]) * RAD for n in "PQR"]
     att = [f32(values[f"sim/flightmodel/position/{n}"]) * RAD for n in ("phi", "theta", "psi")]
     att[2] = (att[2] + math.pi) % (2 * math.pi) - math.pi
@@ -194,6 +212,37 @@ def test_level_flight_reads_minus_g():
     """g_nrml = 1 in level flight is f = (0, 0, -g) (DESIGN.md's convention)."""
     f, w, att = expected(LEVEL)
     np.testing.assert_allclose(f, [0, 0, -G0])
+
+
+MASS = 1000.0  # kg
+# on the runway, the gear carries the weight (ACF Y up: +m g0); ACF Z is aft, X right
+TAKEOFF_ROLL = g_loads([0.0, MASS * G0, -2500.0], MASS)  # net thrust 2500 N forward
+RIGHT_PUSH = g_loads([981.0, MASS * G0, 0.0], MASS)  # 981 N pushing the airplane right
+
+
+@pytest.mark.parametrize("stream", ["rref", "data"])
+@pytest.mark.parametrize(
+    ("loads", "f_frd"),
+    [(TAKEOFF_ROLL, [2.5, 0.0, -G0]), (RIGHT_PUSH, [0.0, 0.981, -G0])],
+    ids=["takeoff_roll", "right_push"],
+)
+def test_specific_force_follows_the_force_on_the_airplane(xplane, stream, loads, f_frd):
+    """A force pushing the airplane forward (right) is a specific force forward (right) in FRD:
+    the seat pushes the pilot that way. X-Plane sends the loads as datarefs (RREF) or in DATA
+    group 4 (values 4, 5, 6 = normal, axial, side)."""
+    values = {**LEVEL, **loads}
+    xp = xplane(values, answer_rref=stream == "rref")
+    url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:0&version=12"
+    with XPlaneSource(url, rate_hz=100) as src:
+        it = iter(src)
+        if stream == "rref":
+            state = _until(src, it, lambda s: src.fresh)
+        else:
+            next(it)
+            g = [loads[f"sim/flightmodel/forces/{n}"] for n in ("g_nrml", "g_axil", "g_side")]
+            xp.send_data(src.local_address, [(4, [0.1, 0.0, 0.0, 0.0, *g])])
+            state = next(it)
+    np.testing.assert_allclose(state.specific_force, f_frd, atol=1e-5)
 
 
 def test_resubscribes_when_xplane_restarts(xplane, caplog):

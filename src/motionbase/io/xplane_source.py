@@ -17,10 +17,8 @@ Sources for the formats (the code is written from them, not copied):
 X-Plane's own "Exchanging Data with X-Plane.rtfd" (in ``Instructions/`` of an
 X-Plane 11 or 12 installation: sections "SEND ME ALL THE DATAREFS I WANT: RREF"
 and "SET A DATA OUTPUT TO A VALUE: DATA"), X-Plane's ``DataRefs.txt``
-(``Resources/plugins/``), and two open implementations that fly with these
-values: ArduPilot's ``libraries/SITL/SIM_XPlane.cpp`` (DATA groups and their
-X-Plane 11/12 differences) and INAV's ``src/main/target/SITL/sim/xplane.c``
-(RREF, the signs of the g-load datarefs).
+(``Resources/plugins/``), and open implementations that fly with these values
+(listed with the signs under "References" below).
 
 RREF (the default, nothing to set up in X-Plane beyond accepting incoming UDP)
 ------------------------------------------------------------------------------
@@ -35,18 +33,19 @@ endian. The datarefs and their conversions:
 ======================================= ===================== =========================
 dataref                                  X-Plane unit, sign    here
 ======================================= ===================== =========================
-``sim/flightmodel/forces/g_axil``        g, forward negative   ``f_x = -g0 * g_axil``
-``sim/flightmodel/forces/g_side``        g, right negative     ``f_y = -g0 * g_side``
-``sim/flightmodel/forces/g_nrml``        g, 1 in level flight  ``f_z = -g0 * g_nrml``
+``sim/flightmodel/forces/g_axil``        g, aft positive       ``f_x = -g0 * g_axil``
+``sim/flightmodel/forces/g_side``        g, right positive     ``f_y = +g0 * g_side``
+``sim/flightmodel/forces/g_nrml``        g, up positive (1)    ``f_z = -g0 * g_nrml``
 ``sim/flightmodel/position/P, Q, R``     deg/s, body FRD       rad/s
 ``sim/flightmodel/position/phi, theta``  deg                   roll, pitch, rad
 ``sim/flightmodel/position/psi``         deg true, [0, 360)    yaw, rad, [-pi, pi)
 ======================================= ===================== =========================
 
-The g-loads are the total non-gravitational force over the weight, i.e. the
-specific force in g with X-Plane's signs (``g_nrml`` = 1 level, the load
-pointing up): an accelerometer in FRD reads their negatives times g0 =
-9.80665 m/s^2 (INAV feeds its FLU accelerometer ``(-g_axil, g_side, g_nrml)``).
+The g-loads are the total non-gravitational force over the weight on X-Plane's
+aircraft axes (ACF X right, Y up, Z aft), i.e. the specific force in g on those
+axes (``g_nrml`` = 1 in level flight); FRD is (-Z, X, -Y), times g0 = 9.80665
+m/s^2: a take-off roll (thrust forward) gives ``g_axil < 0`` and ``f_x > 0``, a
+force pushing the airplane right gives ``g_side > 0`` and ``f_y > 0``.
 ``sim/version/xplane_internal_version`` is asked once a second (e.g. 120100 for
 12.1.0).
 
@@ -59,12 +58,40 @@ DATA (legacy: Settings > Data Output, "Network via UDP" ticked for the rows belo
 ``"DATA"`` + one byte + 36-byte records, each ``int32 group`` + 8 ``float32``
 (little endian). Groups read (0-based value positions):
 
-* 4 "Mach, VVI, g-load": values 4, 5, 6 = g normal, axial, side, the same
-  quantities and signs as ``g_nrml``, ``g_axil``, ``g_side``.
+* 4 "Mach, VVI, g-load": values 4, 5, 6 = g normal, axial, side, read as the
+  same quantities and signs as ``g_nrml``, ``g_axil``, ``g_side``.
 * 16 "Angular velocities": X-Plane 12 gives P, Q, R in deg/s; X-Plane 11 gives
   Q, P, R in rad/s (ArduPilot's SIM_XPlane.cpp reads them so). Ignored, with one
   warning, until the version is known.
 * 17 "Pitch, roll, headings": values 0, 1, 2 = pitch, roll, true heading, deg.
+
+References for the axes, signs and units (read, not copied):
+
+* ``DataRefs.txt`` (X-Plane 12): ``forces/fside_plug_acf`` "ACF X axis, positive
+  pushes airplane to the right", ``fnrml_plug_acf`` "ACF Y axis, positive pushes
+  airplane up", ``faxil_plug_acf`` "ACF Z axis, positive pushes airplane
+  backward", ``faxil_prop`` "Force backward ... (usually this is a negative
+  number)"; ``override_forces``: "write to LMN and g_nrml/side/axil";
+  ``position/P, Q, R`` deg/sec (``Prad, Qrad, Rrad`` rad/sec); ``phi, theta``
+  deg; ``psi`` "true heading ... deg".
+* Laminar's SDK sample MotionPlatformData (developer.x-plane.com/code-sample/
+  motionplatformdata): motion-platform accelerations as the fside, fnrml, faxil
+  force sums (ACF X, Y, Z) over the mass.
+* px4xplane (github.com/alireza787b/px4xplane, ``src/MAVLinkManager.cpp``,
+  v3.4.3, JOURNEY_LOG.md): FRD accelerometer ``(-g_axil, +g_side, -g_nrml) g``,
+  fitted against accelerations from X-Plane 11 and 12 truth captures (Y error
+  0.03 m/s^2 with ``+g_side``, 0.22 with ``-g_side``); gyro ``Prad, Qrad, Rrad``.
+* INAV ``src/main/target/SITL/sim/xplane.c``: gyro from ``P, Q, R`` deg/s in
+  FRD (``(P, -Q, -R)`` in its FLU frame), ``-g_axil`` forward, ``g_nrml`` up;
+  its side sign (``-g_side`` right) disagrees with the three above.
+* DATA users, ArduPilot ``libraries/SITL/SIM_XPlane.cpp`` (also PR 22972),
+  QGroundControl ``src/comm/QGCXPlaneLink.cc``, TauLabs
+  ``ground/gcs/src/plugins/hitl/xplanesimulator.cpp``, Mission Planner
+  ``ExtLibs/HIL/XPlane.cs``: group 4 values 4, 5, 6 = normal, axial, side,
+  ``f = (axial, side, -normal) g``: they agree on side and normal; their
+  ``+axial`` (one lineage; none shows a check against a take-off) disagrees
+  with the dataref evidence above and is not followed. Group 16 rates: X-Plane 12
+  P, Q, R deg/s; 11 (and 10) Q, P, R rad/s. Group 17: pitch, roll, true heading.
 
 While RREF values are fresh, DATA values for the same quantities are ignored
 (one stream at a time, not two interleaved). Datagrams from another host than
@@ -125,7 +152,8 @@ _RESUBSCRIBE_S = 1.0  # RREF silence before subscribing again, s
 _SILENT_WARN_S = 3.0  # silence after the first subscription before one warning, s
 _RAD = math.pi / 180.0
 
-_G_SCALE = -STANDARD_GRAVITY  # g-load (X-Plane sign) -> specific force FRD, m/s^2
+# g_axil, g_side, g_nrml (X-Plane's aircraft axes: aft, right, up) -> specific force FRD, m/s^2
+_G_SCALE = (-STANDARD_GRAVITY, STANDARD_GRAVITY, -STANDARD_GRAVITY)
 
 
 def parse_xplane_url(url: str, *, free_port: bool = True) -> tuple[str, int, str, int, int | None]:
@@ -387,7 +415,7 @@ class XPlaneSource(UdpLiveSource):
     def _convert(slot: int, value: float) -> float | None:
         """One dataref value in X-Plane's units to SI and FRD, or None when invalid."""
         if slot < 3:
-            f = _G_SCALE * value
+            f = _G_SCALE[slot] * value
             return f if -MAX_SPECIFIC_FORCE <= f <= MAX_SPECIFIC_FORCE else None
         if slot < 6:
             w = value * _RAD
@@ -408,7 +436,7 @@ class XPlaneSource(UdpLiveSource):
         for rec in _DATA_RECORD.iter_unpack(memoryview(data)[5:]):
             group, v = rec[0], rec[1:]
             if group == 4:
-                first, values = 0, (_G_SCALE * v[5], _G_SCALE * v[6], _G_SCALE * v[4])
+                first, values = 0, (_G_SCALE[0] * v[5], _G_SCALE[1] * v[6], _G_SCALE[2] * v[4])
                 ok = finite_within(values, MAX_SPECIFIC_FORCE)
             elif group == 16:
                 major = self.xplane_major
