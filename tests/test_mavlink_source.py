@@ -956,13 +956,13 @@ def _crafted_tlog(
     boot_ms_of: Callable[[int], int],
     n: int = 600,
     values: Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]] = imu_values,
-    gimbal_ms_of: Callable[[int], int] | None = None,
+    gimbal_ms_of: Callable[[int], int | None] | None = None,
 ) -> Path:
     """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
     vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``, its specific force and
     body rates by ``values(i)`` (level attitude). With ``gimbal_ms_of``, another component
-    of the system (154, a gimbal) sends an ATTITUDE after each pair, stamped with its own
-    boot time ``gimbal_ms_of(i)``."""
+    of the system (154, a gimbal) sends an ATTITUDE before pair ``i``, stamped with its own
+    boot time ``gimbal_ms_of(i)`` (None: none before that pair)."""
 
     class Capture:
         def __init__(self) -> None:
@@ -980,10 +980,10 @@ def _crafted_tlog(
             boot_ms = boot_ms_of(i)
             f, w = values(i)
             cap.frames.clear()
+            if gimbal_ms_of is not None and (gimbal_ms := gimbal_ms_of(i)) is not None:
+                gimbal.attitude_send(gimbal_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
             mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
-            if gimbal_ms_of is not None:
-                gimbal.attitude_send(gimbal_ms_of(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             for frame in cap.frames:
                 fh.write(struct.pack(">Q", rx0_us + i * 10_000) + frame)
     return path
@@ -1049,6 +1049,21 @@ def test_another_component_with_its_own_boot_time_leaves_the_vehicle_clock_alone
         tmp_path / "gimbal.tlog", lambda i: i * 10, gimbal_ms_of=lambda i: 3_600_000 + i * 10
     )
     times, fresh = _replay_times(log, compid)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
+
+
+def test_a_gimbal_heard_first_does_not_take_the_vehicle_clock(tmp_path):
+    """No compid, and the log begins with a gimbal's ATTITUDE, sent once a second on its own
+    boot clock: the clock was the gimbal's (the first component of the system to give a
+    time), so the autopilot's 100 samples a second all took the gimbal's last time, and the
+    6 s log replayed as 5 s, half of its ticks stale. The clock is the autopilot's, the
+    component whose IMU samples come."""
+    log = _crafted_tlog(
+        tmp_path / "gimbal_first.tlog",
+        lambda i: i * 10,
+        gimbal_ms_of=lambda i: 3_600_000 + i * 10 if i % 100 == 0 else None,
+    )
+    times, fresh = _replay_times(log)
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
 
 
