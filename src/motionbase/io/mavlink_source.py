@@ -1211,7 +1211,7 @@ class MavlinkSource(SampleHoldSource):
             if msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:  # not a GCS/companion
                 self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
                 if arrival - self._vehicle_hb > _VEHICLE_GONE_S:  # (re)appears: ask anew
-                    self._req_count = 0
+                    self._req_count, self._req_state = 0, "idle"  # (not asked yet: no warning)
                     self._warned_ignored = False
                 self._vehicle_hb = arrival
         elif mtype == "COMMAND_ACK":
