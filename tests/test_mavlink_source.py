@@ -533,6 +533,26 @@ def test_a_forged_frame_stamped_far_ahead_does_not_stop_a_signed_stream(tmp_path
     assert check_states_match_sent(ticks, len(sent) + 1) > 50
 
 
+def test_a_pymavlink_without_the_signing_names_is_left_as_it_is() -> None:
+    """The forged-timestamp workaround wraps pymavlink internals (``check_signature``,
+    ``signing.stream_timestamps``). A parser without them (another pymavlink version) is
+    left alone: the wrapping raised AttributeError when the link opened (a traceback), or
+    on each signed frame."""
+    from motionbase.io.mavlink_source import _forgeries_leave_stream_times
+
+    mav = ML.MAVLink(None, srcSystem=1, srcComponent=1)  # (this pymavlink has both: wrapped)
+    _forgeries_leave_stream_times(mav)
+    assert "check_signature" in vars(mav)
+    del mav.signing.stream_timestamps  # (a version that keeps them elsewhere)
+    other = ML.MAVLink(None, srcSystem=1, srcComponent=1)
+    other.signing = mav.signing
+    _forgeries_leave_stream_times(other)
+    assert "check_signature" not in vars(other)
+    bare = type("Parser", (), {"signing": mav.signing})()  # no check_signature at all
+    _forgeries_leave_stream_times(bare)
+    assert not hasattr(bare, "check_signature")
+
+
 def test_signing_key_file_errors(tmp_path: Path) -> None:
     short = tmp_path / "short.key"
     short.write_bytes(b"secret")

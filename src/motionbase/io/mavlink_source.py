@@ -1440,8 +1440,13 @@ def _forgeries_leave_stream_times(mav: Any) -> None:
     """A frame that fails its signature check leaves its stream's last timestamp as it was.
     pymavlink records a signed frame's timestamp before it checks the signature: one forged
     frame (no key needed) stamped far ahead, with the link id, system and component of the
-    vehicle's stream, made every genuine frame after it "old", for good."""
-    check = mav.check_signature
+    vehicle's stream, made every genuine frame after it "old", for good. A pymavlink whose
+    parser lacks these names (``check_signature``, ``signing.stream_timestamps``: another
+    version) is left as it is, not made to fail on its first signed frame."""
+    check = getattr(mav, "check_signature", None)
+    if check is None or not isinstance(getattr(mav.signing, "stream_timestamps", None), dict):
+        _log.debug("MAVLink: pymavlink's signing check not wrapped (its names differ)")
+        return
 
     def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
         stamps = mav.signing.stream_timestamps
