@@ -533,6 +533,26 @@ def test_a_forged_frame_stamped_far_ahead_does_not_stop_a_signed_stream(tmp_path
     assert check_states_match_sent(ticks, len(sent) + 1) > 50
 
 
+def test_a_pymavlink_without_the_signing_names_is_left_as_it_is() -> None:
+    """The forged-timestamp workaround wraps pymavlink internals (``check_signature``,
+    ``signing.stream_timestamps``). A parser without them (another pymavlink version) is
+    left alone: the wrapping raised AttributeError when the link opened (a traceback), or
+    on each signed frame."""
+    from motionbase.io.mavlink_source import _forgeries_leave_stream_times
+
+    mav = ML.MAVLink(None, srcSystem=1, srcComponent=1)  # (this pymavlink has both: wrapped)
+    _forgeries_leave_stream_times(mav)
+    assert "check_signature" in vars(mav)
+    del mav.signing.stream_timestamps  # (a version that keeps them elsewhere)
+    other = ML.MAVLink(None, srcSystem=1, srcComponent=1)
+    other.signing = mav.signing
+    _forgeries_leave_stream_times(other)
+    assert "check_signature" not in vars(other)
+    bare = type("Parser", (), {"signing": mav.signing})()  # no check_signature at all
+    _forgeries_leave_stream_times(bare)
+    assert not hasattr(bare, "check_signature")
+
+
 def test_signing_key_file_errors(tmp_path: Path) -> None:
     short = tmp_path / "short.key"
     short.write_bytes(b"secret")
@@ -665,10 +685,15 @@ def test_a_vehicle_that_sends_attitude_alone_is_asked_for_the_imu() -> None:
     assert ticks[-1][1].fresh
 
 
-def test_a_vehicle_that_comes_after_the_requests_ran_out_is_asked() -> None:
+def test_a_vehicle_that_comes_after_the_requests_ran_out_is_asked(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     """The vehicle starts after the stream (SITL started second): the stream requests all
     went out before it was there, and it was never asked again, so a vehicle that streams
-    only when asked gave nothing for ever. Its first heartbeat opens a new round."""
+    only when asked gave nothing for ever. Its first heartbeat opens a new round, without a
+    warning that it ignored requests sent before it was there (one was given at its first
+    heartbeat, before it was asked)."""
+    caplog.set_level(logging.WARNING, logger="motionbase")
     stop = threading.Event()
     got: list[Any] = []
     with MavlinkSource(
@@ -686,6 +711,7 @@ def test_a_vehicle_that_comes_after_the_requests_ran_out_is_asked() -> None:
             th.join(timeout=5)
     assert any(m.get_type() == "COMMAND_LONG" for m in got)
     assert ticks[-1][1].fresh
+    assert not [r for r in caplog.records if "ignored" in r.getMessage()]
 
 
 def test_a_vehicle_that_refuses_again_and_again_is_reported_once(
@@ -956,13 +982,13 @@ def _crafted_tlog(
     boot_ms_of: Callable[[int], int],
     n: int = 600,
     values: Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]] = imu_values,
-    gimbal_ms_of: Callable[[int], int] | None = None,
+    gimbal_ms_of: Callable[[int], int | None] | None = None,
 ) -> Path:
     """A .tlog of ``n`` HIGHRES_IMU + ATTITUDE pairs 10 ms apart (receive times too), the
     vehicle's boot time of pair ``i`` given by ``boot_ms_of(i)``, its specific force and
     body rates by ``values(i)`` (level attitude). With ``gimbal_ms_of``, another component
-    of the system (154, a gimbal) sends an ATTITUDE after each pair, stamped with its own
-    boot time ``gimbal_ms_of(i)``."""
+    of the system (154, a gimbal) sends an ATTITUDE before pair ``i``, stamped with its own
+    boot time ``gimbal_ms_of(i)`` (None: none before that pair)."""
 
     class Capture:
         def __init__(self) -> None:
@@ -980,10 +1006,10 @@ def _crafted_tlog(
             boot_ms = boot_ms_of(i)
             f, w = values(i)
             cap.frames.clear()
+            if gimbal_ms_of is not None and (gimbal_ms := gimbal_ms_of(i)) is not None:
+                gimbal.attitude_send(gimbal_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             mav.highres_imu_send(boot_ms * 1000, *f, *w, 0, 0, 0, 1013, 0, 0, 20, 0x3F)
             mav.attitude_send(boot_ms & 0xFFFFFFFF, 0.1, 0.05, 0.0, *w)
-            if gimbal_ms_of is not None:
-                gimbal.attitude_send(gimbal_ms_of(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             for frame in cap.frames:
                 fh.write(struct.pack(">Q", rx0_us + i * 10_000) + frame)
     return path
@@ -1049,6 +1075,21 @@ def test_another_component_with_its_own_boot_time_leaves_the_vehicle_clock_alone
         tmp_path / "gimbal.tlog", lambda i: i * 10, gimbal_ms_of=lambda i: 3_600_000 + i * 10
     )
     times, fresh = _replay_times(log, compid)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
+
+
+def test_a_gimbal_heard_first_does_not_take_the_vehicle_clock(tmp_path):
+    """No compid, and the log begins with a gimbal's ATTITUDE, sent once a second on its own
+    boot clock: the clock was the gimbal's (the first component of the system to give a
+    time), so the autopilot's 100 samples a second all took the gimbal's last time, and the
+    6 s log replayed as 5 s, half of its ticks stale. The clock is the autopilot's, the
+    component whose IMU samples come."""
+    log = _crafted_tlog(
+        tmp_path / "gimbal_first.tlog",
+        lambda i: i * 10,
+        gimbal_ms_of=lambda i: 3_600_000 + i * 10 if i % 100 == 0 else None,
+    )
+    times, fresh = _replay_times(log)
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and fresh == len(times)
 
 

@@ -618,7 +618,7 @@ def test_the_url_s_rate_sets_the_sweep_s_rate_and_a_bad_or_contradicting_one_is_
     for query, extra, needle in [
         ("rate=nan", [], "rate"),
         ("rate=50", ["--rate", "100"], "give the rate once"),
-        (f"format={drive_file}", ["--rate", "50"], "give the rate once"),
+        (f"format={drive_file}", ["--rate", "50"], "format file's rate 200.0 Hz"),
     ]:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", 0))

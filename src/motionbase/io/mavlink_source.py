@@ -412,13 +412,13 @@ class _VehicleClock:
     when the radio link is bursty. The vehicle's ``time_boot_ms`` / ``time_usec`` fields
     give the true, evenly spaced sample times. Messages without them (HEARTBEAT), or from
     other systems or components, keep the last time: the clock is that of ``compid``, else
-    of the first component of ``sysid`` to give a time (each component counts from its own
-    boot). The result never goes backwards: a reboot (boot time jumping back, and the next
-    sample going on from there) re-anchors the clock where it was; one sample behind the
-    clock with the next one back on it is an outlier, given the clock's time. A jump ahead
-    of more than :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them).
-    A DataFlash log's times (already the vehicle's) take the same path through
-    :meth:`advance`.
+    of the first component of ``sysid`` to send an IMU message, the autopilot (each
+    component counts from its own boot: a gimbal's ATTITUDE does not take the clock). The
+    result never goes backwards: a reboot (boot time jumping back, and the next sample going
+    on from there) re-anchors the clock where it was; one sample behind the clock with the
+    next one back on it is an outlier, given the clock's time. A jump ahead of more than
+    :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them). A DataFlash
+    log's times (already the vehicle's) take the same path through :meth:`advance`.
     """
 
     def __init__(self, sysid: int, compid: int | None = None) -> None:
@@ -431,7 +431,10 @@ class _VehicleClock:
 
     def __call__(self, msg: Any) -> float:
         t = None
-        if msg.get_srcSystem() == self.sysid and self.compid in (None, msg.get_srcComponent()):
+        comp = msg.get_srcComponent()  # (no compid: the first to send an IMU message's)
+        if msg.get_srcSystem() == self.sysid and (
+            comp == self.compid or self.compid is None and msg.get_type() in _IMU_TYPES
+        ):
             ms = getattr(msg, "time_boot_ms", None)
             if ms:  # (0: not filled in, as a simulator may leave it)
                 t = ms * 1e-3
@@ -441,7 +444,7 @@ class _VehicleClock:
                     t = us * 1e-6
         if t is None:
             return self.last if math.isfinite(self.last) else msg._timestamp
-        self.compid = msg.get_srcComponent()
+        self.compid = comp
         if not math.isfinite(self.last):
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
         return self.advance(t)
@@ -1208,7 +1211,7 @@ class MavlinkSource(SampleHoldSource):
             if msg.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID:  # not a GCS/companion
                 self._ardupilot = msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
                 if arrival - self._vehicle_hb > _VEHICLE_GONE_S:  # (re)appears: ask anew
-                    self._req_count = 0
+                    self._req_count, self._req_state = 0, "idle"  # (not asked yet: no warning)
                     self._warned_ignored = False
                 self._vehicle_hb = arrival
         elif mtype == "COMMAND_ACK":
@@ -1437,8 +1440,13 @@ def _forgeries_leave_stream_times(mav: Any) -> None:
     """A frame that fails its signature check leaves its stream's last timestamp as it was.
     pymavlink records a signed frame's timestamp before it checks the signature: one forged
     frame (no key needed) stamped far ahead, with the link id, system and component of the
-    vehicle's stream, made every genuine frame after it "old", for good."""
-    check = mav.check_signature
+    vehicle's stream, made every genuine frame after it "old", for good. A pymavlink whose
+    parser lacks these names (``check_signature``, ``signing.stream_timestamps``: another
+    version) is left as it is, not made to fail on its first signed frame."""
+    check = getattr(mav, "check_signature", None)
+    if check is None or not isinstance(getattr(mav.signing, "stream_timestamps", None), dict):
+        _log.debug("MAVLink: pymavlink's signing check not wrapped (its names differ)")
+        return
 
     def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
         stamps = mav.signing.stream_timestamps

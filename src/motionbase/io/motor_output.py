@@ -1239,8 +1239,8 @@ def open_output(
     if rate_hz is not None:
         if given is not None and float(rate_hz) != rate:  # (a NaN in the URL differs too)
             raise ConfigError(
-                f"output {url!r}: the URL's rate {given} Hz and the {rate_hz:g} Hz asked "
-                "for differ: give the rate once"
+                f"output {url!r}: the {'URL' if 'rate' in ours else 'format file'}'s rate "
+                f"{given} Hz and the {rate_hz:g} Hz asked for differ: give the rate once"
             )
         rate = float(rate_hz)
     if scheme == "serial":
