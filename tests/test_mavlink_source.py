@@ -470,22 +470,29 @@ def test_raw_imu_used_only_from_ardupilot(autopilot: str) -> None:
 # --------------------------------------------------------------------------- signing
 
 
-def test_signing_rejects_unsigned_and_badly_signed(tmp_path: Path) -> None:
+def signed_source(tmp_path: Path) -> tuple[bytes, MavlinkSource]:
+    """A signing key (its file in ``tmp_path``) and a 1.5 s source that needs it."""
     key = bytes(range(32))
     key_file = tmp_path / "key.bin"
     key_file.write_bytes(key)
-
-    def marker(mav: Any, i: int) -> None:
-        mav.highres_imu_send(i, 7.0, 7.0, -7.0, 1.0, 1.0, 1.0, 0, 0, 0, 0, 0, 0, 0, 0x3F)
-        mav.attitude_send(i, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0)
-
-    with MavlinkSource(
+    source = MavlinkSource(
         "udpin:127.0.0.1:0",
         rate_hz=100.0,
         duration_s=1.5,
         signing_key=key_file,
         request_streams=False,
-    ) as src:
+    )
+    return key, source
+
+
+def test_signing_rejects_unsigned_and_badly_signed(tmp_path: Path) -> None:
+    key, source = signed_source(tmp_path)
+
+    def marker(mav: Any, i: int) -> None:
+        mav.highres_imu_send(i, 7.0, 7.0, -7.0, 1.0, 1.0, 1.0, 0, 0, 0, 0, 0, 0, 0, 0x3F)
+        mav.attitude_send(i, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0)
+
+    with source as src:
         port = src.local_address[1]
         with (
             sender(port, send_good, key=key, link_id=1) as sent,
@@ -508,16 +515,8 @@ def test_a_forged_frame_stamped_far_ahead_does_not_stop_a_signed_stream(tmp_path
     its signing timestamp near the largest there is: pymavlink kept that timestamp although
     the signature failed, and rejected every genuine frame after it as older (no state
     reached the pipeline; a keyless sender could stop a signed stream for good)."""
-    key = bytes(range(32))
-    key_file = tmp_path / "key.bin"
-    key_file.write_bytes(key)
-    with MavlinkSource(
-        "udpin:127.0.0.1:0",
-        rate_hz=100.0,
-        duration_s=1.5,
-        signing_key=key_file,
-        request_streams=False,
-    ) as src:
+    key, source = signed_source(tmp_path)
+    with source as src:
         port = src.local_address[1]
         forger = mavutil.mavlink_connection(
             f"udpout:127.0.0.1:{port}", source_system=1, source_component=1
