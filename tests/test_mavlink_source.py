@@ -617,23 +617,31 @@ def _vehicle(
         conn.close()
 
 
+def run_beside_vehicle(
+    src: MavlinkSource, got: list[Any], delay_s: float = 0.0, **kw: Any
+) -> list[tuple[Any, Any]]:
+    """The live source's ticks (:func:`run_live`) while a :func:`_vehicle` (its keywords
+    ``kw``, what it receives into ``got``) runs beside it, from ``delay_s`` on."""
+    stop = threading.Event()
+    th = threading.Timer(delay_s, _vehicle, args=(src.local_address[1],), kwargs=kw)
+    th.kwargs.update(stop=stop, got=got)
+    th.start()
+    try:
+        return run_live(src)
+    finally:
+        stop.set()
+        th.cancel()
+        th.join(timeout=5)
+
+
 @pytest.mark.parametrize("ack", [False, True])
 def test_stream_request_to_a_silent_vehicle(ack: bool, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO, logger="motionbase")
-    stop = threading.Event()
     got: list[Any] = []
     with MavlinkSource(
         "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=2.4, request_timeout_s=0.8
     ) as src:
-        th = threading.Thread(
-            target=_vehicle, args=(src.local_address[1],), kwargs=dict(ack=ack, stop=stop, got=got)
-        )
-        th.start()
-        try:
-            ticks = run_live(src)
-        finally:
-            stop.set()
-            th.join(timeout=5)
+        ticks = run_beside_vehicle(src, got, ack=ack)
         stats = src.stats
     requests = [
         m
@@ -661,20 +669,11 @@ def test_a_vehicle_that_sends_attitude_alone_is_asked_for_the_imu() -> None:
     vehicle was never asked for HIGHRES_IMU, nothing warned, and every tick was stale, since
     the attitude kept the link from counting as silent. It is asked, and the ticks turn
     fresh once the IMU arrives."""
-    stop = threading.Event()
     got: list[Any] = []
     with MavlinkSource(
         "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=2.4, request_timeout_s=0.8
     ) as src:
-        port = src.local_address[1]
-        kw = dict(ack=True, stop=stop, got=got, attitude=True)
-        th = threading.Thread(target=_vehicle, args=(port,), kwargs=kw)
-        th.start()
-        try:
-            ticks = run_live(src)
-        finally:
-            stop.set()
-            th.join(timeout=5)
+        ticks = run_beside_vehicle(src, got, ack=True, attitude=True)
     asked = {
         int(m.param1)
         for m in got
@@ -693,21 +692,11 @@ def test_a_vehicle_that_comes_after_the_requests_ran_out_is_asked(
     warning that it ignored requests sent before it was there (one was given at its first
     heartbeat, before it was asked)."""
     caplog.set_level(logging.WARNING, logger="motionbase")
-    stop = threading.Event()
     got: list[Any] = []
     with MavlinkSource(
         "udpin:127.0.0.1:0", rate_hz=50.0, duration_s=4.5, request_timeout_s=0.3
     ) as src:
-        port = src.local_address[1]
-        kw = dict(ack=True, stop=stop, got=got)
-        th = threading.Timer(2.5, _vehicle, args=(port,), kwargs=kw)  # (all 3 asked by 1.9 s)
-        th.start()
-        try:
-            ticks = run_live(src)
-        finally:
-            stop.set()
-            th.cancel()
-            th.join(timeout=5)
+        ticks = run_beside_vehicle(src, got, 2.5, ack=True)  # (all 3 asked by 1.9 s)
     assert any(m.get_type() == "COMMAND_LONG" for m in got)
     assert ticks[-1][1].fresh
     assert not [r for r in caplog.records if "ignored" in r.getMessage()]
