@@ -60,14 +60,16 @@ def closure(g: Rrr3Geometry, theta: np.ndarray, guess: np.ndarray) -> tuple[np.n
     return p, float(np.abs(rod_errors(g, p, theta)).max())
 
 
-def main(preset: str, jumps: int, seed: int, hold_s: float | None, circle: str | None) -> None:
+def main(
+    preset: str, jumps: int, seed: int, hold_s: float | None, circle: str | None, edge: bool
+) -> None:
     g = Rrr3Geometry.preset(preset)
     robot = Rrr3Robot(g)
     pipe = CommandPipeline(robot, rate_hz=50.0, mode="poses")
     dt, lim = pipe.dt, robot.limits
     rng = np.random.default_rng(seed)
     goals: list[np.ndarray] = []
-    while circle is None and len(goals) < jumps + 1:
+    while circle is None and not edge and len(goals) < jumps + 1:
         p = np.array([*rng.uniform([0.0, 0.0], [g.base_side, 0.87 * g.base_side]), 0.0])
         if robot.reachable(p):
             goals.append(p)
@@ -78,6 +80,14 @@ def main(preset: str, jumps: int, seed: int, hold_s: float | None, circle: str |
         goals = [*(home + radius * np.stack([np.cos(turn), np.sin(turn), 0 * tc], -1))]
         goals = [home, *goals, *[home] * int(3.0 / dt)]
         hold_s, jumps = dt, len(goals) - 1
+    if edge:  # from home to the last valid pose of rays from home, and back, at rest each
+        home, goals = np.asarray(robot.neutral_pose), []
+        for a in np.radians(np.arange(0.0, 360.0, 3.6)):
+            ray = home + np.array([np.cos(a), np.sin(a), 0.0]) * np.arange(1e-5, 0.3, 1e-5)[:, None]
+            ok = np.asarray(robot.reachable(ray), dtype=bool)
+            if ok[0] and not ok.all():
+                goals += [home, ray[int(np.argmin(ok)) - 1]]
+        jumps = len(goals) - 1
     lags = []
     mech, q_prev, v_prev = np.array(robot.park_pose), np.array(robot.park_angles), np.zeros(3)
     bad_jumps = bad_ticks = over = late = ticks = 0
@@ -121,5 +131,6 @@ if __name__ == "__main__":
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--hold", type=float, default=None, help="hold each goal this long, s")
     ap.add_argument("--circle", default=None, metavar="R,HZ", help="a circling target instead")
+    ap.add_argument("--edge", action="store_true", help="jumps from home to the valid poses' edge")
     a = ap.parse_args()
-    main(a.preset, a.jumps, a.seed, a.hold, a.circle)
+    main(a.preset, a.jumps, a.seed, a.hold, a.circle, a.edge)

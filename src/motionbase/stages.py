@@ -425,8 +425,10 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
     is given is the point of the straight pose segment from the state's pose toward the
     goal whose actuators lie one planned step away (max norm, by bisection: the inverse
     kinematics is not linear), the step planned by the limiter's own law on one virtual
-    axis (:func:`path_step` with ``path_limits``). The limits themselves are enforced by
-    :func:`limit_stage` alone, which every command passes.
+    axis (:func:`path_step` with ``path_limits``), no faster than the bends of the path
+    ahead allow (:func:`bend_speed`: near the edge of the valid poses a crank turns back
+    while another speeds up). The limits themselves are enforced by :func:`limit_stage`
+    alone, which every command passes.
 
     A plan is taken only when the limiter sends it unchanged (a command it trims is no pose
     of the segment, and may be none at all: a target that changed while the robot moved
@@ -510,7 +512,12 @@ def approach_stage(P, S, robot, goal, q, path_limits) -> tuple[int, bool, np.nda
         speed = float(np.max(np.abs(v_prev)))
         dist = float(np.max(np.abs(goal_q - q_prev)))  # (the plan must stop on the segment)
         stoppable = (1.0 + 1e-9) * dt * brake_speed(dist, u, dt)
-        plans = [(goal, path_step(dist, speed, dt, path_limits))]
+        # no faster than the bends of the path ahead allow (a crank reversing near the edge)
+        cap = max(bend_speed(robot, here, goal, float(path_limits.max_accel[0])), speed - u)
+        lim = path_limits
+        if cap < float(path_limits.max_speed[0]):
+            lim = ActuatorLimits.broadcast(1, -1e3, 1e3, cap, float(path_limits.max_accel[0]))
+        plans = [(goal, path_step(dist, speed, dt, lim))]
         plans += [(leg, path_step(0.0, speed, dt, path_limits)), (here, 0.0)] * moving
         trimmed = []  # (how far the limiter moved the command, plan, state, command, bits)
         for i, (end, step) in enumerate(plans):
@@ -555,6 +562,28 @@ def blocked_at(
     bad = ~np.asarray(robot.reachable(points), dtype=bool)
     bad[: int(np.argmin(bad))] = False
     return points[int(np.argmax(bad))] if bad.any() else None
+
+
+def bend_speed(robot, a: np.ndarray, b: np.ndarray, accel: float, f=_FRACTIONS) -> float:
+    """The largest speed (actuator units a second, max norm) at ``a`` from which the straight
+    pose path ``a -> b`` can be followed, braking at ``accel`` along it, with its bends
+    needing no more than ``2 accel / 3`` of any actuator (the rest of the limiter's
+    acceleration above the plan's ``accel``, 60 % of it): where an actuator's path bends
+    (``q'' = d^2 q / ds^2``, ``s`` the path's length in max norm) at speed ``v`` it needs
+    ``|q''| v^2``. Inf for a path without bends (or of one point); up to its first pose
+    without actuators."""
+    qs = np.asarray(robot.inverse(a + f * (b - a)), dtype=float)
+    qs = qs[: int(np.argmin(np.isfinite(qs).all(axis=1))) or len(qs)]  # (up to a NaN)
+    d = np.diff(qs, axis=0)
+    ds = np.max(np.abs(d), axis=1)
+    keep = ds > 1e-12
+    if keep.sum() < 2:
+        return np.inf
+    d, ds = d[keep], ds[keep]
+    s = np.concatenate(([0.0], np.cumsum(ds)))
+    bend = np.max(np.abs(np.diff(d / ds[:, None], axis=0)), axis=1) / (0.5 * (ds[1:] + ds[:-1]))
+    cap2 = (2.0 / 3.0) * accel / np.maximum(bend, 1e-12) + 2.0 * accel * s[1:-1]
+    return float(np.sqrt(cap2.min()))
 
 
 def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) -> float:
