@@ -2,6 +2,7 @@
 
 Run: python benchmarks/bench_jumps.py [--preset udesc] [--jumps 200] [--seed 0] [--hold S]
      python benchmarks/bench_jumps.py [--preset udesc] --circle R,HZ
+     python benchmarks/bench_jumps.py [--preset udesc] --edge
 
 Random valid poses (uniform over the base triangle's box, kept where ``reachable``) are
 jumped between in a chain through the real pose-mode pipeline
@@ -14,7 +15,9 @@ rod stays more than 1 um off its length is one no pose near the mechanism's hold
 linkage would bind). Also counted: ticks over the speed or acceleration limit, jumps not at
 rest within 8 s. ``--circle``: instead, a target circling home (radius R m, HZ turns a
 second) for 6 s, then home for 3 s (a cursor swept round): the same counts, and the mean
-distance from the robot's pose to the target after the first 2 s (the lag).
+distance from the robot's pose to the target after the first 2 s (the lag). ``--edge``:
+jumps from home to the last valid pose of rays from home every 3.6 deg, and back, each to
+rest.
 """
 
 from __future__ import annotations

@@ -204,9 +204,11 @@ def test_jumps_to_the_edge_of_the_valid_poses_keep_every_rod_and_the_limits():
     its phi = 0 workspace: a type I singularity, or the band), and back, each to rest. Near
     the edge an actuator's path bends sharply (a crank turns back while another speeds up):
     taken at the planned speed, the plan and its braking were both trimmed by the limiter,
-    and the commands went past the edge (4 of 100 jumps, rods forced up to 2.4 mm)."""
+    and the commands went past the edge (4 of 100 jumps, rods forced up to 2.4 mm). Each
+    goal is reached, but one whose crank lies past its limit (a sliver at the top edge,
+    which the pipeline holds: the robot stays home)."""
     robot = Rrr3Robot(Rrr3Geometry.preset("udesc"))
-    home = np.asarray(robot.neutral_pose)
+    home, lim = np.asarray(robot.neutral_pose), robot.limits
     pipe = CommandPipeline(robot, rate_hz=RATE_HZ, mode="poses")
     poses, angles, t = [], [], 0.0
     for a in np.radians(np.arange(0.0, 360.0, 3.6)):
@@ -221,6 +223,9 @@ def test_jumps_to_the_edge_of_the_valid_poses_keep_every_rod_and_the_limits():
                 angles.append(out.angles)
                 rest = 0 if pipe.speed.any() else rest + 1
                 assert t < 1000.0
+            q = robot.inverse(goal)  # a goal with a crank past its limit is held
+            held = not (lim.lower <= q).all() & (q <= lim.upper).all()
+            np.testing.assert_allclose(out.platform_pose, home if held else goal, atol=1e-12)
     assert_rods_and_limits(robot, poses, angles)
 
 
