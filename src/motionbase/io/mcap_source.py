@@ -500,11 +500,11 @@ def _state_from_message(msg: Any) -> AircraftState:
     )
 
 
-def _unusable(data: bytes, limits: Any = None) -> str:
+def _unusable(data: bytes, limits: Any) -> str:
     """Why a state message cannot be used (malformed, non-finite, rejected by the input
-    validation with ``limits``, the default ones when None: a time no log holds, a value
-    beyond its bound); ``""`` when it can."""
-    from motionbase.safety import InputLimits, input_problem
+    validation with ``limits``: a time no log holds, a value beyond its bound); ``""`` when
+    it can."""
+    from motionbase.safety import input_problem
 
     try:
         state = _state_from_message(decode_message(data))
@@ -513,7 +513,7 @@ def _unusable(data: bytes, limits: Any = None) -> str:
     if not state.is_finite():
         return "a number in it is not finite"
     f, w, att = state.specific_force, state.angular_velocity, state.attitude
-    return input_problem(state.t, f, w, att, None, limits or InputLimits()) or ""
+    return input_problem(state.t, f, w, att, None, limits) or ""
 
 
 class McapSource:
@@ -554,10 +554,6 @@ class McapSource:
         States read so far that were malformed (each yielded as a sample of NaNs, which
         the pipeline rejects and holds); ``first_malformed`` says what was wrong with the
         first one.
-    unusable : str
-        Why no state of the recording can be used (the first one's reason: malformed,
-        non-finite, beyond the default input limits); ``""`` when one can. With other
-        limits: :meth:`unusable_with`.
 
     Raises
     ------
@@ -585,7 +581,6 @@ class McapSource:
         self.count = 0
         self.malformed = 0
         self.first_malformed = ""
-        self.unusable = ""
         self.fresh = True  # the last yielded sample's freshness, as recorded
         self.rate_hz = float("nan")
         self.rate_from = ""  # where rate_hz came from, for messages
@@ -624,10 +619,6 @@ class McapSource:
                 state_in_tick[0] = True
                 if not first:
                     first.append(msg.data)
-                    why = _unusable(msg.data)  # until a usable state comes
-                    self.unusable = why and f"message 1: {why}"
-                elif self.unusable and not _unusable(msg.data):
-                    self.unusable = ""
             elif self.recorded_stop is None and self._topics.get(msg.channel_id) in _POSES:
                 if state_in_tick[0] and _STOPPING.search(msg.data):
                     self.recorded_stop = len(times)
@@ -712,13 +703,10 @@ class McapSource:
         self._open = False
 
     def unusable_with(self, limits: Any) -> str:
-        """:attr:`unusable` for a run with the input ``limits``
-        (:class:`~motionbase.safety.InputLimits`): with other than the default ones, the
-        states are read again until one is usable (the first, in a usable recording)."""
-        from motionbase.safety import InputLimits
-
-        if limits == InputLimits():
-            return self.unusable
+        """Why no state of the recording can be used by a run with the input ``limits``
+        (:class:`~motionbase.safety.InputLimits`): the first one's reason (malformed, not
+        finite, beyond the limits), ``""`` when one can. The states are read until one is
+        usable (the first, in a usable recording)."""
         first = ""
         for _, data in self._messages():
             why = _unusable(data, limits)
