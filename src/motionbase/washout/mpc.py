@@ -895,9 +895,10 @@ def check_reach(params: MpcParams, robot: Any) -> None:
     env = single_axis_envelope(robot, tol=1e-6)
     reach = np.array([[-a.negative for a in env], [a.positive for a in env]])
     box = np.array([params.pose_lower, params.pose_upper])
-    # (5e-4 of it over: the 4 significant digits limits_from_robot writes round a full reach
-    # up by as much, 0.5 mm on a reach of 1 m)
-    over = np.flatnonzero((box[0] < reach[0] * (1 + 5e-4)) | (box[1] > reach[1] * (1 + 5e-4)))
+    # (5e-4 of it beyond, either sign: the 4 significant digits limits_from_robot writes
+    # round a full reach outwards by as much, 0.5 mm on a reach of 1 m)
+    slack = 5e-4 * np.abs(reach)
+    over = np.flatnonzero((box[0] < reach[0] - slack[0]) | (box[1] > reach[1] + slack[1]))
     if not over.size:
         return
 
