@@ -42,9 +42,11 @@ one warning per distinct version number is logged, for the first three (the run 
 the watchdog holds the platform at neutral while nothing valid arrives). A datagram
 shorter than the smallest FGNetFDM (408 bytes) and of no known version is not taken for
 a new version: it is counted as too short, with one warning for the first. A datagram
-of the wrong size, or with a NaN, infinite or absurd value (a specific force or
-a body rate beyond the pipeline's plausibility bounds, :mod:`motionbase.physics`:
-150 m/s^2, 20 rad/s; an angle out of range), is rejected whole and counted.
+of a known version but not its size (one warning for the first: FlightGear's builds of
+July to October 2020 sent version 24 in the 552-byte layout), or with a NaN, infinite or
+absurd value (a specific force or a body rate beyond the pipeline's plausibility bounds,
+:mod:`motionbase.physics`: 150 m/s^2, 20 rad/s; an angle out of range), is rejected whole
+and counted.
 
 One sender at a time: while the datagrams of one address are fresh (one accepted at
 most ``stale_timeout_s`` ago), those of any other address are refused, counted as
@@ -221,8 +223,19 @@ class FgNativeSource(UdpLiveSource):
         if values is None:
             c["bad_data"] += 1
             c["bad_bytes"] += len(data)
+            host = addr[0] if isinstance(addr, tuple) else addr
             if version in FG_NET_FDM_SIZES:
                 self._bad_size += 1
+                if self._bad_size == 1:
+                    _log.warning(
+                        "FlightGear: refusing a datagram of %d bytes from %s: FGNetFDM "
+                        "version %d is %d bytes; further ones are counted as bad data, not "
+                        "reported",
+                        len(data),
+                        host,
+                        version,
+                        FG_NET_FDM_SIZES[version],
+                    )
             elif len(data) < _MIN_SIZE:  # garbage, not a new version: keep those warnings
                 self._too_short += 1
                 if self._too_short == 1:
@@ -231,7 +244,7 @@ class FgNativeSource(UdpLiveSource):
                         "FGNetFDM (version %s); further ones are counted as bad data, not "
                         "reported",
                         len(data),
-                        addr[0] if isinstance(addr, tuple) else addr,
+                        host,
                         _SIZES,
                     )
             elif (
@@ -244,7 +257,7 @@ class FgNativeSource(UdpLiveSource):
                     "FlightGear: refusing datagrams of FGNetFDM version %d from %s "
                     "(supported: 24 and 25, the native-fdm protocol of FlightGear and JSBSim)%s",
                     version,
-                    addr[0] if isinstance(addr, tuple) else addr,
+                    host,
                     "; further unknown versions are counted as bad data, not reported"
                     if last
                     else "",
