@@ -491,6 +491,61 @@ def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
     assert "FlightGear:" in capsys.readouterr().out
 
 
+MASS = 1000.0  # kg
+LIFT = (0.0, 0.0, -MASS * G0)  # N on FlightGear's body axes (x forward, y right, z down)
+
+
+@pytest.mark.parametrize(
+    "force_n, body_rates, axis, sign",
+    [
+        ((3.0 * MASS, 0.0, -MASS * G0), (0, 0, 0), 0, 1),  # thrust: surge forward
+        ((0.0, 3.0 * MASS, -MASS * G0), (0, 0, 0), 1, 1),  # a push to the right: sway right
+        ((0.0, 0.0, -MASS * (G0 + 3.0)), (0, 0, 0), 2, -1),  # more lift: heave up (z up < 0)
+        (LIFT, (0.3, 0, 0), 3, 1),  # rolling right (right wing down)
+        (LIFT, (0, 0.3, 0), 4, 1),  # pitching up
+        (LIFT, (0, 0, 0.3), 5, 1),  # yawing right
+    ],
+    ids=["surge", "sway", "heave", "roll", "pitch", "yaw"],
+)
+def test_stream_cues_each_push_and_rotation_its_own_way(
+    tmp_path, sender, force_n, body_rates, axis, sign
+):
+    """Packets built from a force and a rotation on FlightGear's body axes (the pilot's
+    acceleration is force over mass, what an accelerometer reads; the rates go out as Euler
+    angle rates), streamed over loopback: the washout's cue moves the platform the same way
+    (pose x forward, y right, z down; roll right, pitch up, yaw right positive)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    f_ft = [x / MASS / FT for x in force_n]
+    rates = euler_rates(*body_rates, 0.0, 0.0)
+    packet = fgnetfdm_packet(
+        24,
+        **dict(zip(("A_X_pilot", "A_Y_pilot", "A_Z_pilot"), f_ft, strict=True)),
+        **dict(zip(("phidot", "thetadot", "psidot"), rates, strict=True)),
+    )
+    stop = threading.Event()
+
+    def send() -> None:
+        while not stop.is_set():
+            sender.sendto(packet, ("127.0.0.1", port))
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=send, daemon=True)
+    thread.start()
+    out = tmp_path / "cue.mcap"
+    try:
+        url = f"fgnative:udp:127.0.0.1:{port}"
+        code = main(["stream", "--source", url, "--duration", "1", "--out", str(out)])
+    finally:
+        stop.set()
+        thread.join()
+    assert code == 0
+    poses = np.array([m["pose"] for m in read_messages(out)["/washout/pose"]])
+    peak = poses[np.argmax(np.abs(poses[:, axis])), axis]
+    assert sign * peak > 0.005  # m or rad
+
+
 @pytest.mark.parametrize(
     "args, words",
     [
