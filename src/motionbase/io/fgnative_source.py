@@ -10,7 +10,7 @@ The packet
 The layout below is written from the documented structure, not copied: the
 ``FGNetFDM`` class of FlightGear's ``src/Network/net_fdm.hxx`` (version 24 in
 every release up to 2020.3, version 25 on FlightGear's ``next`` branch since
-October 2020) and JSBSim's ``src/input_output/net_fdm.hxx`` (version 24, filled
+October 2020, so in 2024.1 and later) and JSBSim's ``src/input_output/net_fdm.hxx`` (version 24, filled
 by ``FGOutputFG::SocketDataFill`` in ``FGOutputFG.cpp``). Network byte order (big
 endian), no padding: ``uint32 version, uint32 padding``, three ``double``
 (longitude, latitude, altitude), then ``float`` from ``agl`` on. Versions 24 and
