@@ -10,9 +10,9 @@ The packet
 The layout below is written from the documented structure, not copied: the
 ``FGNetFDM`` class of FlightGear's ``src/Network/net_fdm.hxx`` (version 24 in
 every release up to 2020.3, version 25 on FlightGear's ``next`` branch since
-October 2020, so in 2024.1 and later) and JSBSim's ``src/input_output/net_fdm.hxx`` (version 24, filled
-by ``FGOutputFG::SocketDataFill`` in ``FGOutputFG.cpp``). Network byte order (big
-endian), no padding: ``uint32 version, uint32 padding``, three ``double``
+October 2020, so in 2024.1 and later) and JSBSim's ``src/input_output/net_fdm.hxx``
+(version 24, filled by ``FGOutputFG::SocketDataFill`` in ``FGOutputFG.cpp``). Network
+byte order (big endian), no padding: ``uint32 version, uint32 padding``, three ``double``
 (longitude, latitude, altitude), then ``float`` from ``agl`` on. Versions 24 and
 25 differ only after the engine block (25 adds per-tank selection and volumes),
 so every field read here sits at the same offset in both; a datagram is checked
@@ -28,7 +28,12 @@ Fields used, and the conversions at this edge:
   its Euler rates). The body rates follow from the angles:
   ``p = phidot - psidot sin(theta)``,
   ``q = thetadot cos(phi) + psidot sin(phi) cos(theta)``,
-  ``r = -thetadot sin(phi) + psidot cos(phi) cos(theta)``.
+  ``r = -thetadot sin(phi) + psidot cos(phi) cos(theta)``. FlightGear's YASim
+  fills them otherwise (``Glue::calcEulerRates``): ``p``, ``thetadot`` and the rate
+  about the vertical, ``psidot - phidot sin(theta)``; exact in level flight, off by
+  about ``sin(theta)`` times the rates when pitched (1 deg/s of roll rate in a
+  10 deg climbing turn at 6 deg/s; a quarter of a 1 rad/s roll at 30 deg of pitch).
+  The packet says nothing of the FDM, so this is left as it is.
 * ``A_X_pilot, A_Y_pilot, A_Z_pilot`` (offset 100): the specific force at the
   pilot's eye point, body axes FRD, ft/s^2 (times 0.3048). It is what an
   accelerometer reads, not the kinematic acceleration: JSBSim's
