@@ -351,6 +351,35 @@ def test_a_known_version_of_the_wrong_size_is_warned_of_once(sender, caplog):
     assert "552 bytes" in warned[0] and "version 24 is 408 bytes" in warned[0]
 
 
+def _warnings_after_sending(sender, caplog, forces: list, period_s: float = 0.02) -> list[str]:
+    """The source's warnings after ``forces`` (A_X/Y/Z_pilot, ft/s^2) were sent, one packet
+    every ``period_s`` s, each taken by the source."""
+    with caplog.at_level(logging.WARNING, logger="motionbase"):
+        with FgNativeSource("fgnative:udp:127.0.0.1:0", rate_hz=1 / period_s) as src:
+            it = iter(src)
+            for fx, fy, fz in forces:
+                sender.sendto(
+                    fgnetfdm_packet(24, A_X_pilot=fx, A_Y_pilot=fy, A_Z_pilot=fz),
+                    src.local_address,
+                )
+                next(it)
+    return [r.getMessage() for r in caplog.records if "acceleration" in r.getMessage()]
+
+
+def test_a_flight_model_that_sends_no_acceleration_is_warned_of_once(sender, caplog):
+    """FlightGear's UFO, magic-carpet and null flight models (and JSBSim held down) send
+    A_X/Y/Z_pilot = 0: at rest the seat feels 1 g up, so zero is a free fall, and the
+    platform cued one, then nothing, without a word. After a second of exact zeros one
+    warning names the flight models; a real force, or zeros for half a second (a
+    parabola's top), says nothing."""
+    warned = _warnings_after_sending(sender, caplog, [(0.0, 0.0, 0.0)] * 80)
+    assert len(warned) == 1 and "\n" not in warned[0] and "UFO" in warned[0]
+    caplog.clear()
+    at_rest = [(0.0, 0.0, -32.17)] * 30
+    brief = at_rest + [(0.0, 0.0, 0.0)] * 20 + at_rest + [(0.0, 0.0, 0.0)] * 20
+    assert _warnings_after_sending(sender, caplog, brief) == []
+
+
 @pytest.mark.parametrize(
     "field, value",
     [

@@ -51,7 +51,9 @@ of a known version but not its size (one warning for the first: FlightGear's bui
 July to October 2020 sent version 24 in the 552-byte layout), or with a NaN, infinite or
 absurd value (a specific force or a body rate beyond the pipeline's plausibility bounds,
 :mod:`motionbase.physics`: 150 m/s^2, 20 rad/s; an angle out of range), is rejected whole
-and counted.
+and counted. A pilot's acceleration of exactly zero is taken (it may be a free fall),
+but a second of it is warned of once: FlightGear's UFO, magic-carpet and null flight
+models, and JSBSim held down, do not fill it.
 
 One sender at a time: while the datagrams of one address are fresh (one accepted at
 most ``stale_timeout_s`` ago), those of any other address are refused, counted as
@@ -202,6 +204,8 @@ class FgNativeSource(UdpLiveSource):
         self._sender: Any = None  # address of the datagrams in use
         self._sender_time = -math.inf  # when its last datagram was accepted, s
         self._other_senders = 0  # datagrams refused from another address meanwhile
+        self._zero_force_since = math.inf  # arrival of the first of a run of exact zeros, s
+        self._warned_zero_force = False
 
     def _bind_address(self) -> tuple[str, int]:
         return self.host, self.port
@@ -278,9 +282,26 @@ class FgNativeSource(UdpLiveSource):
         if addr != self._sender and self._sender is not None:
             _log.info("FlightGear: now using the datagrams from %s", addr)
         self._sender, self._sender_time = addr, arrival
+        self._note_zero_force(values[0:3], arrival)
         self._store(0, (*values[:8], wrap_pi(values[8])), arrival)
         self._versions[version] = self._versions.get(version, 0) + 1
         c["accepted"] += 1
+
+    def _note_zero_force(self, force: Any, arrival: float) -> None:
+        """Warn once when the pilot's acceleration has read exactly zero for a second: the
+        flight model does not fill it (a real free fall of that long is a parabolic flight)."""
+        if any(force):
+            self._zero_force_since = math.inf
+            return
+        self._zero_force_since = min(self._zero_force_since, arrival)
+        if not self._warned_zero_force and arrival - self._zero_force_since >= 1.0:
+            self._warned_zero_force = True
+            _log.warning(
+                "FlightGear: the pilot's acceleration (A_X/Y/Z_pilot) has read 0 for 1 s: "
+                "this flight model does not fill it (FlightGear's UFO, magic-carpet and null "
+                "models, JSBSim held down), so the platform cues a free fall; fly a JSBSim or "
+                "YASim aircraft"
+            )
 
     def _extra_stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
