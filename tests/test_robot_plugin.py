@@ -371,7 +371,7 @@ def test_output_test_and_fly_output_to_a_udp_drive(tmp_path):
     frames = []
     for args in (
         ["output", "--test", "URL", "--platform", "heave3", "--range-mm", "20",
-         "--speed-mm-s", "40"],
+         "--speed-mm-s", "100"],
         ["fly", "c1723", "--platform", "heave3", "--duration", "4", "--realtime", "--output", "URL",
          "--out", str(log)],
     ):  # fmt: skip
