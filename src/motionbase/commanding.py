@@ -213,8 +213,11 @@ class CommandPipeline(PipelineCore):
         self.step(None)  # running without input: the brake stage
         # the approach's plan of a far jump (the limiter's kernel on one virtual axis)
         stages.path_step(1.0, 0.0, float(self.params[0]["dt"]), self._path_limits)
+        stages.brake_speed(1.0, 1.0, 1.0)  # (and its braking distance, called from Python)
         self.stop()
         self.step(None)
+        stages.brake_stage(self.params, self.state, np.empty(self.robot.n))  # (when the ticks
+        # above braked along the approach's line alone, as on the 6-RUS; reset follows)
 
     def stop(self) -> None:
         """Head for park: actuator mode, the blend back over ``soft_start_s``; pose mode,

@@ -137,7 +137,9 @@ def _as_poses(pose: Any, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...
             f"{what}: expected [x, y, phi] or an array of shape (..., 3), got shape {arr.shape}"
         )
     batch = arr.shape[:-1]
-    return np.ascontiguousarray(arr.reshape(-1, 3)), batch
+    flat = np.ascontiguousarray(arr.reshape(-1, 3))
+    # (a read-only array, robot.neutral_pose say, would have numba compile a second kernel)
+    return (flat if flat.flags.writeable else flat.copy()), batch
 
 
 class Rrr3:
