@@ -325,7 +325,8 @@ def test_planar_pose_plot_draws_the_realised_pose_through_the_stop(planar_flight
     config = meta["pipeline_config"]
     home = Rrr3(Rrr3Geometry.from_dict(config["geometry"])).home
     scale = config["pipeline"]["planar_scale_m"]
-    xy = (np.array([p["pose"][:2] for p in poses]) - home[:2]) / scale
+    # surge is robot x, sway robot -y (the plane is z up, the cab's axes FRD)
+    xy = (np.array([p["pose"][:2] for p in poses]) - home[:2]) / [scale, -scale]
     t_all = np.array([p["t"] for p in poses])
     for name, col in (("surge", 0), ("sway", 1)):
         t, cm = _line(_axis(fig, name), "realised")
@@ -431,11 +432,13 @@ def test_the_planar_reach_ends_where_the_robot_does_not_where_the_scan_did():
     scale_m, yaw_scale = 0.1, 0.5
     reach = planar_reach(geometry, scale_m, yaw_scale)
     assert np.isnan(reach[:, 2:5]).all()  # no heave, roll or pitch
-    # the robot at home turns its platform to +45 deg and to -15 deg
+    # the robot at home turns its platform to +45 deg and to -15 deg: counter-clockwise seen
+    # from above (the plane is z up), a yaw to the left of the cab (FRD: negative yaw)
     for phi in (math.radians(45.0), math.radians(-15.0)):
         assert kin.reachable(home + [0.0, 0.0, phi])
-    assert reach[1, 5] * yaw_scale > math.radians(45.0)
-    for col, j, scale in ((0, 0, scale_m), (1, 1, scale_m), (5, 2, yaw_scale)):
+    assert reach[0, 5] * yaw_scale < -math.radians(45.0)
+    # robot x is surge, robot y the cab's left (-sway), phi the cab's -yaw
+    for col, j, scale in ((0, 0, scale_m), (1, 1, -scale_m), (5, 2, -yaw_scale)):
         for row in (0, 1):
             edge = reach[row, col] * scale  # robot units, signed
             assert edge != 0.0
