@@ -119,6 +119,10 @@ class Report:
         One paragraph saying what is compared with what.
     text : str
         The text summary (metrics and run facts).
+    refused : ndarray of bool, shape (M,), or None
+        Planar mode: the ticks whose realised pose the robot's kinematics refuse (a chain
+        within its singularity margin, or out of reach), where the limiter's commands left
+        the valid poses; None for the other robots.
     cueing_fallbacks : (str, int, int) or None
         For a cueing that logs its solver's fallbacks (``/cueing/<name>`` messages with a
         ``fallback`` field: the MPC): its name, the ticks that fell back and the ticks
@@ -156,6 +160,7 @@ class Report:
     compared: str
     text: str
     cueing_fallbacks: tuple[str, int, int] | None = None
+    refused: np.ndarray | None = None
 
     @property
     def planar(self) -> bool:
@@ -485,7 +490,11 @@ def _build_report(
     # the cue pose the robot realises (the pose itself on the 6-DOF robots; the planar
     # robot and a plug-in of fewer axes hold the others at neutral)
     cab_all = robot.cue_from_pose(platform_pose, np.zeros((len(platform_pose), 6)))
+    refused = None
     if planar:
+        from motionbase.platform.rrr3 import TYPE1, TYPE2, UNREACHABLE
+
+        refused = (robot.kin.status(platform_pose) & (UNREACHABLE | TYPE1 | TYPE2)) != 0
         reach = planar_reach(g, config.planar_scale_m, config.planar_yaw_scale)
         compared = (
             "Planar mode: the 3-RRR's [x, y, phi] about its home pose, divided by "
@@ -566,6 +575,7 @@ def _build_report(
         compared=compared,
         text="",
         cueing_fallbacks=_cueing_fallbacks(messages),
+        refused=refused,
     )
     report = Report(**fields)  # type: ignore[arg-type]
     return replace(report, text=summary_text(report, metadata))
@@ -632,8 +642,10 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         f"  {'reach (-) [m | deg]':<36s}" + _cells(_display(r.reach[0]), ".3g", 8),
         f"  {'reach (+) [m | deg]':<36s}" + _cells(_display(r.reach[1]), ".3g", 8),
     ]
+    off = r.refused is not None and bool(r.refused.any())
     if np.nanmax(m.workspace_usage) > 1.0:
-        lines.append("  (over 100 %: the pose went beyond the single-axis reach by combining axes)")
+        why = "by combining axes" + (" or past the valid poses (below)" if off else "")
+        lines.append(f"  (over 100 %: the pose went beyond the single-axis reach {why})")
     lines += ["", "run:"]
     shares = [
         ("clamped", r.clamped),
@@ -645,6 +657,15 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         + "; ".join(f"{k} {100 * v.mean():.1f} % of ticks" for k, v in shares)
         + f"; faded {100 * (r.fade < 1).mean():.1f} %; rejected inputs {int(r.rejected.sum())}"
     )
+    if off:
+        assert r.refused is not None
+        lines += _wrap(
+            f"warning: {int(r.refused.sum())} ticks ({100 * r.refused.mean():.1f} %) realised "
+            "poses the robot's kinematics refuse (a chain within its singularity margin, or "
+            "out of reach): each actuator's speed and acceleration limit lagged behind the "
+            "cue where it ran into the workspace's edge at speed",
+            indent="  ",
+        )
     if r.cueing_fallbacks is not None and r.cueing_fallbacks[1]:
         name, failed, ticks = r.cueing_fallbacks
         lines.append(
