@@ -171,6 +171,24 @@ def test_planar_flight_sends_servo_degrees_of_the_safe_angles(tmp_path):
     assert np.abs(diff).max() < 1e-9
 
 
+@pytest.mark.parametrize("planar", [True, False], ids=["rrr3", "rus6"])
+def test_the_summary_names_the_cue_axes_the_robot_drops(tmp_path, planar):
+    """The planar robot renders surge, sway and yaw; fly, stream and replay dropped the
+    cue's heave, roll and pitch without a word (only report and omct said so). The 6-RUS
+    renders all six: no such line."""
+    result = app.fly(
+        "c1723", planar=planar, duration_s=0.5, out=tmp_path / "a.mcap", progress=False
+    )
+    dropped = [line for line in result.summary_text().splitlines() if "does not render" in line]
+    if not planar:
+        assert dropped == []
+        return
+    (line,) = dropped
+    assert "heave, roll, pitch" in line and "3-RRR" in line
+    msgs = read_messages(tmp_path / "a.mcap")  # the log has what was dropped
+    assert len(msgs["/washout/pose"][0]["pose"]) == 6 and len(msgs["/planar/pose"][0]["pose"]) == 3
+
+
 def _fly_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "motionbase.cli", "fly", *args]
 

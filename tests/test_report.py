@@ -325,7 +325,8 @@ def test_planar_pose_plot_draws_the_realised_pose_through_the_stop(planar_flight
     config = meta["pipeline_config"]
     home = Rrr3(Rrr3Geometry.from_dict(config["geometry"])).home
     scale = config["pipeline"]["planar_scale_m"]
-    xy = (np.array([p["pose"][:2] for p in poses]) - home[:2]) / scale
+    # surge is robot x, sway robot -y (the plane is z up, the cab's axes FRD)
+    xy = (np.array([p["pose"][:2] for p in poses]) - home[:2]) / [scale, -scale]
     t_all = np.array([p["t"] for p in poses])
     for name, col in (("surge", 0), ("sway", 1)):
         t, cm = _line(_axis(fig, name), "realised")
@@ -431,11 +432,13 @@ def test_the_planar_reach_ends_where_the_robot_does_not_where_the_scan_did():
     scale_m, yaw_scale = 0.1, 0.5
     reach = planar_reach(geometry, scale_m, yaw_scale)
     assert np.isnan(reach[:, 2:5]).all()  # no heave, roll or pitch
-    # the robot at home turns its platform to +45 deg and to -15 deg
+    # the robot at home turns its platform to +45 deg and to -15 deg: counter-clockwise seen
+    # from above (the plane is z up), a yaw to the left of the cab (FRD: negative yaw)
     for phi in (math.radians(45.0), math.radians(-15.0)):
         assert kin.reachable(home + [0.0, 0.0, phi])
-    assert reach[1, 5] * yaw_scale > math.radians(45.0)
-    for col, j, scale in ((0, 0, scale_m), (1, 1, scale_m), (5, 2, yaw_scale)):
+    assert reach[0, 5] * yaw_scale < -math.radians(45.0)
+    # robot x is surge, robot y the cab's left (-sway), phi the cab's -yaw
+    for col, j, scale in ((0, 0, scale_m), (1, 1, -scale_m), (5, 2, -yaw_scale)):
         for row in (0, 1):
             edge = reach[row, col] * scale  # robot units, signed
             assert edge != 0.0
@@ -575,3 +578,52 @@ def test_a_recorded_source_that_is_no_table_is_an_unknown_source(rus6_flight, so
     meta = {**read_metadata(rus6_flight), "source": source}
     text = build_report(read_messages(rus6_flight, skip={"/platform/scene"}), meta).text
     assert text.startswith("motionbase report: recording (6-RUS, source unknown source, ")
+
+
+def _refused_ticks(msgs, geometry: dict) -> int:
+    """Ticks whose logged planar pose and servo angles put a chain within its type I margin
+    or the platform within the type II margin, from the thesis's geometry (appendix A.1)
+    and the log alone: sin(crank, rod) from the crank tips and platform joints, and
+    |det Jx| / (b^3 h / sqrt(3)); every chain closed (the rod's length) checked first."""
+    L, a, b, h = (geometry[k] for k in ("base_side", "crank", "rod", "platform_side"))
+    base = np.array([[0.0, 0.0], [L, 0.0], [L / 2, L * math.sqrt(3) / 2]])
+    x, y, phi = np.array([m["pose"] for m in msgs["/planar/pose"]]).T
+    th = np.array([m["angles"] for m in msgs["/planar/actuators"]])
+    r = h / math.sqrt(3)
+    c1 = np.stack([x - r * np.cos(math.pi / 6 + phi), y - r * np.sin(math.pi / 6 + phi)], -1)
+    c = np.stack(
+        [c1, c1 + h * np.stack([np.cos(phi), np.sin(phi)], -1)]
+        + [c1 + h * np.stack([np.cos(phi + math.pi / 3), np.sin(phi + math.pi / 3)], -1)],
+        1,
+    )
+    tips = base + a * np.stack([np.cos(th), np.sin(th)], -1)
+    crank, rod = tips - base, c - tips
+    np.testing.assert_allclose(np.linalg.norm(rod, axis=-1), b, atol=1e-9)  # closed
+    type1 = np.abs(crank[..., 0] * rod[..., 1] - crank[..., 1] * rod[..., 0]) / (a * b)
+    e = c - np.stack([x, y], -1)[:, None]
+    jx = np.stack([rod[..., 0], rod[..., 1], e[..., 0] * rod[..., 1] - e[..., 1] * rod[..., 0]], -1)
+    type2 = np.abs(np.linalg.det(jx)) / (b**3 * h / math.sqrt(3))
+    safety = geometry["safety"]
+    return int(((type1 < safety["type1_margin"]).any(1) | (type2 < safety["type2_margin"])).sum())
+
+
+def test_the_planar_report_says_when_the_limiter_left_the_valid_poses(tmp_path, planar_flight):
+    """The Concorde's take-off run drives the 3-RRR's cue into its workspace's edge at speed:
+    near a chain's type I singularity its servo must turn ever faster, the limiter lags,
+    and then overshoots the clamped pose; chain 2 went through its singularity (its working
+    mode flipped) for tens of ticks. The report put the over-100 % surge down to
+    "combining axes" and said nothing else. It now counts those ticks, as the log's own
+    geometry does; a gentle flight has none."""
+    out = tmp_path / "concorde.mcap"
+    fly("Concorde_runway_test", planar=True, out=out, progress=False)
+    msgs = read_messages(out)
+    geometry = read_metadata(out)["pipeline_config"]["geometry"]
+    expected = _refused_ticks(msgs, geometry)
+    assert expected > 0
+    text = " ".join(build_report(msgs, read_metadata(out)).text.split())
+    found = re.search(r"warning: (\d+) ticks \([\d.]+ %\) realised poses the robot's", text)
+    assert found and int(found.group(1)) == expected, text
+    assert "past the valid poses" in text
+    gentle = read_messages(planar_flight)
+    assert _refused_ticks(gentle, read_metadata(planar_flight)["pipeline_config"]["geometry"]) == 0
+    assert "warning" not in build_report(gentle, read_metadata(planar_flight)).text

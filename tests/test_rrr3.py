@@ -391,3 +391,37 @@ def test_actuator_jacobian_is_by_the_cue_pose() -> None:
         mapping[[0, 1, 2], [0, 1, 5]] = robot.scale
         np.testing.assert_allclose(J_i, np.linalg.solve(Jq, Jx) @ mapping, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(np.exp(1j * q_i), np.exp(1j * R.inverse(pose)), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("force", "rates", "axis", "sign"),
+    [
+        ((2.0, 0.0), (0.0, 0.0, 0.0), 0, 1.0),  # forward: toward +x (motor 1 to motor 2)
+        ((0.0, 2.0), (0.0, 0.0, 0.0), 1, -1.0),  # right: to the right of +x, seen from above
+        ((0.0, 0.0), (0.0, 0.0, 0.3), 2, -1.0),  # yaw right (nose right): clockwise from above
+    ],
+    ids=["surge", "sway", "yaw"],
+)
+def test_the_planar_robot_moves_as_the_aircraft_does_not_its_mirror_image(
+    force, rates, axis, sign
+) -> None:
+    """The cue is in FRD base axes (y right, z down, yaw turning the nose right); the
+    thesis's plane is z up (y to the left of x seen from above, phi counter-clockwise). A
+    right push moved the platform toward +y, to the left, and a right yaw turned it
+    counter-clockwise: the aircraft's motion mirrored. Through the whole pipeline (the
+    classical washout's onset), from home at rest."""
+    from motionbase.app import load_config
+    from motionbase.pipeline import Pipeline
+    from motionbase.state import AircraftState
+
+    g = 9.80665
+    pipeline = Pipeline(load_config(planar=True))
+    home = np.array(pipeline.robot.neutral_pose)
+    n = 3 * 120  # past the soft start, level flight
+    for i in range(n):
+        pipeline.step(AircraftState(i / 120, [0.0, 0.0, -g], [0.0, 0.0, 0.0]))
+    for i in range(n, n + 60):  # half a second of the push
+        out = pipeline.step(AircraftState(i / 120, [*force, -g], list(rates)))
+    moved = out.platform_pose - home
+    assert sign * moved[axis] > 1e-3
+    assert np.abs(np.delete(moved, axis)).max() < 1e-9

@@ -434,6 +434,7 @@ def _drive_stoppable(
         out,
         failed=log_gone,
         notes=[d.stats_line() for d in drives]
+        + _lacking_notes(config, pipeline.robot)
         + _fallback_notes(pipeline.cueing, out)
         + (
             [
@@ -454,6 +455,20 @@ def _refuse_out_over_cueing_files(out: str | Path, config: PipelineConfig) -> No
     fallback = getattr(config.cueing_params, "fallback", None)
     if isinstance(fallback, str):
         refuse_out_over_inputs(out, ("--params file's solver.fallback", fallback))
+
+
+def _lacking_notes(config: PipelineConfig, robot: Any) -> list[str]:
+    """A note naming the cue's axes the robot does not render (the planar 3-RRR's heave,
+    roll and pitch): dropped, the run said nothing of them."""
+    from motionbase.platform.rus6_workspace import lacking_axes
+
+    lacking = lacking_axes(robot)
+    if not lacking:
+        return []
+    return [
+        f"the {robot_title(config)} does not render {', '.join(lacking)}: dropped from "
+        "the cue (/washout/pose holds them), not clamped"
+    ]
 
 
 def _fallback_notes(cueing: Any, out: Path | None) -> list[str]:

@@ -22,7 +22,8 @@ of the tilt, so tilt coordination shows as a sustained surge/sway cue) and
 
 *Platform cue* (planar 3-RRR): the robot's ``[x, y, phi]`` about its home pose
 mapped back to a full-size cab exactly as the pipeline mapped the washout onto
-it (divided by ``planar_scale_m`` and ``planar_yaw_scale``): surge, sway and yaw
+it (divided by ``planar_scale_m`` and ``planar_yaw_scale``, sway and yaw with their signs
+changed: the robot's plane is z up, the cab's axes FRD): surge, sway and yaw
 of a virtual cab; heave, roll and pitch are zero (the robot cannot tilt, so
 there is no tilt coordination cue and no gravity cue).
 
@@ -118,6 +119,10 @@ class Report:
         One paragraph saying what is compared with what.
     text : str
         The text summary (metrics and run facts).
+    refused : ndarray of bool, shape (M,), or None
+        Planar mode: the ticks whose realised pose the robot's kinematics refuse (a chain
+        within its singularity margin, or out of reach), where the limiter's commands left
+        the valid poses; None for the other robots.
     cueing_fallbacks : (str, int, int) or None
         For a cueing that logs its solver's fallbacks (``/cueing/<name>`` messages with a
         ``fallback`` field: the MPC): its name, the ticks that fell back and the ticks
@@ -155,6 +160,7 @@ class Report:
     compared: str
     text: str
     cueing_fallbacks: tuple[str, int, int] | None = None
+    refused: np.ndarray | None = None
 
     @property
     def planar(self) -> bool:
@@ -234,11 +240,13 @@ def planar_reach(
     -------
     ndarray, shape (2, 6)
         Lower and upper bounds of ``[x, y, z, roll, pitch, yaw]`` in cab units (robot reach
-        divided by the scale); NaN for heave, roll and pitch, which the robot does not have.
+        divided by the pipeline's signed scale); NaN for heave, roll and pitch, which the
+        robot does not have.
     """
-    from motionbase.platform import Rrr3
+    from motionbase.platform.rrr3 import Rrr3Robot
 
-    kin = Rrr3(geometry)
+    robot = Rrr3Robot(geometry, scale_m, yaw_scale)
+    kin, scales = robot.kin, robot.scale  # the pipeline's mapping (signed scales)
     home = np.asarray(kin.home, dtype=float)
     if limit is None:
         span = geometry.base_side + geometry.crank + geometry.rod + geometry.platform_side
@@ -246,7 +254,6 @@ def planar_reach(
     else:
         limits = (limit, limit, limit)
     out = np.full((2, 6), np.nan)
-    scales = (scale_m, scale_m, yaw_scale)
     for j, col in enumerate((0, 1, 5)):
         s = np.linspace(0.0, limits[j], n)
         for row, sign in ((0, -1.0), (1, 1.0)):
@@ -270,7 +277,7 @@ def planar_reach(
                         hi = mid
                 reach = lo
             out[row, col] = sign * reach / scales[j]
-    return out
+    return np.sort(out, axis=0)  # (a negative scale swaps the ends)
 
 
 # --------------------------------------------------------------------------- assembly
@@ -412,9 +419,9 @@ def _build_report(
         raise LogFormatError(f"{name}: no {pose_topic} messages (the {config.robot} output)")
 
     # every tick: platform side ------------------------------------------------
-    robot = None if planar else config.make_robot()
+    robot = config.make_robot()
     tick_t = _times(pose_msgs, pose_topic)
-    m = 3 if robot is None else len(robot.neutral_pose)  # (a plug-in's pose may be < 6)
+    m = len(robot.neutral_pose)  # (a plug-in's pose may be < 6)
     platform_pose = _array(pose_msgs, "pose", m, pose_topic)
     if not np.isfinite(platform_pose).all():
         raise LogFormatError(f"{name}: {pose_topic} holds non-finite poses")
@@ -440,7 +447,6 @@ def _build_report(
         limits = np.array([g.servo_min_deg, g.servo_max_deg], dtype=float)
         unit, label = "deg", "servo command"
     else:
-        assert robot is not None
         actuators = _array(act_msgs, "angles", robot.n, act_topic)
         limits = np.array([robot.limits.lower, robot.limits.upper], dtype=float)
         unit = robot.actuator_unit
@@ -481,29 +487,25 @@ def _build_report(
 
     # the cab pose the cue comes from, on every tick (so derivatives at the end of the
     # aircraft data use the following ticks), then on the aircraft ticks
+    # the cue pose the robot realises (the pose itself on the 6-DOF robots; the planar
+    # robot and a plug-in of fewer axes hold the others at neutral)
+    cab_all = robot.cue_from_pose(platform_pose, np.zeros((len(platform_pose), 6)))
+    refused = None
     if planar:
-        from motionbase.platform import Rrr3
+        from motionbase.platform.rrr3 import TYPE1, TYPE2, UNREACHABLE
 
-        # the inverse of the pipeline's planar mapping (surge -> x, sway -> y, yaw -> phi)
-        home = np.asarray(Rrr3(g).home, dtype=float)
-        scale = np.array([config.planar_scale_m, config.planar_scale_m, config.planar_yaw_scale])
-        d = (platform_pose - home) / scale
-        cab_all = np.zeros((d.shape[0], 6))
-        cab_all[:, 0], cab_all[:, 1], cab_all[:, 5] = d[:, 0], d[:, 1], d[:, 2]
+        refused = (robot.kin.status(platform_pose) & (UNREACHABLE | TYPE1 | TYPE2)) != 0
         reach = planar_reach(g, config.planar_scale_m, config.planar_yaw_scale)
         compared = (
             "Planar mode: the 3-RRR's [x, y, phi] about its home pose, divided by "
             f"planar_scale_m = {config.planar_scale_m:g} and planar_yaw_scale = "
-            f"{config.planar_yaw_scale:g}, read as the surge, sway and yaw of a full-size cab "
+            f"{config.planar_yaw_scale:g} (y and phi negated: the plane is z up), read as the "
+            "surge, sway and yaw of a full-size cab "
             "(the pipeline's own mapping, reversed). Heave, roll and pitch are zero: the robot "
             "cannot tilt, so there is no tilt-coordination (gravity) cue; its sustained "
             "surge/sway force is washed out to zero."
         )
     else:
-        assert robot is not None
-        # the cue pose the robot realises (the pose itself on the 6-DOF robots; a plug-in
-        # of fewer axes holds the others at neutral)
-        cab_all = robot.cue_from_pose(platform_pose, np.zeros((len(platform_pose), 6)))
         reach = robot_reach(robot)
         reach[:, (reach == 0.0).all(axis=0)] = np.nan  # axes the robot lacks
         kind = robot_spec(config.robot).description.split(" (")[0]
@@ -573,6 +575,7 @@ def _build_report(
         compared=compared,
         text="",
         cueing_fallbacks=_cueing_fallbacks(messages),
+        refused=refused,
     )
     report = Report(**fields)  # type: ignore[arg-type]
     return replace(report, text=summary_text(report, metadata))
@@ -639,8 +642,10 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         f"  {'reach (-) [m | deg]':<36s}" + _cells(_display(r.reach[0]), ".3g", 8),
         f"  {'reach (+) [m | deg]':<36s}" + _cells(_display(r.reach[1]), ".3g", 8),
     ]
+    off = r.refused is not None and bool(r.refused.any())
     if np.nanmax(m.workspace_usage) > 1.0:
-        lines.append("  (over 100 %: the pose went beyond the single-axis reach by combining axes)")
+        why = "by combining axes" + (" or past the valid poses (below)" if off else "")
+        lines.append(f"  (over 100 %: the pose went beyond the single-axis reach {why})")
     lines += ["", "run:"]
     shares = [
         ("clamped", r.clamped),
@@ -652,6 +657,15 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
         + "; ".join(f"{k} {100 * v.mean():.1f} % of ticks" for k, v in shares)
         + f"; faded {100 * (r.fade < 1).mean():.1f} %; rejected inputs {int(r.rejected.sum())}"
     )
+    if off:
+        assert r.refused is not None
+        lines += _wrap(
+            f"warning: {int(r.refused.sum())} ticks ({100 * r.refused.mean():.1f} %) realised "
+            "poses the robot's kinematics refuse (a chain within its singularity margin, or "
+            "out of reach): each actuator's speed and acceleration limit lagged behind the "
+            "cue where it ran into the workspace's edge at speed",
+            indent="  ",
+        )
     if r.cueing_fallbacks is not None and r.cueing_fallbacks[1]:
         name, failed, ticks = r.cueing_fallbacks
         lines.append(

@@ -532,7 +532,7 @@ def solve(params, target, cue_out, pose_out, q_out):  # pragma: no cover - compi
     to ``[x, y, phi]``, clamp toward home, solve the joint angles.
 
     ``params``: the geometry's packed kernel parameters (``Rrr3Geometry.packed``), then
-    home (3), the mapping's scales (x, y, phi) (3) and the servo intervals' lower ends (3).
+    home (3), the mapping's signed scales (x, y, phi) (3) and the servo intervals' lower ends (3).
     """
     k = params.shape[0] - 9
     p = params[:k]
@@ -574,9 +574,11 @@ class Rrr3Robot(Robot):
     ----------
     geometry : Rrr3Geometry
     scale_m : float
-        Metres of robot x and y per metre of cue surge and sway.
+        Metres of robot x and -y per metre of cue surge and sway (sway is to the right,
+        -y in the thesis's z-up plane).
     yaw_scale : float
-        Robot phi per radian of cue yaw.
+        Robot -phi per radian of cue yaw (a right yaw turns the platform clockwise seen
+        from above).
     """
 
     name = "rrr3"
@@ -593,7 +595,10 @@ class Rrr3Robot(Robot):
         self.limits = ActuatorLimits.broadcast(3, lo, hi, geometry.max_speed, geometry.max_accel)
         if scale_m == 0 or yaw_scale == 0:
             raise ConfigError("planar mapping: planar_scale_m and planar_yaw_scale must not be 0")
-        self.scale = np.array([scale_m, scale_m, yaw_scale], dtype=float)
+        # the cue's base axes are FRD (z down), the thesis's plane z up (seen from above, y
+        # left of x and phi counter-clockwise): y and phi change sign (a half turn about x,
+        # as /tf's world -> base), or the robot moves as the aircraft's mirror image
+        self.scale = np.array([scale_m, -scale_m, -yaw_scale], dtype=float)
         self.neutral_pose = np.asarray(self.kin.home, dtype=float)
         self.park_pose = self.neutral_pose
         self.park_cue = np.zeros(6)
