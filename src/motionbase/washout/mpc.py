@@ -71,10 +71,11 @@ Failure and lateness
 The solver has ``max_iter`` iterations and ``time_limit_ms`` per tick. A classical washout
 (``solver.fallback``) runs alongside every tick. When OSQP does not return *solved* (or
 *solved inaccurate*), the MPC follows the rest of its last plan (feasible by construction)
-and the pose sent blends toward the fallback's, with a smoothstep over ``blend_s``; when
-it solves again the pose blends back. :attr:`MpcCueing.info` holds the last tick's solver
-status, iterations and solve time; :attr:`MpcCueing.counts` the ticks solved and fallen
-back.
+and the pose sent blends toward the fallback's, with a smoothstep over ``blend_s`` (1.25
+``blend_s`` from rest: the blend's pace ramps up and turns smoothly, so that a solver
+failing now and then does not shake the pose); when it solves again the pose blends back.
+:attr:`MpcCueing.info` holds the last tick's solver status, iterations and solve time;
+:attr:`MpcCueing.counts` the ticks solved and fallen back.
 
 The solver's tolerance can leave the model a hair outside a limit. Each tick therefore ends
 with the model's tilt inside its angle and rate limits and its pose inside the box: a tilt
@@ -524,6 +525,7 @@ class MpcCueing(Cueing):
         self._plan = np.zeros((self._N, NU))
         self._plan_age = 0.0
         self._blend = 1.0
+        self._blend_rate = 0.0  # the blend's change last tick
         self._tick = 0
         self.fallback.reset()
         self._pose[:] = 0.0
@@ -656,7 +658,7 @@ class MpcCueing(Cueing):
         self.counts["ticks"] += 1
         x = res.x
         ok = status in _OK and x is not None and np.isfinite(x).all()
-        step = self.dt / self.params.blend_s
+        self._move_blend(ok)
         if ok:
             self.counts["solved"] += 1
             info.fallback = False
@@ -664,13 +666,27 @@ class MpcCueing(Cueing):
             legs = x[self._N * NU + self._nf :]  # (the actuator rows' slacks)
             info.violation = float(np.max(np.abs(legs), initial=0.0))
             self._plan_age = 0.0
-            self._blend = min(1.0, self._blend + step)
         else:
             self.counts["fallbacks"] += 1
             info.fallback = True
             self._plan_age += self.dt
-            self._blend = max(0.0, self._blend - step)
         return self._planned(self._plan_age)
+
+    def _move_blend(self, toward_mpc: bool) -> None:
+        """One tick of the blend toward the MPC's pose (or the fallback's): at most ``step =
+        dt / blend_s`` a tick, its change itself moving by at most ``2 step^2`` a tick (from
+        rest to full pace in ``blend_s / 2``; a full blend takes ``1.25 blend_s``), so that the
+        weight's rate never steps and its second difference stays within the smoothstep's
+        own, ``6 step^2``. A blend turning at once made the pose of a solver failing every
+        other tick zig-zag between MPC and fallback (cue accelerations of 80 m/s^2 and 120
+        rad/s^2 where neither exceeded 16); a single failed tick now barely moves it."""
+        step = self.dt / self.params.blend_s
+        turn = 2.0 * step * step
+        rate = step if toward_mpc else -step
+        rate = min(max(rate, self._blend_rate - turn), self._blend_rate + turn)
+        blend = self._blend + rate
+        self._blend = min(1.0, max(0.0, blend))
+        self._blend_rate = rate if blend == self._blend else 0.0  # (at rest at either end)
 
     def _false_cue_bounds(
         self, d: np.ndarray, D: np.ndarray | None

@@ -257,7 +257,8 @@ class MpcParams:
     eps_abs, eps_rel : float
         OSQP tolerances.
     blend_s : float
-        Time of the blend from the MPC's pose to the fallback's and back, s.
+        Pace of the blend from the MPC's pose to the fallback's and back, s: a full blend
+        from rest takes ``1.25 blend_s`` (its pace ramps up over ``blend_s / 2``).
     fallback : str or WashoutParams
         The classical washout run alongside, for ticks the solver fails or is late: a
         preset name or a TOML path (read from a file, a relative path is relative to that
