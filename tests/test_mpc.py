@@ -535,7 +535,9 @@ def test_bound_robot_keeps_the_actuator_accelerations(ceart, robot):
     # (without the rows the QP is hard, the slow part: its first 3 s are enough to show it)
     free = crank_accel(rows=False, n=300)
     bound = crank_accel(rows=True, n=len(u))
-    assert free.max() > 5.0  # without them the cranks are asked far past their limit
+    # without them the cranks are asked far past their limit (4.2 times it, by the MPC's own
+    # plan; 17 before the blend to the fallback turned smoothly: its zig-zag added to it)
+    assert free.max() > 3.0
     assert bound.max() < 1.0  # with them, never
     assert bound.max() > 0.8  # (and the limit is what binds)
 
