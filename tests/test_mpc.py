@@ -243,6 +243,32 @@ def test_a_solver_failing_now_and_then_blends_without_a_zigzag(ceart):
     assert (np.abs(np.diff(poses, 2, axis=0)).max(axis=0) / DT**2 <= 1.5 * worst).all()
 
 
+def test_a_clamp_during_the_blend_continues_from_the_pose_the_platform_got(ceart):
+    """Anti-windup mid-blend: the robot's clamp cut the blended pose (here to 80 %) and the
+    cueing was told (``track``). The fallback washout went on from the pose the platform got
+    but the MPC's model was moved by the blend's difference only, so that the next pose
+    came out ``w (1 - w)`` times the two cues' difference away from it: 1 to 3 cm and 1.3
+    deg in one tick, 6 to 10 times the most it had moved in a tick (a step the limiter had
+    to brake). It now goes on from there."""
+    p = dataclasses.replace(ceart, max_iter=20, time_limit_ms=0.0)
+    u = _inputs(700)
+    cue = MpcCueing(p, DT)
+    poses = np.empty((len(u), 6))
+    for k in range(len(u)):  # to a tick mid-blend where the two cues differ by 5 cm or more
+        assert cue.advance(np.ascontiguousarray(u[k]), poses[k])
+        apart = np.abs(cue._mpc_pose - cue._fb_pose)[:3].max()
+        if 0.3 < cue.info.weight < 0.7 and apart > 0.05:
+            break
+    else:
+        raise AssertionError("no tick mid-blend with the cues 5 cm apart")
+    achieved = 0.8 * poses[k]  # as the robot's clamp does: toward neutral
+    cue.track(achieved)
+    after = np.empty(6)
+    assert cue.advance(np.ascontiguousarray(u[k + 1]), after)
+    tick = np.abs(np.diff(poses[: k + 1], axis=0)).max(axis=0)  # the most it moved a tick
+    assert (np.abs(after - achieved) <= tick).all(), (after - achieved, tick)
+
+
 def test_fallback_on_lateness_and_recovery(ceart):
     # a time budget no solver meets: late ticks fall back; given time again it solves
     late = dataclasses.replace(ceart, time_limit_ms=1e-6)

@@ -408,7 +408,6 @@ class MpcCueing(Cueing):
         self._preview: np.ndarray | None = None
         self.info = MpcInfo()
         self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
-        self._pose = np.zeros(6)
         self._mpc_pose = np.zeros(6)
         self._fb_pose = np.zeros(6)
         self.reset()
@@ -528,7 +527,7 @@ class MpcCueing(Cueing):
         self._blend_rate = 0.0  # the blend's change last tick
         self._tick = 0
         self.fallback.reset()
-        self._pose[:] = 0.0
+        self._mpc_pose[:] = 0.0
 
     def set_preview(self, f: np.ndarray | None, w: np.ndarray | None = None) -> None:
         """Offline (preview) mode: the whole reference, one row per tick from the next
@@ -610,7 +609,6 @@ class MpcCueing(Cueing):
             out[:] = self._mpc_pose
         else:
             out[:] = wgt * self._mpc_pose + (1.0 - wgt) * self._fb_pose
-        self._pose[:] = out
         self._tick += 1
         return True
 
@@ -723,14 +721,14 @@ class MpcCueing(Cueing):
         if ach.shape != (6,) or not np.isfinite(ach).all():
             return
         self.fallback.track(ach)
-        diff = ach - self._pose
+        diff = ach - self._mpc_pose  # (both continue from it, so their blend does too)
         z = self.z
         for k in np.flatnonzero(diff):
             _shift_axis(z, k, diff[k])
             lo, hi = self.params.pose_lower[k], self.params.pose_upper[k]
             tot = _pose_of(z)[k]
             z[_rot_dof(k)] += np.clip(tot, lo, hi) - tot
-        self._pose[:] = ach
+        self._mpc_pose[:] = _pose_of(z)
 
     def __repr__(self) -> str:
         mode = "preview" if self.preview else "real-time"
