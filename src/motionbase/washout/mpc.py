@@ -361,7 +361,8 @@ class MpcCueing(Cueing):
     info : MpcInfo
         The last tick's solver status, iterations, solve time, fallback and blend weight.
     counts : dict
-        ``{"ticks", "solved", "fallbacks"}`` since construction (not reset).
+        ``{"ticks", "solved", "fallbacks"}`` since the last :meth:`reset` (a pipeline's
+        run: it resets after its warm-up ticks, which the summary counted as the run's).
     """
 
     name = "mpc"
@@ -407,7 +408,6 @@ class MpcCueing(Cueing):
         self._tilt_limits = params.tilt_limits
         self._preview: np.ndarray | None = None
         self.info = MpcInfo()
-        self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
         self._mpc_pose = np.zeros(6)
         self._fb_pose = np.zeros(6)
         self.reset()
@@ -517,7 +517,7 @@ class MpcCueing(Cueing):
 
     # -- lifecycle ---------------------------------------------------------------------
     def reset(self) -> None:
-        """Back to rest at the neutral pose (model, plan, blend and fallback)."""
+        """Back to rest at the neutral pose (model, plan, blend, fallback and counts)."""
         self.z = np.zeros(NX)
         self._z_air = np.zeros(NX)  # the model driven by the aircraft alone (false cues)
         self._a_prev = np.zeros(NU)
@@ -525,6 +525,7 @@ class MpcCueing(Cueing):
         self._plan_age = 0.0
         self._blend = 1.0
         self._blend_rate = 0.0  # the blend's change last tick
+        self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
         self._tick = 0
         self.fallback.reset()
         self._mpc_pose[:] = 0.0
