@@ -364,6 +364,10 @@ def test_params_round_trip_and_errors(ceart, tmp_path):
     long["horizon"]["steps"] = 2000
     with pytest.raises(ConfigError, match=r"'horizon\.steps': must be from 2 to 100, got 2000"):
         MpcParams.from_dict(long)
+    for short in (0, 1, -3):  # the range, not "a whole number >= 1" (then 1 was refused)
+        long["horizon"]["steps"] = short
+        with pytest.raises(ConfigError, match=rf"'horizon\.steps': .* 2 to 100, got {short}$"):
+            MpcParams.from_dict(long)
     long["horizon"]["steps"] = 100  # the largest: builds
     assert MpcCueing(MpcParams.from_dict(long), DT).params.steps == 100
     # a fallback washout that does not exist is named as this file's field when read
