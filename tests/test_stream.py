@@ -201,7 +201,7 @@ def test_a_log_streamed_fast_to_the_3rrr_board_still_moves_it_in_real_time(tmp_p
     decoder, servo, stamps = ServoDecoder(), [], []
     for arrival, chunk in board.chunks:
         for motor, deg in decoder.feed(chunk):
-            if motor == 0:
+            if motor == 0 or not servo:  # (or the first frame, its start missed)
                 servo.append([])
             servo[-1].append(deg)
             if motor == 2:
