@@ -71,10 +71,11 @@ Failure and lateness
 The solver has ``max_iter`` iterations and ``time_limit_ms`` per tick. A classical washout
 (``solver.fallback``) runs alongside every tick. When OSQP does not return *solved* (or
 *solved inaccurate*), the MPC follows the rest of its last plan (feasible by construction)
-and the pose sent blends toward the fallback's, with a smoothstep over ``blend_s``; when
-it solves again the pose blends back. :attr:`MpcCueing.info` holds the last tick's solver
-status, iterations and solve time; :attr:`MpcCueing.counts` the ticks solved and fallen
-back.
+and the pose sent blends toward the fallback's, with a smoothstep over ``blend_s`` (1.25
+``blend_s`` from rest: the blend's pace ramps up and turns smoothly, so that a solver
+failing now and then does not shake the pose); when it solves again the pose blends back.
+:attr:`MpcCueing.info` holds the last tick's solver status, iterations and solve time;
+:attr:`MpcCueing.counts` the ticks solved and fallen back.
 
 The solver's tolerance can leave the model a hair outside a limit. Each tick therefore ends
 with the model's tilt inside its angle and rate limits and its pose inside the box: a tilt
@@ -360,7 +361,8 @@ class MpcCueing(Cueing):
     info : MpcInfo
         The last tick's solver status, iterations, solve time, fallback and blend weight.
     counts : dict
-        ``{"ticks", "solved", "fallbacks"}`` since construction (not reset).
+        ``{"ticks", "solved", "fallbacks"}`` since the last :meth:`reset` (a pipeline's
+        run: it resets after its warm-up ticks, which the summary counted as the run's).
     """
 
     name = "mpc"
@@ -406,8 +408,6 @@ class MpcCueing(Cueing):
         self._tilt_limits = params.tilt_limits
         self._preview: np.ndarray | None = None
         self.info = MpcInfo()
-        self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
-        self._pose = np.zeros(6)
         self._mpc_pose = np.zeros(6)
         self._fb_pose = np.zeros(6)
         self.reset()
@@ -517,16 +517,18 @@ class MpcCueing(Cueing):
 
     # -- lifecycle ---------------------------------------------------------------------
     def reset(self) -> None:
-        """Back to rest at the neutral pose (model, plan, blend and fallback)."""
+        """Back to rest at the neutral pose (model, plan, blend, fallback and counts)."""
         self.z = np.zeros(NX)
         self._z_air = np.zeros(NX)  # the model driven by the aircraft alone (false cues)
         self._a_prev = np.zeros(NU)
         self._plan = np.zeros((self._N, NU))
         self._plan_age = 0.0
         self._blend = 1.0
+        self._blend_rate = 0.0  # the blend's change last tick
+        self.counts = {"ticks": 0, "solved": 0, "fallbacks": 0}
         self._tick = 0
         self.fallback.reset()
-        self._pose[:] = 0.0
+        self._mpc_pose[:] = 0.0
 
     def set_preview(self, f: np.ndarray | None, w: np.ndarray | None = None) -> None:
         """Offline (preview) mode: the whole reference, one row per tick from the next
@@ -608,7 +610,6 @@ class MpcCueing(Cueing):
             out[:] = self._mpc_pose
         else:
             out[:] = wgt * self._mpc_pose + (1.0 - wgt) * self._fb_pose
-        self._pose[:] = out
         self._tick += 1
         return True
 
@@ -656,7 +657,7 @@ class MpcCueing(Cueing):
         self.counts["ticks"] += 1
         x = res.x
         ok = status in _OK and x is not None and np.isfinite(x).all()
-        step = self.dt / self.params.blend_s
+        self._move_blend(ok)
         if ok:
             self.counts["solved"] += 1
             info.fallback = False
@@ -664,13 +665,27 @@ class MpcCueing(Cueing):
             legs = x[self._N * NU + self._nf :]  # (the actuator rows' slacks)
             info.violation = float(np.max(np.abs(legs), initial=0.0))
             self._plan_age = 0.0
-            self._blend = min(1.0, self._blend + step)
         else:
             self.counts["fallbacks"] += 1
             info.fallback = True
             self._plan_age += self.dt
-            self._blend = max(0.0, self._blend - step)
         return self._planned(self._plan_age)
+
+    def _move_blend(self, toward_mpc: bool) -> None:
+        """One tick of the blend toward the MPC's pose (or the fallback's): at most ``step =
+        dt / blend_s`` a tick, its change itself moving by at most ``2 step^2`` a tick (from
+        rest to full pace in ``blend_s / 2``; a full blend takes ``1.25 blend_s``), so that the
+        weight's rate never steps and its second difference stays within the smoothstep's
+        own, ``6 step^2``. A blend turning at once made the pose of a solver failing every
+        other tick zig-zag between MPC and fallback (cue accelerations of 80 m/s^2 and 120
+        rad/s^2 where neither exceeded 16); a single failed tick now barely moves it."""
+        step = self.dt / self.params.blend_s
+        turn = 2.0 * step * step
+        rate = step if toward_mpc else -step
+        rate = min(max(rate, self._blend_rate - turn), self._blend_rate + turn)
+        blend = self._blend + rate
+        self._blend = min(1.0, max(0.0, blend))
+        self._blend_rate = rate if blend == self._blend else 0.0  # (at rest at either end)
 
     def _false_cue_bounds(
         self, d: np.ndarray, D: np.ndarray | None
@@ -707,14 +722,14 @@ class MpcCueing(Cueing):
         if ach.shape != (6,) or not np.isfinite(ach).all():
             return
         self.fallback.track(ach)
-        diff = ach - self._pose
+        diff = ach - self._mpc_pose  # (both continue from it, so their blend does too)
         z = self.z
         for k in np.flatnonzero(diff):
             _shift_axis(z, k, diff[k])
             lo, hi = self.params.pose_lower[k], self.params.pose_upper[k]
             tot = _pose_of(z)[k]
             z[_rot_dof(k)] += np.clip(tot, lo, hi) - tot
-        self._pose[:] = ach
+        self._mpc_pose[:] = _pose_of(z)
 
     def __repr__(self) -> str:
         mode = "preview" if self.preview else "real-time"

@@ -257,7 +257,8 @@ class MpcParams:
     eps_abs, eps_rel : float
         OSQP tolerances.
     blend_s : float
-        Time of the blend from the MPC's pose to the fallback's and back, s.
+        Pace of the blend from the MPC's pose to the fallback's and back, s: a full blend
+        from rest takes ``1.25 blend_s`` (its pace ramps up over ``blend_s / 2``).
     fallback : str or WashoutParams
         The classical washout run alongside, for ticks the solver fails or is late: a
         preset name or a TOML path (read from a file, a relative path is relative to that
@@ -463,7 +464,8 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
         where = f"{section}.{key}"
         value = d[section][key]
         if integer:
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            whole = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+            if not whole or (value < 1 and name != "steps"):  # (steps: its range, below)
                 raise ConfigError(
                     f"{source}: field {where!r}: expected a whole number >= 1, got {value!r}"
                 )
@@ -485,10 +487,10 @@ def _validate(d: dict[str, Any], source: str) -> dict[str, Any]:
             out[name] = tuple(float(v) for v in arr)
         else:
             out[name] = as_float(source, where, value, min_value=0.0, strict_min=positive)
-    if not 2 <= out["steps"] <= MAX_STEPS:
+    if not 2 <= out["steps"] <= MAX_STEPS:  # (too few, or too many: longer steps do)
         raise ConfigError(
-            f"{source}: field 'horizon.steps': must be from 2 to {MAX_STEPS}, got {out['steps']} "
-            "(for a longer horizon, lengthen horizon.step_s)"
+            f"{source}: field 'horizon.steps': must be from 2 to {MAX_STEPS}, got {out['steps']}"
+            + (" (for a longer horizon, lengthen horizon.step_s)" if out["steps"] > 2 else "")
         )
     if out["max_iter"] > MAX_ITER:
         raise ConfigError(
