@@ -381,6 +381,8 @@ LINK = "udpin:127.0.0.1:14552"
         (["--mavlink", LINK, "--source", "xplane:127.0.0.1:49000"], ("one source at a time",)),
         # --fast on a live link was taken and meant nothing (refused with --source already)
         (["--mavlink", LINK, "--fast"], (f"--fast replays MAVLink log files; {LINK} is live",)),
+        # a misspelt log name was called a live link ("is live: drop --fast")
+        (["--mavlink", "flight.tlg", "--fast"], ("flight.tlg: no such log", ".tlog", "path")),
     ],
 )
 def test_stream_source_mistakes_are_one_line(args, needles, tmp_path, run_cli):
