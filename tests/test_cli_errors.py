@@ -367,6 +367,20 @@ def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
     assert stdout == ""
 
 
+@pytest.mark.parametrize("command", ["replay", "report"])
+def test_a_mavlink_log_given_for_a_recording_says_how_it_streams(tmp_path, run_cli, command):
+    """A .tlog given to replay or report was only "not an MCAP file"."""
+    from pymavlink import mavutil
+
+    log = tmp_path / "flight.tlog"
+    link = mavutil.mavlogfile(str(log), write=True)
+    link.mav.heartbeat_send(1, 3, 0, 0, 0)  # a real MAVLink frame in a real telemetry log
+    link.close()
+    code, stdout, err = run_cli(command, log)
+    assert code == 2
+    one_line(err, "flight.tlog: not an MCAP file", "stream --mavlink FILE --fast")
+
+
 LINK = "udpin:127.0.0.1:14552"
 
 
