@@ -367,6 +367,20 @@ def test_a_garbage_log_is_one_line(tmp_path, run_cli, suffix):
     assert stdout == ""
 
 
+@pytest.mark.parametrize("command", ["replay", "report"])
+def test_a_mavlink_log_given_for_a_recording_says_how_it_streams(tmp_path, run_cli, command):
+    """A .tlog given to replay or report was only "not an MCAP file"."""
+    from pymavlink import mavutil
+
+    log = tmp_path / "flight.tlog"
+    link = mavutil.mavlogfile(str(log), write=True)
+    link.mav.heartbeat_send(1, 3, 0, 0, 0)  # a real MAVLink frame in a real telemetry log
+    link.close()
+    code, stdout, err = run_cli(command, log)
+    assert code == 2
+    one_line(err, "flight.tlog: not an MCAP file", "stream --mavlink FILE --fast")
+
+
 LINK = "udpin:127.0.0.1:14552"
 
 
@@ -381,6 +395,8 @@ LINK = "udpin:127.0.0.1:14552"
         (["--mavlink", LINK, "--source", "xplane:127.0.0.1:49000"], ("one source at a time",)),
         # --fast on a live link was taken and meant nothing (refused with --source already)
         (["--mavlink", LINK, "--fast"], (f"--fast replays MAVLink log files; {LINK} is live",)),
+        # a misspelt log name was called a live link ("is live: drop --fast")
+        (["--mavlink", "flight.tlg", "--fast"], ("flight.tlg: no such log", ".tlog", "path")),
     ],
 )
 def test_stream_source_mistakes_are_one_line(args, needles, tmp_path, run_cli):

@@ -461,6 +461,7 @@ def test_killing_the_peers_warns_once_and_the_flight_and_log_go_on(tmp_path, cap
         ("udp:127.0.0.1:9?format=text:A%7B1:q%7D", ConfigError, "format spec|unsupported"),
         ("udp:127.0.0.1:9?format=text:nothing", ConfigError, "no placeholder"),
         ("udp:127.0.0.1:9?speed=3", ConfigError, "unknown key 'speed'"),
+        ("udp:127.0.0.1:9?baud=250000", ConfigError, "unknown key 'baud'"),  # was ignored
         ("udp:127.0.0.1:9?rate=0", ConfigError, "rate"),
         ("serial:/dev/ttyDOES_NOT_EXIST?format=text:%7B1%7D", SinkError, "cannot open serial"),
     ],

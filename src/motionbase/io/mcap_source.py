@@ -170,9 +170,11 @@ def _scan(
         magic = fh.read(len(MCAP_MAGIC))
         if magic != MCAP_MAGIC:
             what = "empty file" if not magic else "wrong magic bytes"
+            mavlink = str(path).lower().endswith((".tlog", ".bin"))
             raise LogFormatError(
                 f"{path}: not an MCAP file ({what}); expected a recording made by "
                 "motionbase or another MCAP writer"
+                + ("; a MAVLink log streams with stream --mavlink FILE --fast" if mavlink else "")
             )
         crc = zlib.crc32(magic)  # of the data section, then of the summary section
         summary_start = 0  # where the summary section starts: after the Data End record

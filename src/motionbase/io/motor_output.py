@@ -1263,8 +1263,9 @@ def open_output(
             )
         transport: Any = _SerialTransport(dev, baud)
     else:
-        if other:
-            raise ConfigError(f"output {url!r}: unknown key {other[0][0]!r} (format, rate)")
+        if other or "baud" in ours:  # (baud is a serial line's: it was ignored here)
+            key = other[0][0] if other else "baud"
+            raise ConfigError(f"output {url!r}: unknown key {key!r} (format, rate)")
         host, colon, port = base.rpartition(":")
         if not colon:
             raise ConfigError(f"output {url!r}: expected udp:HOST:PORT (e.g. udp:127.0.0.1:4123)")

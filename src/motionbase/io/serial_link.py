@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import time
-import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -161,8 +160,7 @@ class ServoSerialSink:
             f"within {self.ready_timeout_s:g} s; going on (is the motionbase_3rrr sketch "
             "loaded?)"
         )
-        warnings.warn(msg, RuntimeWarning, stacklevel=3)
-        log.warning(msg)
+        log.warning(msg)  # (once: a RuntimeWarning printed it again, with a source line)
 
     def close(self) -> None:
         """Send a pending frame, then close the port (idempotent)."""

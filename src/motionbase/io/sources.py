@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from motionbase.errors import ConfigError
@@ -92,6 +93,11 @@ def open_live_source(
             **{k: v for k, v in mavlink_options.items() if v is not None},
         )
         if not realtime and not source.is_log:
+            if ":" not in source.url and not os.path.exists(source.url):  # no link, no file
+                raise ConfigError(
+                    f"mavlink {source.url}: no such log (--fast replays a MAVLink log file, "
+                    "named .tlog or .bin; check the path)"
+                )
             raise ConfigError(
                 f"--fast replays MAVLink log files; {source.url} is live: drop --fast"
             )
