@@ -257,6 +257,48 @@ def test_the_logs_first_scene_loads_no_compiled_code(robot, tmp_path):
         _assert_loaded_nothing_since(before)
 
 
+@pytest.mark.parametrize("robot", ["ceart", "rrr3"])
+@in_a_fresh_process
+def test_a_drive_ramped_by_its_output_loads_no_compiled_code_once_open(robot):
+    # fly/stream --output and output --test: the output's sender thread ramps the drive toward
+    # each command (the drive-side ramp's kernel); that kernel was first loaded by the first
+    # ramped frame, seconds into a wiring check (compiled there on a fresh install), while
+    # the sender's frames stopped. Open, a frame at park, then a burst to a far command.
+    from drive_wire import UdpDrive
+
+    from motionbase.app import load_config
+    from motionbase.io.motor_output import open_outputs
+    from motionbase.pipeline import Pipeline
+
+    planar = robot == "rrr3"
+    machine = Pipeline(load_config(planar=planar, rate_hz=200)).robot
+    drive = UdpDrive(n=machine.n)
+    try:
+        (sink,) = open_outputs([drive.url(200)], machine, command_dt=1 / 200)
+        park = np.array(machine.park_angles, dtype=float)
+        far = park + np.radians(8.0) * np.resize([1.0, -1.0], machine.n)
+        with sink:
+            before = _overload_counts()
+            sink.write(park)
+            _wait_for(lambda: len(drive.frames) >= 5)
+            for a in np.linspace(0.0, 1.0, 50):  # 50 ticks' worth of motion in a burst
+                sink.write(park + a * (far - park))
+            _wait_for(lambda: sink.ramped > 0)
+        _assert_loaded_nothing_since(before)
+    finally:
+        drive.close()
+
+
+def _wait_for(pred, timeout: float = 30.0) -> None:
+    """Wait until ``pred()`` (a watchdog, not a bound: fails after ``timeout`` s)."""
+    import time
+
+    end = time.monotonic() + timeout
+    while not pred():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.005)
+
+
 def _stderr_at_a_terminal(code: str) -> tuple[str, str]:
     """Run ``python -c code`` with stderr on a pseudo-terminal; (stdout, what it wrote there)."""
     import os
