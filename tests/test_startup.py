@@ -190,6 +190,19 @@ def test_after_the_warm_up_a_run_loads_no_compiled_code(robot):
     assert planar or summary.health.rate_limited > 0  # the limiter's path was taken
 
 
+@in_a_fresh_process
+def test_after_the_warm_up_an_mpc_run_loads_no_compiled_code():
+    # The MPC's actuator rows clamp the planned poses out of reach (the robot's clamp on a
+    # batch of poses): first loaded where a hard manoeuvre's plan first left the reach.
+    from motionbase.app import load_config
+    from motionbase.pipeline import Pipeline
+
+    pipeline = Pipeline(load_config(cueing="mpc", rate_hz=100))
+    summary = _run_loading_nothing(pipeline, _manoeuvre(100))
+    assert summary.running_samples > 0 and pipeline.parked
+    assert pipeline.cueing._legs.clamped_points > 0  # the clamp's path was taken
+
+
 @pytest.mark.parametrize("robot", ["ceart", "stewart6", "rrr3"])
 @in_a_fresh_process
 def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
