@@ -238,15 +238,19 @@ def test_teleoperation_loads_no_compiled_code_once_built(robot):
     home = np.array(machine.park_pose, dtype=float)
     far = home.copy()
     far[0] += 0.03  # (reachable from home on both robots)
+    edge = home.copy()
+    edge[:2] += 0.5  # (out of reach: clamped to the edge, then routed via neutral)
 
     def commands():
-        for k in range(400):
+        for k in range(500):
             target = None if 150 <= k < 200 else (far if (k // 50) % 2 else home)
+            target = edge if k >= 400 else target
             yield Command(k / 200, None if target is None else target.copy())
 
     summary = run(pipeline, commands(), [])
     _assert_loaded_nothing_since(before)
     assert pipeline.parked and summary.health.rate_limited > 0 and pipeline.no_input >= 50
+    assert summary.health.clamps > 0
 
 
 @pytest.mark.parametrize("robot", ["ceart", "stewart6", "udesc_symmetric"])
