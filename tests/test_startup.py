@@ -190,6 +190,19 @@ def test_after_the_warm_up_a_run_loads_no_compiled_code(robot):
     assert planar or summary.health.rate_limited > 0  # the limiter's path was taken
 
 
+@in_a_fresh_process
+def test_after_the_warm_up_an_mpc_run_loads_no_compiled_code():
+    # The MPC's actuator rows clamp the planned poses out of reach (the robot's clamp on a
+    # batch of poses): first loaded where a hard manoeuvre's plan first left the reach.
+    from motionbase.app import load_config
+    from motionbase.pipeline import Pipeline
+
+    pipeline = Pipeline(load_config(cueing="mpc", rate_hz=100))
+    summary = _run_loading_nothing(pipeline, _manoeuvre(100))
+    assert summary.running_samples > 0 and pipeline.parked
+    assert pipeline.cueing._legs.clamped_points > 0  # the clamp's path was taken
+
+
 @pytest.mark.parametrize("robot", ["ceart", "stewart6", "rrr3"])
 @in_a_fresh_process
 def test_after_the_warm_up_a_command_run_loads_no_compiled_code(robot):
@@ -225,15 +238,19 @@ def test_teleoperation_loads_no_compiled_code_once_built(robot):
     home = np.array(machine.park_pose, dtype=float)
     far = home.copy()
     far[0] += 0.03  # (reachable from home on both robots)
+    edge = home.copy()
+    edge[:2] += 0.5  # (out of reach: clamped to the edge, then routed via neutral)
 
     def commands():
-        for k in range(400):
+        for k in range(500):
             target = None if 150 <= k < 200 else (far if (k // 50) % 2 else home)
+            target = edge if k >= 400 else target
             yield Command(k / 200, None if target is None else target.copy())
 
     summary = run(pipeline, commands(), [])
     _assert_loaded_nothing_since(before)
     assert pipeline.parked and summary.health.rate_limited > 0 and pipeline.no_input >= 50
+    assert summary.health.clamps > 0
 
 
 @pytest.mark.parametrize("robot", ["ceart", "stewart6", "udesc_symmetric"])
@@ -255,6 +272,48 @@ def test_the_logs_first_scene_loads_no_compiled_code(robot, tmp_path):
         before = _overload_counts()
         log.write(out)
         _assert_loaded_nothing_since(before)
+
+
+@pytest.mark.parametrize("robot", ["ceart", "rrr3"])
+@in_a_fresh_process
+def test_a_drive_ramped_by_its_output_loads_no_compiled_code_once_open(robot):
+    # fly/stream --output and output --test: the output's sender thread ramps the drive toward
+    # each command (the drive-side ramp's kernel); that kernel was first loaded by the first
+    # ramped frame, seconds into a wiring check (compiled there on a fresh install), while
+    # the sender's frames stopped. Open, a frame at park, then a burst to a far command.
+    from drive_wire import UdpDrive
+
+    from motionbase.app import load_config
+    from motionbase.io.motor_output import open_outputs
+    from motionbase.pipeline import Pipeline
+
+    planar = robot == "rrr3"
+    machine = Pipeline(load_config(planar=planar, rate_hz=200)).robot
+    drive = UdpDrive(n=machine.n)
+    try:
+        (sink,) = open_outputs([drive.url(200)], machine, command_dt=1 / 200)
+        park = np.array(machine.park_angles, dtype=float)
+        far = park + np.radians(8.0) * np.resize([1.0, -1.0], machine.n)
+        with sink:
+            before = _overload_counts()
+            sink.write(park)
+            _wait_for(lambda: len(drive.frames) >= 5)
+            for a in np.linspace(0.0, 1.0, 50):  # 50 ticks' worth of motion in a burst
+                sink.write(park + a * (far - park))
+            _wait_for(lambda: sink.ramped > 0)
+        _assert_loaded_nothing_since(before)
+    finally:
+        drive.close()
+
+
+def _wait_for(pred, timeout: float = 30.0) -> None:
+    """Wait until ``pred()`` (a watchdog, not a bound: fails after ``timeout`` s)."""
+    import time
+
+    end = time.monotonic() + timeout
+    while not pred():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.005)
 
 
 def _stderr_at_a_terminal(code: str) -> tuple[str, str]:

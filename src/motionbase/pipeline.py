@@ -124,9 +124,9 @@ class PipelineConfig:
         Watchdog fade time of the cueing's input to level flight (and back) when the
         input goes stale, s.
     planar_scale_m : float
-        Planar robots: metres of robot x/y per metre of cue surge/sway.
+        Planar robots: metres of robot x/-y per metre of cue surge/sway (y is left).
     planar_yaw_scale : float
-        Planar robots: robot phi per radian of cue yaw.
+        Planar robots: robot -phi per radian of cue yaw (phi counter-clockwise).
     input_limits : InputLimits
         Absurd-input bounds for validation.
     """

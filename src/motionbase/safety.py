@@ -176,7 +176,13 @@ def limit_command(
 STEP_ROUNDING = (1e-6, 1e-12)
 
 
-@numba.njit(cache=True)
+_IN = numba.types.Array(numba.float64, 1, "A", readonly=True)  # (a writable array converts)
+_OUT = numba.float64[::1]
+
+
+# Typed, so loaded with this module: a motor output's sender thread first calls it seconds
+# into a run (its first ramped frame), and lazily it was loaded, or compiled, there.
+@numba.njit(numba.int64(*[_IN] * 5, *[numba.float64] * 3, *[_IN] * 4, _OUT, _OUT), cache=True)
 def ramp_kernel(
     q_prev, v_prev, target, step, step_before, dt, dt_min, command_dt,
     lower, upper, vmax, amax, q_out, v_out,

@@ -247,7 +247,9 @@ def as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int
             f"[x, y, z, roll, pitch, yaw], got shape {p.shape}"
         )
     lead = p.shape[:-1]
-    return np.ascontiguousarray(p.reshape(-1, 6)), lead
+    flat = np.ascontiguousarray(p.reshape(-1, 6))
+    # (a read-only array, robot.neutral_pose say, would have numba load a second kernel)
+    return (flat if flat.flags.writeable else flat.copy()), lead
 
 
 def run_inverse(kernel: Callable, G: np.ndarray, pose: ArrayLike) -> np.ndarray:
@@ -255,7 +257,7 @@ def run_inverse(kernel: Callable, G: np.ndarray, pose: ArrayLike) -> np.ndarray:
     p = np.asarray(pose, dtype=np.float64)
     if p.shape == (6,):
         out = np.empty(6)
-        kernel(p.reshape(1, 6), G, out.reshape(1, 6))
+        kernel(as_poses(p)[0], G, out.reshape(1, 6))
         return out
     flat, lead = as_poses(p)
     out = np.empty_like(flat)
@@ -281,7 +283,7 @@ def run_clamp(
     if p.shape == (6,):
         out = np.empty(6)
         flags = np.empty(1, dtype=np.bool_)
-        kernel(p.reshape(1, 6), G, out.reshape(1, 6), flags)
+        kernel(as_poses(p)[0], G, out.reshape(1, 6), flags)
         return out, bool(flags[0])
     flat, lead = as_poses(p)
     out = np.empty_like(flat)

@@ -810,6 +810,9 @@ class _LegConstraint:
         self.ax_idx = np.empty(0, dtype=np.int64)
         self._rows = self._cols = np.empty(0, dtype=np.int64)
         self.clamped_points = 0
+        # the clamp of :meth:`actuators`, loaded now: lazily, where a plan first left the
+        # reach, mid-run
+        robot.clamp(robot.pose_from_cue(np.zeros((1, 6))))
 
     def locate(self, A: sp.csc_matrix, row0: int, ncols: int) -> None:
         """The positions of the leg rows' entries in the CSC data of ``A`` (rows from
