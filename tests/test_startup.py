@@ -119,7 +119,9 @@ def in_a_fresh_process(test):
             f"import sys; from pathlib import Path; sys.path.insert(0, {str(HERE)!r}); "
             f"import test_startup as t; t.{test.__name__}.__wrapped__({args})"
         )
-        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        done = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=300
+        )
         assert done.returncode == 0, done.stderr[-4000:]
 
     return in_its_own
