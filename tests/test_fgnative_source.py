@@ -487,12 +487,12 @@ def test_describe_is_plain_data():
     assert d["versions"] == [24, 25]
 
 
-def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
-    """``motionbase stream --source fgnative:...`` runs the pipeline on the packets, logs them."""
+def _stream_while_sending(sender, packet: bytes, out, duration_s: float) -> int:
+    """``motionbase stream --source fgnative:...`` for ``duration_s`` s, logged to ``out``,
+    while ``packet`` is sent to it every 10 ms; its exit status."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    packet = fgnetfdm_packet(24, A_X_pilot=1.5, A_Z_pilot=-31.0, phi=0.1, theta=0.05, psi=1.0)
     stop = threading.Event()
 
     def send() -> None:
@@ -502,14 +502,19 @@ def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
 
     thread = threading.Thread(target=send, daemon=True)
     thread.start()
-    out = tmp_path / "fg.mcap"
     try:
         url = f"fgnative:udp:127.0.0.1:{port}"
-        code = main(["stream", "--source", url, "--duration", "1.5", "--out", str(out)])
+        return main(["stream", "--source", url, "--duration", str(duration_s), "--out", str(out)])
     finally:
         stop.set()
         thread.join()
-    assert code == 0
+
+
+def test_stream_command_takes_a_flightgear_url(tmp_path, capsys, sender):
+    """``motionbase stream --source fgnative:...`` runs the pipeline on the packets, logs them."""
+    packet = fgnetfdm_packet(24, A_X_pilot=1.5, A_Z_pilot=-31.0, phi=0.1, theta=0.05, psi=1.0)
+    out = tmp_path / "fg.mcap"
+    assert _stream_while_sending(sender, packet, out, 1.5) == 0
     states = [m for m in read_messages(out)["/aircraft/state"] if m["fresh"]]
     assert len(states) > 50
     f32 = lambda x: float(np.float32(x))  # noqa: E731
@@ -543,9 +548,6 @@ def test_stream_cues_each_push_and_rotation_its_own_way(
     acceleration is force over mass, what an accelerometer reads; the rates go out as Euler
     angle rates), streamed over loopback: the washout's cue moves the platform the same way
     (pose x forward, y right, z down; roll right, pitch up, yaw right positive)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
     f_ft = [x / MASS / FT for x in force_n]
     rates = euler_rates(*body_rates, 0.0, 0.0)
     packet = fgnetfdm_packet(
@@ -553,23 +555,8 @@ def test_stream_cues_each_push_and_rotation_its_own_way(
         **dict(zip(("A_X_pilot", "A_Y_pilot", "A_Z_pilot"), f_ft, strict=True)),
         **dict(zip(("phidot", "thetadot", "psidot"), rates, strict=True)),
     )
-    stop = threading.Event()
-
-    def send() -> None:
-        while not stop.is_set():
-            sender.sendto(packet, ("127.0.0.1", port))
-            time.sleep(0.01)
-
-    thread = threading.Thread(target=send, daemon=True)
-    thread.start()
     out = tmp_path / "cue.mcap"
-    try:
-        url = f"fgnative:udp:127.0.0.1:{port}"
-        code = main(["stream", "--source", url, "--duration", "1", "--out", str(out)])
-    finally:
-        stop.set()
-        thread.join()
-    assert code == 0
+    assert _stream_while_sending(sender, packet, out, 1.0) == 0
     poses = np.array([m["pose"] for m in read_messages(out)["/washout/pose"]])
     peak = poses[np.argmax(np.abs(poses[:, axis])), axis]
     assert sign * peak > 0.005  # m or rad
