@@ -100,8 +100,12 @@ def test_bad_script_name_says_how_to_find_names(tmp_path: Path) -> None:
     msg = str(err.value)
     assert "c1723" in msg and "available_scripts" in msg and "\n" not in msg
     assert "c1723" in available_scripts()
-    with pytest.raises(SourceError, match="not found"):
+    with pytest.raises(SourceError, match="not found") as err:
         JsbsimSource("/no/such/script.xml")
+    assert "without .xml" not in str(err.value)
+    # a shipped script's file name, not in the current folder: its name is the one to give
+    with pytest.raises(SourceError, match=r"named c1723, without \.xml"):
+        JsbsimSource("c1723.xml")
     folder = tmp_path / "scripts.xml"
     folder.mkdir()
     with pytest.raises(SourceError, match="a folder, not a JSBSim script"):

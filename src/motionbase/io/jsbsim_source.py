@@ -251,7 +251,9 @@ class JsbsimSource:
             if os.path.isdir(path):
                 raise SourceError(f"{path}: a folder, not a JSBSim script (give its .xml file)")
             if not os.path.isfile(path):
-                raise SourceError(f"{path}: JSBSim script not found (check the path)")
+                shipped = path.name == s and os.path.isfile(self.root / "scripts" / s)
+                hint = f"; JSBSim's own is named {path.stem}, without .xml" if shipped else ""
+                raise SourceError(f"{path}: JSBSim script not found (check the path{hint})")
             return path.resolve()
         path = self.root / "scripts" / f"{s}.xml"
         if os.path.isfile(path):
