@@ -246,10 +246,15 @@ def as_poses(pose: ArrayLike, what: str = "pose") -> tuple[np.ndarray, tuple[int
             f"{what}: expected shape (6,) or (..., 6) "
             f"[x, y, z, roll, pitch, yaw], got shape {p.shape}"
         )
-    lead = p.shape[:-1]
-    flat = np.ascontiguousarray(p.reshape(-1, 6))
-    # (a read-only array, robot.neutral_pose say, would have numba load a second kernel)
-    return (flat if flat.flags.writeable else flat.copy()), lead
+    return kernel_rows(p, 6), p.shape[:-1]
+
+
+def kernel_rows(p: np.ndarray, width: int) -> np.ndarray:
+    """``p`` (float64) as rows ``(k, width)`` of the one array type the robots' kernels are
+    compiled for: C-contiguous and writable (a read-only array, ``robot.neutral_pose`` say,
+    would have numba load a second version of the kernel, mid-run)."""
+    flat = np.ascontiguousarray(p.reshape(-1, width))
+    return flat if flat.flags.writeable else flat.copy()
 
 
 def run_inverse(kernel: Callable, G: np.ndarray, pose: ArrayLike) -> np.ndarray:

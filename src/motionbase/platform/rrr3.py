@@ -50,6 +50,7 @@ import numpy as np
 from motionbase.errors import ConfigError, MotionbaseError
 from motionbase.platform import _rrr3_kernels as _k
 from motionbase.platform import rrr3_workspace as _ws
+from motionbase.platform._pose_kernels import kernel_rows
 from motionbase.platform._rrr3_kernels import OK, SERVO_RANGE, TYPE1, TYPE2, UNREACHABLE
 from motionbase.platform.robot import Robot
 from motionbase.platform.rrr3_geometry import Rrr3Geometry
@@ -136,10 +137,7 @@ def _as_poses(pose: Any, what: str = "pose") -> tuple[np.ndarray, tuple[int, ...
         raise ConfigError(
             f"{what}: expected [x, y, phi] or an array of shape (..., 3), got shape {arr.shape}"
         )
-    batch = arr.shape[:-1]
-    flat = np.ascontiguousarray(arr.reshape(-1, 3))
-    # (a read-only array, robot.neutral_pose say, would have numba compile a second kernel)
-    return (flat if flat.flags.writeable else flat.copy()), batch
+    return kernel_rows(arr, 3), arr.shape[:-1]
 
 
 class Rrr3:
