@@ -26,8 +26,9 @@ HOME = np.array([L / 2, L * math.sqrt(3) / 6])
 
 
 @pytest.fixture
-def display(display_tools):
-    """A private Xvfb on a free display number (Xvfb picks it: -displayfd)."""
+def xvfb(display_tools):
+    """A private Xvfb on a free display number (Xvfb picks it: -displayfd): the display's
+    name and the Xvfb process."""
     xvfb = display_tools["Xvfb"]
     r, w = os.pipe()
     proc = subprocess.Popen(
@@ -42,7 +43,7 @@ def display(display_tools):
             number = fh.readline().strip()
         if not number:
             pytest.fail("Xvfb started but reported no display number")
-        yield f":{number}"
+        yield f":{number}", proc
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -50,6 +51,12 @@ def display(display_tools):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@pytest.fixture
+def display(xvfb):
+    """The private Xvfb's display name."""
+    return xvfb[0]
 
 
 def _xdotool(env, *args: str) -> str:
@@ -71,28 +78,49 @@ def _wait_window(env, proc, timeout_s: float = 60.0) -> str:
     pytest.fail("the teleop window did not appear within 60 s")
 
 
-def _run_with_pointer(display, tmp_path: Path, points, *, escape: bool):
+def _run_with_pointer(display, tmp_path: Path, points, end):
+    """``motionbase teleop --input mouse`` on ``display``, the pointer moved to ``points``
+    in turn, then ``end(env, window id, teleop process)``; its log and output."""
     out = tmp_path / "mouse.mcap"
     env = dict(os.environ, DISPLAY=display)
     cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input", "mouse"]
-    # Escape ends the run; the duration is only a watchdog (3 s, it could end a run on a
+    # ``end`` ends the run; the duration is only a watchdog (3 s, it could end a run on a
     # loaded machine before the pointer had made its moves and the Escape came)
     cmd += ["--serial", "none", "--duration", "60", "--out", str(out)]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,  # its process group, for a Ctrl-C sent to the whole group
+    )  # fmt: skip
     try:
         wid = _wait_window(env, proc)
         for u, v in points:
             _xdotool(env, "mousemove", "--window", wid, str(u), str(v))
             time.sleep(1.5)  # the robot arrives (its speed limit), with room for a busy machine
-        if escape:
-            _xdotool(env, "key", "--window", wid, "Escape")
+        end(env, wid, proc)
         stdout, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, stderr
-    return out, stdout
+    return out, stdout, stderr
+
+
+def _escape(env, wid, proc):
+    _xdotool(env, "key", "--window", wid, "Escape")
+
+
+def _assert_parked(log, rrr3):
+    """The run ended at home, at rest, within the joint limits (50 Hz ticks)."""
+    q = np.array([m["angles"] for m in log["/planar/actuators"]])
+    servo = [tuple(m["servo_deg"]) for m in log["/planar/actuators"]]
+    home_servo = tuple(rrr3.to_servo(rrr3.inverse(rrr3.home)))
+    assert servo[-1] == home_servo and servo[-2] == home_servo
+    np.testing.assert_allclose(log["/planar/pose"][-1]["pose"], rrr3.home, atol=1e-9)
+    v = np.diff(q, axis=0) * 50
+    g = rrr3.geometry
+    assert np.abs(v).max() <= g.max_speed * (1 + 1e-9)
+    assert np.abs(np.diff(v, axis=0)).max() * 50 <= g.max_accel * (1 + 1e-6)
 
 
 def _settled(log, pixel):
@@ -108,7 +136,7 @@ def test_mouse_window_pointer_drives_the_robot(display, tmp_path):
     rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))  # the teleop default
     # inside the window: near the middle, a little to the right, and far off to the upper left
     points = [(360, 400), (400, 380), (60, 80)]
-    out, stdout = _run_with_pointer(display, tmp_path, points, escape=True)
+    out, stdout, _ = _run_with_pointer(display, tmp_path, points, _escape)
     assert "stopped by key Escape" in stdout
     log = read_messages(out)
     meta = read_metadata(out)
@@ -140,13 +168,79 @@ def test_mouse_window_pointer_drives_the_robot(display, tmp_path):
     assert 0 < np.dot(d_p, d_t) < np.dot(d_t, d_t)
 
     # Escape parked the robot at home, at rest, within the joint limits
-    q = np.array([m["angles"] for m in log["/planar/actuators"]])
-    servo = [tuple(m["servo_deg"]) for m in log["/planar/actuators"]]
-    home_servo = tuple(rrr3.to_servo(rrr3.inverse(rrr3.home)))
-    assert servo[-1] == home_servo and servo[-2] == home_servo
-    np.testing.assert_allclose(log["/planar/pose"][-1]["pose"], rrr3.home, atol=1e-9)
-    v = np.diff(q, axis=0) * 50
-    g = rrr3.geometry
-    assert np.abs(v).max() <= g.max_speed * (1 + 1e-9)
-    assert np.abs(np.diff(v, axis=0)).max() * 50 <= g.max_accel * (1 + 1e-6)
+    _assert_parked(log, rrr3)
     assert log["/health"][-1]["estops"] == 1
+
+
+# The mouse window lost mid-run: the pointer first takes the robot far from home (to the
+# edge of the workspace, toward the upper left), then the window goes; the robot parks.
+FAR = [(60, 80)]
+
+
+def _assert_lost_window_parked(out, stdout, reason):
+    rrr3 = Rrr3(Rrr3Geometry.preset("udesc_symmetric"))
+    assert f"(stopped by {reason})" in stdout
+    log = read_messages(out)
+    poses = np.array([m["pose"] for m in log["/planar/pose"]])
+    assert np.hypot(*(poses[:, :2] - HOME).T).max() > 0.01  # it had left home
+    _assert_parked(log, rrr3)
+    health = log["/health"][-1]
+    assert health["stopped_by"] == reason
+    assert health["estops"] == 0 and health["park_ticks"] > 0
+
+
+def test_display_going_away_parks_the_robot(xvfb, tmp_path):
+    """The X server killed mid-run (``xvfb-run``'s, by the Ctrl-C sent to the whole process
+    group; a remote display dropped): Xlib ends the process Tk is in, which is not the one
+    that parks the robot."""
+    display, server = xvfb
+
+    def kill_display(env, wid, proc):
+        os.kill(server.pid, signal.SIGKILL)
+        server.wait()
+
+    out, stdout, _ = _run_with_pointer(display, tmp_path, FAR, kill_display)
+    _assert_lost_window_parked(out, stdout, "the mouse window's display going away")
+
+
+def _window_pid(pid: int) -> int:
+    """The mouse window's process: the child of ``pid`` started by multiprocessing's spawn."""
+    for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+        if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+            return int(child)
+    pytest.fail(f"no mouse window process among the children of {pid}")
+
+
+def test_window_process_killed_parks_the_robot(display, tmp_path):
+    def kill_window(env, wid, proc):
+        os.kill(_window_pid(proc.pid), signal.SIGKILL)
+
+    out, stdout, _ = _run_with_pointer(display, tmp_path, FAR, kill_window)
+    _assert_lost_window_parked(out, stdout, "the mouse window's process ending (killed by SIGKILL)")
+
+
+def test_ctrl_c_to_the_group_leaves_the_window_to_the_parking(display, tmp_path):
+    """A Ctrl-C reaches every process of the terminal's group: the window's process ignores
+    it (no KeyboardInterrupt there), the run stops by it and parks."""
+
+    def ctrl_c(env, wid, proc):
+        os.killpg(proc.pid, signal.SIGINT)
+
+    out, stdout, stderr = _run_with_pointer(display, tmp_path, FAR, ctrl_c)
+    assert "(stopped by SIGINT)" in stdout
+    assert "KeyboardInterrupt" not in stderr and "Traceback" not in stderr
+    _assert_parked(read_messages(out), Rrr3(Rrr3Geometry.preset("udesc_symmetric")))
+
+
+def test_no_display_is_one_line(tmp_path):
+    """Without a display the mouse window cannot open: one line, exit status 2 (nothing
+    to start: no Xvfb needed)."""
+    env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+    cmd = [sys.executable, "-m", "motionbase.cli", "teleop", "--input", "mouse"]
+    res = subprocess.run(
+        [*cmd, "--serial", "none", "--duration", "1"], env=env, capture_output=True,
+        text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert res.returncode == 2
+    assert res.stderr.count("\n") == 1 and "cannot open the mouse window" in res.stderr
+    assert "DISPLAY" in res.stderr and "xvfb-run" in res.stderr

@@ -15,7 +15,7 @@ braking, going home) are in :mod:`motionbase.commanding`; what teleop adds:
   within the limits) until a new point arrives; counted in ``watchdog_fades`` (events) and
   ``stale_ticks``. A file source replays its own timing and has no watchdog.
 * Every stop ends the same way, at home and at rest: the end of the input (file end,
-  ``duration_s``, window closed), a stop or E-stop (a
+  ``duration_s``, window closed or lost), a stop or E-stop (a
   :class:`~motionbase.stopping.StopRequest`: SIGINT, SIGTERM, SIGHUP or SIGQUIT, and
   SIGTSTP with a board, via :func:`motionbase.stopping.install_signal_stop`, Escape/space
   in the mouse window, or a caller) first brake the robot to rest within the speed and
@@ -103,9 +103,9 @@ class CursorCommands(Iterator[Command]):
 
     Tick ``k`` (loop time ``k / rate_hz``) reads the cursor and maps its pixel through the
     calibration; the sample's ``info`` is ``(pixel, (x, y))``. It ends when the cursor
-    does (``ended = "end of input"``) or after ``duration_s`` (``"duration"``). A live
-    cursor (``watchdog``) marks its samples not ``fresh`` when its latest new point is
-    older than ``stale_timeout_s``.
+    does (``ended``: the cursor's ``ended`` if it says why, else ``"end of input"``) or
+    after ``duration_s`` (``"duration"``). A live cursor (``watchdog``) marks its samples
+    not ``fresh`` when its latest new point is older than ``stale_timeout_s``.
     """
 
     def __init__(
@@ -135,7 +135,7 @@ class CursorCommands(Iterator[Command]):
             self.ended = "duration"
             raise StopIteration
         if self.cursor.finished(t):
-            self.ended = "end of input"
+            self.ended = getattr(self.cursor, "ended", "") or "end of input"
             raise StopIteration
         pixel = self.cursor.read(t)
         self._k += 1

@@ -15,24 +15,30 @@ teleop loop can hold position when the input goes stale.
   127.0.0.1 by default; malformed lines (not two numbers), datagrams longer than 4096 bytes
   and those of a second sender are counted and ignored (one warning each), and a read takes
   256 datagrams or 16 kB at most (a flood on the port cannot hold the loop back).
-- :class:`TkCursor`: a Tk window showing the workspace, the target and the links; it works on
-  a headless machine under Xvfb (``xvfb-run motionbase teleop``). The pointer is polled every
-  tick while it is inside the window (a resting pointer is live input; outside the window the
-  input goes stale). Escape or space E-stops (the robot parks at home).
+- :class:`TkCursor`: a Tk window showing the workspace, the target and the links, in a process
+  of its own; it works on a headless machine under Xvfb (``xvfb-run motionbase teleop``).
+  The pointer is polled while it is inside the window (a resting pointer is live input;
+  outside the window the input goes stale). Escape or space E-stops (the robot parks at
+  home); closing the window, losing its display or its process ends the input (it parks too).
 """
 
 from __future__ import annotations
 
 import bisect
+import contextlib
 import csv
 import logging
 import math
+import multiprocessing
+import signal
 import socket
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from motionbase import mouse_window
 from motionbase.errors import ConfigError, SourceError
 from motionbase.io.net_address import bind_fix, check_host_port
 
@@ -301,7 +307,14 @@ class TkCursor(_Base):
 
     The view maps the base triangle into the window (``view`` metres -> pixels); the default
     teleop calibration for this source is that view's inverse, so the target sits under the
-    mouse pointer. Events are processed by :meth:`read` (no Tk main loop, no thread).
+    mouse pointer.
+
+    The window runs in a process of its own (:mod:`motionbase.mouse_window`), so that losing
+    the X display, which ends the process Tk is in, does not end this one: it ends the input
+    instead (``finished``, with ``ended`` saying why) and the robot parks. The window sends
+    the pointer about 100 times a second and the E-stop keys; :meth:`read` and
+    :meth:`finished` take what arrived, without waiting. :meth:`show` sends a drawing only
+    when the window drew the previous one; while it is behind, only the latest is kept.
 
     Parameters
     ----------
@@ -310,6 +323,10 @@ class TkCursor(_Base):
     size_px : (int, int)
         Window size.
     """
+
+    #: Why the input ended ("" while it goes on): the window closed, its display went away,
+    #: its process ended or stopped answering (said in the run's summary).
+    ended = ""
 
     def __init__(self, rrr3: Any, size_px: tuple[int, int] = (720, 640)) -> None:
         self.rrr3 = rrr3
@@ -325,16 +342,16 @@ class TkCursor(_Base):
         ox = (w - s * L) / 2
         oy = h - (h - s * H) / 2
         self.scale, self.origin = s, (ox, oy)
-        self._root: Any = None
-        self._canvas: Any = None
+        self._proc: Any = None
+        self._conn: Any = None
         self._latest: tuple[float, float] | None = None
-        self._closed = False
-        self._items: list[int] = []
-        self._status_item: Any = None
         self._stop: Any = None
         self.watchdog = True
         self.updated_t: float | None = None
         self._moved = False
+        self._drawing = False  # a drawing was sent and not drawn yet
+        self._pending: Any = None  # the latest drawing not sent yet
+        self._heard = self._pumped = 0.0  # time.monotonic() of the window's latest message, s
 
     def bind_stop(self, stop: Any) -> None:
         """E-stop ``stop`` (a :class:`~motionbase.pipeline.StopRequest`) on Escape or space."""
@@ -356,81 +373,115 @@ class TkCursor(_Base):
         )
 
     def open(self) -> TkCursor:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, there = ctx.Pipe()
+        self._proc = ctx.Process(
+            target=mouse_window.main, name="motionbase mouse window", daemon=True,
+            args=(there, "motionbase teleop: 3-RRR", self.size_px, self._workspace_ops()),
+        )  # fmt: skip
+        # this process handles the stop signals and parks; the window's starts with them
+        # blocked, then ignores them
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, mouse_window.PARENT_SIGNALS)
         try:
-            import tkinter as tk
-
-            self._root = tk.Tk()
-        except Exception as exc:  # TclError without a display, ImportError without Tk
+            self._proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+            there.close()
+        try:
+            msg: Any = None
+            end = time.monotonic() + OPEN_TIMEOUT_S
+            while msg is None and time.monotonic() < end:
+                if self._conn.poll(0.05):
+                    msg = self._conn.recv()
+        except (EOFError, OSError):
+            self._proc.join(5.0)
+            msg = ("error", f"its process ended ({_exit_status(self._proc)})")
+        if msg != ("ready",):
+            self.close()
+            why = msg[1] if msg else f"it did not open within {OPEN_TIMEOUT_S:g} s"
             raise SourceError(
-                f"cannot open the mouse window: {exc} (no display? run under Xvfb: "
+                f"cannot open the mouse window: {why} (no display? run under Xvfb: "
                 "xvfb-run motionbase teleop ...)"
-            ) from None
-        self._root.title("motionbase teleop: 3-RRR")
-        w, h = self.size_px
-        self._canvas = tk.Canvas(self._root, width=w, height=h, background="#f2f2f2")
-        self._canvas.pack()
-        self._canvas.bind("<Motion>", self._on_motion)
-        for key in ("<Escape>", "<space>"):
-            self._root.bind(key, self._on_estop)
-        self._root.protocol("WM_DELETE_WINDOW", self._on_close)
-        self._draw_workspace()
-        self._root.update()
+            )
+        self._heard = self._pumped = time.monotonic()
         return self
 
-    def _draw_workspace(self) -> None:
-        c = self._canvas
+    def _workspace_ops(self) -> list[Any]:
+        """The drawing of the workspace, the base and the legend (drawn once)."""
+        ops: list[Any] = []
         ws = self.rrr3.workspace(150, 150, 1, phi_range=(0.0, 0.0))
         dx = (ws.x[1] - ws.x[0]) * self.scale / 2 + 0.5
         dy = (ws.y[1] - ws.y[0]) * self.scale / 2 + 0.5
         for i, j in zip(*np.nonzero(ws.valid[:, :, 0]), strict=True):
             u, v = self.view([ws.x[i], ws.y[j]])
-            c.create_rectangle(u - dx, v - dy, u + dx, v + dy, fill="#bcd3f0", outline="")
+            ops.append(_op("rectangle", u - dx, v - dy, u + dx, v + dy, fill="#bcd3f0", outline=""))
         A = self.view(self.rrr3.geometry.base_points)
-        c.create_polygon(*A.ravel().tolist(), outline="#888888", fill="")
+        ops.append(_op("polygon", *A.ravel(), outline="#888888", fill=""))
         for i, (u, v) in enumerate(A):
-            c.create_oval(u - 6, v - 6, u + 6, v + 6, fill="#555555", outline="")
-            c.create_text(u, v + (16 if i < 2 else -16), text=f"motor {i + 1}", fill="#555555")
-        c.create_text(
-            8, 8, anchor="nw", fill="#333333",
-            text="blue: reachable centre (phi = 0)\n"
-            "ring: target (green ok, red held/stale)\n"
-            "Esc or space: E-stop",
+            ops.append(_op("oval", u - 6, v - 6, u + 6, v + 6, fill="#555555", outline=""))
+            ops.append(
+                _op("text", u, v + (16 if i < 2 else -16), text=f"motor {i + 1}", fill="#555555")
+            )
+        ops.append(
+            _op(
+                "text", 8, 8, anchor="nw", fill="#333333",
+                text="blue: reachable centre (phi = 0)\n"
+                "ring: target (green ok, red held/stale)\n"
+                "Esc or space: E-stop",
+            )
         )  # fmt: skip
-        self._status_item = c.create_text(8, 60, anchor="nw", fill="#c0392b", text="")
+        return ops
 
-    def _on_motion(self, event: Any) -> None:
-        self._latest = (float(event.x), float(event.y))
-        self._moved = True
-
-    def _on_estop(self, event: Any) -> None:
-        if self._stop is not None:
-            self._stop.set(f"key {event.keysym}", estop=True)
-
-    def _on_close(self) -> None:
-        self._closed = True
+    def _pump(self) -> None:
+        """Take the window's messages (never waits); note when it is gone, and why."""
+        if self._conn is None or self.ended:
+            return
+        now = time.monotonic()
+        if now - self._pumped > 1.0:  # this process was away (suspended): no word is due yet
+            self._heard = now
+        self._pumped = now
+        try:
+            while self._conn.poll():
+                msg = self._conn.recv()
+                self._heard = now
+                if msg[0] == "pointer" and msg[3]:  # over the window: live input
+                    self._latest, self._moved = (msg[1], msg[2]), True
+                elif msg[0] == "drawn":
+                    self._drawing = False
+                elif msg[0] == "key" and self._stop is not None:
+                    self._stop.set(f"key {msg[1]}", estop=True)
+                elif msg[0] == "closed":
+                    self.ended = "end of input"
+                elif msg[0] == "error":
+                    self.ended = f"the mouse window failing ({msg[1]})"
+        except (EOFError, OSError):  # its process ended: said once its exit status is known
+            code = self._proc.exitcode
+            if code is not None:
+                self.ended = (
+                    "the mouse window's display going away" if code == 1
+                    else f"the mouse window's process ending ({_exit_status(self._proc)})"
+                )  # fmt: skip
+        if not self.ended and now - self._heard > SILENT_S:
+            self.ended = f"the mouse window not answering for {SILENT_S:g} s"
+        if self._pending is not None and not self._drawing and not self.ended:
+            try:
+                self._conn.send(self._pending)
+                self._drawing, self._pending = True, None
+            except OSError:  # (its process ended: the next look says why)
+                pass
 
     def read(self, t: float) -> tuple[float, float] | None:
-        if self._root is None:
+        if self._conn is None:
             raise SourceError("mouse window is not open")
-        try:
-            self._root.update()
-            c = self._canvas
-            u = c.winfo_pointerx() - c.winfo_rootx()
-            v = c.winfo_pointery() - c.winfo_rooty()
-        except Exception:
-            self._closed = True
-            return self._latest
-        w, h = self.size_px
-        if 0 <= u < w and 0 <= v < h:  # the pointer is over the window: live input
-            self._latest = (float(u), float(v))
-            self._moved = True
+        self._pump()
         if self._moved:
             self.updated_t = t
             self._moved = False
         return self._latest
 
     def finished(self, t: float) -> bool:
-        return self._closed
+        self._pump()
+        return bool(self.ended)
 
     def show(
         self,
@@ -442,48 +493,67 @@ class TkCursor(_Base):
         **_: Any,
     ) -> None:
         """Draw the links (A-B-C per chain), the platform (C1 C2 C3, see-through so the
-        workspace stays visible), its centre (the controlled point) and the cursor target."""
-        if self._canvas is None or self._closed:
-            return
-        c = self._canvas
-        for item in self._items:
-            c.delete(item)
-        self._items = []
+        workspace stays visible), its centre (the controlled point) and the cursor target:
+        sent to the window when it drew the previous drawing, else kept (the latest only)."""
+        ops: list[Any] = []
         if points is not None:
             A, B, C = (self.view(p) for p in points)
-            self._items.append(
-                c.create_polygon(
-                    *C.ravel().tolist(), fill="#e07b39", stipple="gray50", outline="#8a4514",
+            ops.append(
+                _op(
+                    "polygon", *C.ravel(), fill="#e07b39", stipple="gray50", outline="#8a4514",
                     width=2,
                 )
             )  # fmt: skip
             for i in range(3):
-                self._items.append(c.create_line(*A[i], *B[i], fill="#222222", width=4))
-                self._items.append(c.create_line(*B[i], *C[i], fill="#666666", width=2))
+                ops.append(_op("line", *A[i], *B[i], fill="#222222", width=4))
+                ops.append(_op("line", *B[i], *C[i], fill="#666666", width=2))
                 for p, r in ((B[i], 3), (C[i], 3)):
-                    self._items.append(
-                        c.create_oval(p[0] - r, p[1] - r, p[0] + r, p[1] + r, fill="#222222")
-                    )
+                    ops.append(_op("oval", p[0] - r, p[1] - r, p[0] + r, p[1] + r, fill="#222222"))
             u, v = C.mean(axis=0)
-            self._items.append(c.create_oval(u - 4, v - 4, u + 4, v + 4, fill="#8a4514"))
+            ops.append(_op("oval", u - 4, v - 4, u + 4, v + 4, fill="#8a4514"))
         if target is not None and np.all(np.isfinite(target)):
             u, v = self.view(target)
             color = "#c0392b" if held else "#27ae60"
-            self._items.append(c.create_oval(u - 7, v - 7, u + 7, v + 7, outline=color, width=2))
-            self._items.append(c.create_line(u - 11, v, u + 11, v, fill=color))
-            self._items.append(c.create_line(u, v - 11, u, v + 11, fill=color))
-        c.itemconfigure(self._status_item, text="E-STOP: parking at home" if parking else "")
+            ops.append(_op("oval", u - 7, v - 7, u + 7, v + 7, outline=color, width=2))
+            ops.append(_op("line", u - 11, v, u + 11, v, fill=color))
+            ops.append(_op("line", u, v - 11, u, v + 11, fill=color))
+        self._pending = ("draw", ops, "E-STOP: parking at home" if parking else "")
+        self._pump()
 
     def close(self) -> None:
-        if self._root is not None:
-            try:
-                self._root.destroy()
-            except Exception:
-                pass
-            self._root = None
+        if self._proc is None:
+            return
+        with contextlib.suppress(OSError):
+            self._conn.send(("quit",))
+        self._proc.join(2.0)
+        if self._proc.is_alive():  # (it ignores SIGTERM)
+            self._proc.kill()
+            self._proc.join()
+        self._conn.close()
+        self._proc = self._conn = None
 
     def describe(self) -> dict[str, Any]:
         return {"kind": "mouse", "size_px": list(self.size_px)}
+
+
+#: The longest wait for the mouse window to open, s (a loaded machine starts Python slowly).
+OPEN_TIMEOUT_S = 60.0
+#: Without a message from the mouse window for this long, s, it is taken as gone (a remote
+#: display that hangs instead of closing): the input ends and the robot parks.
+SILENT_S = 5.0
+
+
+def _op(kind: str, *coords: Any, **options: Any) -> tuple[str, list[float], dict[str, Any]]:
+    """A drawing op for the mouse window: ``create_<kind>(*coords, **options)``."""
+    return kind, [float(c) for c in coords], options
+
+
+def _exit_status(proc: Any) -> str:
+    """How a process ended, in words."""
+    code = proc.exitcode
+    if code is not None and code < 0:
+        return f"killed by {signal.Signals(-code).name}"
+    return f"exit status {code}"
 
 
 def open_cursor_source(
