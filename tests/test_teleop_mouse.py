@@ -200,7 +200,7 @@ def test_display_going_away_parks_the_robot(xvfb, tmp_path):
         server.wait()
 
     out, stdout, _ = _run_with_pointer(display, tmp_path, FAR, kill_display)
-    _assert_lost_window_parked(out, stdout, "the mouse window's display going away")
+    _assert_lost_window_parked(out, stdout, "the mouse window losing its X display")
 
 
 def _window_pid(pid: int) -> int:
@@ -216,7 +216,7 @@ def test_window_process_killed_parks_the_robot(display, tmp_path):
         os.kill(_window_pid(proc.pid), signal.SIGKILL)
 
     out, stdout, _ = _run_with_pointer(display, tmp_path, FAR, kill_window)
-    _assert_lost_window_parked(out, stdout, "the mouse window's process ending (killed by SIGKILL)")
+    _assert_lost_window_parked(out, stdout, "the mouse window's process ending, killed by SIGKILL")
 
 
 def test_ctrl_c_to_the_group_leaves_the_window_to_the_parking(display, tmp_path):
@@ -244,3 +244,21 @@ def test_no_display_is_one_line(tmp_path):
     assert res.returncode == 2
     assert res.stderr.count("\n") == 1 and "cannot open the mouse window" in res.stderr
     assert "DISPLAY" in res.stderr and "xvfb-run" in res.stderr
+
+
+def test_a_window_left_open_ends_with_its_program(display):
+    """A program that opens the mouse window and never closes it still exits: the window's
+    process ignores the SIGTERM that multiprocessing's exit handler sends before it waits
+    for its processes, so the window is closed before that handler runs."""
+    script = (
+        "from motionbase.io.cursor_input import TkCursor\n"
+        "from motionbase.platform import Rrr3, Rrr3Geometry\n"
+        "window = TkCursor(Rrr3(Rrr3Geometry.preset('udesc_symmetric'))).open()\n"
+        "print('opened')\n"
+    )
+    env = dict(os.environ, DISPLAY=display)
+    res = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=60,
+        check=False,
+    )  # fmt: skip
+    assert (res.returncode, res.stdout) == (0, "opened\n"), res.stderr

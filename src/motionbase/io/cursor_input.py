@@ -24,6 +24,7 @@ teleop loop can hold position when the input goes stale.
 
 from __future__ import annotations
 
+import atexit
 import bisect
 import contextlib
 import csv
@@ -387,6 +388,9 @@ class TkCursor(_Base):
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
             there.close()
+        # closed before multiprocessing's own exit handler waits for its processes (this one
+        # ignores the SIGTERM that handler sends)
+        atexit.register(self.close)
         try:
             msg: Any = None
             end = time.monotonic() + OPEN_TIMEOUT_S
@@ -453,13 +457,14 @@ class TkCursor(_Base):
                 elif msg[0] == "closed":
                     self.ended = "end of input"
                 elif msg[0] == "error":
-                    self.ended = f"the mouse window failing ({msg[1]})"
+                    self.ended = f"the mouse window failing: {msg[1]}"
         except (EOFError, OSError):  # its process ended: said once its exit status is known
             code = self._proc.exitcode
             if code is not None:
+                # (Xlib's end: exit(1) when the display goes away, or on an X error)
                 self.ended = (
-                    "the mouse window's display going away" if code == 1
-                    else f"the mouse window's process ending ({_exit_status(self._proc)})"
+                    "the mouse window losing its X display" if code == 1
+                    else f"the mouse window's process ending, {_exit_status(self._proc)}"
                 )  # fmt: skip
         if not self.ended and now - self._heard > SILENT_S:
             self.ended = f"the mouse window not answering for {SILENT_S:g} s"
@@ -523,6 +528,7 @@ class TkCursor(_Base):
     def close(self) -> None:
         if self._proc is None:
             return
+        atexit.unregister(self.close)
         with contextlib.suppress(OSError):
             self._conn.send(("quit",))
         self._proc.join(2.0)
