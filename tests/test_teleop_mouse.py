@@ -262,3 +262,22 @@ def test_a_window_left_open_ends_with_its_program(display):
         check=False,
     )  # fmt: skip
     assert (res.returncode, res.stdout) == (0, "opened\n"), res.stderr
+
+
+def test_a_window_that_cannot_start_is_said(display):
+    """A program read from stdin: multiprocessing's ``spawn`` cannot start the window's
+    process (it reruns the main file, and there is none), which ends at once; opening says
+    so (the workspace drawing, some 100 kB, had been the process's argument, and the
+    start had waited for ever to write it to the process that had ended)."""
+    script = (
+        "from motionbase.io.cursor_input import TkCursor\n"
+        "from motionbase.platform import Rrr3, Rrr3Geometry\n"
+        "TkCursor(Rrr3(Rrr3Geometry.preset('udesc_symmetric'))).open()\n"
+    )
+    env = dict(os.environ, DISPLAY=display)
+    res = subprocess.run(
+        [sys.executable, "-"], input=script, env=env, capture_output=True, text=True,
+        timeout=60, check=False,
+    )  # fmt: skip
+    assert res.returncode == 1
+    assert "SourceError: cannot open the mouse window: its process ended" in res.stderr

@@ -8,14 +8,16 @@ process it is in (its IO error handler calls ``exit(1)``; Tk cannot replace it),
 must not be the process that parks the robot. This module imports nothing of motionbase,
 so the window opens without loading the pipeline's libraries a second time.
 
-Messages to the parent over the pipe: ``("ready",)`` once the window is up, or
-``("error", text)`` when it cannot open or fails; then, every poll (about 100 a second),
+Messages to the parent over the pipe: ``("ready",)`` once Tk is up, or ``("error", text)``
+when it cannot open or fails; then, every poll (about 100 a second),
 ``("pointer", u, v, inside)`` (pixels, and whether the pointer is over the window: the
 parent's sign of life too); ``("key", keysym)`` for Escape and space; ``("drawn",)`` after
-each drawing; ``("closed",)`` when the window is closed. From the parent: ``("draw", ops,
-status)`` (the robot's items, replacing the previous ones, and the status line) and
-``("quit",)``. A drawing op is ``(kind, coords, options)``: the canvas's
-``create_<kind>(*coords, **options)``.
+each drawing; ``("closed",)`` when the window is closed. From the parent: the background's
+drawing ops first (the workspace, some 100 kB: on the pipe, not as an argument of the
+process, which ``spawn`` would write for ever to a process that ended before it read them
+all), then ``("draw", ops, status)`` (the robot's items, replacing the previous ones, and
+the status line) and ``("quit",)``. A drawing op is ``(kind, coords, options)``: the
+canvas's ``create_<kind>(*coords, **options)``.
 """
 
 from __future__ import annotations
@@ -39,10 +41,10 @@ def draw(canvas: Any, ops: list[tuple[str, list[float], dict[str, Any]]], tags: 
         getattr(canvas, f"create_{kind}")(*coords, tags=tags, **options)
 
 
-def main(conn: Any, title: str, size_px: tuple[int, int], background: list[Any]) -> None:
-    """The window's process: open the window, draw ``background`` once, then report the
-    pointer and keys and draw what the parent sends until it quits, the window is closed
-    or the pipe ends (the parent is gone)."""
+def main(conn: Any, title: str, size_px: tuple[int, int]) -> None:
+    """The window's process: open the window, draw the background the parent sends first,
+    then report the pointer and keys and draw what the parent sends until it quits, the
+    window is closed or the pipe ends (the parent is gone)."""
     for sig in PARENT_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, PARENT_SIGNALS)
@@ -54,28 +56,26 @@ def main(conn: Any, title: str, size_px: tuple[int, int], background: list[Any])
         except Exception as exc:  # TclError without a display, ImportError without Tk
             conn.send(("error", str(exc)))
             return
-        _run(conn, tk, root, title, size_px, background)
+        _run(conn, tk, root, title, size_px)
     except (EOFError, OSError):  # the parent is gone
         pass
     except Exception as exc:  # noqa: BLE001 - said to the parent, which parks the robot
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
 
 
-def _run(
-    conn: Any, tk: Any, root: Any, title: str, size_px: tuple[int, int], background: list[Any]
-) -> None:
+def _run(conn: Any, tk: Any, root: Any, title: str, size_px: tuple[int, int]) -> None:
     root.title(title)
     w, h = size_px
     canvas = tk.Canvas(root, width=w, height=h, background="#f2f2f2")
     canvas.pack()
-    draw(canvas, background)
+    conn.send(("ready",))
+    draw(canvas, conn.recv())
     status = canvas.create_text(8, 60, anchor="nw", fill="#c0392b", text="")
     closed: list[bool] = []
     root.protocol("WM_DELETE_WINDOW", lambda: closed.append(True))
     for key in ("<Escape>", "<space>"):
         root.bind(key, lambda event: conn.send(("key", event.keysym)))
     root.update()
-    conn.send(("ready",))
     while not closed:
         root.update()
         u = canvas.winfo_pointerx() - canvas.winfo_rootx()

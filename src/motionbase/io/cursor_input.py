@@ -378,7 +378,7 @@ class TkCursor(_Base):
         self._conn, there = ctx.Pipe()
         self._proc = ctx.Process(
             target=mouse_window.main, name="motionbase mouse window", daemon=True,
-            args=(there, "motionbase teleop: 3-RRR", self.size_px, self._workspace_ops()),
+            args=(there, "motionbase teleop: 3-RRR", self.size_px),
         )  # fmt: skip
         # this process handles the stop signals and parks; the window's starts with them
         # blocked, then ignores them
@@ -397,6 +397,8 @@ class TkCursor(_Base):
             while msg is None and time.monotonic() < end:
                 if self._conn.poll(0.05):
                     msg = self._conn.recv()
+            if msg == ("ready",):
+                self._conn.send(self._workspace_ops())
         except (EOFError, OSError):
             self._proc.join(5.0)
             msg = ("error", f"its process ended ({_exit_status(self._proc)})")
