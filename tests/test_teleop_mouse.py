@@ -219,6 +219,18 @@ def test_window_process_killed_parks_the_robot(display, tmp_path):
     _assert_lost_window_parked(out, stdout, "the mouse window's process ending, killed by SIGKILL")
 
 
+def test_window_that_stops_answering_parks_the_robot(display, tmp_path):
+    """The window's process stopped (as by a display that hangs): the run goes on without
+    waiting for it (its drawings are not sent while it has not drawn the last one), then
+    takes it as gone and parks."""
+
+    def stop_window(env, wid, proc):
+        os.kill(_window_pid(proc.pid), signal.SIGSTOP)
+
+    out, stdout, _ = _run_with_pointer(display, tmp_path, FAR, stop_window)
+    _assert_lost_window_parked(out, stdout, "the mouse window not answering for 5 s")
+
+
 def test_ctrl_c_to_the_group_leaves_the_window_to_the_parking(display, tmp_path):
     """A Ctrl-C reaches every process of the terminal's group: the window's process ignores
     it (no KeyboardInterrupt there), the run stops by it and parks."""
