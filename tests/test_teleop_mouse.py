@@ -255,7 +255,7 @@ def test_no_display_is_one_line(tmp_path):
     )  # fmt: skip
     assert res.returncode == 2
     assert res.stderr.count("\n") == 1 and "cannot open the mouse window" in res.stderr
-    assert "DISPLAY" in res.stderr and "xvfb-run" in res.stderr
+    assert "xvfb-run" in res.stderr
 
 
 def test_a_window_left_open_ends_with_its_program(display):
