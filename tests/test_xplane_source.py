@@ -389,6 +389,41 @@ def test_datagrams_from_another_host_are_refused(xplane):
     assert state.attitude[2] == 0.0
 
 
+def test_the_silence_warning_names_the_host_whose_datagrams_were_refused(xplane, caplog):
+    """X-Plane's Data Output reaching motionbase from another address than the one given (a
+    second network card, X-Plane on this PC sending from its LAN address) is refused; the
+    warning named only the silence of the given host and told the user to set up the Data
+    Output they had set up. It names the refused sender and the URL that takes it."""
+    xp = xplane(TURN, answer_rref=False)
+    url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:0&version=12"
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.bind(("127.0.0.2", 0))  # X-Plane's Data Output, sending from another address
+    records = b"DATA*" + b"".join(
+        struct.pack("<i8f", g, *(v + [0.0] * 8)[:8]) for g, v in _data_records(2.0, 3.0, -4.0)
+    )
+
+    def told(_state) -> bool:
+        other.sendto(records, src.local_address)
+        return any("127.0.0.2" in r.getMessage() for r in caplog.records)
+
+    try:
+        with caplog.at_level(logging.WARNING, logger="motionbase"):
+            with XPlaneSource(url, rate_hz=100) as src:
+                _until(src, iter(src), told)
+    finally:
+        other.close()
+    (line,) = [r.getMessage() for r in caplog.records if "127.0.0.2" in r.getMessage()]
+    assert f"xplane:127.0.0.2:{xp.port}" in line
+
+
+def test_the_silence_warning_never_names_a_wildcard_as_a_destination():
+    """Listening on every address (X-Plane on another PC), the silence warning told the user
+    to set X-Plane's Data Output to send to 0.0.0.0:49005, which is no address to send to."""
+    src = XPlaneSource("xplane:192.168.1.20:49000")  # (not opened: nothing is bound)
+    hint = src._silence_hint(3.0)
+    assert "0.0.0.0" not in hint and "this PC's IP address" in hint and "49005" in hint
+
+
 @pytest.mark.parametrize(
     "url",
     [
