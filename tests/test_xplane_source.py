@@ -443,6 +443,25 @@ def test_bad_urls_give_one_line(url):
     assert "\n" not in str(err.value) and "xplane" in str(err.value)
 
 
+@pytest.mark.parametrize(
+    "url",
+    [
+        "xplane:127.0.0.1:49005",  # 49005: where motionbase listens (and Data Output sends)
+        "xplane:localhost:49010?listen=49010",
+        "xplane:127.0.0.1:49010?listen=0.0.0.0:49010",
+    ],
+)
+def test_xplane_s_port_that_is_the_listening_port_is_refused(url, capsys):
+    """X-Plane given at the address motionbase listens on: the source subscribed to itself,
+    read its own requests as RREF answers and ran with every tick stale, the warning naming
+    X-Plane's silence. It is one line, exit 2, naming the mix-up."""
+    with pytest.raises(ConfigError, match="the port motionbase listens on"):
+        XPlaneSource(url)
+    assert main(["stream", "--source", url, "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "49000" in err
+
+
 def test_default_listen_address_follows_xplane_host():
     assert XPlaneSource("xplane:127.0.0.1:49000").describe()["listen"] == "127.0.0.1:49005"
     remote = XPlaneSource("xplane:192.168.1.20:49000?listen=49010")

@@ -214,6 +214,11 @@ def parse_xplane_url(url: str, *, free_port: bool = True) -> tuple[str, int, str
             raise ConfigError(
                 f"xplane URL {url!r}: unknown option {key!r} (known: listen, version; {example})"
             )
+    if port == listen_port and (is_loopback(host) or host == listen_host):
+        raise ConfigError(  # (it subscribed to itself and read its requests as answers)
+            f"xplane URL {url!r}: X-Plane's port {port} is the port motionbase listens on; give "
+            f"X-Plane's own receive port (49000 unless changed in its network settings) ({example})"
+        )
     return host, port, listen_host, listen_port, version
 
 
