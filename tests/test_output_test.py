@@ -376,6 +376,31 @@ def test_the_sweep_drives_any_robot_of_the_registry_the_planar_3rrr_too(platform
     assert np.all(np.diff(holds.ravel()) > 0), holds
 
 
+def test_a_sweep_through_a_drive_of_three_of_six_motors_says_which_it_does_not_reach():
+    """A Stewart platform on two three-motor boards: the wiring check of the first board's
+    URL (a frame of motors 1..3) swept motors 4..6 too, saying "motor 4: length +1 mm", with
+    nothing on the wire moving: a motor that seemed miswired. The check says first which
+    motors this output does not carry; motors 1..3 each reach +-1 mm on the wire in turn."""
+    from motionbase.app import output_test
+    from motionbase.platform import Stewart6Geometry
+
+    robot = robot_spec("stewart6").make(Stewart6Geometry.preset("seat"))
+    rx = UdpDrive(n=3)
+    try:
+        lines = output_test(
+            rx.url(200.0), "stewart6", range_mm=1.0, speed_mm_s=100.0, echo=lambda s: None
+        )
+        rx.drain()
+    finally:
+        rx.close()
+    notes = [s for s in lines if "4, 5, 6" in s]
+    assert len(notes) == 1 and "nothing" in notes[0], lines
+    _, q = rx.angles()
+    mm = np.degrees(q)  # (the drive's parser reads degrees into radians)
+    neutral = 1000.0 * robot.inverse(np.zeros(6))[:3]
+    check_sweep(mm, neutral, 1.0, atol=1e-4)
+
+
 def test_the_sweep_drives_a_linear_actuator_platform_in_millimetres():
     """``output --test --platform stewart6``: each of the Stewart platform's linear actuators
     (millimetres, the default mapping for linear actuators) is swept by +-10 mm about its

@@ -389,6 +389,41 @@ def test_datagrams_from_another_host_are_refused(xplane):
     assert state.attitude[2] == 0.0
 
 
+def test_the_silence_warning_names_the_host_whose_datagrams_were_refused(xplane, caplog):
+    """X-Plane's Data Output reaching motionbase from another address than the one given (a
+    second network card, X-Plane on this PC sending from its LAN address) is refused; the
+    warning named only the silence of the given host and told the user to set up the Data
+    Output they had set up. It names the refused sender and the URL that takes it."""
+    xp = xplane(TURN, answer_rref=False)
+    url = f"xplane:127.0.0.1:{xp.port}?listen=127.0.0.1:0&version=12"
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.bind(("127.0.0.2", 0))  # X-Plane's Data Output, sending from another address
+    records = b"DATA*" + b"".join(
+        struct.pack("<i8f", g, *(v + [0.0] * 8)[:8]) for g, v in _data_records(2.0, 3.0, -4.0)
+    )
+
+    def told(_state) -> bool:
+        other.sendto(records, src.local_address)
+        return any("127.0.0.2" in r.getMessage() for r in caplog.records)
+
+    try:
+        with caplog.at_level(logging.WARNING, logger="motionbase"):
+            with XPlaneSource(url, rate_hz=100) as src:
+                _until(src, iter(src), told)
+    finally:
+        other.close()
+    (line,) = [r.getMessage() for r in caplog.records if "127.0.0.2" in r.getMessage()]
+    assert f"xplane:127.0.0.2:{xp.port}" in line
+
+
+def test_the_silence_warning_never_names_a_wildcard_as_a_destination():
+    """Listening on every address (X-Plane on another PC), the silence warning told the user
+    to set X-Plane's Data Output to send to 0.0.0.0:49005, which is no address to send to."""
+    src = XPlaneSource("xplane:192.168.1.20:49000")  # (not opened: nothing is bound)
+    hint = src._silence_hint(3.0)
+    assert "0.0.0.0" not in hint and "this PC's IP address" in hint and "49005" in hint
+
+
 @pytest.mark.parametrize(
     "url",
     [
@@ -406,6 +441,25 @@ def test_bad_urls_give_one_line(url):
     with pytest.raises(ConfigError) as err:
         XPlaneSource(url)
     assert "\n" not in str(err.value) and "xplane" in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "xplane:127.0.0.1:49005",  # 49005: where motionbase listens (and Data Output sends)
+        "xplane:localhost:49010?listen=49010",
+        "xplane:127.0.0.1:49010?listen=0.0.0.0:49010",
+    ],
+)
+def test_xplane_s_port_that_is_the_listening_port_is_refused(url, capsys):
+    """X-Plane given at the address motionbase listens on: the source subscribed to itself,
+    read its own requests as RREF answers and ran with every tick stale, the warning naming
+    X-Plane's silence. It is one line, exit 2, naming the mix-up."""
+    with pytest.raises(ConfigError, match="the port motionbase listens on"):
+        XPlaneSource(url)
+    assert main(["stream", "--source", url, "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "49000" in err
 
 
 def test_default_listen_address_follows_xplane_host():

@@ -632,6 +632,12 @@ def output_test(
         check_sendable(sink, robot)
         _check_sweep_sendable(sink, sweep.neutral, rng, unit, scale)
         say(f"output test on {sink.label}: {mapping.describe()}")
+        unsent = [str(i + 1) for i in range(robot.n) if i not in sink.format.axes]
+        if unsent:  # (one of two boards: motors 4..6 seemed miswired as nothing moved)
+            say(
+                f"motors {', '.join(unsent)} are in no field of this output's format: their "
+                "sweeps send nothing here (check them through the output that carries them)"
+            )
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")
         with sink:
             run(pipeline, sweep, [sink], paced=True, stop=stop, progress=on_tick)

@@ -95,7 +95,8 @@ References for the axes, signs and units (read, not copied):
 
 While RREF values are fresh, DATA values for the same quantities are ignored
 (one stream at a time, not two interleaved). Datagrams from another host than
-HOST are refused (counted). A value that is NaN, infinite or absurd (beyond the
+HOST are refused (counted; when nothing came from HOST, the silence warning names the
+last refused sender). A value that is NaN, infinite or absurd (beyond the
 pipeline's plausibility bounds, :mod:`motionbase.physics`: 150 m/s^2, 20 rad/s; an
 angle out of range) is rejected and counted; the rest of its datagram is still used.
 """
@@ -213,6 +214,11 @@ def parse_xplane_url(url: str, *, free_port: bool = True) -> tuple[str, int, str
             raise ConfigError(
                 f"xplane URL {url!r}: unknown option {key!r} (known: listen, version; {example})"
             )
+    if port == listen_port and (is_loopback(host) or host == listen_host):
+        raise ConfigError(  # (it subscribed to itself and read its requests as answers)
+            f"xplane URL {url!r}: X-Plane's port {port} is the port motionbase listens on; give "
+            f"X-Plane's own receive port (49000 unless changed in its network settings) ({example})"
+        )
     return host, port, listen_host, listen_port, version
 
 
@@ -276,6 +282,7 @@ class XPlaneSource(UdpLiveSource):
         )
         self._xplane_addr: Any = None  # X-Plane's address, once resolved at open
         self._xplane_ips: frozenset[str] = frozenset()
+        self._other_host = ""  # the last host whose datagrams were refused
 
     def _bind_address(self) -> tuple[str, int]:
         return self.listen_host, self.listen_port
@@ -335,18 +342,28 @@ class XPlaneSource(UdpLiveSource):
             and now - self._first_sub >= _SILENT_WARN_S
         ):
             self._warned_silent = True
-            host, port = self.local_address or (self.listen_host, self.listen_port)
-            _log.warning(
-                "X-Plane: nothing from %s:%d %.0f s after subscribing; in X-Plane, allow "
-                "incoming UDP (Settings > Network) or set Data Output to send to %s:%d",
-                self.host,
-                self.port,
-                now - self._first_sub,
-                host,
-                port,
-            )
+            _log.warning("%s", self._silence_hint(now - self._first_sub))
         if now - self._sub_time >= _RESUBSCRIBE_S:
             self._subscribe(now)
+
+    def _silence_hint(self, silent_s: float) -> str:
+        """The warning for an X-Plane silent ``silent_s`` s after subscribing: the refused
+        sender, when datagrams came from another host (X-Plane's Data Output sending from
+        another address), else where X-Plane must send to."""
+        head = f"X-Plane: nothing from {self.host}:{self.port} {silent_s:.0f} s after subscribing"
+        if self._other_host:
+            return (
+                f"{head}, but {self._x['other_host']} datagrams from {self._other_host} were "
+                f"refused (not X-Plane's host); if X-Plane runs there, give its address: "
+                f"xplane:{self._other_host}:{self.port}"
+            )
+        host, port = self.local_address or (self.listen_host, self.listen_port)
+        if host in ("0.0.0.0", "::"):  # (listening on every address: no place to send to)
+            host = "this PC's IP address"
+        return (
+            f"{head}; in X-Plane, allow incoming UDP (Settings > Network) or set Data Output "
+            f"to send to {host}, port {port}"
+        )
 
     # ------------------------------------------------------------------ packets
 
@@ -354,6 +371,7 @@ class XPlaneSource(UdpLiveSource):
         c, x = self._c, self._x
         if addr[0] not in self._xplane_ips:
             x["other_host"] += 1
+            self._other_host = str(addr[0])
             c["bad_data"] += 1
             c["bad_bytes"] += len(data)
             return
