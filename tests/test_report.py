@@ -607,23 +607,38 @@ def _refused_ticks(msgs, geometry: dict) -> int:
     return int(((type1 < safety["type1_margin"]).any(1) | (type2 < safety["type2_margin"])).sum())
 
 
-def test_the_planar_report_says_when_the_limiter_left_the_valid_poses(tmp_path, planar_flight):
+def test_the_planar_report_says_when_the_limiter_left_the_valid_poses(
+    tmp_path, planar_flight, monkeypatch
+):
     """The Concorde's take-off run drives the 3-RRR's cue into its workspace's edge at speed:
-    near a chain's type I singularity its servo must turn ever faster, the limiter lags,
-    and then overshoots the clamped pose; chain 2 went through its singularity (its working
-    mode flipped) for tens of ticks. The report put the over-100 % surge down to
-    "combining axes" and said nothing else. It now counts those ticks, as the log's own
-    geometry does; a gentle flight has none."""
-    out = tmp_path / "concorde.mcap"
-    fly("Concorde_runway_test", planar=True, out=out, progress=False)
-    msgs = read_messages(out)
-    geometry = read_metadata(out)["pipeline_config"]["geometry"]
-    expected = _refused_ticks(msgs, geometry)
+    near a chain's type I singularity its servo must turn ever faster; limited each alone
+    (the robot's coordinated limit off, as before it), that servo lags, then overshoots the
+    clamped pose, and chain 2 went through its singularity (its working mode flipped) for
+    tens of ticks. The report put the over-100 % surge down to "combining axes" and said
+    nothing else. It counts those ticks, as the log's own geometry does; the coordinated
+    limit (the default) and a gentle flight have none."""
+    from motionbase.platform.rrr3 import Rrr3Robot
+
+    def flown(name: str):
+        out = tmp_path / f"{name}.mcap"
+        fly("Concorde_runway_test", planar=True, out=out, progress=False)
+        msgs = read_messages(out)
+        return (
+            msgs,
+            read_metadata(out),
+            _refused_ticks(msgs, read_metadata(out)["pipeline_config"]["geometry"]),
+        )
+
+    with monkeypatch.context() as m:
+        m.setattr(Rrr3Robot, "coordinated", False)
+        msgs, meta, expected = flown("per_servo")
     assert expected > 0
-    text = " ".join(build_report(msgs, read_metadata(out)).text.split())
+    text = " ".join(build_report(msgs, meta).text.split())
     found = re.search(r"warning: (\d+) ticks \([\d.]+ %\) realised poses the robot's", text)
     assert found and int(found.group(1)) == expected, text
     assert "past the valid poses" in text
+    msgs, meta, expected = flown("coordinated")
+    assert expected == 0 and "warning" not in build_report(msgs, meta).text
     gentle = read_messages(planar_flight)
     assert _refused_ticks(gentle, read_metadata(planar_flight)["pipeline_config"]["geometry"]) == 0
     assert "warning" not in build_report(gentle, read_metadata(planar_flight)).text

@@ -587,13 +587,11 @@ class Pipeline(PipelineCore):
             self.cueing.track(self._cue_out)  # anti-windup: the pose the platform got
         if flags & stages.RARE:
             self.health.count(flags)
-            if flags & (stages.HELD | stages.RATE_LIMITED):
+            if flags & (stages.HELD | stages.RATE_LIMITED) and not flags & stages.PATH:
                 # the actuators realise another pose than the one asked: say which
-                s_pose = self._pose
-                achieved = self.robot.forward(q, guess=s_pose)
+                achieved = self.robot.forward(q, guess=self._pose)
                 if not np.isnan(achieved[0]):  # (a row of NaN: Newton did not converge)
                     pose = achieved
-                s_pose[:] = pose
         return PipelineOutput(
             float(self._t[0]),
             state,
@@ -692,7 +690,7 @@ class Pipeline(PipelineCore):
         ran = out.flags[: done + (done < N)]
         for bits in ran[(ran & stages.RARE) != 0]:
             self.health.count(int(bits))
-        limited = np.flatnonzero(out.limited[:done])
+        limited = np.flatnonzero(out.limited[:done] & (out.flags[:done] & stages.PATH == 0))
         if len(limited):  # the pose the limited commands realise, as the tick reports it
             achieved = self.robot.forward(out.commands[limited], guess=out.poses[limited])
             ok = np.isfinite(achieved).all(axis=1)

@@ -2,7 +2,8 @@
 
 The tick (:meth:`motionbase.pipeline.Pipeline.step`) is::
 
-    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve_kernel -> limit_stage)
+    input_stage -> cueing.advance -> after_cueing (blend_stage -> robot.solve_kernel
+                -> limit_stage, or path_stage for a coordinated robot)
                 -> cueing.track (when the clamp acted while running)
 
 Commands that are robot poses (teleoperation, :mod:`motionbase.commanding`) go through
@@ -63,6 +64,8 @@ STATE = np.dtype(
         ("v", "f8", (6,)),  # its speed, per s
         ("wanted", "f8", (6,)),  # last target the limiter accepted
         ("pose", "f8", (6,)),  # robot pose the last command realises (first m used)
+        ("cue", "f8", (6,)),  # the cue pose it realises (the path stage's start)
+        ("step", "f8", (6,)),  # that cue pose's last step (the path stage's braking line)
         ("leg", "f8", (6,)),  # approach: goal pose of the straight segment followed (NaN: none)
     ],
     align=True,
@@ -88,6 +91,7 @@ PARAMS = np.dtype(
         ("max_accel", "f8", (6,)),
         ("n", "i8"),  # number of actuators
         ("m", "i8"),  # size of the robot pose
+        ("path", "?"),  # the coordinated limit (path_stage) is on: robot.coordinated
     ],
     align=True,
 )
@@ -101,6 +105,7 @@ RATE_LIMITED = 1 << 7
 HELD = 1 << 8
 CUEING_ERROR = 1 << 9
 RUNNING_CLAMP = 1 << 10  # clamped while running: the cueing is to be told (anti-windup)
+PATH = 1 << 11  # the path stage's command: the pose it realises is known (path_stage)
 PHASE_SHIFT = 12  # two bits: the output phase (PHASES)
 #: The bits the health counts (and where the limiter acted, the pose to find): rare.
 RARE = PROBLEM | TIME_JUMP | FADE_START | CLAMPED | RATE_LIMITED | HELD
@@ -214,6 +219,7 @@ def new_params(
         p[name][:n] = getattr(robot.limits, name)
     p["n"] = n
     p["m"] = m
+    p["path"] = robot.coordinated
     return P
 
 
@@ -224,6 +230,7 @@ def reset_state(S: np.ndarray, P: np.ndarray) -> None:
     s["q"] = P[0]["park_q"]
     s["wanted"] = P[0]["park_q"]
     s["pose"] = s["leg"] = P[0]["park_pose"]
+    s["cue"] = P[0]["park_cue"]
     s["phase"] = STARTING
     s["fade"] = 1.0
 
@@ -628,6 +635,111 @@ def at_park(P, S):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _path_point(P, solve, G, q0, v0, ql, c0, c1, f, c, x, w, b):  # pragma: no cover - compiled
+    """The point ``f`` of the cue segment ``c0 -> c1`` (written: cue ``c``, robot pose ``x``,
+    actuators ``w``; ``b`` scratch of 12 + 3n + m) for :func:`path_stage`: 0 when it is a valid
+    pose whose actuators the limiter passes unchanged from ``q0, v0`` and from which the
+    robot, braking, still stops within the valid poses; 1 when it is too far, -1 too near."""
+    p = P[0]
+    n = p.n
+    qt, vt, probe = b[12 : 12 + n], b[12 + n : 12 + 2 * n], b[6:12]
+    for i in range(6):
+        c[i] = c1[i] if f == 1.0 else c0[i] + f * (c1[i] - c0[i])
+    if solve[0](G, c, b[:6], x, w):  # the kernel clamped it: not a valid pose
+        return 1
+    low, up, vmax, amax = p.lower[:n], p.upper[:n], p.max_speed[:n], p.max_accel[:n]
+    for i in range(n):  # no actuator further than the limiter alone takes it
+        if (w[i] - q0[i]) * (ql[i] - q0[i]) > 0.0 and abs(w[i] - q0[i]) > abs(ql[i] - q0[i]):
+            return 1
+    if limit_kernel(q0, v0, q0, w, p.dt, low, up, vmax, amax, qt, vt):
+        for i in range(n):  # the limiter shortened a step (a reversal counts as short)
+            if (w[i] - q0[i]) * (qt[i] - w[i]) < 0.0:
+                return 1
+        return -1
+    # braking from here takes the slowest actuator k ticks, the pose about (k + 1) / 2 of
+    # this tick's steps: k + 3 of them must be valid (the actuators' paths bend near the edge)
+    k = 0.0
+    for i in range(n):
+        k = max(k, abs(vt[i]) / (amax[i] * p.dt))
+    reach = f * (k + 3.0)
+    for i in range(6):
+        probe[i] = c0[i] + reach * (c1[i] - c0[i])
+    return 1 if solve[0](G, probe, b[:6], b[12 + 2 * n : 12 + 2 * n + p.m], qt) else 0
+
+
+#: Bisection steps of :func:`path_stage` (a point within 2^-20 of the segment's length).
+PATH_STEPS = 20
+
+
+@numba.njit(cache=True)
+def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - compiled
+    """:func:`limit_stage` for a robot whose actuators, each limited alone, can leave its
+    valid poses (``P.path``): the command is a valid pose, the limiter passes it unchanged.
+
+    Near a chain's type I singularity (the workspace's edge) an actuator must move ever
+    faster for the same motion of the pose: limited alone it lagged, the others went on,
+    then it overshot, and the command made a pose the robot refuses (a chain straightened,
+    its elbow flipped). Here the command is the furthest point (by bisection) of the cue
+    segment from the cue pose the last command realised (the state's ``cue``) toward
+    ``cue`` (the robot's, ``pose`` and ``wanted`` its pose and actuators) such that:
+
+    * the robot's kernel does not clamp it (a valid pose);
+    * no actuator goes further than :func:`limit_stage` alone takes it (its braking toward
+      the target), and the limiter passes it unchanged from this tick's command and speed
+      (nothing fed forward: within the speed and acceleration limits);
+    * braking from it, the pose stays valid over the slowest actuator's stopping ticks ``k``
+      along the segment's line (``k + 3`` of this tick's steps: about twice what braking
+      covers, as an actuator's path bends near the edge), so the robot slows before it.
+
+    When the segment has none (a target behind the robot's motion), the nearest such point
+    of the line the robot moves on (its last step continued) brakes it; when neither has
+    one, the limiter's own command is kept (the pose it realises unknown here). The limits
+    are enforced by :func:`limit_stage` alone, which every command passes.
+
+    Returns :func:`limit_stage`'s bits, with ``PATH`` (and ``RATE_LIMITED``) when the
+    command is a point short of the target (written to ``pose``; ``wanted`` stays the
+    target's, whose speed is fed forward next tick); the state's ``pose``, ``cue`` and
+    ``step`` (the realised cue's) follow the commands whose pose is known.
+    """
+    p = P[0]
+    s = S[0]
+    n, m = p.n, p.m
+    q0, v0, c0 = s.q[:n].copy(), s.v[:n].copy(), s.cue.copy()
+    flags = limit_stage(P, S, wanted, q)
+    if flags & HELD:
+        return flags
+    c, x, w, b = np.empty(6), np.empty(m), np.empty(n), np.empty(12 + 3 * n + m)
+    best = -1.0
+    for line in range(2):  # the target's segment (furthest point), then braking (nearest)
+        end = cue if line == 0 else c0 + s.step
+        ql = q.copy() if line == 0 else np.full(n, np.nan)  # (braking: no limiter's bound)
+        lo, hi, f = 0.0, 1.0, 1.0 - 0.5 * line
+        for _ in range(PATH_STEPS + 1):
+            code = _path_point(P, solve, G, q0, v0, ql, c0, end, f, c, x, w, b)
+            best = f if code == 0 else best
+            if code > 0 or code == 0 and line:
+                hi = f
+            else:
+                lo = f
+            if lo >= hi:
+                break
+            f = 0.5 * (lo + hi)
+        if best >= 0.0:
+            break
+    if best < 0.0:
+        return flags
+    _path_point(P, solve, G, q0, v0, ql, c0, end, best, c, x, w, b)
+    s.q[:n], s.v[:n], s.wanted[:n] = q0, v0, q0
+    limit_stage(P, S, w, q)
+    s.wanted[:n] = wanted  # the target's own speed is fed forward next tick
+    pose[:] = x
+    s.pose[:m] = x
+    s.step[:] = c - c0
+    s.cue[:] = c
+    return 0 if best == 1.0 and line == 0 else PATH | RATE_LIMITED
+
+
+@numba.njit(cache=True)
 def after_cueing(P, S, solve, G, cue, target, cue_out, pose, wanted, q):  # pragma: no cover
     """The robot's side of a tick: soft start/stop, clamp + inverse kinematics, limiter.
 
@@ -649,9 +761,10 @@ def after_cueing(P, S, solve, G, cue, target, cue_out, pose, wanted, q):  # prag
     Returns
     -------
     int
-        ``CLAMPED``, ``RUNNING_CLAMP``, ``RATE_LIMITED``, ``HELD`` and the output phase
-        (``<< PHASE_SHIFT``). When the limiter changed the command, the state's ``pose``
-        keeps the last tick's (the caller finds the achieved one by forward kinematics).
+        ``CLAMPED``, ``RUNNING_CLAMP``, ``RATE_LIMITED``, ``HELD``, ``PATH`` and the output
+        phase (``<< PHASE_SHIFT``). When the limiter changed the command (and ``PATH`` is not
+        set), the state's ``pose`` keeps the last tick's (the caller finds the achieved one by
+        forward kinematics). With ``P.path``, :func:`path_stage` chooses the command.
     """
     p = P[0]
     s = S[0]
@@ -664,9 +777,12 @@ def after_cueing(P, S, solve, G, cue, target, cue_out, pose, wanted, q):  # prag
         flags |= CLAMPED
         if s.phase == RUNNING:
             flags |= RUNNING_CLAMP
-    flags |= limit_stage(P, S, wanted, q)
-    if not (flags & (HELD | RATE_LIMITED)):
-        s.pose[: p.m] = pose
+    if p.path:
+        flags |= path_stage(P, S, solve, G, cue_out, pose, wanted, q)
+    else:
+        flags |= limit_stage(P, S, wanted, q)
+        if not (flags & (HELD | RATE_LIMITED)):
+            s.pose[: p.m] = pose
     phase = PARKED if at_park(P, S) else s.phase
     return flags | (phase << PHASE_SHIFT)
 

@@ -73,6 +73,9 @@ class Robot(ABC):
         Packed parameters of :attr:`solve_kernel` (do not change them).
     solve_kernel : numba dispatcher
         Clamp + inverse kinematics, compiled with :data:`SOLVE_SIGNATURE`.
+    coordinated : bool
+        The flight's limiter commands poses (:func:`motionbase.stages.path_stage`): for a
+        robot whose actuators, each limited alone, can leave its valid poses (False).
     kin : object, optional
         The robot's kinematics class (:class:`~motionbase.platform.rus6.Rus6`,
         :class:`~motionbase.platform.stewart6.Stewart6`,
@@ -90,6 +93,7 @@ class Robot(ABC):
 
     name: ClassVar[str]
     actuator_unit: ClassVar[str] = "rad"
+    coordinated: ClassVar[bool] = False
     geometry: Any
     n: int
     limits: ActuatorLimits

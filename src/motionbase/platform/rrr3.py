@@ -582,6 +582,7 @@ class Rrr3Robot(Robot):
     name = "rrr3"
     actuator_unit = "rad"
     solve_kernel = staticmethod(solve)
+    coordinated = True
 
     def __init__(
         self, geometry: Rrr3Geometry, scale_m: float = 0.1, yaw_scale: float = 0.5
