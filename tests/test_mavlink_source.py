@@ -1246,6 +1246,25 @@ def test_a_log_cut_to_its_first_bytes_is_a_clear_error(flight_data: Path, tmp_pa
     assert "connection string" not in message and "\n" not in message
 
 
+@pytest.mark.parametrize(
+    ("name", "renamed", "hint"), [(BIN, "flight.tlog", ".bin"), (TLOG, "a.BIN", ".tlog")]
+)
+def test_a_log_named_for_the_other_format_is_told_its_name(
+    name, renamed, hint, flight_data, tmp_path
+):
+    """A DataFlash log named .tlog (or a .tlog named .BIN): pymavlink reads a file by its
+    name, finds no messages, and the line asked "is it a telemetry .tlog or a DataFlash .bin
+    with IMU and ATT?", which it is. The line says which it is and the name to give it."""
+    log = tmp_path / renamed
+    log.write_bytes((flight_data / name).read_bytes())
+    cmd = [sys.executable, "-m", "motionbase", "stream", "--mavlink", str(log), "--fast"]
+    done = subprocess.run(
+        cmd + ["--out", str(tmp_path / "o.mcap")], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.rstrip().endswith(f"give it a name ending in {hint}"), done.stderr
+
+
 # --------------------------------------------------------------------------- misuse
 
 

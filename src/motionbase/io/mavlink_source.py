@@ -1044,10 +1044,18 @@ class MavlinkSource(SampleHoldSource):
         return [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
 
     def _no_messages(self, types: list[str]) -> SourceError:
-        return SourceError(
-            f"mavlink log {self.url}: no {' or '.join(types)} messages (is it a "
-            "telemetry .tlog or a DataFlash .bin with IMU and ATT?)"
-        )
+        try:  # pymavlink reads a log by its name: one named for the other format has none
+            with open(self.url, "rb") as fh:
+                head = fh.read(9)
+        except OSError:
+            head = b""
+        if types == ["IMU", "ATT"] and head[8:] in (b"\xfd", b"\xfe"):
+            hint = "it is a telemetry log (MAVLink frames): give it a name ending in .tlog"
+        elif types != ["IMU", "ATT"] and head[:2] == b"\xa3\x95":
+            hint = "it is a DataFlash log: give it a name ending in .bin"
+        else:
+            hint = "is it a telemetry .tlog or a DataFlash .bin with IMU and ATT?"
+        return SourceError(f"mavlink log {self.url}: no {' or '.join(types)} messages; {hint}")
 
     def _check_log_has_messages(self) -> None:
         """A log without a message of the states is refused when opened, before a run
