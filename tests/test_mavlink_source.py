@@ -1044,6 +1044,28 @@ def test_one_sample_behind_the_vehicle_clock_is_an_outlier_not_a_reboot(tmp_path
     assert times[-1] - times[0] == pytest.approx(5.99, abs=0.05)
 
 
+def test_a_late_burst_of_old_samples_is_dropped_not_taken_for_a_reboot(tmp_path):
+    """Five pairs 1.4 s behind the clock and going on (a ground station's late burst of old
+    messages, as vtol.tlog has at 611.9 s): the second was taken for a reboot, the rest of
+    the log shifted 1.4 s later (a 6 s log replayed as 7.4 s, the inserted gap stale: the
+    platform faded) and the old values fed in as new. They are dropped and counted."""
+    burst = range(300, 305)
+
+    def values(i: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return ((3.0, 0.0, -G), (0.5, 0.0, 0.0)) if i in burst else imu_values(i)
+
+    log = _crafted_tlog(
+        tmp_path / "burst.tlog", lambda i: (i - 140) * 10 if i in burst else i * 10, values=values
+    )
+    with MavlinkSource(str(log), rate_hz=100.0, realtime=False) as src:
+        rows = [(s.t, src.fresh, s.specific_force[0]) for s in src]
+        stats = src.stats
+    times, fresh, fx = np.array(rows).T
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02)
+    assert fresh.all() and np.abs(fx).max() < 1.0
+    assert stats.rejected_invalid == 2 * len(burst)
+
+
 def test_a_log_whose_boot_times_are_all_zero_is_timed_by_its_receive_times(tmp_path):
     """A sender that leaves time_boot_ms and time_usec at 0 (not filled in): every sample
     had the same time, and the 6 s log replayed as one tick. It falls back to the ground
@@ -1154,11 +1176,15 @@ def body_down(attitude: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("name", [TLOG, BIN])
 def test_real_logs_give_plausible_states(name: str, flight_data: Path) -> None:
     with MavlinkSource(str(flight_data / name), rate_hz=50.0, realtime=False) as src:
-        rows = [(s, src.fresh) for s in src]
+        rows = [(s, src.fresh, s.t) for s in src]
         stats = src.stats
-    states = [s for s, fresh in rows if fresh]
+    span, behind = _log_span_and_out_of_order(flight_data / name)
+    # the replay lasts as long as the log's vehicle clock; its samples out of order (vtol.tlog:
+    # four, 1.4 s behind at 611.9 s) are dropped, not taken for a reboot that shifted the rest
+    assert rows[-1][2] - rows[0][2] == pytest.approx(span, abs=0.05)
+    states = [s for s, fresh, _ in rows if fresh]
     assert len(rows) > 5000 and len(states) > 0.9 * len(rows)
-    assert all(s.is_finite() for s, _ in rows)
+    assert all(s.is_finite() for s, _, _ in rows)
     f = np.array([s.specific_force for s in states])
     w = np.array([s.angular_velocity for s in states])
     att = np.array([s.attitude for s in states])
@@ -1177,8 +1203,27 @@ def test_real_logs_give_plausible_states(name: str, flight_data: Path) -> None:
     cos = -np.sum(f * down, axis=1) / np.linalg.norm(f, axis=1)
     assert np.median(np.degrees(np.arccos(np.clip(cos[level], -1, 1)))) < 3.0
     assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) < 15.0
-    assert stats.rejected == 0 and stats.used > 1000
+    assert stats.rejected == behind and stats.used > 1000
     assert isinstance(stats, MavlinkStats)
+
+
+def _log_span_and_out_of_order(path: Path) -> tuple[float, int]:
+    """A real log's IMU and attitude samples read with pymavlink alone: the span of their
+    vehicle times (s), and how many lie more than 1 s behind the latest before them."""
+    conn = mavutil.mavlink_connection(str(path))
+    types = ["IMU", "ATT", "ATTITUDE", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "RAW_IMU"]
+    first, latest, behind = None, -math.inf, 0
+    while (msg := conn.recv_match(type=types)) is not None:
+        for field, scale in (("TimeMS", 1e-3), ("TimeUS", 1e-6), ("time_boot_ms", 1e-3)):
+            if hasattr(msg, field):
+                t = getattr(msg, field) * scale
+                break
+        else:
+            t = msg.time_usec * 1e-6
+        first = t if first is None else first
+        behind += t < latest - 1.0
+        latest = max(latest, t)
+    return latest - first, behind
 
 
 def test_log_duration_and_tick_clock(flight_data: Path) -> None:
@@ -1199,6 +1244,25 @@ def test_a_log_cut_to_its_first_bytes_is_a_clear_error(flight_data: Path, tmp_pa
     assert message.startswith(f"mavlink log {cut}: cannot read it as a MAVLink log (")
     assert message.endswith("is it a whole telemetry .tlog or DataFlash .bin?")
     assert "connection string" not in message and "\n" not in message
+
+
+@pytest.mark.parametrize(
+    ("name", "renamed", "hint"), [(BIN, "flight.tlog", ".bin"), (TLOG, "a.BIN", ".tlog")]
+)
+def test_a_log_named_for_the_other_format_is_told_its_name(
+    name, renamed, hint, flight_data, tmp_path
+):
+    """A DataFlash log named .tlog (or a .tlog named .BIN): pymavlink reads a file by its
+    name, finds no messages, and the line asked "is it a telemetry .tlog or a DataFlash .bin
+    with IMU and ATT?", which it is. The line says which it is and the name to give it."""
+    log = tmp_path / renamed
+    log.write_bytes((flight_data / name).read_bytes())
+    cmd = [sys.executable, "-m", "motionbase", "stream", "--mavlink", str(log), "--fast"]
+    done = subprocess.run(
+        cmd + ["--out", str(tmp_path / "o.mcap")], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.rstrip().endswith(f"give it a name ending in {hint}"), done.stderr
 
 
 # --------------------------------------------------------------------------- misuse

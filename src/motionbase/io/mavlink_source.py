@@ -403,6 +403,9 @@ def _quat_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float
 #: longer one (a clock glitch, or hours without telemetry) is shortened to it, so a replay
 #: holds it stale (the platform fades to neutral) for this long, not for hours.
 MAX_LOG_GAP_S = 10.0
+#: How long a log's samples must go on behind its vehicle clock to be a reboot, s (its own
+#: time): shorter runs (a late burst of old messages) are out of order, dropped.
+REBOOT_S = 1.0
 
 
 class _VehicleClock:
@@ -414,11 +417,12 @@ class _VehicleClock:
     other systems or components, keep the last time: the clock is that of ``compid``, else
     of the first component of ``sysid`` to send an IMU message, the autopilot (each
     component counts from its own boot: a gimbal's ATTITUDE does not take the clock). The
-    result never goes backwards: a reboot (boot time jumping back, and the next sample going
-    on from there) re-anchors the clock where it was; one sample behind the clock with the
-    next one back on it is an outlier, given the clock's time. A jump ahead of more than
-    :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them). A DataFlash
-    log's times (already the vehicle's) take the same path through :meth:`advance`.
+    result never goes backwards: a reboot (boot time jumping back, and the samples going on
+    from there for :data:`REBOOT_S`) re-anchors the clock where it was; samples more than 1 s
+    behind the clock before that (a ground station's late burst of old messages, one bad
+    sample) are out of order: :meth:`advance` gives None, and they are dropped. A jump ahead
+    of more than :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them).
+    A DataFlash log's times (already the vehicle's) take the same path through :meth:`advance`.
     """
 
     def __init__(self, sysid: int, compid: int | None = None) -> None:
@@ -429,7 +433,7 @@ class _VehicleClock:
         self.gaps_shortened = 0
         self._behind: float | None = None  # a sample behind the clock, not yet a reboot
 
-    def __call__(self, msg: Any) -> float:
+    def __call__(self, msg: Any) -> float | None:
         t = None
         comp = msg.get_srcComponent()  # (no compid: the first to send an IMU message's)
         if msg.get_srcSystem() == self.sysid and (
@@ -449,16 +453,17 @@ class _VehicleClock:
             self.offset = msg._timestamp - t  # start at the log's wall-clock time
         return self.advance(t)
 
-    def advance(self, t: float) -> float:
-        """The clock's time for a sample stamped ``t`` (s, before the offset): a DataFlash
-        log's own times go through here directly, for the same reboots and gaps."""
+    def advance(self, t: float) -> float | None:
+        """The clock's time for a sample stamped ``t`` (s, before the offset), None for one
+        out of order: a DataFlash log's own times go through here directly, for the same
+        reboots and gaps."""
         t += self.offset
-        if t < self.last - 1.0:  # a reboot or clock reset, or one bad sample
-            behind, self._behind = self._behind, t
-            if behind is None or not behind < t:
-                return self.last  # not yet a reboot: hold the clock's time
-            self.offset += self.last - t  # a second, later sample behind: a reboot
-            t = self.last
+        if t < self.last - 1.0:  # a reboot or clock reset, or samples out of order
+            self._behind = t if self._behind is None else min(self._behind, t)
+            if t - self._behind < REBOOT_S:
+                return None  # not (yet) a reboot: out of order
+            self.offset += self.last - self._behind  # behind and going on: a reboot
+            t += self.last - self._behind
         self._behind = None
         if t > self.last + MAX_LOG_GAP_S and math.isfinite(self.last):
             self.offset -= t - (self.last + MAX_LOG_GAP_S)
@@ -1039,10 +1044,18 @@ class MavlinkSource(SampleHoldSource):
         return [*_IMU_TYPES, *_ATT_TYPES, "HEARTBEAT", "EXTENDED_SYS_STATE"]
 
     def _no_messages(self, types: list[str]) -> SourceError:
-        return SourceError(
-            f"mavlink log {self.url}: no {' or '.join(types)} messages (is it a "
-            "telemetry .tlog or a DataFlash .bin with IMU and ATT?)"
-        )
+        try:  # pymavlink reads a log by its name: one named for the other format has none
+            with open(self.url, "rb") as fh:
+                head = fh.read(9)
+        except OSError:
+            head = b""
+        if types == ["IMU", "ATT"] and head[8:] in (b"\xfd", b"\xfe"):
+            hint = "it is a telemetry log (MAVLink frames): give it a name ending in .tlog"
+        elif types != ["IMU", "ATT"] and head[:2] == b"\xa3\x95":
+            hint = "it is a DataFlash log: give it a name ending in .bin"
+        else:
+            hint = "is it a telemetry .tlog or a DataFlash .bin with IMU and ATT?"
+        return SourceError(f"mavlink log {self.url}: no {' or '.join(types)} messages; {hint}")
 
     def _check_log_has_messages(self) -> None:
         """A log without a message of the states is refused when opened, before a run
@@ -1090,14 +1103,19 @@ class MavlinkSource(SampleHoldSource):
             dataflash = False
 
         def next_msg() -> tuple[Any, float]:
-            with _quiet():  # pymavlink prints each bad byte range of a log
-                msg = conn.recv_match(type=types)
-            if msg is None:
-                return None, math.inf
-            if clock is None:
-                return msg, msg._timestamp
-            shortened = clock.gaps_shortened
-            t = clock.advance(msg._timestamp) if dataflash else clock(msg)
+            t = None
+            while t is None:  # (None: out of order, old data never fed in as new: invalid)
+                with _quiet():  # pymavlink prints each bad byte range of a log
+                    msg = conn.recv_match(type=types)
+                if msg is None:
+                    return None, math.inf
+                if clock is None:
+                    return msg, msg._timestamp
+                shortened = clock.gaps_shortened
+                t = clock.advance(msg._timestamp) if dataflash else clock(msg)
+                if t is None:
+                    for key in ("received", "accepted", "rejected_invalid"):
+                        self._c[key] += 1
             if clock.gaps_shortened == 1 and not shortened:
                 _log.warning(
                     "mavlink log %s: its vehicle clock jumps ahead by more than %g s; such a "
