@@ -1054,11 +1054,13 @@ def test_a_frame_field_narrower_than_the_limits_is_braked_for_not_hit(monkeypatc
     check_steps(t, q, vmax, amax, 0.01, rounding, "braking for the frame's field")
 
 
-def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog):
+def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog, monkeypatch):
     """The drive vanishes in full motion (its port refuses: send errors) and returns 1.5 s of
     motion later: its first frame after the outage is within one frame's travel of the last
     one it got (at most two frames at full speed, plus a first step from rest), and from there
-    the frames keep the speed and acceleration limits; the run ends parked."""
+    (where it stands while the link is on probation) the frames keep the speed and
+    acceleration limits, per frame on the sender's clock (:func:`drive_wire.check_steps`);
+    the run ends parked."""
     config = load_config()
     pipeline = Pipeline(config)
     limits = pipeline.robot.limits
@@ -1066,6 +1068,7 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
     drive = UdpDrive()
     rate = 100.0
     sink = open_output(drive.url(rate), mapping_for(Pipeline(config).robot), limits=limits)
+    clock = keep_sender_clock(sink, monkeypatch)
     ticks = [0]
 
     def count(_out) -> None:
@@ -1076,8 +1079,8 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
         runner.start()
         try:
             assert wait_until(lambda: ticks[0] >= int(2.5 / dt), timeout=60)  # full motion
-            n_before = drive.count()
             drive.vanish()
+            n_before = drive.count()  # (its reader has stopped)
             gone_at = ticks[0]
             assert wait_until(lambda: not sink.link_up, timeout=30)
             assert wait_until(lambda: ticks[0] >= gone_at + int(1.5 / dt), timeout=60)
@@ -1087,15 +1090,16 @@ def test_a_udp_drive_back_from_an_outage_is_ramped_from_where_it_last_was(caplog
             drive.drain()
         finally:
             drive.close()
-    t, q = drive.angles()
-    assert len(t) > n_before + 100
+    _, q = drive.angles()
+    assert len(q) > n_before + 100
     last_before, first_after = q[n_before - 1], q[n_before]
     period = 1.0 / rate
     reach = 2 * limits.max_speed * period + limits.max_accel * period**2
     assert np.all(np.abs(first_after - last_before) <= reach), np.degrees(first_after - last_before)
-    after_t = np.r_[t[n_before - 1], t[n_before:]]
-    after_q = np.vstack([last_before, q[n_before:]])
-    check_wire_limits(after_t, after_q, limits.max_speed, limits.max_accel, "after the outage")
+    # the frames after it are the last ones sent (loopback: every one arrived)
+    after_t = clock.times[n_before - len(q) :]
+    vmax, amax = limits.max_speed, limits.max_accel
+    check_steps(after_t, q[n_before:], vmax, amax, period, TEXT_ROUNDING, "after the outage")
     np.testing.assert_allclose(q[-1], pipeline.robot.park_angles, atol=math.radians(1e-4))
     assert sink.send_errors > 0
     said = [r.getMessage() for r in caplog.records]
