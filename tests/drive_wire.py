@@ -15,6 +15,13 @@ with ``q`` interpolated linearly between arrivals: a drive that moves within its
 acceleration limits satisfies both, whatever the frames' spacing. Arrival times may be off
 by up to ``JITTER_S`` (a loaded machine's scheduling of the sender), which the tolerances
 allow for: ``vmax (W + 2 J) / W`` and ``amax + 4 vmax J / W^2``.
+
+That holds only while the sender keeps its schedule. A sender thread kept off the
+processor for more than two periods (a loaded machine) leaves the drive standing at its
+last frame, and the ramp starts it again from rest (:func:`motionbase.io.motor_output.
+ramp_step`): on the wall clock the drive stopped at once, which no sender can help. What
+the ramp guarantees is per frame, on the sender's own clock: :class:`SenderClock` keeps
+that clock for a test, and :func:`check_steps` checks the frames against it.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import re
 import socket
 import struct
 import threading
+import time
 from urllib.parse import quote
 
 import numpy as np
@@ -194,6 +202,98 @@ def check_wire_limits(t: np.ndarray, q: np.ndarray, vmax, amax, what: str = "") 
         f"{what}: {np.round(accel, 2)} rad/s^2 on the wire, limits {amax}"
     )
     return speed, accel
+
+
+class SenderClock:
+    """The clock of a :class:`~motionbase.io.motor_output.MotorOutput`'s sender, kept by a
+    test: it reads the time the sender has waited for (its waits still take that long), so
+    the sender's steps are one period apart whatever the machine's load did to its thread;
+    ``times`` holds the time of each frame put on the wire (by the sender's thread, or by
+    ``close()`` once that thread has stopped: one writer at a time).
+
+    Install it before the sink opens: ``monkeypatch.setattr(motor_output, "time", clock)``
+    (:func:`keep_sender_clock`).
+    """
+
+    def __init__(self, sink) -> None:
+        self.now = 1000.0
+        self.times: list[float] = []
+        send = sink.transport.send
+
+        def timed_send(frame: bytes) -> None:
+            send(frame)  # (not kept when refused: it raises)
+            self.times.append(self.now)
+
+        clock = self
+
+        class Waits(threading.Event):  # the sender thread's waits between frames
+            def wait(self, timeout: float | None = None) -> bool:
+                if super().wait(timeout):
+                    return True
+                clock.now += timeout
+                return False
+
+        sink.transport.send = timed_send
+        sink._stop = Waits()
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+        self.now += seconds
+
+
+def keep_sender_clock(sink, monkeypatch) -> SenderClock:
+    """Give ``sink`` (not yet open) a :class:`SenderClock`."""
+    from motionbase.io import motor_output
+
+    clock = SenderClock(sink)
+    monkeypatch.setattr(motor_output, "time", clock)
+    return clock
+
+
+def check_steps(t, q, vmax, amax, period: float, rounding: float = 0.0, what: str = "") -> None:
+    """Assert the drive-side ramp's guarantee (:func:`motionbase.io.motor_output.ramp_step`)
+    on frames ``q`` (k, n) put on the wire at ``t`` (s) by a sender on a clock the test
+    keeps (:class:`SenderClock`: it is never late): each step's speed over its time is at
+    most ``vmax``, and its change from the step before at most ``amax`` times its time.
+
+    The drive holds each frame until the next. Where none came for more than two periods
+    the ramp takes it to have stood still and starts it again from rest, over one period:
+    so it must have come to rest within one period of the step before (a sender that
+    stops sending a moving drive stops it at once: a drive range it could not send used
+    to); and after the last frame (the end of the ramp) likewise. A frame at the time of
+    the one before must be the same (a frame sent again). ``rounding``: the wire's rounding
+    of a position (half its unit), allowed for on each position.
+    """
+    t, q = np.asarray(t, dtype=float), np.asarray(q, dtype=float)
+    again = np.flatnonzero(np.diff(t) == 0) + 1
+    assert np.array_equal(q[again], q[again - 1]), f"{what}: two frames at one time"
+    t, q = np.delete(t, again), np.delete(q, again, axis=0)
+    dt = np.diff(t)
+    assert np.all(dt > 0), f"{what}: frames out of order"
+    gap = dt > 2.0 * period
+    dt[gap] = period
+    v = np.diff(q, axis=0) / dt[:, None]
+    slack = 2.0 * rounding / dt  # (a speed's error from its two rounded positions)
+    over_v = np.abs(v) - vmax * (1 + 1e-9) - slack[:, None]
+    assert np.all(over_v <= 0), f"{what}: a step {over_v.max():.3g} over the speed limit"
+    # each step's change from the one before (from rest at the start and after a gap), and
+    # the stops where the frames pause or end: (change, its time, the speeds' rounding)
+    zero = np.zeros(q.shape[1])
+    changes, prev, prev_slack = [], zero, 0.0
+    for k in range(len(v)):
+        if gap[k]:
+            changes.append((prev, period, prev_slack))
+            prev, prev_slack = zero, 0.0
+        changes.append((v[k] - prev, dt[k], slack[k] + prev_slack))
+        prev, prev_slack = v[k], slack[k]
+    changes.append((prev, period, prev_slack))
+    for k, (dv, h, err) in enumerate(changes):
+        assert np.all(np.abs(dv) <= amax * h * (1 + 1e-9) + err), (
+            f"{what}: {np.round(np.abs(dv) / h, 3)} on change {k} of {len(changes)}, limits {amax}"
+        )
 
 
 def sweep_holds(q: np.ndarray, neutral, half_range: float, atol: float) -> np.ndarray:

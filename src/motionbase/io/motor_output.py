@@ -79,8 +79,8 @@ Behaviour
   warning line; the pipeline and its log go on; a serial port is reopened once a second and
   sending resumes (``link back`` line) when it returns. Frames sent while the link is
   reported down (from the first failed send until a second of sends without errors) count as not
-  received: when it returns, the drive is ramped from the last frame sent before (from the
-  first command, park, when none got through), within the limits. (UDP cannot tell
+  received, and hold the drive at the last frame sent before (at the first command, park, when
+  none got through): once the link is back it is ramped on from there, from rest. (UDP cannot tell
   whether a datagram arrived: on a network that drops frames without an error, the
   drive-side limiter still bounds each step by the time elapsed.)
 """
@@ -1061,6 +1061,15 @@ class MotorOutput:
                 self._given_limits, self.mapping, self.format, inside=command.angles
             )
             self._given_limits = None
+        if not self.link_up and self._drive is not None:
+            # down or on probation: the frames that do arrive hold the drive where it was
+            # last known to be, and it is ramped on from rest once the link is back. (They
+            # were steps from rest toward the command, changing direction, and then the
+            # ramp went on at the last one's speed: up to twice the acceleration limit.)
+            held = self._encode(self.mapping.to_drive(self._drive.q))
+            if held is not None:
+                self._send(held, now)
+            return False
         # the next frame toward the command (:func:`ramp_step`)
         step = ramp_step(
             self._drive, command, now,
