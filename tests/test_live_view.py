@@ -2,8 +2,9 @@
 
 The client here is written from Foxglove's WebSocket protocol (``websockets`` package,
 subprotocol ``foxglove.sdk.v1`` or the older ``foxglove.websocket.v1``): it reads the server's
-``serverInfo`` and ``advertise`` JSON messages, sends ``subscribe`` with a subscription id per
-channel, and decodes binary message frames (opcode 0x01, subscription id u32 LE, log time
+``serverInfo`` and ``advertise`` JSON messages (these at any time, as Foxglove does: a topic is
+advertised with its first message), sends ``subscribe`` with a subscription id per channel as
+it is advertised, and decodes binary message frames (opcode 0x01, subscription id u32 LE, log time
 u64 LE, payload). The runs are real ``motionbase`` processes on loopback (port 0: the process
 prints the port it got), stopped with SIGINT once the client has what it needs; the MCAP file
 of the same run is read back with the ``mcap`` reader. The live feed is the log at a screen's
@@ -52,6 +53,9 @@ PLANAR_RECORDING = ROOT / "recordings" / "c1723_planar_15s.mcap"
 RUS6_RECORDING = ROOT / "recordings" / "c1723_30s.mcap"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 MESSAGE_DATA = 0x01
+#: the topics a flight of a 6-DOF robot logs, classical cueing
+STEWART_FLIGHT_TOPICS = {"/aircraft/state", "/washout/pose", "/platform/pose",
+                         "/platform/actuators", "/tf", "/platform/scene", "/health"}  # fmt: skip
 
 
 # --------------------------------------------------------------------------- helpers
@@ -80,41 +84,63 @@ def _start(
     pytest.fail(f"no live view line; exit {proc.returncode}: {''.join(lines)}")
 
 
-def _watch(url: str, topics: set[str], enough, proc: subprocess.Popen) -> dict[str, list]:
-    """Subscribe to ``topics``; collect (log_time, payload) per topic until ``enough(got)``,
-    then SIGINT the run and keep reading until the server closes the connection."""
-    got: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics}
-    with connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-        assert ws.subprotocol in SUBPROTOCOLS
-        info = json.loads(ws.recv(timeout=30))
-        assert info["op"] == "serverInfo"
-        channels: dict[str, int] = {}
-        while set(channels) != topics:
-            msg = ws.recv(timeout=30)
-            assert isinstance(msg, str), "binary data before any subscription"
-            msg = json.loads(msg)
-            if msg["op"] == "advertise":
-                channels.update(
-                    {c["topic"]: c["id"] for c in msg["channels"] if c["topic"] in topics}
-                )
-        by_sub = dict(enumerate(sorted(channels), start=1))  # subscription id -> topic
-        subs = [{"id": i, "channelId": channels[t]} for i, t in by_sub.items()]
-        ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-        interrupted = False
-        while True:
-            try:
-                msg = ws.recv(timeout=60)
-            except ConnectionClosed:  # the server stopped: the run ended
-                break
-            if isinstance(msg, str):
-                continue  # advertise/status messages
+class _Feed:
+    """What a Foxglove client keeps of one connection ``ws``: channels are advertised at any
+    time (a topic's with its first message), and each one of ``topics`` (None: every one) is
+    subscribed to as soon as it is; message frames are kept as (log time, payload) per topic.
+
+    Attributes: ``channels`` (topic -> its advertised channel), ``advertised`` (the topics of
+    each advertise message, in order), ``got`` (topic -> messages received)."""
+
+    def __init__(self, ws, topics: set[str] | None = None) -> None:
+        self.ws, self.topics = ws, topics
+        self.channels: dict[str, dict] = {}
+        self.advertised: list[set[str]] = []
+        self.got: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics or ()}
+        self._by_sub: dict[int, str] = {}  # subscription id -> topic
+
+    def handle(self, msg: str | bytes) -> None:
+        """Take one message from the server (serverInfo, status, unadvertise are ignored)."""
+        if isinstance(msg, bytes):
             assert msg[0] == MESSAGE_DATA
             sub, log_time = struct.unpack_from("<IQ", msg, 1)
-            got[by_sub[sub]].append((log_time, bytes(msg[13:])))
-            if not interrupted and enough(got):
-                proc.send_signal(signal.SIGINT)
-                interrupted = True
-    return got
+            self.got[self._by_sub[sub]].append((log_time, bytes(msg[13:])))
+            return
+        msg = json.loads(msg)
+        if msg["op"] != "advertise":
+            return
+        self.advertised.append({c["topic"] for c in msg["channels"]})
+        subs = []
+        for c in msg["channels"]:
+            if c["topic"] not in self.channels and c["topic"] in (self.topics or [c["topic"]]):
+                self.channels[c["topic"]] = c
+                self.got.setdefault(c["topic"], [])
+                self._by_sub[len(self._by_sub) + 1] = c["topic"]
+                subs.append({"id": len(self._by_sub), "channelId": c["id"]})
+        if subs:
+            self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+
+def _watch(
+    url: str, topics: set[str], enough, proc: subprocess.Popen, advertised: set | None = None
+) -> dict[str, list]:
+    """Subscribe to ``topics`` as they are advertised; collect (log_time, payload) per topic
+    until ``enough(got)``, then SIGINT the run and keep reading until the server closes the
+    connection. Every topic the server advertises goes into ``advertised``."""
+    with connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        assert ws.subprotocol in SUBPROTOCOLS
+        assert json.loads(ws.recv(timeout=30))["op"] == "serverInfo"
+        feed = _Feed(ws, topics)
+        interrupted = False
+        with contextlib.suppress(ConnectionClosed):  # the server stopped: the run ended
+            while True:
+                feed.handle(ws.recv(timeout=60))
+                if not interrupted and enough(feed.got):
+                    proc.send_signal(signal.SIGINT)
+                    interrupted = True
+    if advertised is not None:
+        advertised.update(*feed.advertised)
+    return feed.got
 
 
 def _logged(path: Path, topics: set[str]) -> dict[str, dict[int, bytes]]:
@@ -156,12 +182,15 @@ def _finish(proc: subprocess.Popen) -> str:
     return out
 
 
-def _serve(args: list[str], tmp_path: Path, topics: set[str], enough) -> tuple[dict, str]:
+def _serve(
+    args: list[str], tmp_path: Path, topics: set[str], enough, advertised: set | None = None
+) -> tuple[dict, str]:
     """Run ``motionbase ARGS --live``, watch ``topics`` until ``enough(got)``, stop it with
-    SIGINT; return what was received per topic and the run's stdout."""
+    SIGINT; return what was received per topic and the run's stdout (the topics advertised
+    into ``advertised``)."""
     proc, url = _start(args, tmp_path)
     try:
-        got = _watch(url, topics, enough, proc)
+        got = _watch(url, topics, enough, proc, advertised)
     except BaseException:
         proc.kill()
         raise
@@ -243,13 +272,21 @@ def test_live_fly_serves_the_logged_actuators_and_scene(tmp_path):
 
 
 def test_live_replay_of_the_planar_recording(tmp_path):
+    """The topics advertised are the log's (the run advertised every topic: the 6-DOF
+    platform's and the MPC's too, never written by a planar run without MPC)."""
     out = tmp_path / "replay.mcap"
+    advertised: set[str] = set()
     got, _ = _serve(
         ["replay", str(PLANAR_RECORDING), "--out", str(out)],
         tmp_path,
         {"/planar/actuators", "/platform/scene"},
         lambda g: len(g["/planar/actuators"]) >= 30,
+        advertised,
     )
+    with open(out, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert advertised == {c.topic for c in summary.channels.values()}
+    assert "/planar/pose" in advertised and "/platform/pose" not in advertised
     ticks = np.diff(sorted(_logged(out, {"/planar/actuators"})["/planar/actuators"]))
     assert np.median(ticks) == pytest.approx(1e9 / 120, abs=1)  # a 120 Hz recording
     _assert_served_as_logged(got, out, at_120_hz=("/planar/actuators",))
@@ -388,48 +425,28 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
     logger = McapLogger(tmp_path / "live.mcap", {}, live=LiveAddress("127.0.0.1", 0)).start()
     url = f"ws://127.0.0.1:{logger.live_port}"
     topics = {"/platform/actuators", "/tf", "/platform/scene", "/health"}
-    got: dict[str, list] = {t: [] for t in topics}
-    subscribed = threading.Event()
-
-    def client() -> None:
-        with connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-            channels: dict[str, int] = {}
-            while set(channels) != topics:
-                msg = json.loads(ws.recv(timeout=30))
-                if msg["op"] == "advertise":
-                    channels.update({c["topic"]: c["id"] for c in msg["channels"]})
-                    channels = {t: i for t, i in channels.items() if t in topics}
-            by_sub = dict(enumerate(sorted(channels), start=1))
-            subs = [{"id": i, "channelId": channels[t]} for i, t in by_sub.items()]
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-            subscribed.set()
-            try:
-                while True:
-                    msg = ws.recv(timeout=60)
-                    if isinstance(msg, bytes):
-                        sub, log_time = struct.unpack_from("<IQ", msg, 1)
-                        got[by_sub[sub]].append((log_time, bytes(msg[13:])))
-            except ConnectionClosed:
-                pass
-
-    thread = threading.Thread(target=client)
-    thread.start()
+    client = _Client(url, topics)
+    client.start()
+    scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
     try:
-        assert subscribed.wait(30)
-        # the server applies the subscription on its own thread: /health messages (20 ms
-        # apart, on the 60 Hz grid) until the client has one, then the test's ticks from the
-        # next whole second (it slept 0.5 s instead, which a loaded machine could outlast)
+        # a topic is advertised with its first message and the server applies a subscription
+        # on its own thread: each topic every 20 ms (on the 60 Hz grid) until the client has
+        # one of each, then the test's ticks from a whole second at least 1 s later (the
+        # world -> base transform is due again there)
         deadline = time.monotonic() + 30  # a watchdog, not a bound
         k = 0
-        while not got["/health"]:
-            assert time.monotonic() < deadline, "the subscription never took effect"
-            logger.add("/health", k * 0.02, {"t": k * 0.02, "samples": 0})
+        while not all(client.feed.got[t] for t in topics):
+            assert time.monotonic() < deadline, "the subscriptions never took effect"
+            t = k * 0.02
+            logger.add("/platform/actuators", t, {"t": t, "angles": np.full(6, t)})
+            logger.add_transform(t, np.zeros(6))
+            logger.add_scene(t, scene.parts(t, np.zeros(6), np.zeros(6)))
+            logger.add("/health", t, {"t": t, "samples": 0})
             logger.flush()
             k += 1
             time.sleep(0.01)
-        t0 = float(math.ceil(k * 0.02 + 0.5))
+        t0 = float(math.ceil(k * 0.02 + 1.0))
         t0_ns = round(t0 * 1e9)
-        scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
         for k in range(rate * seconds):
             t = t0 + k / rate
             pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1 * math.sin(t)])
@@ -443,12 +460,18 @@ def test_live_feed_is_the_log_at_60_hz_per_topic(tmp_path):
                 time.sleep(0.002)  # let the server's queue drain (its backlog is 1024)
         logger.flush()  # the last records to the writer process (it gets them in batches)
         deadline = time.monotonic() + 10  # the server sends on its own thread: let it
-        while len(got["/platform/actuators"]) < 60 * seconds and time.monotonic() < deadline:
+        acts = client.feed.got["/platform/actuators"]
+        while sum(n >= t0_ns for n, _ in acts) < 60 * seconds and time.monotonic() < deadline:
             time.sleep(0.01)
     finally:
         logger.finish()
-        thread.join(60)
-    logged = _logged(tmp_path / "live.mcap", topics)
+        client.join(60)
+    # from t0 on: the warm-up's messages left out
+    got = {t: [(n, p) for n, p in m if n >= t0_ns] for t, m in client.feed.got.items()}
+    logged = {
+        t: {n: p for n, p in m.items() if n >= t0_ns}
+        for t, m in _logged(tmp_path / "live.mcap", topics).items()
+    }
     assert len(logged["/platform/actuators"]) == rate * seconds  # the file: every tick
     acts, _ = _received_as_logged(got["/platform/actuators"], logged["/platform/actuators"],
                                      "/platform/actuators")  # fmt: skip
@@ -551,22 +574,13 @@ def test_fly_live_needs_realtime(capsys):
     assert len(err.strip().splitlines()) == 1 and "--realtime" in err
 
 
-def _stalled_client(ws, topics: set[str] | None = None) -> None:
-    """Subscribe ``ws`` (:func:`_slow_connection`) to ``topics`` (None: every one of the
-    first advertise); it reads nothing more."""
-    channels: dict[str, int] = {}
-    while not channels or (topics is not None and set(channels) != topics):
-        msg = json.loads(ws.recv(timeout=30))
-        if msg["op"] == "advertise":
-            channels.update(
-                {
-                    c["topic"]: c["id"]
-                    for c in msg["channels"]
-                    if c["topic"] in (topics or [c["topic"]])
-                }
-            )
-    subs = [{"id": i, "channelId": c} for i, c in enumerate(channels.values(), start=1)]
-    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+def _stalled_client(ws, topics: set[str]) -> _Feed:
+    """Read ``ws`` (:func:`_slow_connection`) until every one of ``topics`` is advertised,
+    subscribing to each as it is (:class:`_Feed`); it reads nothing more."""
+    feed = _Feed(ws, topics)
+    while set(feed.channels) != topics:
+        feed.handle(ws.recv(timeout=30))
+    return feed
 
 
 def _slow_connection(port: int):
@@ -591,7 +605,6 @@ def test_a_client_that_stops_reading_does_not_hold_the_logs_end(tmp_path):
     status 2 and the writer process stayed on, holding the port."""
     logger = McapLogger(tmp_path / "slow.mcap", {}, live=LiveAddress("127.0.0.1", 0)).start()
     with _slow_connection(logger.live_port) as ws:
-        _stalled_client(ws, {"/platform/scene", "/health"})
         scene = SceneBuilder(Rus6Robot(Rus6Geometry.preset("ceart")))
         n = 3000  # 100 s of scenes at 30 Hz, about 15 MB: far more than the sockets hold
         for k in range(n):
@@ -600,6 +613,9 @@ def test_a_client_that_stops_reading_does_not_hold_the_logs_end(tmp_path):
             logger.add_scene(t, scene.parts(t, pose, np.zeros(6)))
             if k % 30 == 0:
                 logger.add("/health", t, {"t": t, "samples": k})
+            if k == 0:  # both topics advertised with their first message: subscribe, stall
+                logger.flush()
+                _stalled_client(ws, {"/platform/scene", "/health"})
         pid = logger.writer_pid
         logger.finish()  # raised SinkError
     with pytest.raises(ChildProcessError):  # the writer is gone (reaped by finish)
@@ -608,42 +624,29 @@ def test_a_client_that_stops_reading_does_not_hold_the_logs_end(tmp_path):
 
 
 class _Client(threading.Thread):
-    """A client on its own thread: subscribes to every topic advertised (all of them, or
-    ``topics``) and keeps (log time, payload) per topic and each topic's advertised channel."""
+    """A client on its own thread: its ``feed`` (:class:`_Feed`) of every topic (or of
+    ``topics``) until the server closes the connection."""
 
     def __init__(self, url: str, topics: set[str] | None = None) -> None:
         super().__init__(daemon=True)
-        self.url, self.topics = url, topics
-        self.channels: dict[str, dict] = {}
-        self.got: dict[str, list[tuple[int, bytes]]] = {}
+        self.url, self.feed = url, _Feed(None, topics)
 
     def run(self) -> None:
         with connect(self.url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
             assert json.loads(ws.recv(timeout=30))["op"] == "serverInfo"
-            msg = json.loads(ws.recv(timeout=30))  # all channels come in the first advertise
-            assert msg["op"] == "advertise"
-            wanted = [
-                c for c in msg["channels"] if self.topics is None or c["topic"] in self.topics
-            ]
-            self.channels = {c["topic"]: c for c in wanted}
-            by_sub = {i: c["topic"] for i, c in enumerate(wanted, start=1)}
-            self.got = {t: [] for t in self.channels}
-            subs = [{"id": i, "channelId": self.channels[t]["id"]} for i, t in by_sub.items()]
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            self.feed.ws = ws
             with contextlib.suppress(ConnectionClosed):
                 while True:
-                    msg = ws.recv(timeout=60)
-                    if isinstance(msg, bytes):
-                        sub, log_time = struct.unpack_from("<IQ", msg, 1)
-                        self.got[by_sub[sub]].append((log_time, bytes(msg[13:])))
+                    self.feed.handle(ws.recv(timeout=60))
 
 
 @pytest.mark.parametrize("robot", ["stewart6", "heave3"])
 def test_live_view_of_a_robot_with_linear_actuators(robot, tmp_path):
     """A 6-UPS Stewart platform and the plug-in robot of tests/heave3_robot.py (registered by
     a script that imports it, as the README's "Adding a robot" says), flown live with two
-    clients, the second connecting mid-run: every message matches its advertised JSON Schema
-    and is the log's, byte for byte; the scene draws one straight leg per actuator, base
+    clients, the second connecting mid-run: each advertised the log's channels, the second
+    at once those made before it connected; each channel's schema is the log's, every message
+    matches it and is the log's, byte for byte; the scene draws one straight leg per actuator, base
     joint to platform joint, as long as the length logged for that tick (m), the base
     joints fixed and the platform joints fixed in the platform frame of the /tf served."""
     import jsonschema
@@ -661,9 +664,10 @@ def test_live_view_of_a_robot_with_linear_actuators(robot, tmp_path):
         first.start()
         late = None
         deadline = time.monotonic() + 120  # a watchdog, not a bound
-        while late is None or len(late.got.get("/platform/actuators", ())) < 30:
+        while late is None or len(late.feed.got["/platform/actuators"]) < 30:
             assert time.monotonic() < deadline and first.is_alive()
-            if late is None and len(first.got.get("/platform/actuators", ())) >= 60:
+            if late is None and len(first.feed.got.get("/platform/actuators", ())) >= 60:
+                made = set(first.feed.channels.copy())  # on the server before late connects
                 late = _Client(url, {"/platform/actuators", "/tf"})
                 late.start()
             time.sleep(0.05)
@@ -674,10 +678,19 @@ def test_live_view_of_a_robot_with_linear_actuators(robot, tmp_path):
         raise
     first.join(60)
     late.join(60)
+    with open(out, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    in_file = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+    assert "/platform/pose" in made and late.feed.advertised[0] >= made
     for client in (first, late):
-        logged = _logged(out, set(client.got))
-        for topic, got in client.got.items():
-            schema = json.loads(client.channels[topic]["schema"])
+        assert set().union(*client.feed.advertised) == set(in_file)
+        logged = _logged(out, set(client.feed.got))
+        for topic, got in client.feed.got.items():
+            channel = client.feed.channels[topic]
+            assert channel["encoding"] == "json" and channel["schemaEncoding"] == "jsonschema"
+            assert channel["schemaName"] == in_file[topic].name
+            assert channel["schema"].encode() == in_file[topic].data
+            schema = json.loads(channel["schema"])
             validator = jsonschema.validators.validator_for(schema)
             validator.check_schema(schema)  # once a topic (validate() checks it each call)
             validator = validator(schema)
@@ -691,9 +704,10 @@ def test_live_view_of_a_robot_with_linear_actuators(robot, tmp_path):
                 assert got and set(got) <= tf
             elif got:
                 _received_as_logged(got, logged[topic], topic)
-    assert late.got["/tf"][0][0] > first.got["/tf"][0][0]  # it came late ...
-    world = [t for t, p in late.got["/tf"] if json.loads(p)["child_frame_id"] == "base"]
-    assert world and world[0] - late.got["/tf"][0][0] <= 1_000_000_000  # ... and got the world
+    late_tf, first_tf = late.feed.got["/tf"], first.feed.got["/tf"]
+    assert late_tf[0][0] > first_tf[0][0]  # it came late ...
+    world = [t for t, p in late_tf if json.loads(p)["child_frame_id"] == "base"]
+    assert world and world[0] - late_tf[0][0] <= 1_000_000_000  # ... and got the world
     # the scene, against the logged lengths and the served /tf
     msgs = read_messages(out)
     lengths = {m["t"]: np.array(m["angles"]) for m in msgs["/platform/actuators"]}
@@ -702,7 +716,7 @@ def test_live_view_of_a_robot_with_linear_actuators(robot, tmp_path):
         for m in msgs["/tf"]
         if m["child_frame_id"] == "platform"
     }
-    scenes = [json.loads(p) for _, p in first.got["/platform/scene"]]
+    scenes = [json.loads(p) for _, p in first.feed.got["/platform/scene"]]
     assert len(scenes) >= 10
     # heave3 takes its actuators as vertical (it neglects their lean at a tilt, see its file):
     # its drawn tops move in the plate frame by the cosine error of the tilt, under 1 mm here
@@ -753,7 +767,7 @@ def test_a_stalled_client_does_not_stop_a_flight_that_drives_motors(tmp_path):
     proc, url = _start([*args, "--output", drive.url(100), "--out", str(out)], tmp_path)
     try:
         with _slow_connection(int(url.rsplit(":", 1)[1])) as ws:
-            _stalled_client(ws)
+            stalled = _stalled_client(ws, STEWART_FLIGHT_TOPICS)
             other = _Client(url, {"/platform/actuators"})  # and one that reads
             other.start()
             summary = _finish(proc)
@@ -762,8 +776,12 @@ def test_a_stalled_client_does_not_stop_a_flight_that_drives_motors(tmp_path):
         drive.close()
     other.join(60)
     logged = _logged(out, {"/platform/actuators"})["/platform/actuators"]
-    _assert_every_other_tick(other.got["/platform/actuators"], logged, "/platform/actuators")
+    _assert_every_other_tick(other.feed.got["/platform/actuators"], logged, "/platform/actuators")
     assert "stopped by duration" in summary
+    with open(out, "rb") as fh:  # the stalled client subscribed to every topic of the run
+        assert {c.topic for c in make_reader(fh).get_summary().channels.values()} == set(
+            stalled.channels
+        )
     msgs = read_messages(out)
     ticks = len(msgs["/platform/actuators"])
     assert ticks == len(msgs["/platform/pose"]) and msgs["/platform/actuators"][-1]["t"] > 8.0

@@ -175,16 +175,14 @@ class Writer:
         self._origin = config.get("platform_origin") or (0.0, 0.0, 0.0)
         self._context = foxglove.Context()  # channels hold only a weak reference to it
         self._server: Any = None
-        self._live: list[list] | None = None  # per topic: [live channel, next due ns]
+        self._live: list[list] | None = None  # per topic: [live channel or None, due ns, topic]
         self._live_period_ns = int(config["live_period_ns"])
         topics = config["topics"]
         if config["live"] is not None:
             host, port = config["live"]
             self._live_context = foxglove.Context()  # kept alive, as the file's
             self._start_server(host, int(port), self._live_context)  # first: no file left
-            self._live = [
-                [self._channel(t, n, s, self._live_context), _FIRST] for t, n, s in topics
-            ]
+            self._live = [[None, _FIRST, t] for t in topics]  # advertised at its first message
         try:
             self._file = LogFile(config["file"])
         except OSError as exc:
@@ -289,8 +287,12 @@ class Writer:
 
     def _to_live(self, index: int, data: bytes, ns: int, always: bool) -> None:
         """Serve ``data`` when its topic is due on its grid (at most one message per
-        ``live_period_ns`` of source time) and a client subscribed to it."""
+        ``live_period_ns`` of source time) and a client subscribed to it. A topic is
+        advertised with its first message, as the file gets its channel: a run advertises
+        only the topics it writes (it advertised every topic, a planar run the 6-DOF ones)."""
         entry = self._live[index]
+        if entry[0] is None:
+            entry[0] = self._channel(*entry[2], self._live_context)
         due = entry[1]
         if always or ns >= due - _LIVE_SLACK_NS:
             channel = entry[0]
@@ -321,8 +323,9 @@ class Writer:
         finally:
             for channel in self._channels:
                 channel.close()
-            for channel, _ in self._live or ():
-                channel.close()
+            for channel, *_ in self._live or ():
+                if channel is not None:
+                    channel.close()
             self._file.close()
             self.stop_server()
         if self._file.error is not None:
