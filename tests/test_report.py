@@ -35,11 +35,16 @@ CUE_RGB = (0xD9, 0x48, 0x0F)  # the report's platform colour
 
 
 @pytest.fixture(scope="module")
-def rus6_flight(tmp_path_factory):
+def rus6_run(tmp_path_factory):
+    """The flight's :class:`~motionbase.app.RunResult` and its log."""
     path = tmp_path_factory.mktemp("rus6") / "c1723.mcap"
     # the SIMONA set (gains 0.5), which the last test tells from a perfect cueing
-    fly("c1723", duration_s=10, out=path, washout="default", progress=False)
-    return path
+    return fly("c1723", duration_s=10, out=path, washout="default", progress=False), path
+
+
+@pytest.fixture(scope="module")
+def rus6_flight(rus6_run):
+    return rus6_run[1]
 
 
 @pytest.fixture(scope="module")
@@ -130,6 +135,32 @@ def test_rus6_summary_names_every_metric_with_finite_numbers(rus6_written):
         if m:
             lo, hi, lim_lo, lim_hi = map(float, m.groups()[1:])
             assert lim_lo <= lo <= hi <= lim_hi
+
+
+def test_range_used_is_the_flights_as_the_end_of_run_summary_says(rus6_run, rus6_written):
+    """The crank ranges are the flight's (full motion), the start and park ramps on a line of
+    their own, as the end-of-run summary gives them: they took every tick, so each range ran
+    from the park angle (-55 deg), 5 deg from the -60 deg limit, whatever the flight did."""
+    result, path = rus6_run
+    msgs = read_messages(path)
+    phase = {m["t"]: m["phase"] for m in msgs["/platform/pose"]}
+    angles = np.degrees([m["angles"] for m in msgs["/platform/actuators"]])
+    flight = np.array([phase[m["t"]] == "running" for m in msgs["/platform/actuators"]])
+    expected = np.array([angles[flight].min(axis=0), angles[flight].max(axis=0)])
+    assert (angles[~flight].min(axis=0) < expected[0] - 1.0).all()  # the park angle lies below
+    text = (rus6_written / "summary.txt").read_text()
+    used = []
+    for line in text.splitlines():
+        m = re.match(r"\s+(\d): +(-?[\d.]+) \.\. +(-?[\d.]+) +\(", line)
+        if m:
+            used.append([float(m[2]), float(m[3])])
+    assert len(used) == 6
+    np.testing.assert_allclose(np.transpose(used), expected, rtol=0, atol=0.051)
+    np.testing.assert_allclose(np.transpose(used), np.degrees(result.summary.angle_range),
+                               rtol=0, atol=0.051)  # fmt: skip
+    assert f"flight ({int(flight.sum())} ticks at full motion)" in text
+    s = result.summary
+    assert f"parking: start ramp {s.start_s:.1f} s, way back to park {s.stop_s:.1f} s" in text
 
 
 def test_planar_summary_says_what_the_robot_cannot_cue(planar_written):

@@ -672,12 +672,22 @@ def summary_text(report: Report, metadata: Mapping[str, Any] | None = None) -> s
             f"  warning: {name}: the solver failed on {failed} of {ticks} ticks, which fell "
             f"back (the pose blended toward its fallback washout; each tick on /cueing/{name})"
         )
+    # as the end-of-run summary: the flight's range (full motion), the ramps apart (they
+    # start and end at park, which would stand for the range's end otherwise)
     act, (lo, hi), unit = r.actuators_shown()
-    lines.append(f"  {r.actuator_label} [{unit}]: range used (limits)")
+    flight, start = r.phase == "running", r.phase == "starting"
+    lines.append(
+        f"  flight ({int(flight.sum())} ticks at full motion): {r.actuator_label} [{unit}] "
+        "range used (limits)"
+    )
     for i in range(act.shape[1]):
-        col = act[:, i][np.isfinite(act[:, i])]
+        col = act[flight, i][np.isfinite(act[flight, i])]
         used = f"{col.min():7.1f} .. {col.max():6.1f}" if col.size else "    n/a"
         lines.append(f"    {i + 1}: {used}   ({lo[i]:.1f} .. {hi[i]:.1f})")
+    lines.append(
+        f"  parking: start ramp {start.sum() * r.dt:.1f} s, way back to park "
+        f"{(~flight & ~start).sum() * r.dt:.1f} s (from and to park, not in the range above)"
+    )
     return "\n".join(lines) + "\n"
 
 
