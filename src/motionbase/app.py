@@ -1774,6 +1774,12 @@ def tune(
     problem = tuning.TuningProblem(
         geometry, tuple(manoeuvres), reach, cueing=cueing, robot=robot_name, preview=preview
     )
+    held_problem = held_start = None
+    if held:  # scored first: a held-out window too short to score is refused before tuning
+        held_problem = tuning.TuningProblem(
+            geometry, tuple(held), reach, cueing=cueing, robot=robot_name, preview=preview
+        )
+        held_start = held_problem.evaluate(start)
     bar = None
     t0 = time.monotonic()
     stopped_by = ""  # the reason of a stop after the start set was scored
@@ -1806,11 +1812,8 @@ def tune(
         if bar is not None:
             bar.close()
     holdout_scores = None
-    if held and not stop:
-        held_problem = tuning.TuningProblem(
-            geometry, tuple(held), reach, cueing=cueing, robot=robot_name, preview=preview
-        )
-        holdout_scores = (held_problem.evaluate(result.start), held_problem.evaluate(result.best))
+    if held_problem is not None and not stop:
+        holdout_scores = (held_start, held_problem.evaluate(result.best))
     if stop and not stopped_by:  # the budget was spent; the stop came in the held-out scoring
         stopped_by, holdout_scores = stop.reason, None
     improved = result.best is not result.start
