@@ -18,6 +18,7 @@ import math
 import numpy as np
 import pytest
 
+from motionbase import stages
 from motionbase.app import fly, load_config
 from motionbase.io.mcap_source import read_messages, read_metadata
 from motionbase.pipeline import Pipeline
@@ -118,3 +119,25 @@ def test_the_concorde_take_off_run_realises_only_valid_poses(tmp_path):
     dt = 1.0 / config["pipeline"]["rate_hz"]
     park = angles[0]  # the run starts at park
     check_commands(g, angles, park, dt)
+
+
+def test_after_a_fallback_the_path_stage_resumes_and_poses_stay_valid():
+    """A 1 Hz cue beyond the workspace's edge, reversing at speed (the cue itself, through
+    the robot's side of the tick): where the path stage found no point the limiter's own
+    command was sent and the state's cue was left stale, so no later tick found one either
+    (5788 of 6000 ticks per servo) and a chain left its assembly 5 ticks after the first."""
+    config = load_config(planar=True)
+    pipeline = Pipeline(config)
+    P, S = pipeline.params, pipeline.state
+    S[0]["phase"], S[0]["blend"] = stages.RUNNING, 1.0
+    target, cue_out, pose, wanted = np.empty(6), np.empty(6), np.empty(3), np.empty(3)
+    angles, bits = np.empty((3000, 3)), np.empty(3000, dtype=int)
+    for k in range(3000):
+        t = k * config.dt
+        cue = np.array([0.15 * math.sin(4.84 * t), 0.5 * math.sin(6.28 * t), 0, 0, 0, 0])
+        cue[5] = 0.6 * math.sin(8.17 * t)
+        bits[k] = stages.after_cueing(
+            P, S, pipeline._solve, pipeline._G, cue, target, cue_out, pose, wanted, angles[k]
+        )
+    assert (bits & stages.PATH).any()  # the edge was met at speed
+    check_commands(pipeline.robot.geometry, angles, pipeline.robot.park_angles, config.dt)

@@ -667,6 +667,26 @@ def _path_point(P, solve, G, q0, v0, ql, c0, c1, f, c, x, w, b):  # pragma: no c
     return 1 if solve[0](G, probe, b[:6], b[12 + 2 * n : 12 + 2 * n + p.m], qt) else 0
 
 
+@numba.njit(cache=True)
+def _cue_of(P, solve, G, q, c, b):  # pragma: no cover - compiled
+    """The cue pose ``c`` (6,; in: a guess) whose actuators are ``q`` (Gauss-Newton on the
+    robot's kernel; ``b`` scratch of 6 + n + m): False when none is found unclamped."""
+    n = P[0].n
+    w, wj, x, jac = b[6 : 6 + n], np.empty(n), b[6 + n : 6 + n + P[0].m], np.empty((n, 6))
+    for _ in range(10):
+        if solve[0](G, c, b[:6], x, w):
+            return False
+        if np.max(np.abs(q - w)) < 1e-12:
+            return True
+        for j in range(6):
+            e = c.copy()
+            e[j] += 1e-7
+            solve[0](G, e, b[:6], x, wj)
+            jac[:, j] = (wj - w) / 1e-7
+        c += np.linalg.pinv(jac) @ (q - w)
+    return not solve[0](G, c, b[:6], x, w) and np.max(np.abs(q - w)) < 1e-9
+
+
 #: Bisection steps of :func:`path_stage` (a point within 2^-20 of the segment's length).
 PATH_STEPS = 20
 
@@ -693,7 +713,10 @@ def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - comp
 
     When the segment has none (a target behind the robot's motion), the nearest such point
     of the line the robot moves on (its last step continued) brakes it; when neither has
-    one, the limiter's own command is kept (the pose it realises unknown here). The limits
+    one, :func:`brake_stage` brakes the actuators together, and the cue pose its command
+    realises is found (:func:`_cue_of`), for the next tick to start from (left stale, no
+    later tick found a point: the limiter alone drove on and a chain left its assembly),
+    unless it is no unclamped pose (the pose is then found by forward kinematics). The limits
     are enforced by :func:`limit_stage` alone, which every command passes.
 
     Returns :func:`limit_stage`'s bits, with ``PATH`` (and ``RATE_LIMITED``) when the
@@ -726,7 +749,15 @@ def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - comp
             f = 0.5 * (lo + hi)
         if best >= 0.0:
             break
-    if best < 0.0:
+    if best < 0.0:  # braking together, from its cue next tick
+        c[:] = c0
+        s.q[:n], s.v[:n], s.wanted[:n] = q0, v0, q0
+        flags = brake_stage(P, S, q) | RATE_LIMITED  # (not the target's command)
+        if not flags & HELD and _cue_of(P, solve, G, q, c, b):
+            s.step[:] = c - c0
+            s.cue[:] = c
+            s.pose[:m] = pose[:] = x
+            flags |= PATH
         return flags
     _path_point(P, solve, G, q0, v0, ql, c0, end, best, c, x, w, b)
     s.q[:n], s.v[:n], s.wanted[:n] = q0, v0, q0
