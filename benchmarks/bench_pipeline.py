@@ -119,9 +119,12 @@ def flight_arrays(script: str = "c1723") -> tuple[np.ndarray, ...]:
     return t, f, w, att, rate
 
 
-def batch_throughput(arrays: tuple[np.ndarray, ...], repeat: int = 10) -> tuple[float, float]:
-    """Samples per second of :meth:`Pipeline.run_batch` (6-RUS, classical washout) over a
-    flight repeated ``repeat`` times end to end, best of 3; and the share of ticks clamped."""
+def batch_throughput(
+    arrays: tuple[np.ndarray, ...], repeat: int = 10, planar: bool = False
+) -> tuple[float, float]:
+    """Samples per second of :meth:`Pipeline.run_batch` (6-RUS, or the planar 3-RRR,
+    classical washout) over a flight repeated ``repeat`` times end to end, best of 3; and
+    the share of ticks clamped."""
     from motionbase import app
     from motionbase.pipeline import Pipeline
 
@@ -129,7 +132,7 @@ def batch_throughput(arrays: tuple[np.ndarray, ...], repeat: int = 10) -> tuple[
     span = t[-1] - t[0] + 1.0 / rate
     t = np.concatenate([t + k * span for k in range(repeat)])
     f, w, att = (np.tile(x, (repeat, 1)) for x in (f, w, att))
-    config = app.load_config(rate_hz=rate)
+    config = app.load_config(rate_hz=rate, planar=planar)
     best = np.inf
     for _ in range(3):
         pipeline = Pipeline(config)
@@ -150,7 +153,7 @@ def manoeuvring_arrays(seconds: float = 2000.0, rate_hz: float = 120.0) -> tuple
     return t, f, w, np.zeros((n, 3)), rate_hz
 
 
-def per_sample_cost(script: str = "c1723") -> tuple[np.ndarray, np.ndarray]:
+def per_sample_cost(script: str = "c1723", planar: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Time of Pipeline.step + the MCAP sink's write, per sample, in seconds: wall
     clock and the loop thread's CPU time.
 
@@ -183,7 +186,7 @@ def per_sample_cost(script: str = "c1723") -> tuple[np.ndarray, np.ndarray]:
                 cpu_ns.append(cpu() - started[1])
 
     with tempfile.TemporaryDirectory() as tmp, JsbsimSource(script) as source:
-        config = app.load_config(rate_hz=source.rate_hz)
+        config = app.load_config(rate_hz=source.rate_hz, planar=planar)
         pipeline = TimedPipeline(config)
         wall_ns.clear()  # the constructor's warm-up tick is not part of the run
         cpu_ns.clear()
@@ -255,6 +258,14 @@ def main() -> None:
             f"    {name}: p50 {p50:.1f} us, p99 {p99:.1f} us, p99.9 {p999:.1f} us, "
             f"max {cost.max() * 1e6:.0f} us"
         )
+    # the planar 3-RRR: its limiter commands poses (stages.path_stage: a bisection a tick)
+    rate, clamped = batch_throughput(flight_arrays(), repeat=10, planar=True)
+    wall, cpu = per_sample_cost(planar=True)
+    p50, p99 = np.percentile(cpu, [50, 99]) * 1e6
+    print(
+        f"  planar 3-RRR (path stage): batch {rate / 1e6:.2f} M samples/s ({clamped:.1%} "
+        f"clamped); step + log, thread CPU: p50 {p50:.1f} us, p99 {p99:.1f} us"
+    )
     short, full = fly_peak_rss_mib(50.0), fly_peak_rss_mib(200.0)
     print(f"  peak RSS of fly: 50 s flight {short:.0f} MiB, 200 s flight {full:.0f} MiB")
     print(f"  (this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB)")
