@@ -388,7 +388,7 @@ def test_a_sweep_through_a_drive_of_three_of_six_motors_says_which_it_does_not_r
     rx = UdpDrive(n=3)
     try:
         lines = output_test(
-            rx.url(200.0), "stewart6", range_mm=1.0, speed_mm_s=100.0, echo=lambda s: None
+            rx.url(200.0), "stewart6", range_mm=1.0, speed_mm_s=300.0, echo=lambda s: None
         )
         rx.drain()
     finally:
