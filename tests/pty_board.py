@@ -14,6 +14,9 @@ import threading
 import time
 import tty
 
+#: Board ends of closed boards (see :meth:`Board.close`).
+_RETIRED: list[int] = []
+
 
 class Board:
     """The board's side of a pty pair; ``path`` is the host's device."""
@@ -65,8 +68,12 @@ class Board:
             if not chunk:
                 break
             self._keep(chunk)
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        try:
+            os.close(self.master)  # the port vanishes: its path is gone, writes fail
+        except OSError:
+            pass
+        # The board's end stays open until this process ends: that keeps the terminal's
+        # number from being given to another test's pty while the host tries to reopen the
+        # vanished path (a motor output's serial drive did, reached another test's board
+        # and took its place as the host that board waited for; seen under parallel tests).
+        _RETIRED.append(self.slave)

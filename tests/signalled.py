@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 
 
 def signalled(
@@ -47,3 +48,13 @@ def signalled(
             proc.kill()
             proc.wait()
     return proc.returncode, err.decode()
+
+
+def handlers_installed(pid: int) -> bool:
+    """True once the process catches SIGHUP, SIGTERM and SIGQUIT (``/proc/PID/status``)."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = int(next(ln.split()[1] for ln in text.splitlines() if ln.startswith("SigCgt")), 16)
+    return all(caught >> (s - 1) & 1 for s in (signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT))

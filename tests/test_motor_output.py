@@ -440,7 +440,17 @@ def test_killing_the_peers_warns_once_and_the_flight_and_log_go_on(tmp_path, cap
     msgs = read_messages(out)
     assert len(msgs["/platform/actuators"]) == result.summary.samples > 120
     down = [r.getMessage() for r in caplog.records if "link is down" in r.getMessage()]
-    assert len(down) == 2, down  # one line per output
+    # one line per outage of each output: a second "down" only after a "link back" (the
+    # kernel's limit of ICMP replies a second can leave a refused datagram unreported for
+    # a second when other tests send to dead ports too: seen once in a full run)
+    for label in (f"serial:{pty_peer.path}", f"udp:127.0.0.1:{dead_port}"):
+        said = [
+            "down" if "link is down" in m else "back"
+            for m in (r.getMessage() for r in caplog.records)
+            if label in m and ("link is down" in m or "link back" in m)
+        ]
+        changes = zip(said[:-1], said[1:], strict=True)
+        assert said[:1] == ["down"] and all(a != b for a, b in changes), said
     assert any("serial:" + pty_peer.path in m for m in down)
     assert any("udp:" in m and "refused" in m.lower() for m in down)
     assert all("\n" not in m for m in down)

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from drive_wire import UdpDrive, check_wire_limits, read_complete_log, states_of_a_killed_run
+from signalled import handlers_installed
 from test_faults import check_logged_commands
 from test_mcap_log import _process_state
 
@@ -119,16 +120,6 @@ def _read_tty(run: Run) -> None:
                 run.tty_text += os.read(run.pty_master, 4096)
         except (OSError, ValueError, TypeError):
             return
-
-
-def handlers_installed(pid: int) -> bool:
-    """True once the process catches SIGHUP, SIGTERM and SIGQUIT (``/proc/PID/status``)."""
-    try:
-        text = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
-        return False
-    caught = int(next(ln.split()[1] for ln in text.splitlines() if ln.startswith("SigCgt")), 16)
-    return all(caught >> (s - 1) & 1 for s in (signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT))
 
 
 def wait_for(pred, proc: subprocess.Popen, what: str, timeout: float = 120) -> None:
