@@ -50,11 +50,13 @@ def signalled(
     return proc.returncode, err.decode()
 
 
-def handlers_installed(pid: int) -> bool:
-    """True once the process catches SIGHUP, SIGTERM and SIGQUIT (``/proc/PID/status``)."""
+def handlers_installed(
+    pid: int, signals: Sequence[int] = (signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT)
+) -> bool:
+    """True once the process catches ``signals`` (``/proc/PID/status``)."""
     try:
         text = Path(f"/proc/{pid}/status").read_text()
     except OSError:
         return False
     caught = int(next(ln.split()[1] for ln in text.splitlines() if ln.startswith("SigCgt")), 16)
-    return all(caught >> (s - 1) & 1 for s in (signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT))
+    return all(caught >> (s - 1) & 1 for s in signals)

@@ -65,15 +65,19 @@ def _drawing(tmp_path):
     return ready
 
 
-def _computing(proc: subprocess.Popen) -> None:
-    """A second after ``omct`` catches the stop signals (a loaded machine took over a second
-    to start Python itself, and the signal's default action killed it before a word)."""
-    deadline = time.monotonic() + 120  # a watchdog, not a bound
-    while not handlers_installed(proc.pid):
-        assert proc.poll() is None, "omct ended before it caught the stop signals"
-        assert time.monotonic() < deadline, "omct never caught the stop signals"
-        time.sleep(0.005)
-    time.sleep(1.0)
+def _computing(sig: int):
+    """A second after ``omct`` catches ``sig`` (a loaded machine took over a second to start
+    Python itself, and the signal's default action killed it before a word)."""
+
+    def ready(proc: subprocess.Popen) -> None:
+        deadline = time.monotonic() + 120  # a watchdog, not a bound
+        while not handlers_installed(proc.pid, [sig]):
+            assert proc.poll() is None, "omct ended before it caught the signal"
+            assert time.monotonic() < deadline, "omct never caught the signal"
+            time.sleep(0.005)
+        time.sleep(1.0)
+
+    return ready
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
@@ -85,7 +89,7 @@ def test_a_sigterm_ends_a_measurement_as_ctrl_c_does_and_leaves_no_part_file(sig
     default action used to kill it without a word, a staging folder left behind). (The
     signal came after fixed times, and a run that had ended by then passed unchecked.)"""
     args = ["omct", "--rate", "30", "--out", str(tmp_path / "o")]
-    ready = _computing if when == "computing" else _drawing(tmp_path)
+    ready = _computing(sig) if when == "computing" else _drawing(tmp_path)
     status, err = signalled(args, ready, sig, timeout_s=240)
     assert err.strip() == f"motionbase omct: interrupted ({sig.name})"
     assert status == 128 + sig
