@@ -54,7 +54,7 @@ class Board:
     def close(self) -> None:
         """Stop reading, take the bytes still in the pty (a host that has finished wrote
         them all; the reader thread could stop before it had read them: a test then saw a
-        run's last frames missing on a loaded machine) and close both ends (the port
+        run's last frames missing on a loaded machine) and close the host's end (the port
         vanishes)."""
         if self.stop.is_set():
             return  # closed already
