@@ -14,7 +14,7 @@ import threading
 import time
 import tty
 
-#: Board ends of closed boards (see :meth:`Board.close`).
+#: Device ends of closed boards, kept open (see :meth:`Board.close`).
 _RETIRED: list[int] = []
 
 
@@ -54,7 +54,7 @@ class Board:
     def close(self) -> None:
         """Stop reading, take the bytes still in the pty (a host that has finished wrote
         them all; the reader thread could stop before it had read them: a test then saw a
-        run's last frames missing on a loaded machine) and close the host's end (the port
+        run's last frames missing on a loaded machine) and close the board's end (the port
         vanishes)."""
         if self.stop.is_set():
             return  # closed already
@@ -72,7 +72,7 @@ class Board:
             os.close(self.master)  # the port vanishes: its path is gone, writes fail
         except OSError:
             pass
-        # The board's end stays open until this process ends: that keeps the terminal's
+        # The device's end stays open until this process ends: that keeps the terminal's
         # number from being given to another test's pty while the host tries to reopen the
         # vanished path (a motor output's serial drive did, reached another test's board
         # and took its place as the host that board waited for; seen under parallel tests).
