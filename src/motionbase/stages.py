@@ -764,8 +764,7 @@ def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - comp
     s.q[:n], s.v[:n], s.wanted[:n] = q0, v0, q0
     limit_stage(P, S, w, q)
     s.wanted[:n] = wanted  # the target's own speed is fed forward next tick
-    pose[:] = x
-    s.pose[:m] = x
+    s.pose[:m] = pose[:] = x
     s.step[:] = c - c0
     s.cue[:] = c
     return 0 if best == 1.0 and line == 0 else PATH | RATE_LIMITED
