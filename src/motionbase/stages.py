@@ -227,8 +227,7 @@ def reset_state(S: np.ndarray, P: np.ndarray) -> None:
     """Parked, at rest, no sample seen; the fade full (nothing stale yet)."""
     S[0] = np.zeros((), dtype=STATE)
     s = S[0]
-    s["q"] = P[0]["park_q"]
-    s["wanted"] = P[0]["park_q"]
+    s["q"] = s["wanted"] = P[0]["park_q"]
     s["pose"] = s["leg"] = P[0]["park_pose"]
     s["cue"] = P[0]["park_cue"]
     s["phase"] = STARTING
@@ -603,13 +602,14 @@ def path_step(distance: float, speed: float, dt: float, limits: ActuatorLimits) 
 
 
 def _point_along(
-    robot, pose: np.ndarray, goal: np.ndarray, q: np.ndarray, step: float, n_iter: int = 16
+    robot, pose: np.ndarray, goal: np.ndarray, q: np.ndarray, step: float
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The point of the pose segment ``pose -> goal`` whose actuators lie ``step`` (max
-    norm) from ``q``, by bisection on the fraction; ``(pose, actuators)`` or None."""
+    norm) from ``q``, by bisection on the fraction (16 steps); ``(pose, actuators)`` or
+    None."""
     lo, hi = 0.0, 1.0
     best = None
-    for _ in range(n_iter):
+    for _ in range(16):
         f = 0.5 * (lo + hi)
         candidate = pose + f * (goal - pose)
         if bool(robot.reachable(candidate)):
@@ -764,8 +764,7 @@ def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - comp
     s.q[:n], s.v[:n], s.wanted[:n] = q0, v0, q0
     limit_stage(P, S, w, q)
     s.wanted[:n] = wanted  # the target's own speed is fed forward next tick
-    pose[:] = x
-    s.pose[:m] = x
+    s.pose[:m] = pose[:] = x
     s.step[:] = c - c0
     s.cue[:] = c
     return 0 if best == 1.0 and line == 0 else PATH | RATE_LIMITED

@@ -397,7 +397,7 @@ def teleop_job(
                 cal = CursorCalibration.fit(px, source.unview(px))
             else:
                 cal = CursorCalibration.default(rrr3, *source.size_px)
-            if serial_url not in (None, "none"):
+            if drives:
                 from motionbase.io.serial_link import ServoSerialSink
 
                 sink = ServoSerialSink(serial_url, rate_hz=rate_hz).open()

@@ -174,7 +174,6 @@ def json_safe(obj: Any) -> Any:
 
 
 _SAFE_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, check_circular=False)
-_ORJSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY
 
 
 def encode_message(message: Any) -> bytes:
@@ -192,7 +191,7 @@ def encode_message(message: Any) -> bytes:
         A value JSON cannot hold (names its type).
     """
     try:
-        data = orjson.dumps(message, default=_json_default, option=_ORJSON_OPTIONS)
+        data = orjson.dumps(message, default=_json_default, option=orjson.OPT_SERIALIZE_NUMPY)
     except TypeError:  # orjson.JSONEncodeError: non-contiguous array, odd dtype, ...
         data = b"null"
     if b"null" in data:
@@ -321,6 +320,7 @@ class McapLogger:
             raise ConfigError(f"platform_origin must be 3 finite numbers (m), got {origin}")
         #: the platform frame's origin in the base frame at the neutral pose, m (``/tf``)
         self.platform_origin = tuple(float(v) for v in origin)
+        self.topics = {**(topics or {}), **TOPIC_SCHEMAS}
         for topic, entry in (topics or {}).items():  # topic -> (schema name, JSON Schema)
             ok = isinstance(topic, str) and topic.startswith("/") and isinstance(entry, tuple)
             ok = ok and len(entry) == 2 and isinstance(entry[0], str) and entry[0] != ""
@@ -330,10 +330,8 @@ class McapLogger:
                     f"MCAP topic {topic!r}: expected '/name' -> (schema name, JSON Schema of an "
                     f"object), got {entry!r:.80}"
                 )
-        self.topics = {**(topics or {}), **TOPIC_SCHEMAS}
-        for topic, entry in (topics or {}).items():  # the same message, sized to a robot
             if topic in TOPIC_SCHEMAS and entry[0] == TOPIC_SCHEMAS[topic][0]:
-                self.topics[topic] = entry
+                self.topics[topic] = entry  # the same message, sized to a robot
         self._index = {topic: i for i, topic in enumerate(self.topics)}
         if not (math.isfinite(live_rate_hz) and live_rate_hz > 0):
             raise ConfigError(f"live_rate_hz must be > 0, got {live_rate_hz!r}")

@@ -461,9 +461,8 @@ class BinaryFormat:
         ok = i.lo <= iv <= i.hi and _within(self.bounds, i.axis, iv / i.scale)
         return iv if ok else None
 
-    @property
-    def size(self) -> int:
-        """Bytes of a frame (the same for every frame)."""
+    def longest(self, drive_min: Sequence[float], drive_max: Sequence[float]) -> int:
+        """Bytes of a frame (the same for every frame, whatever the drive values)."""
         return sum(len(i.data) if i.kind == "lit" else i.size for i in self.items)
 
     def axis_ok(self, axis: int, value: float) -> bool:
@@ -758,15 +757,6 @@ def ramp_step(
     return (target if np.array_equal(q, target) else q), v, status
 
 
-def _longest_frame(fmt: FrameFormat, mapping: OutputMapping) -> int:
-    """Bytes of the longest frame ``fmt`` makes of the drive values ``mapping`` sends. (It
-    took the longest of the frames of zeros and of the drive range's ends: a text field
-    ``{1:g}`` of a 6-RUS at neutral writes ``-2.84184e-14``, 71 bytes a frame, not 25.)"""
-    if isinstance(fmt, TextFormat):
-        return fmt.longest(mapping.drive_min, mapping.drive_max)
-    return fmt.size
-
-
 def drive_limits(
     limits: ActuatorLimits,
     mapping: OutputMapping,
@@ -948,7 +938,6 @@ class MotorOutput:
         self._next_retry = 0.0
         self._last_error = -math.inf
         self._sent_ok_since = -math.inf  # the first of the sends since the last error
-        self._dmin, self._dmax = mapping.drive_min, mapping.drive_max
         self._broken = False
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -1020,7 +1009,7 @@ class MotorOutput:
     def _encode(self, values: np.ndarray) -> bytes | None:
         """The frame for drive values, or None when one is outside the range or the format."""
         vals = values.tolist()  # plain floats: much faster to format than numpy scalars
-        for x, lo, hi in zip(vals, self._dmin, self._dmax, strict=True):
+        for x, lo, hi in zip(vals, self.mapping.drive_min, self.mapping.drive_max, strict=True):
             if not lo <= x <= hi:  # False for NaN
                 return None
         return self.format.encode(vals)
@@ -1262,7 +1251,7 @@ def open_output(
         if not base:
             raise ConfigError(f"output {url!r}: give a device or pyserial URL after 'serial:'")
         dev = base + ("?" + urlencode(other) if other else "")
-        size = _longest_frame(fmt, mapping)
+        size = fmt.longest(mapping.drive_min, mapping.drive_max)
         if size * 10 * rate > baud:  # (10 bits a byte: start, 8 data, stop)
             raise ConfigError(
                 f"output {url!r}: frames of up to {size} bytes at {rate:g} Hz need "
@@ -1371,8 +1360,4 @@ def mapping_for(robot: Robot) -> OutputMapping:
     if out is not None:
         return out
     default = getattr(robot, "default_output", None)  # (a plug-in robot may predate it)
-    if default is not None:
-        return default()
-    lim = robot.limits
-    unit = "mm" if robot.actuator_unit == "m" else "deg"
-    return OutputMapping.default(lim.lower, lim.upper, unit=unit)
+    return default() if default is not None else Robot.default_output(robot)
