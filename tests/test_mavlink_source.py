@@ -18,7 +18,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,7 @@ from motionbase.errors import ConfigError, SourceError
 from motionbase.io.live_source import MIN_READS
 from motionbase.io.mavlink_source import (
     MAX_LOG_GAP_S,
+    REBOOT_S,
     MavlinkSource,
     MavlinkStats,
     load_signing_key,
@@ -1066,6 +1067,84 @@ def test_a_late_burst_of_old_samples_is_dropped_not_taken_for_a_reboot(tmp_path)
     assert stats.rejected_invalid == 2 * len(burst)
 
 
+def _replay_samples(path: Path, n: int = 600) -> tuple[np.ndarray, np.ndarray, Any]:
+    """Replay a crafted log at 100 Hz: each tick's time and the index of the pair whose
+    specific force it holds (-1: a stale tick, or values not of ``imu_values``), and the
+    stats."""
+    table = {f32(imu_values(i)[0]): i for i in range(n)}
+    with MavlinkSource(str(path), rate_hz=100.0, realtime=False) as src:
+        rows = [(s.t, table.get(f32(s.specific_force), -1) if src.fresh else -1) for s in src]
+        stats = src.stats
+    times, index = np.array(rows).T
+    return times, index.astype(int), stats
+
+
+def _marked(
+    outliers: Iterable[int],
+) -> Callable[[int], tuple[tuple[float, ...], tuple[float, ...]]]:
+    """Crafted pairs' values: those of ``imu_values``, but 3 m/s^2 and 0.5 rad/s to the
+    side for the ``outliers`` (not meant to reach a state)."""
+    marked = set(outliers)
+    return lambda i: ((3.0, 0.0, -G), (0.5, 0.0, 0.0)) if i in marked else imu_values(i)
+
+
+def test_one_sample_stamped_seconds_ahead_is_an_outlier_not_a_jump(tmp_path):
+    """One pair stamped 5 s ahead mid-log (a corrupt time): the clock jumped 5 s with it, the
+    good samples after it were behind and dropped for REBOOT_S until re-anchored, so a 6 s
+    log replayed as 11 s, 1 s of it lost and 5 s of it stale (the platform faded). That
+    one pair is dropped and counted, every other sample replays on time."""
+    log = _crafted_tlog(
+        tmp_path / "ahead.tlog", lambda i: i * 10 + 5000 * (i == 300), values=_marked([300])
+    )
+    times, index, stats = _replay_samples(log)
+    assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02)
+    assert (index >= 0).all()  # every tick fresh, each with a pair of the log's own values
+    assert set(index) == set(range(600)) - {300}  # all but the outlier reach a state
+    assert stats.rejected_invalid == 2  # its IMU and attitude messages
+
+
+@pytest.mark.parametrize("second", [5000, 2000], ids=["the same jump", "unrelated times"])
+def test_two_samples_in_a_row_far_ahead(tmp_path, second):
+    """Pairs 300 and 301 both stamped ahead of where they belong (bad values). Both 5 s: the
+    second confirms the first, so they are taken for a jump (the clock goes 5 s ahead,
+    pair 301 is used, and the good samples, behind it, are dropped for REBOOT_S, then
+    re-anchored as a reboot: the old trade-off, 1 s lost). 5 s then 2 s: the second is
+    more than 1 s before the first, both are outliers and only they are lost (the clock used
+    to jump with them: 11 s). Either way time never goes back and no older
+    sample is fed in after a newer one."""
+    ahead = {300: 5000, 301: second}  # (ms ahead of where each pair belongs)
+    log = _crafted_tlog(
+        tmp_path / "two.tlog", lambda i: i * 10 + ahead.get(i, 0), values=_marked(ahead)
+    )
+    times, index, stats = _replay_samples(log)
+    assert (np.diff(times) > 0).all()
+    fresh = index[index >= 0]
+    assert (np.diff(fresh) >= 0).all()  # never an older pair after a newer one
+    if second < 4000:
+        assert times[-1] - times[0] == pytest.approx(5.99, abs=0.02) and (index >= 0).all()
+        assert set(index) == set(range(600)) - {300, 301}
+        assert stats.rejected_invalid == 4
+    else:  # a jump: 5 s more, held stale; pair 300 lost, 301 taken, 302 on behind, dropped
+        assert times[-1] - times[0] == pytest.approx(5.99 + 5.0, abs=0.05)
+        behind = round(REBOOT_S / 0.01)  # pairs, until they are a reboot
+        assert not set(fresh) & set(range(300, 302 + behind))
+        assert len(set(fresh) & set(range(302 + behind, 600))) > 0.9 * (600 - 302 - behind)
+        assert 5.0 + REBOOT_S - 0.6 < (index < 0).sum() / 100.0 < 5.0 + REBOOT_S + 0.05
+        assert stats.rejected_invalid == 2 + 2 * behind
+
+
+def test_a_genuine_gap_of_seconds_still_replays_as_a_gap(tmp_path):
+    """3 s with no sample (a radio dropout): the first sample after it is held back until
+    the next confirms the jump (that one is lost), and the gap is held stale for its 3 s."""
+    log = _crafted_tlog(tmp_path / "gap.tlog", lambda i: i * 10 + 3000 * (i >= 300))
+    times, index, stats = _replay_samples(log)
+    assert times[-1] - times[0] == pytest.approx(8.99, abs=0.02)
+    assert set(index[index >= 0]) == set(range(600)) - {300}
+    stale = (index < 0).sum() / 100.0
+    assert 3.0 - 0.6 < stale < 3.0 + 0.05  # the gap, less the 0.5 s the last state is held
+    assert stats.rejected_invalid == 2
+
+
 def test_a_log_whose_boot_times_are_all_zero_is_timed_by_its_receive_times(tmp_path):
     """A sender that leaves time_boot_ms and time_usec at 0 (not filled in): every sample
     had the same time, and the 6 s log replayed as one tick. It falls back to the ground
@@ -1139,6 +1218,33 @@ def test_a_dataflash_log_whose_clock_jumps_hours_ahead_holds_the_gap_briefly(tmp
     assert 580 <= fresh <= 600 + 50 + 5
 
 
+@pytest.mark.parametrize("reboot", [False, True], ids=["then on", "then a reboot"])
+def test_a_dataflash_record_stamped_seconds_ahead_is_an_outlier(tmp_path, reboot):
+    """A .bin whose IMU and ATT records 300 are stamped 5 s ahead: the clock jumped with them,
+    and the 6 s log replayed as 11 s (1 s of its records dropped, 5 s stale). They alone are
+    dropped. Followed by a reboot (the boot time starting over), the reboot re-anchors the
+    clock where the log was before them, not 5 s later: 3 s, 1 s held while the records
+    after it go on for REBOOT_S (dropped), then their last 2 s."""
+    times = [
+        10_000_000 + i * 10_000 + 5 * 10**6 * (i == 300)
+        if i <= 300 or not reboot
+        else 100_000 + (i - 301) * 10_000
+        for i in range(600)
+    ]
+    with MavlinkSource(str(_crafted_bin(tmp_path / "ahead.bin", times)), realtime=False) as src:
+        rows = [(s.t, src.fresh) for s in src]
+        stats = src.stats
+    t, fresh = np.array(rows).T
+    if not reboot:
+        assert t[-1] - t[0] == pytest.approx(5.99, abs=0.03) and fresh.all()
+        assert stats.rejected_invalid == 2
+    else:
+        assert t[-1] - t[0] == pytest.approx(2.99 + 2.98, abs=0.03)
+        assert fresh.mean() > (5.97 - REBOOT_S) / 5.97 - 0.02
+        behind = round(REBOOT_S / 0.01)  # record pairs, until a reboot (one more: rounding)
+        assert 2 + 2 * behind <= stats.rejected_invalid <= 2 + 2 * (behind + 1)
+
+
 @pytest.mark.parametrize(
     "att",
     [("Qfff", "TimeUS,Rol,Pitch,Yaw"), ("QNff", "TimeUS,Roll,Pitch,Yaw")],
@@ -1178,9 +1284,10 @@ def test_real_logs_give_plausible_states(name: str, flight_data: Path) -> None:
     with MavlinkSource(str(flight_data / name), rate_hz=50.0, realtime=False) as src:
         rows = [(s, src.fresh, s.t) for s in src]
         stats = src.stats
-    span, behind = _log_span_and_out_of_order(flight_data / name)
+    span, behind, ahead = _log_span_and_out_of_order(flight_data / name)
     # the replay lasts as long as the log's vehicle clock; its samples out of order (vtol.tlog:
-    # four, 1.4 s behind at 611.9 s) are dropped, not taken for a reboot that shifted the rest
+    # four, 1.4 s behind at 611.9 s) are dropped, not taken for a reboot that shifted the rest,
+    # and so is the first sample after each radio dropout (vtol.tlog: four, 1.5 to 3 s long)
     assert rows[-1][2] - rows[0][2] == pytest.approx(span, abs=0.05)
     states = [s for s, fresh, _ in rows if fresh]
     assert len(rows) > 5000 and len(states) > 0.9 * len(rows)
@@ -1203,16 +1310,17 @@ def test_real_logs_give_plausible_states(name: str, flight_data: Path) -> None:
     cos = -np.sum(f * down, axis=1) / np.linalg.norm(f, axis=1)
     assert np.median(np.degrees(np.arccos(np.clip(cos[level], -1, 1)))) < 3.0
     assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) < 15.0
-    assert stats.rejected == behind and stats.used > 1000
+    assert stats.rejected == behind + ahead and stats.used > 1000
     assert isinstance(stats, MavlinkStats)
 
 
-def _log_span_and_out_of_order(path: Path) -> tuple[float, int]:
+def _log_span_and_out_of_order(path: Path) -> tuple[float, int, int]:
     """A real log's IMU and attitude samples read with pymavlink alone: the span of their
-    vehicle times (s), and how many lie more than 1 s behind the latest before them."""
+    vehicle times (s), and how many lie more than 1 s behind, and ahead of, the latest before
+    them (these real logs have no lone outlier ahead: each is the first after a gap)."""
     conn = mavutil.mavlink_connection(str(path))
     types = ["IMU", "ATT", "ATTITUDE", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "RAW_IMU"]
-    first, latest, behind = None, -math.inf, 0
+    first, latest, behind, ahead = None, -math.inf, 0, 0
     while (msg := conn.recv_match(type=types)) is not None:
         for field, scale in (("TimeMS", 1e-3), ("TimeUS", 1e-6), ("time_boot_ms", 1e-3)):
             if hasattr(msg, field):
@@ -1222,8 +1330,9 @@ def _log_span_and_out_of_order(path: Path) -> tuple[float, int]:
             t = msg.time_usec * 1e-6
         first = t if first is None else first
         behind += t < latest - 1.0
+        ahead += math.isfinite(latest) and t > latest + 1.0
         latest = max(latest, t)
-    return latest - first, behind
+    return latest - first, behind, ahead
 
 
 def test_log_duration_and_tick_clock(flight_data: Path) -> None:

@@ -420,9 +420,20 @@ class _VehicleClock:
     result never goes backwards: a reboot (boot time jumping back, and the samples going on
     from there for :data:`REBOOT_S`) re-anchors the clock where it was; samples more than 1 s
     behind the clock before that (a ground station's late burst of old messages, one bad
-    sample) are out of order: :meth:`advance` gives None, and they are dropped. A jump ahead
-    of more than :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them).
-    A DataFlash log's times (already the vehicle's) take the same path through :meth:`advance`.
+    sample) are out of order: :meth:`advance` gives None, and they are dropped. A sample more
+    than 1 s ahead of the clock is held back too (None), and the next sample stamped at
+    another time decides: back near the clock (or behind it: a reboot is judged from the
+    clock as it was), the one ahead was an outlier (a corrupt time), forgotten: only it is
+    lost, the clock goes on smoothly; ahead as well, not more than 1 s before it, the jump is
+    real (a radio dropout) and that next sample is taken, so at a genuine gap the first
+    sample after it is lost (with its messages stamped at the same time, such as a crafted
+    IMU and attitude pair); more than 1 s before it, that one is held back in its place.
+    Two outliers in a row that agree look like a jump: the clock takes it (and the second's
+    values), and the good samples after it, behind, are dropped until they are a reboot
+    after :data:`REBOOT_S`. The very first sample anchors the clock, with nothing to judge it
+    by (an outlier there: the good samples after it are a reboot). A jump ahead of more
+    than :data:`MAX_LOG_GAP_S` is shortened to it (``gaps_shortened`` counts them). A
+    DataFlash log's times (already the vehicle's) take the same path through :meth:`advance`.
     """
 
     def __init__(self, sysid: int, compid: int | None = None) -> None:
@@ -432,6 +443,7 @@ class _VehicleClock:
         self.offset = 0.0
         self.gaps_shortened = 0
         self._behind: float | None = None  # a sample behind the clock, not yet a reboot
+        self._ahead: float | None = None  # a sample ahead of the clock, not yet a jump
 
     def __call__(self, msg: Any) -> float | None:
         t = None
@@ -455,10 +467,15 @@ class _VehicleClock:
 
     def advance(self, t: float) -> float | None:
         """The clock's time for a sample stamped ``t`` (s, before the offset), None for one
-        out of order: a DataFlash log's own times go through here directly, for the same
-        reboots and gaps."""
+        not used (out of order, or ahead and not yet confirmed): a DataFlash log's own times
+        go through here directly, for the same reboots and gaps."""
         t += self.offset
-        if t < self.last - 1.0:  # a reboot or clock reset, or samples out of order
+        ahead, self._ahead = self._ahead, None  # (any other sample settles one held ahead)
+        if t > self.last + 1.0 and math.isfinite(self.last):  # a jump ahead, or an outlier
+            if ahead is None or t == ahead or t < ahead - 1.0:
+                self._ahead = t  # (the same time: the same sample; far before: a new one)
+                return None  # not (yet) confirmed by the next sample
+        elif t < self.last - 1.0:  # a reboot or clock reset, or samples out of order
             self._behind = t if self._behind is None else min(self._behind, t)
             if t - self._behind < REBOOT_S:
                 return None  # not (yet) a reboot: out of order
