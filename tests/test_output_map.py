@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -232,3 +233,18 @@ def test_sweep_moves_one_motor_at_a_time_within_speed_and_accel():
         sweep_profile(
             park, neutral, LO, HI, range_rad=math.radians(70), speed=speed, accel=accel, dt=dt
         )
+
+
+def test_sweep_of_some_motors_moves_only_those_in_the_order_given():
+    """``motors`` (a drive that carries three of six): only they leave neutral, in that
+    order; the others stay at neutral between the moves from and to park."""
+    dt, speed, accel, rng = 0.01, math.radians(10.0), 5.0, math.radians(5.0)
+    park = np.full(6, GEOMETRY.park_angle)
+    neutral = GEOMETRY.neutral_angle
+    q, motor = sweep_profile(
+        park, neutral, LO, HI, range_rad=rng, speed=speed, accel=accel, dt=dt, motors=[4, 0]
+    )
+    assert [m for m, _ in itertools.groupby(motor.tolist())] == [0, 5, 1, 0]
+    away = np.abs(q[motor > 0] - neutral) > 1e-12
+    assert not away[:, [1, 2, 3, 5]].any() and away[:, [0, 4]].any(axis=0).all()
+    np.testing.assert_allclose(q[-1], park, atol=1e-12)

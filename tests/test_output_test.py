@@ -380,7 +380,8 @@ def test_a_sweep_through_a_drive_of_three_of_six_motors_says_which_it_does_not_r
     """A Stewart platform on two three-motor boards: the wiring check of the first board's
     URL (a frame of motors 1..3) swept motors 4..6 too, saying "motor 4: length +1 mm", with
     nothing on the wire moving: a motor that seemed miswired. The check says first which
-    motors this output does not carry; motors 1..3 each reach +-1 mm on the wire in turn."""
+    motors this output does not carry, and sweeps only the others: motors 1..3 each reach
+    +-1 mm on the wire in turn (their sweeps are the whole sweep: it took twice as long)."""
     from motionbase.app import output_test
     from motionbase.platform import Stewart6Geometry
 
@@ -394,7 +395,9 @@ def test_a_sweep_through_a_drive_of_three_of_six_motors_says_which_it_does_not_r
     finally:
         rx.close()
     notes = [s for s in lines if "4, 5, 6" in s]
-    assert len(notes) == 1 and "nothing" in notes[0], lines
+    assert len(notes) == 1 and "not swept" in notes[0], lines
+    swept = [s.split(":")[0] for s in lines if s.startswith("motor ")]
+    assert swept == ["motor 1", "motor 2", "motor 3"], lines
     _, q = rx.angles()
     mm = np.degrees(q)  # (the drive's parser reads degrees into radians)
     neutral = 1000.0 * robot.inverse(np.zeros(6))[:3]

@@ -602,9 +602,10 @@ def output_test(
         rate_hz = sink.rate_hz  # (the URL's when not given; the pipeline's = the frames')
         pipeline = CommandPipeline(robot, rate_hz=rate_hz, mode="actuators")
 
+        carried = [i for i in range(robot.n) if i in sink.format.axes]
         sweep = SweepSource(
             robot, range_=rng * scale, speed=speed * scale, rate_hz=rate_hz,
-            lead_s=pipeline.soft_start_s, stop=stop,
+            lead_s=pipeline.soft_start_s, stop=stop, motors=carried,
         )  # fmt: skip
         told = ""  # the stop said so far
         moving = 0  # the motor being swept (0: none, on the way from or to park)
@@ -630,13 +631,13 @@ def output_test(
                     say(f"output test stopped by {why}: {how}")
 
         check_sendable(sink, robot)
-        _check_sweep_sendable(sink, sweep.neutral, rng, unit, scale)
+        _check_sweep_sendable(sink, sweep.neutral, rng, unit, scale, carried)
         say(f"output test on {sink.label}: {mapping.describe()}")
-        unsent = [str(i + 1) for i in range(robot.n) if i not in sink.format.axes]
+        unsent = [str(i + 1) for i in range(robot.n) if i not in carried]
         if unsent:  # (one of two boards: motors 4..6 seemed miswired as nothing moved)
             say(
-                f"motors {', '.join(unsent)} are in no field of this output's format: their "
-                "sweeps send nothing here (check them through the output that carries them)"
+                f"motors {', '.join(unsent)} are in no field of this output's format: they are "
+                "not swept here (check them through the output that carries them)"
             )
         say(f"moving from park to neutral at up to {sweep.speed / scale:.1f} {unit}/s")
         with sink:
@@ -646,13 +647,14 @@ def output_test(
 
 
 def _check_sweep_sendable(
-    sink: Any, neutral: np.ndarray, rng: float, unit: str, scale: float
+    sink: Any, neutral: np.ndarray, rng: float, unit: str, scale: float, motors: list[int]
 ) -> None:
-    """A ConfigError unless the drive can be sent each end of each actuator's sweep: one
-    outside the drive range or the frame's fields would be held, and the actuator would stop
-    short of it, the check silently not showing the move it says it makes."""
+    """A ConfigError unless the drive can be sent each end of each swept actuator's sweep
+    (``motors``, 0-based): one outside the drive range or the frame's fields would be held,
+    and the actuator would stop short of it, the check silently not showing the move it
+    says it makes."""
     option = "--range-mm" if unit == "mm" else "--range-deg"
-    for i in range(len(neutral)):
+    for i in motors:
         for side in (1.0, -1.0):
             q = np.array(neutral, dtype=float)
             q[i] += side * rng * scale

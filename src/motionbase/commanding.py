@@ -53,7 +53,7 @@ park (in actuator space, over ``soft_start_s``; at once on an E-stop), then the 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any, NamedTuple
 
 import numba
@@ -384,7 +384,9 @@ class CommandPipeline(PipelineCore):
 SWEEP_CHECK_STEPS = 200
 
 
-def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
+def check_sweep_range(
+    robot: Robot, neutral: np.ndarray, range_: float, motors: Sequence[int] | None = None
+) -> None:
     """A ConfigError unless the wiring check can move each actuator alone ``+-range_``
     about ``neutral``, the others held there, through poses the robot can take
     (:meth:`Robot.reachable`), along the assembly it is in. The range must be one that
@@ -403,6 +405,8 @@ def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
         The actuators at the neutral pose (rad or m).
     range_ : float
         Half-range of each sweep, in the robot's actuator unit (> 0).
+    motors : sequence of int, optional
+        The actuators swept (0-based); default every one.
     """
     linear = robot.actuator_unit == "m"
     unit, scale, option = (
@@ -412,7 +416,7 @@ def check_sweep_range(robot: Robot, neutral: np.ndarray, range_: float) -> None:
     lim = robot.limits
     neutral_pose = np.asarray(robot.neutral_pose, dtype=float)
     fractions = np.arange(1, SWEEP_CHECK_STEPS + 1) / SWEEP_CHECK_STEPS
-    for i in range(robot.n):
+    for i in range(robot.n) if motors is None else motors:
         for side in (1.0, -1.0):
             pose = neutral_pose
             for f in fractions:
@@ -466,6 +470,8 @@ class SweepSource(Iterator[Command]):
         Rest at park first, s (give the pipeline's soft start: the sweep then starts
         when the blend from park is complete, so it is not scaled down).
     stop : StopRequest, optional
+    motors : sequence of int, optional
+        The actuators to sweep (0-based, in this order); default every one.
 
     Attributes
     ----------
@@ -482,6 +488,7 @@ class SweepSource(Iterator[Command]):
         rate_hz: float,
         lead_s: float,
         stop: StopRequest | None = None,
+        motors: Sequence[int] | None = None,
     ) -> None:
         lim = robot.limits
         self.speed = min(float(speed), float(lim.max_speed.min()))
@@ -491,9 +498,9 @@ class SweepSource(Iterator[Command]):
         targets, motor = sweep_profile(
             robot.park_angles, self.neutral, lim.lower, lim.upper, range_rad=range_,
             speed=self.speed, accel=self.accel, dt=self.dt, dwell_s=0.2,
-            linear=robot.actuator_unit == "m",
+            linear=robot.actuator_unit == "m", motors=motors,
         )  # fmt: skip
-        check_sweep_range(robot, self.neutral, range_)  # (within the limits, sweep_profile says)
+        check_sweep_range(robot, self.neutral, range_, motors)  # (in the limits: sweep_profile)
         lead = max(1, math.ceil(lead_s / self.dt))
         rest = max(1, int(0.2 / self.dt))
         self.targets = np.pad(targets, ((lead, rest), (0, 0)), mode="edge")  # rest at both ends

@@ -443,6 +443,7 @@ def sweep_profile(
     dt: float,
     dwell_s: float = 0.0,
     linear: bool = False,
+    motors: Sequence[int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Crank commands of the wiring check: park -> neutral, each motor in turn through
     ``+range, -range`` about neutral, neutral -> park.
@@ -467,6 +468,8 @@ def sweep_profile(
     linear : bool
         Linear actuators (m, m/s, m/s^2): the messages then say mm and ``--range-mm``,
         ``--speed-mm-s``.
+    motors : sequence of int, optional
+        The motors to sweep (0-based, in this order); default every one.
 
     Returns
     -------
@@ -489,7 +492,8 @@ def sweep_profile(
         )
     # (the moves: park -> neutral, each actuator +range, -range, back, neutral -> park)
     dists = [float(np.max(np.abs(neutral - park)))] * 2 + [range_rad, 2 * range_rad, range_rad]
-    total = sum(_move_duration(d, speed, accel) for d in dists[:2]) + park.size * (
+    motors = range(park.size) if motors is None else motors
+    total = sum(_move_duration(d, speed, accel) for d in dists[:2]) + len(motors) * (
         sum(_move_duration(d, speed, accel) for d in dists[2:]) + 2 * dwell_s
     )
     if not total <= MAX_SWEEP_S:
@@ -500,7 +504,7 @@ def sweep_profile(
     parts = [park[None, :], _move(park, neutral, speed, accel, dt)]
     labels = [np.zeros(1 + len(parts[1]), dtype=int)]
     cur = neutral
-    for i in range(park.size):
+    for i in motors:
         seg = []
         for target in (+range_rad, -range_rad, 0.0):
             nxt = neutral.copy()
