@@ -248,3 +248,27 @@ def test_sweep_of_some_motors_moves_only_those_in_the_order_given():
     away = np.abs(q[motor > 0] - neutral) > 1e-12
     assert not away[:, [1, 2, 3, 5]].any() and away[:, [0, 4]].any(axis=0).all()
     np.testing.assert_allclose(q[-1], park, atol=1e-12)
+
+
+def test_sweep_of_some_motors_checks_the_range_against_their_limits_only():
+    """A motor left out of ``motors`` (carried by another drive) with less room about
+    neutral than the range: it only goes from park to neutral and back, so the sweep of the
+    others is made (it was refused, "leaves the crank limits", as if it were swept), and
+    it stays within its own limits; sweeping it is still refused."""
+    dt, speed, accel, rng = 0.01, math.radians(10.0), 5.0, math.radians(5.0)
+    park = np.full(6, GEOMETRY.park_angle)
+    neutral = GEOMETRY.neutral_angle
+    hi = HI.copy()
+    hi[3] = max(neutral[3], park[3]) + math.radians(1.0)  # motor 4: 1 deg of room
+    q, motor = sweep_profile(
+        park, neutral, LO, hi, range_rad=rng, speed=speed, accel=accel, dt=dt, motors=[0, 1]
+    )
+    assert np.all(q <= hi + 1e-12) and np.all(q >= LO - 1e-12)
+    ends = [q[motor == k + 1, k] for k in (0, 1)]  # each swept motor, in its sweep
+    np.testing.assert_allclose(
+        [[e.max(), e.min()] for e in ends], [[n + rng, n - rng] for n in neutral[:2]]
+    )
+    with pytest.raises(ConfigError, match="leaves the crank limits"):
+        sweep_profile(
+            park, neutral, LO, hi, range_rad=rng, speed=speed, accel=accel, dt=dt, motors=[3]
+        )

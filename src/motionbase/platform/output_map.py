@@ -485,14 +485,17 @@ def sweep_profile(
     unit, per_unit, what = (
         ("mm", 1e3, "length limits") if linear else ("deg", 180 / math.pi, "crank limits")
     )
-    if np.any(neutral + range_rad > upper) or np.any(neutral - range_rad < lower):
+    motors = range(park.size) if motors is None else motors
+    swept = list(motors)  # (a motor not swept only goes from park to neutral and back)
+    if np.any(neutral[swept] + range_rad > upper[swept]) or np.any(
+        neutral[swept] - range_rad < lower[swept]
+    ):
         raise ConfigError(
             f"output test: +-{range_rad * per_unit:g} {unit} about neutral leaves the "
             f"{what} (choose a smaller --range-{unit})"
         )
     # (the moves: park -> neutral, each actuator +range, -range, back, neutral -> park)
     dists = [float(np.max(np.abs(neutral - park)))] * 2 + [range_rad, 2 * range_rad, range_rad]
-    motors = range(park.size) if motors is None else motors
     total = sum(_move_duration(d, speed, accel) for d in dists[:2]) + len(motors) * (
         sum(_move_duration(d, speed, accel) for d in dists[2:]) + 2 * dwell_s
     )
