@@ -732,14 +732,14 @@ def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - comp
     if flags & HELD:
         return flags
     c, x, w, b = np.empty(6), np.empty(m), np.empty(n), np.empty(12 + 3 * n + m)
-    best = last = -1.0
+    best = -1.0
     for line in range(2):  # the target's segment (furthest point), then braking (nearest)
         end = cue if line == 0 else c0 + s.step
         ql = q.copy() if line == 0 else np.full(n, np.nan)  # (braking: no limiter's bound)
         lo, hi, f = 0.0, 1.0, 1.0 - 0.5 * line
         for _ in range(PATH_STEPS + 1):
             code = _path_point(P, solve, G, q0, v0, ql, c0, end, f, c, x, w, b)
-            best, last = (f, f) if code == 0 else (best, -1.0)
+            best = f if code == 0 else best
             if code > 0 or code == 0 and line:
                 hi = f
             else:
@@ -759,7 +759,7 @@ def path_stage(P, S, solve, G, cue, pose, wanted, q):  # pragma: no cover - comp
             s.pose[:m] = pose[:] = x
             flags |= PATH
         return flags
-    if last != best:  # (``c``, ``x``, ``w`` hold the last point evaluated)
+    if code != 0:  # (else ``c``, ``x``, ``w`` hold the point chosen: the last evaluated)
         _path_point(P, solve, G, q0, v0, ql, c0, end, best, c, x, w, b)
     s.q[:n], s.v[:n], s.wanted[:n] = q0, v0, q0
     limit_stage(P, S, w, q)

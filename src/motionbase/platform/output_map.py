@@ -485,10 +485,10 @@ def sweep_profile(
     unit, per_unit, what = (
         ("mm", 1e3, "length limits") if linear else ("deg", 180 / math.pi, "crank limits")
     )
-    motors = range(park.size) if motors is None else motors
-    swept = list(motors)  # (a motor not swept only goes from park to neutral and back)
-    if np.any(neutral[swept] + range_rad > upper[swept]) or np.any(
-        neutral[swept] - range_rad < lower[swept]
+    # (a motor not swept only goes from park to neutral and back)
+    motors = list(range(park.size) if motors is None else motors)
+    if np.any(neutral[motors] + range_rad > upper[motors]) or np.any(
+        neutral[motors] - range_rad < lower[motors]
     ):
         raise ConfigError(
             f"output test: +-{range_rad * per_unit:g} {unit} about neutral leaves the "
